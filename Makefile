@@ -1,0 +1,30 @@
+# dualcal: the two set-up commands are `make demo` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+# Render a small synthetic wide+tele photo set, detect, calibrate, evaluate, report.
+demo: $(STAMP)
+	$(BIN)/dualcal synth out/demo/data --preset note8 --views 13 --seed 0 --scale 0.25
+	$(BIN)/dualcal calibrate out/demo/data/photos --board 8x5 --square 30 -o out/demo/calib.json
+	$(BIN)/dualcal evaluate out/demo/calib.json -o out/demo/eval.json
+	$(BIN)/dualcal report out/demo/calib.json --eval out/demo/eval.json -o out/demo/report.html
+	@echo "demo written to out/demo/ (calib.json, eval.json, report.html)"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/run_all.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

@@ -1,0 +1,212 @@
+"""The camera model: pinhole with skew and two radial terms (paper eqs. 1, 13, 24-28).
+
+Conventions (README, "Conventions"):
+
+* Camera frame: x right, y down, z forward; a point ``X_cam`` projects to normalised
+  coordinates ``x = X/Z, y = Y/Z``.
+* Radial distortion (paper eq. 13; eq. 25 corrected): ``r2 = x^2 + y^2``,
+  ``xd = x (1 + k1 r2 + k2 r2^2)``, likewise ``yd``.
+* Pixels: ``u = fx xd + skew yd + cx``, ``v = fy yd + cy``; pixel ``(row i, col j)`` has its
+  centre at ``(u=j, v=i)``. ``fx, fy, skew, cx, cy`` are the paper's alpha, beta, gamma, u0, v0.
+
+Arrays of points are ``(N, 2)`` (pixels or normalised) or ``(N, 3)`` (camera frame, mm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .errors import NotInvertibleError
+
+INTRINSIC_NAMES = ("fx", "fy", "skew", "cx", "cy", "k1", "k2")
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics of one camera. ``image_size`` is ``(width, height)`` in pixels."""
+
+    image_size: tuple[int, int]
+    fx: float
+    fy: float
+    skew: float
+    cx: float
+    cy: float
+    k1: float = 0.0
+    k2: float = 0.0
+
+    @property
+    def K(self) -> np.ndarray:
+        """The paper's matrix A: ``[[fx, skew, cx], [0, fy, cy], [0, 0, 1]]``."""
+        return np.array([[self.fx, self.skew, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def as_vector(self) -> np.ndarray:
+        """``[fx, fy, skew, cx, cy, k1, k2]`` (order of :data:`INTRINSIC_NAMES`)."""
+        return np.array([getattr(self, n) for n in INTRINSIC_NAMES], dtype=float)
+
+    @classmethod
+    def from_vector(cls, image_size, vec) -> "CameraModel":
+        return cls(tuple(int(s) for s in image_size), *(float(x) for x in vec))
+
+    def with_distortion(self, k1: float, k2: float) -> "CameraModel":
+        return replace(self, k1=float(k1), k2=float(k2))
+
+
+def radial_factor(r2: np.ndarray, k1: float, k2: float) -> np.ndarray:
+    """``1 + k1 r^2 + k2 r^4`` for squared radii ``r2``."""
+    return 1.0 + r2 * (k1 + k2 * r2)
+
+
+def distort_normalized(xy: np.ndarray, k1: float, k2: float) -> np.ndarray:
+    """Ideal normalised coordinates (N, 2) -> distorted ones (paper eq. 13 model)."""
+    xy = np.asarray(xy, dtype=float)
+    r2 = np.sum(xy * xy, axis=-1, keepdims=True)
+    return xy * radial_factor(r2, k1, k2)
+
+
+def max_monotonic_radius(k1: float, k2: float) -> float:
+    """Largest undistorted radius up to which ``rd = r (1 + k1 r^2 + k2 r^4)`` is increasing.
+
+    ``d rd / dr = 1 + 3 k1 r^2 + 5 k2 r^4``; its first positive root in ``r^2`` bounds the
+    region where undistortion is unique. Returns ``inf`` when there is none.
+    """
+    roots = np.roots([5.0 * k2, 3.0 * k1, 1.0]) if k2 != 0 else (
+        np.array([-1.0 / (3.0 * k1)]) if k1 != 0 else np.array([]))
+    real = [r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and r.real > 0]
+    return float(np.sqrt(min(real))) if real else float("inf")
+
+
+def undistort_normalized(xy_d: np.ndarray, k1: float, k2: float,
+                         tol: float = 1e-14, max_iter: int = 50) -> np.ndarray:
+    """Distorted normalised coordinates (N, 2) -> ideal ones (paper eqs. 24-27).
+
+    Solves ``rd = r (1 + k1 r^2 + k2 r^4)`` for ``r`` by Newton-Raphson from ``r = rd``
+    (eq. 25, with the paper's typo corrected), then scales ``(xd, yd)`` by ``r / rd``.
+    Raises :class:`NotInvertibleError` where a radius lies beyond the monotonic range of the
+    model or Newton does not converge.
+    """
+    xy_d = np.asarray(xy_d, dtype=float)
+    rd = np.sqrt(np.sum(xy_d * xy_d, axis=-1))
+    r_max = max_monotonic_radius(k1, k2)
+    if np.isfinite(r_max):
+        rd_max = r_max * radial_factor(r_max**2, k1, k2)
+        if np.any(rd > rd_max):
+            raise NotInvertibleError(
+                f"distortion k1={k1:.4g}, k2={k2:.4g} is not invertible beyond normalised "
+                f"radius {rd_max:.4g} (asked for {rd.max():.4g})")
+    r = rd.copy()
+    for _ in range(max_iter):
+        r2 = r * r
+        f = r * radial_factor(r2, k1, k2) - rd
+        df = 1.0 + r2 * (3.0 * k1 + 5.0 * k2 * r2)
+        step = f / df
+        r -= step
+        if np.all(np.abs(step) <= tol * np.maximum(1.0, r)):
+            break
+    else:
+        raise NotInvertibleError(f"undistortion did not converge in {max_iter} Newton steps")
+    scale = np.divide(r, rd, out=np.ones_like(rd), where=rd > 0)
+    return xy_d * scale[..., None]
+
+
+def pixel_from_normalized(cam: CameraModel, xy_d: np.ndarray) -> np.ndarray:
+    """Distorted normalised (N, 2) -> pixels (N, 2) through the matrix A (paper eq. 28)."""
+    xy_d = np.asarray(xy_d, dtype=float)
+    u = cam.fx * xy_d[..., 0] + cam.skew * xy_d[..., 1] + cam.cx
+    v = cam.fy * xy_d[..., 1] + cam.cy
+    return np.stack([u, v], axis=-1)
+
+
+def normalized_from_pixel(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
+    """Pixels (N, 2) -> normalised (N, 2) through A^-1 (paper eq. 24)."""
+    uv = np.asarray(uv, dtype=float)
+    y = (uv[..., 1] - cam.cy) / cam.fy
+    x = (uv[..., 0] - cam.cx - cam.skew * y) / cam.fx
+    return np.stack([x, y], axis=-1)
+
+
+def project_points(cam: CameraModel, X_cam: np.ndarray) -> np.ndarray:
+    """Camera-frame points (N, 3) -> distorted pixels (N, 2)."""
+    X_cam = np.asarray(X_cam, dtype=float)
+    xy = X_cam[..., :2] / X_cam[..., 2:3]
+    return pixel_from_normalized(cam, distort_normalized(xy, cam.k1, cam.k2))
+
+
+def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
+    """Projection and its exact derivatives.
+
+    Returns
+    -------
+    uv : (N, 2) pixels
+    d_uv_d_X : (N, 2, 3) derivative with respect to the camera-frame point
+    d_uv_d_intrinsics : (N, 2, 7) derivative with respect to ``[fx, fy, skew, cx, cy, k1, k2]``
+    """
+    X_cam = np.asarray(X_cam, dtype=float)
+    X, Y, Z = X_cam[:, 0], X_cam[:, 1], X_cam[:, 2]
+    iz = 1.0 / Z
+    x, y = X * iz, Y * iz
+    r2 = x * x + y * y
+    f = radial_factor(r2, cam.k1, cam.k2)
+    xd, yd = x * f, y * f
+    u = cam.fx * xd + cam.skew * yd + cam.cx
+    v = cam.fy * yd + cam.cy
+
+    g = 2.0 * (cam.k1 + 2.0 * cam.k2 * r2)      # d f / d r2 times 2
+    dxd_dx, dxd_dy = f + x * x * g, x * y * g
+    dyd_dx, dyd_dy = dxd_dy, f + y * y * g
+    du_dx = cam.fx * dxd_dx + cam.skew * dyd_dx
+    du_dy = cam.fx * dxd_dy + cam.skew * dyd_dy
+    dv_dx, dv_dy = cam.fy * dyd_dx, cam.fy * dyd_dy
+
+    n = len(X)
+    J_X = np.empty((n, 2, 3))
+    J_X[:, 0, 0] = du_dx * iz
+    J_X[:, 0, 1] = du_dy * iz
+    J_X[:, 0, 2] = -(du_dx * x + du_dy * y) * iz
+    J_X[:, 1, 0] = dv_dx * iz
+    J_X[:, 1, 1] = dv_dy * iz
+    J_X[:, 1, 2] = -(dv_dx * x + dv_dy * y) * iz
+
+    J_K = np.zeros((n, 2, 7))
+    J_K[:, 0, 0] = xd
+    J_K[:, 0, 2] = yd
+    J_K[:, 0, 3] = 1.0
+    J_K[:, 1, 1] = yd
+    J_K[:, 1, 4] = 1.0
+    pu = cam.fx * x + cam.skew * y
+    pv = cam.fy * y
+    J_K[:, 0, 5], J_K[:, 0, 6] = pu * r2, pu * r2 * r2
+    J_K[:, 1, 5], J_K[:, 1, 6] = pv * r2, pv * r2 * r2
+    return np.stack([u, v], axis=-1), J_X, J_K
+
+
+def undistort_points(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
+    """Observed (distorted) pixels -> ideal pinhole pixels of the same matrix A."""
+    xy = undistort_normalized(normalized_from_pixel(cam, uv), cam.k1, cam.k2)
+    return pixel_from_normalized(cam, xy)
+
+
+def distort_points(cam: CameraModel, uv_ideal: np.ndarray) -> np.ndarray:
+    """Ideal pinhole pixels -> observed (distorted) pixels; inverse of :func:`undistort_points`."""
+    xy = normalized_from_pixel(cam, uv_ideal)
+    return pixel_from_normalized(cam, distort_normalized(xy, cam.k1, cam.k2))
+
+
+def image_corner_radius(cam: CameraModel) -> float:
+    """Largest distorted normalised radius reached inside the image (at its corners)."""
+    w, h = cam.image_size
+    corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
+    return float(np.max(np.linalg.norm(normalized_from_pixel(cam, corners), axis=1)))
+
+
+def check_invertible_in_image(cam: CameraModel) -> None:
+    """Raise :class:`NotInvertibleError` if undistortion is not unique somewhere in the image."""
+    r_max = max_monotonic_radius(cam.k1, cam.k2)
+    if np.isfinite(r_max):
+        rd_max = r_max * radial_factor(r_max**2, cam.k1, cam.k2)
+        rd_img = image_corner_radius(cam)
+        if rd_img > rd_max:
+            raise NotInvertibleError(
+                f"distortion k1={cam.k1:.4g}, k2={cam.k2:.4g} folds over inside the image: "
+                f"radius not monotonic beyond normalised {rd_max:.4g}, image reaches {rd_img:.4g}")

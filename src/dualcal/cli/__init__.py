@@ -1,0 +1,62 @@
+"""The ``dualcal`` command: a thin shell over the library API.
+
+Each sub-module registers its commands on :data:`cli`. Errors the user can cause
+(:class:`~dualcal.errors.DualcalError`, bad flags) become one line on stderr and exit code 2;
+an unexpected error says so in one line (the traceback only with ``--debug``) and exits 1.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import click
+
+from .. import __version__
+from ..errors import DualcalError
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="dualcal")
+@click.option("--debug", is_flag=True, help="Show the full traceback of unexpected errors.")
+def cli(debug: bool) -> None:
+    """Calibrate a phone's multi-camera rig from chessboard photos.
+
+    \b
+    photos --detect--> corners.json --calibrate--> calib.json --evaluate--> eval.json
+                                                              --report----> report.html
+    """
+
+
+# Command modules register themselves on `cli` when imported.
+from . import calibrate as _calibrate  # noqa: E402,F401
+
+
+def _debug_requested(argv) -> bool:
+    return "--debug" in argv or os.environ.get("DUALCAL_DEBUG") == "1"
+
+
+def main(argv=None) -> None:
+    """Entry point of the console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        cli.main(args=argv, prog_name="dualcal", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("dualcal: interrupted", err=True)
+        sys.exit(130)
+    except click.exceptions.ClickException as exc:  # usage errors: exit code 2
+        exc.show()
+        sys.exit(2)
+    except DualcalError as exc:
+        click.echo(f"dualcal: error: {exc}", err=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        click.echo("dualcal: interrupted", err=True)
+        sys.exit(130)
+    except Exception as exc:  # a bug in dualcal, not in the input
+        if _debug_requested(argv):
+            raise
+        click.echo(f"dualcal: internal error: {type(exc).__name__}: {exc} "
+                   "(run again with --debug for the traceback)", err=True)
+        sys.exit(1)
+    sys.exit(0)

@@ -1,0 +1,266 @@
+"""All JSON in and out of dualcal, and atomic writes (formats: the contract, README).
+
+Loaders validate and raise :class:`~dualcal.errors.InputError` with a message that names the
+file and the fix; nothing here ever returns half-read data. Writers go through a temporary file
+in the destination folder and ``os.replace``, so an interrupted run never leaves half a file and
+never destroys an earlier result.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .board import Board
+from .camera import INTRINSIC_NAMES, CameraModel
+from .errors import InputError
+from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
+
+# ---------------------------------------------------------------------------- atomic writes
+
+
+def _check_parent(path: Path) -> None:
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"output folder {str(parent)!r} does not exist: create it first or choose another -o")
+
+
+@contextlib.contextmanager
+def atomic_output(path, suffix: str | None = None):
+    """Yield a temporary path beside ``path``; on success it replaces ``path`` atomically.
+
+    On any exception the temporary file is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    _check_parent(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp",
+                               dir=path.parent if str(path.parent) else ".")
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_text_atomic(path, text: str) -> None:
+    with atomic_output(path) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+
+
+def write_json_atomic(path, doc: dict) -> None:
+    write_text_atomic(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+
+
+# ---------------------------------------------------------------------------- reading
+
+
+def read_json(path) -> dict:
+    """Parse a JSON file; missing, unreadable or truncated files raise :class:`InputError`."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a JSON file")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file (expected JSON)") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: malformed or truncated JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a JSON object at the top level")
+    return doc
+
+
+def json_kind(doc: dict) -> str:
+    """'calib', 'eval', 'corners' or 'unknown' for a parsed document."""
+    if "dualcal_version" in doc and "rig" in doc:
+        return "calib"
+    if "cases" in doc:
+        return "eval"
+    if "cameras" in doc and "board" in doc:
+        return "corners"
+    return "unknown"
+
+
+_KIND_NAMES = {"calib": "a calib.json", "eval": "an eval.json", "corners": "a corners.json",
+               "unknown": "not a dualcal file"}
+
+
+def _expect_kind(path, doc: dict, kind: str) -> None:
+    got = json_kind(doc)
+    if got != kind:
+        raise InputError(f"{path}: this is {_KIND_NAMES[got]}, expected {_KIND_NAMES[kind]}")
+
+
+def _finite_array(value, shape_tail, what: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: expected numbers") from None
+    if arr.ndim != len(shape_tail) or any(s is not None and a != s for a, s in zip(arr.shape, shape_tail)):
+        raise InputError(f"{what}: expected shape {shape_tail}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{what}: contains NaN or infinite values")
+    return arr
+
+
+def _image_size(value, what: str) -> tuple[int, int]:
+    arr = _finite_array(value, (2,), f"{what} image_size")
+    if np.any(arr <= 0) or np.any(arr != np.round(arr)):
+        raise InputError(f"{what} image_size {value!r}: expected two positive integers [W, H]")
+    return int(arr[0]), int(arr[1])
+
+
+def corners_from_dict(doc: dict, source: str = "corners.json") -> CornerSet:
+    """Validate a corners.json document and build a :class:`CornerSet`."""
+    board = Board.from_dict(doc.get("board") or {})
+    cams = doc.get("cameras")
+    if not isinstance(cams, dict) or not cams:
+        raise InputError(f"{source}: 'cameras' must be a non-empty object")
+    cameras = {}
+    for name, entry in cams.items():
+        if not isinstance(entry, dict) or not isinstance(entry.get("views"), dict):
+            raise InputError(f"{source}: camera {name!r} needs 'image_size' and a 'views' object")
+        size = _image_size(entry.get("image_size"), f"{source}: camera {name!r}")
+        views = {}
+        for key, pts in entry["views"].items():
+            if pts is None:
+                views[str(key)] = None
+                continue
+            views[str(key)] = _finite_array(pts, (board.n_corners, 2),
+                                            f"{source}: camera {name!r} view {key!r} "
+                                            f"(board {board.spec()} has {board.n_corners} corners)")
+        meta = {k: v for k, v in entry.items() if k not in ("image_size", "views")}
+        cameras[str(name)] = CameraCorners(size, views, meta)
+    return CornerSet(board, cameras)
+
+
+def corners_to_dict(cs: CornerSet) -> dict:
+    cams = {}
+    for name, cam in cs.cameras.items():
+        cams[name] = {"image_size": list(cam.image_size),
+                      "views": {k: (None if v is None else np.round(v, 5).tolist())
+                                for k, v in cam.views.items()},
+                      **cam.meta}
+    return {"board": cs.board.to_dict(), "cameras": cams}
+
+
+def load_corners(path) -> CornerSet:
+    doc = read_json(path)
+    _expect_kind(path, doc, "corners")
+    return corners_from_dict(doc, str(path))
+
+
+def save_corners(path, cs: CornerSet) -> None:
+    write_json_atomic(path, corners_to_dict(cs))
+
+
+# ---------------------------------------------------------------------------- calib.json
+
+
+def _pose_from_dict(d: dict, what: str) -> Pose:
+    R = _finite_array(d.get("R"), (3, 3), f"{what} R")
+    t = _finite_array(d.get("t_mm"), (3,), f"{what} t_mm")
+    return Pose(R, t)
+
+
+def rig_to_dict(rig: RigModel) -> dict:
+    """The calib.json document of a :class:`RigModel` (contract keys first, extensions after)."""
+    cameras = {}
+    for name, cam in rig.cameras.items():
+        entry = {"image_size": list(cam.image_size)}
+        entry.update({n: float(getattr(cam, n)) for n in INTRINSIC_NAMES})
+        entry["sigma"] = {n: float(s) for n, s in rig.camera_sigma[name].items()}
+        entry["rms_px"] = float(rig.camera_rms_px[name])
+        cameras[name] = entry
+    rig_doc = {}
+    for name, rel in rig.rig.items():
+        rig_doc[name] = {**rel.pose.to_dict(), "baseline_mm": rel.baseline_mm,
+                         "opk_arcmin": rel.pose.opk_arcmin.tolist(),
+                         "sigma": {"baseline_mm": float(rel.sigma_baseline_mm),
+                                   "opk_arcmin": np.asarray(rel.sigma_opk_arcmin).tolist(),
+                                   "t_mm": np.asarray(rel.sigma_t_mm).tolist()}}
+    views = {}
+    for view, pose in rig.reference_poses().items():
+        views[view] = {**pose.to_dict(), "rms_px": rig.view_rms_px.get(view, {})}
+    return {
+        "dualcal_version": __version__,
+        "board": rig.board.to_dict(),
+        "reference": rig.reference,
+        "skew": bool(rig.skew),
+        "rig_mode": rig.rig_mode,
+        "cameras": cameras,
+        "rig": rig_doc,
+        "views": views,
+        "rms_px": float(rig.rms_px),
+        "corners": corners_to_dict(rig.corners),
+        "camera_poses": {cam: {v: p.to_dict() for v, p in poses.items()}
+                         for cam, poses in rig.camera_poses.items()},
+        "adjustment": rig.adjustment,
+        "dropped_views": rig.dropped_views,
+    }
+
+
+def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
+    """Validate a calib.json document and build a :class:`RigModel`."""
+    try:
+        corners = corners_from_dict(doc["corners"], f"{source} corners")
+        board = Board.from_dict(doc["board"])
+        cameras, sigma, rms = {}, {}, {}
+        for name, e in doc["cameras"].items():
+            size = _image_size(e["image_size"], f"{source}: camera {name!r}")
+            vec = [float(e[n]) for n in INTRINSIC_NAMES]
+            cameras[name] = CameraModel.from_vector(size, vec)
+            sigma[name] = {k: float(v) for k, v in e.get("sigma", {}).items()}
+            rms[name] = float(e.get("rms_px", float("nan")))
+        rig = {}
+        for name, e in doc["rig"].items():
+            s = e.get("sigma", {})
+            rig[name] = RigRelation(_pose_from_dict(e, f"{source}: rig {name!r}"),
+                                    np.asarray(s.get("t_mm", [np.nan] * 3), float),
+                                    float(s.get("baseline_mm", np.nan)),
+                                    np.asarray(s.get("opk_arcmin", [np.nan] * 3), float))
+        reference = str(doc["reference"])
+        if "camera_poses" in doc:
+            poses = {cam: {v: _pose_from_dict(p, f"{source}: {cam} {v}") for v, p in d.items()}
+                     for cam, d in doc["camera_poses"].items()}
+        else:  # a minimal calib.json: derive every camera's pose from the reference's
+            ref = {v: _pose_from_dict(p, f"{source}: view {v}") for v, p in doc["views"].items()}
+            poses = {reference: ref}
+            for name, rel in rig.items():
+                poses[name] = {v: rel.pose.compose(p) for v, p in ref.items()}
+        view_rms = {v: {c: float(x) for c, x in (p.get("rms_px") or {}).items()}
+                    for v, p in doc.get("views", {}).items()}
+        return RigModel(board, reference, bool(doc.get("skew", False)), str(doc.get("rig_mode", "rigid")),
+                        cameras, sigma, rms, rig, poses, view_rms, float(doc.get("rms_px", np.nan)),
+                        corners, doc.get("adjustment", {}), doc.get("dropped_views", []))
+    except (KeyError, TypeError, AttributeError, ValueError) as exc:
+        raise InputError(f"{source}: malformed calib.json ({type(exc).__name__}: {exc})") from None
+
+
+def load_rig(path) -> RigModel:
+    doc = read_json(path)
+    _expect_kind(path, doc, "calib")
+    return rig_from_dict(doc, str(path))
+
+
+def save_rig(path, rig: RigModel) -> None:
+    write_json_atomic(path, rig_to_dict(rig))
+
+
+def load_evaluation(path) -> dict:
+    doc = read_json(path)
+    _expect_kind(path, doc, "eval")
+    return doc

@@ -1,0 +1,136 @@
+"""Data classes for what flows between the stages: corners in, a calibrated rig out.
+
+Conventions (README, "Conventions"): board to camera ``X_cam = R @ X_board + t_mm``; a
+non-reference camera ``c`` of a rig sees ``X_c = R_c @ X_ref + t_c``. Poses are plain numpy
+arrays; the classes only group them and never hide state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .board import Board
+from .camera import CameraModel
+from .rotation import ARCMIN_PER_RAD, opk_from_rotation
+
+
+@dataclass
+class Pose:
+    """A rigid transform ``X_to = R @ X_from + t_mm``."""
+
+    R: np.ndarray
+    t_mm: np.ndarray
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        """Transform (N, 3) points."""
+        return np.asarray(X) @ self.R.T + self.t_mm
+
+    def compose(self, first: "Pose") -> "Pose":
+        """``self after first``: ``X -> self.apply(first.apply(X))``."""
+        return Pose(self.R @ first.R, self.R @ first.t_mm + self.t_mm)
+
+    def inverse(self) -> "Pose":
+        return Pose(self.R.T, -self.R.T @ self.t_mm)
+
+    @property
+    def center_mm(self) -> np.ndarray:
+        """Perspective centre in the 'from' frame: ``-R^T t`` (paper eq. 11)."""
+        return -self.R.T @ self.t_mm
+
+    @property
+    def opk_arcmin(self) -> np.ndarray:
+        return opk_from_rotation(self.R) * ARCMIN_PER_RAD
+
+    def to_dict(self) -> dict:
+        return {"R": self.R.tolist(), "t_mm": self.t_mm.tolist()}
+
+
+@dataclass
+class CameraCorners:
+    """Detected corners of one camera: ``views[key]`` is (N, 2) pixels, or None if not found.
+
+    ``meta`` holds extra per-camera information carried through corners.json (photo paths,
+    EXIF make, model and focal length, ...); keys are written as they are.
+    """
+
+    image_size: tuple[int, int]
+    views: dict[str, np.ndarray | None]
+    meta: dict = field(default_factory=dict)
+
+    def found(self) -> dict[str, np.ndarray]:
+        return {k: v for k, v in self.views.items() if v is not None}
+
+
+@dataclass
+class CornerSet:
+    """The content of a corners.json: a board and each camera's corners per view key."""
+
+    board: Board
+    cameras: dict[str, CameraCorners]
+
+    def view_keys(self) -> list[str]:
+        keys = set()
+        for cam in self.cameras.values():
+            keys.update(cam.views)
+        return sorted(keys)
+
+
+def choose_reference(names, override: str | None = None) -> str:
+    """The reference camera: ``override``, else ``wide`` if present, else the first sorted name."""
+    names = sorted(names)
+    if override is not None:
+        if override not in names:
+            from .errors import InputError
+            raise InputError(f"--reference {override!r} is not a camera here (cameras: {', '.join(names)})")
+        return override
+    return "wide" if "wide" in names else names[0]
+
+
+@dataclass
+class RigRelation:
+    """Pose of a non-reference camera relative to the reference, with 1-sigma uncertainties."""
+
+    pose: Pose
+    sigma_t_mm: np.ndarray
+    sigma_baseline_mm: float
+    sigma_opk_arcmin: np.ndarray
+
+    @property
+    def baseline_mm(self) -> float:
+        """Distance between the perspective centres: ``|t_c|``."""
+        return float(np.linalg.norm(self.pose.t_mm))
+
+
+@dataclass
+class RigModel:
+    """A calibrated rig: the content of calib.json.
+
+    ``camera_poses[cam][view]`` is the board-to-camera pose of every camera in every view it
+    saw; ``views[view]`` (the contract's ``views``) is the reference camera's.
+    """
+
+    board: Board
+    reference: str
+    skew: bool
+    rig_mode: str
+    cameras: dict[str, CameraModel]
+    camera_sigma: dict[str, dict[str, float]]
+    camera_rms_px: dict[str, float]
+    rig: dict[str, RigRelation]
+    camera_poses: dict[str, dict[str, Pose]]
+    view_rms_px: dict[str, dict[str, float]]
+    rms_px: float
+    corners: CornerSet
+    adjustment: dict = field(default_factory=dict)
+    dropped_views: list[dict] = field(default_factory=list)
+
+    def reference_poses(self) -> dict[str, Pose]:
+        """Board-to-reference-camera pose per view (derived through the rig where needed)."""
+        out = dict(self.camera_poses.get(self.reference, {}))
+        for cam, rel in self.rig.items():
+            for view, pose in self.camera_poses.get(cam, {}).items():
+                if view not in out:
+                    out[view] = rel.pose.inverse().compose(pose)
+        return dict(sorted(out.items()))

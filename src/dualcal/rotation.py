@@ -1,0 +1,61 @@
+"""Rotations: rotation vectors, omega-phi-kappa, nearest rotation (paper sections 1.5, 1.7).
+
+Convention: ``R_c = Rz(kappa) @ Ry(phi) @ Rx(omega)`` with right-handed (active) elementary
+rotations, e.g. ``Rx(w) = [[1, 0, 0], [0, cos w, -sin w], [0, sin w, cos w]]``. Angles are in
+radians unless a name says otherwise (``opk_arcmin``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+ARCMIN_PER_RAD = 180.0 * 60.0 / np.pi
+
+
+def cross_matrix(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` such that ``cross_matrix(v) @ w == np.cross(v, w)``; works on (..., 3) stacks."""
+    v = np.asarray(v, dtype=float)
+    z = np.zeros(v.shape[:-1])
+    return np.stack(
+        [
+            np.stack([z, -v[..., 2], v[..., 1]], -1),
+            np.stack([v[..., 2], z, -v[..., 0]], -1),
+            np.stack([-v[..., 1], v[..., 0], z], -1),
+        ],
+        -2,
+    )
+
+
+def rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """Rodrigues: (3,) or (N, 3) rotation vectors (radians) -> (3, 3) or (N, 3, 3)."""
+    return Rotation.from_rotvec(rotvec).as_matrix()
+
+
+def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rotation_from_rotvec`."""
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation closest to ``M`` in the Frobenius norm (SVD; the sign fix keeps det = +1)."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def rotation_from_opk(opk_rad) -> np.ndarray:
+    """``[omega, phi, kappa]`` (radians) -> ``Rz(kappa) @ Ry(phi) @ Rx(omega)``."""
+    omega, phi, kappa = np.asarray(opk_rad, dtype=float)
+    return Rotation.from_euler("ZYX", [kappa, phi, omega]).as_matrix()
+
+
+def opk_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rotation_from_opk`: ``[omega, phi, kappa]`` in radians."""
+    kappa, phi, omega = Rotation.from_matrix(R).as_euler("ZYX")
+    return np.array([omega, phi, kappa])
+
+
+def perturb_rotation(R: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Left-multiplicative update ``exp([delta]x) @ R`` used by the adjustment's pose increments."""
+    return rotation_from_rotvec(delta) @ R

@@ -1,0 +1,201 @@
+"""Synthetic rigs with known truth: the test bed of dualcal.
+
+A :class:`SynthTruth` is a rig (intrinsics of every camera, the pose of every camera relative
+to the reference) and a set of board poses chosen so that the whole board is seen by every
+camera. From it come exact corners (:func:`true_corners`), noisy corner sets
+(:func:`noisy_corner_set`) and, in :mod:`dualcal.render`, photo-like images.
+
+Presets
+-------
+``note8``   wide + tele of a Samsung Galaxy Note 8 class phone (12 MP portrait, 11 mm baseline,
+            the paper's set-up: 8x5 inner corners of 30 mm)
+``stereo``  a 640x480 stereo rig with a 100 mm baseline (like OpenCV's stereo sample)
+``triple``  wide + tele + ultra-wide (three cameras, 12 MP portrait)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .board import Board
+from .camera import CameraModel, project_points
+from .errors import InputError
+from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
+from .rotation import ARCMIN_PER_RAD, rotation_from_opk
+
+_W, _H = 3024, 4032
+
+
+def _opk(arcmin):
+    return rotation_from_opk(np.asarray(arcmin, float) / ARCMIN_PER_RAD)
+
+
+PRESETS = {
+    "note8": dict(
+        board=Board(8, 5, 30.0),
+        cameras={
+            "wide": CameraModel((_W, _H), 3127.2, 3136.0, 0.0, 1453.7, 2021.1, 0.08, -0.20),
+            "tele": CameraModel((_W, _H), 6058.7, 6076.3, 0.0, 1373.1, 1971.9, -0.12, 0.80),
+        },
+        rig={"tele": Pose(_opk([0.36, 0.65, -1.92]), np.array([0.35, -11.0, 0.25]))},
+        fill=(0.45, 0.85),
+    ),
+    "stereo": dict(
+        board=Board(9, 6, 30.0),
+        cameras={
+            "left": CameraModel((640, 480), 533.5, 533.5, 0.0, 341.6, 235.2, -0.288, 0.097),
+            "right": CameraModel((640, 480), 536.8, 536.5, 0.0, 326.3, 250.1, -0.289, 0.107),
+        },
+        rig={"right": Pose(rotation_from_opk([0.00669, 0.00452, -0.00350]),
+                           np.array([-99.80, 1.12, 0.05]))},
+        fill=(0.35, 0.6),
+    ),
+    "triple": dict(
+        board=Board(8, 5, 30.0),
+        cameras={
+            "wide": CameraModel((_W, _H), 3100.0, 3100.0, 0.0, 1510.0, 2010.0, 0.06, -0.15),
+            "tele": CameraModel((_W, _H), 6100.0, 6100.0, 0.0, 1500.0, 2030.0, -0.10, 0.60),
+            "ultra": CameraModel((_W, _H), 1700.0, 1700.0, 0.0, 1515.0, 2000.0, -0.05, 0.02),
+        },
+        rig={"tele": Pose(_opk([1.0, -2.0, 3.0]), np.array([0.2, -10.0, 0.3])),
+             "ultra": Pose(_opk([-3.0, 1.5, -2.0]), np.array([0.4, 12.0, -0.5]))},
+        fill=(0.45, 0.85),
+    ),
+}
+
+
+@dataclass
+class SynthTruth:
+    """A rig and board poses with known truth.
+
+    ``rig[cam]`` maps reference-camera coordinates to camera ``cam`` (the reference maps to
+    itself and is not listed); ``view_poses[view]`` maps board to reference camera.
+    """
+
+    board: Board
+    cameras: dict[str, CameraModel]
+    reference: str
+    rig: dict[str, Pose]
+    view_poses: dict[str, Pose]
+
+    def camera_pose(self, cam: str, view: str) -> Pose:
+        """Board-to-camera pose of ``cam`` in ``view``."""
+        ref = self.view_poses[view]
+        return ref if cam == self.reference else self.rig[cam].compose(ref)
+
+
+def scale_camera(cam: CameraModel, scale: float) -> CameraModel:
+    """The same lens on a sensor resampled by ``scale`` (pixel centres kept consistent)."""
+    w, h = cam.image_size
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    return replace(cam, image_size=size, fx=cam.fx * scale, fy=cam.fy * scale, skew=cam.skew * scale,
+                   cx=(cam.cx + 0.5) * scale - 0.5, cy=(cam.cy + 0.5) * scale - 0.5)
+
+
+def _look_at_pose(center: np.ndarray, target: np.ndarray, roll: float) -> Pose:
+    """Board-to-camera pose of a camera at ``center`` looking at ``target`` (board frame)."""
+    z = target - center
+    z /= np.linalg.norm(z)
+    helper = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    c, s = np.cos(roll), np.sin(roll)
+    x, y = c * x + s * y, -s * x + c * y
+    R = np.vstack([x, y, z])
+    return Pose(R, -R @ center)
+
+
+def _all_visible(cams: dict[str, CameraModel], poses: dict[str, Pose], X: np.ndarray,
+                 margin: float) -> bool:
+    for name, cam in cams.items():
+        Xc = poses[name].apply(X)
+        if np.any(Xc[:, 2] <= 0):
+            return False
+        uv = project_points(cam, Xc)
+        w, h = cam.image_size
+        m = margin * min(w, h)
+        if np.any(uv < m) or np.any(uv[:, 0] > w - 1 - m) or np.any(uv[:, 1] > h - 1 - m):
+            return False
+    return True
+
+
+def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
+               max_tilt_deg: float = 40.0) -> SynthTruth:
+    """Draw a rig from ``preset`` and ``views`` board poses seen whole by every camera.
+
+    Poses look at a random point of the board from a tilt of 5 to ``max_tilt_deg`` degrees,
+    with a random roll, at a distance where the board fills a random share of the narrowest
+    camera's frame. The outer ring of squares stays inside every image too.
+    """
+    if preset not in PRESETS:
+        raise InputError(f"--preset {preset!r} is unknown (choose from {', '.join(PRESETS)})")
+    if views < 1:
+        raise InputError("--views must be at least 1")
+    p = PRESETS[preset]
+    board: Board = p["board"]
+    cameras = {n: scale_camera(c, scale) for n, c in p["cameras"].items()}
+    reference = next(iter(cameras))
+    rig = {n: Pose(q.R.copy(), q.t_mm.copy()) for n, q in p["rig"].items()}
+    rng = np.random.default_rng(seed)
+
+    s = board.square_mm
+    outline = np.array([[-s, -s, 0], [board.cols * s, -s, 0], [-s, board.rows * s, 0],
+                        [board.cols * s, board.rows * s, 0]])
+    X = np.vstack([board.object_points_mm(), outline])
+    centre = np.array([(board.cols - 1) * s / 2, (board.rows - 1) * s / 2, 0.0])
+    extent = np.hypot((board.cols + 1) * s, (board.rows + 1) * s)
+    narrowest = max(cameras.values(), key=lambda c: c.fx / min(c.image_size))
+    fmin, fmax = p["fill"]
+
+    view_poses = {}
+    attempts = 0
+    while len(view_poses) < views:
+        attempts += 1
+        if attempts > 20000 * views:
+            raise RuntimeError(f"could not place {views} views for preset {preset!r}")
+        tilt = np.radians(rng.uniform(5.0, max_tilt_deg))
+        azim = rng.uniform(0, 2 * np.pi)
+        fill = rng.uniform(fmin, fmax)
+        dist = narrowest.fx * extent / (fill * min(narrowest.image_size))
+        direction = -np.array([np.sin(tilt) * np.cos(azim), np.sin(tilt) * np.sin(azim), np.cos(tilt)])
+        target = centre + np.array([rng.uniform(-0.15, 0.15) * board.cols * s,
+                                    rng.uniform(-0.15, 0.15) * board.rows * s, 0.0])
+        roll = rng.uniform(-np.pi, np.pi)
+        ref_pose = _look_at_pose(target + dist * direction, target, roll)
+        poses = {reference: ref_pose, **{n: q.compose(ref_pose) for n, q in rig.items()}}
+        if _all_visible(cameras, poses, X, margin=0.01):
+            view_poses[f"IMG_{len(view_poses) + 1:02d}"] = ref_pose
+    return SynthTruth(board, cameras, reference, rig, view_poses)
+
+
+def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
+    """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner."""
+    X = truth.board.object_points_mm()
+    return {cam: {v: project_points(model, truth.camera_pose(cam, v).apply(X)) for v in truth.view_poses}
+            for cam, model in truth.cameras.items()}
+
+
+def noisy_corner_set(truth: SynthTruth, noise_px: float, seed: int = 0) -> CornerSet:
+    """Exact corners plus isotropic Gaussian noise of ``noise_px`` per coordinate."""
+    rng = np.random.default_rng(seed)
+    cams = {}
+    for cam, views in true_corners(truth).items():
+        noisy = {v: uv + rng.normal(0.0, noise_px, uv.shape) for v, uv in views.items()}
+        cams[cam] = CameraCorners(truth.cameras[cam].image_size, noisy)
+    return CornerSet(truth.board, cams)
+
+
+def truth_rig_model(truth: SynthTruth, corners: CornerSet | None = None) -> RigModel:
+    """The truth as a :class:`RigModel` (zero sigmas), e.g. to write truth.json or to evaluate."""
+    corners = corners if corners is not None else noisy_corner_set(truth, 0.0)
+    zero3 = np.zeros(3)
+    rig = {n: RigRelation(p, zero3, 0.0, zero3) for n, p in truth.rig.items()}
+    poses = {cam: {v: truth.camera_pose(cam, v) for v in truth.view_poses} for cam in truth.cameras}
+    names = ("fx", "fy", "skew", "cx", "cy", "k1", "k2")
+    return RigModel(truth.board, truth.reference, True, "truth", dict(truth.cameras),
+                    {c: {n: 0.0 for n in names} for c in truth.cameras},
+                    {c: 0.0 for c in truth.cameras}, rig, poses,
+                    {v: {c: 0.0 for c in truth.cameras} for v in truth.view_poses}, 0.0, corners)
