@@ -2,4 +2,115 @@
 
 from __future__ import annotations
 
-from . import cli  # noqa: F401
+from pathlib import Path
+
+import click
+from rich.console import Console
+
+from ..adjust import RIG_MODES
+from ..calibrate import calibrate_rig
+from ..errors import InputError
+from ..io import load_corners, rig_to_dict, save_corners, save_rig, write_json_atomic
+from ..synth import PRESETS, make_truth, noisy_corner_set, truth_rig_model
+from ..tables import result_tables
+from . import cli
+from .common import board_from_flags, board_options, check_board_agrees, default_jobs
+from .detect import corners_from_dataset, dataset_options
+
+
+def _load_input(path: str, board_spec, square_mm, dataset_opts):
+    """corners.json as it is, or a dataset folder through detection."""
+    flags = board_from_flags(board_spec, square_mm)
+    p = Path(path)
+    if p.is_dir() or dataset_opts.get("cameras"):
+        if flags is None:
+            raise InputError("a dataset needs --board COLSxROWS and --square MM")
+        return corners_from_dataset(path, flags, **dataset_opts)
+    if not p.exists():
+        raise InputError(f"{path}: no such file or folder (give a corners.json or a dataset folder)")
+    corners = load_corners(p)
+    check_board_agrees(flags, corners.board, str(p))
+    return corners
+
+
+@cli.command("calibrate")
+@click.argument("input_path", metavar="INPUT", type=click.Path(), required=False)
+@board_options(required=False)
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="calib.json to write.")
+@click.option("--skew", is_flag=True, help="Estimate skew (the paper's Model 2); default skew = 0 (Model 1).")
+@click.option("--rig", "rig_mode", type=click.Choice(RIG_MODES), default="rigid", show_default=True,
+              help="rigid: one relative pose per camera; paper: per-view poses with the paper's "
+                   "constraints (equal baseline and angles); none: each camera alone.")
+@click.option("--drop-outliers/--keep-outliers", default=True, show_default=True,
+              help="Drop photos whose residuals are far out of line, one at a time, and re-adjust.")
+@click.option("--outlier-factor", type=float, default=3.0, show_default=True,
+              help="A photo is an outlier when its RMS exceeds this many times the median.")
+@click.option("--compare-models/--no-compare-models", default=True, show_default=True,
+              help="Also solve the other skew model and print both side by side, as the paper's tables do.")
+@dataset_options
+def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode, drop_outliers,
+                      outlier_factor, compare_models, **dataset_opts):
+    """Calibrate every camera and the rig from INPUT and write calib.json.
+
+    INPUT is a corners.json (from 'dualcal detect') or a dataset folder, in which case the
+    corners are detected first (same options as 'dualcal detect').
+    """
+    if input_path is None and not dataset_opts.get("cameras"):
+        raise click.UsageError("give INPUT (a corners.json or a dataset folder) or --camera NAME=GLOB")
+    if not outlier_factor > 1:
+        raise InputError(f"--outlier-factor {outlier_factor}: must be greater than 1")
+    corners = _load_input(input_path, board_spec, square_mm, dataset_opts)
+    kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
+                  outlier_factor=outlier_factor)
+    rig = calibrate_rig(corners, skew=skew, **kwargs)
+    save_rig(output, rig)
+    models = [rig]
+    if compare_models:
+        other = calibrate_rig(corners, skew=not skew, **kwargs)
+        models = [other, rig] if skew else [rig, other]
+    console = Console()
+    for table in result_tables(models):
+        console.print(table)
+    console.print(f"RMS reprojection error {rig.rms_px:.3f} px, s0 {rig.adjustment['s0_px']:.3f} px, "
+                  f"rig mode {rig.rig_mode}; written {output}", highlight=False)
+
+
+@cli.command("synth")
+@click.argument("outdir", type=click.Path(file_okay=False))
+@click.option("--preset", type=click.Choice(sorted(PRESETS)), default="note8", show_default=True,
+              help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra).")
+@click.option("--views", type=int, default=13, show_default=True, help="Number of board poses.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed of poses, noise and photos.")
+@click.option("--scale", type=float, default=1.0, show_default=True,
+              help="Resample the sensors (0.25 gives small, fast photos).")
+@click.option("--noise", "noise_px", type=float, default=0.1, show_default=True,
+              help="Gaussian noise (px, per coordinate) added to the true corners in corners.json.")
+@click.option("--photos/--no-photos", default=True, show_default=True, help="Render photo-like JPEGs.")
+@click.option("--jobs", type=int, default=None, help="Photos rendered in parallel (default: all cores).")
+def synth_command(outdir, preset, views, seed, scale, noise_px, photos, jobs):
+    """Write a synthetic rig with known truth to OUTDIR.
+
+    \b
+    OUTDIR/corners.json        true corners plus --noise (input of 'dualcal calibrate')
+    OUTDIR/truth.json          the true calibration, in calib.json format
+    OUTDIR/photos/<cam>/*.jpg  photo-like renders of the board (a dataset for 'dualcal detect')
+    """
+    if not 0 < scale <= 4:
+        raise InputError(f"--scale {scale}: must be in (0, 4]")
+    if noise_px < 0:
+        raise InputError(f"--noise {noise_px}: must be >= 0")
+    out = Path(outdir)
+    if not out.parent.is_dir():
+        raise InputError(f"output folder {str(out.parent)!r} does not exist: create it first")
+    out.mkdir(exist_ok=True)
+    truth = make_truth(preset, views, seed, scale)
+    corners = noisy_corner_set(truth, noise_px, seed)
+    save_corners(out / "corners.json", corners)
+    write_json_atomic(out / "truth.json", rig_to_dict(truth_rig_model(truth, corners)))
+    if photos:
+        from ..render import write_photo_set
+        (out / "photos").mkdir(exist_ok=True)
+        write_photo_set(truth, out / "photos", seed=seed, jobs=jobs or default_jobs())
+    n = len(truth.view_poses) * len(truth.cameras)
+    click.echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
+               f"({n} {'photos' if photos else 'corner sets'}) written to {out}")

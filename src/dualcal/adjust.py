@@ -1,0 +1,417 @@
+"""The joint least-squares adjustment of all cameras and views (paper section 1.7).
+
+Minimises the pixel reprojection error of every corner in every photo of every camera
+(eqs. 16-19) over the intrinsics ``[fx, fy, skew, cx, cy, k1, k2]`` of each camera and the
+poses, by Levenberg-Marquardt on the normal equations with a sparse Jacobian. Three ways to
+tie the cameras together (``mode``):
+
+``rigid``  one board-to-reference pose per view and one reference-to-camera pose per extra
+           camera: the rig is rigid by construction (6 relative unknowns per camera).
+``paper``  every camera its own pose in every view, plus the paper's constraints (eqs. 20-23)
+           that the baseline D and the three relative angles are the same in every view:
+           4 (m - 1) equations per extra camera, solved as constrained least squares with
+           Lagrange multipliers, ``[[N, C^T], [C, 0]] [dx, k] = [-g, -c]`` (Mikhail &
+           Ackermann, ch. 9).
+``none``   every camera alone (no tie at all).
+
+Poses are updated multiplicatively, ``R <- exp([d]x) R``, ``t <- t + dt``; the covariance of
+a pose is that of ``(d, dt)``. Sigma of every parameter is ``sqrt(diag(Q) s0^2)`` with ``Q`` the
+(constrained) inverse normal matrix and ``s0^2 = v^T v / redundancy`` the a-posteriori variance
+factor; derived values (baseline, omega-phi-kappa) get theirs by propagation, ``J Q J^T s0^2``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+from .camera import INTRINSIC_NAMES, CameraModel, project_with_jacobians
+from .errors import EstimationError
+from .model import Pose
+from .rotation import (ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation, rotation_from_rotvec,
+                       rotvec_from_rotation)
+
+RIG_MODES = ("rigid", "paper", "none")
+_SKEW = INTRINSIC_NAMES.index("skew")
+
+
+@dataclass
+class Problem:
+    """What is observed: every camera's corners in every view it saw.
+
+    ``blocks`` is a list of ``(camera index, view key, (N, 2) observed pixels)``; the corners are
+    those of ``X_board`` (N, 3) in the same order.
+    """
+
+    X_board: np.ndarray
+    cameras: list[str]
+    image_sizes: list[tuple[int, int]]
+    blocks: list[tuple[int, str, np.ndarray]]
+    mode: str = "rigid"
+    skew: bool = False
+    reference: int = 0
+
+    def __post_init__(self):
+        if self.mode not in RIG_MODES:
+            raise EstimationError(f"--rig {self.mode!r} is unknown (choose from {', '.join(RIG_MODES)})")
+        self.views = sorted({v for _, v, _ in self.blocks})
+        if self.mode == "rigid":
+            self.slots = [("view", v) for v in self.views] + \
+                [("rig", c) for c in range(len(self.cameras)) if c != self.reference]
+        else:
+            self.slots = [("pose", (c, v)) for c, v, _ in self.blocks]
+        self.slot_index = {s: i for i, s in enumerate(self.slots)}
+        self.free_intrinsics = [i for i in range(7) if self.skew or i != _SKEW]
+        self.n_intr = len(self.free_intrinsics)
+        self.n_params = self.n_intr * len(self.cameras) + 6 * len(self.slots)
+
+    def block_slots(self, b: int) -> tuple[int, int]:
+        """(pose slot, rig slot or -1) of block ``b``."""
+        c, v, _ = self.blocks[b]
+        if self.mode == "rigid":
+            rig = -1 if c == self.reference else self.slot_index[("rig", c)]
+            return self.slot_index[("view", v)], rig
+        return self.slot_index[("pose", (c, v))], -1
+
+    def intr_columns(self, c: int) -> np.ndarray:
+        return self.n_intr * c + np.arange(self.n_intr)
+
+    def pose_columns(self, slot: int) -> np.ndarray:
+        return self.n_intr * len(self.cameras) + 6 * slot + np.arange(6)
+
+
+@dataclass
+class State:
+    """The unknowns: intrinsics (C, 7) and pose slots ``R`` (P, 3, 3), ``t`` (P, 3)."""
+
+    intr: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+
+    def updated(self, problem: Problem, dx: np.ndarray) -> "State":
+        n = problem.n_intr * len(problem.cameras)
+        intr = self.intr.copy()
+        intr[:, problem.free_intrinsics] += dx[:n].reshape(len(problem.cameras), problem.n_intr)
+        d = dx[n:].reshape(-1, 6)
+        return State(intr, rotation_from_rotvec(d[:, :3]) @ self.R, self.t + d[:, 3:])
+
+    def camera(self, problem: Problem, c: int) -> CameraModel:
+        return CameraModel.from_vector(problem.image_sizes[c], self.intr[c])
+
+    def pose(self, slot: int) -> Pose:
+        return Pose(self.R[slot].copy(), self.t[slot].copy())
+
+
+def residuals_and_jacobian(problem: Problem, state: State, with_jacobian: bool = True):
+    """Residuals ``predicted - observed`` (2 per corner, block by block) and their sparse Jacobian."""
+    X = problem.X_board
+    n = len(X)
+    res = np.empty(2 * n * len(problem.blocks))
+    rows, cols, vals = [], [], []
+    by_cam: dict[int, list[int]] = {}
+    for b, (c, _, _) in enumerate(problem.blocks):
+        by_cam.setdefault(c, []).append(b)
+    for c, bl in by_cam.items():
+        bl = np.array(bl)
+        slots = np.array([problem.block_slots(b) for b in bl])
+        Rs, ts = state.R[slots[:, 0]], state.t[slots[:, 0]]
+        W = np.einsum("bij,nj->bni", Rs, X)                        # R_v X  (B, N, 3)
+        Y = W + ts[:, None, :]
+        has_rig = slots[0, 1] >= 0
+        if has_rig:
+            Rr, tr = state.R[slots[:, 1]], state.t[slots[:, 1]]
+            Xc = np.einsum("bij,bnj->bni", Rr, Y) + tr[:, None, :]
+        else:
+            Xc = Y
+        uv, J_X, J_K = project_with_jacobians(state.camera(problem, c), Xc.reshape(-1, 3))
+        obs = np.concatenate([problem.blocks[b][2] for b in bl])
+        row0 = (bl[:, None] * 2 * n + np.arange(2 * n)[None, :]).reshape(-1)   # residual rows
+        res[row0] = (uv - obs).reshape(-1)
+        if not with_jacobian:
+            continue
+        B = len(bl)
+        J_X = J_X.reshape(B, n, 2, 3)
+        blocks_j = [J_K[:, :, problem.free_intrinsics].reshape(B, n, 2, -1)]
+        block_cols = [np.broadcast_to(problem.intr_columns(c), (B, problem.n_intr))]
+        M = np.einsum("bnkj,bji->bnki", J_X, Rr) if has_rig else J_X          # d res / d Y
+        blocks_j.append(np.concatenate([-np.cross(M, W[:, :, None, :]), M], axis=-1))
+        block_cols.append(np.array([problem.pose_columns(s) for s in slots[:, 0]]))
+        if has_rig:
+            blocks_j.append(np.concatenate([-np.cross(J_X, (Xc - tr[:, None, :])[:, :, None, :]), J_X], -1))
+            block_cols.append(np.array([problem.pose_columns(s) for s in slots[:, 1]]))
+        for Jb, cb in zip(blocks_j, block_cols):
+            k = Jb.shape[-1]
+            vals.append(Jb.reshape(-1))
+            rows.append(np.repeat(row0, k))
+            cols.append(np.broadcast_to(cb[:, None, None, :], (B, n, 2, k)).reshape(-1))
+    if not with_jacobian:
+        return res, None
+    J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(len(res), problem.n_params))
+    return res, J
+
+
+# ----------------------------------------------------------------------------- the paper's constraints
+
+
+def relative_pose(ref: Pose, cam: Pose) -> Pose:
+    """Reference-to-camera pose from both board-to-camera poses of one view."""
+    R = cam.R @ ref.R.T
+    return Pose(R, cam.t_mm - R @ ref.t_mm)
+
+
+def _d_opk(ref: Pose, cam: Pose) -> np.ndarray:
+    """``[D, omega, phi, kappa]`` of one view (paper eqs. 20-23; D = |C_cam - C_ref|)."""
+    rel = relative_pose(ref, cam)
+    return np.concatenate([[np.linalg.norm(rel.t_mm)], opk_from_rotation(rel.R)])
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Differences of values that include angles, folded into (-pi, pi].
+
+    Only angles can jump by 2 pi; the other values (mm) differ by far less than pi between the
+    nearby states compared here, so folding every entry leaves them unchanged.
+    """
+    return (np.asarray(a, dtype=float) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _numeric_jacobian(f, slots: list[int], state: State, step: float = 1e-6) -> np.ndarray:
+    """Central differences of ``f(state)`` with respect to the 6 increments of each pose slot."""
+    f0 = f(state)
+    J = np.zeros((len(f0), 6 * len(slots)))
+    for k, s in enumerate(slots):
+        for i in range(6):
+            cols = []
+            for sign in (1.0, -1.0):
+                d = np.zeros(6)
+                d[i] = sign * step
+                R = state.R.copy()
+                t = state.t.copy()
+                R[s] = rotation_from_rotvec(d[:3]) @ R[s]
+                t[s] = t[s] + d[3:]
+                cols.append(f(State(state.intr, R, t)))
+            J[:, 6 * k + i] = _wrap(cols[0] - cols[1]) / (2 * step)
+    return J
+
+
+def shared_views(problem: Problem, c: int) -> list[str]:
+    """Views seen by both the reference and camera ``c`` (in the order used by the constraints)."""
+    seen = {}
+    for cam, v, _ in problem.blocks:
+        seen.setdefault(v, set()).add(cam)
+    return [v for v in problem.views if {problem.reference, c} <= seen.get(v, set())]
+
+
+def paper_constraints(problem: Problem, state: State, with_jacobian: bool = True):
+    """Values ``g`` (K,) and Jacobian ``C`` (K, n_params) of the constraints ``D_q - D_1 = 0``,
+    ``d_omega_q - d_omega_1 = 0`` ... (eqs. 20-23) for every extra camera and view ``q = 2..m``."""
+    g_all, C_rows = [], []
+    for c in range(len(problem.cameras)):
+        if c == problem.reference:
+            continue
+        views = shared_views(problem, c)
+        if len(views) < 2:
+            continue
+        pairs = [(problem.slot_index[("pose", (problem.reference, v))],
+                  problem.slot_index[("pose", (c, v))]) for v in views]
+
+        def f_pair(st, p):
+            return _d_opk(st.pose(p[0]), st.pose(p[1]))
+
+        f1 = f_pair(state, pairs[0])
+        if with_jacobian:
+            J1 = _numeric_jacobian(lambda st: f_pair(st, pairs[0]), list(pairs[0]), state)
+        for p in pairs[1:]:
+            g_all.append(_wrap(f_pair(state, p) - f1))
+            if not with_jacobian:
+                continue
+            Jq = _numeric_jacobian(lambda st, p=p: f_pair(st, p), list(p), state)
+            C = np.zeros((4, problem.n_params))
+            for k, s in enumerate(p):
+                C[:, problem.pose_columns(s)] += Jq[:, 6 * k:6 * k + 6]
+            for k, s in enumerate(pairs[0]):
+                C[:, problem.pose_columns(s)] -= J1[:, 6 * k:6 * k + 6]
+            C_rows.append(C)
+    if not g_all:
+        return np.zeros(0), np.zeros((0, problem.n_params))
+    return np.concatenate(g_all), (np.vstack(C_rows) if with_jacobian else None)
+
+
+# ----------------------------------------------------------------------------- the solver
+
+
+@dataclass
+class Solution:
+    """Result of :func:`adjust`: the state, its covariance and the fit statistics."""
+
+    problem: Problem
+    state: State
+    covariance: np.ndarray          # s0^2 Q, (n_params, n_params)
+    residuals: np.ndarray           # predicted - observed, (2 N B,)
+    s0_px: float
+    redundancy: int
+    iterations: int
+    n_constraints: int
+    block_rms_px: list[float] = field(default_factory=list)
+
+    def intrinsic_sigma(self, c: int) -> dict[str, float]:
+        p = self.problem
+        sig = dict.fromkeys(INTRINSIC_NAMES, 0.0)
+        diag = np.sqrt(np.maximum(np.diag(self.covariance)[p.intr_columns(c)], 0.0))
+        for i, s in zip(p.free_intrinsics, diag):
+            sig[INTRINSIC_NAMES[i]] = float(s)
+        return sig
+
+    def propagate(self, f, slots: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Value of ``f(state)`` and its covariance ``J Cov J^T`` through the given pose slots."""
+        J = _numeric_jacobian(f, slots, self.state)
+        idx = np.concatenate([self.problem.pose_columns(s) for s in slots])
+        return f(self.state), J @ self.covariance[np.ix_(idx, idx)] @ J.T
+
+
+class _KKTSolver:
+    """Solves ``A dx = -grad`` subject to ``C dx = -g`` (Lagrange multipliers, Mikhail & Ackermann
+    ch. 9) by the Schur complement: ``dx = y - A^-1 C^T k``, ``A y = -grad``,
+    ``(C A^-1 C^T) k = C y + g``. Also gives the minimum-norm (in the A metric) correction that
+    restores ``C dx = -g`` alone, used as a second-order correction after a nonlinear step."""
+
+    def __init__(self, A: np.ndarray, C: np.ndarray | None):
+        self.cho = scipy.linalg.cho_factor(A)
+        self.C = C
+        if C is not None and len(C):
+            self.AiCt = scipy.linalg.cho_solve(self.cho, C.T)
+            self.S = C @ self.AiCt
+
+    def step(self, grad: np.ndarray, g: np.ndarray) -> np.ndarray:
+        y = scipy.linalg.cho_solve(self.cho, -grad)
+        if len(g) == 0:
+            return y
+        return y - self.AiCt @ np.linalg.solve(self.S, self.C @ y + g)
+
+    def correction(self, g: np.ndarray) -> np.ndarray:
+        return -self.AiCt @ np.linalg.solve(self.S, g)
+
+
+def adjust(problem: Problem, state: State, max_iter: int = 100, tol: float = 1e-10) -> Solution:
+    """Levenberg-Marquardt on the normal equations (with the paper's constraints in ``paper`` mode).
+
+    In ``paper`` mode every trial step is followed by up to three second-order corrections that
+    bring the (nonlinear) constraints back to zero before the step is judged by its cost.
+
+    Raises
+    ------
+    EstimationError
+        If the normal matrix is singular (the data do not determine the parameters).
+    """
+    constrained = problem.mode == "paper"
+    r, J = residuals_and_jacobian(problem, state)
+    g, C = paper_constraints(problem, state) if constrained else (np.zeros(0), None)
+    cost = r @ r
+    lam = 1e-4
+    it = 0
+    for it in range(1, max_iter + 1):
+        Nmat = (J.T @ J).toarray()
+        grad = J.T @ r
+        diag = np.maximum(np.diag(Nmat), 1e-12)
+        improved = False
+        while lam < 1e12:
+            try:
+                solver = _KKTSolver(Nmat + lam * np.diag(diag), C)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            trial = state.updated(problem, solver.step(grad, g))
+            if constrained:
+                for _ in range(3):
+                    g_t = paper_constraints(problem, trial, with_jacobian=False)[0]
+                    if np.max(np.abs(g_t)) < 1e-12:
+                        break
+                    trial = trial.updated(problem, solver.correction(g_t))
+            r_new, _ = residuals_and_jacobian(problem, trial, with_jacobian=False)
+            cost_new = r_new @ r_new
+            if np.isfinite(cost_new) and cost_new <= cost:
+                improved = True
+                break
+            lam *= 10
+        if not improved:
+            break
+        rel_change = (cost - cost_new) / max(cost, 1e-300)
+        state, cost = trial, cost_new
+        r, J = residuals_and_jacobian(problem, state)
+        if constrained:
+            g, C = paper_constraints(problem, state)
+        lam = max(lam / 10, 1e-12)
+        if rel_change < tol:
+            break
+
+    Nmat = (J.T @ J).toarray()
+    try:
+        cho = scipy.linalg.cho_factor(Nmat)
+        Q = scipy.linalg.cho_solve(cho, np.eye(len(Nmat)))
+    except np.linalg.LinAlgError:
+        raise EstimationError("the normal equations are singular: the photos do not determine every "
+                              "parameter (too few views, or views all alike)") from None
+    n_con = len(g)
+    if n_con:
+        QC = Q @ C.T
+        Q = Q - QC @ np.linalg.solve(C @ QC, QC.T)
+    redundancy = len(r) - problem.n_params + n_con
+    if redundancy <= 0:
+        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
+    s0sq = float(r @ r) / redundancy
+    n = len(problem.X_board)
+    block_rms = np.sqrt(np.mean(r.reshape(len(problem.blocks), n, 2) ** 2, axis=(1, 2)) * 2)
+    return Solution(problem, state, Q * s0sq, r, float(np.sqrt(s0sq)), redundancy, it, n_con,
+                    block_rms.tolist())
+
+
+# ----------------------------------------------------------------------------- the rig's relative poses
+
+
+def rig_relation(sol: Solution, c: int):
+    """Reference-to-camera ``c`` pose and 1-sigma of ``t_mm``, baseline D and opk (arcmin).
+
+    ``rigid``: the adjusted relative pose itself. ``paper``: D and the angles (equal in every view
+    by the constraints) from the first shared view, ``t`` of length D along the mean direction over
+    the views. ``none``: the mean of the per-view relative poses. Sigmas by propagation of the adjustment's covariance.
+    """
+    p, st = sol.problem, sol.state
+    if p.mode == "rigid":
+        slot = p.slot_index[("rig", c)]
+        slots = [slot]
+
+        def f(s):
+            return _rig_values(s.pose(slot))
+    else:
+        views = shared_views(p, c)
+        if not views:
+            raise EstimationError(f"camera {p.cameras[c]!r} shares no view with the reference "
+                                  f"{p.cameras[p.reference]!r}: the rig cannot be determined")
+        pairs = [(p.slot_index[("pose", (p.reference, v))], p.slot_index[("pose", (c, v))]) for v in views]
+        slots = [s for pair in pairs for s in pair]
+
+        def f(s):
+            rels = [relative_pose(s.pose(a), s.pose(b)) for a, b in pairs]
+            t_mean = np.mean([q.t_mm for q in rels], axis=0)
+            if p.mode == "paper":
+                # D and the angles are equal in every view; only the direction of t is free.
+                D = np.linalg.norm(rels[0].t_mm)
+                return _rig_values(Pose(rels[0].R, D * t_mean / np.linalg.norm(t_mean)))
+            return _rig_values(Pose(nearest_rotation(np.sum([q.R for q in rels], axis=0)), t_mean))
+    values, cov = sol.propagate(f, slots)
+    sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    pose = _pose_from_values(values)
+    return pose, sigma[0:3], float(sigma[3]), sigma[4:7] * ARCMIN_PER_RAD
+
+
+def _rig_values(pose: Pose) -> np.ndarray:
+    """``[t (3), D, omega, phi, kappa]`` plus the rotation vector, for propagation."""
+    return np.concatenate([pose.t_mm, [np.linalg.norm(pose.t_mm)], opk_from_rotation(pose.R),
+                           rotvec_from_rotation(pose.R)])
+
+
+def _pose_from_values(values: np.ndarray) -> Pose:
+    return Pose(rotation_from_rotvec(values[7:10]), values[0:3].copy())

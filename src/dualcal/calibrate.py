@@ -1,0 +1,210 @@
+"""From corners to a calibrated rig: initialisation, joint adjustment, outlier views.
+
+:func:`calibrate_rig` is the whole of the paper's sections 1.3 to 1.7 for any number of cameras:
+Zhang's closed form per camera (:mod:`dualcal.zhang`), the rig's relative poses from the views
+the cameras share, then the joint adjustment (:mod:`dualcal.adjust`) in the chosen rig mode.
+Photos whose residuals are far out of line with the others are dropped one at a time, each with
+a recorded reason, and the adjustment is repeated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .adjust import Problem, Solution, State, adjust, relative_pose, rig_relation
+from .errors import EstimationError
+from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference
+from .progress import warn
+from .rotation import nearest_rotation
+from .zhang import initial_camera
+
+MIN_VIEWS = 3
+
+
+def _mean_pose(poses: list[Pose]) -> Pose:
+    """Chordal mean of rotations and mean of translations."""
+    return Pose(nearest_rotation(np.sum([p.R for p in poses], axis=0)),
+                np.mean([p.t_mm for p in poses], axis=0))
+
+
+def _check_enough_views(blocks, names) -> None:
+    for c, name in enumerate(names):
+        n = sum(1 for cam, _, _ in blocks if cam == c)
+        if n < MIN_VIEWS:
+            raise EstimationError(f"camera {name!r} has {n} usable view(s); at least {MIN_VIEWS} are needed "
+                                  "(take more photos, or check that the board is found in them)")
+
+
+def _initial_state(problem: Problem, cams, poses) -> State:
+    """Initial values in the problem's layout from per-camera Zhang results.
+
+    ``cams[c]`` is a CameraModel, ``poses[c][view]`` a board-to-camera Pose.
+    """
+    intr = np.array([cam.as_vector() for cam in cams])
+    ref = problem.reference
+    rel = {}
+    for c in range(len(cams)):
+        if c == ref:
+            continue
+        shared = [v for v in poses[c] if v in poses[ref]]
+        if not shared:
+            raise EstimationError(f"camera {problem.cameras[c]!r} shares no view with the reference camera "
+                                  f"{problem.cameras[ref]!r}: photos of the same instant are needed")
+        rel[c] = _mean_pose([relative_pose(poses[ref][v], poses[c][v]) for v in shared])
+    slot_poses = []
+    for kind, key in problem.slots:
+        if kind == "view":
+            if key in poses[ref]:
+                slot_poses.append(poses[ref][key])
+            else:  # seen only by other cameras: go through the rig
+                c = next(c for c in rel if key in poses[c])
+                slot_poses.append(rel[c].inverse().compose(poses[c][key]))
+        elif kind == "rig":
+            slot_poses.append(rel[key])
+        else:
+            c, v = key
+            slot_poses.append(poses[c][v])
+    return State(intr, np.array([p.R for p in slot_poses]), np.array([p.t_mm for p in slot_poses]))
+
+
+def _block_poses(sol: Solution) -> dict[tuple[int, str], Pose]:
+    """Board-to-camera pose of every observed (camera, view)."""
+    p, st = sol.problem, sol.state
+    out = {}
+    for b, (c, v, _) in enumerate(p.blocks):
+        slot, rig = p.block_slots(b)
+        pose = st.pose(slot)
+        out[(c, v)] = st.pose(rig).compose(pose) if rig >= 0 else pose
+    return out
+
+
+def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str) -> Solution:
+    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples."""
+    _check_enough_views(blocks, names)
+    xy = X_board[:, :2]
+    cams, poses = [], []
+    for c, size in enumerate(sizes):
+        cam, p = initial_camera(xy, {v: uv for cc, v, uv in blocks if cc == c}, size, skew)
+        cams.append(cam)
+        poses.append(p)
+    first_mode = "rigid" if mode == "paper" else mode
+    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference)
+    sol = adjust(problem, _initial_state(problem, cams, poses))
+    if mode != "paper":
+        return sol
+    # The paper's model starts from the rigid solution, which satisfies its constraints exactly.
+    bp = _block_poses(sol)
+    cams = [sol.state.camera(problem, c) for c in range(len(names))]
+    poses = [{v: bp[(c, v)] for cc, v, _ in blocks if cc == c} for c in range(len(names))]
+    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference)
+    return adjust(problem, _initial_state(problem, cams, poses))
+
+
+def find_outlier(sol: Solution, factor: float, floor_px: float = 0.05):
+    """The block whose RMS is furthest above ``factor`` x the median block RMS, or None."""
+    rms = np.asarray(sol.block_rms_px)
+    med = float(np.median(rms))
+    limit = max(factor * med, floor_px)
+    worst = int(np.argmax(rms))
+    if rms[worst] <= limit:
+        return None
+    return worst, float(rms[worst]), med
+
+
+def _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, mode, factor, dropped):
+    """Solve, drop the worst photo while one is out of line, solve again; returns (solution, blocks).
+
+    In a tied rig a bad photo pulls the shared pose and so spreads its error over every photo of
+    that instant; of the photos of the flagged instant, the one whose removal fits best is dropped.
+    """
+    sol = solve(X, names, sizes, blocks, ref, skew, mode)
+    while True:
+        out = find_outlier(sol, factor) if factor else None
+        if out is None:
+            return sol, blocks
+        b, rms, med = out
+        view = blocks[b][1]
+        candidates = [i for i, blk in enumerate(blocks) if blk[1] == view] if mode != "none" else [b]
+        candidates = [i for i in candidates if sum(1 for blk in blocks if blk[0] == blocks[i][0]) > MIN_VIEWS]
+        if not candidates:
+            warn(f"{names[blocks[b][0]]}/{view} is out of line (RMS {rms:.3g} px, median {med:.3g} px) "
+                 f"but cannot be dropped: only {MIN_VIEWS} views left")
+            return sol, blocks
+        trials = []
+        for i in candidates:
+            rest = blocks[:i] + blocks[i + 1:]
+            trials.append((solve(X, names, sizes, rest, ref, skew, mode), i, rest))
+        before = sol
+        sol, i, rest = min(trials, key=lambda t: t[0].s0_px)
+        c = blocks[i][0]
+        rms_i = before.block_rms_px[i]
+        reason = (f"reprojection RMS {rms_i:.3g} px against a median of {med:.3g} px in rig mode {mode}; "
+                  f"without it s0 falls from {before.s0_px:.3g} to {sol.s0_px:.3g} px (moved board, wrong "
+                  "corner order, blur, or another zoom/focus setting?)")
+        warn(f"dropping {names[c]}/{view}: {reason}")
+        dropped.append({"camera": names[c], "view": view, "rms_px": rms_i, "reason": reason})
+        blocks = rest
+
+
+def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
+                  reference: str | None = None, drop_outliers: bool = True,
+                  outlier_factor: float = 3.0) -> RigModel:
+    """Calibrate every camera of a rig and the rig itself from chessboard corners.
+
+    Parameters
+    ----------
+    corners : the detected corners (corners.json content)
+    skew : False fixes skew = 0 (the paper's Model 1), True estimates it (Model 2)
+    rig_mode : ``rigid``, ``paper`` or ``none`` (see :mod:`dualcal.adjust`)
+    reference : name of the reference camera (default ``wide``, else the first name)
+    drop_outliers : drop photos whose RMS exceeds ``outlier_factor`` x the median, one at a time.
+        Outliers are looked for first with every camera adjusted alone (so that a bad photo shows
+        in its own camera's residuals, not spread over the rig), then in ``rig_mode`` (which
+        also reveals a board moved between the shots of one instant).
+
+    Raises
+    ------
+    EstimationError
+        Fewer than 3 usable views for a camera, degenerate views, no shared view in a rig.
+    """
+    names = sorted(corners.cameras)
+    ref = names.index(choose_reference(names, reference))
+    sizes = [corners.cameras[n].image_size for n in names]
+    X = corners.board.object_points_mm()
+    blocks = [(c, v, uv) for c, n in enumerate(names) for v, uv in sorted(corners.cameras[n].found().items())]
+    dropped: list[dict] = []
+    factor = outlier_factor if drop_outliers else None
+    if factor and rig_mode != "none":
+        _, blocks = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, "none", factor, dropped)
+    sol, _ = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, rig_mode, factor, dropped)
+    return rig_model_from_solution(sol, corners, dropped)
+
+
+def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict]) -> RigModel:
+    """Package an adjustment result as the :class:`RigModel` written to calib.json."""
+    p, st = sol.problem, sol.state
+    names = p.cameras
+    n = len(p.X_board)
+    sq = np.sum(sol.residuals.reshape(len(p.blocks), n, 2) ** 2, axis=2)       # (B, N) squared px
+    cams = {name: st.camera(p, c) for c, name in enumerate(names)}
+    sigma = {name: sol.intrinsic_sigma(c) for c, name in enumerate(names)}
+    cam_rms = {}
+    for c, name in enumerate(names):
+        mask = [cc == c for cc, _, _ in p.blocks]
+        cam_rms[name] = float(np.sqrt(np.mean(sq[mask])))
+    view_rms: dict[str, dict[str, float]] = {}
+    for b, (c, v, _) in enumerate(p.blocks):
+        view_rms.setdefault(v, {})[names[c]] = float(np.sqrt(np.mean(sq[b])))
+    poses: dict[str, dict[str, Pose]] = {name: {} for name in names}
+    for (c, v), pose in sorted(_block_poses(sol).items(), key=lambda kv: kv[0][1]):
+        poses[names[c]][v] = pose
+    rig = {}
+    for c, name in enumerate(names):
+        if c != p.reference:
+            pose, s_t, s_d, s_opk = rig_relation(sol, c)
+            rig[name] = RigRelation(pose, s_t, s_d, s_opk)
+    adjustment = {"s0_px": sol.s0_px, "redundancy": sol.redundancy, "iterations": sol.iterations,
+                  "n_observations": int(sol.residuals.size), "n_parameters": p.n_params,
+                  "n_constraints": sol.n_constraints}
+    return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, cam_rms, rig, poses,
+                    dict(sorted(view_rms.items())), float(np.sqrt(np.mean(sq))), corners, adjustment, dropped)

@@ -1,0 +1,203 @@
+"""Closed-form initial calibration of one camera (paper sections 1.3 to 1.6).
+
+* :func:`estimate_homography`: normalised DLT, refined on pixel error (section 1.3, eq. 3).
+* :func:`intrinsics_from_homographies`: Zhang's constraints (eqs. 4-10) solved by SVD, and
+  Burger's closed-form formulas for alpha, beta, gamma, u0, v0 (section 1.4). With skew fixed
+  to 0 (the paper's Model 1) the unknown ``b2`` is removed, which imposes ``b2 = 0`` exactly.
+* :func:`extrinsics_from_homography`: lambda, r1, r2, t, r3 = r1 x r2, then the nearest rotation
+  (section 1.5, eq. 11).
+* :func:`radial_distortion_linear`: linear least squares for k1, k2 (section 1.6, eqs. 13-15).
+
+Board points are the board's ``(X, Y)`` in mm (Z = 0); image points are pixels ``(u, v)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .camera import CameraModel
+from .errors import EstimationError
+from .model import Pose
+from .rotation import nearest_rotation
+
+
+def _normalising_transform(pts: np.ndarray) -> np.ndarray:
+    """Similarity moving ``pts`` to zero mean and mean distance sqrt(2) (Hartley's normalisation)."""
+    mean = pts.mean(axis=0)
+    scale = np.sqrt(2.0) / max(np.mean(np.linalg.norm(pts - mean, axis=1)), 1e-12)
+    return np.array([[scale, 0.0, -scale * mean[0]], [0.0, scale, -scale * mean[1]], [0.0, 0.0, 1.0]])
+
+
+def apply_homography(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Map (N, 2) points through a 3x3 homography."""
+    p = xy @ H[:, :2].T + H[:, 2]
+    return p[:, :2] / p[:, 2:3]
+
+
+def _homography_dlt(xy_board: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    Tb, Ti = _normalising_transform(xy_board), _normalising_transform(uv)
+    b = apply_homography(Tb, xy_board)
+    i = apply_homography(Ti, uv)
+    n = len(b)
+    A = np.zeros((2 * n, 9))
+    A[0::2, 0:2], A[0::2, 2] = b, 1.0
+    A[0::2, 6:8] = -i[:, :1] * b
+    A[0::2, 8] = -i[:, 0]
+    A[1::2, 3:5], A[1::2, 5] = b, 1.0
+    A[1::2, 6:8] = -i[:, 1:2] * b
+    A[1::2, 8] = -i[:, 1]
+    _, s, Vt = np.linalg.svd(A)
+    if s[-2] < 1e-9 * s[0]:
+        raise EstimationError("homography is degenerate: board points are (nearly) collinear")
+    H = np.linalg.inv(Ti) @ Vt[-1].reshape(3, 3) @ Tb
+    return H / H[2, 2]
+
+
+def estimate_homography(xy_board: np.ndarray, uv: np.ndarray, refine: bool = True) -> np.ndarray:
+    """Homography ``H`` with ``[u, v, 1] ~ H [X, Y, 1]`` (paper eq. 3), ``H[2, 2] = 1``.
+
+    Normalised DLT, then (``refine``) Levenberg-Marquardt on the pixel reprojection error.
+    """
+    xy_board = np.asarray(xy_board, float)
+    uv = np.asarray(uv, float)
+    if len(xy_board) < 4:
+        raise EstimationError("a homography needs at least 4 points")
+    H = _homography_dlt(xy_board, uv)
+    if not refine:
+        return H
+
+    def residuals(h):
+        return (apply_homography(np.append(h, 1.0).reshape(3, 3), xy_board) - uv).ravel()
+
+    def jacobian(h):
+        Hm = np.append(h, 1.0).reshape(3, 3)
+        X, Y = xy_board[:, 0], xy_board[:, 1]
+        w = Hm[2, 0] * X + Hm[2, 1] * Y + 1.0
+        p = apply_homography(Hm, xy_board)
+        J = np.zeros((len(X), 2, 8))
+        J[:, 0, 0:3] = np.column_stack([X, Y, np.ones_like(X)]) / w[:, None]
+        J[:, 1, 3:6] = J[:, 0, 0:3]
+        J[:, :, 6] = -p * (X / w)[:, None]
+        J[:, :, 7] = -p * (Y / w)[:, None]
+        return J.reshape(-1, 8)
+
+    sol = least_squares(residuals, H.ravel()[:8], jac=jacobian, method="lm", xtol=1e-12, ftol=1e-12)
+    return np.append(sol.x, 1.0).reshape(3, 3)
+
+
+def _v_row(H: np.ndarray, i: int, j: int) -> np.ndarray:
+    """Zhang's ``v_ij`` (paper eqs. 9, 10) for columns ``i, j`` of ``H``; b = [B11 B12 B22 B13 B23 B33]."""
+    hi, hj = H[:, i], H[:, j]
+    return np.array([hi[0] * hj[0], hi[0] * hj[1] + hi[1] * hj[0], hi[1] * hj[1],
+                     hi[2] * hj[0] + hi[0] * hj[2], hi[2] * hj[1] + hi[1] * hj[2], hi[2] * hj[2]])
+
+
+def intrinsics_from_homographies(homographies, image_size, skew: bool = False) -> CameraModel:
+    """Zhang's closed form with Burger's formulas (paper section 1.4); no distortion.
+
+    Parameters
+    ----------
+    homographies : sequence of (3, 3) board-to-pixel homographies, at least 3 (2 with ``skew=False``)
+    image_size : (W, H), used to condition the system (pixels are centred and scaled first)
+    skew : False fixes gamma = 0 (Model 1), True estimates it (Model 2)
+
+    Raises
+    ------
+    EstimationError
+        If the views do not determine the intrinsics (e.g. all boards parallel to each other).
+    """
+    w, h = image_size
+    s = 0.5 * (w + h)
+    # Condition: work in centred, scaled pixels (an upper-triangular similarity keeps A upper triangular).
+    Nrm = np.array([[1.0 / s, 0.0, -0.5 * (w - 1) / s], [0.0, 1.0 / s, -0.5 * (h - 1) / s], [0.0, 0.0, 1.0]])
+    rows = []
+    for H in homographies:
+        Hn = Nrm @ H
+        Hn = Hn / np.linalg.norm(Hn[:, :2])
+        rows += [_v_row(Hn, 0, 1), _v_row(Hn, 0, 0) - _v_row(Hn, 1, 1)]
+    V = np.array(rows)
+    if not skew:
+        V = np.delete(V, 1, axis=1)                 # b2 = 0  <=>  gamma = 0
+    needed = V.shape[1] - 1
+    if len(V) < needed:
+        raise EstimationError(f"Zhang's closed form needs at least {int(np.ceil(needed / 2))} views")
+    _, sv, Vt = np.linalg.svd(V)
+    if sv[-2] < 1e-6 * sv[0]:
+        raise EstimationError("the views do not determine the intrinsics: the board poses are (nearly) "
+                              "parallel to each other; take photos with the board tilted in different directions")
+    b = Vt[-1]
+    if not skew:
+        b = np.insert(b, 1, 0.0)
+    if b[0] < 0:                                    # B = A^-T A^-1 up to scale: make it positive
+        b = -b
+    b1, b2, b3, b4, b5, b6 = b
+    # Burger's formulas (paper section 1.4).
+    wB = b1 * b3 * b6 - b2**2 * b6 - b1 * b5**2 + 2 * b2 * b4 * b5 - b3 * b4**2
+    d = b1 * b3 - b2**2
+    if d <= 0 or wB <= 0:
+        raise EstimationError("Zhang's closed form gave no valid camera (B is not positive definite): "
+                              "the views are degenerate or the corners too noisy")
+    alpha = np.sqrt(wB / (d * b1))
+    beta = np.sqrt(b1 * wB / d**2)
+    # B12 = -gamma / (alpha^2 beta): the minus sign is missing in the paper's print of this formula.
+    gamma = -b2 * np.sqrt(wB / (d**2 * b1))
+    u0 = (b2 * b5 - b3 * b4) / d
+    v0 = (b2 * b4 - b1 * b5) / d
+    A = np.linalg.inv(Nrm) @ np.array([[alpha, gamma, u0], [0.0, beta, v0], [0.0, 0.0, 1.0]])
+    return CameraModel(tuple(image_size), A[0, 0], A[1, 1], A[0, 1], A[0, 2], A[1, 2])
+
+
+def extrinsics_from_homography(K: np.ndarray, H: np.ndarray) -> Pose:
+    """Board-to-camera pose from a homography (paper section 1.5).
+
+    ``lambda = 1 / |A^-1 h1|``, ``r1 = lambda A^-1 h1``, ``r2 = lambda A^-1 h2``,
+    ``t = lambda A^-1 h3``, ``r3 = r1 x r2``, then the nearest rotation. The sign of lambda is
+    chosen so that the board lies in front of the camera (t_z > 0).
+    """
+    Ki = np.linalg.inv(K)
+    a1, a2, a3 = Ki @ H[:, 0], Ki @ H[:, 1], Ki @ H[:, 2]
+    lam = 2.0 / (np.linalg.norm(a1) + np.linalg.norm(a2))
+    if a3[2] < 0:
+        lam = -lam
+    r1, r2, t = lam * a1, lam * a2, lam * a3
+    R = nearest_rotation(np.column_stack([r1, r2, np.cross(r1, r2)]))
+    return Pose(R, t)
+
+
+def radial_distortion_linear(cam: CameraModel, poses, xy_board: np.ndarray, observed) -> tuple[float, float]:
+    """k1, k2 by linear least squares (paper eqs. 13-15).
+
+    For each point, ``(u - u0, v - v0) (k1 r^2 + k2 r^4) = (u~ - u, v~ - v)`` where ``(u, v)``
+    is the ideal (distortion-free) projection, ``r`` its normalised radius and ``(u~, v~)`` the
+    observed pixel. ``u - u0`` includes the skew term: ``fx x + gamma y``.
+    """
+    X = np.column_stack([xy_board, np.zeros(len(xy_board))])
+    D_rows, d_rows = [], []
+    for pose, uv_obs in zip(poses, observed):
+        Xc = pose.apply(X)
+        x, y = Xc[:, 0] / Xc[:, 2], Xc[:, 1] / Xc[:, 2]
+        r2 = x * x + y * y
+        du = cam.fx * x + cam.skew * y
+        dv = cam.fy * y
+        u, v = du + cam.cx, dv + cam.cy
+        D_rows += [np.column_stack([du * r2, du * r2 * r2]), np.column_stack([dv * r2, dv * r2 * r2])]
+        d_rows += [uv_obs[:, 0] - u, uv_obs[:, 1] - v]
+    D = np.vstack(D_rows)
+    d = np.concatenate(d_rows)
+    k, *_ = np.linalg.lstsq(D, d, rcond=None)                     # eq. 15
+    return float(k[0]), float(k[1])
+
+
+def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False):
+    """Zhang's full initialisation of one camera: intrinsics, k1 k2 and one pose per view.
+
+    Returns ``(CameraModel, {view: Pose})``. The intrinsics are re-estimated once after k1 k2
+    are known, from homographies of the undistorted corners, which helps strongly distorted lenses.
+    """
+    keys = sorted(views)
+    Hs = [estimate_homography(xy_board, views[k]) for k in keys]
+    cam = intrinsics_from_homographies(Hs, image_size, skew)
+    poses = [extrinsics_from_homography(cam.K, H) for H in Hs]
+    k1, k2 = radial_distortion_linear(cam, poses, xy_board, [views[k] for k in keys])
+    return cam.with_distortion(k1, k2), dict(zip(keys, poses))
