@@ -163,12 +163,6 @@ def relative_pose(ref: Pose, cam: Pose) -> Pose:
     return Pose(R, cam.t_mm - R @ ref.t_mm)
 
 
-def _d_opk(ref: Pose, cam: Pose) -> np.ndarray:
-    """``[D, omega, phi, kappa]`` of one view (paper eqs. 20-23; D = |C_cam - C_ref|)."""
-    rel = relative_pose(ref, cam)
-    return np.concatenate([[np.linalg.norm(rel.t_mm)], opk_from_rotation(rel.R)])
-
-
 def _wrap(a: np.ndarray) -> np.ndarray:
     """Differences of values that include angles, folded into (-pi, pi].
 
@@ -178,22 +172,48 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (np.asarray(a, dtype=float) + np.pi) % (2 * np.pi) - np.pi
 
 
+def _perturbed(R: np.ndarray, t: np.ndarray, i: int, step: float):
+    """``(R, t)`` stacks with increment ``i`` (0-2 rotation, 3-5 translation) set to ``step``."""
+    d = np.zeros(6)
+    d[i] = step
+    return rotation_from_rotvec(d[:3]) @ R, t + d[3:]
+
+
 def _numeric_jacobian(f, slots: list[int], state: State, step: float = 1e-6) -> np.ndarray:
     """Central differences of ``f(state)`` with respect to the 6 increments of each pose slot."""
     f0 = f(state)
     J = np.zeros((len(f0), 6 * len(slots)))
     for k, s in enumerate(slots):
         for i in range(6):
-            cols = []
+            vals = []
             for sign in (1.0, -1.0):
-                d = np.zeros(6)
-                d[i] = sign * step
-                R = state.R.copy()
-                t = state.t.copy()
-                R[s] = rotation_from_rotvec(d[:3]) @ R[s]
-                t[s] = t[s] + d[3:]
-                cols.append(f(State(state.intr, R, t)))
-            J[:, 6 * k + i] = _wrap(cols[0] - cols[1]) / (2 * step)
+                R, t = state.R.copy(), state.t.copy()
+                R[s], t[s] = _perturbed(R[s], t[s], i, sign * step)
+                vals.append(f(State(state.intr, R, t)))
+            J[:, 6 * k + i] = _wrap(vals[0] - vals[1]) / (2 * step)
+    return J
+
+
+def d_opk(R_ref, t_ref, R_cam, t_cam) -> np.ndarray:
+    """``[D, omega, phi, kappa]`` of the relative pose of each view (paper eqs. 20-23).
+
+    ``D = |C_cam - C_ref| = |t_rel|``; the angles are those of ``R_rel = R_cam R_ref^T``.
+    Works on stacks: (P, 3, 3) rotations, (P, 3) translations -> (P, 4).
+    """
+    R = R_cam @ np.swapaxes(R_ref, -1, -2)
+    t = t_cam - np.einsum("...ij,...j->...i", R, t_ref)
+    return np.concatenate([np.linalg.norm(t, axis=-1)[..., None], opk_from_rotation(R)], axis=-1)
+
+
+def _d_opk_jacobian(R_ref, t_ref, R_cam, t_cam, step: float = 1e-6) -> np.ndarray:
+    """(P, 4, 12) derivatives of :func:`d_opk` by central differences: 6 increments of the
+    reference pose, then 6 of the camera pose."""
+    J = np.zeros((len(R_ref), 4, 12))
+    for i in range(6):
+        up, down = _perturbed(R_ref, t_ref, i, step), _perturbed(R_ref, t_ref, i, -step)
+        J[:, :, i] = _wrap(d_opk(*up, R_cam, t_cam) - d_opk(*down, R_cam, t_cam)) / (2 * step)
+        up, down = _perturbed(R_cam, t_cam, i, step), _perturbed(R_cam, t_cam, i, -step)
+        J[:, :, 6 + i] = _wrap(d_opk(R_ref, t_ref, *up) - d_opk(R_ref, t_ref, *down)) / (2 * step)
     return J
 
 
@@ -206,38 +226,33 @@ def shared_views(problem: Problem, c: int) -> list[str]:
 
 
 def paper_constraints(problem: Problem, state: State, with_jacobian: bool = True):
-    """Values ``g`` (K,) and Jacobian ``C`` (K, n_params) of the constraints ``D_q - D_1 = 0``,
-    ``d_omega_q - d_omega_1 = 0`` ... (eqs. 20-23) for every extra camera and view ``q = 2..m``."""
-    g_all, C_rows = [], []
+    """The paper's constraints (eqs. 20-23) ``D_q - D_1 = 0``, ``d_omega_q - d_omega_1 = 0``,
+    ``d_phi_q - d_phi_1 = 0``, ``d_kappa_q - d_kappa_1 = 0`` for every extra camera and every
+    shared view ``q = 2..m``: values ``g`` (K,) and Jacobian ``C`` (K, n_params) or None."""
+    g_all, C_all = [], []
     for c in range(len(problem.cameras)):
         if c == problem.reference:
             continue
         views = shared_views(problem, c)
         if len(views) < 2:
             continue
-        pairs = [(problem.slot_index[("pose", (problem.reference, v))],
-                  problem.slot_index[("pose", (c, v))]) for v in views]
-
-        def f_pair(st, p):
-            return _d_opk(st.pose(p[0]), st.pose(p[1]))
-
-        f1 = f_pair(state, pairs[0])
-        if with_jacobian:
-            J1 = _numeric_jacobian(lambda st: f_pair(st, pairs[0]), list(pairs[0]), state)
-        for p in pairs[1:]:
-            g_all.append(_wrap(f_pair(state, p) - f1))
-            if not with_jacobian:
-                continue
-            Jq = _numeric_jacobian(lambda st, p=p: f_pair(st, p), list(p), state)
-            C = np.zeros((4, problem.n_params))
-            for k, s in enumerate(p):
-                C[:, problem.pose_columns(s)] += Jq[:, 6 * k:6 * k + 6]
-            for k, s in enumerate(pairs[0]):
-                C[:, problem.pose_columns(s)] -= J1[:, 6 * k:6 * k + 6]
-            C_rows.append(C)
+        ref_slots = np.array([problem.slot_index[("pose", (problem.reference, v))] for v in views])
+        cam_slots = np.array([problem.slot_index[("pose", (c, v))] for v in views])
+        args = (state.R[ref_slots], state.t[ref_slots], state.R[cam_slots], state.t[cam_slots])
+        f = d_opk(*args)
+        g_all.append(_wrap(f[1:] - f[0]).ravel())
+        if not with_jacobian:
+            continue
+        J = _d_opk_jacobian(*args)
+        C = np.zeros((len(views) - 1, 4, problem.n_params))
+        for q in range(1, len(views)):
+            for slot, Jq, sign in ((ref_slots[q], J[q, :, :6], 1), (cam_slots[q], J[q, :, 6:], 1),
+                                   (ref_slots[0], J[0, :, :6], -1), (cam_slots[0], J[0, :, 6:], -1)):
+                C[q - 1][:, problem.pose_columns(slot)] += sign * Jq
+        C_all.append(C.reshape(-1, problem.n_params))
     if not g_all:
-        return np.zeros(0), np.zeros((0, problem.n_params))
-    return np.concatenate(g_all), (np.vstack(C_rows) if with_jacobian else None)
+        return np.zeros(0), (np.zeros((0, problem.n_params)) if with_jacobian else None)
+    return np.concatenate(g_all), (np.vstack(C_all) if with_jacobian else None)
 
 
 # ----------------------------------------------------------------------------- the solver

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .adjust import Problem, Solution, State, adjust, relative_pose, rig_relation
+from .adjust import Problem, Solution, State, adjust, relative_pose, rig_relation, shared_views
 from .errors import EstimationError
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference
 from .progress import warn
@@ -44,7 +44,7 @@ def _initial_state(problem: Problem, cams, poses) -> State:
     ref = problem.reference
     rel = {}
     for c in range(len(cams)):
-        if c == ref:
+        if c == ref or problem.mode != "rigid":
             continue
         shared = [v for v in poses[c] if v in poses[ref]]
         if not shared:
@@ -200,9 +200,12 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
         poses[names[c]][v] = pose
     rig = {}
     for c, name in enumerate(names):
-        if c != p.reference:
-            pose, s_t, s_d, s_opk = rig_relation(sol, c)
-            rig[name] = RigRelation(pose, s_t, s_d, s_opk)
+        if c == p.reference:
+            continue
+        if p.mode == "none" and not shared_views(p, c):
+            warn(f"camera {name!r} shares no view with {names[p.reference]!r}: no rig relation for it")
+            continue
+        rig[name] = RigRelation(*rig_relation(sol, c))
     adjustment = {"s0_px": sol.s0_px, "redundancy": sol.redundancy, "iterations": sol.iterations,
                   "n_observations": int(sol.residuals.size), "n_parameters": p.n_params,
                   "n_constraints": sol.n_constraints}

@@ -51,9 +51,17 @@ def rotation_from_opk(opk_rad) -> np.ndarray:
 
 
 def opk_from_rotation(R: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`rotation_from_opk`: ``[omega, phi, kappa]`` in radians."""
-    kappa, phi, omega = Rotation.from_matrix(R).as_euler("ZYX")
-    return np.array([omega, phi, kappa])
+    """Inverse of :func:`rotation_from_opk`: ``[omega, phi, kappa]`` in radians; works on (..., 3, 3).
+
+    From ``R = Rz(kappa) Ry(phi) Rx(omega)``: ``R[2,1] = cos(phi) sin(omega)``,
+    ``R[2,2] = cos(phi) cos(omega)``, ``R[2,0] = -sin(phi)``, ``R[1,0] = sin(kappa) cos(phi)``,
+    ``R[0,0] = cos(kappa) cos(phi)``.
+    """
+    R = np.asarray(R, dtype=float)
+    omega = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    phi = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
+    kappa = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    return np.stack([omega, phi, kappa], axis=-1)
 
 
 def perturb_rotation(R: np.ndarray, delta: np.ndarray) -> np.ndarray:

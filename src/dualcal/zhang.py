@@ -136,8 +136,9 @@ def intrinsics_from_homographies(homographies, image_size, skew: bool = False) -
     wB = b1 * b3 * b6 - b2**2 * b6 - b1 * b5**2 + 2 * b2 * b4 * b5 - b3 * b4**2
     d = b1 * b3 - b2**2
     if d <= 0 or wB <= 0:
-        raise EstimationError("Zhang's closed form gave no valid camera (B is not positive definite): "
-                              "the views are degenerate or the corners too noisy")
+        raise EstimationError("Zhang's closed form gave no valid camera (B is not positive definite): the "
+                              "board poses are too alike (e.g. all parallel) or the corners too noisy; take photos "
+                              "with the board tilted in different directions")
     alpha = np.sqrt(wB / (d * b1))
     beta = np.sqrt(b1 * wB / d**2)
     # B12 = -gamma / (alpha^2 beta): the minus sign is missing in the paper's print of this formula.

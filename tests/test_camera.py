@@ -1,0 +1,88 @@
+"""Camera model: projection, exact Jacobians, distortion both ways (paper eqs. 13, 24-28)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dualcal.camera import (CameraModel, check_invertible_in_image, distort_normalized, distort_points,
+                            max_monotonic_radius, normalized_from_pixel, pixel_from_normalized,
+                            project_points, project_with_jacobians, undistort_normalized, undistort_points)
+from dualcal.errors import NotInvertibleError
+from dualcal.synth import PRESETS
+
+CAM = CameraModel((3024, 4032), 3127.2, 3136.0, 2.5, 1453.7, 2021.1, 0.08, -0.20)
+
+
+def test_projection_follows_the_contract_formula():
+    X = np.array([[100.0, -50.0, 600.0]])
+    x, y = 100 / 600, -50 / 600
+    r2 = x * x + y * y
+    f = 1 + CAM.k1 * r2 + CAM.k2 * r2 * r2
+    expected = [CAM.fx * x * f + CAM.skew * y * f + CAM.cx, CAM.fy * y * f + CAM.cy]
+    np.testing.assert_allclose(project_points(CAM, X)[0], expected, rtol=0, atol=1e-9)
+
+
+def test_jacobians_match_central_differences():
+    rng = np.random.default_rng(0)
+    X = np.column_stack([rng.uniform(-200, 200, 20), rng.uniform(-300, 300, 20), rng.uniform(400, 900, 20)])
+    _, J_X, J_K = project_with_jacobians(CAM, X)
+    h = 1e-4
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = h
+        num = (project_points(CAM, X + d) - project_points(CAM, X - d)) / (2 * h)
+        np.testing.assert_allclose(J_X[:, :, i], num, rtol=1e-6, atol=1e-7)
+    vec = CAM.as_vector()
+    for i in range(7):
+        step = 1e-6 * max(1.0, abs(vec[i]))
+        plus, minus = vec.copy(), vec.copy()
+        plus[i] += step
+        minus[i] -= step
+        num = (project_points(CameraModel.from_vector(CAM.image_size, plus), X)
+               - project_points(CameraModel.from_vector(CAM.image_size, minus), X)) / (2 * step)
+        np.testing.assert_allclose(J_K[:, :, i], num, rtol=1e-5, atol=1e-6)
+
+
+def test_pixel_and_normalized_are_inverse_with_skew():
+    uv = np.array([[0.0, 0.0], [3023.0, 4031.0], [1500.5, 17.25]])
+    np.testing.assert_allclose(pixel_from_normalized(CAM, normalized_from_pixel(CAM, uv)), uv, atol=1e-9)
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_undistort_points_round_trip_over_whole_image(preset):
+    for cam in PRESETS[preset]["cameras"].values():
+        w, h = cam.image_size
+        u, v = np.meshgrid(np.linspace(-0.5, w - 0.5, 41), np.linspace(-0.5, h - 0.5, 41))
+        uv = np.column_stack([u.ravel(), v.ravel()])
+        back = distort_points(cam, undistort_points(cam, uv))
+        assert np.max(np.abs(back - uv)) < 1e-6
+
+
+@settings(max_examples=200, deadline=None)
+@given(k1=st.floats(-0.4, 0.4), k2=st.floats(-0.5, 1.5), x=st.floats(-0.6, 0.6), y=st.floats(-0.6, 0.6))
+def test_distort_undistort_round_trip_property(k1, k2, x, y):
+    xy = np.array([[x, y]])
+    r = np.hypot(x, y)
+    if r >= 0.999 * max_monotonic_radius(k1, k2):
+        with pytest.raises(NotInvertibleError):
+            r_max = max_monotonic_radius(k1, k2)
+            rd_max = r_max * (1 + k1 * r_max**2 + k2 * r_max**4)
+            undistort_normalized(np.array([[1.01 * rd_max, 0.0]]), k1, k2)
+        return
+    back = undistort_normalized(distort_normalized(xy, k1, k2), k1, k2)
+    np.testing.assert_allclose(back, xy, atol=1e-12)
+
+
+def test_max_monotonic_radius_is_where_the_derivative_vanishes():
+    k1, k2 = -0.35, 0.05
+    r = max_monotonic_radius(k1, k2)
+    assert abs(1 + 3 * k1 * r**2 + 5 * k2 * r**4) < 1e-12
+    assert max_monotonic_radius(0.1, 0.2) == np.inf
+
+
+def test_folding_distortion_inside_the_image_is_a_clear_error():
+    folding = CameraModel((640, 480), 300.0, 300.0, 0.0, 320.0, 240.0, -0.6, 0.0)
+    with pytest.raises(NotInvertibleError, match="not monotonic"):
+        check_invertible_in_image(folding)
+    check_invertible_in_image(CAM)

@@ -1,0 +1,147 @@
+"""`dualcal calibrate` and `dualcal synth`: results, and one clear line with exit code 2 on bad input."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dualcal.io import load_rig, save_corners
+from dualcal.synth import make_truth, noisy_corner_set
+
+
+@pytest.fixture
+def synth_dir(tmp_path, run_cli):
+    out = tmp_path / "set"
+    res = run_cli("synth", out, "--preset", "note8", "--views", "8", "--seed", "4", "--no-photos")
+    assert res.code == 0, res.err
+    return out
+
+
+def _assert_one_line_error(res, pattern):
+    assert res.code == 2, (res.code, res.err)
+    assert len(res.err_lines) == 1, res.err
+    assert "Traceback" not in res.err
+    assert pattern in res.err, res.err
+
+
+def test_synth_then_calibrate_recovers_the_truth(synth_dir, run_cli):
+    res = run_cli("calibrate", synth_dir / "corners.json", "-o", synth_dir / "calib.json")
+    assert res.code == 0, res.err
+    for text in ("alpha = fx", "Model 1 (skew = 0)", "Model 2 (skew free)", "D (mm)", "d_kappa"):
+        assert text in res.out
+    rig, truth = load_rig(synth_dir / "calib.json"), load_rig(synth_dir / "truth.json")
+    for name in ("wide", "tele"):
+        assert abs(rig.cameras[name].fx - truth.cameras[name].fx) < 4 * rig.camera_sigma[name]["fx"]
+    assert rig.rig["tele"].baseline_mm == pytest.approx(truth.rig["tele"].baseline_mm, abs=0.1)
+    assert rig.skew is False and rig.rig_mode == "rigid"
+
+
+@pytest.mark.parametrize("flags,mode,skew", [(["--rig", "paper", "--skew"], "paper", True),
+                                             (["--rig", "none"], "none", False)])
+def test_calibrate_modes_are_recorded(synth_dir, run_cli, flags, mode, skew):
+    res = run_cli("calibrate", synth_dir / "corners.json", "-o", synth_dir / "c.json", "--no-compare-models", *flags)
+    assert res.code == 0, res.err
+    doc = json.loads((synth_dir / "c.json").read_text())
+    assert doc["rig_mode"] == mode and doc["skew"] is skew
+
+
+def test_board_flag_that_disagrees_with_the_file(synth_dir, run_cli):
+    res = run_cli("calibrate", synth_dir / "corners.json", "--board", "9x6", "--square", "30", "-o", synth_dir / "c.json")
+    _assert_one_line_error(res, "--board 9x6 disagrees")
+
+
+@pytest.mark.parametrize("content,pattern", [("{\"board\": {\"cols\": 8,", "truncated"), ("not json", "malformed"),
+                                             ("", "malformed")])
+def test_malformed_or_truncated_corners(tmp_path, run_cli, content, pattern):
+    p = tmp_path / "corners.json"
+    p.write_text(content)
+    _assert_one_line_error(run_cli("calibrate", p, "-o", tmp_path / "c.json"), pattern)
+
+
+def test_fewer_than_three_usable_views(tmp_path, run_cli):
+    cs = noisy_corner_set(make_truth("note8", 4, seed=1), 0.1)
+    for v in ("IMG_01", "IMG_02"):
+        cs.cameras["wide"].views[v] = None
+    save_corners(tmp_path / "corners.json", cs)
+    _assert_one_line_error(run_cli("calibrate", tmp_path / "corners.json", "-o", tmp_path / "c.json"),
+                           "at least 3 are needed")
+
+
+def test_degenerate_parallel_views(tmp_path, run_cli):
+    truth = make_truth("note8", 1, seed=2)
+    base = truth.view_poses["IMG_01"]
+    from dualcal.model import Pose
+    for k in range(2, 6):
+        truth.view_poses[f"IMG_{k:02d}"] = Pose(base.R.copy(), base.t_mm + [8.0 * k, -4.0 * k, 15.0 * k])
+    save_corners(tmp_path / "corners.json", noisy_corner_set(truth, 0.05))
+    _assert_one_line_error(run_cli("calibrate", tmp_path / "corners.json", "-o", tmp_path / "c.json"), "parallel")
+
+
+def test_calib_json_given_where_corners_are_expected(synth_dir, run_cli):
+    _assert_one_line_error(run_cli("calibrate", synth_dir / "truth.json", "-o", synth_dir / "c.json"),
+                           "this is a calib.json, expected a corners.json")
+
+
+def test_missing_input_and_missing_output_folder(synth_dir, run_cli, tmp_path):
+    _assert_one_line_error(run_cli("calibrate", tmp_path / "nothing.json", "-o", tmp_path / "c.json"),
+                           "no such file")
+    _assert_one_line_error(run_cli("calibrate", synth_dir / "corners.json", "-o", tmp_path / "no" / "c.json"),
+                           "does not exist")
+
+
+@pytest.mark.parametrize("args,pattern", [(["--board", "8x", "--square", "30"], "--board '8x' is malformed"),
+                                          (["--board", "8x5", "--square", "-3"], "--square -3.0")])
+def test_malformed_board_flags(synth_dir, run_cli, args, pattern):
+    _assert_one_line_error(run_cli("calibrate", synth_dir / "corners.json", *args, "-o", synth_dir / "c.json"),
+                           pattern)
+
+
+def test_unknown_flag_value_is_a_usage_error(synth_dir, run_cli):
+    res = run_cli("calibrate", synth_dir / "corners.json", "--rig", "bogus", "-o", synth_dir / "c.json")
+    assert res.code == 2 and "Traceback" not in res.err
+
+
+def test_killed_mid_write_leaves_the_old_output_intact(synth_dir):
+    """SIGKILL a real calibration while it is writing calib.json: the earlier file survives whole."""
+    out = synth_dir / "calib.json"
+    out.write_text('{"earlier": "result"}\n')
+    child = textwrap.dedent(f"""
+        import sys, time, dualcal.io as io
+        real_fsync = io.os.fsync
+        def slow_fsync(fd):
+            print("writing", flush=True)
+            time.sleep(60)
+        io.os.fsync = slow_fsync
+        from dualcal.cli import main
+        main(["calibrate", {str(synth_dir / "corners.json")!r}, "-o", {str(out)!r}, "--no-compare-models"])
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", child], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "writing"
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    assert out.read_text() == '{"earlier": "result"}\n'
+
+
+def test_synth_writes_truth_and_noisy_corners(synth_dir):
+    corners = json.loads((synth_dir / "corners.json").read_text())
+    truth = load_rig(synth_dir / "truth.json")
+    assert set(corners["cameras"]) == {"wide", "tele"}
+    assert corners["cameras"]["wide"]["image_size"] == [3024, 4032]
+    uv = np.array(corners["cameras"]["tele"]["views"]["IMG_01"])
+    from dualcal.camera import project_points
+    exact = project_points(truth.cameras["tele"],
+                           truth.camera_poses["tele"]["IMG_01"].apply(truth.board.object_points_mm()))
+    assert 0.05 < np.std(uv - exact) < 0.15          # --noise 0.1 px by default
+
+
+def test_synth_bad_values(tmp_path, run_cli):
+    _assert_one_line_error(run_cli("synth", tmp_path / "x", "--scale", "0"), "--scale")
+    _assert_one_line_error(run_cli("synth", tmp_path / "a" / "b"), "does not exist")

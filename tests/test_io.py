@@ -1,0 +1,138 @@
+"""JSON formats of the contract: loaders, kinds, atomic writes."""
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from dualcal.calibrate import calibrate_rig
+from dualcal.errors import InputError
+from dualcal.io import (atomic_output, corners_from_dict, corners_to_dict, json_kind, load_corners, load_rig,
+                        rig_from_dict, rig_to_dict, save_corners, save_rig, write_text_atomic)
+from dualcal.synth import make_truth, noisy_corner_set
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return calibrate_rig(noisy_corner_set(make_truth("note8", 6, seed=3), 0.1, seed=3))
+
+
+def test_corners_round_trip(tmp_path):
+    cs = noisy_corner_set(make_truth("stereo", 4, seed=1), 0.1)
+    cs.cameras["left"].views["IMG_02"] = None
+    cs.cameras["left"].meta["exif"] = {"make": "X"}
+    save_corners(tmp_path / "c.json", cs)
+    back = load_corners(tmp_path / "c.json")
+    assert back.board == cs.board and back.cameras["left"].views["IMG_02"] is None
+    assert back.cameras["left"].meta == {"exif": {"make": "X"}}
+    np.testing.assert_allclose(back.cameras["right"].views["IMG_03"], cs.cameras["right"].views["IMG_03"], atol=1e-5)
+
+
+def test_calib_json_has_the_contract_keys_and_round_trips(tmp_path, rig):
+    save_rig(tmp_path / "calib.json", rig)
+    doc = json.loads((tmp_path / "calib.json").read_text())
+    for key in ("dualcal_version", "board", "reference", "skew", "rig_mode", "cameras", "rig", "views",
+                "rms_px", "corners"):
+        assert key in doc
+    wide = doc["cameras"]["wide"]
+    assert set(wide) >= {"image_size", "fx", "fy", "skew", "cx", "cy", "k1", "k2", "sigma", "rms_px"}
+    tele = doc["rig"]["tele"]
+    assert set(tele) >= {"R", "t_mm", "baseline_mm", "opk_arcmin", "sigma"}
+    assert set(tele["sigma"]) == {"baseline_mm", "opk_arcmin", "t_mm"}
+    assert tele["baseline_mm"] == pytest.approx(np.linalg.norm(tele["t_mm"]))
+    view = next(iter(doc["views"].values()))
+    assert set(view) >= {"R", "t_mm", "rms_px"} and set(view["rms_px"]) == {"wide", "tele"}
+    back = load_rig(tmp_path / "calib.json")
+    assert back.cameras == rig.cameras
+    np.testing.assert_allclose(back.rig["tele"].pose.t_mm, rig.rig["tele"].pose.t_mm)
+    assert back.camera_sigma == rig.camera_sigma
+
+
+def test_minimal_calib_json_derives_camera_poses(rig):
+    doc = rig_to_dict(rig)
+    for key in ("camera_poses", "adjustment", "dropped_views"):
+        del doc[key]
+    back = rig_from_dict(doc)
+    for view, pose in rig.camera_poses["tele"].items():
+        np.testing.assert_allclose(back.camera_poses["tele"][view].t_mm, pose.t_mm, atol=1e-9)
+
+
+def test_file_kinds_are_told_apart(tmp_path, rig):
+    save_rig(tmp_path / "calib.json", rig)
+    save_corners(tmp_path / "corners.json", rig.corners)
+    with pytest.raises(InputError, match="this is a calib.json, expected a corners.json"):
+        load_corners(tmp_path / "calib.json")
+    with pytest.raises(InputError, match="this is a corners.json, expected a calib.json"):
+        load_rig(tmp_path / "corners.json")
+    assert json_kind({"cases": {}}) == "eval"
+
+
+@pytest.mark.parametrize("text,message", [
+    ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {"wide": {"image_size": [10', "truncated"),
+    ("[1, 2]", "top level"),
+    ('{"board": {"cols": 8}, "cameras": {}}', "board entry"),
+    ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {}}', "non-empty"),
+    ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {"w": {"image_size": [0, 5], "views": {}}}}',
+     "positive integers"),
+    ('{"board": {"cols": 2, "rows": 2, "square_mm": 30}, "cameras": {"w": {"image_size": [9, 9], '
+     '"views": {"a": [[1, 2], [3, 4], [5, 6]]}}}}', "4 corners"),
+])
+def test_malformed_corners_are_clear_errors(tmp_path, text, message):
+    p = tmp_path / "c.json"
+    p.write_text(text)
+    with pytest.raises(InputError, match=message):
+        load_corners(p)
+
+
+def test_missing_file_and_folder(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        load_corners(tmp_path / "nope.json")
+    with pytest.raises(InputError, match="is a folder"):
+        load_corners(tmp_path)
+
+
+_json = st.recursive(st.none() | st.booleans() | st.floats(allow_nan=False) | st.integers() | st.text(max_size=5),
+                     lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=6), children,
+                                                                                     max_size=4), max_leaves=20)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(doc=st.dictionaries(st.sampled_from(["board", "cameras", "views", "rig", "x"]), _json, max_size=4))
+def test_loaders_fail_only_with_input_error(doc):
+    for loader in (corners_from_dict, rig_from_dict):
+        try:
+            loader(doc)
+        except InputError:
+            pass
+
+
+@settings(max_examples=40, deadline=None)
+@given(cols=st.integers(2, 9), rows=st.integers(2, 9), data=st.data())
+def test_valid_corner_documents_round_trip(cols, rows, data):
+    n = cols * rows
+    pts = data.draw(st.lists(st.tuples(st.floats(-1e4, 1e4), st.floats(-1e4, 1e4)), min_size=n, max_size=n))
+    doc = {"board": {"cols": cols, "rows": rows, "square_mm": 25.0},
+           "cameras": {"c": {"image_size": [100, 80], "views": {"v1": [list(p) for p in pts], "v2": None}}}}
+    back = corners_to_dict(corners_from_dict(doc))
+    np.testing.assert_allclose(back["cameras"]["c"]["views"]["v1"], np.round(pts, 5))
+    assert back["cameras"]["c"]["views"]["v2"] is None
+
+
+def test_atomic_output_keeps_the_old_file_on_failure(tmp_path):
+    target = tmp_path / "out.json"
+    target.write_text("old")
+    with pytest.raises(RuntimeError):
+        with atomic_output(target) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("crash while writing")
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.json"]
+    write_text_atomic(target, "new")
+    assert target.read_text() == "new"
+
+
+def test_output_into_a_missing_folder_is_a_clear_error(tmp_path):
+    with pytest.raises(InputError, match="does not exist"):
+        write_text_atomic(tmp_path / "no" / "out.json", "x")

@@ -1,0 +1,420 @@
+"""The HTML report: its numbers against synthetic truth, its content, self-containedness and look."""
+
+from __future__ import annotations
+
+import math
+import re
+import shutil
+import subprocess
+from dataclasses import replace
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dualcal import io, synth
+from dualcal.camera import CameraModel, distort_normalized, undistort_points
+from dualcal.cli import main
+from dualcal.model import CameraCorners, CornerSet
+from dualcal.report import analysis, figures, render_report
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+NOISE_PX = 0.3
+
+SIGMA = {"fx": 3.1, "fy": 3.0, "skew": 0.0, "cx": 2.5, "cy": 1.5, "k1": 0.011, "k2": 0.2}
+EVALUATION = {"cases": {"dual": {"rmse_mm": [1.892, 1.488, 5.590], "pairs": 13},
+                        "wide": {"rmse_mm": [0.120, 0.190, 0.528], "pairs": 78},
+                        "tele": {"rmse_mm": [0.156, 0.219, 0.504], "pairs": 78}}}
+
+
+@pytest.fixture(scope="module")
+def rig():
+    """The note8 truth with noisy corners, and plausible sigmas filled in."""
+    truth = synth.make_truth("note8", views=8, seed=0, scale=0.25)
+    rig = synth.truth_rig_model(truth, synth.noisy_corner_set(truth, NOISE_PX, seed=1))
+    rig.camera_sigma = {name: dict(SIGMA) for name in rig.cameras}
+    for rel in rig.rig.values():
+        rel.sigma_t_mm, rel.sigma_baseline_mm = np.array([0.3, 0.2, 1.1]), 0.21
+        rel.sigma_opk_arcmin = np.array([2.1, 3.3, 0.9])
+    rig.skew, rig.rig_mode, rig.rms_px = False, "rigid", NOISE_PX * math.sqrt(2)
+    rig.dropped_views = [{"camera": "tele", "view": "IMG_08", "rms_px": 3.2, "reason": "reprojection RMS 3.2 px"}]
+    del rig.camera_poses["tele"]["IMG_08"]
+    rig.corners.cameras["wide"].views["IMG_07"] = None     # board not found in that photo
+    return rig
+
+
+@pytest.fixture(scope="module")
+def html(rig):
+    return render_report(rig, EVALUATION)
+
+
+# ---------------------------------------------------------------------------- the numbers
+
+
+def test_residuals_are_recomputed_from_corners_and_poses(rig):
+    """With true poses and intrinsics, the residuals are the added noise: sigma 0.3 px per axis."""
+    res = analysis.rig_residuals(rig)
+    assert set(res) == {"wide", "tele"}
+    assert sorted(res["wide"]) == [f"IMG_0{i}" for i in (1, 2, 3, 4, 5, 6, 8)]
+    assert sorted(res["tele"]) == [f"IMG_0{i}" for i in range(1, 8)]
+    for views in res.values():
+        all_res = np.vstack([r.residual_px for r in views.values()])
+        np.testing.assert_allclose(all_res.std(axis=0), NOISE_PX, rtol=0.12)
+        assert analysis.rms_px(all_res) == pytest.approx(NOISE_PX * math.sqrt(2), rel=0.1)
+
+
+def test_exact_corners_give_zero_residuals():
+    truth = synth.make_truth("stereo", views=3, seed=2)
+    res = analysis.rig_residuals(synth.truth_rig_model(truth))
+    assert max(np.abs(r.residual_px).max() for views in res.values() for r in views.values()) < 1e-9
+
+
+def test_views_without_corners_or_pose_are_left_out(rig):
+    cams = dict(rig.corners.cameras)
+    tele = cams["tele"]
+    cams["tele"] = CameraCorners(tele.image_size, {**tele.views, "IMG_02": None})
+    poses = {**rig.camera_poses, "wide": {k: v for k, v in rig.camera_poses["wide"].items() if k != "IMG_03"}}
+    res = analysis.rig_residuals(replace(rig, corners=CornerSet(rig.board, cams), camera_poses=poses))
+    assert "IMG_02" not in res["tele"] and "IMG_02" in res["wide"]
+    assert "IMG_03" not in res["wide"] and "IMG_03" in res["tele"]
+
+
+def test_outlier_views_above_twice_the_median():
+    rms = {"a": 0.30, "b": 0.32, "c": 0.28, "d": 0.65, "e": 0.61}   # median 0.30
+    assert analysis.outlier_views(rms) == ["d"]
+    assert analysis.outlier_views({}) == []
+
+
+def test_coverage_counts_half_the_image():
+    """A board over the left half of a 100 x 60 image covers exactly the left half of the cells."""
+    board = np.array([[-0.5, -0.5], [49.5, -0.5], [49.5, 59.5], [-0.5, 59.5]])
+    counts = analysis.coverage_counts((100, 60), [board, board + [50, 0]], cell_px=10)
+    assert counts.shape == (6, 10)
+    np.testing.assert_array_equal(counts[:, :5], 1)
+    np.testing.assert_array_equal(counts[:, 5:], 1)
+    counts = analysis.coverage_counts((100, 60), [board], cell_px=10)
+    assert counts[:, :5].min() == 1 and counts[:, 5:].max() == 0
+
+
+def test_coverage_hints_name_what_is_missing():
+    size = (400, 300)
+    centre = [np.array([[190.0, 140.0], [210.0, 140.0], [210.0, 160.0], [190.0, 160.0]])]
+    hints = analysis.coverage_hints("tele", size, centre, area_share=0.01)
+    assert len(hints) == 3
+    assert hints[0].startswith("no corners in the outer 20% of the tele image")
+    assert "distortion there is extrapolated" in hints[0]
+    assert "corners only in the centre of the tele image" in hints[1]
+    assert "covered only 1% of the tele image" in hints[2]
+    u, v = np.meshgrid(np.linspace(0, 399, 12), np.linspace(0, 299, 9))
+    full = [np.column_stack([u.ravel(), v.ravel()])]
+    assert analysis.coverage_hints("tele", size, full, area_share=1.0) == []
+
+
+def test_distortion_curve_follows_the_model():
+    cam = CameraModel((640, 480), 533.5, 533.5, 0.0, 341.6, 235.2, -0.288, 0.097)
+    curve = analysis.distortion_curve(cam)
+    f = math.sqrt(cam.fx * cam.fy)
+    assert curve.fold_radius_px is None
+    assert curve.radius_px[0] == 0 and curve.radius_px[-1] == pytest.approx(curve.corner_radius_px, rel=1e-9)
+    r = (curve.radius_px - curve.shift_px) / f            # ideal radius
+    rd = distort_normalized(np.column_stack([r, 0 * r]), cam.k1, cam.k2)[:, 0]
+    np.testing.assert_allclose(rd * f, curve.radius_px, atol=1e-9)
+    assert curve.shift_px[-1] < -50                         # strong barrel at the corner
+
+
+def test_distortion_curve_stops_where_the_model_folds():
+    cam = CameraModel((640, 480), 300.0, 300.0, 0.0, 320.0, 240.0, -0.5, 0.0)   # folds at r = 1/sqrt(1.5)
+    curve = analysis.distortion_curve(cam)
+    r_fold = 1 / math.sqrt(1.5)
+    assert curve.fold_radius_px == pytest.approx(300 * r_fold * (1 - 0.5 * r_fold**2), rel=1e-9)
+    assert curve.radius_px[-1] == pytest.approx(curve.fold_radius_px, rel=1e-9)
+    assert curve.fold_radius_px < curve.corner_radius_px
+
+
+def test_displacement_matches_undistortion():
+    cam = CameraModel((640, 480), 533.5, 530.0, 1.5, 341.6, 235.2, -0.288, 0.097)
+    uv = np.array([[0.0, 0.0], [639.0, 479.0], [341.6, 235.2], [500.0, 100.0]])
+    expected = np.linalg.norm(uv - undistort_points(cam, uv), axis=1)
+    np.testing.assert_allclose(analysis.displacement_px(cam, uv), expected, atol=1e-9)
+    folded = CameraModel((640, 480), 300.0, 300.0, 0.0, 320.0, 240.0, -0.5, 0.0)
+    d = analysis.displacement_px(folded, np.array([[320.0, 240.0], [0.0, 0.0]]))
+    assert d[0] == 0 and np.isnan(d[1])
+
+
+@pytest.mark.parametrize("value, sigma, expected", [
+    (3127.2083, 12.894, ("3127", "13")),
+    (-0.01834, 0.0431, ("-0.018", "0.043")),
+    (1.6359, 0.0996, ("1.64", "0.10")),
+    (11.00712, 0.00021, ("11.00712", "0.00021")),
+    (-0.0004, 0.02, ("0.000", "0.020")),
+    (0.0, 0.0, ("0", "fixed")),
+    (781.8, float("nan"), ("781.8", "–")),
+])
+def test_format_value_sigma(value, sigma, expected):
+    assert analysis.format_value_sigma(value, sigma) == expected
+
+
+# ---------------------------------------------------------------------------- the page
+
+
+class _Page(HTMLParser):
+    """Collects ids, figure ids with the tags inside them, table cells and all attributes."""
+
+    def __init__(self):
+        super().__init__()
+        self.ids, self.attrs, self.figures, self.cells = set(), [], {}, {}
+        self._figure, self._table, self._cell = None, None, None
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        self.attrs += [(tag, k, v) for k, v in attrs]
+        if "id" in a:
+            self.ids.add(a["id"])
+        if tag == "figure":
+            self._figure = a.get("id")
+            self.figures[self._figure] = {"tags": set(), "caption": ""}
+        elif self._figure:
+            self.figures[self._figure]["tags"].add(tag)
+        if tag == "table":
+            self._table = a.get("id")
+            self.cells[self._table] = []
+        if tag in ("td", "th") and self._table:
+            self._cell = []
+
+    def handle_endtag(self, tag):
+        if tag == "figure":
+            self._figure = None
+        if tag in ("td", "th") and self._cell is not None:
+            self.cells[self._table].append("".join(self._cell).strip())
+            self._cell = None
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell.append(data)
+        if self._figure and "figcaption" in self.figures[self._figure]["tags"]:
+            self.figures[self._figure]["caption"] += data
+
+
+@pytest.fixture(scope="module")
+def page(html):
+    p = _Page()
+    p.feed(html)
+    return p
+
+
+FIGURES = {  # id -> words its caption must hold
+    "fig-residuals-wide": "Residual vectors", "fig-residuals-tele": "Residual vectors",
+    "fig-histogram-wide": "Histogram", "fig-histogram-tele": "Histogram",
+    "fig-view-rms": "RMS residual of every view",
+    "fig-coverage-wide": "Coverage", "fig-coverage-tele": "Coverage",
+    "fig-distortion-curve": "Radial distortion",
+    "fig-distortion-map-wide": "Distortion", "fig-distortion-map-tele": "Distortion",
+    "fig-rig-3d": "reference (wide) camera frame",
+}
+
+
+def test_every_figure_is_there_with_svg_and_caption(page):
+    assert set(FIGURES) <= set(page.figures)
+    for fig_id, words in FIGURES.items():
+        fig = page.figures[fig_id]
+        assert "svg" in fig["tags"] and "path" in fig["tags"], fig_id
+        assert words in fig["caption"], fig_id
+
+
+def test_tables_hold_the_calibration(page, rig):
+    assert {"table-intrinsics", "table-rig", "table-evaluation", "table-left-out"} <= page.ids
+    cells = page.cells["table-intrinsics"]
+    wide, tele = rig.cameras["wide"], rig.cameras["tele"]
+    row = cells[cells.index("fx"):][:7]                    # fx, α, px, wide value, σ, tele value, σ
+    assert row[3:] == [*analysis.format_value_sigma(wide.fx, 3.1), *analysis.format_value_sigma(tele.fx, 3.1)]
+    k2 = cells[cells.index("k2"):][:7]
+    assert k2[3] == analysis.format_value_sigma(wide.k2, 0.2)[0]
+    assert cells[cells.index("skew"):][4] == "fixed"
+    rig_cells = page.cells["table-rig"]
+    tele_rel = rig.rig["tele"]
+    d_value, d_sigma = analysis.format_value_sigma(tele_rel.baseline_mm, 0.21)
+    assert f"{d_value}± {d_sigma}" in rig_cells
+    kappa = analysis.format_value_sigma(tele_rel.pose.opk_arcmin[2], 0.9)
+    assert f"{kappa[0]}± {kappa[1]}" in rig_cells
+    ev = page.cells["table-evaluation"]
+    total = f"{math.sqrt(1.892**2 + 1.488**2 + 5.59**2):.3f}"
+    assert ev[ev.index("dual"):][2:6] == ["1.892", "1.488", "5.590", total]
+    assert page.cells["table-left-out"][3:] == ["wide", "IMG_07", "board not detected",
+                                                "tele", "IMG_08", "reprojection RMS 3.2 px"]
+
+
+def test_summary_states_modes_and_rms(html):
+    assert "Model 1: skew fixed to 0" in html and "rigid" in html
+    assert f"{NOISE_PX * math.sqrt(2):.3f} px" in html
+
+
+def test_outlier_view_is_found_and_hinted(rig):
+    """A view with 5x the noise is an outlier of its camera, named in a hint."""
+    cams = dict(rig.corners.cameras)
+    tele = cams["tele"]
+    noise = np.random.default_rng(7).normal(0, 5 * NOISE_PX, (40, 2))
+    bad = {**tele.views, "IMG_04": tele.views["IMG_04"] + noise}
+    cams["tele"] = CameraCorners(tele.image_size, bad)
+    found = analysis.camera_findings(replace(rig, corners=CornerSet(rig.board, cams)))
+    assert found["tele"].outliers == ["IMG_04"] and found["wide"].outliers == []
+    assert "tele: view IMG_04 has an RMS above 2× the median" in found["tele"].hints[-1]
+    assert found["tele"].view_rms_px["IMG_04"] > 4 * NOISE_PX
+
+
+def test_hints_and_left_out_views_are_on_the_page(html, rig):
+    found = analysis.camera_findings(rig)
+    assert found["wide"].left_out == {"IMG_07": "board not detected"}
+    assert found["tele"].left_out == {"IMG_08": "reprojection RMS 3.2 px"}
+    hints = [h for f in found.values() for h in f.hints]
+    assert hints and any("outer 20% of the wide image" in h for h in hints)
+    for h in hints:
+        assert h in html
+
+
+def test_page_is_self_contained(html):
+    """No URL of any kind: nothing to fetch, no script; only local anchors and data: images."""
+    assert not re.search(r"https?:|//[a-z0-9.-]+\.[a-z]{2,}/", html, re.I)
+    assert not re.search(r"<(script|link|iframe|object|embed)\b", html, re.I)
+    assert "@import" not in html
+    for target in re.findall(r"url\(\s*['\"]?([^)'\"]*)", html):
+        assert target.startswith("#"), target
+    p = _Page()
+    p.feed(html)
+    for tag, key, value in p.attrs:
+        if key in ("src", "href", "xlink:href"):
+            assert value.startswith(("#", "data:image/png;base64,")), (tag, key, value[:40])
+
+
+def test_ids_are_unique_on_the_page(html):
+    """Several inline SVGs share one page: their internal ids must not collide."""
+    ids = re.findall(r"\sid=\"([^\"]+)\"", html)
+    assert len(ids) > 20 and len(ids) == len(set(ids))
+
+
+def test_figures_are_reproducible(rig):
+    """The same calibration gives the same bytes (no dates, no random ids)."""
+    res = analysis.rig_residuals(rig)["tele"]
+    with figures.style():
+        a, b = (figures.figure_svg(figures.residual_quiver_figure("tele", (756, 1008), res), "fig-x")
+                for _ in range(2))
+    assert a == b and a.startswith("<svg ")
+
+
+def test_page_size_is_reasonable(html):
+    assert len(html.encode()) < 3_000_000
+
+
+def test_report_of_single_camera_and_no_rig():
+    """A lone camera (rig mode none): no rig table, the page still renders every camera figure."""
+    truth = synth.make_truth("stereo", views=4, seed=5, scale=0.5)
+    full = synth.truth_rig_model(truth)
+    left = CornerSet(full.board, {"left": full.corners.cameras["left"]})
+    lone = replace(full, cameras={"left": full.cameras["left"]}, rig={}, rig_mode="none", reference="left",
+                   camera_poses={"left": full.camera_poses["left"]}, corners=left,
+                   camera_sigma={"left": dict(SIGMA)})
+    out = render_report(lone)
+    assert "a single camera" in out and "table-rig" not in out and "table-evaluation" not in out
+    assert 'id="fig-residuals-left"' in out and 'id="fig-rig-3d"' in out
+
+
+# ---------------------------------------------------------------------------- in a browser
+
+CHROMIUM = next((p for p in (shutil.which("chromium"), shutil.which("chromium-browser"),
+                             "/usr/bin/chromium") if p and Path(p).exists()), None)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium here to render the page "
+                    "(Debian: apt-get install chromium); the page checks above still ran")
+def test_page_renders_in_headless_chromium(html, tmp_path):
+    from PIL import Image
+
+    page = tmp_path / "report.html"
+    page.write_text(html, encoding="utf-8")
+    shot = tmp_path / "shot.png"
+    subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                    f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={shot}", "--window-size=1280,2000",
+                    page.as_uri()], check=True, capture_output=True, timeout=120)
+    img = np.asarray(Image.open(shot).convert("L"), dtype=float)
+    assert img.shape == (2000, 1280)
+    assert img.std() > 20                       # text, tables and tinted panels, not a blank page
+    assert 0.02 < np.mean(img < 200) < 0.6      # some ink, but not a dark or broken page
+
+
+# ---------------------------------------------------------------------------- command line and real data
+
+
+def _run(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    out = capsys.readouterr()
+    return exc.value.code, out.out, out.err
+
+
+def test_cli_report_with_evaluation(rig, tmp_path, capsys):
+    calib, ev, out = tmp_path / "calib.json", tmp_path / "eval.json", tmp_path / "report.html"
+    io.save_rig(calib, rig)
+    io.write_json_atomic(ev, EVALUATION)
+    code, stdout, _ = _run(["report", str(calib), "--eval", str(ev), "-o", str(out)], capsys)
+    assert code == 0 and "report written to" in stdout
+    text = out.read_text(encoding="utf-8")
+    assert 'id="table-evaluation"' in text and 'id="fig-rig-3d"' in text
+
+
+@pytest.mark.parametrize("case, message", [
+    ("corners", "this is a corners.json, expected a calib.json"),
+    ("eval-is-calib", "this is a calib.json, expected an eval.json"),
+    ("no-folder", "output folder"),
+])
+def test_cli_report_errors_are_one_line(rig, tmp_path, capsys, case, message):
+    calib = tmp_path / "calib.json"
+    io.save_rig(calib, rig)
+    args = ["report", str(calib), "-o", str(tmp_path / "r.html")]
+    if case == "corners":
+        io.save_corners(tmp_path / "corners.json", rig.corners)
+        args[1] = str(tmp_path / "corners.json")
+    elif case == "eval-is-calib":
+        args += ["--eval", str(calib)]
+    else:
+        args[3] = str(tmp_path / "missing" / "r.html")
+    code, _, err = _run(args, capsys)
+    assert code == 2 and message in err
+    assert len(err.strip().splitlines()) == 1
+
+
+STEREO = DATA / "opencv-samples-stereo"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (STEREO / "left01.jpg").exists(), reason=f"real photos not found at {STEREO}")
+def test_end_to_end_real_stereo_photos(tmp_path, capsys):
+    """Bouguet's stereo pairs: detect, calibrate, report and export; T against Bouguet's published value.
+
+    Bouguet (joint stereo optimisation, 14 pairs): T = [-99.80198, 1.12443, 0.05041] mm with
+    about 3-sigma uncertainties [0.142, 0.114, 0.498] mm (SOURCE.md). The exported T must agree
+    within those plus a margin for the different distortion model (k1, k2 only, 13 pairs).
+    """
+    import cv2
+
+    from dualcal.board import Board
+    from dualcal.calibrate import calibrate_rig
+    from dualcal.dataset import open_dataset
+    from dualcal.detect.pipeline import detect_dataset
+
+    ds = open_dataset(None, [f"left={STEREO}/left*.jpg", f"right={STEREO}/right*.jpg"])
+    corners = detect_dataset(ds, Board(9, 6, 30.0), jobs=1, progress=False)
+    calib = tmp_path / "calib.json"
+    io.save_rig(calib, calibrate_rig(corners))
+
+    code, _, _ = _run(["report", str(calib), "-o", str(tmp_path / "report.html")], capsys)
+    assert code == 0
+    page = _Page()
+    page.feed((tmp_path / "report.html").read_text(encoding="utf-8"))
+    assert {"fig-residuals-left", "fig-residuals-right", "fig-coverage-right", "fig-rig-3d"} <= set(page.figures)
+
+    code, _, _ = _run(["export", str(calib), "--format", "opencv", "-o", str(tmp_path / "stereo.yml")], capsys)
+    assert code == 0
+    fs = cv2.FileStorage(str(tmp_path / "stereo.yml"), cv2.FILE_STORAGE_READ)
+    T = fs.getNode("right").getNode("T").mat()
+    assert np.all(np.abs(T.ravel() - [-99.80198, 1.12443, 0.05041]) < [0.3, 0.3, 0.8]), T.ravel()
