@@ -1,0 +1,65 @@
+"""``dualcal report`` (the HTML report) and ``dualcal export`` (other tools' formats)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..errors import InputError
+from ..export import FORMATS, write_export
+from ..io import load_evaluation, load_rig, write_text_atomic
+from ..report import render_report
+from . import cli
+
+
+@cli.command("report")
+@click.argument("calib", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="report.html to write.")
+@click.option("--eval", "eval_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="An eval.json of this calibration: adds the evaluation table (paper Tables 5, 6).")
+def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
+    """Write a self-contained HTML report of a calibration.
+
+    One file with no external link: the parameters with 1-sigma (paper Tables 2-4), residual
+    vectors and histograms, per-view RMS with outliers, sensor coverage with hints, the
+    distortion curve and map, a 3-D view of the board poses and the rig, and the evaluation
+    (paper Tables 5, 6) when --eval is given.
+    """
+    if not output.parent.resolve().is_dir():  # fail before rendering, not after
+        raise InputError(f"output folder {str(output.parent)!r} does not exist: "
+                         "create it first or choose another -o")
+    rig = load_rig(calib)
+    evaluation = load_evaluation(eval_path) if eval_path is not None else None
+    html = render_report(rig, evaluation, progress=True)
+    write_text_atomic(output, html)
+    click.echo(f"report written to {output} ({len(html.encode()) / 1e6:.1f} MB)")
+
+
+@cli.command("export")
+@click.argument("calib", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--format", "fmt", required=True, type=click.Choice(FORMATS),
+              help="opencv: FileStorage YAML (K, D, R, T in mm); kalibr: camchain YAML (metres); "
+                   "colmap: cameras.txt (OPENCV model); mrcal: one .cameramodel per camera (metres).")
+@click.option("-o", "--output", required=True, type=click.Path(),  # a str: keeps a trailing "/"
+              help="File to write. For mrcal: a folder (gets NAME.cameramodel per camera) or a "
+                   "stem (gets STEM-NAME.cameramodel).")
+def export_command(calib: Path, fmt: str, output: str) -> None:
+    """Write a calibration in OpenCV, Kalibr, COLMAP or mrcal format.
+
+    \b
+    opencv  cv2.FileStorage YAML: per camera K, D = (k1, k2, 0, 0, 0), image size,
+            and R, T with X_cam = R X_ref + T (T in millimetres)
+    kalibr  camchain YAML: cam0 (reference), cam1, ...; pinhole + radtan,
+            T_cn_cnm1 in metres
+    colmap  cameras.txt, one OPENCV camera per rig camera (principal point + 0.5 px,
+            COLMAP's pixel convention)
+    mrcal   LENSMODEL_OPENCV4 .cameramodel files, extrinsics rt_cam_ref
+            (reference camera frame, metres)
+
+    None of these formats has a skew term: a non-zero skew is dropped with a warning.
+    """
+    rig = load_rig(calib)
+    for path in write_export(rig, fmt, output):
+        click.echo(f"wrote {path}")

@@ -1,0 +1,383 @@
+"""The numbers behind the report, computed from a calibrated rig alone (no plotting here).
+
+Everything is recomputed from what calib.json carries (intrinsics, every camera's board pose
+in every view, the detected corners), never stored twice:
+
+* :func:`rig_residuals`: observed minus projected corners, per camera and view (pixels);
+* :func:`rms_px`, :func:`outlier_views`: per-view RMS and the views that stand out;
+* :func:`coverage_counts`, :func:`coverage_hints`: where on each sensor the board was seen,
+  and plain-words warnings where it was not;
+* :func:`distortion_curve`, :func:`displacement_map`: the size of the radial distortion of
+  the model (paper eq. 13), over the radius and over the image;
+* :func:`rig_camera_frames`: where the cameras of the rig sit in the reference camera frame;
+* :func:`format_value_sigma`: a value and its 1-sigma, rounded to the sigma's precision;
+* :func:`camera_findings`: all of the above for each camera of a rig, with plain-words hints.
+
+Conventions (README, "Conventions"): pixel ``(row i, col j)`` has its centre at ``(u=j, v=i)``;
+residual = observed - projected; RMS is over points, ``sqrt(mean(du^2 + dv^2))``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from matplotlib.path import Path as MplPath
+
+from ..camera import (CameraModel, image_corner_radius, max_monotonic_radius, normalized_from_pixel,
+                      project_points, radial_factor, undistort_normalized)
+from ..errors import NotInvertibleError
+from ..model import Pose, RigModel
+
+#: A view is an outlier when its RMS exceeds this multiple of its camera's median view RMS.
+OUTLIER_FACTOR = 2.0
+#: Coverage hints: the outer ring of the image, as a share of the half-diagonal.
+OUTER_RING = 0.2
+#: Coverage hints: the image is split into this many cells per side to find empty regions.
+REGION_GRID = 3
+#: Coverage hints: warn when the boards covered less than this share of the image area.
+MIN_AREA_SHARE = 0.5
+#: Coverage maps use square cells of this share of the image's long side.
+COVERAGE_CELL_SHARE = 1 / 48
+
+_REGION_NAMES = {(0, 0): "top-left", (0, 1): "top", (0, 2): "top-right",
+                 (1, 0): "left", (1, 1): "centre", (1, 2): "right",
+                 (2, 0): "bottom-left", (2, 1): "bottom", (2, 2): "bottom-right"}
+
+
+@dataclass(frozen=True)
+class ViewResiduals:
+    """Corners of one camera in one view: ``uv_px`` observed (N, 2), ``residual_px`` (N, 2)."""
+
+    uv_px: np.ndarray
+    residual_px: np.ndarray
+
+    @property
+    def rms_px(self) -> float:
+        return rms_px(self.residual_px)
+
+
+def rms_px(residual_px: np.ndarray) -> float:
+    """Root mean square length of (N, 2) residual vectors, ``sqrt(mean(du^2 + dv^2))``."""
+    residual_px = np.asarray(residual_px, float).reshape(-1, 2)
+    if len(residual_px) == 0:
+        return float("nan")
+    return float(np.sqrt(np.mean(np.sum(residual_px**2, axis=1))))
+
+
+def rig_residuals(rig: RigModel) -> dict[str, dict[str, ViewResiduals]]:
+    """Residuals ``[camera][view]`` of every view that has both detected corners and a pose.
+
+    Views without a pose (not found, or dropped by the calibration) are left out; views are
+    in sorted key order.
+    """
+    X_board = rig.board.object_points_mm()
+    out: dict[str, dict[str, ViewResiduals]] = {}
+    for name, camera in rig.cameras.items():
+        found = rig.corners.cameras[name].found() if name in rig.corners.cameras else {}
+        poses = rig.camera_poses.get(name, {})
+        views = {}
+        for view in sorted(set(found) & set(poses)):
+            uv = np.asarray(found[view], float)
+            uv_model = project_points(camera, poses[view].apply(X_board))
+            views[view] = ViewResiduals(uv, uv - uv_model)
+        out[name] = views
+    return out
+
+
+def left_out_views(rig: RigModel) -> dict[str, dict[str, str]]:
+    """Views of each camera that have no residuals, with the reason: ``[camera][view] -> reason``.
+
+    A board not detected in the photo (``null`` in the corners), a view the calibration dropped
+    (``rig.dropped_views``, its own reason), or corners without a pose for any other reason.
+    """
+    dropped = {(d.get("camera"), d.get("view")): d.get("reason", "dropped by the calibration")
+               for d in rig.dropped_views if isinstance(d, dict)}
+    out: dict[str, dict[str, str]] = {}
+    for name in rig.cameras:
+        corners = rig.corners.cameras.get(name)
+        poses = rig.camera_poses.get(name, {})
+        views = {}
+        for view, uv in sorted(corners.views.items()) if corners else ():
+            if uv is None:
+                views[view] = "board not detected"
+            elif view not in poses:
+                views[view] = dropped.get((name, view), dropped.get((None, view), "no pose in the calibration"))
+        out[name] = views
+    return out
+
+
+def outlier_views(view_rms: dict[str, float], factor: float = OUTLIER_FACTOR) -> list[str]:
+    """Views whose RMS exceeds ``factor`` times the median over the views given (sorted keys)."""
+    if not view_rms:
+        return []
+    median = float(np.median(list(view_rms.values())))
+    return sorted(v for v, r in view_rms.items() if r > factor * median)
+
+
+# ---------------------------------------------------------------------------- coverage
+
+
+def coverage_counts(image_size: tuple[int, int], boards_uv_px: list[np.ndarray],
+                    cell_px: float) -> np.ndarray:
+    """How many views' boards cover each cell of a grid over the image.
+
+    Parameters
+    ----------
+    image_size : (W, H) pixels
+    boards_uv_px : list of (N, 2) corner arrays, one per view; each board is taken as the convex
+        hull of its corners
+    cell_px : side of one grid cell in pixels
+
+    Returns
+    -------
+    (rows, cols) int array: for cell ``[i, j]``, the number of boards whose hull holds the cell's
+    centre ``(u, v) = ((j + 1/2) c - 1/2, (i + 1/2) c - 1/2)``, ``c = cell_px`` (the grid starts at
+    the image's edge, half a pixel before pixel centre 0).
+    """
+    w, h = image_size
+    cols, rows = max(1, math.ceil(w / cell_px)), max(1, math.ceil(h / cell_px))
+    uu, vv = np.meshgrid((np.arange(cols) + 0.5) * cell_px - 0.5, (np.arange(rows) + 0.5) * cell_px - 0.5)
+    centres = np.column_stack([uu.ravel(), vv.ravel()])
+    counts = np.zeros(rows * cols, np.int32)
+    for uv in boards_uv_px:
+        hull = cv2.convexHull(np.asarray(uv, np.float32)).reshape(-1, 2)
+        counts += MplPath(hull).contains_points(centres)
+    return counts.reshape(rows, cols)
+
+
+def relative_radius(image_size: tuple[int, int], uv_px: np.ndarray) -> np.ndarray:
+    """Distance of pixels (N, 2) from the image centre, as a share of the half-diagonal."""
+    w, h = image_size
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    return np.linalg.norm(np.asarray(uv_px, float) - centre, axis=-1) / (0.5 * math.hypot(w, h))
+
+
+def coverage_hints(camera_name: str, image_size: tuple[int, int], boards_uv_px: list[np.ndarray],
+                   area_share: float) -> list[str]:
+    """Plain-words warnings where the corners of ``camera_name`` leave parts of the image empty.
+
+    ``area_share`` is the share of the image that at least one board covered (from
+    :func:`coverage_counts`). Returns an empty list when coverage is good.
+    """
+    if not boards_uv_px:
+        return [f"no corners of the {camera_name} camera were used: nothing is known about its image"]
+    uv = np.vstack(boards_uv_px)
+    hints = []
+    reach = float(relative_radius(image_size, uv).max())
+    if reach < 1.0 - OUTER_RING:
+        hints.append(f"no corners in the outer {OUTER_RING:.0%} of the {camera_name} image "
+                     f"(they reach {reach:.0%} of the way from the centre to the corners): "
+                     "distortion there is extrapolated")
+    w, h = image_size
+    j = np.clip((uv[:, 0] + 0.5) * REGION_GRID // w, 0, REGION_GRID - 1).astype(int)
+    i = np.clip((uv[:, 1] + 0.5) * REGION_GRID // h, 0, REGION_GRID - 1).astype(int)
+    seen = set(zip(i.tolist(), j.tolist()))
+    empty = [name for cell, name in _REGION_NAMES.items() if cell not in seen]
+    filled = [name for cell, name in _REGION_NAMES.items() if cell in seen]
+    if empty:
+        where = (f"no corners in the {', '.join(empty)}" if len(empty) <= len(filled)
+                 else f"corners only in the {', '.join(filled)}")
+        hints.append(f"{where} of the {camera_name} image ({REGION_GRID}x{REGION_GRID} regions): "
+                     "take photos with the board in the empty regions")
+    if area_share < MIN_AREA_SHARE:
+        hints.append(f"the boards covered only {area_share:.0%} of the {camera_name} image: "
+                     "fill more of the frame, near the edges and corners")
+    return hints
+
+
+# ---------------------------------------------------------------------------- distortion
+
+
+@dataclass(frozen=True)
+class DistortionCurve:
+    """Radial displacement of the model along the radius, in pixels.
+
+    ``radius_px`` is the distorted (observed) distance from the principal point, ``shift_px``
+    the distorted minus the ideal radius there, both scaled by ``f = sqrt(fx fy)``.
+    ``corner_radius_px`` is where the farthest image corner lies; ``fold_radius_px`` where the
+    model stops being monotonic (undistortion not unique beyond), or None if it never does
+    inside the image.
+    """
+
+    radius_px: np.ndarray
+    shift_px: np.ndarray
+    corner_radius_px: float
+    fold_radius_px: float | None
+
+
+def _mean_focal_px(camera: CameraModel) -> float:
+    return math.sqrt(camera.fx * camera.fy)
+
+
+def distortion_curve(camera: CameraModel, samples: int = 200) -> DistortionCurve:
+    """Radial displacement ``rd - r`` (paper eq. 13) from the centre out to the image corner."""
+    f = _mean_focal_px(camera)
+    rd_corner = image_corner_radius(camera)
+    r_fold = max_monotonic_radius(camera.k1, camera.k2)
+    rd_fold = r_fold * radial_factor(r_fold**2, camera.k1, camera.k2) if math.isfinite(r_fold) else math.inf
+    fold = rd_fold < rd_corner
+    if fold:
+        r_end = r_fold
+    else:
+        r_end = float(undistort_normalized(np.array([[rd_corner, 0.0]]), camera.k1, camera.k2)[0, 0])
+    r = np.linspace(0.0, r_end, samples)
+    rd = r * radial_factor(r * r, camera.k1, camera.k2)
+    return DistortionCurve(rd * f, (rd - r) * f, rd_corner * f, rd_fold * f if fold else None)
+
+
+def displacement_px(camera: CameraModel, uv_px: np.ndarray) -> np.ndarray:
+    """Length in pixels of the distortion at observed pixels (N, 2): ``|uv - ideal(uv)|``.
+
+    NaN where undistortion is not unique (beyond the model's monotonic radius).
+    """
+    xy_d = normalized_from_pixel(camera, uv_px)
+    rd = np.linalg.norm(xy_d, axis=-1)
+    r_fold = max_monotonic_radius(camera.k1, camera.k2)
+    rd_fold = r_fold * radial_factor(r_fold**2, camera.k1, camera.k2) if math.isfinite(r_fold) else math.inf
+    out = np.full(rd.shape, np.nan)
+    ok = rd < rd_fold
+    try:
+        xy = undistort_normalized(xy_d[ok], camera.k1, camera.k2)
+    except NotInvertibleError:  # Newton failed right at the fold: leave the map blank there
+        return out
+    shift = xy_d[ok] - xy
+    out[ok] = np.hypot(camera.fx * shift[:, 0] + camera.skew * shift[:, 1], camera.fy * shift[:, 1])
+    return out
+
+
+def displacement_map(camera: CameraModel, cells: int = 60) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`displacement_px` on a grid over the image, about ``cells`` samples on the long side.
+
+    Returns ``u`` (cols,), ``v`` (rows,) pixel coordinates and the (rows, cols) displacement.
+    """
+    w, h = camera.image_size
+    step = max(w, h) / cells
+    u = np.linspace(-0.5, w - 0.5, max(2, round(w / step) + 1))
+    v = np.linspace(-0.5, h - 0.5, max(2, round(h / step) + 1))
+    uu, vv = np.meshgrid(u, v)
+    d = displacement_px(camera, np.column_stack([uu.ravel(), vv.ravel()]))
+    return u, v, d.reshape(uu.shape)
+
+
+def corner_reach_px(camera: CameraModel, uv_px: np.ndarray) -> float:
+    """Farthest observed corner (N, 2) from the principal point, in :class:`DistortionCurve` units."""
+    if len(uv_px) == 0:
+        return math.nan
+    rd = np.linalg.norm(normalized_from_pixel(camera, uv_px), axis=1)
+    return float(rd.max() * _mean_focal_px(camera))
+
+
+# ---------------------------------------------------------------------------- rig geometry
+
+
+def rig_camera_frames(rig: RigModel) -> dict[str, Pose]:
+    """Pose of every camera of the rig as ``X_ref = R X_cam + t`` (reference camera frame, mm).
+
+    The reference camera is the identity; cameras without a relation to it (rig mode ``none``)
+    are left out. ``t`` is the camera's perspective centre in the reference frame.
+    """
+    frames = {rig.reference: Pose(np.eye(3), np.zeros(3))}
+    for name, rel in rig.rig.items():
+        frames[name] = rel.pose.inverse()
+    return frames
+
+
+# ---------------------------------------------------------------------------- formatting
+
+
+def format_value_sigma(value: float, sigma: float, sigma_digits: int = 2,
+                       fallback_digits: int = 6) -> tuple[str, str]:
+    """Strings for a value and its 1-sigma, the value rounded to the sigma's last digit.
+
+    ``sigma`` gets ``sigma_digits`` significant digits. A sigma of exactly 0 means the value
+    was held fixed (``"fixed"``); a missing (NaN) sigma gives ``"–"``. Without a usable sigma
+    the value is written with ``fallback_digits`` significant digits.
+
+    Examples
+    --------
+    >>> format_value_sigma(3127.2083, 12.894)
+    ('3127', '13')
+    >>> format_value_sigma(-0.01834, 0.0431)
+    ('-0.018', '0.043')
+    >>> format_value_sigma(0.0, 0.0)
+    ('0', 'fixed')
+    """
+    value, sigma = float(value), float(sigma)
+    if not math.isfinite(value):
+        return "–", "–"
+    if not math.isfinite(sigma) or sigma < 0:
+        return f"{value:.{fallback_digits}g}", "–"
+    if sigma == 0:
+        return f"{value:.{fallback_digits}g}", "fixed"
+    decimals = max(0, sigma_digits - 1 - math.floor(math.log10(sigma)))
+    # Rounding can carry the sigma to one more digit (0.096 -> 0.10): recompute once.
+    if float(f"{sigma:.{decimals}f}") >= 10 ** (sigma_digits - decimals):
+        decimals = max(0, decimals - 1)
+    text = f"{value:.{decimals}f}"
+    if float(text) == 0:
+        text = text.lstrip("-")
+    return text, f"{sigma:.{decimals}f}"
+
+
+# ---------------------------------------------------------------------------- per camera
+
+
+@dataclass
+class CameraFindings:
+    """What the report shows about one camera of a rig.
+
+    ``residuals[view]`` and ``view_rms_px[view]`` for every view with corners and a pose;
+    ``rms_px`` over all of them; ``outliers`` (views above :data:`OUTLIER_FACTOR` x the
+    median); ``left_out[view] -> reason``; ``coverage`` counts (:func:`coverage_counts`) on
+    cells of ``coverage_cell_px``; the distortion ``curve`` and ``reach_px``, the farthest
+    observed corner on it; ``hints``: plain-words warnings.
+    """
+
+    residuals: dict[str, ViewResiduals]
+    view_rms_px: dict[str, float]
+    rms_px: float
+    outliers: list[str]
+    left_out: dict[str, str]
+    coverage: np.ndarray
+    coverage_cell_px: float
+    curve: DistortionCurve
+    reach_px: float
+    hints: list[str]
+
+    @property
+    def boards_uv_px(self) -> list[np.ndarray]:
+        """Observed corners (N, 2) of every view with residuals."""
+        return [r.uv_px for r in self.residuals.values()]
+
+
+def camera_findings(rig: RigModel) -> dict[str, CameraFindings]:
+    """:class:`CameraFindings` of every camera of ``rig`` (in the order of ``rig.cameras``)."""
+    residuals = rig_residuals(rig)
+    left_out = left_out_views(rig)
+    out = {}
+    for name, camera in rig.cameras.items():
+        res = residuals[name]
+        boards = [r.uv_px for r in res.values()]
+        view_rms = {v: r.rms_px for v, r in res.items()}
+        outliers = outlier_views(view_rms)
+        cell = max(camera.image_size) * COVERAGE_CELL_SHARE
+        counts = coverage_counts(camera.image_size, boards, cell)
+        curve = distortion_curve(camera)
+        hints = coverage_hints(name, camera.image_size, boards, float(np.mean(counts > 0)))
+        if outliers:
+            many = len(outliers) > 1
+            hints.append(f"{name}: view{'s' if many else ''} {', '.join(outliers)} "
+                         f"{'have' if many else 'has'} an RMS above {OUTLIER_FACTOR:g}× the median: "
+                         f"check {'them' if many else 'it'} for blur or a wrong detection")
+        if curve.fold_radius_px is not None:
+            hints.append(f"{name}: the distortion model folds over inside the image (beyond "
+                         f"{curve.fold_radius_px:.0f} px from the principal point): k1, k2 are "
+                         "not usable out there")
+        all_uv = np.vstack(boards) if boards else np.empty((0, 2))
+        all_res = np.vstack([r.residual_px for r in res.values()]) if res else np.empty((0, 2))
+        out[name] = CameraFindings(res, view_rms, rms_px(all_res), outliers, left_out[name], counts, cell,
+                                   curve, corner_reach_px(camera, all_uv), hints)
+    return out

@@ -1,0 +1,214 @@
+"""Assemble the self-contained HTML report from a calibrated rig (and an evaluation).
+
+:func:`render_report` computes the report's numbers (:mod:`.analysis`), draws its figures
+(:mod:`.figures`) and fills ``templates/report.html`` with jinja2. The page needs nothing
+else: CSS is inline, figures are inline SVG (raster parts embedded as ``data:`` PNG), there
+is no script and no link to anything outside the file.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import jinja2
+import numpy as np
+from markupsafe import Markup
+
+from .. import __version__
+from ..camera import INTRINSIC_NAMES
+from ..export import camera_order
+from ..model import RigModel
+from ..progress import track
+from . import analysis, figures
+
+#: Intrinsic parameters as the paper's Tables 2 and 3 name them, with their units.
+PARAMETER_LABELS = {"fx": ("f<sub>x</sub>", "α", "px"), "fy": ("f<sub>y</sub>", "β", "px"),
+                    "skew": ("skew", "γ", "px"), "cx": ("c<sub>x</sub>", "u<sub>0</sub>", "px"),
+                    "cy": ("c<sub>y</sub>", "v<sub>0</sub>", "px"), "k1": ("k<sub>1</sub>", "k<sub>1</sub>", ""),
+                    "k2": ("k<sub>2</sub>", "k<sub>2</sub>", "")}
+
+
+@dataclass
+class FigureBlock:
+    """One figure on the page: its HTML id, caption and inline SVG."""
+
+    id: str
+    caption: str
+    svg: Markup
+
+
+@dataclass
+class CameraSection:
+    """The figures of one camera."""
+
+    name: str
+    slug: str
+    figures: list[FigureBlock] = field(default_factory=list)
+
+
+def slug(name: str) -> str:
+    """A string usable in an HTML id: lower case letters, digits and dashes."""
+    return re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "camera"
+
+
+def _unique_slugs(names) -> dict[str, str]:
+    out, used = {}, set()
+    for name in names:
+        base = s = slug(name)
+        k = 2
+        while s in used:
+            s, k = f"{base}-{k}", k + 1
+        used.add(s)
+        out[name] = s
+    return out
+
+
+# ---------------------------------------------------------------------------- tables
+
+
+def _cell(value: float, sigma: float) -> dict:
+    v, s = analysis.format_value_sigma(value, sigma)
+    return {"value": v, "sigma": s}
+
+
+def intrinsics_table(rig: RigModel, names: list[str]) -> list[dict]:
+    """Rows of the intrinsics table (paper Tables 2-3): one row per parameter, a cell per camera."""
+    rows = []
+    for p in INTRINSIC_NAMES:
+        label, paper, unit = PARAMETER_LABELS[p]
+        cells = [_cell(getattr(rig.cameras[name], p), rig.camera_sigma.get(name, {}).get(p, math.nan))
+                 for name in names]
+        rows.append({"label": Markup(label), "paper": Markup(paper), "unit": unit, "cells": cells})
+    return rows
+
+
+def rig_table(rig: RigModel) -> list[dict]:
+    """Rows of the relative-orientation table (paper Table 4, plus t): one per non-reference camera."""
+    rows = []
+    for name, rel in rig.rig.items():
+        opk, s_opk = rel.pose.opk_arcmin, np.asarray(rel.sigma_opk_arcmin, float)
+        t, s_t = rel.pose.t_mm, np.asarray(rel.sigma_t_mm, float)
+        rows.append({"camera": name,
+                     "cells": [_cell(rel.baseline_mm, rel.sigma_baseline_mm)]
+                     + [_cell(opk[i], s_opk[i]) for i in range(3)]
+                     + [_cell(t[i], s_t[i]) for i in range(3)]})
+    return rows
+
+
+def evaluation_table(evaluation: dict | None) -> list[dict]:
+    """Rows of the evaluation table (paper Tables 5-6): case, RMSE X, Y, Z (mm), 3-D, pairs."""
+    if not evaluation:
+        return []
+    rows = []
+    for case, entry in evaluation.get("cases", {}).items():
+        rmse = [float(x) for x in entry.get("rmse_mm", [math.nan] * 3)]
+        total = math.sqrt(sum(x * x for x in rmse))
+        label = "two cameras, same instant" if case == "dual" else f"{case} camera, two instants"
+        rows.append({"case": case, "label": label, "rmse": [f"{x:.3f}" for x in rmse],
+                     "total": f"{total:.3f}", "pairs": entry.get("pairs", "–")})
+    return rows
+
+
+# ---------------------------------------------------------------------------- the page
+
+
+def _figure_jobs(rig: RigModel, names: list[str], found: dict[str, analysis.CameraFindings],
+                 slugs: dict[str, str]) -> list[tuple]:
+    """``(camera or None, HTML id, caption, figure factory)`` of every figure, in page order."""
+    cameras = {name: rig.cameras[name] for name in names}
+    jobs = []
+    for name, camera in cameras.items():
+        f, s = found[name], slugs[name]
+        jobs += [
+            (name, f"fig-residuals-{s}",
+             f"Residual vectors of the {name} camera (observed − projected), magnified; "
+             "the arrow at the top is the scale bar.",
+             lambda n=name, c=camera, f=f: figures.residual_quiver_figure(n, c.image_size, f.residuals)),
+            (name, f"fig-histogram-{s}",
+             f"Histogram of the {name} camera's residual components.",
+             lambda n=name, f=f: figures.residual_histogram_figure(n, f.residuals)),
+            (name, f"fig-coverage-{s}",
+             f"Coverage of the {name} sensor: how many boards covered each cell, corners as dots; "
+             f"outside the dashed circle lies the outer {analysis.OUTER_RING:.0%} of the image.",
+             lambda n=name, c=camera, f=f: figures.coverage_figure(
+                 n, c.image_size, f.boards_uv_px, f.coverage, f.coverage_cell_px, analysis.OUTER_RING)),
+            (name, f"fig-distortion-map-{s}",
+             f"Distortion of the {name} camera over the image (px between observed and ideal "
+             "position); + marks the principal point.",
+             lambda n=name, c=camera: figures.distortion_map_figure(n, c, *analysis.displacement_map(c))),
+        ]
+    jobs += [
+        (None, "fig-view-rms",
+         f"RMS residual of every view, per camera; hatched bars are outliers (RMS above "
+         f"{analysis.OUTLIER_FACTOR:g}× the camera's median view RMS), × marks a view left out "
+         "(see the table of views left out).",
+         lambda: figures.view_rms_figure({n: found[n].view_rms_px for n in names},
+                                         {n: found[n].rms_px for n in names},
+                                         {n: found[n].outliers for n in names}, analysis.OUTLIER_FACTOR,
+                                         {n: found[n].left_out for n in names})),
+        (None, "fig-distortion-curve",
+         "Radial distortion (paper eq. 13) against the distance from the principal point, out to "
+         "the farthest image corner; beyond the dotted line no corner was observed.",
+         lambda: figures.distortion_curve_figure({n: found[n].curve for n in names},
+                                                 {n: found[n].reach_px for n in names})),
+        (None, "fig-rig-3d",
+         f"Board poses and cameras in the reference ({rig.reference}) camera frame, mm; right: "
+         "the perspective centres seen from the front.",
+         lambda: figures.rig_figure(rig.board, rig.reference_poses(), cameras,
+                                    analysis.rig_camera_frames(rig), rig.reference)),
+    ]
+    return jobs
+
+
+def render_report(rig: RigModel, evaluation: dict | None = None, title: str | None = None,
+                  progress: bool = False) -> str:
+    """The HTML report of a calibrated rig, as one self-contained string.
+
+    Parameters
+    ----------
+    rig : the calibration (content of calib.json); residuals are recomputed from its corners
+        and poses
+    evaluation : the content of an eval.json, or None to leave the evaluation section out
+    title : page title; default names the cameras
+    progress : draw a progress bar on stderr while the figures are rendered
+    """
+    names = camera_order(rig)
+    found = analysis.camera_findings(rig)
+    slugs = _unique_slugs(names)
+    sections = {name: CameraSection(name, slugs[name]) for name in names}
+    shared = {}
+    with figures.style():
+        for key, fig_id, caption, make in track(_figure_jobs(rig, names, found, slugs), "rendering figures",
+                                                enabled=progress):
+            block = FigureBlock(fig_id, caption, Markup(figures.figure_svg(make(), fig_id)))
+            if key is None:
+                shared[fig_id] = block
+            else:
+                sections[key].figures.append(block)
+
+    env = jinja2.Environment(loader=jinja2.PackageLoader("dualcal.report", "templates"),
+                             autoescape=jinja2.select_autoescape(["html"]),
+                             undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    return env.get_template("report.html").render(
+        title=title or f"dualcal calibration: {' + '.join(names)}",
+        version=__version__,
+        rig=rig,
+        camera_names=names,
+        found=found,
+        intrinsics=intrinsics_table(rig, names),
+        rig_rows=rig_table(rig),
+        evaluation=evaluation_table(evaluation),
+        evaluation_kind=("hold-out: each view oriented by a calibration that left it out"
+                         if evaluation and evaluation.get("holdout")
+                         else "photos oriented by the calibration's own poses"),
+        left_out=[{"camera": n, "view": view, "reason": reason}
+                  for n in names for view, reason in found[n].left_out.items()],
+        adjustment={k: f"{v:.4g}" if isinstance(v, float) else v for k, v in rig.adjustment.items()
+                    if not isinstance(v, (dict, list))},
+        hints=[h for n in names for h in found[n].hints],
+        sections=list(sections.values()),
+        shared=shared,
+        skew_model="Model 2: skew free" if rig.skew else "Model 1: skew fixed to 0",
+    )
