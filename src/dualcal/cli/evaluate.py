@@ -1,0 +1,96 @@
+"""``dualcal evaluate`` (the paper's Tables 5 and 6) and ``dualcal undistort`` (section 1.8)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.table import Table
+
+from ..camera import INTRINSIC_NAMES
+from ..errors import InputError
+from ..evaluate import evaluate
+from ..io import load_rig, write_json_atomic
+from ..rectify import KEEP_MODES, undistort_files
+from . import cli
+from .common import default_jobs
+
+
+def _case_photos(name: str, doc: dict) -> str:
+    """What a case intersects, from its first pair: 'wide+tele, one instant' or 'wide, two instants'."""
+    cams = next(p["cameras"] for p in doc["per_pair"] if p["case"] == name)
+    return f"{cams[0]}+{cams[1]}, one instant" if cams[0] != cams[1] else f"{cams[0]}, two instants"
+
+
+def evaluation_table(doc: dict, n_corners: int) -> Table:
+    """The eval.json document as a table like the paper's Tables 5 and 6."""
+    kind = "hold-out: each view resected with a calibration that left it out" if doc.get("holdout") \
+        else "photos oriented by the calibration's own poses"
+    table = Table(title=f"Stereo intersection of the {n_corners} board corners: RMSE in mm", caption=kind)
+    table.add_column("Case")
+    table.add_column("Photos")
+    for axis in "XYZ":
+        table.add_column(f"RMSE {axis}", justify="right")
+    table.add_column("Pairs", justify="right")
+    for name, case in doc["cases"].items():
+        table.add_row(name, _case_photos(name, doc), *(f"{x:.3f}" for x in case["rmse_mm"]), str(case["pairs"]))
+    return table
+
+
+@cli.command("evaluate")
+@click.argument("calib", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="eval.json to write.")
+@click.option("--holdout", is_flag=True,
+              help="Leave each view out of the calibration in turn and orient it by space resection "
+                   "(an honest check; recalibrates once per view).")
+def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
+    """Check a calibration by stereo intersection of the board corners (paper Tables 5, 6).
+
+    Every corner is intersected from two photos and compared with the board: the reference
+    and another camera at the same instant (case "dual"), and each camera at two instants
+    (one case per camera). Prints RMSE X, Y, Z in mm per case and writes eval.json.
+    """
+    if not output.parent.resolve().is_dir():
+        raise InputError(f"output folder {str(output.parent)!r} does not exist: create it first or choose another -o")
+    rig = load_rig(calib)
+    doc = evaluate(rig, holdout=holdout)
+    write_json_atomic(output, doc)
+    Console().print(evaluation_table(doc, rig.board.n_corners))
+
+
+@cli.command("undistort")
+@click.argument("calib", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--camera", "camera_name", required=True, metavar="NAME",
+              help="The camera of calib.json that took the photos.")
+@click.option("-o", "--output", "out_dir", required=True, metavar="OUTDIR",
+              type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (created if its parent exists); photos keep their names.")
+@click.option("--keep", type=click.Choice(KEEP_MODES), default="same", show_default=True,
+              help="Camera matrix of the output: the calibrated one (same), one that keeps every "
+                   "source pixel (all), or one with no empty border (valid).")
+@click.option("--jobs", type=click.IntRange(min=1), default=None,
+              help="Photos rectified in parallel (default: all cores).")
+def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, out_dir: Path, keep: str,
+                      jobs: int | None) -> None:
+    """Remove lens distortion from photos (paper section 1.8), keeping their EXIF.
+
+    Writes OUTDIR/<photo name> for each photo and OUTDIR/<NAME>.rectified.json, the pinhole
+    camera (k1 = k2 = 0) of the rectified photos.
+    """
+    rig = load_rig(calib)
+    if camera_name not in rig.cameras:
+        raise InputError(f"--camera {camera_name!r} is not in {calib} (cameras: {', '.join(rig.cameras)})")
+    written, new_cam = undistort_files(images, out_dir, rig.cameras[camera_name], keep=keep,
+                                       jobs=jobs or default_jobs())
+    if not written:
+        raise InputError(f"none of the {len(images)} photos could be rectified (see the warnings above)")
+    cam_doc = {"camera": camera_name, "keep": keep, "calibration": str(calib),
+               "image_size": list(new_cam.image_size),
+               **{k: getattr(new_cam, k) for k in INTRINSIC_NAMES}}
+    write_json_atomic(Path(out_dir) / f"{camera_name}.rectified.json", cam_doc)
+    click.echo(f"{len(written)} of {len(images)} photos rectified into {out_dir} "
+               f"(fx={new_cam.fx:.2f} fy={new_cam.fy:.2f} cx={new_cam.cx:.2f} cy={new_cam.cy:.2f}, "
+               f"k1=k2=0: {camera_name}.rectified.json)")

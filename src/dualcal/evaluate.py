@@ -1,0 +1,257 @@
+"""The paper's 3-D check: stereo intersection of the board corners (section 2, Tables 5, 6).
+
+Every board corner is intersected from two oriented photos (:func:`dualcal.intersect.triangulate`)
+and compared with the board's known geometry, in the board frame, as RMSE per axis. The cases:
+
+* ``dual``: the reference camera and another camera at the same instant (paper case 1), for
+  every view both saw. With more than two cameras, ``dual`` pairs the reference with the first
+  other camera and ``dual:<camera>`` with each further one.
+* ``<camera>``: one camera at two instants (paper cases 2 and 3), for every pair of views. The
+  board is the same physical object in both, so both rays live in the board frame.
+
+Orientation of the photos:
+
+* by default the calibration's own poses (as in the paper: the check uses the photos the
+  calibration was fitted to);
+* ``holdout=True``: each view is left out of the calibration in turn, and its photos are then
+  oriented by space resection (:func:`resect`) with the intrinsics and rig that calibration
+  found, so no ray comes from a calibration that saw its photo. A pair of two instants takes
+  each photo from its own fold.
+
+eval.json (contract): ``{"cases": {name: {"rmse_mm": [x, y, z], "pairs": N}}}``; added keys:
+``points`` per case (corners intersected), ``per_pair`` (each pair's cameras, views and
+RMSE), ``holdout``.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .board import Board
+from .camera import CameraModel, normalized_from_pixel, project_with_jacobians, undistort_normalized
+from .errors import EstimationError, InputError
+from .intersect import triangulate
+from .model import CameraCorners, CornerSet, Pose, RigModel
+from .progress import progress_bar, warn
+from .rotation import cross_matrix, rotation_from_rotvec
+
+CALIBRATED_RIG_MODES = ("rigid", "paper", "none")
+_IDENTITY = Pose(np.eye(3), np.zeros(3))
+
+
+@dataclass(frozen=True)
+class OrientedPhoto:
+    """A photo ready for intersection: its camera, pose (board -> camera) and observed corners."""
+
+    camera: CameraModel
+    pose: Pose
+    uv_px: np.ndarray
+
+
+# ---------------------------------------------------------------------------- space resection
+
+
+def _initial_pose(X_board: np.ndarray, cam: CameraModel, uv_px: np.ndarray) -> Pose:
+    """Board -> camera pose from undistorted normalised corners (IPPE, exact for a planar board)."""
+    xy = undistort_normalized(normalized_from_pixel(cam, uv_px), cam.k1, cam.k2)
+    ok, rvec, tvec = cv2.solvePnP(X_board.astype(np.float64), xy.astype(np.float64), np.eye(3), None,
+                                  flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        raise EstimationError("space resection: no initial pose (degenerate corners?)")
+    return Pose(rotation_from_rotvec(rvec.ravel()), tvec.ravel())
+
+
+def resect(X_board: np.ndarray, cameras: list[CameraModel], rig: list[Pose], uv_px: list[np.ndarray],
+           max_iter: int = 30, tol: float = 1e-12) -> Pose:
+    """Space resection of one instant of a rig: the board -> reference pose.
+
+    Minimises the pixel residuals of every camera's corners by Gauss-Newton, the rig being
+    fixed: camera ``i`` sees ``X_i = rig[i] (pose X_board)``. One camera alone is the case
+    ``rig = [identity]``. The start comes from the first camera by IPPE
+    (``cv2.solvePnP`` on undistorted normalised corners). The update is
+    ``R <- exp([w]x) R, t <- exp([w]x) t + dt``, so ``d X_ref = -[X_ref]x w + dt``.
+
+    Parameters
+    ----------
+    X_board : (N, 3) board corners, mm (planar, Z = 0).
+    cameras, rig, uv_px : per camera its model, its pose relative to the reference camera
+        (reference -> camera) and its (N, 2) observed corners.
+
+    Returns
+    -------
+    Pose mapping the board to the reference camera.
+
+    Raises
+    ------
+    EstimationError
+        Degenerate corners or no convergence.
+    """
+    pose = rig[0].inverse().compose(_initial_pose(X_board, cameras[0], uv_px[0]))
+    for _ in range(max_iter):
+        X_ref = pose.apply(X_board)
+        d_Xref = np.concatenate([-cross_matrix(X_ref), np.broadcast_to(np.eye(3), X_ref.shape + (3,))], axis=2)
+        J, r = [], []
+        for cam, rel, uv in zip(cameras, rig, uv_px, strict=True):
+            uv_hat, J_X, _ = project_with_jacobians(cam, rel.apply(X_ref))
+            J.append((J_X @ rel.R @ d_Xref).reshape(-1, 6))
+            r.append((uv_hat - uv).ravel())
+        J, r = np.vstack(J), np.concatenate(r)
+        step, _, rank, _ = np.linalg.lstsq(J, -r, rcond=None)
+        if rank < 6:
+            raise EstimationError("space resection is degenerate (corners on a line?)")
+        pose = Pose(rotation_from_rotvec(step[:3]), step[3:]).compose(pose)
+        if np.max(np.abs(step)) <= tol * max(1.0, np.linalg.norm(pose.t_mm)):
+            return pose
+    raise EstimationError(f"space resection did not converge in {max_iter} Gauss-Newton steps")
+
+
+# ---------------------------------------------------------------------------- orienting photos
+
+
+def fitted_photos(rig: RigModel) -> dict[str, dict[str, OrientedPhoto]]:
+    """Every photo with the pose the calibration fitted to it: ``[camera][view]``."""
+    out = {}
+    for cam, model in rig.cameras.items():
+        corners = rig.corners.cameras[cam].found()
+        out[cam] = {v: OrientedPhoto(model, pose, corners[v])
+                    for v, pose in rig.camera_poses.get(cam, {}).items() if v in corners}
+    return out
+
+
+def _without_view(corners: CornerSet, view: str) -> CornerSet:
+    cams = {name: CameraCorners(c.image_size, {k: x for k, x in c.views.items() if k != view}, c.meta)
+            for name, c in corners.cameras.items()}
+    return CornerSet(corners.board, cams)
+
+
+def resect_view(calib: RigModel, view: str, corners: CornerSet) -> dict[str, OrientedPhoto]:
+    """Orient the photos of one view with a calibration: ``{camera: photo}``.
+
+    When the calibration treats the cameras as a rig (rig mode ``rigid`` or ``paper``) they are
+    resected together, one board pose for the whole rig, so the rig's relative pose is part of
+    what the check tests; in rig mode ``none`` each camera is resected on its own.
+    """
+    X = corners.board.object_points_mm()
+    seen = {c: cc.views[view] for c, cc in corners.cameras.items()
+            if c in calib.cameras and cc.views.get(view) is not None}
+    tied = [c for c in seen if calib.rig_mode != "none" and (c == calib.reference or c in calib.rig)]
+    groups = ([tied] if tied else []) + [[c] for c in seen if c not in tied]
+    out = {}
+    for group in groups:
+        rel = {c: _IDENTITY if c == calib.reference or len(group) == 1 else calib.rig[c].pose for c in group}
+        pose = resect(X, [calib.cameras[c] for c in group], [rel[c] for c in group], [seen[c] for c in group])
+        for c in group:
+            out[c] = OrientedPhoto(calib.cameras[c], rel[c].compose(pose), seen[c])
+    return out
+
+
+def holdout_photos(rig: RigModel, progress: bool = True) -> dict[str, dict[str, OrientedPhoto]]:
+    """Every photo oriented by a calibration that did not see its view (leave one view out).
+
+    Calls :func:`dualcal.calibrate.calibrate_rig` once per view, with the corners of all other
+    views and the rig's own settings (skew, rig mode, reference), then :func:`resect_view`.
+    Only views the full calibration kept are evaluated.
+    """
+    from .calibrate import calibrate_rig   # the adjustment is only needed here
+
+    if rig.rig_mode not in CALIBRATED_RIG_MODES:
+        raise InputError(f"--holdout recalibrates, which needs a rig mode of {', '.join(CALIBRATED_RIG_MODES)} "
+                         f"(this calibration has {rig.rig_mode!r})")
+    views = sorted({v for poses in rig.camera_poses.values() for v in poses})
+    out: dict[str, dict[str, OrientedPhoto]] = {cam: {} for cam in rig.cameras}
+    with progress_bar("hold-out folds", len(views), enabled=progress) as advance:
+        for view in views:
+            try:
+                calib = calibrate_rig(_without_view(rig.corners, view), skew=rig.skew, rig_mode=rig.rig_mode,
+                                      reference=rig.reference)
+            except EstimationError as exc:
+                raise EstimationError(f"hold-out calibration without view {view!r} failed: {exc}") from None
+            kept = {c for c, poses in rig.camera_poses.items() if view in poses}
+            for cam, photo in resect_view(calib, view, rig.corners).items():
+                if cam in kept:
+                    out[cam][view] = photo
+            advance()
+    return out
+
+
+# ---------------------------------------------------------------------------- the three cases
+
+
+def case_pairs(photos: dict[str, dict[str, OrientedPhoto]], reference: str) -> dict[str, list[tuple]]:
+    """The pairs of each case: ``{case: [((cam_a, view_a), (cam_b, view_b)), ...]}``.
+
+    Order: the dual cases (reference with each other camera, in ``photos`` order), then one
+    case per camera (reference first). Cases without a pair are left out.
+    """
+    others = [c for c in photos if c != reference]
+    cases = {}
+    if reference in photos:
+        for i, cam in enumerate(others):
+            shared = sorted(set(photos[reference]) & set(photos[cam]))
+            cases["dual" if i == 0 else f"dual:{cam}"] = [((reference, v), (cam, v)) for v in shared]
+    for cam in ([reference] if reference in photos else []) + others:
+        cases[cam] = [((cam, a), (cam, b)) for a, b in itertools.combinations(sorted(photos[cam]), 2)]
+    return {name: pairs for name, pairs in cases.items() if pairs}
+
+
+def pair_errors(board: Board, a: OrientedPhoto, b: OrientedPhoto) -> np.ndarray:
+    """(N, 3) intersected corners minus their board coordinates, mm (board frame)."""
+    X = triangulate([a.camera, b.camera], [a.pose, b.pose], [a.uv_px, b.uv_px])
+    return X - board.object_points_mm()
+
+
+def _rmse(err: np.ndarray) -> list[float]:
+    return np.sqrt(np.mean(err**2, axis=0)).tolist()
+
+
+def stereo_cases(board: Board, photos: dict[str, dict[str, OrientedPhoto]], reference: str) -> dict:
+    """Intersect every pair of every case: the eval.json document (without ``holdout``)."""
+    cases, per_pair = {}, []
+    for name, pairs in case_pairs(photos, reference).items():
+        errors = []
+        for (ca, va), (cb, vb) in pairs:
+            try:
+                err = pair_errors(board, photos[ca][va], photos[cb][vb])
+            except EstimationError as exc:
+                warn(f"case {name}: pair {ca}/{va} + {cb}/{vb} left out: {exc}")
+                continue
+            errors.append(err)
+            per_pair.append({"case": name, "cameras": [ca, cb], "views": [va, vb], "rmse_mm": _rmse(err)})
+        if errors:
+            all_err = np.vstack(errors)
+            cases[name] = {"rmse_mm": _rmse(all_err), "pairs": len(errors), "points": len(all_err)}
+    return {"cases": cases, "per_pair": per_pair}
+
+
+def evaluate(rig: RigModel, holdout: bool = False, progress: bool = True) -> dict:
+    """The paper's stereo-intersection check of a calibration (module docstring).
+
+    Parameters
+    ----------
+    rig : a calibration (calib.json content).
+    holdout : orient each view by resection with a calibration that left it out.
+    progress : progress bar over the hold-out folds on stderr.
+
+    Returns
+    -------
+    The eval.json document: ``{"cases": {name: {"rmse_mm": [x, y, z], "pairs": N,
+    "points": n}}, "per_pair": [...], "holdout": bool}``.
+
+    A pair whose intersection is degenerate (parallel rays: two photos from one spot) is left
+    out with a warning.
+
+    Raises
+    ------
+    EstimationError
+        No case has a pair, or a hold-out calibration fails.
+    """
+    photos = holdout_photos(rig, progress) if holdout else fitted_photos(rig)
+    doc = stereo_cases(rig.board, photos, rig.reference)
+    if not doc["cases"]:
+        raise EstimationError("nothing to intersect: no camera has two oriented photos and no view has two cameras")
+    doc["holdout"] = bool(holdout)
+    return doc

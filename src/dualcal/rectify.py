@@ -1,0 +1,341 @@
+"""Undistorted ("rectified") photos: the paper's section 1.8, eqs. 24-29.
+
+The rectified image is an ideal pinhole image, ``I'(u, v) = I(u~, v~)`` (eq. 29): for every
+output pixel ``(u, v)`` the distorted source position ``(u~, v~)`` follows from the forward
+model, so no equation has to be solved per pixel:
+
+* ``(x, y) = A'^-1 (u, v, 1)`` with the output matrix ``A'`` (eq. 28 inverted),
+* ``(x~, y~) = (x, y) (1 + k1 r^2 + k2 r^4)`` (eq. 13; eq. 25 corrected),
+* ``(u~, v~) = A (x~, y~, 1)`` with the camera's matrix ``A`` (eq. 24 inverted),
+
+then the source is resampled there with ``cv2.remap``. Points go the other way with
+Newton-Raphson on the radial polynomial (eqs. 25-27): :func:`dualcal.camera.undistort_points`.
+
+The output matrix ``A'`` is chosen by ``keep`` (see :func:`rectified_camera`): the camera's own
+``A`` (``"same"``), one that keeps every source pixel (``"all"``) or one that shows only valid
+pixels (``"valid"``). The output has the size of the input; pixel centres follow the contract
+(pixel ``(row i, col j)`` is at ``(u=j, v=i)``). Maps are computed and applied in horizontal
+bands of ``band_rows`` rows, so memory beyond the two images stays bounded for any image size.
+Files keep their EXIF block (and ICC profile): the stored pixel frame does not change, so an
+orientation tag stays true.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import ExitStack
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+from PIL import Image, JpegImagePlugin
+
+from .camera import (CameraModel, check_invertible_in_image, max_monotonic_radius, normalized_from_pixel,
+                     radial_factor, undistort_points)
+from .errors import InputError
+from .io import atomic_output
+from .progress import progress_bar, warn
+
+KEEP_MODES = ("same", "all", "valid")
+DEFAULT_BAND_ROWS = 64
+JPEG_QUALITY = 95
+_BORDER_SAMPLES = 256     # samples per image edge when tracing the rectified border
+_REMAP_MARGIN_ROWS = 4    # source rows kept around a band's footprint (interpolation support)
+
+
+# ---------------------------------------------------------------------------- the output camera
+
+
+def _border_pixels(image_size: tuple[int, int], n: int = _BORDER_SAMPLES) -> dict[str, np.ndarray]:
+    """(n, 2) pixel centres along each edge of an image: ``left, right, top, bottom``."""
+    w, h = image_size
+    us, vs = np.linspace(0.0, w - 1.0, n), np.linspace(0.0, h - 1.0, n)
+    return {"left": np.column_stack([np.zeros(n), vs]),
+            "right": np.column_stack([np.full(n, w - 1.0), vs]),
+            "top": np.column_stack([us, np.zeros(n)]),
+            "bottom": np.column_stack([us, np.full(n, h - 1.0)])}
+
+
+def rectified_camera(cam: CameraModel, keep: str = "same") -> CameraModel:
+    """The pinhole camera (``k1 = k2 = 0``) of the rectified image, same size as ``cam``'s.
+
+    Parameters
+    ----------
+    cam : the calibrated camera.
+    keep : ``"same"``: the camera's own matrix ``A`` (a distorted pixel and its rectified
+        position describe the same ray through the same ``A``); ``"all"``: every source pixel
+        stays inside the output (a black border appears where the source has no pixels);
+        ``"valid"``: every output pixel has a source pixel (no border, the rim is cut).
+        ``"all"`` and ``"valid"`` trace the source's outer pixel centres through the model,
+        keep ``fx / fy`` of the camera, set skew to 0 and centre the traced border.
+
+    Raises
+    ------
+    InputError
+        Unknown ``keep``.
+    NotInvertibleError
+        The distortion folds over inside the image, so the rectified image is not defined.
+    """
+    if keep not in KEEP_MODES:
+        raise InputError(f"--keep {keep!r} is unknown (choose from {', '.join(KEEP_MODES)})")
+    check_invertible_in_image(cam)
+    if keep == "same":
+        return cam.with_distortion(0.0, 0.0)
+    # Trace the image border into ideal normalised coordinates (eqs. 24-27).
+    edges = {name: normalized_from_pixel(cam.with_distortion(0.0, 0.0), undistort_points(cam, uv))
+             for name, uv in _border_pixels(cam.image_size).items()}
+    if keep == "all":
+        xy = np.vstack(list(edges.values()))
+        (x0, y0), (x1, y1) = xy.min(axis=0), xy.max(axis=0)
+    else:  # the largest box inside the traced border: innermost point of each edge
+        x0, x1 = edges["left"][:, 0].max(), edges["right"][:, 0].min()
+        y0, y1 = edges["top"][:, 1].max(), edges["bottom"][:, 1].min()
+    # Map the box onto the output's outer pixel centres, keeping the camera's fx / fy.
+    w, h = cam.image_size
+    aspect = cam.fx / cam.fy
+    fit = (min if keep == "all" else max)((w - 1) / (aspect * (x1 - x0)), (h - 1) / (y1 - y0))
+    fx, fy = float(aspect * fit), float(fit)
+    return replace(cam, fx=fx, fy=fy, skew=0.0, cx=float((w - 1) / 2 - fx * (x0 + x1) / 2),
+                   cy=float((h - 1) / 2 - fy * (y0 + y1) / 2), k1=0.0, k2=0.0)
+
+
+# ---------------------------------------------------------------------------- maps and images
+
+
+def rectify_map(cam: CameraModel, new_cam: CameraModel, row0: int, row1: int) -> tuple[np.ndarray, np.ndarray]:
+    """Distorted source position of every output pixel in rows ``row0 .. row1 - 1``.
+
+    The forward model of eqs. 24-29 (module docstring), evaluated separably: ``y`` depends on
+    the row only, so the band costs a handful of (B, W) array operations. Output pixels whose
+    ideal radius lies beyond the model's monotonic range would fold back onto other source
+    pixels; they get the position ``(-1e6, -1e6)``, which remaps to the border value.
+
+    Returns
+    -------
+    map_x, map_y : (row1 - row0, W) float32 source ``u~, v~`` in pixels, as ``cv2.remap`` takes.
+    """
+    w = new_cam.image_size[0]
+    y = (np.arange(row0, row1, dtype=float) - new_cam.cy) / new_cam.fy                     # (B,)
+    x = ((np.arange(w, dtype=float) - new_cam.cx)[None, :] - new_cam.skew * y[:, None]) / new_cam.fx
+    r2 = x * x + (y * y)[:, None]                                                             # (B, W)
+    f = radial_factor(r2, cam.k1, cam.k2)
+    yd = y[:, None] * f
+    map_x = (cam.fx * f) * x + cam.skew * yd + cam.cx
+    map_y = cam.fy * yd + cam.cy
+    r_max = max_monotonic_radius(cam.k1, cam.k2)
+    if np.isfinite(r_max):
+        folded = r2 > r_max * r_max
+        map_x[folded] = map_y[folded] = -1e6
+    return map_x.astype(np.float32), map_y.astype(np.float32)
+
+
+def undistort_image(image: np.ndarray, cam: CameraModel, new_cam: CameraModel | None = None,
+                    band_rows: int = DEFAULT_BAND_ROWS, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """The rectified image ``I'(u, v) = I(u~, v~)`` (paper eq. 29), computed in bands.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array (uint8, uint16 or float32; C <= 4) taken by ``cam``.
+    cam : the calibrated camera; ``cam.image_size`` must be ``(W, H)``.
+    new_cam : pinhole camera of the output (default: :func:`rectified_camera` ``(cam, "same")``).
+    band_rows : rows per band; the result does not depend on it.
+    interpolation : a ``cv2.INTER_*`` flag.
+
+    Returns
+    -------
+    (H, W[, C]) array of the input's dtype; pixels with no source are 0.
+
+    Raises
+    ------
+    InputError
+        The image does not have the camera's size.
+    """
+    h, w = image.shape[:2]
+    if (w, h) != tuple(cam.image_size):
+        raise InputError(f"image is {w}x{h} px but the camera was calibrated at "
+                         f"{cam.image_size[0]}x{cam.image_size[1]} px")
+    new_cam = new_cam if new_cam is not None else rectified_camera(cam, "same")
+    band_rows = max(1, int(band_rows))
+    out = np.zeros_like(image)
+    for row0 in range(0, h, band_rows):
+        row1 = min(h, row0 + band_rows)
+        map_x, map_y = rectify_map(cam, new_cam, row0, row1)
+        # Only the source rows this band reaches (plus the interpolation support) are passed on;
+        # the offset is an integer, so the float32 map stays exact and the result band-independent.
+        inside = map_y[(map_y > -_REMAP_MARGIN_ROWS) & (map_y < h - 1 + _REMAP_MARGIN_ROWS)]
+        if inside.size == 0:
+            continue
+        src0 = max(0, int(np.floor(inside.min())) - _REMAP_MARGIN_ROWS)
+        src1 = min(h, int(np.ceil(inside.max())) + _REMAP_MARGIN_ROWS + 1)
+        map_y -= np.float32(src0)
+        out[row0:row1] = cv2.remap(image[src0:src1], map_x, map_y, interpolation,
+                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out
+
+
+# ---------------------------------------------------------------------------- photo files
+
+
+def _open_image(path: Path, load: bool = True) -> Image.Image:
+    """Open a photo with pillow (HEIC through pillow-heif); :class:`InputError` if unreadable.
+
+    With ``load=False`` only the header is read (size, format, EXIF).
+    """
+    if path.suffix.lower() in (".heic", ".heif"):
+        import pillow_heif
+        pillow_heif.register_heif_opener()
+    try:
+        img = Image.open(path)
+        if load:
+            img.load()
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise InputError(f"{path}: not a readable image ({exc})") from None
+    return img
+
+
+def _check_size(path: Path, img: Image.Image, cam: CameraModel) -> None:
+    if img.size != tuple(cam.image_size):
+        raise InputError(f"{path}: image is {img.size[0]}x{img.size[1]} px but the camera was calibrated at "
+                         f"{cam.image_size[0]}x{cam.image_size[1]} px (a photo of another camera?)")
+
+
+def _pixels(img: Image.Image) -> tuple[np.ndarray, str]:
+    """Pixel array and pillow mode to write it back with; palettes and bilevel become RGB / L."""
+    if img.mode == "P":
+        img = img.convert("RGBA" if "transparency" in img.info else "RGB")
+    elif img.mode not in ("L", "LA", "RGB", "RGBA", "CMYK", "I;16", "F"):
+        img = img.convert("L" if img.mode in ("1", "I") else "RGB")
+    return np.asarray(img), img.mode
+
+
+def undistort_file(src, dst, cam: CameraModel, new_cam: CameraModel | None = None,
+                   band_rows: int = DEFAULT_BAND_ROWS) -> Path:
+    """Rectify one photo file into ``dst`` (written atomically), keeping EXIF and ICC profile.
+
+    The output format is the input's (JPEG at quality 95 with the source's chroma
+    subsampling). Returns ``dst``. Raises :class:`InputError` for an unreadable file or a
+    wrong image size.
+    """
+    src, dst = Path(src), Path(dst)
+    img = _open_image(src)
+    _check_size(src, img, cam)
+    fmt = img.format or "PNG"
+    options = {k: img.info[k] for k in ("exif", "icc_profile", "dpi") if img.info.get(k)}
+    if fmt == "JPEG":
+        options["quality"] = JPEG_QUALITY
+        sampling = JpegImagePlugin.get_sampling(img)
+        if sampling >= 0:
+            options["subsampling"] = sampling
+    pixels, mode = _pixels(img)
+    img.close()
+    out = Image.fromarray(undistort_image(pixels, cam, new_cam, band_rows), mode=mode)
+    with atomic_output(dst) as tmp:
+        out.save(tmp, format=fmt, **options)
+    return dst
+
+
+def _undistort_task(task) -> str | None:
+    """Worker: rectify one file; a user-caused failure comes back as a message, not a crash."""
+    src, dst, cam, new_cam, band_rows, threads = task
+    if threads is not None:
+        cv2.setNumThreads(threads)
+    try:
+        undistort_file(src, dst, cam, new_cam, band_rows)
+    except InputError as exc:
+        return str(exc)
+    return None
+
+
+def output_paths(sources, out_dir) -> list[Path]:
+    """``out_dir/<file name>`` for each source; :class:`InputError` on clashes or overwriting a source."""
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        if not out_dir.parent.is_dir():
+            raise InputError(f"output folder {str(out_dir)!r}: its parent does not exist (create it first)")
+        out_dir.mkdir()
+    dests, seen = [], {}
+    for src in map(Path, sources):
+        dst = out_dir / src.name
+        if dst.name in seen:
+            raise InputError(f"{src} and {seen[dst.name]} would both be written to {dst}: "
+                             "rectify them into different folders")
+        if dst.exists() and src.exists() and dst.samefile(src):
+            raise InputError(f"{dst}: the output would overwrite the original photo; choose another -o")
+        seen[dst.name] = src
+        dests.append(dst)
+    return dests
+
+
+def readable_photos(sources, cam: CameraModel) -> list[Path]:
+    """The sources whose header can be read, each checked to have ``cam``'s size.
+
+    An unreadable file is skipped with a warning naming it; a photo of another size raises
+    :class:`InputError` (it was taken by another camera or at another resolution).
+    """
+    readable = []
+    for src in map(Path, sources):
+        try:
+            img = _open_image(src, load=False)
+        except InputError as exc:
+            warn(f"skipped: {exc}")
+            continue
+        with img:
+            _check_size(src, img, cam)
+        readable.append(src)
+    return readable
+
+
+def undistort_files(sources, out_dir, cam: CameraModel, keep: str = "same", jobs: int | None = None,
+                    band_rows: int = DEFAULT_BAND_ROWS, progress: bool = True) -> tuple[list[Path], CameraModel]:
+    """Rectify photos of one camera into ``out_dir`` (same file names), in parallel.
+
+    Parameters
+    ----------
+    sources : photo paths, all taken by ``cam`` at its calibrated size.
+    out_dir : output folder; created if its parent exists.
+    cam : the calibrated camera.
+    keep : output matrix, see :func:`rectified_camera`.
+    jobs : worker processes (default: all cores); 1 works in this process.
+    band_rows : rows per band (a worker needs about ``64 * band_rows * W`` bytes beyond the
+        two images).
+    progress : draw a progress bar on stderr.
+
+    Returns
+    -------
+    written : paths of the rectified photos. A photo that cannot be read is skipped with a
+        warning naming it.
+    new_cam : the pinhole camera of the rectified photos.
+
+    Raises
+    ------
+    InputError
+        A photo of the wrong size, an output folder whose parent is missing, two photos of the
+        same name, or an output that would overwrite its source.
+    NotInvertibleError
+        The camera's distortion folds over inside the image.
+    """
+    new_cam = rectified_camera(cam, keep)
+    sources = readable_photos(sources, cam)
+    dests = output_paths(sources, out_dir)
+    jobs = max(1, min(jobs or os.cpu_count() or 1, len(dests)))
+    # With several workers each runs OpenCV on one thread, so the cores are not oversubscribed.
+    tasks = [(s, d, cam, new_cam, band_rows, None if jobs == 1 else 1) for s, d in zip(sources, dests, strict=True)]
+    written = []
+    with progress_bar("undistorting photos", len(tasks), enabled=progress) as advance, ExitStack() as stack:
+        run = map
+        if jobs > 1:
+            # "spawn": a forked child would inherit OpenCV's thread pool in an unusable state.
+            run = stack.enter_context(ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"))).map
+        for task, problem in zip(tasks, run(_undistort_task, tasks), strict=True):
+            if problem is None:
+                written.append(task[1])
+            else:
+                warn(f"skipped: {problem}")
+            advance()
+    return written, new_cam
+

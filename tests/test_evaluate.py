@@ -1,0 +1,214 @@
+"""The paper's stereo-intersection check (dualcal.evaluate) and ``dualcal evaluate``."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from dualcal.camera import project_points
+from dualcal.errors import EstimationError, InputError
+from dualcal.evaluate import evaluate, resect, resect_view
+from dualcal.io import load_evaluation, save_rig
+from dualcal.model import Pose
+from dualcal.rotation import rotation_from_rotvec, rotvec_from_rotation
+from dualcal.synth import make_truth, noisy_corner_set, true_corners, truth_rig_model
+
+IDENTITY = Pose(np.eye(3), np.zeros(3))
+FLOOR_FACTOR = 1.25
+
+
+def _calibrate(corners, **kwargs):
+    calibrate = pytest.importorskip("dualcal.calibrate", reason="the calibration (dualcal.calibrate) is missing")
+    return calibrate.calibrate_rig(corners, **kwargs)
+
+
+# ---------------------------------------------------------------------------- resection
+
+
+def test_resection_recovers_exact_poses():
+    truth = make_truth("note8", views=3, seed=2)
+    X = truth.board.object_points_mm()
+    uv = true_corners(truth)
+    cases = [(["wide"], [IDENTITY], "wide"), (["tele"], [IDENTITY], "tele"),
+             (["wide", "tele"], [IDENTITY, truth.rig["tele"]], "wide"),
+             (["tele"], [truth.rig["tele"]], "wide")]          # tele alone, through the rig
+    for view in truth.view_poses:
+        for cams, rig, pose_of in cases:
+            pose = resect(X, [truth.cameras[c] for c in cams], rig, [uv[c][view] for c in cams])
+            expected = truth.camera_pose(pose_of, view)
+            np.testing.assert_allclose(pose.R, expected.R, atol=1e-10)
+            np.testing.assert_allclose(pose.t_mm, expected.t_mm, atol=1e-7)
+
+
+def test_rig_resection_minimises_the_pixel_residuals():
+    truth = make_truth("note8", views=1, seed=5)
+    X = truth.board.object_points_mm()
+    noisy = noisy_corner_set(truth, 0.5, seed=3)
+    cams = [truth.cameras["wide"], truth.cameras["tele"]]
+    rig = [IDENTITY, truth.rig["tele"]]
+    uv = [noisy.cameras["wide"].views["IMG_01"], noisy.cameras["tele"].views["IMG_01"]]
+    pose = resect(X, cams, rig, uv)
+
+    def residuals(p):
+        board_to_ref = Pose(rotation_from_rotvec(p[:3]), p[3:])
+        return np.concatenate([(project_points(c, q.compose(board_to_ref).apply(X)) - o).ravel()
+                               for c, q, o in zip(cams, rig, uv)])
+
+    start = truth.view_poses["IMG_01"]
+    best = least_squares(residuals, np.concatenate([rotvec_from_rotation(start.R), start.t_mm]),
+                         xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+    np.testing.assert_allclose(rotvec_from_rotation(pose.R), best[:3], atol=1e-9)
+    np.testing.assert_allclose(pose.t_mm, best[3:], atol=1e-6)
+
+
+def test_resect_view_ties_the_rig_cameras():
+    truth = make_truth("triple", views=2, seed=1)
+    rig = truth_rig_model(truth)
+    photos = resect_view(rig, "IMG_02", rig.corners)
+    assert sorted(photos) == ["tele", "ultra", "wide"]
+    for cam, photo in photos.items():
+        np.testing.assert_allclose(photo.pose.R, truth.camera_pose(cam, "IMG_02").R, atol=1e-10)
+        np.testing.assert_allclose(photo.pose.t_mm, truth.camera_pose(cam, "IMG_02").t_mm, atol=1e-7)
+
+
+# ---------------------------------------------------------------------------- the cases
+
+
+def test_exact_corners_intersect_exactly_and_the_document_follows_the_contract():
+    truth = make_truth("note8", views=13, seed=0)
+    doc = evaluate(truth_rig_model(truth), progress=False)
+    assert list(doc["cases"]) == ["dual", "wide", "tele"]
+    assert doc["holdout"] is False
+    for name, case in doc["cases"].items():
+        assert case["pairs"] == (13 if name == "dual" else 78)
+        assert case["points"] == 40 * case["pairs"]
+        assert len(case["rmse_mm"]) == 3 and max(case["rmse_mm"]) < 1e-6
+    assert len(doc["per_pair"]) == 13 + 2 * 78
+    first = doc["per_pair"][0]
+    assert first["case"] == "dual" and first["cameras"] == ["wide", "tele"] and first["views"] == ["IMG_01"] * 2
+    json.dumps(doc, allow_nan=False)                       # serialisable as it is
+
+
+def test_noise_propagates_into_the_rmse():
+    truth = make_truth("stereo", views=6, seed=0)
+    small = evaluate(truth_rig_model(truth, noisy_corner_set(truth, 0.01, seed=2)))
+    large = evaluate(truth_rig_model(truth, noisy_corner_set(truth, 0.04, seed=2)))
+    for name in small["cases"]:
+        ratio = np.array(large["cases"][name]["rmse_mm"]) / small["cases"][name]["rmse_mm"]
+        np.testing.assert_allclose(ratio, 4.0, rtol=0.02)  # intersection is linear in small noise
+
+
+def test_three_cameras_name_the_dual_cases():
+    truth = make_truth("triple", views=4, seed=0)
+    doc = evaluate(truth_rig_model(truth))
+    assert list(doc["cases"]) == ["dual", "dual:ultra", "wide", "tele", "ultra"]
+    assert {tuple(p["cameras"]) for p in doc["per_pair"] if p["case"] == "dual:ultra"} == {("wide", "ultra")}
+
+
+def test_views_without_a_pose_are_left_out():
+    truth = make_truth("note8", views=5, seed=0)
+    rig = truth_rig_model(truth)
+    del rig.camera_poses["tele"]["IMG_03"]                 # e.g. dropped by the calibration
+    doc = evaluate(rig)
+    assert doc["cases"]["dual"]["pairs"] == 4
+    assert doc["cases"]["wide"]["pairs"] == 10 and doc["cases"]["tele"]["pairs"] == 6
+
+
+def test_nothing_to_intersect_raises():
+    truth = make_truth("stereo", views=1, seed=0)
+    rig = truth_rig_model(truth)
+    rig.camera_poses["right"] = {}
+    with pytest.raises(EstimationError, match="nothing to intersect"):
+        evaluate(rig)
+
+
+def test_a_pair_without_base_is_left_out_with_a_warning(capsys):
+    truth = make_truth("stereo", views=3, seed=0)
+    rig = truth_rig_model(truth)
+    left = rig.corners.cameras["left"].views
+    left["IMG_02"] = left["IMG_01"].copy()                 # the same photo twice: parallel rays
+    rig.camera_poses["left"]["IMG_02"] = rig.camera_poses["left"]["IMG_01"]
+    doc = evaluate(rig)
+    assert doc["cases"]["left"]["pairs"] == 2 and doc["cases"]["right"]["pairs"] == 3
+    assert "left/IMG_01 + left/IMG_02 left out" in capsys.readouterr().err
+
+
+def test_holdout_needs_a_calibration():
+    with pytest.raises(InputError, match="rig mode"):
+        evaluate(truth_rig_model(make_truth("stereo", views=4, seed=0)), holdout=True)
+
+
+# ---------------------------------------------------------------------------- against the floor
+
+
+def _floor_and_calibration(preset: str, views: int, noise_px: float):
+    truth = make_truth(preset, views=views, seed=0)
+    noisy = noisy_corner_set(truth, noise_px, seed=1)
+    floor = evaluate(truth_rig_model(truth, noisy))
+    return floor, noisy
+
+
+def _assert_within_floor(doc, floor, factor=FLOOR_FACTOR):
+    assert list(doc["cases"]) == list(floor["cases"])
+    for name, case in doc["cases"].items():
+        assert case["pairs"] == floor["cases"][name]["pairs"]
+        assert np.all(np.array(case["rmse_mm"]) <= factor * np.array(floor["cases"][name]["rmse_mm"])), name
+
+
+@pytest.mark.parametrize("preset,noise_px", [("note8", 0.3), ("stereo", 0.15)])
+def test_calibrated_rig_is_within_the_floor(preset, noise_px):
+    floor, noisy = _floor_and_calibration(preset, 13, noise_px)
+    _assert_within_floor(evaluate(_calibrate(noisy)), floor)
+
+
+@pytest.mark.parametrize("preset,noise_px", [("note8", 0.3), ("stereo", 0.15)])
+def test_holdout_is_within_the_floor(preset, noise_px):
+    floor, noisy = _floor_and_calibration(preset, 8, noise_px)
+    doc = evaluate(_calibrate(noisy), holdout=True, progress=False)
+    assert doc["holdout"] is True
+    _assert_within_floor(doc, floor)
+
+
+def test_holdout_names_the_fold_that_cannot_be_calibrated():
+    truth = make_truth("stereo", views=3, seed=0)
+    rig = _calibrate(noisy_corner_set(truth, 0.1, seed=1))
+    with pytest.raises(EstimationError, match="without view 'IMG_01' failed: .*at least 3"):
+        evaluate(rig, holdout=True, progress=False)
+
+
+def test_holdout_without_a_rig_resects_each_camera_alone():
+    """Rig mode ``none``: each camera is calibrated and resected on its own, so only the
+    single-camera cases can reach the floor; the dual case still has all its pairs."""
+    floor, noisy = _floor_and_calibration("note8", 8, 0.3)
+    doc = evaluate(_calibrate(noisy, rig_mode="none"), holdout=True, progress=False)
+    assert doc["cases"]["dual"]["pairs"] == 8
+    del doc["cases"]["dual"], floor["cases"]["dual"]
+    _assert_within_floor(doc, floor)
+
+
+# ---------------------------------------------------------------------------- the command
+
+
+
+def test_evaluate_command(tmp_path, run_cli):
+    truth = make_truth("note8", views=4, seed=0)
+    save_rig(tmp_path / "calib.json", truth_rig_model(truth, noisy_corner_set(truth, 0.2, seed=0)))
+    res = run_cli("evaluate", tmp_path / "calib.json", "-o", tmp_path / "eval.json")
+    assert res.code == 0, res.err
+    doc = load_evaluation(tmp_path / "eval.json")
+    rows = [line for line in res.out.splitlines() if line.startswith("│")]
+    assert [r.split("│")[1].strip() for r in rows] == ["dual", "wide", "tele"]
+    for row, case in zip(rows, doc["cases"].values()):
+        assert [float(x) for x in row.split("│")[3:6]] == pytest.approx(case["rmse_mm"], abs=6e-4)
+
+
+def test_evaluate_command_errors(tmp_path, run_cli):
+    res = run_cli("evaluate", tmp_path / "missing.json", "-o", tmp_path / "eval.json")
+    assert res.code == 2 and "missing.json: no such file" in res.err
+    save_rig(tmp_path / "calib.json", truth_rig_model(make_truth("stereo", views=3, seed=0)))
+    res = run_cli("evaluate", tmp_path / "calib.json", "-o", tmp_path / "no" / "eval.json")
+    assert res.code == 2 and "does not exist" in res.err
+    res = run_cli("evaluate", tmp_path / "calib.json", "-o", tmp_path / "eval.json", "--holdout")
+    assert res.code == 2 and "rig mode" in res.err
+    assert not (tmp_path / "eval.json").exists()
