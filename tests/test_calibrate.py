@@ -156,3 +156,16 @@ def test_reference_camera_and_poses():
     np.testing.assert_allclose(rig.rig["wide"].pose.t_mm, expected.t_mm, atol=1e-5)
     for view, pose in rig.reference_poses().items():
         np.testing.assert_allclose(pose.t_mm, truth.camera_pose("tele", view).t_mm, atol=1e-5)
+
+
+def test_paper_mode_warns_when_its_baseline_drifts_from_the_rigid_one(capsys):
+    """The paper's constraints leave each view's baseline direction free: with few noisy views
+    D can drift; dualcal says so rather than reporting it silently."""
+    truth = make_truth("note8", 8, seed=0)
+    corners = noisy_corner_set(truth, 0.3, seed=1)
+    for cam in corners.cameras.values():
+        del cam.views["IMG_05"]
+    rig = calibrate_rig(corners, rig_mode="paper")
+    err = capsys.readouterr().err
+    drift = abs(rig.rig["tele"].baseline_mm - np.linalg.norm(truth.rig["tele"].t_mm))
+    assert drift > 1.0 and "prefer --rig rigid" in err

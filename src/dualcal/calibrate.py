@@ -97,7 +97,29 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str) 
     cams = [sol.state.camera(problem, c) for c in range(len(names))]
     poses = [{v: bp[(c, v)] for cc, v, _ in blocks if cc == c} for c in range(len(names))]
     problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference)
-    return adjust(problem, _initial_state(problem, cams, poses))
+    paper = adjust(problem, _initial_state(problem, cams, poses))
+    _warn_if_paper_drifts(sol, paper)
+    return paper
+
+
+def _warn_if_paper_drifts(rigid: Solution, paper: Solution) -> None:
+    """Warn where the paper's model finds a baseline D far from the rigid model's.
+
+    The paper's constraints fix D and the angles but leave the direction of the baseline free in
+    every view; where the depth of each view's relative translation is poorly determined (few
+    views, noisy corners), D = |t| can drift away from the rigid solution.
+    """
+    for c, name in enumerate(paper.problem.cameras):
+        if c == paper.problem.reference or not shared_views(paper.problem, c):
+            continue
+        d_rigid, s_rigid = rig_relation(rigid, c)[0].t_mm, rig_relation(rigid, c)[2]
+        rel_p = rig_relation(paper, c)
+        d_r, d_p = np.linalg.norm(d_rigid), np.linalg.norm(rel_p[0].t_mm)
+        sigma = np.hypot(s_rigid, rel_p[2])
+        if abs(d_p - d_r) > 3 * sigma:
+            warn(f"{name}: the paper's model gives baseline D = {d_p:.3f} mm, the rigid model "
+                 f"{d_r:.3f} mm ({abs(d_p - d_r) / sigma:.0f} sigma apart): the paper's constraints leave "
+                 "the baseline direction free in every view; prefer --rig rigid for this data")
 
 
 def find_outlier(sol: Solution, factor: float, floor_px: float = 0.05):

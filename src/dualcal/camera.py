@@ -71,10 +71,19 @@ def max_monotonic_radius(k1: float, k2: float) -> float:
     ``d rd / dr = 1 + 3 k1 r^2 + 5 k2 r^4``; its first positive root in ``r^2`` bounds the
     region where undistortion is unique. Returns ``inf`` when there is none.
     """
-    roots = np.roots([5.0 * k2, 3.0 * k1, 1.0]) if k2 != 0 else (
-        np.array([-1.0 / (3.0 * k1)]) if k1 != 0 else np.array([]))
-    real = [r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and r.real > 0]
-    return float(np.sqrt(min(real))) if real else float("inf")
+    a, b = 5.0 * k2, 3.0 * k1                   # a s^2 + b s + 1 = 0 in s = r^2
+    if a == 0.0:
+        roots = [-1.0 / b] if b != 0.0 else []
+    else:
+        disc = b * b - 4.0 * a
+        if disc < 0.0:
+            roots = []
+        else:                                    # the numerically stable pair of roots
+            q = -0.5 * (b + np.copysign(np.sqrt(disc), b))
+            with np.errstate(over="ignore"):     # q / a is +-inf for a vanishing k2: no root there
+                roots = [q / a, 1.0 / q] if q != 0.0 else []
+    positive = [s for s in roots if s > 0.0]
+    return float(np.sqrt(min(positive))) if positive else float("inf")
 
 
 def undistort_normalized(xy_d: np.ndarray, k1: float, k2: float,

@@ -47,7 +47,7 @@ def _homography_dlt(xy_board: np.ndarray, uv: np.ndarray) -> np.ndarray:
     A[1::2, 3:5], A[1::2, 5] = b, 1.0
     A[1::2, 6:8] = -i[:, 1:2] * b
     A[1::2, 8] = -i[:, 1]
-    _, s, Vt = np.linalg.svd(A)
+    _, s, Vt = np.linalg.svd(A, full_matrices=False)
     if s[-2] < 1e-9 * s[0]:
         raise EstimationError("homography is degenerate: board points are (nearly) collinear")
     H = np.linalg.inv(Ti) @ Vt[-1].reshape(3, 3) @ Tb
@@ -122,7 +122,7 @@ def intrinsics_from_homographies(homographies, image_size, skew: bool = False) -
     needed = V.shape[1] - 1
     if len(V) < needed:
         raise EstimationError(f"Zhang's closed form needs at least {int(np.ceil(needed / 2))} views")
-    _, sv, Vt = np.linalg.svd(V)
+    _, sv, Vt = np.linalg.svd(V, full_matrices=False)
     if sv[-2] < 1e-6 * sv[0]:
         raise EstimationError("the views do not determine the intrinsics: the board poses are (nearly) "
                               "parallel to each other; take photos with the board tilted in different directions")

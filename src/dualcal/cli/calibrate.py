@@ -21,15 +21,14 @@ from .detect import corners_from_dataset, dataset_options
 def _load_input(path: str, board_spec, square_mm, dataset_opts):
     """corners.json as it is, or a dataset folder through detection."""
     flags = board_from_flags(board_spec, square_mm)
-    p = Path(path)
-    if p.is_dir() or dataset_opts.get("cameras"):
+    if path is None or Path(path).is_dir() or dataset_opts.get("cameras"):
         if flags is None:
             raise InputError("a dataset needs --board COLSxROWS and --square MM")
         return corners_from_dataset(path, flags, **dataset_opts)
-    if not p.exists():
+    if not Path(path).exists():
         raise InputError(f"{path}: no such file or folder (give a corners.json or a dataset folder)")
-    corners = load_corners(p)
-    check_board_agrees(flags, corners.board, str(p))
+    corners = load_corners(path)
+    check_board_agrees(flags, corners.board, str(path))
     return corners
 
 
