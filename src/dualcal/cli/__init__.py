@@ -30,6 +30,9 @@ def cli(debug: bool) -> None:
 
 # Command modules register themselves on `cli` when imported.
 from . import calibrate as _calibrate  # noqa: E402,F401
+from . import detect as _detect  # noqa: E402,F401
+from . import evaluate as _evaluate  # noqa: E402,F401
+from . import report as _report  # noqa: E402,F401
 
 
 def _debug_requested(argv) -> bool:

@@ -1,0 +1,174 @@
+"""Corner order and colour checks: the contract's numbering from a detected grid.
+
+Corner 0 is the inner corner whose diagonally-outside square of the outer ring is black and
+from which X (along ``cols``) and Y (along ``rows``) make a right-handed frame with Z pointing
+into the board, away from the camera (CONTRACT.md, "Geometry conventions"). In the image
+(``u`` right, ``v`` down, camera ``z`` forward) that frame is right-handed exactly when
+``cross(dX, dY) > 0``. When ``cols + rows`` is even the board is 180-degree symmetric and
+colour cannot tell the two candidates apart: corner 0 is then the candidate nearest the
+image's top-left.
+
+The same square samples also check the detection: the inner squares and the outer ring must
+alternate like a chessboard, and the squares one further out must not (else the photo shows a
+larger board than the one asked for, and the detector found only part of it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..board import Board
+from ..errors import DetectionError
+
+__all__ = ["SquareColours", "square_colours", "order_grid", "right_handed"]
+
+
+@dataclass
+class SquareColours:
+    """Mean grey of board squares; ``values[b + 2, a + 2]`` for square ``(a, b)``, NaN if unseen.
+
+    Squares ``a = -2 .. cols``, ``b = -2 .. rows`` in the grid's own index frame: the inner
+    squares, the outer ring (``a`` or ``b`` = -1 or cols-1/rows-1) and one ring beyond.
+    ``even_is_dark`` tells whether squares with ``a + b`` even are the dark ones.
+    """
+
+    values: np.ndarray
+    even_is_dark: bool
+    contrast: float
+
+
+def _extend_line(p: np.ndarray, n: int = 2) -> np.ndarray:
+    """Extend points along axis 0 by ``n`` at each end, quadratically (lens bending included).
+
+    With three points ``p0, p1, p2`` the parabola through them gives ``p(-1) = 3p0 - 3p1 + p2``
+    and ``p(-2) = 6p0 - 8p1 + 3p2`` (Lagrange); with two, a straight line.
+    """
+    if len(p) >= 3:
+        head = [3 * p[0] - 3 * p[1] + p[2], 6 * p[0] - 8 * p[1] + 3 * p[2]]
+        tail = [3 * p[-1] - 3 * p[-2] + p[-3], 6 * p[-1] - 8 * p[-2] + 3 * p[-3]]
+    else:
+        head = [2 * p[0] - p[1], 3 * p[0] - 2 * p[1]]
+        tail = [2 * p[-1] - p[-2], 3 * p[-1] - 2 * p[-2]]
+    return np.concatenate([np.stack(head[:n][::-1]), p, np.stack(tail[:n])])
+
+
+def extended_grid(grid: np.ndarray) -> np.ndarray:
+    """(rows+4, cols+4, 2): the grid with two rings of corners extrapolated around it."""
+    g = np.stack([_extend_line(row) for row in grid])               # along each row
+    return np.stack([_extend_line(col) for col in np.swapaxes(g, 0, 1)], axis=1)
+
+
+def square_colours(gray: np.ndarray, grid_px: np.ndarray, factor: int = 1) -> SquareColours:
+    """Sample the mean grey of the squares around a detected grid.
+
+    Parameters
+    ----------
+    gray : image to sample (e.g. the reduced image of the coarse search).
+    grid_px : (rows, cols, 2) corners, full-resolution pixels.
+    factor : reduction of ``gray`` relative to full resolution.
+
+    Each square is sampled at 5 x 5 points interpolated bilinearly between its four corners;
+    corners outside the grid are extrapolated along the grid lines (:func:`extended_grid`).
+    Inner squares are sampled around their centre; squares outside the grid in the half
+    nearer to the grid, since many boards print the outer ring narrower than a full square.
+    """
+    R, C = grid_px.shape[:2]
+    ext = extended_grid(np.asarray(grid_px, float))
+
+    def spans(n):     # (n + 3, 5) sample fractions across squares -2 .. n of a line of n corners
+        k = np.arange(-2, n + 1)[:, None]
+        lo = np.where(k < 0, 0.55, np.where(k >= n - 1, 0.1, 0.25))
+        return lo + (np.where(k < 0, 0.9, np.where(k >= n - 1, 0.45, 0.75)) - lo) * np.linspace(0, 1, 5)
+
+    fs = spans(C)[None, :, None, :, None]          # across columns: (1, C+3, 1, 5, 1)
+    ft = spans(R)[:, None, :, None, None]          # across rows:    (R+3, 1, 5, 1, 1)
+    p00, p01 = ext[:-1, :-1, None, None], ext[:-1, 1:, None, None]
+    p10, p11 = ext[1:, :-1, None, None], ext[1:, 1:, None, None]
+    pts = (1 - ft) * ((1 - fs) * p00 + fs * p01) + ft * ((1 - fs) * p10 + fs * p11)   # (R+3, C+3, 5, 5, 2)
+    pts = ((pts + 0.5) / factor - 0.5).reshape(R + 3, C + 3, 25, 2)
+    h, w = gray.shape
+    inside = np.all((pts >= 0) & (pts <= [w - 1, h - 1]), axis=(2, 3))
+    flat = pts.reshape(-1, 1, 2).astype(np.float32)
+    samples = cv2.remap(gray, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR).reshape(R + 3, C + 3, 25)
+    values = np.where(inside, samples.mean(axis=2), np.nan)
+    inner = values[2:R + 1, 2:C + 1]
+    a, b = np.meshgrid(np.arange(C - 1), np.arange(R - 1))
+    even = (a + b) % 2 == 0
+    diff = np.nanmean(inner[~even]) - np.nanmean(inner[even])
+    return SquareColours(values, bool(diff > 0), float(abs(diff)))
+
+
+def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = 8.0) -> None:
+    """Raise :class:`DetectionError` unless the squares look like exactly a ``cols x rows`` board."""
+    if not col.contrast >= min_contrast:
+        raise DetectionError(f"squares show too little contrast ({col.contrast:.1f} grey levels)")
+    a, b = np.meshgrid(np.arange(-2, cols + 1), np.arange(-2, rows + 1))
+    dark = ((a + b) % 2 == 0) == col.even_is_dark
+    sign = np.where(dark, -1.0, 1.0)                     # expected side of the mid-grey
+    inner = (a >= 0) & (a <= cols - 2) & (b >= 0) & (b <= rows - 2)
+    mid = 0.5 * (np.nanmean(col.values[inner & dark]) + np.nanmean(col.values[inner & ~dark]))
+    score = (col.values - mid) * sign / (0.5 * col.contrast)     # +1: as a chessboard predicts
+    ring = ((a == -1) | (a == cols - 1) | (b == -1) | (b == rows - 1)) & ~(
+        (a < -1) | (b < -1) | (a > cols - 1) | (b > rows - 1))
+    if np.nanmin(score[inner]) < 0.2:
+        raise DetectionError("the squares between the corners do not alternate like a chessboard")
+    seen = ring & np.isfinite(score)
+    if seen.sum() < 4 or np.mean(score[seen] > 0.2) < 0.8:
+        raise DetectionError("the outer ring of squares does not continue the chessboard "
+                             "(a different board, or the board is cut off)")
+    sides = {"left": (a == -2) & (b >= 0) & (b <= rows - 2), "right": (a == cols) & (b >= 0) & (b <= rows - 2),
+             "top": (b == -2) & (a >= 0) & (a <= cols - 2), "bottom": (b == rows) & (a >= 0) & (a <= cols - 2)}
+    for name, side in sides.items():
+        s = score[side]
+        s = s[np.isfinite(s)]
+        if len(s) >= 2 and np.mean(s) > 0.5:
+            raise DetectionError(f"the chessboard continues beyond its outer ring ({name} side of the grid): "
+                                 f"the board is larger than {cols}x{rows} inner corners")
+
+
+def right_handed(grid: np.ndarray) -> bool:
+    """True when (X along axis 1, Y along axis 0) of a (rows, cols, 2) pixel grid has Z away from the camera."""
+    dX = grid[:-1, 1:] - grid[:-1, :-1]
+    dY = grid[1:, :-1] - grid[:-1, :-1]
+    return float(np.sum(dX[..., 0] * dY[..., 1] - dX[..., 1] * dY[..., 0])) > 0
+
+
+def _candidates(square: bool):
+    """Index transforms that keep a grid's shape: identity, half turn and the two flips, and
+    for a square grid the same after a transpose."""
+    flips = [lambda g: g, lambda g: g[::-1, ::-1], lambda g: g[:, ::-1], lambda g: g[::-1, :]]
+    return flips + ([lambda g, f=f: f(np.swapaxes(g, 0, 1)) for f in flips] if square else [])
+
+
+def order_grid(grid_px: np.ndarray, colours: SquareColours, board: Board):
+    """Put a detected (rows, cols, 2) grid into the contract's corner order.
+
+    Returns
+    -------
+    uv : (rows*cols, 2) corners, corner ``k = r*cols + c``.
+    ambiguous : True when the board is 180-degree symmetric and the corner nearest the
+        image's top-left was taken as corner 0.
+    """
+    R, C = grid_px.shape[:2]
+    if (R, C) != (board.rows, board.cols):
+        raise DetectionError(f"grid of {C}x{R} corners, expected {board.cols}x{board.rows}")
+    idx = np.stack(np.meshgrid(np.arange(C), np.arange(R)), -1)          # idx[r, c] = (c, r)
+    keep = []
+    for f in _candidates(R == C):
+        g, i = f(grid_px), f(idx)
+        if not right_handed(g):
+            continue
+        # square (-1, -1) of the candidate has the colour of its square (0, 0): the cell
+        # between its corners [0,0], [0,1], [1,0], [1,1], whose lowest index-frame corner is:
+        a0, b0 = np.min(i[:2, :2].reshape(-1, 2), axis=0)
+        if ((a0 + b0) % 2 == 0) == colours.even_is_dark:
+            keep.append(g)
+    if not keep:
+        raise DetectionError("no corner ordering is consistent with the board's colours")
+    ambiguous = len(keep) > 1
+    if ambiguous:
+        keep.sort(key=lambda g: float(np.hypot(*g[0, 0])))
+    return keep[0].reshape(-1, 2), ambiguous

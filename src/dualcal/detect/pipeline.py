@@ -1,0 +1,238 @@
+"""Detection of one photo and of a whole dataset (paper section 1.2).
+
+Per photo (:func:`detect_photo`), one photo in memory at a time:
+
+1. decode the photo once, reduce it to 1/2-1/8 size and find the grid there (:mod:`.coarse`),
+   or, where that fails and the user clicked four corners, predict the grid from them
+   (:mod:`.manual`);
+2. sample the squares: they must alternate like a chessboard, the outer ring too, and the
+   board must not continue beyond it (:mod:`.order`); put the corners in the contract's order;
+3. refine each corner at full resolution in its own small window (:mod:`.refine`);
+4. check the refined grid: every row and column of corners must lie on a smooth curve
+   (perspective and lens distortion bend them only gently), and no corner may have moved far
+   from its coarse position. A grid that fails is reported as not found, never returned.
+
+:func:`detect_dataset` runs that over every photo of a :class:`~dualcal.dataset.Dataset` in
+parallel threads and gathers a :class:`~dualcal.model.CornerSet`.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..board import Board
+from ..dataset import Dataset, read_gray
+from ..errors import DetectionError, InputError
+from ..io import atomic_output
+from ..model import CameraCorners, CornerSet
+from ..progress import progress_bar, warn
+from .coarse import find_grid, reduce_image, reduction_factor, to_full_resolution
+from .manual import grid_from_hints
+from .order import check_colours, order_grid, square_colours
+from .refine import refine_corners
+
+__all__ = ["PhotoResult", "detect_photo", "detect_dataset", "grid_smoothness_px"]
+
+
+@dataclass
+class PhotoResult:
+    """Outcome for one photo: ``uv`` (N, 2) pixels in corner order, or None with a ``reason``."""
+
+    uv: np.ndarray | None
+    image_size: tuple[int, int] | None = None
+    reason: str = ""
+    symmetric: bool = False
+    manual: bool = False
+
+
+def grid_smoothness_px(grid: np.ndarray) -> float:
+    """Largest distance of a corner from a cubic through its row or column (pixels).
+
+    A (rows, cols, 2) grid of a flat board seen through a lens lies on gently bent curves, so
+    a cubic in the corner index fits each row and column to a fraction of a pixel; a corner
+    put in the wrong place stands out by a good part of a square.
+    """
+    worst = 0.0
+    for lines in (grid, np.swapaxes(grid, 0, 1)):
+        n = lines.shape[1]
+        deg = min(3, n - 2)
+        if deg < 1:
+            continue
+        t = np.linspace(-1.0, 1.0, n)
+        V = np.vander(t, deg + 1)
+        P = V @ np.linalg.pinv(V)                     # projector onto the polynomials
+        res = np.einsum("ij,ljk->lik", P, lines) - lines
+        worst = max(worst, float(np.max(np.linalg.norm(res, axis=2))))
+    return worst
+
+
+def _spacing_px(grid: np.ndarray) -> float:
+    d = np.concatenate([np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
+                        np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()])
+    return float(np.median(d))
+
+
+def _coarse(full: np.ndarray, board: Board):
+    """Find the grid on a reduced image; retry at twice the resolution before giving up."""
+    size = full.shape[::-1]
+    f = reduction_factor(size)
+    while True:
+        small = reduce_image(full, f)
+        grid = find_grid(small, board.cols, board.rows)
+        if grid is not None or f == 1 or max(size) / f >= 2000:
+            return small, f, (None if grid is None else to_full_resolution(grid, f))
+        f //= 2
+
+
+def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
+                 overlay_path: Path | None = None) -> PhotoResult:
+    """Find, order, refine and check the chessboard corners of one photo.
+
+    Parameters
+    ----------
+    path : photo file (JPEG, PNG, TIFF, HEIC).
+    board : the expected board; a board of another size is not accepted.
+    hint_uv : (4, 2) clicked corners 0, cols-1, N-1, N-cols (manual mode), used when the
+        automatic search fails.
+    overlay_path : where to write a small JPEG with the corners and their numbers drawn.
+
+    Returns
+    -------
+    :class:`PhotoResult`; ``uv is None`` with a one-line ``reason`` when the photo cannot be
+    read or the board is not found or fails its checks.
+    """
+    try:
+        full = read_gray(path)
+        size = (full.shape[1], full.shape[0])
+        small, f, grid = _coarse(full, board)
+        manual = grid is None and hint_uv is not None
+        if grid is None and not manual:
+            raise DetectionError(f"no {board.spec()} chessboard found")
+        if manual:
+            grid = grid_from_hints(hint_uv, board)
+        colours = square_colours(small, grid, f)
+        check_colours(colours, board.cols, board.rows)
+        # clicked grids too: whichever end the user started from, the contract's order
+        coarse, symmetric = order_grid(grid, colours, board)
+        uv = refine_corners(full, coarse, (board.rows, board.cols), wide_start=manual)
+        g = uv.reshape(board.rows, board.cols, 2)
+        spacing = _spacing_px(g)
+        moved = float(np.max(np.linalg.norm(uv - coarse, axis=1)))
+        # a coarse corner is off by a pixel or a few (or by more when predicted from four
+        # clicks), never by a good part of a square: a corner that moved that far has run
+        # to another feature
+        limit = (0.4 if manual else 0.25) * spacing
+        if moved > limit:
+            raise DetectionError(f"a corner moved {moved:.1f} px in refinement (limit {limit:.1f} px)")
+        bend = grid_smoothness_px(g)
+        if bend > 0.15 * spacing:
+            raise DetectionError(f"the grid is not smooth ({bend:.1f} px off, corners {spacing:.0f} px apart)")
+        if overlay_path is not None:
+            write_overlay(overlay_path, small, uv, f)
+        return PhotoResult(uv, size, symmetric=symmetric, manual=manual)
+    except (DetectionError, InputError) as exc:
+        return PhotoResult(None, None, reason=str(exc).replace(f"{path}: ", ""))
+
+
+def write_overlay(path: Path, small: np.ndarray, uv: np.ndarray, factor: int, max_side: int = 1200) -> None:
+    """A small JPEG of the photo with every corner marked and numbered (corner 0 in red)."""
+    scale = min(1.0, max_side / max(small.shape)) / factor
+    img = cv2.cvtColor(cv2.resize(small, None, fx=scale * factor, fy=scale * factor,
+                                  interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
+    pts = (uv + 0.5) * scale - 0.5
+    for k, (u, v) in enumerate(pts):
+        colour = (0, 0, 255) if k == 0 else (0, 200, 0)
+        p = (int(round(u)), int(round(v)))
+        cv2.circle(img, p, 4 if k else 7, colour, 2)
+        cv2.putText(img, str(k), (p[0] + 5, p[1] - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.4, colour, 1)
+    _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path) as tmp:
+        Path(tmp).write_bytes(buf.tobytes())
+
+
+def _work(task) -> PhotoResult:
+    path, board, hint, overlay = task
+    return detect_photo(path, board, hint, overlay)
+
+
+def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
+                   hints: dict[str, dict[str, np.ndarray]] | None = None,
+                   overlays_dir=None, progress: bool = True) -> CornerSet:
+    """Detect the board in every photo of a dataset.
+
+    Parameters
+    ----------
+    dataset : from :func:`dualcal.dataset.open_dataset`.
+    board : the chessboard (``--board``, ``--square``).
+    jobs : photos processed at once, in threads (default: all cores); each holds one photo.
+    hints : ``{camera: {view: (4, 2)}}`` clicked corners (manual mode) for photos where the
+        automatic search fails (see :mod:`dualcal.detect.manual`).
+    overlays_dir : write ``overlays_dir/<camera>/<view>.jpg`` with the detected corners drawn.
+    progress : draw a progress bar on stderr.
+
+    Returns
+    -------
+    :class:`~dualcal.model.CornerSet`; a view is None where no board was found (each such
+    photo is named in a warning).
+
+    Raises
+    ------
+    InputError
+        When no photo of the dataset yields the board.
+    """
+    hints = hints or {}
+    unknown = [f"{c}/{v}" for c, vs in hints.items() for v in vs
+               if c not in dataset.cameras or v not in dataset.cameras[c]]
+    if unknown:
+        warn(f"hints for photos not in the dataset are ignored: {', '.join(sorted(unknown))}")
+    tasks, keys = [], []
+    for cam, photos in dataset.cameras.items():
+        for view, photo in photos.items():
+            overlay = None if overlays_dir is None else Path(overlays_dir) / cam / f"{view}.jpg"
+            tasks.append((photo.path, board, hints.get(cam, {}).get(view), overlay))
+            keys.append((cam, view))
+    jobs = max(1, min(jobs or os.cpu_count() or 1, len(tasks)))
+    results: list[PhotoResult] = []
+    with progress_bar("detecting corners", len(tasks), enabled=progress) as advance:
+        # threads, not processes: decoding, OpenCV's detectors and numpy's array loops release
+        # the GIL, and threads start at once, share the board and need no picklable state
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            for r in pool.map(_work, tasks):
+                results.append(r)
+                advance()
+
+    views: dict[str, dict[str, np.ndarray | None]] = {c: {} for c in dataset.cameras}
+    symmetric = 0
+    for (cam, view), (path, *_), res in zip(keys, tasks, results):
+        if res.uv is not None and res.image_size != dataset.image_size(cam):
+            res = PhotoResult(None, reason=f"decoded as {res.image_size}, its header and the camera's "
+                                           f"other photos say {dataset.image_size(cam)}")
+        views[cam][view] = res.uv
+        if res.uv is None:
+            warn(f"{path}: skipped: {res.reason}")
+        symmetric += res.symmetric
+    if symmetric:
+        warn(f"board {board.spec()} looks the same turned by 180 degrees: in {symmetric} photo(s) corner 0 "
+             "was taken as the candidate nearest the image's top-left; make sure every camera saw the "
+             "board the same way up")
+    found = sum(v is not None for vs in views.values() for v in vs.values())
+    if found == 0:
+        raise InputError(f"no {board.spec()} chessboard found in any photo of {dataset.source} "
+                         f"({len(tasks)} photos): check --board (inner corners, COLSxROWS)")
+    cameras = {}
+    for cam in dataset.cameras:
+        meta = dataset.meta(cam)
+        manual = sorted(v for (c, v), r in zip(keys, results) if c == cam and r.manual)
+        if manual:
+            meta["manual_views"] = manual
+        cameras[cam] = CameraCorners(dataset.image_size(cam), views[cam], meta)
+        if all(v is None for v in views[cam].values()):
+            warn(f"camera {cam!r}: the board was found in none of its photos")
+    return CornerSet(board, cameras)

@@ -1,0 +1,134 @@
+"""Finding cameras and photos, pairing views, EXIF metadata, and clear errors."""
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from dualcal.dataset import open_dataset, read_exif, read_gray
+from dualcal.errors import InputError
+
+
+def _photo(path, size=(64, 48), taken=None, orientation=None, make=None, fmt=None, value=0):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img = Image.fromarray(np.full((size[1], size[0]), value, np.uint8))
+    exif = Image.Exif()
+    if orientation is not None:
+        exif[0x0112] = orientation
+    if make is not None:
+        exif[0x010F], exif[0x0110] = make
+    if taken is not None or make is not None:
+        sub = exif.get_ifd(0x8769)
+        if taken is not None:
+            sub[0x9003] = taken
+        if make is not None:
+            sub[0x920A], sub[0xA405] = 4.25, 26
+    img.save(path, format=fmt, exif=exif.tobytes())
+    return path
+
+
+def test_one_subfolder_per_camera_pairs_by_stem(tmp_path):
+    for cam in ("wide", "tele"):
+        for v in ("IMG_01", "IMG_02"):
+            _photo(tmp_path / cam / f"{v}.jpg", size=(64, 48) if cam == "wide" else (32, 48))
+    ds = open_dataset(tmp_path)
+    assert sorted(ds.cameras) == ["tele", "wide"] and ds.reference == "wide"
+    assert list(ds.cameras["tele"]) == ["IMG_01", "IMG_02"]
+    assert ds.image_size("wide") == (64, 48) and ds.image_size("tele") == (32, 48)
+    assert open_dataset(tmp_path, reference="tele").reference == "tele"
+
+
+def test_a_folder_of_photos_is_one_camera_named_after_it(tmp_path):
+    for v in ("a", "b", "c"):
+        _photo(tmp_path / "phone" / f"{v}.png", fmt="PNG")
+    ds = open_dataset(tmp_path / "phone")
+    assert list(ds.cameras) == ["phone"] and list(ds.cameras["phone"]) == ["a", "b", "c"]
+
+
+def test_camera_globs_pair_by_the_wildcard_text(tmp_path):
+    for v in ("01", "02", "11"):
+        _photo(tmp_path / f"left{v}.jpg")
+        _photo(tmp_path / f"right{v}.jpg")
+    ds = open_dataset(tmp_path, ["left=left*.jpg", "right=right*"])
+    assert list(ds.cameras["left"]) == ["01", "02", "11"] == list(ds.cameras["right"])
+    assert ds.reference == "left"
+    ds = open_dataset(None, [("r", str(tmp_path / "right?1.jpg"))])
+    assert list(ds.cameras["r"]) == ["0", "1"]
+
+
+def test_pair_by_exif_time_uses_the_reference_stems(tmp_path):
+    _photo(tmp_path / "wide" / "W1.jpg", taken="2024:05:01 10:00:00")
+    _photo(tmp_path / "wide" / "W2.jpg", taken="2024:05:01 10:00:30")
+    _photo(tmp_path / "tele" / "T7.jpg", taken="2024:05:01 10:00:31")
+    _photo(tmp_path / "tele" / "T8.jpg", taken="2024:05:01 10:00:01")
+    _photo(tmp_path / "tele" / "T9.jpg", taken="2024:05:01 11:00:00")
+    ds = open_dataset(tmp_path, pair_by="time", time_tolerance_s=2)
+    tele = {k: p.path.name for k, p in ds.cameras["tele"].items()}
+    assert tele == {"W1": "T8.jpg", "W2": "T7.jpg", "tele:T9": "T9.jpg"}
+
+
+def test_exif_is_reported_and_orientation_never_applied(tmp_path):
+    path = _photo(tmp_path / "cam" / "x.jpg", size=(40, 30), orientation=6, make=("Acme", "Phone 1"),
+                  taken="2024:01:02 03:04:05")
+    size, exif = read_exif(path)
+    assert size == (40, 30)
+    assert exif["orientation"] == 6 and exif["make"] == "Acme" and exif["model"] == "Phone 1"
+    assert exif["focal_length_mm"] == pytest.approx(4.25) and exif["focal_length_35mm_mm"] == 26
+    assert read_gray(path).shape == (30, 40)           # stored frame, not turned
+    meta = open_dataset(tmp_path / "cam").meta("cam")
+    assert meta["exif_orientation"] == {"x": 6}
+    assert meta["exif"]["model"] == "Phone 1" and meta["photos"] == {"x": str(path)}
+
+
+def test_heic_photos_are_read(tmp_path):
+    pytest.importorskip("pillow_heif")
+    path = tmp_path / "cam" / "a.heic"
+    path.parent.mkdir()
+    Image.fromarray(np.full((48, 64, 3), 200, np.uint8)).save(path, format="HEIF")
+    ds = open_dataset(tmp_path / "cam")
+    assert ds.image_size("cam") == (64, 48)
+    assert read_gray(path).shape == (48, 64)
+
+
+@pytest.mark.parametrize("setup, message", [
+    (lambda d: None, "does not exist"),
+    (lambda d: d.mkdir(), "holds no photos"),
+    (lambda d: (_photo(d / "a.jpg", size=(64, 48)), _photo(d / "b.jpg", size=(48, 64))), "differ in size"),
+])
+def test_bad_datasets_raise_one_clear_error(tmp_path, setup, message):
+    d = tmp_path / "ds"
+    setup(d)
+    with pytest.raises(InputError, match=message):
+        open_dataset(d)
+
+
+def test_bad_camera_options_raise_clear_errors(tmp_path):
+    _photo(tmp_path / "a1.jpg")
+    with pytest.raises(InputError, match="matches no photo"):
+        open_dataset(tmp_path, ["b=b*.jpg"])
+    with pytest.raises(InputError, match="NAME=GLOB"):
+        open_dataset(tmp_path, ["nonsense"])
+    with pytest.raises(InputError, match="not a camera"):
+        open_dataset(tmp_path, ["a=a*.jpg"], reference="tele")
+    with pytest.raises(InputError, match="no EXIF capture time"):
+        _photo(tmp_path / "c1.jpg")
+        open_dataset(tmp_path, ["a=a*.jpg", "c=c*.jpg"], pair_by="time")
+
+
+def test_truncated_and_corrupt_photos_raise_input_errors(tmp_path):
+    good = _photo(tmp_path / "good.jpg", value=90)
+    assert read_gray(good).shape == (48, 64)
+    data = good.read_bytes()
+    (tmp_path / "cut.jpg").write_bytes(data[: len(data) - 40])
+    with pytest.raises(InputError, match="truncated"):
+        read_gray(tmp_path / "cut.jpg")
+    (tmp_path / "junk.png").write_bytes(b"\x89PNG not really")
+    with pytest.raises(InputError, match="cannot be decoded"):
+        read_gray(tmp_path / "junk.png")
+
+
+def test_unreadable_files_are_skipped_with_a_warning(tmp_path, capsys):
+    _photo(tmp_path / "cam" / "good.jpg")
+    (tmp_path / "cam" / "bad.jpg").write_text("not an image")
+    ds = open_dataset(tmp_path / "cam")
+    assert list(ds.cameras["cam"]) == ["good"]
+    assert "bad.jpg" in capsys.readouterr().err

@@ -1,0 +1,82 @@
+"""Detection on the real photo sets in shared/data, and the calibrations against their references.
+
+References (each folder's SOURCE.md):
+
+* opencv-samples-stereo (Bouguet's stereo example 5, 9x6 inner corners of 30 mm): the joint
+  stereo optimisation gives left fc = [533.52, 533.53], cc = [341.60, 235.19], right
+  fc = [536.81, 536.48], cc = [326.29, 250.10], T = [-99.80, 1.12, 0.05] mm (X_right = R X_left + T).
+* huawei-y5-2017 (7x9 inner corners of 30 mm, a 180-degree symmetric board): MATLAB's
+  fx = 2700.11 +- 2.82, fy = 2704.01 +- 2.65 (1 sigma), principal point [1179.30, 1588.66]
+  in MATLAB's 1-based pixels.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dualcal.board import Board
+from dualcal.dataset import open_dataset
+from dualcal.detect import detect_dataset
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+STEREO = DATA / "opencv-samples-stereo"
+HUAWEI = DATA / "huawei-y5-2017"
+
+
+def _need(folder: Path):
+    if not folder.is_dir():
+        pytest.skip(f"real data set {folder.name} is not present at {folder}")
+
+
+@pytest.fixture(scope="module")
+def stereo_corners():
+    _need(STEREO)
+    ds = open_dataset(STEREO, ["left=left*.jpg", "right=right*.jpg"])
+    return detect_dataset(ds, Board(9, 6, 30.0), jobs=2, progress=False)
+
+
+@pytest.fixture(scope="module")
+def huawei_corners():
+    _need(HUAWEI)
+    return detect_dataset(open_dataset(HUAWEI), Board(7, 9, 30.0), jobs=2, progress=False)
+
+
+def test_every_stereo_board_found_in_the_same_order_in_both_cameras(stereo_corners):
+    left, right = stereo_corners.cameras["left"], stereo_corners.cameras["right"]
+    assert len(left.views) == len(right.views) == 13
+    assert all(v is not None for v in [*left.views.values(), *right.views.values()])
+    # the rig only shifts the image sideways: corner k is at about the same row in both photos
+    for key in left.views:
+        dv = right.views[key][:, 1] - left.views[key][:, 1]
+        assert np.ptp(dv) < 25, key
+
+
+def test_every_huawei_board_found(huawei_corners):
+    (cam,) = huawei_corners.cameras.values()
+    assert len(cam.views) == 20 and all(v is not None for v in cam.views.values())
+    assert cam.image_size == (2448, 3264)
+    assert cam.meta["exif"]["model"] == "MYA-U29"
+
+
+def test_stereo_calibration_agrees_with_bouguet(stereo_corners):
+    calibrate = pytest.importorskip("dualcal.calibrate")
+    rig = calibrate.calibrate_rig(stereo_corners, rig_mode="rigid", reference="left")
+    ref = {"left": ([533.52331, 533.52699], [341.60376, 235.19287]),
+           "right": ([536.81377, 536.47649], [326.28657, 250.10121])}
+    for name, (fc, cc) in ref.items():
+        cam = rig.cameras[name]
+        np.testing.assert_allclose([cam.fx, cam.fy], fc, atol=2.0)
+        np.testing.assert_allclose([cam.cx, cam.cy], cc, atol=3.0)
+    np.testing.assert_allclose(rig.rig["right"].pose.t_mm, [-99.80198, 1.12443, 0.05041], atol=1.0)
+
+
+def test_huawei_calibration_agrees_with_matlab(huawei_corners):
+    calibrate = pytest.importorskip("dualcal.calibrate")
+    rig = calibrate.calibrate_rig(huawei_corners, rig_mode="none")
+    (cam,) = rig.cameras.values()
+    assert abs(cam.fx - 2700.1129) <= 3 * 2.8244
+    assert abs(cam.fy - 2704.0118) <= 3 * 2.6479
+    # MATLAB's principal point is 1-based: subtract 1 for dualcal's pixel-centre convention
+    assert abs(cam.cx - (1179.3009 - 1)) <= 3 * 1.8586
+    assert abs(cam.cy - (1588.6612 - 1)) <= 3 * 1.4667

@@ -1,0 +1,97 @@
+"""Photo-like renders: exact geometry, correct anti-aliasing, bounded-memory bands, photo sets."""
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from dualcal.board import Board
+from dualcal.camera import project_points
+from dualcal.detect.refine import fit_saddles
+from dualcal.render import _box_mean, _square_wave_integral, board_coordinates, render_view, write_photo_set
+from dualcal.synth import make_truth, true_corners
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return make_truth("note8", views=2, seed=3, scale=0.5)
+
+
+def test_box_filtered_square_wave_matches_brute_force_average():
+    s, lo, hi = 30.0, -30.0, 240.0
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-60, 280, 200)
+    h = rng.uniform(0.05, 20.0, 200)
+    analytic = _box_mean(lambda t: _square_wave_integral(t, s), x, h, lo, hi)
+    t = np.linspace(-1, 1, 20001)[None, :] * h[:, None] + x[:, None]
+    sq = np.where(np.floor(t / s) % 2 == 0, 1.0, -1.0) * ((t >= lo) & (t <= hi))
+    np.testing.assert_allclose(analytic, sq.mean(axis=1), atol=2e-3)
+
+
+def test_pixels_map_back_to_the_board_points_they_see(truth):
+    cam, pose = truth.cameras["tele"], truth.camera_pose("tele", "IMG_01")
+    Xb = truth.board.object_points_mm()
+    uv = project_points(cam, pose.apply(Xb))
+    X, Y, front = board_coordinates(cam, pose, uv[:, 0], uv[:, 1])
+    # one (u, v) pair per corner lies on the diagonal of the (B, W) grid
+    np.testing.assert_allclose(np.diag(X), Xb[:, 0], atol=1e-9)
+    np.testing.assert_allclose(np.diag(Y), Xb[:, 1], atol=1e-9)
+    assert np.all(np.diag(front))
+
+
+@pytest.mark.parametrize("cam_name", ["wide", "tele"])
+def test_rendered_corners_sit_exactly_where_the_model_projects_them(truth, cam_name):
+    """Renderer bias: a noise-free render, fitted with a large window, gives the truth to < 0.005 px."""
+    cam, pose = truth.cameras[cam_name], truth.camera_pose(cam_name, "IMG_02")
+    img = render_view(cam, pose, truth.board, np.random.default_rng(1), noise=0.0)
+    uv_true = true_corners(truth)[cam_name]["IMG_02"]
+    g = uv_true.reshape(truth.board.rows, truth.board.cols, 2)
+    dirs = np.stack([np.gradient(g, axis=1).reshape(-1, 2), np.gradient(g, axis=0).reshape(-1, 2)], 1)
+    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+    start = uv_true + np.random.default_rng(2).normal(0, 0.3, uv_true.shape)
+    fit, ok, _ = fit_saddles(img, start, dirs, half=12)
+    assert ok.all()
+    err = fit - uv_true
+    assert np.sqrt(np.mean(np.sum(err**2, axis=1))) < 0.005
+    assert np.all(np.abs(err.mean(axis=0)) < 0.002)
+
+
+def test_bands_do_not_change_the_image(truth):
+    cam, pose = truth.cameras["wide"], truth.camera_pose("wide", "IMG_01")
+    small = replace(cam, image_size=(cam.image_size[0], 700))
+    a = render_view(small, pose, truth.board, np.random.default_rng(0), noise=0.0, band_rows=37)
+    b = render_view(small, pose, truth.board, np.random.default_rng(0), noise=0.0, band_rows=4096)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_render_shows_a_dark_square_outside_corner_zero_and_white_margin(truth):
+    cam, pose = truth.cameras["tele"], truth.camera_pose("tele", "IMG_01")
+    img = render_view(cam, pose, truth.board, np.random.default_rng(0), noise=0.0, blur_px=0.0)
+    s = truth.board.square_mm
+    pts = np.array([[-0.5 * s, -0.5 * s, 0], [0.5 * s, -0.5 * s, 0], [-1.4 * s, 2.5 * s, 0]])
+    u, v = np.rint(project_points(cam, pose.apply(pts))).astype(int).T
+    dark, light, margin = img[v, u]
+    assert dark < 60 < 120 < light and margin > 120
+
+
+def test_write_photo_set_writes_every_photo_and_does_not_depend_on_jobs(tmp_path):
+    truth = make_truth("stereo", views=2, seed=1, scale=0.5)
+    one = write_photo_set(truth, tmp_path / "a", seed=5, jobs=1, progress=False)
+    two = write_photo_set(truth, tmp_path / "b", seed=5, jobs=2, progress=False)
+    assert set(one) == {"left", "right"} and set(one["left"]) == {"IMG_01", "IMG_02"}
+    for cam in one:
+        for view, path in one[cam].items():
+            assert path == tmp_path / "a" / cam / f"{view}.jpg"
+            img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            assert img.shape == (truth.cameras[cam].image_size[1], truth.cameras[cam].image_size[0])
+            assert path.read_bytes() == two[cam][view].read_bytes()
+    assert not list((tmp_path / "a").rglob(".*"))       # no temporary files left behind
+
+
+def test_another_board_size_renders_with_its_own_layout():
+    truth = make_truth("stereo", views=1, seed=2)
+    board = Board(5, 3, 30.0)
+    img = render_view(truth.cameras["left"], truth.view_poses["IMG_01"], board, noise=0.0)
+    found, corners = cv2.findChessboardCornersSB(img, (5, 3))
+    assert found
