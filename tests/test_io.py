@@ -136,3 +136,12 @@ def test_atomic_output_keeps_the_old_file_on_failure(tmp_path):
 def test_output_into_a_missing_folder_is_a_clear_error(tmp_path):
     with pytest.raises(InputError, match="does not exist"):
         write_text_atomic(tmp_path / "no" / "out.json", "x")
+
+
+def test_atomic_outputs_get_ordinary_permissions(tmp_path):
+    import os
+    target = tmp_path / "out.json"
+    write_text_atomic(target, "x")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (target.stat().st_mode & 0o777) == (0o666 & ~mask)

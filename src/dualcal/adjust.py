@@ -67,6 +67,13 @@ class Problem:
         self.free_intrinsics = [i for i in range(7) if self.skew or i != _SKEW]
         self.n_intr = len(self.free_intrinsics)
         self.n_params = self.n_intr * len(self.cameras) + 6 * len(self.slots)
+        # Per-view pose slots never share a residual with each other: their part of the normal
+        # matrix is block diagonal (6x6), which the solver eliminates first (see _BlockSolver).
+        local = [i for i, (kind, _) in enumerate(self.slots) if kind != "rig"]
+        self.local_columns = np.array([self.pose_columns(i) for i in local]).reshape(-1, 6)
+        is_local = np.zeros(self.n_params, bool)
+        is_local[self.local_columns.ravel()] = True
+        self.global_columns = np.flatnonzero(~is_local)
 
     def block_slots(self, b: int) -> tuple[int, int]:
         """(pose slot, rig slot or -1) of block ``b``."""
@@ -287,21 +294,53 @@ class Solution:
         return f(self.state), J @ self.covariance[np.ix_(idx, idx)] @ J.T
 
 
+class _BlockSolver:
+    """Solves ``A x = b`` for the damped normal matrix by eliminating the pose blocks first.
+
+    The unknowns split into global ones (intrinsics, the rig's relative poses) and per-view pose
+    slots whose 6x6 blocks of ``A`` are independent of each other. With ``W = A_ll^-1 A_lg`` the
+    reduced system is ``S = A_gg - A_gl W`` (a few dozen unknowns), so the cost grows linearly,
+    not cubically, with the number of photos (the classical reduced camera system).
+    """
+
+    def __init__(self, A: np.ndarray, problem: Problem):
+        g, L = problem.global_columns, problem.local_columns
+        self.g, self.l = g, L.ravel()
+        blocks = A[L[:, :, None], L[:, None, :]]                               # (k, 6, 6)
+        self.blocks_inv = np.linalg.inv(np.linalg.cholesky(blocks))          # raises if not definite
+        self.blocks_inv = np.swapaxes(self.blocks_inv, -1, -2) @ self.blocks_inv
+        self.A_gl = A[np.ix_(g, self.l)]
+        self.W = self._block_solve(self.A_gl.T)
+        self.cho = scipy.linalg.cho_factor(A[np.ix_(g, g)] - self.A_gl @ self.W)
+
+    def _block_solve(self, b_l: np.ndarray) -> np.ndarray:
+        k = len(self.blocks_inv)
+        return (self.blocks_inv @ b_l.reshape(k, 6, -1)).reshape(b_l.shape)
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """``A^-1 b`` for a vector (n,) or a matrix (n, m)."""
+        y_l = self._block_solve(b[self.l])
+        x = np.empty_like(b, dtype=float)
+        x[self.g] = scipy.linalg.cho_solve(self.cho, b[self.g] - self.A_gl @ y_l)
+        x[self.l] = y_l - self.W @ x[self.g]
+        return x
+
+
 class _KKTSolver:
     """Solves ``A dx = -grad`` subject to ``C dx = -g`` (Lagrange multipliers, Mikhail & Ackermann
     ch. 9) by the Schur complement: ``dx = y - A^-1 C^T k``, ``A y = -grad``,
     ``(C A^-1 C^T) k = C y + g``. Also gives the minimum-norm (in the A metric) correction that
     restores ``C dx = -g`` alone, used as a second-order correction after a nonlinear step."""
 
-    def __init__(self, A: np.ndarray, C: np.ndarray | None):
-        self.cho = scipy.linalg.cho_factor(A)
+    def __init__(self, A: np.ndarray, problem: Problem, C: np.ndarray | None):
+        self.A = _BlockSolver(A, problem)
         self.C = C
         if C is not None and len(C):
-            self.AiCt = scipy.linalg.cho_solve(self.cho, C.T)
+            self.AiCt = self.A.solve(C.T)
             self.S = C @ self.AiCt
 
     def step(self, grad: np.ndarray, g: np.ndarray) -> np.ndarray:
-        y = scipy.linalg.cho_solve(self.cho, -grad)
+        y = self.A.solve(-grad)
         if len(g) == 0:
             return y
         return y - self.AiCt @ np.linalg.solve(self.S, self.C @ y + g)
@@ -334,7 +373,7 @@ def adjust(problem: Problem, state: State, max_iter: int = 100, tol: float = 1e-
         improved = False
         while lam < 1e12:
             try:
-                solver = _KKTSolver(Nmat + lam * np.diag(diag), C)
+                solver = _KKTSolver(Nmat + lam * np.diag(diag), problem, C)
             except np.linalg.LinAlgError:
                 lam *= 10
                 continue
@@ -364,8 +403,7 @@ def adjust(problem: Problem, state: State, max_iter: int = 100, tol: float = 1e-
 
     Nmat = (J.T @ J).toarray()
     try:
-        cho = scipy.linalg.cho_factor(Nmat)
-        Q = scipy.linalg.cho_solve(cho, np.eye(len(Nmat)))
+        Q = _BlockSolver(Nmat, problem).solve(np.eye(len(Nmat)))
     except np.linalg.LinAlgError:
         raise EstimationError("the normal equations are singular: the photos do not determine every "
                               "parameter (too few views, or views all alike)") from None

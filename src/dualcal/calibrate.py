@@ -78,26 +78,39 @@ def _block_poses(sol: Solution) -> dict[tuple[int, str], Pose]:
     return out
 
 
-def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str) -> Solution:
-    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples."""
+def _starting_values(sol: Solution):
+    """Per-camera intrinsics and board-to-camera poses of a solution, to start another adjustment."""
+    bp = _block_poses(sol)
+    n = len(sol.problem.cameras)
+    cams = [sol.state.camera(sol.problem, c) for c in range(n)]
+    poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c} for c in range(n)]
+    return cams, poses
+
+
+def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
+          start: Solution | None = None) -> Solution:
+    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples.
+
+    Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
+    solution over the same photos (e.g. every camera adjusted alone).
+    """
     _check_enough_views(blocks, names)
-    xy = X_board[:, :2]
-    cams, poses = [], []
-    for c, size in enumerate(sizes):
-        cam, p = initial_camera(xy, {v: uv for cc, v, uv in blocks if cc == c}, size, skew)
-        cams.append(cam)
-        poses.append(p)
+    if start is not None:
+        cams, poses = _starting_values(start)
+    else:
+        cams, poses = [], []
+        for c, size in enumerate(sizes):
+            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew)
+            cams.append(cam)
+            poses.append(p)
     first_mode = "rigid" if mode == "paper" else mode
     problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference)
     sol = adjust(problem, _initial_state(problem, cams, poses))
     if mode != "paper":
         return sol
     # The paper's model starts from the rigid solution, which satisfies its constraints exactly.
-    bp = _block_poses(sol)
-    cams = [sol.state.camera(problem, c) for c in range(len(names))]
-    poses = [{v: bp[(c, v)] for cc, v, _ in blocks if cc == c} for c in range(len(names))]
     problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference)
-    paper = adjust(problem, _initial_state(problem, cams, poses))
+    paper = adjust(problem, _initial_state(problem, *_starting_values(sol)))
     _warn_if_paper_drifts(sol, paper)
     return paper
 
@@ -133,13 +146,13 @@ def find_outlier(sol: Solution, factor: float, floor_px: float = 0.05):
     return worst, float(rms[worst]), med
 
 
-def _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, mode, factor, dropped):
+def _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, mode, factor, dropped, start=None):
     """Solve, drop the worst photo while one is out of line, solve again; returns (solution, blocks).
 
     In a tied rig a bad photo pulls the shared pose and so spreads its error over every photo of
     that instant; of the photos of the flagged instant, the one whose removal fits best is dropped.
     """
-    sol = solve(X, names, sizes, blocks, ref, skew, mode)
+    sol = solve(X, names, sizes, blocks, ref, skew, mode, start)
     while True:
         out = find_outlier(sol, factor) if factor else None
         if out is None:
@@ -196,9 +209,10 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     blocks = [(c, v, uv) for c, n in enumerate(names) for v, uv in sorted(corners.cameras[n].found().items())]
     dropped: list[dict] = []
     factor = outlier_factor if drop_outliers else None
+    alone = None
     if factor and rig_mode != "none":
-        _, blocks = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, "none", factor, dropped)
-    sol, _ = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, rig_mode, factor, dropped)
+        alone, blocks = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, "none", factor, dropped)
+    sol, _ = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, rig_mode, factor, dropped, alone)
     return rig_model_from_solution(sol, corners, dropped)
 
 

@@ -31,6 +31,12 @@ def _check_parent(path: Path) -> None:
         raise InputError(f"output folder {str(parent)!r} does not exist: create it first or choose another -o")
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_output(path, suffix: str | None = None):
     """Yield a temporary path beside ``path``; on success it replaces ``path`` atomically.
@@ -46,6 +52,7 @@ def atomic_output(path, suffix: str | None = None):
         yield Path(tmp)
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())     # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
