@@ -14,6 +14,7 @@ $(STAMP): pyproject.toml
 
 # Render a small synthetic wide+tele photo set, detect, calibrate, evaluate, report.
 demo: $(STAMP)
+	mkdir -p out/demo
 	$(BIN)/dualcal synth out/demo/data --preset note8 --views 13 --seed 0 --scale 0.25
 	$(BIN)/dualcal calibrate out/demo/data/photos --board 8x5 --square 30 -o out/demo/calib.json
 	$(BIN)/dualcal evaluate out/demo/calib.json -o out/demo/eval.json
