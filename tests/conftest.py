@@ -21,6 +21,9 @@ class CliResult:
     def __init__(self, code, out, err):
         self.code, self.out, self.err = code, out, err
 
+    def __iter__(self):
+        return iter((self.code, self.out, self.err))
+
     @property
     def err_lines(self):
         return [line for line in self.err.splitlines() if line.strip()]

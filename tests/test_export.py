@@ -16,9 +16,8 @@ import pytest
 
 from dualcal import io, synth
 from dualcal.camera import project_points
-from dualcal.cli import main
 from dualcal.errors import InputError
-from dualcal.export import (FORMATS, _yaml_float, camera_order, colmap_cameras_txt, export_files,
+from dualcal.export import (FORMATS, _yaml_float, colmap_cameras_txt, export_files,
                             kalibr_yaml, mrcal_cameramodel, mrcal_paths, write_export)
 from dualcal.rotation import rotation_from_rotvec
 
@@ -48,7 +47,7 @@ def _board_in(rig, name, view="IMG_01"):
 
 
 def test_camera_order_puts_the_reference_first(rig):
-    assert camera_order(rig) == ["wide", "tele", "ultra"]
+    assert rig.camera_order() == ["wide", "tele", "ultra"]
 
 
 # ---------------------------------------------------------------------------- OpenCV
@@ -117,7 +116,7 @@ def test_opencv_export_without_rig_relation_has_no_pose(rig, tmp_path):
 def test_kalibr_export_parses_number_for_number(rig):
     doc = yaml.safe_load(kalibr_yaml(rig))
     assert list(doc) == ["cam0", "cam1", "cam2"]
-    for i, name in enumerate(camera_order(rig)):
+    for i, name in enumerate(rig.camera_order()):
         cam, entry = rig.cameras[name], doc[f"cam{i}"]
         assert entry["camera_model"] == "pinhole"
         assert entry["distortion_model"] == "radtan"
@@ -159,7 +158,7 @@ def test_colmap_cameras_txt(rig):
                          "# Number of cameras: 3"]
     data = [ln.split() for ln in lines if not ln.startswith("#")]
     assert [row[0] for row in data] == ["1", "2", "3"]
-    for row, name in zip(data, camera_order(rig)):
+    for row, name in zip(data, rig.camera_order()):
         cam = rig.cameras[name]
         assert row[1] == "OPENCV"
         assert (int(row[2]), int(row[3])) == cam.image_size
@@ -190,7 +189,7 @@ def _parse_cameramodel(text: str) -> dict:
 
 
 def test_mrcal_cameramodel_parses_number_for_number(rig):
-    for name in camera_order(rig):
+    for name in rig.camera_order():
         cam = rig.cameras[name]
         doc = _parse_cameramodel(mrcal_cameramodel(rig, name))
         assert set(doc) == {"lensmodel", "intrinsics", "extrinsics", "imagersize"}
@@ -252,16 +251,10 @@ def test_zero_skew_exports_without_warning(rig, tmp_path, capsys):
 # ---------------------------------------------------------------------------- CLI
 
 
-def _run(argv, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    out = capsys.readouterr()
-    return exc.value.code, out.out, out.err
 
-
-def test_cli_export_writes_the_file(calib_json, tmp_path, capsys):
+def test_cli_export_writes_the_file(calib_json, tmp_path, run_cli):
     out = tmp_path / "cameras.txt"
-    code, stdout, _ = _run(["export", str(calib_json), "--format", "colmap", "-o", str(out)], capsys)
+    code, stdout, _ = run_cli("export", str(calib_json), "--format", "colmap", "-o", str(out))
     assert code == 0 and f"wrote {out}" in stdout
     assert out.read_text().startswith("# Camera list with one line of data per camera:")
 
@@ -271,19 +264,19 @@ def test_cli_export_writes_the_file(calib_json, tmp_path, capsys):
     (["--format", "opencv", "-o", "{tmp}/no/such/folder/rig.yml"], "output folder"),
     (["--format", "mrcal", "-o", "{tmp}/models/"], "output folder"),
 ])
-def test_cli_export_errors_are_one_line(calib_json, tmp_path, capsys, args, message):
+def test_cli_export_errors_are_one_line(calib_json, tmp_path, run_cli, args, message):
     args = [a.replace("{tmp}", str(tmp_path)) for a in args]
     if "-o" not in args:
         args += ["-o", str(tmp_path / "x.yml")]
-    code, _, err = _run(["export", str(calib_json), *args], capsys)
+    code, _, err = run_cli("export", str(calib_json), *args)
     assert code == 2 and message in err
     assert "Traceback" not in err
 
 
-def test_cli_export_refuses_a_corners_json(rig, tmp_path, capsys):
+def test_cli_export_refuses_a_corners_json(rig, tmp_path, run_cli):
     corners = tmp_path / "corners.json"
     io.save_corners(corners, rig.corners)
-    code, _, err = _run(["export", str(corners), "--format", "opencv", "-o", str(tmp_path / "x.yml")], capsys)
+    code, _, err = run_cli("export", str(corners), "--format", "opencv", "-o", str(tmp_path / "x.yml"))
     assert code == 2
     assert "this is a corners.json, expected a calib.json" in err
     assert len(err.strip().splitlines()) == 1

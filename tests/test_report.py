@@ -15,7 +15,6 @@ import pytest
 
 from dualcal import io, synth
 from dualcal.camera import CameraModel, distort_normalized, undistort_points
-from dualcal.cli import main
 from dualcal.model import CameraCorners, CornerSet
 from dualcal.report import analysis, figures, render_report
 
@@ -345,18 +344,12 @@ def test_page_renders_in_headless_chromium(html, tmp_path):
 # ---------------------------------------------------------------------------- command line and real data
 
 
-def _run(argv, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    out = capsys.readouterr()
-    return exc.value.code, out.out, out.err
 
-
-def test_cli_report_with_evaluation(rig, tmp_path, capsys):
+def test_cli_report_with_evaluation(rig, tmp_path, run_cli):
     calib, ev, out = tmp_path / "calib.json", tmp_path / "eval.json", tmp_path / "report.html"
     io.save_rig(calib, rig)
     io.write_json_atomic(ev, EVALUATION)
-    code, stdout, _ = _run(["report", str(calib), "--eval", str(ev), "-o", str(out)], capsys)
+    code, stdout, _ = run_cli("report", str(calib), "--eval", str(ev), "-o", str(out))
     assert code == 0 and "report written to" in stdout
     text = out.read_text(encoding="utf-8")
     assert 'id="table-evaluation"' in text and 'id="fig-rig-3d"' in text
@@ -367,7 +360,7 @@ def test_cli_report_with_evaluation(rig, tmp_path, capsys):
     ("eval-is-calib", "this is a calib.json, expected an eval.json"),
     ("no-folder", "output folder"),
 ])
-def test_cli_report_errors_are_one_line(rig, tmp_path, capsys, case, message):
+def test_cli_report_errors_are_one_line(rig, tmp_path, run_cli, case, message):
     calib = tmp_path / "calib.json"
     io.save_rig(calib, rig)
     args = ["report", str(calib), "-o", str(tmp_path / "r.html")]
@@ -378,7 +371,7 @@ def test_cli_report_errors_are_one_line(rig, tmp_path, capsys, case, message):
         args += ["--eval", str(calib)]
     else:
         args[3] = str(tmp_path / "missing" / "r.html")
-    code, _, err = _run(args, capsys)
+    code, _, err = run_cli(*args)
     assert code == 2 and message in err
     assert len(err.strip().splitlines()) == 1
 
@@ -388,7 +381,7 @@ STEREO = DATA / "opencv-samples-stereo"
 
 @pytest.mark.slow
 @pytest.mark.skipif(not (STEREO / "left01.jpg").exists(), reason=f"real photos not found at {STEREO}")
-def test_end_to_end_real_stereo_photos(tmp_path, capsys):
+def test_end_to_end_real_stereo_photos(tmp_path, run_cli):
     """Bouguet's stereo pairs: detect, calibrate, report and export; T against Bouguet's published value.
 
     Bouguet (joint stereo optimisation, 14 pairs): T = [-99.80198, 1.12443, 0.05041] mm with
@@ -407,13 +400,13 @@ def test_end_to_end_real_stereo_photos(tmp_path, capsys):
     calib = tmp_path / "calib.json"
     io.save_rig(calib, calibrate_rig(corners))
 
-    code, _, _ = _run(["report", str(calib), "-o", str(tmp_path / "report.html")], capsys)
+    code, _, _ = run_cli("report", str(calib), "-o", str(tmp_path / "report.html"))
     assert code == 0
     page = _Page()
     page.feed((tmp_path / "report.html").read_text(encoding="utf-8"))
     assert {"fig-residuals-left", "fig-residuals-right", "fig-coverage-right", "fig-rig-3d"} <= set(page.figures)
 
-    code, _, _ = _run(["export", str(calib), "--format", "opencv", "-o", str(tmp_path / "stereo.yml")], capsys)
+    code, _, _ = run_cli("export", str(calib), "--format", "opencv", "-o", str(tmp_path / "stereo.yml"))
     assert code == 0
     fs = cv2.FileStorage(str(tmp_path / "stereo.yml"), cv2.FILE_STORAGE_READ)
     T = fs.getNode("right").getNode("T").mat()

@@ -31,25 +31,13 @@ from . import __version__
 from .camera import CameraModel
 from .errors import InputError
 from .io import write_text_atomic
-from .model import Pose, RigModel
+from .model import RigModel
 from .progress import warn
 from .rotation import rotvec_from_rotation
 
 FORMATS = ("opencv", "kalibr", "colmap", "mrcal")
 
 _MM_PER_M = 1000.0
-
-
-def camera_order(rig: RigModel) -> list[str]:
-    """Camera names as exported: the reference first, then the others as calib.json lists them."""
-    return [rig.reference] + [name for name in rig.cameras if name != rig.reference]
-
-
-def pose_from_reference(rig: RigModel, name: str) -> Pose:
-    """``X_cam = R X_ref + t_mm`` for camera ``name`` (identity for the reference camera)."""
-    if name == rig.reference:
-        return Pose(np.eye(3), np.zeros(3))
-    return rig.rig[name].pose
 
 
 def skewed_cameras(rig: RigModel) -> dict[str, float]:
@@ -96,10 +84,10 @@ def opencv_yaml(rig: RigModel) -> str:
                     "D = (k1, k2, p1, p2, k3), X_cam = R X_ref + T with T in millimetres.")
     fs.write("reference", rig.reference)
     fs.startWriteStruct("cameras", cv2.FileNode_SEQ)
-    for name in camera_order(rig):
+    for name in rig.camera_order():
         fs.write("", name)
     fs.endWriteStruct()
-    for name in camera_order(rig):
+    for name in rig.camera_order():
         cam = rig.cameras[name]
         fs.startWriteStruct(_opencv_key(name), cv2.FileNode_MAP)
         fs.write("image_width", int(cam.image_size[0]))
@@ -107,7 +95,7 @@ def opencv_yaml(rig: RigModel) -> str:
         fs.write("K", np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]]))
         fs.write("D", _distortion5(cam).reshape(1, 5))
         if name == rig.reference or name in rig.rig:
-            pose = pose_from_reference(rig, name)
+            pose = rig.pose_from_reference(name)
             fs.write("R", pose.R)
             fs.write("T", pose.t_mm.reshape(3, 1))
         fs.endWriteStruct()
@@ -143,14 +131,14 @@ def kalibr_yaml(rig: RigModel) -> str:
     board) and, from cam1 on, ``T_cn_cnm1``: the 4x4 transform taking camera n-1 coordinates to
     camera n coordinates, translation in metres.
     """
-    order = camera_order(rig)
+    order = rig.camera_order()
     lines = [f"# dualcal {__version__} rig calibration: "
              + ", ".join(f"cam{i} = {name}" for i, name in enumerate(order))
              + "; T_cn_cnm1 in metres, skew dropped"]
     previous = None
     for i, name in enumerate(order):
         cam = rig.cameras[name]
-        pose = pose_from_reference(rig, name)
+        pose = rig.pose_from_reference(name)
         lines.append(f"cam{i}:")
         if previous is not None:
             # cam n from cam n-1: X_n = R_n X_ref + t_n, X_ref = R_m^T (X_m - t_m).
@@ -180,7 +168,7 @@ def colmap_cameras_txt(rig: RigModel) -> str:
     ``CAMERA_ID OPENCV WIDTH HEIGHT fx fy cx cy k1 k2 p1 p2`` with ``cx, cy`` moved by +0.5 px
     to COLMAP's pixel convention (centre of the top-left pixel at (0.5, 0.5)).
     """
-    order = camera_order(rig)
+    order = rig.camera_order()
     lines = ["# Camera list with one line of data per camera:",
              "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
              f"# Number of cameras: {len(order)}",
@@ -206,7 +194,7 @@ def mrcal_cameramodel(rig: RigModel, name: str) -> str:
     ``imagersize = [w, h]``. The reference camera has zero extrinsics.
     """
     cam = rig.cameras[name]
-    pose = pose_from_reference(rig, name)
+    pose = rig.pose_from_reference(name)
     rt = np.concatenate([rotvec_from_rotation(pose.R), pose.t_mm / _MM_PER_M])
     intrinsics = [cam.fx, cam.fy, cam.cx, cam.cy, cam.k1, cam.k2, 0.0, 0.0]
 
@@ -239,9 +227,9 @@ def mrcal_paths(rig: RigModel, output: str | Path) -> dict[str, Path]:
         raise InputError(f"output folder {str(output)!r} does not exist: create it first or give a file stem")
     output = Path(output)
     if output.is_dir():
-        return {name: output / f"{_safe_name(name)}.cameramodel" for name in camera_order(rig)}
+        return {name: output / f"{_safe_name(name)}.cameramodel" for name in rig.camera_order()}
     stem = output.with_suffix("") if output.suffix == ".cameramodel" else output
-    return {name: stem.with_name(f"{stem.name}-{_safe_name(name)}.cameramodel") for name in camera_order(rig)}
+    return {name: stem.with_name(f"{stem.name}-{_safe_name(name)}.cameramodel") for name in rig.camera_order()}
 
 
 # ---------------------------------------------------------------------------- files
@@ -281,6 +269,6 @@ def write_export(rig: RigModel, fmt: str, output: str | Path) -> list[Path]:
     return list(files)
 
 
-__all__ = ["FORMATS", "camera_order", "colmap_cameras_txt", "export_files", "kalibr_yaml",
-           "mrcal_cameramodel", "mrcal_paths", "opencv_yaml", "pose_from_reference", "skewed_cameras",
+__all__ = ["FORMATS", "colmap_cameras_txt", "export_files", "kalibr_yaml",
+           "mrcal_cameramodel", "mrcal_paths", "opencv_yaml", "skewed_cameras",
            "write_export"]

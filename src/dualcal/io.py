@@ -164,10 +164,14 @@ def corners_to_dict(cs: CornerSet) -> dict:
     return {"board": cs.board.to_dict(), "cameras": cams}
 
 
-def load_corners(path) -> CornerSet:
+def _load(path, kind: str) -> dict:
     doc = read_json(path)
-    _expect_kind(path, doc, "corners")
-    return corners_from_dict(doc, str(path))
+    _expect_kind(path, doc, kind)
+    return doc
+
+
+def load_corners(path) -> CornerSet:
+    return corners_from_dict(_load(path, "corners"), str(path))
 
 
 def save_corners(path, cs: CornerSet) -> None:
@@ -258,9 +262,7 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
 
 
 def load_rig(path) -> RigModel:
-    doc = read_json(path)
-    _expect_kind(path, doc, "calib")
-    return rig_from_dict(doc, str(path))
+    return rig_from_dict(_load(path, "calib"), str(path))
 
 
 def save_rig(path, rig: RigModel) -> None:
@@ -268,6 +270,4 @@ def save_rig(path, rig: RigModel) -> None:
 
 
 def load_evaluation(path) -> dict:
-    doc = read_json(path)
-    _expect_kind(path, doc, "eval")
-    return doc
+    return _load(path, "eval")

@@ -126,6 +126,16 @@ class RigModel:
     adjustment: dict = field(default_factory=dict)
     dropped_views: list[dict] = field(default_factory=list)
 
+    def camera_order(self) -> list[str]:
+        """Camera names, the reference first, then the others in calib.json's order."""
+        return [self.reference] + [name for name in self.cameras if name != self.reference]
+
+    def pose_from_reference(self, name: str) -> Pose:
+        """``X_cam = R X_ref + t_mm`` for camera ``name`` (identity for the reference camera)."""
+        if name == self.reference:
+            return Pose(np.eye(3), np.zeros(3))
+        return self.rig[name].pose
+
     def reference_poses(self) -> dict[str, Pose]:
         """Board-to-reference-camera pose per view (derived through the rig where needed)."""
         out = dict(self.camera_poses.get(self.reference, {}))

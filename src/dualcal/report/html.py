@@ -18,7 +18,6 @@ from markupsafe import Markup
 
 from .. import __version__
 from ..camera import INTRINSIC_NAMES
-from ..export import camera_order
 from ..model import RigModel
 from ..progress import track
 from . import analysis, figures
@@ -174,7 +173,7 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
     title : page title; default names the cameras
     progress : draw a progress bar on stderr while the figures are rendered
     """
-    names = camera_order(rig)
+    names = rig.camera_order()
     found = analysis.camera_findings(rig)
     slugs = _unique_slugs(names)
     sections = {name: CameraSection(name, slugs[name]) for name in names}
