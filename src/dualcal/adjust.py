@@ -2,7 +2,7 @@
 
 Minimises the pixel reprojection error of every corner in every photo of every camera
 (eqs. 16-19) over the intrinsics ``[fx, fy, skew, cx, cy, k1, k2]`` of each camera and the
-poses, by Levenberg-Marquardt on the normal equations with a sparse Jacobian. Three ways to
+poses, by Levenberg-Marquardt on the normal equations (block-sparse Jacobian). Three ways to
 tie the cameras together (``mode``):
 
 ``rigid``  one board-to-reference pose per view and one reference-to-camera pose per extra
@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
-import scipy.sparse as sp
 
 from .camera import INTRINSIC_NAMES, CameraModel, project_with_jacobians
 from .errors import EstimationError
@@ -112,17 +111,25 @@ class State:
         return Pose(self.R[slot].copy(), self.t[slot].copy())
 
 
-def residuals_and_jacobian(problem: Problem, state: State, with_jacobian: bool = True):
-    """Residuals ``predicted - observed`` (2 per corner, block by block) and their sparse Jacobian."""
+def residuals_and_normal_equations(problem: Problem, state: State, with_normal: bool = True):
+    """Residuals ``predicted - observed`` (2 per corner, block by block), and the normal matrix
+    ``N = J^T J`` (dense, n_params^2) and gradient ``J^T r``.
+
+    The Jacobian is never stored whole: the rows of one photo depend only on its camera's
+    intrinsics and one or two pose slots, so each photo's dense (2N, k) piece is multiplied out
+    on its own and added into ``N`` at its columns.
+    """
     X = problem.X_board
     n = len(X)
     res = np.empty(2 * n * len(problem.blocks))
-    rows, cols, vals = [], [], []
+    N = np.zeros((problem.n_params, problem.n_params)) if with_normal else None
+    grad = np.zeros(problem.n_params) if with_normal else None
     by_cam: dict[int, list[int]] = {}
     for b, (c, _, _) in enumerate(problem.blocks):
         by_cam.setdefault(c, []).append(b)
     for c, bl in by_cam.items():
         bl = np.array(bl)
+        B = len(bl)
         slots = np.array([problem.block_slots(b) for b in bl])
         Rs, ts = state.R[slots[:, 0]], state.t[slots[:, 0]]
         W = np.einsum("bij,nj->bni", Rs, X)                        # R_v X  (B, N, 3)
@@ -135,30 +142,25 @@ def residuals_and_jacobian(problem: Problem, state: State, with_jacobian: bool =
             Xc = Y
         uv, J_X, J_K = project_with_jacobians(state.camera(problem, c), Xc.reshape(-1, 3))
         obs = np.concatenate([problem.blocks[b][2] for b in bl])
-        row0 = (bl[:, None] * 2 * n + np.arange(2 * n)[None, :]).reshape(-1)   # residual rows
-        res[row0] = (uv - obs).reshape(-1)
-        if not with_jacobian:
+        r_b = (uv - obs).reshape(B, 2 * n)
+        res.reshape(len(problem.blocks), 2 * n)[bl] = r_b
+        if not with_normal:
             continue
-        B = len(bl)
         J_X = J_X.reshape(B, n, 2, 3)
-        blocks_j = [J_K[:, :, problem.free_intrinsics].reshape(B, n, 2, -1)]
-        block_cols = [np.broadcast_to(problem.intr_columns(c), (B, problem.n_intr))]
-        M = np.einsum("bnkj,bji->bnki", J_X, Rr) if has_rig else J_X          # d res / d Y
-        blocks_j.append(np.concatenate([-np.cross(M, W[:, :, None, :]), M], axis=-1))
-        block_cols.append(np.array([problem.pose_columns(s) for s in slots[:, 0]]))
-        if has_rig:
-            blocks_j.append(np.concatenate([-np.cross(J_X, (Xc - tr[:, None, :])[:, :, None, :]), J_X], -1))
-            block_cols.append(np.array([problem.pose_columns(s) for s in slots[:, 1]]))
-        for Jb, cb in zip(blocks_j, block_cols):
-            k = Jb.shape[-1]
-            vals.append(Jb.reshape(-1))
-            rows.append(np.repeat(row0, k))
-            cols.append(np.broadcast_to(cb[:, None, None, :], (B, n, 2, k)).reshape(-1))
-    if not with_jacobian:
-        return res, None
-    J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(len(res), problem.n_params))
-    return res, J
+        M = J_X @ Rr[:, None] if has_rig else J_X                              # d res / d Y
+        parts = [J_K[:, :, problem.free_intrinsics].reshape(B, n, 2, -1),
+                 -np.cross(M, W[:, :, None, :]), M]                            # intrinsics, pose slot
+        cols = [np.broadcast_to(problem.intr_columns(c), (B, problem.n_intr)),
+                np.array([problem.pose_columns(s) for s in slots[:, 0]])]
+        if has_rig:                                                            # the rig's slot
+            parts += [-np.cross(J_X, (Xc - tr[:, None, :])[:, :, None, :]), J_X]
+            cols.append(np.array([problem.pose_columns(s) for s in slots[:, 1]]))
+        Jb = np.concatenate(parts, axis=-1).reshape(B, 2 * n, -1)             # (B, 2N, k)
+        cb = np.concatenate(cols, axis=1)                                      # (B, k)
+        JbT = np.swapaxes(Jb, 1, 2)
+        np.add.at(N, (cb[:, :, None], cb[:, None, :]), JbT @ Jb)
+        np.add.at(grad, cb, (JbT @ r_b[:, :, None])[:, :, 0])
+    return res, N, grad
 
 
 # ----------------------------------------------------------------------------- the paper's constraints
@@ -361,14 +363,12 @@ def adjust(problem: Problem, state: State, max_iter: int = 100, tol: float = 1e-
         If the normal matrix is singular (the data do not determine the parameters).
     """
     constrained = problem.mode == "paper"
-    r, J = residuals_and_jacobian(problem, state)
+    r, Nmat, grad = residuals_and_normal_equations(problem, state)
     g, C = paper_constraints(problem, state) if constrained else (np.zeros(0), None)
     cost = r @ r
     lam = 1e-4
     it = 0
     for it in range(1, max_iter + 1):
-        Nmat = (J.T @ J).toarray()
-        grad = J.T @ r
         diag = np.maximum(np.diag(Nmat), 1e-12)
         improved = False
         while lam < 1e12:
@@ -384,7 +384,7 @@ def adjust(problem: Problem, state: State, max_iter: int = 100, tol: float = 1e-
                     if np.max(np.abs(g_t)) < 1e-12:
                         break
                     trial = trial.updated(problem, solver.correction(g_t))
-            r_new, _ = residuals_and_jacobian(problem, trial, with_jacobian=False)
+            r_new = residuals_and_normal_equations(problem, trial, with_normal=False)[0]
             cost_new = r_new @ r_new
             if np.isfinite(cost_new) and cost_new <= cost:
                 improved = True
@@ -394,14 +394,13 @@ def adjust(problem: Problem, state: State, max_iter: int = 100, tol: float = 1e-
             break
         rel_change = (cost - cost_new) / max(cost, 1e-300)
         state, cost = trial, cost_new
-        r, J = residuals_and_jacobian(problem, state)
+        r, Nmat, grad = residuals_and_normal_equations(problem, state)
         if constrained:
             g, C = paper_constraints(problem, state)
         lam = max(lam / 10, 1e-12)
         if rel_change < tol:
             break
 
-    Nmat = (J.T @ J).toarray()
     try:
         Q = _BlockSolver(Nmat, problem).solve(np.eye(len(Nmat)))
     except np.linalg.LinAlgError:
