@@ -169,3 +169,16 @@ def test_paper_mode_warns_when_its_baseline_drifts_from_the_rigid_one(capsys):
     err = capsys.readouterr().err
     drift = abs(rig.rig["tele"].baseline_mm - np.linalg.norm(truth.rig["tele"].t_mm))
     assert drift > 1.0 and "prefer --rig rigid" in err
+
+
+def test_a_noisier_camera_keeps_its_photos():
+    """Outliers are judged against each camera's own median: a camera whose corners are simply
+    noisier (here 4x) is not an outlier."""
+    truth = make_truth("triple", 13, seed=3)
+    corners = noisy_corner_set(truth, 0.1, seed=4)
+    rng = np.random.default_rng(5)
+    for v, uv in corners.cameras["ultra"].views.items():
+        corners.cameras["ultra"].views[v] = uv + rng.normal(0, 0.4, uv.shape)
+    rig = calibrate_rig(corners)
+    assert rig.dropped_views == []
+    assert rig.adjustment["options"] == {"drop_outliers": True, "outlier_factor": 3.0}

@@ -125,60 +125,80 @@ def _warn_if_paper_drifts(rigid: Solution, paper: Solution) -> None:
     for c, name in enumerate(paper.problem.cameras):
         if c == paper.problem.reference or not shared_views(paper.problem, c):
             continue
-        d_rigid, s_rigid = rig_relation(rigid, c)[0].t_mm, rig_relation(rigid, c)[2]
-        rel_p = rig_relation(paper, c)
-        d_r, d_p = np.linalg.norm(d_rigid), np.linalg.norm(rel_p[0].t_mm)
-        sigma = np.hypot(s_rigid, rel_p[2])
+        rel_r, rel_p = rig_relation(rigid, c), rig_relation(paper, c)
+        d_r, d_p = np.linalg.norm(rel_r[0].t_mm), np.linalg.norm(rel_p[0].t_mm)
+        sigma = np.hypot(rel_r[2], rel_p[2])
         if abs(d_p - d_r) > 3 * sigma:
             warn(f"{name}: the paper's model gives baseline D = {d_p:.3f} mm, the rigid model "
                  f"{d_r:.3f} mm ({abs(d_p - d_r) / sigma:.0f} sigma apart): the paper's constraints leave "
                  "the baseline direction free in every view; prefer --rig rigid for this data")
 
 
-def find_outlier(sol: Solution, factor: float, floor_px: float = 0.05):
-    """The block whose RMS is furthest above ``factor`` x the median block RMS, or None."""
+OUTLIER_FLOOR_PX = 0.05
+
+
+def outlier_limit_px(camera_median_px: float, factor: float) -> float:
+    """RMS above which a photo is out of line: ``factor`` x the median photo RMS of its own camera
+    (cameras differ in noise), but never below :data:`OUTLIER_FLOOR_PX`. The report uses it too."""
+    return max(factor * camera_median_px, OUTLIER_FLOOR_PX)
+
+
+def find_outlier(sol: Solution, factor: float):
+    """The photo furthest above its camera's outlier limit, as ``(block, rms, limit)``, or None."""
     rms = np.asarray(sol.block_rms_px)
-    med = float(np.median(rms))
-    limit = max(factor * med, floor_px)
-    worst = int(np.argmax(rms))
-    if rms[worst] <= limit:
+    cams = np.array([c for c, _, _ in sol.problem.blocks])
+    limit = np.empty_like(rms)
+    for c in np.unique(cams):
+        limit[cams == c] = outlier_limit_px(float(np.median(rms[cams == c])), factor)
+    worst = int(np.argmax(rms / limit))
+    if rms[worst] <= limit[worst]:
         return None
-    return worst, float(rms[worst]), med
+    return worst, float(rms[worst]), float(limit[worst])
+
+
+def _views_left(blocks, c: int) -> int:
+    return sum(1 for blk in blocks if blk[0] == c)
 
 
 def _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, mode, factor, dropped, start=None):
     """Solve, drop the worst photo while one is out of line, solve again; returns (solution, blocks).
 
     In a tied rig a bad photo pulls the shared pose and so spreads its error over every photo of
-    that instant; of the photos of the flagged instant, the one whose removal fits best is dropped.
+    that instant; of the photos of the flagged instant that are themselves out of line, the one
+    whose removal fits best is dropped, and only if the fit then really improves.
     """
     sol = solve(X, names, sizes, blocks, ref, skew, mode, start)
     while True:
         out = find_outlier(sol, factor) if factor else None
         if out is None:
             return sol, blocks
-        b, rms, med = out
+        b, rms, limit = out
         view = blocks[b][1]
-        candidates = [i for i, blk in enumerate(blocks) if blk[1] == view] if mode != "none" else [b]
-        candidates = [i for i in candidates if sum(1 for blk in blocks if blk[0] == blocks[i][0]) > MIN_VIEWS]
+        if mode == "none":
+            candidates = [b]
+        else:
+            cams = np.array([blk[0] for blk in blocks])
+            rms_all = np.asarray(sol.block_rms_px)
+            candidates = [i for i, blk in enumerate(blocks) if blk[1] == view and rms_all[i] > outlier_limit_px(
+                float(np.median(rms_all[cams == blk[0]])), factor)]
+        candidates = [i for i in candidates if _views_left(blocks, blocks[i][0]) > MIN_VIEWS]
         if not candidates:
-            warn(f"{names[blocks[b][0]]}/{view} is out of line (RMS {rms:.3g} px, median {med:.3g} px) "
-                 f"but cannot be dropped: only {MIN_VIEWS} views left")
+            warn(f"{names[blocks[b][0]]}/{view} is out of line (RMS {rms:.3g} px, limit {limit:.3g} px) "
+                 f"but cannot be dropped: only {MIN_VIEWS} views left for {names[blocks[b][0]]!r}")
             return sol, blocks
-        trials = []
-        for i in candidates:
-            rest = blocks[:i] + blocks[i + 1:]
-            trials.append((solve(X, names, sizes, rest, ref, skew, mode), i, rest))
-        before = sol
-        sol, i, rest = min(trials, key=lambda t: t[0].s0_px)
-        c = blocks[i][0]
-        rms_i = before.block_rms_px[i]
-        reason = (f"reprojection RMS {rms_i:.3g} px against a median of {med:.3g} px in rig mode {mode}; "
-                  f"without it s0 falls from {before.s0_px:.3g} to {sol.s0_px:.3g} px (moved board, wrong "
-                  "corner order, blur, or another zoom/focus setting?)")
+        trials = [(solve(X, names, sizes, blocks[:i] + blocks[i + 1:], ref, skew, mode), i) for i in candidates]
+        best, i = min(trials, key=lambda t: t[0].s0_px)
+        if best.s0_px >= sol.s0_px:
+            warn(f"{names[blocks[b][0]]}/{view} is out of line (RMS {rms:.3g} px, limit {limit:.3g} px) "
+                 "but dropping it does not improve the fit: kept")
+            return sol, blocks
+        c, rms_i = blocks[i][0], sol.block_rms_px[i]
+        reason = (f"reprojection RMS {rms_i:.3g} px above the limit {limit:.3g} px ({factor:g} x the median "
+                  f"of {names[c]!r}) in rig mode {mode}; without it s0 falls from {sol.s0_px:.3g} to "
+                  f"{best.s0_px:.3g} px (moved board, wrong corner order, blur, or another zoom/focus setting?)")
         warn(f"dropping {names[c]}/{view}: {reason}")
         dropped.append({"camera": names[c], "view": view, "rms_px": rms_i, "reason": reason})
-        blocks = rest
+        sol, blocks = best, blocks[:i] + blocks[i + 1:]
 
 
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
@@ -213,7 +233,9 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     if factor and rig_mode != "none":
         alone, blocks = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, "none", factor, dropped)
     sol, _ = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, rig_mode, factor, dropped, alone)
-    return rig_model_from_solution(sol, corners, dropped)
+    rig = rig_model_from_solution(sol, corners, dropped)
+    rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor)}
+    return rig
 
 
 def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict]) -> RigModel:

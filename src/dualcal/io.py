@@ -25,16 +25,25 @@ from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
 # ---------------------------------------------------------------------------- atomic writes
 
 
-def _check_parent(path: Path) -> None:
+def check_output_file(path) -> Path:
+    """Raise :class:`InputError` unless ``path`` can be written as a file: its folder exists and
+    it is not itself a folder. Commands call this first, before any long work."""
+    path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise InputError(f"output folder {str(parent)!r} does not exist: create it first or choose another -o")
+    if path.is_dir():
+        raise InputError(f"output {str(path)!r} is a folder: give a file name")
+    return path
 
 
-def _umask() -> int:
+def _read_umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+_UMASK = _read_umask()    # read once: setting it later, even briefly, would race with other threads
 
 
 @contextlib.contextmanager
@@ -43,16 +52,18 @@ def atomic_output(path, suffix: str | None = None):
 
     On any exception the temporary file is removed and ``path`` is left as it was.
     """
-    path = Path(path)
-    _check_parent(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp",
-                               dir=path.parent if str(path.parent) else ".")
+    path = check_output_file(path)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp",
+                                   dir=path.parent if str(path.parent) else ".")
+    except OSError as exc:
+        raise InputError(f"cannot write in {str(path.parent)!r}: {exc.strerror}") from None
     os.close(fd)
     try:
         yield Path(tmp)
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())     # mkstemp makes 0600; give the usual permissions
+        os.chmod(tmp, 0o666 & ~_UMASK)     # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -75,12 +86,18 @@ def write_json_atomic(path, doc: dict) -> None:
 def read_json(path) -> dict:
     """Parse a JSON file; missing, unreadable or truncated files raise :class:`InputError`."""
     path = Path(path)
-    if not path.exists():
+    try:
+        exists = path.exists()
+    except OSError as exc:                      # e.g. a name too long for the file system
+        raise InputError(f"{str(path)[:80]}: cannot be read ({exc.strerror or exc})") from None
+    if not exists:
         raise InputError(f"{path}: no such file")
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a JSON file")
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text file (expected JSON)") from None
     except json.JSONDecodeError as exc:
