@@ -145,3 +145,17 @@ def test_atomic_outputs_get_ordinary_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert (target.stat().st_mode & 0o777) == (0o666 & ~mask)
+
+
+@pytest.mark.parametrize("edit,message", [
+    (lambda d: d.update(reference="nope"), "reference 'nope'"),
+    (lambda d: d["corners"]["cameras"].pop("tele"), "its corners are of cameras"),
+    (lambda d: d["cameras"]["wide"].update(fx=-3.0), "focal lengths must be positive"),
+    (lambda d: d["rig"]["tele"].update(R=[[1, 0, 0], [0, 2, 0], [0, 0, 1]]), "not orthonormal"),
+    (lambda d: d["board"].update(cols=9), "'board' and 'corners.board' differ"),
+])
+def test_inconsistent_calib_json_is_a_clear_error(rig, edit, message):
+    doc = json.loads(json.dumps(rig_to_dict(rig)))
+    edit(doc)
+    with pytest.raises(InputError, match=message):
+        rig_from_dict(doc)

@@ -29,8 +29,8 @@ import scipy.linalg
 
 from .camera import INTRINSIC_NAMES, CameraModel, project_with_jacobians
 from .errors import EstimationError
-from .model import Pose
-from .rotation import (ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation, rotation_from_rotvec,
+from .model import Pose, mean_pose
+from .rotation import (ARCMIN_PER_RAD, opk_from_rotation, rotation_from_rotvec,
                        rotvec_from_rotation)
 
 RIG_MODES = ("rigid", "paper", "none")
@@ -168,17 +168,14 @@ def residuals_and_normal_equations(problem: Problem, state: State, with_normal: 
 
 def relative_pose(ref: Pose, cam: Pose) -> Pose:
     """Reference-to-camera pose from both board-to-camera poses of one view."""
-    R = cam.R @ ref.R.T
-    return Pose(R, cam.t_mm - R @ ref.t_mm)
+    return cam.compose(ref.inverse())
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    """Differences of values that include angles, folded into (-pi, pi].
-
-    Only angles can jump by 2 pi; the other values (mm) differ by far less than pi between the
-    nearby states compared here, so folding every entry leaves them unchanged.
-    """
-    return (np.asarray(a, dtype=float) + np.pi) % (2 * np.pi) - np.pi
+def _wrap_angles(a: np.ndarray, angles: slice) -> np.ndarray:
+    """``a`` with the entries ``angles`` (radians) folded into (-pi, pi]."""
+    a = np.array(a, dtype=float)
+    a[..., angles] = (a[..., angles] + np.pi) % (2 * np.pi) - np.pi
+    return a
 
 
 def _perturbed(R: np.ndarray, t: np.ndarray, i: int, step: float):
@@ -188,8 +185,9 @@ def _perturbed(R: np.ndarray, t: np.ndarray, i: int, step: float):
     return rotation_from_rotvec(d[:3]) @ R, t + d[3:]
 
 
-def _numeric_jacobian(f, slots: list[int], state: State, step: float = 1e-6) -> np.ndarray:
-    """Central differences of ``f(state)`` with respect to the 6 increments of each pose slot."""
+def _numeric_jacobian(f, slots: list[int], state: State, angles: slice, step: float = 1e-6) -> np.ndarray:
+    """Central differences of ``f(state)`` with respect to the 6 increments of each pose slot;
+    the entries ``angles`` of ``f`` are angles, whose differences are folded into (-pi, pi]."""
     f0 = f(state)
     J = np.zeros((len(f0), 6 * len(slots)))
     for k, s in enumerate(slots):
@@ -199,8 +197,11 @@ def _numeric_jacobian(f, slots: list[int], state: State, step: float = 1e-6) -> 
                 R, t = state.R.copy(), state.t.copy()
                 R[s], t[s] = _perturbed(R[s], t[s], i, sign * step)
                 vals.append(f(State(state.intr, R, t)))
-            J[:, 6 * k + i] = _wrap(vals[0] - vals[1]) / (2 * step)
+            J[:, 6 * k + i] = _wrap_angles(vals[0] - vals[1], angles) / (2 * step)
     return J
+
+
+_OPK = slice(1, 4)     # the angles in d_opk's [D, omega, phi, kappa]
 
 
 def d_opk(R_ref, t_ref, R_cam, t_cam) -> np.ndarray:
@@ -220,9 +221,9 @@ def _d_opk_jacobian(R_ref, t_ref, R_cam, t_cam, step: float = 1e-6) -> np.ndarra
     J = np.zeros((len(R_ref), 4, 12))
     for i in range(6):
         up, down = _perturbed(R_ref, t_ref, i, step), _perturbed(R_ref, t_ref, i, -step)
-        J[:, :, i] = _wrap(d_opk(*up, R_cam, t_cam) - d_opk(*down, R_cam, t_cam)) / (2 * step)
+        J[:, :, i] = _wrap_angles(d_opk(*up, R_cam, t_cam) - d_opk(*down, R_cam, t_cam), _OPK) / (2 * step)
         up, down = _perturbed(R_cam, t_cam, i, step), _perturbed(R_cam, t_cam, i, -step)
-        J[:, :, 6 + i] = _wrap(d_opk(R_ref, t_ref, *up) - d_opk(R_ref, t_ref, *down)) / (2 * step)
+        J[:, :, 6 + i] = _wrap_angles(d_opk(R_ref, t_ref, *up) - d_opk(R_ref, t_ref, *down), _OPK) / (2 * step)
     return J
 
 
@@ -249,7 +250,7 @@ def paper_constraints(problem: Problem, state: State, with_jacobian: bool = True
         cam_slots = np.array([problem.slot_index[("pose", (c, v))] for v in views])
         args = (state.R[ref_slots], state.t[ref_slots], state.R[cam_slots], state.t[cam_slots])
         f = d_opk(*args)
-        g_all.append(_wrap(f[1:] - f[0]).ravel())
+        g_all.append(_wrap_angles(f[1:] - f[0], _OPK).ravel())
         if not with_jacobian:
             continue
         J = _d_opk_jacobian(*args)
@@ -289,9 +290,9 @@ class Solution:
             sig[INTRINSIC_NAMES[i]] = float(s)
         return sig
 
-    def propagate(self, f, slots: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    def propagate(self, f, slots: list[int], angles: slice) -> tuple[np.ndarray, np.ndarray]:
         """Value of ``f(state)`` and its covariance ``J Cov J^T`` through the given pose slots."""
-        J = _numeric_jacobian(f, slots, self.state)
+        J = _numeric_jacobian(f, slots, self.state, angles)
         idx = np.concatenate([self.problem.pose_columns(s) for s in slots])
         return f(self.state), J @ self.covariance[np.ix_(idx, idx)] @ J.T
 
@@ -430,7 +431,7 @@ def rig_relation(sol: Solution, c: int):
     by the constraints) from the first shared view, ``t`` of length D along the mean direction over
     the views. ``none``: the mean of the per-view relative poses. Sigmas by propagation of the adjustment's covariance.
     """
-    p, st = sol.problem, sol.state
+    p = sol.problem
     if p.mode == "rigid":
         slot = p.slot_index[("rig", c)]
         slots = [slot]
@@ -452,8 +453,8 @@ def rig_relation(sol: Solution, c: int):
                 # D and the angles are equal in every view; only the direction of t is free.
                 D = np.linalg.norm(rels[0].t_mm)
                 return _rig_values(Pose(rels[0].R, D * t_mean / np.linalg.norm(t_mean)))
-            return _rig_values(Pose(nearest_rotation(np.sum([q.R for q in rels], axis=0)), t_mean))
-    values, cov = sol.propagate(f, slots)
+            return _rig_values(mean_pose(rels))
+    values, cov = sol.propagate(f, slots, angles=slice(4, 10))   # opk and rotation vector
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
     pose = _pose_from_values(values)
     return pose, sigma[0:3], float(sigma[3]), sigma[4:7] * ARCMIN_PER_RAD

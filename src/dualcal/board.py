@@ -61,7 +61,10 @@ class Board:
     @classmethod
     def from_dict(cls, d: dict) -> "Board":
         try:
-            return cls(int(d["cols"]), int(d["rows"]), float(d["square_mm"]))
+            cols, rows = d["cols"], d["rows"]
+            if not all(isinstance(n, int) and not isinstance(n, bool) for n in (cols, rows)):
+                raise TypeError("cols and rows must be whole numbers")
+            return cls(cols, rows, float(d["square_mm"]))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"board entry {d!r} is malformed: needs cols, rows, square_mm") from exc
 

@@ -13,18 +13,11 @@ import numpy as np
 
 from .adjust import Problem, Solution, State, adjust, relative_pose, rig_relation, shared_views
 from .errors import EstimationError
-from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference
+from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, mean_pose
 from .progress import warn
-from .rotation import nearest_rotation
 from .zhang import initial_camera
 
 MIN_VIEWS = 3
-
-
-def _mean_pose(poses: list[Pose]) -> Pose:
-    """Chordal mean of rotations and mean of translations."""
-    return Pose(nearest_rotation(np.sum([p.R for p in poses], axis=0)),
-                np.mean([p.t_mm for p in poses], axis=0))
 
 
 def _check_enough_views(blocks, names) -> None:
@@ -50,7 +43,7 @@ def _initial_state(problem: Problem, cams, poses) -> State:
         if not shared:
             raise EstimationError(f"camera {problem.cameras[c]!r} shares no view with the reference camera "
                                   f"{problem.cameras[ref]!r}: photos of the same instant are needed")
-        rel[c] = _mean_pose([relative_pose(poses[ref][v], poses[c][v]) for v in shared])
+        rel[c] = mean_pose([relative_pose(poses[ref][v], poses[c][v]) for v in shared])
     slot_poses = []
     for kind, key in problem.slots:
         if kind == "view":
@@ -211,7 +204,8 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     corners : the detected corners (corners.json content)
     skew : False fixes skew = 0 (the paper's Model 1), True estimates it (Model 2)
     rig_mode : ``rigid``, ``paper`` or ``none`` (see :mod:`dualcal.adjust`)
-    reference : name of the reference camera (default ``wide``, else the first name)
+    reference : name of the reference camera (default: the one recorded in ``corners``, else ``wide``,
+        else the first name)
     drop_outliers : drop photos whose RMS exceeds ``outlier_factor`` x the median, one at a time.
         Outliers are looked for first with every camera adjusted alone (so that a bad photo shows
         in its own camera's residuals, not spread over the rig), then in ``rig_mode`` (which
@@ -223,7 +217,7 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         Fewer than 3 usable views for a camera, degenerate views, no shared view in a rig.
     """
     names = sorted(corners.cameras)
-    ref = names.index(choose_reference(names, reference))
+    ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
     sizes = [corners.cameras[n].image_size for n in names]
     X = corners.board.object_points_mm()
     blocks = [(c, v, uv) for c, n in enumerate(names) for v, uv in sorted(corners.cameras[n].found().items())]

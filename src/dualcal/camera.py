@@ -86,35 +86,48 @@ def max_monotonic_radius(k1: float, k2: float) -> float:
     return float(np.sqrt(min(positive))) if positive else float("inf")
 
 
-def undistort_normalized(xy_d: np.ndarray, k1: float, k2: float,
-                         tol: float = 1e-14, max_iter: int = 50) -> np.ndarray:
+def max_distorted_radius(k1: float, k2: float) -> float:
+    """Largest distorted normalised radius the model reaches before it folds over (``inf`` if never):
+    ``rd`` at :func:`max_monotonic_radius`. Undistortion is unique only below it."""
+    r_max = max_monotonic_radius(k1, k2)
+    return float(r_max * radial_factor(r_max**2, k1, k2)) if np.isfinite(r_max) else float("inf")
+
+
+def undistort_radius(rd: np.ndarray, k1: float, k2: float, tol: float = 1e-14, max_iter: int = 50):
+    """Solve ``rd = r (1 + k1 r^2 + k2 r^4)`` for ``r`` (paper eq. 25, typo corrected) by Newton.
+
+    Starts from the first-order inverse ``rd / (1 + k1 rd^2 + k2 rd^4)``, so a few steps reach
+    machine precision. Returns ``(r, converged)``; ``converged`` is False if some radius did not
+    settle in ``max_iter`` steps (e.g. beyond :func:`max_distorted_radius`).
+    """
+    rd = np.asarray(rd, dtype=float)
+    r = rd / radial_factor(rd * rd, k1, k2)
+    for _ in range(max_iter):
+        r2 = r * r
+        step = (r * radial_factor(r2, k1, k2) - rd) / (1.0 + r2 * (3.0 * k1 + 5.0 * k2 * r2))
+        r = r - step
+        if np.all(np.abs(step) <= tol * np.maximum(1.0, np.abs(r))):
+            return r, True
+    return r, False
+
+
+def undistort_normalized(xy_d: np.ndarray, k1: float, k2: float) -> np.ndarray:
     """Distorted normalised coordinates (N, 2) -> ideal ones (paper eqs. 24-27).
 
-    Solves ``rd = r (1 + k1 r^2 + k2 r^4)`` for ``r`` by Newton-Raphson from ``r = rd``
-    (eq. 25, with the paper's typo corrected), then scales ``(xd, yd)`` by ``r / rd``.
-    Raises :class:`NotInvertibleError` where a radius lies beyond the monotonic range of the
-    model or Newton does not converge.
+    Finds the undistorted radius with :func:`undistort_radius`, then scales ``(xd, yd)`` by
+    ``r / rd`` (eqs. 26, 27). Raises :class:`NotInvertibleError` where a radius lies beyond the
+    monotonic range of the model or Newton does not converge.
     """
     xy_d = np.asarray(xy_d, dtype=float)
     rd = np.sqrt(np.sum(xy_d * xy_d, axis=-1))
-    r_max = max_monotonic_radius(k1, k2)
-    if np.isfinite(r_max):
-        rd_max = r_max * radial_factor(r_max**2, k1, k2)
-        if np.any(rd > rd_max):
-            raise NotInvertibleError(
-                f"distortion k1={k1:.4g}, k2={k2:.4g} is not invertible beyond normalised "
-                f"radius {rd_max:.4g} (asked for {rd.max():.4g})")
-    r = rd.copy()
-    for _ in range(max_iter):
-        r2 = r * r
-        f = r * radial_factor(r2, k1, k2) - rd
-        df = 1.0 + r2 * (3.0 * k1 + 5.0 * k2 * r2)
-        step = f / df
-        r -= step
-        if np.all(np.abs(step) <= tol * np.maximum(1.0, r)):
-            break
-    else:
-        raise NotInvertibleError(f"undistortion did not converge in {max_iter} Newton steps")
+    rd_max = max_distorted_radius(k1, k2)
+    if np.any(rd > rd_max):
+        raise NotInvertibleError(
+            f"distortion k1={k1:.4g}, k2={k2:.4g} is not invertible beyond normalised "
+            f"radius {rd_max:.4g} (asked for {rd.max():.4g})")
+    r, converged = undistort_radius(rd, k1, k2)
+    if not converged:
+        raise NotInvertibleError("undistortion did not converge in 50 Newton steps")
     scale = np.divide(r, rd, out=np.ones_like(rd), where=rd > 0)
     return xy_d * scale[..., None]
 
@@ -211,11 +224,9 @@ def image_corner_radius(cam: CameraModel) -> float:
 
 def check_invertible_in_image(cam: CameraModel) -> None:
     """Raise :class:`NotInvertibleError` if undistortion is not unique somewhere in the image."""
-    r_max = max_monotonic_radius(cam.k1, cam.k2)
-    if np.isfinite(r_max):
-        rd_max = r_max * radial_factor(r_max**2, cam.k1, cam.k2)
-        rd_img = image_corner_radius(cam)
-        if rd_img > rd_max:
-            raise NotInvertibleError(
-                f"distortion k1={cam.k1:.4g}, k2={cam.k2:.4g} folds over inside the image: "
-                f"radius not monotonic beyond normalised {rd_max:.4g}, image reaches {rd_img:.4g}")
+    rd_max = max_distorted_radius(cam.k1, cam.k2)
+    rd_img = image_corner_radius(cam)
+    if rd_img > rd_max:
+        raise NotInvertibleError(
+            f"distortion k1={cam.k1:.4g}, k2={cam.k2:.4g} folds over inside the image: "
+            f"radius not monotonic beyond normalised {rd_max:.4g}, image reaches {rd_img:.4g}")

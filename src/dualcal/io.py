@@ -168,7 +168,10 @@ def corners_from_dict(doc: dict, source: str = "corners.json") -> CornerSet:
                                             f"(board {board.spec()} has {board.n_corners} corners)")
         meta = {k: v for k, v in entry.items() if k not in ("image_size", "views")}
         cameras[str(name)] = CameraCorners(size, views, meta)
-    return CornerSet(board, cameras)
+    reference = doc.get("reference")
+    if reference is not None and reference not in cameras:
+        raise InputError(f"{source}: reference {reference!r} is not one of the cameras {sorted(cameras)}")
+    return CornerSet(board, cameras, reference)
 
 
 def corners_to_dict(cs: CornerSet) -> dict:
@@ -178,7 +181,10 @@ def corners_to_dict(cs: CornerSet) -> dict:
                       "views": {k: (None if v is None else np.round(v, 5).tolist())
                                 for k, v in cam.views.items()},
                       **cam.meta}
-    return {"board": cs.board.to_dict(), "cameras": cams}
+    doc = {"board": cs.board.to_dict(), "cameras": cams}
+    if cs.reference is not None:
+        doc["reference"] = cs.reference
+    return doc
 
 
 def _load(path, kind: str) -> dict:
@@ -271,11 +277,39 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
                 poses[name] = {v: rel.pose.compose(p) for v, p in ref.items()}
         view_rms = {v: {c: float(x) for c, x in (p.get("rms_px") or {}).items()}
                     for v, p in doc.get("views", {}).items()}
-        return RigModel(board, reference, bool(doc.get("skew", False)), str(doc.get("rig_mode", "rigid")),
-                        cameras, sigma, rms, rig, poses, view_rms, float(doc.get("rms_px", np.nan)),
-                        corners, doc.get("adjustment", {}), doc.get("dropped_views", []))
+        model = RigModel(board, reference, bool(doc.get("skew", False)), str(doc.get("rig_mode", "rigid")),
+                         cameras, sigma, rms, rig, poses, view_rms, float(doc.get("rms_px", np.nan)),
+                         corners, doc.get("adjustment", {}), doc.get("dropped_views", []))
     except (KeyError, TypeError, AttributeError, ValueError) as exc:
         raise InputError(f"{source}: malformed calib.json ({type(exc).__name__}: {exc})") from None
+    _check_consistent(model, source)
+    return model
+
+
+def _is_rotation(R: np.ndarray) -> bool:
+    return np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
+
+
+def _check_consistent(rig: RigModel, source: str) -> None:
+    """Cross-checks of a calib.json that its parts agree (names, board, rotations, focal lengths)."""
+    names = set(rig.cameras)
+    problems = []
+    if rig.reference not in names:
+        problems.append(f"reference {rig.reference!r} is not one of the cameras {sorted(names)}")
+    if not set(rig.rig) <= names - {rig.reference}:
+        problems.append(f"rig entries {sorted(rig.rig)} must be cameras other than the reference")
+    if set(rig.corners.cameras) != names:
+        problems.append(f"its corners are of cameras {sorted(rig.corners.cameras)}, its intrinsics of {sorted(names)}")
+    if rig.board != rig.corners.board:
+        problems.append("'board' and 'corners.board' differ")
+    bad_f = [n for n, cam in rig.cameras.items() if not (cam.fx > 0 and cam.fy > 0)]
+    if bad_f:
+        problems.append(f"focal lengths must be positive (cameras {bad_f})")
+    poses = [rel.pose for rel in rig.rig.values()] + [p for d in rig.camera_poses.values() for p in d.values()]
+    if not all(_is_rotation(p.R) for p in poses):
+        problems.append("a rotation matrix R is not orthonormal with determinant +1")
+    if problems:
+        raise InputError(f"{source}: inconsistent calib.json: {'; '.join(problems)}")
 
 
 def load_rig(path) -> RigModel:

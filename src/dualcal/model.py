@@ -13,7 +13,7 @@ import numpy as np
 
 from .board import Board
 from .camera import CameraModel
-from .rotation import ARCMIN_PER_RAD, opk_from_rotation
+from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
 
 
 @dataclass
@@ -47,6 +47,11 @@ class Pose:
         return {"R": self.R.tolist(), "t_mm": self.t_mm.tolist()}
 
 
+def mean_pose(poses: list[Pose]) -> Pose:
+    """Chordal mean of the rotations (nearest rotation to their sum) and mean of the translations."""
+    return Pose(nearest_rotation(np.sum([p.R for p in poses], axis=0)), np.mean([p.t_mm for p in poses], axis=0))
+
+
 @dataclass
 class CameraCorners:
     """Detected corners of one camera: ``views[key]`` is (N, 2) pixels, or None if not found.
@@ -69,12 +74,7 @@ class CornerSet:
 
     board: Board
     cameras: dict[str, CameraCorners]
-
-    def view_keys(self) -> list[str]:
-        keys = set()
-        for cam in self.cameras.values():
-            keys.update(cam.views)
-        return sorted(keys)
+    reference: str | None = None     # the reference camera chosen at detection, if one was given
 
 
 def choose_reference(names, override: str | None = None) -> str:

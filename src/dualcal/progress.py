@@ -11,11 +11,6 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 _stderr = Console(stderr=True)
 
 
-def stderr_console() -> Console:
-    """The console every command writes warnings and progress to."""
-    return _stderr
-
-
 @contextlib.contextmanager
 def progress_bar(description: str, total: int, enabled: bool = True):
     """Context manager yielding ``advance(n=1)``; draws a bar on stderr when it is a terminal."""

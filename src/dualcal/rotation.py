@@ -62,8 +62,3 @@ def opk_from_rotation(R: np.ndarray) -> np.ndarray:
     phi = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
     kappa = np.arctan2(R[..., 1, 0], R[..., 0, 0])
     return np.stack([omega, phi, kappa], axis=-1)
-
-
-def perturb_rotation(R: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """Left-multiplicative update ``exp([delta]x) @ R`` used by the adjustment's pose increments."""
-    return rotation_from_rotvec(delta) @ R

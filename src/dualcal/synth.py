@@ -20,8 +20,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .board import Board
-from .camera import CameraModel, project_points
-from .errors import InputError
+from .camera import INTRINSIC_NAMES, CameraModel, project_points
+from .errors import EstimationError, InputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
 from .rotation import ARCMIN_PER_RAD, rotation_from_opk
 
@@ -155,7 +155,8 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     while len(view_poses) < views:
         attempts += 1
         if attempts > 20000 * views:
-            raise RuntimeError(f"could not place {views} views for preset {preset!r}")
+            raise EstimationError(f"could not place {views} views for preset {preset!r} with the whole board "
+                                  "in every camera")
         tilt = np.radians(rng.uniform(5.0, max_tilt_deg))
         azim = rng.uniform(0, 2 * np.pi)
         fill = rng.uniform(fmin, fmax)
@@ -194,8 +195,7 @@ def truth_rig_model(truth: SynthTruth, corners: CornerSet | None = None) -> RigM
     zero3 = np.zeros(3)
     rig = {n: RigRelation(p, zero3, 0.0, zero3) for n, p in truth.rig.items()}
     poses = {cam: {v: truth.camera_pose(cam, v) for v in truth.view_poses} for cam in truth.cameras}
-    names = ("fx", "fy", "skew", "cx", "cy", "k1", "k2")
     return RigModel(truth.board, truth.reference, True, "truth", dict(truth.cameras),
-                    {c: {n: 0.0 for n in names} for c in truth.cameras},
+                    {c: dict.fromkeys(INTRINSIC_NAMES, 0.0) for c in truth.cameras},
                     {c: 0.0 for c in truth.cameras}, rig, poses,
                     {v: {c: 0.0 for c in truth.cameras} for v in truth.view_poses}, 0.0, corners)

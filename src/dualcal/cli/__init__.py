@@ -56,6 +56,9 @@ def main(argv=None) -> None:
     except KeyboardInterrupt:
         click.echo("dualcal: interrupted", err=True)
         sys.exit(130)
+    except BrokenPipeError:                 # e.g. `dualcal calibrate ... | head`: the reader left
+        sys.stderr.close()
+        sys.exit(1)
     except Exception as exc:  # a bug in dualcal, not in the input
         if _debug_requested(argv):
             raise

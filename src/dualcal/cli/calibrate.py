@@ -9,8 +9,9 @@ from rich.console import Console
 
 from ..adjust import RIG_MODES
 from ..calibrate import calibrate_rig
-from ..errors import InputError
-from ..io import load_corners, rig_to_dict, save_corners, save_rig, write_json_atomic
+from ..errors import EstimationError, InputError
+from ..io import check_output_file, load_corners, rig_to_dict, save_corners, save_rig, write_json_atomic
+from ..progress import warn
 from ..synth import PRESETS, make_truth, noisy_corner_set, truth_rig_model
 from ..tables import result_tables
 from . import cli
@@ -21,12 +22,19 @@ from .detect import corners_from_dataset, dataset_options
 def _load_input(path: str, board_spec, square_mm, dataset_opts):
     """corners.json as it is, or a dataset folder through detection."""
     flags = board_from_flags(board_spec, square_mm)
+    if path is not None and Path(path).is_file() and dataset_opts.get("cameras"):
+        raise InputError(f"{path} is a file, but --camera takes photos from globs: give a dataset folder "
+                         "(or no INPUT) with --camera, or the corners.json alone")
     if path is None or Path(path).is_dir() or dataset_opts.get("cameras"):
         if flags is None:
             raise InputError("a dataset needs --board COLSxROWS and --square MM")
         return corners_from_dataset(path, flags, **dataset_opts)
     if not Path(path).exists():
         raise InputError(f"{path}: no such file or folder (give a corners.json or a dataset folder)")
+    ignored = [flag for key, flag in (("jobs", "--jobs"), ("hints_path", "--hints"), ("overlays_dir", "--overlays"))
+               if dataset_opts.get(key)]
+    if ignored:
+        warn(f"{', '.join(ignored)} only apply to a dataset; {path} is a corners.json, so they are ignored")
     corners = load_corners(path)
     check_board_agrees(flags, corners.board, str(path))
     return corners
@@ -58,6 +66,7 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
         raise click.UsageError("give INPUT (a corners.json or a dataset folder) or --camera NAME=GLOB")
     if not outlier_factor > 1:
         raise InputError(f"--outlier-factor {outlier_factor}: must be greater than 1")
+    check_output_file(output)
     corners = _load_input(input_path, board_spec, square_mm, dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
                   outlier_factor=outlier_factor)
@@ -65,8 +74,11 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
     save_rig(output, rig)
     models = [rig]
     if compare_models:
-        other = calibrate_rig(corners, skew=not skew, **kwargs)
-        models = [other, rig] if skew else [rig, other]
+        try:
+            other = calibrate_rig(corners, skew=not skew, **kwargs)
+            models = [other, rig] if skew else [rig, other]
+        except EstimationError as exc:
+            warn(f"the other skew model could not be solved for comparison: {exc}")
     console = Console()
     for table in result_tables(models):
         console.print(table)
@@ -85,7 +97,7 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
 @click.option("--noise", "noise_px", type=float, default=0.1, show_default=True,
               help="Gaussian noise (px, per coordinate) added to the true corners in corners.json.")
 @click.option("--photos/--no-photos", default=True, show_default=True, help="Render photo-like JPEGs.")
-@click.option("--jobs", type=int, default=None, help="Photos rendered in parallel (default: all cores).")
+@click.option("--jobs", type=click.IntRange(min=1), default=None, help="Photos rendered in parallel (default: all cores).")
 def synth_command(outdir, preset, views, seed, scale, noise_px, photos, jobs):
     """Write a synthetic rig with known truth to OUTDIR.
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import os
 
 import click
@@ -14,14 +13,10 @@ from ..errors import InputError
 def board_options(required: bool):
     """``--board COLSxROWS`` and ``--square MM``; optional where the input file names the board."""
     def decorate(f):
-        @click.option("--board", "board_spec", metavar="COLSxROWS", required=required,
-                      help="Inner corners of the chessboard, e.g. 8x5 for a board of 9 x 6 squares.")
-        @click.option("--square", "square_mm", type=float, metavar="MM", required=required,
-                      help="Side of one square in millimetres.")
-        @functools.wraps(f)
-        def wrapper(*args, **kwargs):
-            return f(*args, **kwargs)
-        return wrapper
+        f = click.option("--square", "square_mm", type=float, metavar="MM", required=required,
+                         help="Side of one square in millimetres.")(f)
+        return click.option("--board", "board_spec", metavar="COLSxROWS", required=required,
+                            help="Inner corners of the chessboard, e.g. 8x5 for a board of 9 x 6 squares.")(f)
     return decorate
 
 
