@@ -1,6 +1,7 @@
 """The paper's stereo-intersection check (dualcal.evaluate) and ``dualcal evaluate``."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -137,6 +138,46 @@ def test_a_pair_without_base_is_left_out_with_a_warning(capsys):
 def test_holdout_needs_a_calibration():
     with pytest.raises(InputError, match="rig mode"):
         evaluate(truth_rig_model(make_truth("stereo", views=4, seed=0)), holdout=True)
+
+
+def test_a_camera_named_like_a_case_is_refused():
+    rig = truth_rig_model(make_truth("triple", views=3, seed=0))
+    for name in ("dual", "dual:x"):
+        renamed = replace(rig, cameras={(name if c == "tele" else c): m for c, m in rig.cameras.items()})
+        with pytest.raises(InputError, match=f"camera '{name}' takes the name of the evaluation case"):
+            evaluate(renamed)
+
+
+@pytest.mark.parametrize("options, expected", [
+    (None, {"drop_outliers": True, "outlier_factor": 3.0}),                 # written before options were recorded
+    ({"drop_outliers": False, "outlier_factor": 4.5}, {"drop_outliers": False, "outlier_factor": 4.5}),
+])
+def test_holdout_folds_repeat_the_calibration(monkeypatch, options, expected):
+    """Each fold gets the calibration's options and its photos minus the held-out view; photos it
+    dropped are in no fold and in no resection. The folds return the exact truth here, so the
+    resected photos intersect exactly unless a dropped photo (its board moved by 20 px) pulls them."""
+    truth = make_truth("note8", views=5, seed=0)
+    corners = noisy_corner_set(truth, 0.0)
+    corners.cameras["tele"].views["IMG_03"] = corners.cameras["tele"].views["IMG_03"] + 20.0
+    rig = replace(truth_rig_model(truth, corners), rig_mode="rigid", skew=False,
+                  adjustment={} if options is None else {"options": options},
+                  dropped_views=[{"camera": "tele", "view": "IMG_03", "rms_px": 28.3, "reason": "moved board"}])
+    del rig.camera_poses["tele"]["IMG_03"]
+    folds = []
+
+    def fold(fold_corners, **kwargs):
+        folds.append(({(c, v) for c, cc in fold_corners.cameras.items() for v in cc.found()}, kwargs))
+        return truth_rig_model(truth)
+
+    monkeypatch.setattr("dualcal.calibrate.calibrate_rig", fold)
+    doc = evaluate(rig, holdout=True, progress=False)
+    views = sorted(truth.view_poses)
+    assert len(folds) == len(views)
+    for held_out, (photos, kwargs) in zip(views, folds):
+        assert kwargs == {"skew": False, "rig_mode": "rigid", "reference": "wide", **expected}
+        assert photos == {(c, v) for c in ("wide", "tele") for v in views if v != held_out} - {("tele", "IMG_03")}
+    assert doc["cases"]["dual"]["pairs"] == 4 and doc["cases"]["tele"]["pairs"] == 6
+    assert doc["cases"]["wide"]["pairs"] == 10 and max(doc["cases"]["wide"]["rmse_mm"]) < 1e-6
 
 
 # ---------------------------------------------------------------------------- against the floor

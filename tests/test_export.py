@@ -9,6 +9,7 @@ from __future__ import annotations
 import ast
 import re
 from dataclasses import replace
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -243,6 +244,46 @@ def test_nonzero_skew_is_dropped_with_one_warning(rig, tmp_path, capsys, fmt):
     assert "tele = 0.75 px" in err and "no skew term" in err
 
 
+def _renamed(rig, reference: str, other: str):
+    """The wide + tele part of ``rig`` with its cameras renamed."""
+    return replace(rig, cameras={reference: rig.cameras["wide"], other: rig.cameras["tele"]}, reference=reference,
+                   rig={other: rig.rig["tele"]})
+
+
+@pytest.mark.parametrize("fmt, what", [("opencv", "the OpenCV key 'wide_1'"),
+                                       ("kalibr", "the rostopic '/wide_1/image_raw'"),
+                                       ("mrcal", "the file '{tmp}/rig-wide_1.cameramodel'")])
+def test_cameras_spelled_alike_are_refused(rig, tmp_path, fmt, what):
+    """``wide 1`` and ``wide_1`` are distinct cameras but one key or file name after escaping."""
+    alike = _renamed(rig, "wide 1", "wide_1")
+    message = f"cameras 'wide 1' and 'wide_1' would both be written as {what.replace('{tmp}', str(tmp_path))}"
+    with pytest.raises(InputError, match=re.escape(message)):
+        write_export(alike, fmt, tmp_path / "rig")
+    assert list(tmp_path.iterdir()) == []
+    assert write_export(alike, "colmap", tmp_path / "cameras.txt")   # numbered cameras: no clash
+
+
+def test_kalibr_topics_of_cameras_differing_in_dash_and_underscore_clash(rig):
+    alike = _renamed(rig, "wide-1", "wide_1")
+    with pytest.raises(InputError, match="'wide-1' and 'wide_1' would both be written as the rostopic"):
+        kalibr_yaml(alike)
+    files = sorted(mrcal_paths(alike, "rig").values())
+    assert files == [Path("rig-wide-1.cameramodel"), Path("rig-wide_1.cameramodel")]       # '-' is kept
+
+
+@pytest.mark.parametrize("fmt", ["opencv", "kalibr", "colmap"])
+def test_single_file_formats_refuse_a_folder(rig, tmp_path, fmt):
+    with pytest.raises(InputError, match="is a folder: give a file name"):
+        write_export(rig, fmt, tmp_path)
+
+
+def test_mrcal_checks_every_file_before_writing_any(rig, tmp_path):
+    (tmp_path / "rig-ultra.cameramodel").mkdir()
+    with pytest.raises(InputError, match="rig-ultra.cameramodel' is a folder"):
+        write_export(rig, "mrcal", tmp_path / "rig")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rig-ultra.cameramodel"]
+
+
 def test_zero_skew_exports_without_warning(rig, tmp_path, capsys):
     write_export(rig, "colmap", tmp_path / "cameras.txt")
     assert capsys.readouterr().err == ""
@@ -263,6 +304,7 @@ def test_cli_export_writes_the_file(calib_json, tmp_path, run_cli):
     (["--format", "matlab"], "Invalid value for '--format'"),
     (["--format", "opencv", "-o", "{tmp}/no/such/folder/rig.yml"], "output folder"),
     (["--format", "mrcal", "-o", "{tmp}/models/"], "output folder"),
+    (["--format", "kalibr", "-o", "{tmp}"], "is a folder: give a file name"),
 ])
 def test_cli_export_errors_are_one_line(calib_json, tmp_path, run_cli, args, message):
     args = [a.replace("{tmp}", str(tmp_path)) for a in args]

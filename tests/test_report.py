@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from dualcal import io, synth
-from dualcal.camera import CameraModel, distort_normalized, undistort_points
-from dualcal.model import CameraCorners, CornerSet
-from dualcal.report import analysis, figures, render_report
+from dualcal.calibrate import outlier_limit_px
+from dualcal.camera import CameraModel, distort_normalized, max_distorted_radius, project_points, undistort_points
+from dualcal.model import CameraCorners, CornerSet, Pose
+from dualcal.report import analysis, figures, html as report_html, render_report
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 NOISE_PX = 0.3
@@ -79,10 +80,16 @@ def test_views_without_corners_or_pose_are_left_out(rig):
     assert "IMG_03" not in res["wide"] and "IMG_03" in res["tele"]
 
 
-def test_outlier_views_above_twice_the_median():
-    rms = {"a": 0.30, "b": 0.32, "c": 0.28, "d": 0.65, "e": 0.61}   # median 0.30
-    assert analysis.outlier_views(rms) == ["d"]
-    assert analysis.outlier_views({}) == []
+def test_outlier_views_follow_the_calibrations_rule():
+    """A view is out of line when its RMS exceeds calibrate's limit: factor x the median, at least 0.05 px."""
+    rms = {"a": 0.30, "b": 0.32, "c": 0.28, "d": 0.97, "e": 0.70}   # median 0.32
+    assert analysis.view_outlier_limit_px(rms, 3.0) == pytest.approx(0.96)
+    assert analysis.outlier_views(rms, 3.0) == ["d"]
+    assert analysis.outlier_views(rms, 2.0) == ["d", "e"]
+    tiny = {"a": 0.010, "b": 0.012, "c": 0.040}                       # 3 x median 0.036 < 0.05
+    assert analysis.view_outlier_limit_px(tiny, 3.0) == outlier_limit_px(0.012, 3.0) == 0.05
+    assert analysis.outlier_views(tiny, 3.0) == []
+    assert analysis.outlier_views({}, 3.0) == []
 
 
 def test_coverage_counts_half_the_image():
@@ -127,6 +134,7 @@ def test_distortion_curve_stops_where_the_model_folds():
     curve = analysis.distortion_curve(cam)
     r_fold = 1 / math.sqrt(1.5)
     assert curve.fold_radius_px == pytest.approx(300 * r_fold * (1 - 0.5 * r_fold**2), rel=1e-9)
+    assert curve.fold_radius_px == 300 * max_distorted_radius(cam.k1, cam.k2)   # the library's fold
     assert curve.radius_px[-1] == pytest.approx(curve.fold_radius_px, rel=1e-9)
     assert curve.fold_radius_px < curve.corner_radius_px
 
@@ -219,6 +227,28 @@ def test_every_figure_is_there_with_svg_and_caption(page):
         fig = page.figures[fig_id]
         assert "svg" in fig["tags"] and "path" in fig["tags"], fig_id
         assert words in fig["caption"], fig_id
+    rule = "3× the camera's median view RMS, but at least 0.05 px, the rule by which the calibration drops photos"
+    assert rule in page.figures["fig-view-rms"]["caption"]
+
+
+def test_evaluation_labels_every_dual_case_as_two_cameras():
+    cases = {name: {"rmse_mm": [0.1, 0.2, 0.3], "pairs": 2}
+             for name in ("dual", "dual:ultra", "ultra", "dualcam")}
+    labels = {row["case"]: row["label"] for row in report_html.evaluation_table({"cases": cases})}
+    assert labels == {"dual": "two cameras, same instant", "dual:ultra": "two cameras, same instant",
+                      "ultra": "ultra camera, two instants", "dualcam": "dualcam camera, two instants"}
+
+
+def test_frustum_corners_project_to_the_image_corners():
+    """The frustum's base lies on the rays of the image's outer corners (skew included)."""
+    cam = CameraModel((400, 300), 420.0, 410.0, 6.0, 205.0, 148.0, 0.0, 0.0)
+    frame = Pose(np.eye(3), np.array([10.0, -4.0, 2.0]))
+    f = figures._frustum(cam, frame, depth_mm=50.0)
+    np.testing.assert_allclose(f[0], frame.t_mm)
+    X_cam = frame.inverse().apply(f[1:])
+    np.testing.assert_allclose(X_cam[:, 2], 50.0)
+    corners = [[-0.5, -0.5], [399.5, -0.5], [399.5, 299.5], [-0.5, 299.5]]
+    np.testing.assert_allclose(project_points(cam, X_cam), corners, atol=1e-9)
 
 
 def test_tables_hold_the_calibration(page, rig):
@@ -248,17 +278,35 @@ def test_summary_states_modes_and_rms(html):
     assert f"{NOISE_PX * math.sqrt(2):.3f} px" in html
 
 
-def test_outlier_view_is_found_and_hinted(rig):
-    """A view with 5x the noise is an outlier of its camera, named in a hint."""
+def _with_noisy_tele_view(rig, gain: float):
+    """``rig`` with tele/IMG_04's corners given ``gain`` x the noise."""
     cams = dict(rig.corners.cameras)
     tele = cams["tele"]
-    noise = np.random.default_rng(7).normal(0, 5 * NOISE_PX, (40, 2))
-    bad = {**tele.views, "IMG_04": tele.views["IMG_04"] + noise}
-    cams["tele"] = CameraCorners(tele.image_size, bad)
-    found = analysis.camera_findings(replace(rig, corners=CornerSet(rig.board, cams)))
+    noise = np.random.default_rng(7).normal(0, gain * NOISE_PX, (40, 2))
+    cams["tele"] = CameraCorners(tele.image_size, {**tele.views, "IMG_04": tele.views["IMG_04"] + noise})
+    return replace(rig, corners=CornerSet(rig.board, cams))
+
+
+def test_outlier_view_is_found_and_hinted(rig):
+    """A view with 5x the noise is an outlier of its camera, named in a hint."""
+    found = analysis.camera_findings(_with_noisy_tele_view(rig, 5.0))
     assert found["tele"].outliers == ["IMG_04"] and found["wide"].outliers == []
-    assert "tele: view IMG_04 has an RMS above 2× the median" in found["tele"].hints[-1]
+    limit = found["tele"].outlier_limit_px
+    hint = f"tele: view IMG_04 has an RMS above the camera's outlier limit of {limit:.3g} px"
+    assert hint in found["tele"].hints[-1]
     assert found["tele"].view_rms_px["IMG_04"] > 4 * NOISE_PX
+
+
+def test_outliers_use_the_factor_the_calibration_was_run_with(rig):
+    """The recorded ``outlier_factor`` sets the limit; files without it get calibrate's 3."""
+    noisy = _with_noisy_tele_view(rig, 5.0)
+    for options, factor in [(None, 3.0), ({"drop_outliers": True, "outlier_factor": 8.0}, 8.0)]:
+        adjustment = {} if options is None else {"options": options}
+        found = analysis.camera_findings(replace(noisy, adjustment=adjustment))["tele"]
+        median = float(np.median(list(found.view_rms_px.values())))
+        assert found.outlier_limit_px == outlier_limit_px(median, factor)
+        assert found.outliers == [v for v, r in found.view_rms_px.items() if r > found.outlier_limit_px]
+    assert found.outliers == [] and found.view_rms_px["IMG_04"] > 4 * median   # 8 x the median is not reached
 
 
 def test_hints_and_left_out_views_are_on_the_page(html, rig):

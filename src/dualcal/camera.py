@@ -203,10 +203,14 @@ def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
     return np.stack([u, v], axis=-1), J_X, J_K
 
 
+def ideal_normalized_from_pixel(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
+    """Observed (distorted) pixels -> ideal normalised coordinates ``(X/Z, Y/Z)`` of their rays."""
+    return undistort_normalized(normalized_from_pixel(cam, uv), cam.k1, cam.k2)
+
+
 def undistort_points(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
     """Observed (distorted) pixels -> ideal pinhole pixels of the same matrix A."""
-    xy = undistort_normalized(normalized_from_pixel(cam, uv), cam.k1, cam.k2)
-    return pixel_from_normalized(cam, xy)
+    return pixel_from_normalized(cam, ideal_normalized_from_pixel(cam, uv))
 
 
 def distort_points(cam: CameraModel, uv_ideal: np.ndarray) -> np.ndarray:

@@ -16,7 +16,8 @@ Orientation of the photos:
 * ``holdout=True``: each view is left out of the calibration in turn, and its photos are then
   oriented by space resection (:func:`resect`) with the intrinsics and rig that calibration
   found, so no ray comes from a calibration that saw its photo. A pair of two instants takes
-  each photo from its own fold.
+  each photo from its own fold. Each fold repeats the full calibration: its settings (skew,
+  rig mode, reference, outlier options) and its photos, those it dropped left out.
 
 eval.json (contract): ``{"cases": {name: {"rmse_mm": [x, y, z], "pairs": N}}}``; added keys:
 ``points`` per case (corners intersected), ``per_pair`` (each pair's cameras, views and
@@ -26,20 +27,21 @@ RMSE), ``holdout``.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from .adjust import RIG_MODES
 from .board import Board
-from .camera import CameraModel, normalized_from_pixel, project_with_jacobians, undistort_normalized
+from .camera import CameraModel, ideal_normalized_from_pixel, project_with_jacobians
 from .errors import EstimationError, InputError
 from .intersect import triangulate
 from .model import CameraCorners, CornerSet, Pose, RigModel
 from .progress import progress_bar, warn
 from .rotation import cross_matrix, rotation_from_rotvec
 
-CALIBRATED_RIG_MODES = ("rigid", "paper", "none")
 _IDENTITY = Pose(np.eye(3), np.zeros(3))
 
 
@@ -57,7 +59,7 @@ class OrientedPhoto:
 
 def _initial_pose(X_board: np.ndarray, cam: CameraModel, uv_px: np.ndarray) -> Pose:
     """Board -> camera pose from undistorted normalised corners (IPPE, exact for a planar board)."""
-    xy = undistort_normalized(normalized_from_pixel(cam, uv_px), cam.k1, cam.k2)
+    xy = ideal_normalized_from_pixel(cam, uv_px)
     ok, rvec, tvec = cv2.solvePnP(X_board.astype(np.float64), xy.astype(np.float64), np.eye(3), None,
                                   flags=cv2.SOLVEPNP_IPPE)
     if not ok:
@@ -122,10 +124,22 @@ def fitted_photos(rig: RigModel) -> dict[str, dict[str, OrientedPhoto]]:
     return out
 
 
-def _without_view(corners: CornerSet, view: str) -> CornerSet:
-    cams = {name: CameraCorners(c.image_size, {k: x for k, x in c.views.items() if k != view}, c.meta)
+def _without(corners: CornerSet, left_out: Callable[[str, str], bool]) -> CornerSet:
+    """``corners`` without the photos for which ``left_out(camera, view)`` is true."""
+    cams = {name: CameraCorners(c.image_size, {v: uv for v, uv in c.views.items() if not left_out(name, v)},
+                                c.meta)
             for name, c in corners.cameras.items()}
     return CornerSet(corners.board, cams)
+
+
+def used_corners(rig: RigModel) -> CornerSet:
+    """The corners the calibration used: ``rig.corners`` without the photos it dropped.
+
+    ``rig.dropped_views`` lists them as ``{"camera", "view", ...}``; an entry without a camera
+    drops the view in every camera.
+    """
+    dropped = {(d.get("camera"), d.get("view")) for d in rig.dropped_views}
+    return _without(rig.corners, lambda cam, view: (cam, view) in dropped or (None, view) in dropped)
 
 
 def resect_view(calib: RigModel, view: str, corners: CornerSet) -> dict[str, OrientedPhoto]:
@@ -152,26 +166,31 @@ def resect_view(calib: RigModel, view: str, corners: CornerSet) -> dict[str, Ori
 def holdout_photos(rig: RigModel, progress: bool = True) -> dict[str, dict[str, OrientedPhoto]]:
     """Every photo oriented by a calibration that did not see its view (leave one view out).
 
-    Calls :func:`dualcal.calibrate.calibrate_rig` once per view, with the corners of all other
-    views and the rig's own settings (skew, rig mode, reference), then :func:`resect_view`.
-    Only views the full calibration kept are evaluated.
+    Calls :func:`dualcal.calibrate.calibrate_rig` once per view, as the full calibration was
+    run: with the photos it used (:func:`used_corners`) of all other views and its settings
+    (skew, rig mode, reference, :meth:`RigModel.calibration_options`); then :func:`resect_view` orients
+    the view's used photos. Only views the full calibration kept are evaluated.
     """
     from .calibrate import calibrate_rig   # the adjustment is only needed here
 
-    if rig.rig_mode not in CALIBRATED_RIG_MODES:
-        raise InputError(f"--holdout recalibrates, which needs a rig mode of {', '.join(CALIBRATED_RIG_MODES)} "
+    if rig.rig_mode not in RIG_MODES:
+        raise InputError(f"--holdout recalibrates, which needs a rig mode of {', '.join(RIG_MODES)} "
                          f"(this calibration has {rig.rig_mode!r})")
+    options = rig.calibration_options()
+    corners = used_corners(rig)
     views = sorted({v for poses in rig.camera_poses.values() for v in poses})
     out: dict[str, dict[str, OrientedPhoto]] = {cam: {} for cam in rig.cameras}
     with progress_bar("hold-out folds", len(views), enabled=progress) as advance:
         for view in views:
             try:
-                calib = calibrate_rig(_without_view(rig.corners, view), skew=rig.skew, rig_mode=rig.rig_mode,
-                                      reference=rig.reference)
+                calib = calibrate_rig(_without(corners, lambda _, v: v == view), skew=rig.skew,
+                                      rig_mode=rig.rig_mode, reference=rig.reference,
+                                      drop_outliers=bool(options["drop_outliers"]),
+                                      outlier_factor=float(options["outlier_factor"]))
             except EstimationError as exc:
                 raise EstimationError(f"hold-out calibration without view {view!r} failed: {exc}") from None
             kept = {c for c, poses in rig.camera_poses.items() if view in poses}
-            for cam, photo in resect_view(calib, view, rig.corners).items():
+            for cam, photo in resect_view(calib, view, corners).items():
                 if cam in kept:
                     out[cam][view] = photo
             advance()
@@ -246,9 +265,17 @@ def evaluate(rig: RigModel, holdout: bool = False, progress: bool = True) -> dic
 
     Raises
     ------
+    InputError
+        A camera named like a case of another kind (``dual`` or ``dual:...``); ``holdout``
+        for a calibration of a rig mode :func:`dualcal.calibrate.calibrate_rig` does not run.
     EstimationError
         No case has a pair, or a hold-out calibration fails.
     """
+    clash = [c for c in rig.cameras if c == "dual" or c.startswith("dual:")]
+    if clash:
+        raise InputError(f"camera {clash[0]!r} takes the name of the evaluation case of two cameras "
+                         "('dual', 'dual:<camera>'): give it another name when detecting the corners "
+                         "(--camera NAME=GLOB) and calibrate again")
     photos = holdout_photos(rig, progress) if holdout else fitted_photos(rig)
     doc = stereo_cases(rig.board, photos, rig.reference)
     if not doc["cases"]:

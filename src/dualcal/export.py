@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -30,7 +31,7 @@ import numpy as np
 from . import __version__
 from .camera import CameraModel
 from .errors import InputError
-from .io import write_text_atomic
+from .io import check_output_file, write_text_atomic
 from .model import RigModel
 from .progress import warn
 from .rotation import rotvec_from_rotation
@@ -61,6 +62,23 @@ def _opencv_key(name: str) -> str:
     return key if re.match(r"[A-Za-z_]", key) else f"_{key}"
 
 
+def _distinct(names: list[str], spell: Callable[[str], object], what: str) -> dict:
+    """``{name: spell(name)}`` for the cameras ``names``; two cameras spelled alike raise :class:`InputError`.
+
+    ``spell`` makes a camera name safe for a format (a file name, a key), which can map two
+    names to one (``wide 1`` and ``wide_1`` both give the mrcal file ``wide_1.cameramodel``).
+    """
+    out, owner = {}, {}
+    for name in names:
+        spelled = out[name] = spell(name)
+        if spelled in owner:
+            raise InputError(f"cameras {owner[spelled]!r} and {name!r} would both be written as {what} "
+                             f"'{spelled}': rename one of them when detecting the corners (--camera NAME=GLOB) "
+                             "and calibrate again")
+        owner[spelled] = name
+    return out
+
+
 def _unrelated_cameras(rig: RigModel) -> list[str]:
     """Non-reference cameras without a pose relative to the reference (rig mode ``none``)."""
     return [name for name in rig.cameras if name != rig.reference and name not in rig.rig]
@@ -79,6 +97,7 @@ def opencv_yaml(rig: RigModel) -> str:
     for every camera with a pose relative to the reference, ``R`` (3x3) and ``T`` (3x1, mm)
     such that ``X_cam = R X_ref + T`` (what ``cv2.stereoCalibrate`` returns).
     """
+    keys = _distinct(rig.camera_order(), _opencv_key, "the OpenCV key")
     fs = cv2.FileStorage(".yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     fs.writeComment(f"dualcal {__version__} rig calibration. K in pixels (skew dropped), "
                     "D = (k1, k2, p1, p2, k3), X_cam = R X_ref + T with T in millimetres.")
@@ -89,7 +108,7 @@ def opencv_yaml(rig: RigModel) -> str:
     fs.endWriteStruct()
     for name in rig.camera_order():
         cam = rig.cameras[name]
-        fs.startWriteStruct(_opencv_key(name), cv2.FileNode_MAP)
+        fs.startWriteStruct(keys[name], cv2.FileNode_MAP)
         fs.write("image_width", int(cam.image_size[0]))
         fs.write("image_height", int(cam.image_size[1]))
         fs.write("K", np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]]))
@@ -132,6 +151,7 @@ def kalibr_yaml(rig: RigModel) -> str:
     camera n coordinates, translation in metres.
     """
     order = rig.camera_order()
+    topics = _distinct(order, lambda name: f"/{_safe_name(name).replace('-', '_')}/image_raw", "the rostopic")
     lines = [f"# dualcal {__version__} rig calibration: "
              + ", ".join(f"cam{i} = {name}" for i, name in enumerate(order))
              + "; T_cn_cnm1 in metres, skew dropped"]
@@ -154,7 +174,7 @@ def kalibr_yaml(rig: RigModel) -> str:
                   "  distortion_model: radtan",
                   f"  intrinsics: {_yaml_list([cam.fx, cam.fy, cam.cx, cam.cy])}",
                   f"  resolution: [{cam.image_size[0]}, {cam.image_size[1]}]",
-                  f"  rostopic: /{_safe_name(name).replace('-', '_')}/image_raw"]
+                  f"  rostopic: {topics[name]}"]
         previous = pose
     return "\n".join(lines) + "\n"
 
@@ -222,14 +242,22 @@ def mrcal_paths(rig: RigModel, output: str | Path) -> dict[str, Path]:
     A ``.cameramodel`` suffix on a stem is dropped first (``-o rig.cameramodel`` gives
     ``rig-wide.cameramodel``, ``rig-tele.cameramodel``). A string ending in ``/`` must name an
     existing folder.
+
+    Raises
+    ------
+    InputError
+        For a missing folder, or two cameras whose names give the same file.
     """
     if str(output).endswith(("/", os.sep)) and not Path(output).is_dir():
         raise InputError(f"output folder {str(output)!r} does not exist: create it first or give a file stem")
     output = Path(output)
     if output.is_dir():
-        return {name: output / f"{_safe_name(name)}.cameramodel" for name in rig.camera_order()}
-    stem = output.with_suffix("") if output.suffix == ".cameramodel" else output
-    return {name: stem.with_name(f"{stem.name}-{_safe_name(name)}.cameramodel") for name in rig.camera_order()}
+        folder, prefix = output, ""
+    else:
+        stem = output.with_suffix("") if output.suffix == ".cameramodel" else output
+        folder, prefix = stem.parent, f"{stem.name}-"
+    return _distinct(rig.camera_order(), lambda name: folder / f"{prefix}{_safe_name(name)}.cameramodel",
+                     "the file")
 
 
 # ---------------------------------------------------------------------------- files
@@ -241,8 +269,9 @@ def export_files(rig: RigModel, fmt: str, output: str | Path) -> dict[Path, str]
     Raises
     ------
     InputError
-        for an unknown format, or, in kalibr and mrcal (which place every camera relative to
-        the reference), a rig whose cameras have no relative pose (rig mode ``none``).
+        for an unknown format, two cameras whose names the format would spell alike, or, in
+        kalibr and mrcal (which place every camera relative to the reference), a rig whose
+        cameras have no relative pose (rig mode ``none``).
     """
     if fmt not in FORMATS:
         raise InputError(f"--format {fmt!r} is unknown (choose from {', '.join(FORMATS)})")
@@ -257,8 +286,13 @@ def export_files(rig: RigModel, fmt: str, output: str | Path) -> dict[Path, str]
 
 
 def write_export(rig: RigModel, fmt: str, output: str | Path) -> list[Path]:
-    """Write :func:`export_files` atomically; warn once if a non-zero skew had to be dropped."""
+    """Write :func:`export_files` atomically; warn once if a non-zero skew had to be dropped.
+
+    Every path is checked (:func:`dualcal.io.check_output_file`) before any file is written.
+    """
     files = export_files(rig, fmt, output)
+    for path in files:
+        check_output_file(path)
     skewed = skewed_cameras(rig)
     if skewed:
         warn(f"{fmt} has no skew term: dropped skew "

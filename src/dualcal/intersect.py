@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .camera import CameraModel, normalized_from_pixel, project_with_jacobians, undistort_normalized
+from .camera import CameraModel, ideal_normalized_from_pixel, project_with_jacobians
 from .errors import EstimationError
 from .model import Pose
 
@@ -47,7 +47,7 @@ def viewing_rays(cam: CameraModel, pose: Pose, uv_px: np.ndarray) -> tuple[np.nd
     centre_mm : (3,) perspective centre ``-R^T t`` (paper eq. 11).
     directions : (N, 3) unit vectors ``R^T (x, y, 1) / |(x, y, 1)|``.
     """
-    xy = undistort_normalized(normalized_from_pixel(cam, uv_px), cam.k1, cam.k2)
+    xy = ideal_normalized_from_pixel(cam, uv_px)
     d_cam = np.column_stack([xy, np.ones(len(xy))])
     d = d_cam @ pose.R                        # rows R^T d_cam
     return pose.center_mm, d / np.linalg.norm(d, axis=1, keepdims=True)

@@ -126,6 +126,11 @@ class RigModel:
     adjustment: dict = field(default_factory=dict)
     dropped_views: list[dict] = field(default_factory=list)
 
+    def calibration_options(self) -> dict:
+        """How the calibration treated outliers: ``{"drop_outliers": bool, "outlier_factor": float}``,
+        from ``adjustment["options"]``; files written before it was recorded get the defaults."""
+        return {"drop_outliers": True, "outlier_factor": 3.0, **self.adjustment.get("options", {})}
+
     def camera_order(self) -> list[str]:
         """Camera names, the reference first, then the others in calib.json's order."""
         return [self.reference] + [name for name in self.cameras if name != self.reference]

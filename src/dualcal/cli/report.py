@@ -6,9 +6,8 @@ from pathlib import Path
 
 import click
 
-from ..errors import InputError
 from ..export import FORMATS, write_export
-from ..io import load_evaluation, load_rig, write_text_atomic
+from ..io import check_output_file, load_evaluation, load_rig, write_text_atomic
 from ..report import render_report
 from . import cli
 
@@ -27,9 +26,7 @@ def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
     distortion curve and map, a 3-D view of the board poses and the rig, and the evaluation
     (paper Tables 5, 6) when --eval is given.
     """
-    if not output.parent.resolve().is_dir():  # fail before rendering, not after
-        raise InputError(f"output folder {str(output.parent)!r} does not exist: "
-                         "create it first or choose another -o")
+    check_output_file(output)  # fail before rendering, not after
     rig = load_rig(calib)
     evaluation = load_evaluation(eval_path) if eval_path is not None else None
     html = render_report(rig, evaluation, progress=True)

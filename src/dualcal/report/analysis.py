@@ -4,7 +4,8 @@ Everything is recomputed from what calib.json carries (intrinsics, every camera'
 in every view, the detected corners), never stored twice:
 
 * :func:`rig_residuals`: observed minus projected corners, per camera and view (pixels);
-* :func:`rms_px`, :func:`outlier_views`: per-view RMS and the views that stand out;
+* :func:`rms_px`, :func:`outlier_views`: per-view RMS and the views out of line, by the rule
+  the calibration drops photos by (:func:`dualcal.calibrate.outlier_limit_px`);
 * :func:`coverage_counts`, :func:`coverage_hints`: where on each sensor the board was seen,
   and plain-words warnings where it was not;
 * :func:`distortion_curve`, :func:`displacement_map`: the size of the radial distortion of
@@ -19,6 +20,7 @@ residual = observed - projected; RMS is over points, ``sqrt(mean(du^2 + dv^2))``
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -26,13 +28,13 @@ import cv2
 import numpy as np
 from matplotlib.path import Path as MplPath
 
-from ..camera import (CameraModel, image_corner_radius, max_monotonic_radius, normalized_from_pixel,
-                      project_points, radial_factor, undistort_normalized)
+from ..calibrate import outlier_limit_px
+from ..camera import (CameraModel, image_corner_radius, max_distorted_radius, max_monotonic_radius,
+                      normalized_from_pixel, project_points, radial_factor, undistort_normalized,
+                      undistort_points)
 from ..errors import NotInvertibleError
 from ..model import Pose, RigModel
 
-#: A view is an outlier when its RMS exceeds this multiple of its camera's median view RMS.
-OUTLIER_FACTOR = 2.0
 #: Coverage hints: the outer ring of the image, as a share of the half-diagonal.
 OUTER_RING = 0.2
 #: Coverage hints: the image is split into this many cells per side to find empty regions.
@@ -109,12 +111,21 @@ def left_out_views(rig: RigModel) -> dict[str, dict[str, str]]:
     return out
 
 
-def outlier_views(view_rms: dict[str, float], factor: float = OUTLIER_FACTOR) -> list[str]:
-    """Views whose RMS exceeds ``factor`` times the median over the views given (sorted keys)."""
+def view_outlier_limit_px(view_rms: dict[str, float], factor: float) -> float:
+    """RMS above which a view of one camera is out of line, from the views' RMS ``[view]`` (px).
+
+    The calibration's own rule, :func:`dualcal.calibrate.outlier_limit_px` of the median view
+    RMS and ``factor``; NaN without views.
+    """
     if not view_rms:
-        return []
-    median = float(np.median(list(view_rms.values())))
-    return sorted(v for v, r in view_rms.items() if r > factor * median)
+        return math.nan
+    return outlier_limit_px(float(np.median(list(view_rms.values()))), factor)
+
+
+def outlier_views(view_rms: dict[str, float], factor: float) -> list[str]:
+    """Views of one camera whose RMS exceeds :func:`view_outlier_limit_px` (sorted keys)."""
+    limit = view_outlier_limit_px(view_rms, factor)
+    return sorted(v for v, r in view_rms.items() if r > limit)
 
 
 # ---------------------------------------------------------------------------- coverage
@@ -216,11 +227,10 @@ def distortion_curve(camera: CameraModel, samples: int = 200) -> DistortionCurve
     """Radial displacement ``rd - r`` (paper eq. 13) from the centre out to the image corner."""
     f = _mean_focal_px(camera)
     rd_corner = image_corner_radius(camera)
-    r_fold = max_monotonic_radius(camera.k1, camera.k2)
-    rd_fold = r_fold * radial_factor(r_fold**2, camera.k1, camera.k2) if math.isfinite(r_fold) else math.inf
+    rd_fold = max_distorted_radius(camera.k1, camera.k2)
     fold = rd_fold < rd_corner
     if fold:
-        r_end = r_fold
+        r_end = max_monotonic_radius(camera.k1, camera.k2)
     else:
         r_end = float(undistort_normalized(np.array([[rd_corner, 0.0]]), camera.k1, camera.k2)[0, 0])
     r = np.linspace(0.0, r_end, samples)
@@ -231,20 +241,14 @@ def distortion_curve(camera: CameraModel, samples: int = 200) -> DistortionCurve
 def displacement_px(camera: CameraModel, uv_px: np.ndarray) -> np.ndarray:
     """Length in pixels of the distortion at observed pixels (N, 2): ``|uv - ideal(uv)|``.
 
-    NaN where undistortion is not unique (beyond the model's monotonic radius).
+    NaN where undistortion is not unique (beyond the model's fold, :func:`max_distorted_radius`).
     """
-    xy_d = normalized_from_pixel(camera, uv_px)
-    rd = np.linalg.norm(xy_d, axis=-1)
-    r_fold = max_monotonic_radius(camera.k1, camera.k2)
-    rd_fold = r_fold * radial_factor(r_fold**2, camera.k1, camera.k2) if math.isfinite(r_fold) else math.inf
-    out = np.full(rd.shape, np.nan)
-    ok = rd < rd_fold
-    try:
-        xy = undistort_normalized(xy_d[ok], camera.k1, camera.k2)
-    except NotInvertibleError:  # Newton failed right at the fold: leave the map blank there
-        return out
-    shift = xy_d[ok] - xy
-    out[ok] = np.hypot(camera.fx * shift[:, 0] + camera.skew * shift[:, 1], camera.fy * shift[:, 1])
+    uv_px = np.asarray(uv_px, float)
+    out = np.full(len(uv_px), np.nan)
+    rd = np.linalg.norm(normalized_from_pixel(camera, uv_px), axis=-1)
+    ok = rd < max_distorted_radius(camera.k1, camera.k2)
+    with contextlib.suppress(NotInvertibleError):   # Newton failed right at the fold: leave the map blank
+        out[ok] = np.linalg.norm(uv_px[ok] - undistort_points(camera, uv_px[ok]), axis=-1)
     return out
 
 
@@ -330,15 +334,16 @@ class CameraFindings:
     """What the report shows about one camera of a rig.
 
     ``residuals[view]`` and ``view_rms_px[view]`` for every view with corners and a pose;
-    ``rms_px`` over all of them; ``outliers`` (views above :data:`OUTLIER_FACTOR` x the
-    median); ``left_out[view] -> reason``; ``coverage`` counts (:func:`coverage_counts`) on
-    cells of ``coverage_cell_px``; the distortion ``curve`` and ``reach_px``, the farthest
-    observed corner on it; ``hints``: plain-words warnings.
+    ``rms_px`` over all of them; ``outliers``, the views above ``outlier_limit_px``
+    (:func:`view_outlier_limit_px`); ``left_out[view] -> reason``; ``coverage`` counts
+    (:func:`coverage_counts`) on cells of ``coverage_cell_px``; the distortion ``curve`` and
+    ``reach_px``, the farthest observed corner on it; ``hints``: plain-words warnings.
     """
 
     residuals: dict[str, ViewResiduals]
     view_rms_px: dict[str, float]
     rms_px: float
+    outlier_limit_px: float
     outliers: list[str]
     left_out: dict[str, str]
     coverage: np.ndarray
@@ -354,15 +359,21 @@ class CameraFindings:
 
 
 def camera_findings(rig: RigModel) -> dict[str, CameraFindings]:
-    """:class:`CameraFindings` of every camera of ``rig`` (in the order of ``rig.cameras``)."""
+    """:class:`CameraFindings` of every camera of ``rig`` (in the order of ``rig.cameras``).
+
+    Outliers are judged as the calibration judged them, with its recorded ``outlier_factor``
+    (:meth:`dualcal.model.RigModel.calibration_options`).
+    """
     residuals = rig_residuals(rig)
     left_out = left_out_views(rig)
+    factor = float(rig.calibration_options()["outlier_factor"])
     out = {}
     for name, camera in rig.cameras.items():
         res = residuals[name]
         boards = [r.uv_px for r in res.values()]
         view_rms = {v: r.rms_px for v, r in res.items()}
-        outliers = outlier_views(view_rms)
+        limit = view_outlier_limit_px(view_rms, factor)
+        outliers = outlier_views(view_rms, factor)
         cell = max(camera.image_size) * COVERAGE_CELL_SHARE
         counts = coverage_counts(camera.image_size, boards, cell)
         curve = distortion_curve(camera)
@@ -370,14 +381,15 @@ def camera_findings(rig: RigModel) -> dict[str, CameraFindings]:
         if outliers:
             many = len(outliers) > 1
             hints.append(f"{name}: view{'s' if many else ''} {', '.join(outliers)} "
-                         f"{'have' if many else 'has'} an RMS above {OUTLIER_FACTOR:g}× the median: "
-                         f"check {'them' if many else 'it'} for blur or a wrong detection")
+                         f"{'have' if many else 'has'} an RMS above the camera's outlier limit of "
+                         f"{limit:.3g} px: check {'them' if many else 'it'} for blur, a moved board or a "
+                         "wrong detection")
         if curve.fold_radius_px is not None:
             hints.append(f"{name}: the distortion model folds over inside the image (beyond "
                          f"{curve.fold_radius_px:.0f} px from the principal point): k1, k2 are "
                          "not usable out there")
         all_uv = np.vstack(boards) if boards else np.empty((0, 2))
         all_res = np.vstack([r.residual_px for r in res.values()]) if res else np.empty((0, 2))
-        out[name] = CameraFindings(res, view_rms, rms_px(all_res), outliers, left_out[name], counts, cell,
+        out[name] = CameraFindings(res, view_rms, rms_px(all_res), limit, outliers, left_out[name], counts, cell,
                                    curve, corner_reach_px(camera, all_uv), hints)
     return out

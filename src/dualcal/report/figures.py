@@ -24,9 +24,9 @@ from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
 from ..board import Board
-from ..camera import CameraModel
+from ..camera import CameraModel, normalized_from_pixel
 from ..model import Pose
-from .analysis import DistortionCurve, ViewResiduals
+from .analysis import DistortionCurve, ViewResiduals, rms_px
 
 #: Style shared by all figures (applied only while a figure is built and saved).
 STYLE = {
@@ -153,8 +153,7 @@ def residual_histogram_figure(name: str, residuals: dict[str, ViewResiduals]) ->
                 label=f"{label}: σ = {sd[k]:.3f} px")
         pdf = np.exp(-0.5 * (x / sd[k]) ** 2) / (sd[k] * math.sqrt(2 * math.pi)) if sd[k] > 0 else 0 * x
         ax.plot(x, pdf * len(res) * width, color=colour, lw=0.8, ls="--")
-    rms = math.sqrt(float(np.mean(np.sum(res**2, axis=1))))
-    ax.set_title(f"{name}: residual components ({len(res)} corners, RMS {rms:.3f} px)", loc="left")
+    ax.set_title(f"{name}: residual components ({len(res)} corners, RMS {rms_px(res):.3f} px)", loc="left")
     ax.set_xlabel("residual (px)")
     ax.set_ylabel("corners per bin")
     ax.legend(frameon=False, fontsize=8, title="dashed: normal, same σ", title_fontsize=7.5)
@@ -162,13 +161,14 @@ def residual_histogram_figure(name: str, residuals: dict[str, ViewResiduals]) ->
 
 
 def view_rms_figure(view_rms: dict[str, dict[str, float]], camera_rms: dict[str, float],
-                    outliers: dict[str, list[str]], threshold_factor: float,
+                    outliers: dict[str, list[str]], outlier_limit_px: dict[str, float],
                     left_out: dict[str, dict[str, str]]) -> Figure:
     """Per-view RMS bars grouped by view, one bar per camera, outliers and left-out views marked.
 
-    ``view_rms[camera][view]``; ``camera_rms[camera]`` is drawn as a dashed line;
-    ``outliers[camera]`` lists the views above ``threshold_factor`` times the median;
-    ``left_out[camera]`` holds the views without residuals (drawn as a cross on the axis).
+    ``view_rms[camera][view]``; ``camera_rms[camera]`` is drawn as a dashed line and
+    ``outlier_limit_px[camera]`` as a dotted one; ``outliers[camera]`` lists the views above
+    that limit; ``left_out[camera]`` holds the views without residuals (drawn as a cross on
+    the axis).
     """
     cams = list(view_rms)
     views = sorted({v for per in view_rms.values() for v in per} | {v for per in left_out.values() for v in per})
@@ -191,16 +191,19 @@ def view_rms_figure(view_rms: dict[str, dict[str, float]], camera_rms: dict[str,
                             ha="center", va="bottom", color=_OUTLIER_COLOUR, fontweight="bold")
         gone = [p for p, v in zip(pos, views) if v in left_out.get(cam, {})]
         ax.plot(gone, np.zeros(len(gone)), "x", color=colour, ms=7, mew=2, clip_on=False)
-        if cam in camera_rms and math.isfinite(camera_rms[cam]):
-            ax.axhline(camera_rms[cam], color=colour, ls="--", lw=0.9)
+        for level, style in ((camera_rms.get(cam, math.nan), "--"), (outlier_limit_px.get(cam, math.nan), ":")):
+            if math.isfinite(level):
+                ax.axhline(level, color=colour, ls=style, lw=0.9)
+    ax.plot([], [], color="0.4", ls="--", lw=0.9, label="overall RMS")
+    ax.plot([], [], color="0.4", ls=":", lw=0.9, label="outlier limit")
     if any(outliers.values()):
         ax.bar([np.nan], [np.nan], color="white", edgecolor=_OUTLIER_COLOUR, hatch="///",
-               label=f"outlier (> {threshold_factor:g}× median)")
+               label="outlier")
     ax.set_xticks(x, views, rotation=60 if len(views) > 8 else 0, ha="right" if len(views) > 8 else "center",
                   fontsize=7.5)
     ax.set_xlim(-0.6, len(views) - 0.4)
     ax.set_ylabel("RMS (px)")
-    ax.set_title("RMS residual per view (dashed: each camera's overall RMS)", loc="left")
+    ax.set_title("RMS residual per view", loc="left")
     ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     return fig
 
@@ -290,9 +293,7 @@ def _frustum(camera: CameraModel, frame: Pose, depth_mm: float) -> np.ndarray:
     """(5, 3) apex and the four image corners at ``depth_mm``, in the reference frame."""
     w, h = camera.image_size
     uv = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
-    y = (uv[:, 1] - camera.cy) / camera.fy
-    x = (uv[:, 0] - camera.cx - camera.skew * y) / camera.fx
-    base = np.column_stack([x, y, np.ones(4)]) * depth_mm
+    base = np.column_stack([normalized_from_pixel(camera, uv), np.ones(4)]) * depth_mm
     return frame.apply(np.vstack([np.zeros(3), base]))
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from markupsafe import Markup
 
 from .. import __version__
+from ..calibrate import OUTLIER_FLOOR_PX
 from ..camera import INTRINSIC_NAMES
 from ..model import RigModel
 from ..progress import track
@@ -104,7 +105,8 @@ def evaluation_table(evaluation: dict | None) -> list[dict]:
     for case, entry in evaluation.get("cases", {}).items():
         rmse = [float(x) for x in entry.get("rmse_mm", [math.nan] * 3)]
         total = math.sqrt(sum(x * x for x in rmse))
-        label = "two cameras, same instant" if case == "dual" else f"{case} camera, two instants"
+        dual = case == "dual" or case.startswith("dual:")
+        label = "two cameras, same instant" if dual else f"{case} camera, two instants"
         rows.append({"case": case, "label": label, "rmse": [f"{x:.3f}" for x in rmse],
                      "total": f"{total:.3f}", "pairs": entry.get("pairs", "–")})
     return rows
@@ -117,6 +119,7 @@ def _figure_jobs(rig: RigModel, names: list[str], found: dict[str, analysis.Came
                  slugs: dict[str, str]) -> list[tuple]:
     """``(camera or None, HTML id, caption, figure factory)`` of every figure, in page order."""
     cameras = {name: rig.cameras[name] for name in names}
+    options = rig.calibration_options()
     jobs = []
     for name, camera in cameras.items():
         f, s = found[name], slugs[name]
@@ -140,12 +143,15 @@ def _figure_jobs(rig: RigModel, names: list[str], found: dict[str, analysis.Came
         ]
     jobs += [
         (None, "fig-view-rms",
-         f"RMS residual of every view, per camera; hatched bars are outliers (RMS above "
-         f"{analysis.OUTLIER_FACTOR:g}× the camera's median view RMS), × marks a view left out "
-         "(see the table of views left out).",
+         f"RMS residual of every view, per camera; hatched bars are outliers, views above their camera's "
+         f"outlier limit (dotted): {options['outlier_factor']:g}× the camera's median view RMS, but at least "
+         f"{OUTLIER_FLOOR_PX:g} px, the rule by which the calibration drops photos"
+         f"{'' if options['drop_outliers'] else ' (this one kept them all: --keep-outliers)'}. "
+         "× marks a view left out (see the table of views left out).",
          lambda: figures.view_rms_figure({n: found[n].view_rms_px for n in names},
                                          {n: found[n].rms_px for n in names},
-                                         {n: found[n].outliers for n in names}, analysis.OUTLIER_FACTOR,
+                                         {n: found[n].outliers for n in names},
+                                         {n: found[n].outlier_limit_px for n in names},
                                          {n: found[n].left_out for n in names})),
         (None, "fig-distortion-curve",
          "Radial distortion (paper eq. 13) against the distance from the principal point, out to "
@@ -204,7 +210,8 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
                          else "photos oriented by the calibration's own poses"),
         left_out=[{"camera": n, "view": view, "reason": reason}
                   for n in names for view, reason in found[n].left_out.items()],
-        adjustment={k: f"{v:.4g}" if isinstance(v, float) else v for k, v in rig.adjustment.items()
+        adjustment={k: f"{v:.4g}" if isinstance(v, float) else v
+                    for k, v in {**rig.adjustment, **rig.calibration_options()}.items()
                     if not isinstance(v, (dict, list))},
         hints=[h for n in names for h in found[n].hints],
         sections=list(sections.values()),
