@@ -1,10 +1,13 @@
 """Finding cameras and photos, pairing views, EXIF metadata, and clear errors."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from PIL import Image
 
-from dualcal.dataset import open_dataset, read_exif, read_gray
+from dualcal.dataset import open_dataset, open_image, read_exif, read_gray
+from dualcal.io import make_output_folder
 from dualcal.errors import InputError
 
 
@@ -55,6 +58,50 @@ def test_camera_globs_pair_by_the_wildcard_text(tmp_path):
     assert list(ds.cameras["r"]) == ["0", "1"]
 
 
+@pytest.mark.parametrize("prefix", ["./", "", "sub/../"])
+def test_globs_spelled_with_dot_slash_pair_like_plain_ones(tmp_path, monkeypatch, prefix):
+    (tmp_path / "sub").mkdir()
+    for v in ("01", "02"):
+        _photo(tmp_path / f"left{v}.jpg")
+        _photo(tmp_path / f"right{v}.jpg")
+    monkeypatch.chdir(tmp_path)
+    ds = open_dataset(None, [f"left={prefix}left*.jpg", f"right={prefix}right*.jpg"])
+    assert list(ds.cameras["left"]) == ["01", "02"] == list(ds.cameras["right"])
+
+
+def test_two_photos_with_one_stem_are_an_error_naming_both(tmp_path):
+    _photo(tmp_path / "cam" / "IMG_01.jpg")
+    _photo(tmp_path / "cam" / "IMG_01.JPG")
+    with pytest.raises(InputError, match=r"IMG_01\.JPG.*IMG_01\.jpg|IMG_01\.jpg.*IMG_01\.JPG"):
+        open_dataset(tmp_path / "cam")
+    with pytest.raises(InputError, match="same name 'IMG_01'"):
+        open_dataset(tmp_path, ["cam=cam/IMG_*"], pair_by="time")
+
+
+def test_a_folder_that_cannot_be_listed_is_an_input_error(tmp_path, monkeypatch):
+    _photo(tmp_path / "wide" / "a.jpg")
+    listing = Path.iterdir
+
+    def refuse(self):
+        if self.name == "wide":
+            raise PermissionError(13, "Permission denied")
+        return listing(self)
+
+    monkeypatch.setattr(Path, "iterdir", refuse)
+    with pytest.raises(InputError, match="'.*wide' cannot be listed \\(Permission denied\\)"):
+        open_dataset(tmp_path)
+
+
+def test_output_folders_are_created_only_below_an_existing_folder(tmp_path):
+    assert make_output_folder(tmp_path / "new").is_dir()
+    assert make_output_folder(tmp_path / "new") == tmp_path / "new"        # existing: fine
+    with pytest.raises(InputError, match="parent does not exist"):
+        make_output_folder(tmp_path / "missing" / "new")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="cannot be created"):
+        make_output_folder(tmp_path / "file")
+
+
 def test_pair_by_exif_time_uses_the_reference_stems(tmp_path):
     _photo(tmp_path / "wide" / "W1.jpg", taken="2024:05:01 10:00:00")
     _photo(tmp_path / "wide" / "W2.jpg", taken="2024:05:01 10:00:30")
@@ -87,6 +134,39 @@ def test_heic_photos_are_read(tmp_path):
     ds = open_dataset(tmp_path / "cam")
     assert ds.image_size("cam") == (64, 48)
     assert read_gray(path).shape == (48, 64)
+
+
+def _rotated_heic(path, orientation: int) -> np.ndarray:
+    """A lossless HEIC whose stored pixels are returned; pillow-heif writes irot/imir for the tag."""
+    pytest.importorskip("pillow_heif")
+    stored = np.zeros((48, 64), np.uint8)
+    stored[:8, :16] = 250                      # marks the stored frame's top-left
+    stored[40:, 56:] = 120
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    Image.fromarray(stored).convert("RGB").save(path, format="HEIF", exif=exif.tobytes(), quality=-1,
+                                                chroma=444)
+    return stored
+
+
+@pytest.mark.parametrize("orientation", [1, 2, 3, 4, 5, 6, 7, 8])
+def test_heic_is_read_in_its_stored_frame_with_its_orientation_reported(tmp_path, orientation):
+    path = tmp_path / "cam" / "a.heic"
+    path.parent.mkdir()
+    stored = _rotated_heic(path, orientation)
+    with Image.open(path) as img:              # pillow-heif alone turns it for display
+        assert img.size == ((48, 64) if orientation >= 5 else (64, 48))
+    size, exif = read_exif(path)
+    assert size == (64, 48)
+    assert exif["orientation"] == orientation
+    np.testing.assert_allclose(read_gray(path), stored, atol=2)
+    with open_image(path) as img:
+        assert img.format == "HEIF" and img.size == (64, 48)
+        if orientation != 1:                   # the tag travels with the pixels it describes
+            assert img.getexif()[0x0112] == orientation
+    ds = open_dataset(tmp_path / "cam")
+    assert ds.image_size("cam") == (64, 48)
+    assert ds.meta("cam").get("exif_orientation", {}).get("a") == (None if orientation == 1 else orientation)
 
 
 @pytest.mark.parametrize("setup, message", [

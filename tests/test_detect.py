@@ -1,9 +1,11 @@
 """Chessboard detection on photo-like renders with known truth: accuracy, order, self-checks."""
 
+import json
 import zlib
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -11,8 +13,9 @@ from dualcal.board import Board
 from dualcal.camera import project_points
 from dualcal.cli import main
 from dualcal.dataset import open_dataset
-from dualcal.detect import detect_dataset, detect_photo, grid_from_hints, grid_smoothness_px, save_hints
+from dualcal.detect import detect_dataset, detect_photo, grid_from_hints, grid_smoothness_px, load_hints, save_hints
 from dualcal.detect.coarse import reduce_image, reduction_factor, to_full_resolution
+from dualcal.detect.manual import CornerClicks, connect_clicks
 from dualcal.errors import InputError
 from dualcal.io import load_corners
 from dualcal.model import Pose
@@ -48,8 +51,6 @@ def _truth_with_board(board: Board, views: int, seed: int, scale: float = 0.25):
 
 
 def _render(truth, cam, view, path: Path, **kw):
-    import cv2
-
     img = render_view(truth.cameras[cam], truth.camera_pose(cam, view), truth.board,
                       np.random.default_rng(zlib.crc32(f"{cam}/{view}".encode())), **kw)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -164,8 +165,6 @@ def test_dataset_detection_skips_bad_photos_with_a_warning_naming_each(small_set
     data = (photos / "wide" / "IMG_03.jpg").read_bytes()
     (cam / "truncated.jpg").write_bytes(data[: len(data) // 2])
     (cam / "notimage.jpg").write_text("hello")
-    import cv2
-
     cv2.imwrite(str(cam / "blank.jpg"), np.full((1008, 756), 128, np.uint8))
     other = replace(truth, board=Board(6, 4, 30.0))
     _render(other, "wide", "IMG_01", cam / "otherboard.jpg")
@@ -223,6 +222,157 @@ def test_detect_command_uses_hints_and_rejects_bad_usage(small_set, tmp_path, ca
         assert message in capsys.readouterr().err
 
 
+def test_a_photo_that_breaks_opencv_is_skipped_but_a_bug_is_not_hidden(small_set, monkeypatch):
+    truth, photos = small_set
+    path = photos / "wide" / "IMG_01.jpg"
+
+    def opencv_fails(*args, **kwargs):
+        raise cv2.error("unsupported format")
+
+    monkeypatch.setattr("dualcal.detect.pipeline.refine_corners", opencv_fails)
+    res = detect_photo(path, truth.board)
+    assert res.uv is None and "unsupported format" in res.reason
+
+    def bug(*args, **kwargs):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr("dualcal.detect.pipeline.refine_corners", bug)
+    with pytest.raises(ZeroDivisionError):
+        detect_photo(path, truth.board)
+
+
+def test_a_camera_sharing_no_view_with_the_reference_is_named_in_one_warning(small_set, tmp_path, capsys):
+    truth, photos = small_set
+    for cam, name in (("wide", "IMG_01.jpg"), ("tele", "TELE_01.jpg")):
+        (tmp_path / cam).mkdir()
+        (tmp_path / cam / name).write_bytes((photos / cam / "IMG_01.jpg").read_bytes())
+    detect_dataset(open_dataset(tmp_path), truth.board, jobs=1, progress=False)
+    err = [line for line in capsys.readouterr().err.splitlines() if "shares no view" in line]
+    assert len(err) == 1 and "'tele'" in err[0] and "'wide'" in err[0]
+    detect_dataset(open_dataset(photos), truth.board, jobs=1, progress=False)
+    assert "shares no view" not in capsys.readouterr().err
+
+
+def test_detect_checks_its_outputs_before_detecting(small_set, tmp_path, run_cli, monkeypatch):
+    _, photos = small_set
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("detection ran before the outputs were checked")
+
+    monkeypatch.setattr("dualcal.detect.pipeline.detect_photo", must_not_run)
+    res = run_cli("detect", photos, "--board", "8x5", "--square", "30", "-o", tmp_path / "no" / "c.json")
+    assert res.code == 2 and len(res.err_lines) == 1 and "does not exist" in res.err
+    res = run_cli("detect", photos, "--board", "8x5", "--square", "30", "-o", tmp_path / "c.json",
+                  "--overlays", tmp_path / "no" / "ov")
+    assert res.code == 2 and len(res.err_lines) == 1 and "parent does not exist" in res.err
+    for jobs in ("0", "-2"):
+        res = run_cli("detect", photos, "--board", "8x5", "--square", "30", "-o", tmp_path / "c.json",
+                      "--jobs", jobs)
+        assert res.code == 2 and "--jobs" in res.err
+
+
+def test_detect_writes_the_reference_only_when_given(small_set, tmp_path, run_cli):
+    _, photos = small_set
+    for extra, expected in (([], None), (["--reference", "tele"], "tele")):
+        out = tmp_path / "c.json"
+        res = run_cli("detect", photos, "--board", "8x5", "--square", "30", "-o", out, "--jobs", "1", *extra)
+        assert res.code == 0, res.err
+        assert json.loads(out.read_text()).get("reference") == expected
+        assert sorted(load_corners(out).cameras) == ["tele", "wide"]
+
+
+class _Figure:
+    """An Agg figure showing a 40 x 30 image: events go through matplotlib, no display needed."""
+
+    def __init__(self):
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        self.fig = Figure()
+        FigureCanvasAgg(self.fig)
+        self.ax = self.fig.add_subplot()
+        self.ax.imshow(np.zeros((30, 40)))
+        self.fig.canvas.draw()
+
+    def click(self, x, y, button=1):
+        from matplotlib.backend_bases import MouseEvent
+
+        px, py = self.ax.transData.transform((x, y))
+        self.fig.canvas.callbacks.process("button_press_event",
+                                          MouseEvent("button_press_event", self.fig.canvas, px, py, button=button))
+
+    def key(self, key):
+        from matplotlib.backend_bases import KeyEvent
+
+        self.fig.canvas.callbacks.process("key_press_event", KeyEvent("key_press_event", self.fig.canvas, key))
+
+
+def test_clicked_corners_are_collected_undone_and_accepted():
+    win = _Figure()
+    clicks = CornerClicks()
+    connect_clicks(win.fig, win.ax, clicks, "wide/IMG_01")
+    assert "click corner 0" in win.ax.get_title()
+    win.key("enter")                                     # not yet four: nothing happens
+    for x, y in [(2, 3), (30, 3), (99, 99), (30, 20)]:   # (99, 99) lies outside the image
+        win.click(x, y)
+    win.click(0, 0, button=3)                            # right click: take (30, 20) back
+    assert np.allclose(clicks.points, [(2, 3), (30, 3)], atol=1e-6)
+    assert "corner N-1" in win.ax.get_title()
+    win.click(31, 21)
+    win.click(1, 22)
+    win.click(5, 5)                                      # a fifth click is ignored
+    win.key("backspace")
+    win.click(2, 21)
+    assert clicks.outcome is None and "Enter" in win.ax.get_title()
+    win.key("enter")
+    assert clicks.outcome == "accept"
+    np.testing.assert_allclose(clicks.points, [(2, 3), (30, 3), (31, 21), (2, 21)], atol=1e-6)
+    # the factor-4 reduced photo's pixels map to full resolution like the detector's
+    np.testing.assert_allclose(to_full_resolution(clicks.points, 4)[0], [9.5, 13.5], atol=1e-6)
+
+
+@pytest.mark.parametrize("key, outcome", [("escape", "skip"), ("q", "quit")])
+def test_escape_skips_and_q_stops(key, outcome):
+    win = _Figure()
+    clicks = CornerClicks()
+    connect_clicks(win.fig, win.ax, clicks, "tele/IMG_02")
+    win.click(3, 4)
+    win.key(key)
+    assert clicks.outcome == outcome
+    win.click(5, 5)                                      # decided: later events change nothing
+    assert clicks.points == [(pytest.approx(3), pytest.approx(4))]
+
+
+@pytest.mark.filterwarnings("ignore:FigureCanvasAgg is non-interactive")
+def test_pick_hints_turns_clicks_into_full_resolution_corners(small_set, monkeypatch):
+    from matplotlib.backend_bases import FigureCanvasBase, KeyEvent, MouseEvent
+
+    from dualcal.detect import pick_hints
+
+    _, photos = small_set
+    script = iter([[(10, 20), (200, 20), (200, 300), (10, 300), "enter"],   # accepted
+                   [(5, 5), "escape"],                                       # skipped
+                   ["q"]])                                                   # stop: the rest is not asked
+
+    def user(canvas, timeout=0):                 # the event loop, played by a scripted user
+        canvas.draw()
+        ax = canvas.figure.axes[0]
+        for step in next(script):
+            if isinstance(step, str):
+                event = KeyEvent("key_press_event", canvas, step)
+            else:
+                event = MouseEvent("button_press_event", canvas, *ax.transData.transform(step), button=1)
+            canvas.callbacks.process(event.name, event)
+
+    monkeypatch.setattr("dualcal.detect.manual.display_problem", lambda: None)
+    monkeypatch.setattr(FigureCanvasBase, "start_event_loop", user)
+    todo = {"wide": {v: photos / "wide" / f"{v}.jpg" for v in ("IMG_01", "IMG_02", "IMG_03")},
+            "tele": {"IMG_01": photos / "tele" / "IMG_01.jpg"}}
+    hints = pick_hints(todo, max_side=400)       # 756 x 1008 photos shown at 1/3
+    assert list(hints) == ["wide"] and list(hints["wide"]) == ["IMG_01"]
+    np.testing.assert_allclose(hints["wide"]["IMG_01"], [[31, 61], [601, 61], [601, 901], [31, 901]], atol=1e-6)
+
+
 def test_pick_without_a_display_exits_2_with_one_line(small_set, tmp_path, monkeypatch, capsys):
     _, photos = small_set
     monkeypatch.delenv("DISPLAY", raising=False)
@@ -232,3 +382,40 @@ def test_pick_without_a_display_exits_2_with_one_line(small_set, tmp_path, monke
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "display" in err[0]
+
+
+def test_pick_with_only_a_non_interactive_backend_exits_2_with_one_line(small_set, tmp_path, monkeypatch, run_cli):
+    import matplotlib
+
+    _, photos = small_set
+    monkeypatch.setenv("DISPLAY", ":99")
+    monkeypatch.setitem(matplotlib.rcParams, "backend", "agg")
+    res = run_cli("pick", photos, "--board", "8x5", "--square", "30", "-o", tmp_path / "h.json")
+    assert res.code == 2 and len(res.err_lines) == 1 and "'agg' cannot open windows" in res.err
+
+
+def test_pick_hints_have_the_view_keys_detect_uses(small_set, tmp_path, monkeypatch, run_cli):
+    _, photos = small_set
+    for cam in ("wide", "tele"):
+        for view in ("IMG_01", "IMG_02"):
+            (tmp_path / f"{cam}_{view}.jpg").write_bytes((photos / cam / f"{view}.jpg").read_bytes())
+    asked = {}
+
+    def click_centres(todo):
+        asked.update(todo)
+        return {cam: {view: np.full((4, 2), 100.0) for view in views} for cam, views in todo.items()}
+
+    monkeypatch.setattr("dualcal.cli.detect.display_problem", lambda: None)
+    monkeypatch.setattr("dualcal.cli.detect.pick_hints", click_centres)
+    monkeypatch.chdir(tmp_path)
+    cams = ["--camera", "wide=./wide_*.jpg", "--camera", "tele=./tele_*.jpg", "--reference", "tele"]
+    res = run_cli("pick", "--board", "8x5", "--square", "30", *cams, "--all", "-o", "h.json")
+    assert res.code == 0, res.err
+    hints = load_hints(tmp_path / "h.json")
+    keys = {cam: sorted(views) for cam, views in hints.items()}
+    assert keys == {"wide": ["IMG_01", "IMG_02"], "tele": ["IMG_01", "IMG_02"]}
+    assert asked["wide"]["IMG_01"].name == "wide_IMG_01.jpg"
+    res = run_cli("detect", "--board", "8x5", "--square", "30", *cams, "--hints", "h.json", "-o", "c.json",
+                  "--jobs", "1")
+    assert res.code == 0 and "hints for photos not in the dataset" not in res.err
+    assert {c: sorted(cc.views) for c, cc in load_corners(tmp_path / "c.json").cameras.items()} == keys

@@ -42,6 +42,15 @@ def huawei_corners():
     return detect_dataset(open_dataset(HUAWEI), Board(7, 9, 30.0), jobs=2, progress=False)
 
 
+def test_stereo_globs_pair_however_they_are_spelled(monkeypatch):
+    _need(STEREO)
+    plain = open_dataset(STEREO, ["left=left*.jpg", "right=right*.jpg"])
+    monkeypatch.chdir(STEREO)
+    dotted = open_dataset(None, ["left=./left*.jpg", "right=./right*.jpg"])
+    assert list(dotted.cameras["left"]) == list(dotted.cameras["right"]) == list(plain.cameras["left"])
+    assert len(plain.cameras["left"]) == 13 and "01" in plain.cameras["left"]
+
+
 def test_every_stereo_board_found_in_the_same_order_in_both_cameras(stereo_corners):
     left, right = stereo_corners.cameras["left"], stereo_corners.cameras["right"]
     assert len(left.views) == len(right.views) == 13

@@ -12,7 +12,9 @@ from dualcal.camera import (CameraModel, check_invertible_in_image, distort_poin
                             pixel_from_normalized, project_points, undistort_points)
 from dualcal.errors import InputError, NotInvertibleError
 from dualcal.io import save_rig
-from dualcal.rectify import KEEP_MODES, rectified_camera, rectify_map, undistort_file, undistort_image
+from dualcal.dataset import open_image, read_exif
+from dualcal.rectify import (KEEP_MODES, _pixels, _undistort_task, rectified_camera, rectify_map, undistort_file,
+                             undistort_image)
 from dualcal.synth import PRESETS, make_truth, scale_camera, truth_rig_model
 
 ALL_CAMERAS = {f"{preset}-{name}": cam for preset, p in PRESETS.items() for name, cam in p["cameras"].items()}
@@ -227,6 +229,58 @@ def test_png_round_trip_is_exact(tmp_path):
     np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "b.png")), undistort_image(img, STEREO_LEFT))
 
 
+def test_16_bit_png_round_trip_keeps_16_bits(tmp_path):
+    img = (_smooth_texture(480, 640)[..., 0].astype(np.uint16) * 257 + 3).astype(np.uint16)   # up to 65538 - 3
+    Image.fromarray(img).save(tmp_path / "a.png")
+    undistort_file(tmp_path / "a.png", tmp_path / "b.png", STEREO_LEFT)
+    with Image.open(tmp_path / "b.png") as out:
+        assert out.mode == "I;16"
+        rectified = np.asarray(out)
+    np.testing.assert_array_equal(rectified, undistort_image(img, STEREO_LEFT))
+    assert rectified.max() > 255
+
+
+@pytest.mark.parametrize("mode, order", [("I;16", "<"), ("I;16B", ">"), ("I;16L", "<")])
+def test_16_bit_modes_stay_16_bit_in_native_byte_order(mode, order):
+    values = np.arange(12, dtype=np.uint16).reshape(3, 4) * 5000
+    pixels, _ = _pixels(Image.frombytes(mode, (4, 3), values.astype(f"{order}u2").tobytes()))
+    assert pixels.dtype == np.dtype(np.uint16)          # native order: OpenCV can resample it
+    np.testing.assert_array_equal(pixels, values)
+
+
+def test_rotated_heic_is_rectified_in_its_stored_frame_and_keeps_its_orientation(tmp_path):
+    pytest.importorskip("pillow_heif")
+    cam = scale_camera(STEREO_LEFT, 0.25)                # 160 x 120
+    stored = _smooth_texture(120, 160)
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(stored).save(tmp_path / "a.heic", format="HEIF", exif=exif.tobytes(), quality=-1, chroma=444)
+    undistort_file(tmp_path / "a.heic", tmp_path / "b.heic", cam)
+    size, facts = read_exif(tmp_path / "b.heic")
+    assert size == (160, 120) and facts["orientation"] == 6
+    with open_image(tmp_path / "b.heic") as out:
+        rectified = np.asarray(out.convert("RGB")).astype(int)
+    error = np.abs(rectified - undistort_image(stored, cam)).mean()
+    assert error < 0.2 * np.abs(rectified - stored).mean()       # rectified, in the stored frame
+
+
+def test_a_photo_that_breaks_a_library_is_skipped_but_a_bug_is_not_hidden(tmp_path, monkeypatch):
+    task = (tmp_path / "left01.jpg", tmp_path / "out.jpg", STEREO_LEFT, STEREO_LEFT, 64, None)
+    for error in (cv2.error("bad depth"), OSError(28, "No space left on device"), ValueError("bad mode")):
+        def fail(*args, error=error):
+            raise error
+        monkeypatch.setattr("dualcal.rectify.undistort_file", fail)
+        message = _undistort_task(task)
+        assert message.startswith(f"{tmp_path / 'left01.jpg'}: ") and type(error).__name__ in message
+
+    def bug(*args):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr("dualcal.rectify.undistort_file", bug)
+    with pytest.raises(ZeroDivisionError):
+        _undistort_task(task)
+
+
 # ---------------------------------------------------------------------------- the command
 
 
@@ -283,3 +337,16 @@ def test_undistort_command_errors(tmp_path, stereo_calib, run_cli):
     res = run_cli("undistort", tmp_path / "folding.json", "--camera", "left", photo,
                   "-o", tmp_path / "o")
     assert res.code == 2 and "folds over" in res.err
+
+
+def test_undistort_refuses_to_mix_output_cameras_in_one_folder(tmp_path, stereo_calib, run_cli):
+    photo = _jpeg_with_exif(tmp_path / "left01.jpg")
+    out = tmp_path / "rectified"
+    args = ("undistort", stereo_calib, "--camera", "left", photo, "-o", out, "--jobs", "1")
+    assert run_cli(*args, "--keep", "valid").code == 0
+    assert run_cli(*args, "--keep", "valid").code == 0          # the same camera again: fine
+    res = run_cli(*args, "--keep", "all")
+    assert res.code == 2 and len(res.err_lines) == 1
+    assert "another camera" in res.err and "keep='valid'" in res.err and "another folder" in res.err
+    assert json.loads((out / "left.rectified.json").read_text())["keep"] == "valid"
+    assert run_cli(*args[:-2], "-o", tmp_path / "other", "--keep", "all").code == 0

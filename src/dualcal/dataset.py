@@ -12,12 +12,15 @@ its wildcards matched (``left*.jpg`` and ``right*.jpg`` pair ``left01`` with ``r
 ``time_tolerance_s`` of it (EXIF capture time).
 
 Pixels are used as stored: the EXIF orientation tag is reported in the metadata, never applied.
-Only headers are read here; decoding is :func:`read_gray`'s job.
+Every photo is opened here, by :func:`read_exif` (header only), :func:`read_gray` (detection)
+and :func:`open_image` (rectification), so all formats and errors are handled in one place.
 """
 
 from __future__ import annotations
 
+import contextlib
 import glob as globmod
+import os
 import re
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
@@ -25,21 +28,21 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from PIL import Image, UnidentifiedImageError
+from PIL import Image
 
 from .errors import InputError
 from .model import choose_reference
 from .progress import warn
 
 try:  # HEIC/HEIF through pillow-heif
-    from pillow_heif import register_heif_opener
+    import pillow_heif
 
-    register_heif_opener()
+    pillow_heif.register_heif_opener()
 except ImportError:  # pragma: no cover - pillow-heif is a dependency; HEIC is then unreadable
-    pass
+    pillow_heif = None
 
-__all__ = ["PHOTO_SUFFIXES", "Dataset", "Photo", "open_dataset", "parse_camera_spec", "read_gray",
-           "read_exif"]
+__all__ = ["PHOTO_SUFFIXES", "Dataset", "Photo", "open_dataset", "open_image",
+           "parse_camera_spec", "read_exif", "read_gray"]
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic", ".heif")
 
@@ -116,14 +119,69 @@ def _exif_from_image(img: Image.Image) -> dict:
             taken = None
     make, model = exif.get(_MAKE), exif.get(_MODEL)
     f35 = sub.get(_FOCAL_35MM)
+    orientation = exif.get(_ORIENTATION)
+    if img.format == "HEIF":   # pillow-heif set the tag to 1 and kept the file's value aside
+        orientation = img.info.get("original_orientation") or orientation
     return {
         "make": make.strip("\x00 ") if isinstance(make, str) else None,
         "model": model.strip("\x00 ") if isinstance(model, str) else None,
         "focal_length_mm": _rational(sub.get(_FOCAL_LENGTH)),
         "focal_length_35mm_mm": _rational(f35) if f35 else None,
-        "orientation": int(exif[_ORIENTATION]) if _ORIENTATION in exif else None,
+        "orientation": int(orientation) if orientation is not None else None,
         "taken": taken,
     }
+
+
+# What Pillow and pillow-heif raise for a file that is not a readable image (pillow-heif
+# documents ValueError, EOFError, SyntaxError, RuntimeError and OSError; Pillow refuses
+# absurdly large images with DecompressionBombError).
+_UNREADABLE = (OSError, SyntaxError, ValueError, EOFError, RuntimeError, Image.DecompressionBombError)
+
+
+@contextlib.contextmanager
+def _reading(path):
+    """Turn the errors of opening or decoding ``path`` into one clear :class:`InputError`."""
+    try:
+        yield
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except _UNREADABLE as exc:
+        raise InputError(f"{path}: not a readable image ({exc})") from None
+
+
+def _heif_undo(img: Image.Image) -> list[Image.Transpose]:
+    """Transposes that take a decoded HEIF image back to its stored (coded) pixel frame.
+
+    libheif applies the ``irot`` (anticlockwise quarter turns) and ``imir`` (mirror about
+    axis 0: top-bottom, 1: left-right) properties while decoding, in the file's order, and
+    pillow-heif then resets the EXIF orientation to 1. They are undone here in reverse order,
+    so a HEIC photo is seen like a JPEG: stored pixels, orientation reported, never applied.
+    A ``clap`` crop, applied before them, cannot be undone and is kept (it is the same for
+    every photo of a camera). pillow-heif keeps the list only on its image handle, which it
+    drops once the pixels are loaded: call this before ``load()``.
+    """
+    if img.format != "HEIF":
+        return []
+    try:  # private: pillow-heif has no public accessor for the transformations
+        steps = img._heif_file[img.tell()]._c_image.transformations
+    except (AttributeError, TypeError, IndexError):
+        version = getattr(pillow_heif, "__version__", "?")
+        raise InputError(f"{img.filename}: pillow-heif {version} does not report the HEIF rotation, so the "
+                         "photo cannot be read in its stored frame (dualcal is tested with pillow-heif 1.8)") from None
+    quarter_turns = {90: Image.Transpose.ROTATE_270, 180: Image.Transpose.ROTATE_180,
+                     270: Image.Transpose.ROTATE_90}
+    undo = []
+    for kind, *args in reversed(steps):
+        if kind == "irot" and args[0] % 360:
+            undo.append(quarter_turns[args[0] % 360])
+        elif kind == "imir":
+            undo.append(Image.Transpose.FLIP_TOP_BOTTOM if args[0] == 0 else Image.Transpose.FLIP_LEFT_RIGHT)
+    return undo
+
+
+def _stored_size(img: Image.Image, undo: list[Image.Transpose]) -> tuple[int, int]:
+    turns = sum(op in (Image.Transpose.ROTATE_90, Image.Transpose.ROTATE_270) for op in undo)
+    return (int(img.height), int(img.width)) if turns % 2 else (int(img.width), int(img.height))
 
 
 def read_exif(path) -> tuple[tuple[int, int], dict]:
@@ -133,11 +191,39 @@ def read_exif(path) -> tuple[tuple[int, int], dict]:
     ``orientation`` (the EXIF tag, 1-8, or None; never applied) and ``taken`` (capture time,
     a ``datetime`` or None). Raises :class:`InputError` for a file that is not a readable image.
     """
-    try:
-        with Image.open(path) as img:
-            return (int(img.width), int(img.height)), _exif_from_image(img)
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-        raise InputError(f"{path}: not a readable image ({exc})") from None
+    with _reading(path), Image.open(path) as img:
+        return _stored_size(img, _heif_undo(img)), _exif_from_image(img)
+
+
+def open_image(path) -> Image.Image:
+    """Decode a photo with Pillow in its stored pixel frame (HEIC too, see :func:`_heif_undo`).
+
+    The image keeps its ``format`` and ``info`` (EXIF with the file's orientation tag, ICC
+    profile), so it can be written back in kind. Raises :class:`InputError` for a file that is
+    not a readable image.
+    """
+    with _reading(path):
+        img = Image.open(path)
+        try:
+            undo = _heif_undo(img)
+            img.load()
+        except BaseException:
+            img.close()
+            raise
+    if img.format != "HEIF":
+        return img
+    stored = img
+    for op in undo:
+        stored = stored.transpose(op)
+    stored.format = img.format
+    orientation = img.info.get("original_orientation")
+    if orientation:                     # put back the tag pillow-heif reset: it is true of the stored frame
+        exif = img.getexif()
+        exif[_ORIENTATION] = orientation
+        stored.info["exif"] = exif.tobytes()
+    if stored is not img:
+        img.close()
+    return stored
 
 
 def _jpeg_complete(data: bytes) -> bool:
@@ -154,15 +240,12 @@ def read_gray(path) -> np.ndarray:
     """Decode a photo at full resolution as 8-bit grey, in its stored pixel frame.
 
     The EXIF orientation is not applied. JPEG, PNG and TIFF go through OpenCV, HEIC through
-    pillow-heif. A truncated or corrupt file raises :class:`InputError`.
+    :func:`open_image`. A truncated or corrupt file raises :class:`InputError`.
     """
     path = Path(path)
     if path.suffix.lower() in (".heic", ".heif"):
-        try:
-            with Image.open(path) as img:
-                return np.asarray(img.convert("L"))
-        except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-            raise InputError(f"{path}: cannot be decoded ({exc})") from None
+        with open_image(path) as img:
+            return np.asarray(img.convert("L"))
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -214,12 +297,13 @@ def _glob_keys(name: str, pattern: str, paths: list[Path]) -> dict[str, Path]:
 
     ``left*.jpg`` keys ``left01.jpg`` as ``01``; several wildcards are joined with ``_``; a
     wildcard that ran over the suffix (``left*``) does not keep it; a pattern without
-    wildcards keys its file by stem.
+    wildcards keys its file by stem. Pattern and paths are compared normalised
+    (``./left*.jpg`` matches ``left01.jpg``), as ``pathlib`` and ``glob`` spell them differently.
     """
-    regex = _glob_regex(pattern)
+    regex = _glob_regex(os.path.normpath(pattern))
     keys: dict[str, Path] = {}
     for p in paths:
-        m = regex.match(str(p))
+        m = regex.match(os.path.normpath(p))
         key = "_".join(g for g in (m.groups() if m else ()) if g) or p.stem
         if p.suffix and key.endswith(p.suffix):
             key = key[: -len(p.suffix)] or p.stem
@@ -230,21 +314,40 @@ def _glob_keys(name: str, pattern: str, paths: list[Path]) -> dict[str, Path]:
     return keys
 
 
+def _list_folder(folder: Path) -> list[Path]:
+    try:
+        return sorted(folder.iterdir())
+    except OSError as exc:
+        raise InputError(f"folder {str(folder)!r} cannot be listed ({exc.strerror or exc})") from None
+
+
 def _camera_folders(root: Path) -> dict[str, list[Path]]:
     if not root.exists():
         raise InputError(f"dataset folder {str(root)!r} does not exist")
     if not root.is_dir():
         raise InputError(f"{str(root)!r} is not a folder: give a dataset folder, or cameras with --camera NAME=GLOB")
-    subdirs = sorted(d for d in root.iterdir() if d.is_dir() and not d.name.startswith("."))
-    cams = {d.name: sorted(p for p in d.iterdir() if _is_photo(p)) for d in subdirs}
+    entries = _list_folder(root)
+    subdirs = [d for d in entries if d.is_dir() and not d.name.startswith(".")]
+    cams = {d.name: [p for p in _list_folder(d) if _is_photo(p)] for d in subdirs}
     cams = {n: ps for n, ps in cams.items() if ps}
     if cams:
         return cams
-    photos = sorted(p for p in root.iterdir() if _is_photo(p))
+    photos = [p for p in entries if _is_photo(p)]
     if not photos:
         raise InputError(f"dataset folder {str(root)!r} holds no photos "
                          f"({', '.join(PHOTO_SUFFIXES)}) nor camera subfolders with photos")
     return {root.resolve().name: photos}
+
+
+def _key_by_stem(name: str, paths: list[Path]) -> dict[str, Path]:
+    """``{stem: path}``; two photos with one stem (``IMG_01.jpg``, ``IMG_01.JPG``) are an error."""
+    keys: dict[str, Path] = {}
+    for p in paths:
+        if p.stem in keys:
+            raise InputError(f"camera {name!r}: {keys[p.stem]} and {p} have the same name {p.stem!r}, so "
+                             "they would be one view; rename or remove one of them")
+        keys[p.stem] = p
+    return keys
 
 
 def _read_headers(name: str, files: dict[str, Path], skipped: list) -> dict[str, Photo]:
@@ -331,12 +434,12 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
             matched = sorted(Path(p) for p in globmod.glob(full) if _is_photo(Path(p)))
             if not matched:
                 raise InputError(f"--camera {name}={pattern}: matches no photo")
-            files[name] = _glob_keys(name, full, matched) if pair_by == "stem" else {p.stem: p for p in matched}
+            files[name] = _glob_keys(name, full, matched) if pair_by == "stem" else _key_by_stem(name, matched)
         source = str(path) if path is not None else ", ".join(f"{n}={g}" for n, g in specs)
     else:
         if path is None:
             raise InputError("give a dataset folder or cameras with --camera NAME=GLOB")
-        files = {n: {p.stem: p for p in ps} for n, ps in _camera_folders(Path(path)).items()}
+        files = {n: _key_by_stem(n, ps) for n, ps in _camera_folders(Path(path)).items()}
         source = str(path)
 
     skipped: list = []

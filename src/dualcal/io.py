@@ -37,6 +37,24 @@ def check_output_file(path) -> Path:
     return path
 
 
+def make_output_folder(path) -> Path:
+    """Create the output folder ``path`` unless it exists; its parent must exist already.
+
+    The rule of every dualcal output: dualcal creates at most the last folder of a path, so a
+    mistyped path fails at once with :class:`InputError` instead of growing a tree of folders.
+    """
+    path = Path(path)
+    if path.is_dir():
+        return path
+    if not path.parent.is_dir():
+        raise InputError(f"output folder {str(path)!r}: its parent does not exist (create it first)")
+    try:
+        path.mkdir()
+    except OSError as exc:
+        raise InputError(f"output folder {str(path)!r} cannot be created ({exc.strerror or exc})") from None
+    return path
+
+
 def _read_umask() -> int:
     mask = os.umask(0)
     os.umask(mask)

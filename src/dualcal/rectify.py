@@ -33,15 +33,16 @@ import cv2
 import numpy as np
 from PIL import Image, JpegImagePlugin
 
-from .camera import (CameraModel, check_invertible_in_image, max_monotonic_radius, normalized_from_pixel,
-                     radial_factor, undistort_points)
+from .camera import (INTRINSIC_NAMES, CameraModel, check_invertible_in_image, max_monotonic_radius,
+                     normalized_from_pixel, radial_factor, undistort_points)
+from .dataset import open_image, read_exif
 from .errors import InputError
-from .io import atomic_output
+from .io import atomic_output, make_output_folder, read_json
 from .progress import progress_bar, warn
 
 KEEP_MODES = ("same", "all", "valid")
 DEFAULT_BAND_ROWS = 64
-JPEG_QUALITY = 95
+JPEG_QUALITY = 95         # also the quality of HEIC outputs
 _BORDER_SAMPLES = 256     # samples per image edge when tracing the rectified border
 _REMAP_MARGIN_ROWS = 4    # source rows kept around a band's footprint (interpolation support)
 
@@ -179,38 +180,38 @@ def undistort_image(image: np.ndarray, cam: CameraModel, new_cam: CameraModel | 
 # ---------------------------------------------------------------------------- photo files
 
 
-def _open_image(path: Path, load: bool = True) -> Image.Image:
-    """Open a photo with pillow (HEIC through pillow-heif); :class:`InputError` if unreadable.
-
-    With ``load=False`` only the header is read (size, format, EXIF).
-    """
-    if path.suffix.lower() in (".heic", ".heif"):
-        import pillow_heif
-        pillow_heif.register_heif_opener()
-    try:
-        img = Image.open(path)
-        if load:
-            img.load()
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
-        raise InputError(f"{path}: not a readable image ({exc})") from None
-    return img
-
-
-def _check_size(path: Path, img: Image.Image, cam: CameraModel) -> None:
-    if img.size != tuple(cam.image_size):
-        raise InputError(f"{path}: image is {img.size[0]}x{img.size[1]} px but the camera was calibrated at "
+def _check_size(path: Path, size: tuple[int, int], cam: CameraModel) -> None:
+    if tuple(size) != tuple(cam.image_size):
+        raise InputError(f"{path}: image is {size[0]}x{size[1]} px but the camera was calibrated at "
                          f"{cam.image_size[0]}x{cam.image_size[1]} px (a photo of another camera?)")
 
 
+# Pillow modes resampled as they are: 8-bit bands, 16-bit grey (any byte order), 32-bit int and float.
+_KEPT_MODES = ("L", "LA", "RGB", "RGBA", "CMYK", "YCbCr", "I;16", "I;16L", "I;16B", "I;16N", "I", "F")
+
+
 def _pixels(img: Image.Image) -> tuple[np.ndarray, str]:
-    """Pixel array and pillow mode to write it back with; palettes and bilevel become RGB / L."""
-    if img.mode == "P":
-        img = img.convert("RGBA" if "transparency" in img.info else "RGB")
-    elif img.mode not in ("L", "LA", "RGB", "RGBA", "CMYK", "I;16", "F"):
-        img = img.convert("L" if img.mode in ("1", "I") else "RGB")
-    return np.asarray(img), img.mode
+    """Pixel array ``cv2.remap`` can resample at the image's full depth, and the mode to write back.
+
+    16-bit grey stays 16-bit (in native byte order); 32-bit integers are resampled as float64
+    (exact); palettes become RGB(A), bilevel images grey, other modes RGB(A).
+    """
+    if img.mode not in _KEPT_MODES:
+        alpha = "A" in img.getbands() or "transparency" in img.info
+        img = img.convert("L" if img.mode == "1" else "RGBA" if alpha else "RGB")
+    pixels = np.asarray(img)
+    if img.mode == "I":
+        pixels = pixels.astype(np.float64)
+    return pixels.astype(pixels.dtype.newbyteorder("=")), img.mode
+
+
+def _image_from(pixels: np.ndarray, mode: str) -> Image.Image:
+    """The inverse of :func:`_pixels`."""
+    if mode == "I":
+        return Image.fromarray(np.rint(pixels).astype(np.int32))
+    if pixels.dtype == np.uint8:      # 8-bit bands: RGBA and CMYK look alike, so say which
+        return Image.fromarray(pixels, mode=mode)
+    return Image.fromarray(pixels)    # 16-bit grey and float: the array's type sets the mode
 
 
 def undistort_file(src, dst, cam: CameraModel, new_cam: CameraModel | None = None,
@@ -218,29 +219,36 @@ def undistort_file(src, dst, cam: CameraModel, new_cam: CameraModel | None = Non
     """Rectify one photo file into ``dst`` (written atomically), keeping EXIF and ICC profile.
 
     The output format is the input's (JPEG at quality 95 with the source's chroma
-    subsampling). Returns ``dst``. Raises :class:`InputError` for an unreadable file or a
-    wrong image size.
+    subsampling; HEIC at quality 95, in its stored frame with its EXIF orientation; 16-bit
+    grey stays 16-bit). Returns ``dst``. Raises :class:`InputError` for an unreadable file or
+    a wrong image size.
     """
     src, dst = Path(src), Path(dst)
-    img = _open_image(src)
-    _check_size(src, img, cam)
+    img = open_image(src)
+    _check_size(src, img.size, cam)
     fmt = img.format or "PNG"
     options = {k: img.info[k] for k in ("exif", "icc_profile", "dpi") if img.info.get(k)}
-    if fmt == "JPEG":
+    if fmt in ("JPEG", "HEIF"):
         options["quality"] = JPEG_QUALITY
+    if fmt == "JPEG":
         sampling = JpegImagePlugin.get_sampling(img)
         if sampling >= 0:
             options["subsampling"] = sampling
     pixels, mode = _pixels(img)
     img.close()
-    out = Image.fromarray(undistort_image(pixels, cam, new_cam, band_rows), mode=mode)
+    out = _image_from(undistort_image(pixels, cam, new_cam, band_rows), mode)
     with atomic_output(dst) as tmp:
         out.save(tmp, format=fmt, **options)
     return dst
 
 
 def _undistort_task(task) -> str | None:
-    """Worker: rectify one file; a user-caused failure comes back as a message, not a crash."""
+    """Worker: rectify one file; a failure the photo can cause comes back as a message naming it.
+
+    Beyond :class:`InputError`, OpenCV, the file system and Pillow's encoders can fail on one
+    photo (an odd pixel format, a full disk): that photo is skipped, the others go on. Any other
+    exception is a bug and is not caught.
+    """
     src, dst, cam, new_cam, band_rows, threads = task
     if threads is not None:
         cv2.setNumThreads(threads)
@@ -248,16 +256,14 @@ def _undistort_task(task) -> str | None:
         undistort_file(src, dst, cam, new_cam, band_rows)
     except InputError as exc:
         return str(exc)
+    except (cv2.error, OSError, ValueError) as exc:
+        return f"{src}: {type(exc).__name__}: {' '.join(str(exc).split())}"
     return None
 
 
 def output_paths(sources, out_dir) -> list[Path]:
     """``out_dir/<file name>`` for each source; :class:`InputError` on clashes or overwriting a source."""
-    out_dir = Path(out_dir)
-    if not out_dir.is_dir():
-        if not out_dir.parent.is_dir():
-            raise InputError(f"output folder {str(out_dir)!r}: its parent does not exist (create it first)")
-        out_dir.mkdir()
+    out_dir = make_output_folder(out_dir)
     dests, seen = [], {}
     for src in map(Path, sources):
         dst = out_dir / src.name
@@ -280,18 +286,51 @@ def readable_photos(sources, cam: CameraModel) -> list[Path]:
     readable = []
     for src in map(Path, sources):
         try:
-            img = _open_image(src, load=False)
+            size, _ = read_exif(src)
         except InputError as exc:
             warn(f"skipped: {exc}")
             continue
-        with img:
-            _check_size(src, img, cam)
+        _check_size(src, size, cam)
         readable.append(src)
     return readable
 
 
-def undistort_files(sources, out_dir, cam: CameraModel, keep: str = "same", jobs: int | None = None,
-                    band_rows: int = DEFAULT_BAND_ROWS, progress: bool = True) -> tuple[list[Path], CameraModel]:
+def rectified_json_path(out_dir, camera_name: str) -> Path:
+    """``OUTDIR/NAME.rectified.json``: the pinhole camera of the photos rectified into ``OUTDIR``."""
+    return Path(out_dir) / f"{camera_name}.rectified.json"
+
+
+def rectified_camera_doc(camera_name: str, keep: str, calibration, new_cam: CameraModel) -> dict:
+    """The content of ``NAME.rectified.json``: where the camera came from and its intrinsics."""
+    return {"camera": camera_name, "keep": keep, "calibration": str(calibration),
+            "image_size": list(new_cam.image_size), **{k: getattr(new_cam, k) for k in INTRINSIC_NAMES}}
+
+
+def check_same_rectified_camera(doc_path, new_cam: CameraModel) -> None:
+    """Refuse to add photos to a folder whose ``NAME.rectified.json`` names another camera.
+
+    Photos rectified with another ``--keep`` or another calibration would lie beside the new
+    ones while the file describes only the last run. Raises :class:`InputError` then (or when
+    the file is not a rectified-camera document); a folder without the file is fine.
+    """
+    doc_path = Path(doc_path)
+    if not doc_path.exists():
+        return
+    doc = read_json(doc_path)
+    try:
+        old = CameraModel.from_vector(doc["image_size"], [doc[k] for k in INTRINSIC_NAMES])
+        same = old.image_size == new_cam.image_size and np.allclose(old.as_vector(), new_cam.as_vector(),
+                                                                     rtol=1e-9, atol=1e-12)
+    except (KeyError, TypeError, ValueError):
+        same = False
+    if not same:
+        raise InputError(f"{doc_path.parent} already holds photos rectified to another camera "
+                         f"({doc_path.name}, keep={doc.get('keep')!r}): rectify into another folder (-o)")
+
+
+def undistort_files(sources, out_dir, cam: CameraModel, new_cam: CameraModel | None = None,
+                    jobs: int | None = None, band_rows: int = DEFAULT_BAND_ROWS,
+                    progress: bool = True) -> list[Path]:
     """Rectify photos of one camera into ``out_dir`` (same file names), in parallel.
 
     Parameters
@@ -299,7 +338,7 @@ def undistort_files(sources, out_dir, cam: CameraModel, keep: str = "same", jobs
     sources : photo paths, all taken by ``cam`` at its calibrated size.
     out_dir : output folder; created if its parent exists.
     cam : the calibrated camera.
-    keep : output matrix, see :func:`rectified_camera`.
+    new_cam : pinhole camera of the output (default: :func:`rectified_camera` ``(cam, "same")``).
     jobs : worker processes (default: all cores); 1 works in this process.
     band_rows : rows per band (a worker needs about ``64 * band_rows * W`` bytes beyond the
         two images).
@@ -307,9 +346,7 @@ def undistort_files(sources, out_dir, cam: CameraModel, keep: str = "same", jobs
 
     Returns
     -------
-    written : paths of the rectified photos. A photo that cannot be read is skipped with a
-        warning naming it.
-    new_cam : the pinhole camera of the rectified photos.
+    Paths of the rectified photos. A photo that cannot be read is skipped with a warning naming it.
 
     Raises
     ------
@@ -317,9 +354,9 @@ def undistort_files(sources, out_dir, cam: CameraModel, keep: str = "same", jobs
         A photo of the wrong size, an output folder whose parent is missing, two photos of the
         same name, or an output that would overwrite its source.
     NotInvertibleError
-        The camera's distortion folds over inside the image.
+        The camera's distortion folds over inside the image (checked by :func:`rectified_camera`).
     """
-    new_cam = rectified_camera(cam, keep)
+    new_cam = new_cam if new_cam is not None else rectified_camera(cam, "same")
     sources = readable_photos(sources, cam)
     dests = output_paths(sources, out_dir)
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(dests)))
@@ -337,5 +374,5 @@ def undistort_files(sources, out_dir, cam: CameraModel, keep: str = "same", jobs
             else:
                 warn(f"skipped: {problem}")
             advance()
-    return written, new_cam
+    return written
 

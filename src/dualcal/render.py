@@ -5,7 +5,8 @@ A rendered photo is the board seen through the full camera model of :mod:`dualca
 :func:`~dualcal.camera.project_points` puts it. For each pixel centre ``(u, v)``:
 
 1. pixels -> distorted normalised coordinates (``A^-1``, paper eq. 24), then Newton on the
-   radial polynomial (paper eqs. 25-27) -> the ideal ray ``(x, y, 1)``;
+   radial polynomial (paper eqs. 25-27, :func:`~dualcal.camera.undistort_normalized`) -> the
+   ideal ray ``(x, y, 1)``;
 2. the ray meets the board plane ``Z = 0``: ``(X, Y, 1) ~ H^-1 (x, y, 1)`` with
    ``H = [r1 r2 t]`` (paper eq. 2 without ``A``); the third component is ``1 / Z_cam`` and
    must be positive;
@@ -38,7 +39,7 @@ import cv2
 import numpy as np
 
 from .board import Board
-from .camera import CameraModel, check_invertible_in_image, project_points, radial_factor
+from .camera import CameraModel, check_invertible_in_image, project_points, undistort_normalized
 from .io import atomic_output
 from .model import Pose
 from .progress import progress_bar
@@ -80,23 +81,6 @@ def _reflectance(X: np.ndarray, Y: np.ndarray, hX: np.ndarray, hY: np.ndarray, b
 
 # ---------------------------------------------------------------------- pixels -> board
 
-def _undistort_radius_scale(rd2: np.ndarray, k1: float, k2: float) -> np.ndarray:
-    """``r / rd`` for squared distorted radii ``rd2``: Newton on ``r (1 + k1 r^2 + k2 r^4) = rd``.
-
-    Paper eqs. 25-27 (eq. 25 with its typo corrected). Starts from the first-order inverse, so
-    a few steps reach machine precision.
-    """
-    rd = np.sqrt(rd2)
-    r = rd / radial_factor(rd2, k1, k2)
-    for _ in range(30):
-        r2 = r * r
-        step = (r * radial_factor(r2, k1, k2) - rd) / (1.0 + r2 * (3.0 * k1 + 5.0 * k2 * r2))
-        r -= step
-        if np.max(np.abs(step)) < 1e-15:
-            break
-    return np.divide(r, rd, out=np.ones_like(rd), where=rd > 0)
-
-
 def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray):
     """Board-plane point seen by each pixel centre.
 
@@ -112,8 +96,8 @@ def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray
     """
     yd = ((v - cam.cy) / cam.fy)[:, None]
     xd = (u[None, :] - cam.cx - cam.skew * yd) / cam.fx
-    scale = _undistort_radius_scale(xd * xd + yd * yd, cam.k1, cam.k2)
-    x, y = xd * scale, yd * scale
+    xy = undistort_normalized(np.stack(np.broadcast_arrays(xd, yd), axis=-1), cam.k1, cam.k2)  # (B, W, 2)
+    x, y = xy[..., 0], xy[..., 1]
     Hinv = np.linalg.inv(np.column_stack([pose.R[:, 0], pose.R[:, 1], pose.t_mm]))
     w = Hinv[2, 0] * x + Hinv[2, 1] * y + Hinv[2, 2]          # = 1 / Z_cam
     front = w > 0

@@ -10,7 +10,7 @@ from rich.console import Console
 from ..adjust import RIG_MODES
 from ..calibrate import calibrate_rig
 from ..errors import EstimationError, InputError
-from ..io import check_output_file, load_corners, rig_to_dict, save_corners, save_rig, write_json_atomic
+from ..io import check_output_file, load_corners, make_output_folder, rig_to_dict, save_corners, save_rig, write_json_atomic
 from ..progress import warn
 from ..synth import PRESETS, make_truth, noisy_corner_set, truth_rig_model
 from ..tables import result_tables
@@ -110,18 +110,14 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, jobs):
         raise InputError(f"--scale {scale}: must be in (0, 4]")
     if noise_px < 0:
         raise InputError(f"--noise {noise_px}: must be >= 0")
-    out = Path(outdir)
-    if not out.parent.is_dir():
-        raise InputError(f"output folder {str(out.parent)!r} does not exist: create it first")
-    out.mkdir(exist_ok=True)
+    out = make_output_folder(outdir)
     truth = make_truth(preset, views, seed, scale)
     corners = noisy_corner_set(truth, noise_px, seed)
     save_corners(out / "corners.json", corners)
     write_json_atomic(out / "truth.json", rig_to_dict(truth_rig_model(truth, corners)))
     if photos:
         from ..render import write_photo_set
-        (out / "photos").mkdir(exist_ok=True)
-        write_photo_set(truth, out / "photos", seed=seed, jobs=jobs or default_jobs())
+        write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs())
     n = len(truth.view_poses) * len(truth.cameras)
     click.echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
                f"({n} {'photos' if photos else 'corner sets'}) written to {out}")

@@ -2,68 +2,81 @@
 
 ``calibrate`` accepts a dataset as its INPUT with the same flags: decorate it with
 :func:`dataset_options` and call :func:`corners_from_dataset` with its keyword arguments.
+``pick`` takes the same :func:`dataset_selection_options`, so its hints have the view keys
+``detect`` and ``calibrate`` use.
 """
 
 from __future__ import annotations
 
-import functools
+from dataclasses import replace
 
 import click
 
 from ..board import Board
 from ..dataset import open_dataset
-from ..detect import detect_dataset, detect_photo, load_hints, pick_hints, save_hints
+from ..detect import detect_dataset, detect_photo, display_problem, load_hints, pick_hints, save_hints
 from ..errors import InputError
-from ..io import save_corners
+from ..io import check_output_file, save_corners
 from ..model import CornerSet
+from ..progress import track
 from . import cli
 from .common import board_from_flags, board_options, default_jobs
 
 DATASET_OPTION_NAMES = ("cameras", "pair_by", "time_tolerance_s", "reference", "jobs", "hints_path",
                         "overlays_dir")
 
+_SELECTION_OPTIONS = [
+    click.option("--camera", "cameras", multiple=True, metavar="NAME=GLOB",
+                 help="A camera and its photos, e.g. --camera left='data/left*.jpg' (repeatable); "
+                      "photos are paired by the text the wildcard matched."),
+    click.option("--pair-by", "pair_by", type=click.Choice(["stem", "time"]), default="stem",
+                 show_default=True, help="Pair photos of the same instant by file stem or EXIF capture time."),
+    click.option("--time-tolerance", "time_tolerance_s", type=float, default=2.0, show_default=True,
+                 metavar="SECONDS", help="Largest capture-time difference within a pair (--pair-by time)."),
+    click.option("--reference", "reference", metavar="NAME", default=None,
+                 help="Reference camera (default: 'wide' if present, else the first name)."),
+]
+
+_DETECTION_OPTIONS = [
+    click.option("--jobs", "jobs", type=click.IntRange(min=1), default=None, metavar="N",
+                 help="Photos processed in parallel (default: all cores)."),
+    click.option("--hints", "hints_path", type=click.Path(dir_okay=False), default=None,
+                 help="Four clicked corners per photo (from 'dualcal pick') for photos where "
+                      "automatic detection fails."),
+    click.option("--overlays", "overlays_dir", type=click.Path(file_okay=False), default=None,
+                 help="Write small JPEGs with the detected corners numbered into this folder "
+                      "(created if its parent exists)."),
+]
+
+
+def dataset_selection_options(f):
+    """Click options that find and pair a dataset's photos: ``--camera``, ``--pair-by``,
+    ``--time-tolerance``, ``--reference`` (keyword names as :func:`~dualcal.dataset.open_dataset`'s)."""
+    for option in reversed(_SELECTION_OPTIONS):
+        f = option(f)
+    return f
+
 
 def dataset_options(f):
-    """Click options that say how to read a dataset: ``--camera``, ``--pair-by``, ``--time-tolerance``,
-    ``--reference``, ``--jobs``, ``--hints``, ``--overlays`` (keyword names: :data:`DATASET_OPTION_NAMES`)."""
-    options = [
-        click.option("--camera", "cameras", multiple=True, metavar="NAME=GLOB",
-                     help="A camera and its photos, e.g. --camera left='data/left*.jpg' (repeatable); "
-                          "photos are paired by the text the wildcard matched."),
-        click.option("--pair-by", "pair_by", type=click.Choice(["stem", "time"]), default="stem",
-                     show_default=True, help="Pair photos of the same instant by file stem or EXIF capture time."),
-        click.option("--time-tolerance", "time_tolerance_s", type=float, default=2.0, show_default=True,
-                     metavar="SECONDS", help="Largest capture-time difference within a pair (--pair-by time)."),
-        click.option("--reference", "reference", metavar="NAME", default=None,
-                     help="Reference camera (default: 'wide' if present, else the first name)."),
-        click.option("--jobs", "jobs", type=int, default=None, metavar="N",
-                     help="Photos processed in parallel (default: all cores)."),
-        click.option("--hints", "hints_path", type=click.Path(dir_okay=False), default=None,
-                     help="Four clicked corners per photo (from 'dualcal pick') for photos where "
-                          "automatic detection fails."),
-        click.option("--overlays", "overlays_dir", type=click.Path(file_okay=False), default=None,
-                     help="Write small JPEGs with the detected corners numbered into this folder."),
-    ]
-
-    @functools.wraps(f)
-    def wrapper(*args, **kwargs):
-        return f(*args, **kwargs)
-
-    for option in reversed(options):
-        wrapper = option(wrapper)
-    return wrapper
+    """:func:`dataset_selection_options` plus ``--jobs``, ``--hints``, ``--overlays`` (keyword names:
+    :data:`DATASET_OPTION_NAMES`): how to read a dataset and detect its corners."""
+    for option in reversed(_SELECTION_OPTIONS + _DETECTION_OPTIONS):
+        f = option(f)
+    return f
 
 
 def corners_from_dataset(dataset_path, board: Board, cameras=(), pair_by: str = "stem",
                          time_tolerance_s: float = 2.0, reference: str | None = None,
                          jobs: int | None = None, hints_path=None, overlays_dir=None) -> CornerSet:
-    """Open a dataset and detect its corners (what ``detect`` does before writing corners.json)."""
-    if jobs is not None and jobs < 1:
-        raise InputError(f"--jobs {jobs}: must be at least 1")
+    """Open a dataset and detect its corners (what ``detect`` does before writing corners.json).
+
+    A ``reference`` given is kept in the corner set (corners.json's top-level ``reference``).
+    """
     dataset = open_dataset(dataset_path, cameras, pair_by=pair_by, reference=reference,
                            time_tolerance_s=time_tolerance_s)
     hints = load_hints(hints_path) if hints_path else None
-    return detect_dataset(dataset, board, jobs=jobs or default_jobs(), hints=hints, overlays_dir=overlays_dir)
+    corners = detect_dataset(dataset, board, jobs=jobs or default_jobs(), hints=hints, overlays_dir=overlays_dir)
+    return replace(corners, reference=reference)
 
 
 @cli.command("detect")
@@ -75,8 +88,10 @@ def detect_command(dataset, board_spec, square_mm, output, **opts):
     """Find the chessboard corners in every photo of DATASET and write corners.json.
 
     DATASET is a folder with one subfolder of photos per camera (or a folder of photos: one
-    camera); or give the cameras one by one with --camera NAME=GLOB.
+    camera); or give the cameras one by one with --camera NAME=GLOB. A --reference given here
+    is written into corners.json (top-level "reference"), so 'dualcal calibrate' uses it too.
     """
+    check_output_file(output)
     board = board_from_flags(board_spec, square_mm)
     corners = corners_from_dataset(dataset, board, **opts)
     save_corners(output, corners)
@@ -88,31 +103,34 @@ def detect_command(dataset, board_spec, square_mm, output, **opts):
 @cli.command("pick")
 @click.argument("dataset", type=click.Path(), required=False)
 @board_options(required=True)
-@click.option("--camera", "cameras", multiple=True, metavar="NAME=GLOB", help="As for 'dualcal detect'.")
-@click.option("--pair-by", "pair_by", type=click.Choice(["stem", "time"]), default="stem", show_default=True)
+@dataset_selection_options
 @click.option("--all", "all_photos", is_flag=True, help="Ask for every photo, not only where detection fails.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="hints.json to write.")
-def pick_command(dataset, board_spec, square_mm, cameras, pair_by, all_photos, output):
+def pick_command(dataset, board_spec, square_mm, all_photos, output, **selection):
     """Click the four outer inner-corners of the board in photos where automatic detection fails.
 
     For each photo click corner 0, corner cols-1 (end of the first row), corner N-1 and corner
-    N-cols (start of the last row); Enter accepts, Backspace undoes, Esc skips, q quits. The
-    result is a hints file for 'dualcal detect --hints'. Needs a display.
+    N-cols (start of the last row); right click or Backspace undoes, Enter accepts, Esc skips
+    the photo, q stops (the hints so far are kept); the toolbar zooms in. The result is a
+    hints file for 'dualcal detect --hints' with the same dataset options. Needs a display.
     """
-    from ..detect.manual import display_available
-
-    if not display_available():
-        raise InputError("dualcal pick needs a display and OpenCV with GUI support "
-                         "(no DISPLAY, or opencv-python-headless is installed)")
+    problem = display_problem()
+    if problem:
+        raise InputError(problem)
+    check_output_file(output)
     board = board_from_flags(board_spec, square_mm)
-    ds = open_dataset(dataset, cameras, pair_by=pair_by)
-    todo = {}
-    for cam, photos in ds.cameras.items():
-        for view, photo in photos.items():
-            if all_photos or detect_photo(photo.path, board).uv is None:
-                todo.setdefault(cam, {})[view] = photo.path
+    ds = open_dataset(dataset, **selection)
+    photos = [(cam, view, photo.path) for cam, views in ds.cameras.items() for view, photo in views.items()]
+    todo: dict[str, dict] = {}
+    for cam, view, path in track(photos, "looking for boards", enabled=not all_photos):
+        if all_photos or detect_photo(path, board).uv is None:
+            todo.setdefault(cam, {})[view] = path
     if not todo:
         click.echo("the board was found automatically in every photo: no hints needed", err=True)
         return
-    save_hints(output, pick_hints(todo))
-    click.echo(f"wrote {output}", err=True)
+    hints = pick_hints(todo)
+    if not hints:
+        click.echo("no photo was clicked: nothing written", err=True)
+        return
+    save_hints(output, hints)
+    click.echo(f"hints for {sum(len(v) for v in hints.values())} photo(s): wrote {output}", err=True)

@@ -8,11 +8,11 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from ..camera import INTRINSIC_NAMES
 from ..errors import InputError
 from ..evaluate import evaluate
-from ..io import load_rig, write_json_atomic
-from ..rectify import KEEP_MODES, undistort_files
+from ..io import check_output_file, load_rig, write_json_atomic
+from ..rectify import (KEEP_MODES, check_same_rectified_camera, rectified_camera, rectified_camera_doc,
+                       rectified_json_path, undistort_files)
 from . import cli
 from .common import default_jobs
 
@@ -44,7 +44,8 @@ def evaluation_table(doc: dict, n_corners: int) -> Table:
               help="eval.json to write.")
 @click.option("--holdout", is_flag=True,
               help="Leave each view out of the calibration in turn and orient it by space resection "
-                   "(an honest check; recalibrates once per view).")
+                   "(an honest check; recalibrates once per view, with the calibration's settings and "
+                   "without the photos it dropped).")
 def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
     """Check a calibration by stereo intersection of the board corners (paper Tables 5, 6).
 
@@ -52,8 +53,7 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
     and another camera at the same instant (case "dual"), and each camera at two instants
     (one case per camera). Prints RMSE X, Y, Z in mm per case and writes eval.json.
     """
-    if not output.parent.resolve().is_dir():
-        raise InputError(f"output folder {str(output.parent)!r} does not exist: create it first or choose another -o")
+    check_output_file(output)
     rig = load_rig(calib)
     doc = evaluate(rig, holdout=holdout)
     write_json_atomic(output, doc)
@@ -83,14 +83,14 @@ def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, o
     rig = load_rig(calib)
     if camera_name not in rig.cameras:
         raise InputError(f"--camera {camera_name!r} is not in {calib} (cameras: {', '.join(rig.cameras)})")
-    written, new_cam = undistort_files(images, out_dir, rig.cameras[camera_name], keep=keep,
-                                       jobs=jobs or default_jobs())
+    cam = rig.cameras[camera_name]
+    new_cam = rectified_camera(cam, keep)
+    doc_path = rectified_json_path(out_dir, camera_name)
+    check_same_rectified_camera(doc_path, new_cam)
+    written = undistort_files(images, out_dir, cam, new_cam, jobs=jobs or default_jobs())
     if not written:
         raise InputError(f"none of the {len(images)} photos could be rectified (see the warnings above)")
-    cam_doc = {"camera": camera_name, "keep": keep, "calibration": str(calib),
-               "image_size": list(new_cam.image_size),
-               **{k: getattr(new_cam, k) for k in INTRINSIC_NAMES}}
-    write_json_atomic(Path(out_dir) / f"{camera_name}.rectified.json", cam_doc)
+    write_json_atomic(doc_path, rectified_camera_doc(camera_name, keep, calib, new_cam))
     click.echo(f"{len(written)} of {len(images)} photos rectified into {out_dir} "
                f"(fx={new_cam.fx:.2f} fy={new_cam.fy:.2f} cx={new_cam.cx:.2f} cy={new_cam.cy:.2f}, "
                f"k1=k2=0: {camera_name}.rectified.json)")

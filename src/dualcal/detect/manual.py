@@ -7,13 +7,15 @@ every other node of the grid, and the predictions are then checked, put in the c
 order and refined like automatic ones (:mod:`dualcal.detect.pipeline`). A hints file is JSON
 ``{camera: {view: [[u, v] x 4]}}``.
 
-:func:`pick_hints` is the interactive part (``dualcal pick``): a window shows each photo and
-the user clicks the four corners.
+:func:`pick_hints` is the interactive part (``dualcal pick``): a matplotlib window shows each
+photo, reduced, and the user clicks the four corners (the toolbar zooms in for precision). The
+clicking itself is :class:`CornerClicks`, plain state driven by the window's events.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import cv2
@@ -22,9 +24,11 @@ import numpy as np
 from ..board import Board
 from ..errors import InputError
 from ..io import read_json, write_json_atomic
+from ..progress import warn
+from .coarse import reduce_image, to_full_resolution
 
-__all__ = ["load_hints", "save_hints", "grid_from_hints", "hint_board_points", "pick_hints",
-           "display_available"]
+__all__ = ["CornerClicks", "connect_clicks", "display_problem", "grid_from_hints", "hint_board_points",
+           "load_hints", "pick_hints", "save_hints"]
 
 
 def hint_board_points(board: Board) -> np.ndarray:
@@ -77,74 +81,167 @@ def save_hints(path, hints: dict[str, dict[str, np.ndarray]]) -> None:
                              for c, views in hints.items()})
 
 
-def display_available() -> bool:
-    """True when an interactive window can be opened (a display and a GUI-enabled OpenCV)."""
-    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        return False
-    info = cv2.getBuildInformation()
-    gui = next((line for line in info.splitlines() if line.strip().startswith("GUI:")), "")
-    return bool(gui.split(":", 1)[-1].strip()) and "NONE" not in gui.upper()
+def display_problem() -> str | None:
+    """Why ``dualcal pick`` cannot open a window here, in one line; None when it can.
+
+    It needs a display (``DISPLAY`` or ``WAYLAND_DISPLAY`` on Linux and other X11 systems) and
+    an interactive matplotlib backend (matplotlib falls back to the non-interactive Agg when
+    no GUI toolkit is installed).
+    """
+    if sys.platform not in ("darwin", "win32") and not (os.environ.get("DISPLAY")
+                                                        or os.environ.get("WAYLAND_DISPLAY")):
+        return "dualcal pick needs a display, and neither DISPLAY nor WAYLAND_DISPLAY is set"
+    import matplotlib
+    from matplotlib.backends import BackendFilter, backend_registry
+
+    backend = matplotlib.get_backend()
+    if backend.lower() in backend_registry.list_builtin(BackendFilter.NON_INTERACTIVE):
+        return (f"dualcal pick needs an interactive matplotlib backend, and {backend!r} cannot open windows "
+                "(install a GUI toolkit such as tkinter, or set MPLBACKEND, e.g. MPLBACKEND=TkAgg)")
+    return None
 
 
 _PROMPTS = ("corner 0", "corner cols-1 (end of the first row)", "corner N-1 (opposite corner 0)",
             "corner N-cols (start of the last row)")
+_LABELS = ("0", "cols-1", "N-1", "N-cols")
 
 
-def _click_four(window: str, image: np.ndarray, scale: float, title: str):
-    """Show ``image`` and collect four left clicks; returns (4, 2) full-resolution pixels or None."""
-    clicks: list[tuple[float, float]] = []
+class CornerClicks:
+    """Clicking the four hinted corners of one photo: the state, without any window.
 
-    def on_mouse(event, x, y, _flags, _param):
-        if event == cv2.EVENT_LBUTTONDOWN and len(clicks) < 4:
-            clicks.append(((x + 0.5) / scale - 0.5, (y + 0.5) / scale - 0.5))
+    A matplotlib figure feeds it mouse presses and keys (:func:`connect_clicks`): a left click
+    adds the next corner, a right click or Backspace takes the last one back, Enter accepts
+    four, Esc skips the photo, q stops asking. Points are in the shown image's pixels.
+    """
 
-    cv2.setMouseCallback(window, on_mouse)
-    while True:
-        shown = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-        for k, (u, v) in enumerate(clicks):
-            p = (int(round((u + 0.5) * scale - 0.5)), int(round((v + 0.5) * scale - 0.5)))
-            cv2.circle(shown, p, 6, (0, 0, 255), 2)
-            cv2.putText(shown, str(k), (p[0] + 8, p[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 255), 2)
-        msg = (f"{title}: click {_PROMPTS[len(clicks)]}" if len(clicks) < 4
-               else f"{title}: Enter to accept, Backspace to undo")
-        cv2.setWindowTitle(window, msg)
-        cv2.imshow(window, shown)
-        key = cv2.waitKey(30) & 0xFF
-        if key in (8, 127) and clicks:
-            clicks.pop()
-        elif key in (13, 10) and len(clicks) == 4:
-            return np.array(clicks)
-        elif key in (27, ord("s")):          # Esc or s: skip this photo
-            return None
-        elif key == ord("q"):
-            raise KeyboardInterrupt
+    def __init__(self) -> None:
+        self.points: list[tuple[float, float]] = []
+        self.outcome: str | None = None          # "accept", "skip" or "quit" once decided
+
+    def press(self, button: int, x: float | None, y: float | None) -> None:
+        if self.outcome is not None:
+            return
+        if button == 1 and x is not None and y is not None and len(self.points) < 4:
+            self.points.append((float(x), float(y)))
+        elif button == 3 and self.points:
+            self.points.pop()
+
+    def key(self, key: str | None) -> None:
+        if self.outcome is not None:
+            return
+        if key == "enter" and len(self.points) == 4:
+            self.outcome = "accept"
+        elif key == "backspace" and self.points:
+            self.points.pop()
+        elif key == "escape":
+            self.outcome = "skip"
+        elif key == "q":
+            self.outcome = "quit"
+
+    def prompt(self) -> str:
+        if len(self.points) < 4:
+            return f"click {_PROMPTS[len(self.points)]}\nright click: undo, Esc: skip this photo, q: stop"
+        return "Enter: accept these four corners\nright click or Backspace: undo, Esc: skip, q: stop"
+
+
+def connect_clicks(fig, ax, clicks: CornerClicks, title: str) -> list[int]:
+    """Route ``fig``'s mouse and key events into ``clicks``, redrawing marks and instructions.
+
+    Clicks while the toolbar zooms or pans are the user's navigation, not corners. Once
+    ``clicks.outcome`` is decided (or the window is closed: "quit") the figure's event loop
+    is stopped. Returns the connection ids.
+    """
+    marks, = ax.plot([], [], "o", mfc="none", mec="red", ms=12, mew=2)
+    labels = [ax.annotate("", (0, 0), xytext=(8, -8), textcoords="offset points", color="red",
+                          fontsize=12, fontweight="bold") for _ in range(4)]
+
+    def redraw():
+        pts = np.array(clicks.points).reshape(-1, 2)
+        marks.set_data(pts[:, 0], pts[:, 1])
+        for k, label in enumerate(labels):
+            label.set_visible(k < len(pts))
+            if k < len(pts):
+                label.set_text(_LABELS[k])
+                label.xy = tuple(pts[k])
+        ax.set_title(f"{title}: {clicks.prompt()}", fontsize=10)
+        fig.canvas.draw_idle()
+        if clicks.outcome is not None:
+            fig.canvas.stop_event_loop()
+
+    def on_press(event):
+        toolbar = getattr(fig.canvas, "toolbar", None)
+        if event.inaxes is ax and not (toolbar is not None and toolbar.mode):
+            clicks.press(int(event.button), event.xdata, event.ydata)
+            redraw()
+
+    def on_key(event):
+        clicks.key(event.key)
+        redraw()
+
+    def on_close(_event):
+        if clicks.outcome is None:
+            clicks.outcome = "quit"
+        fig.canvas.stop_event_loop()
+
+    redraw()
+    return [fig.canvas.mpl_connect("button_press_event", on_press),
+            fig.canvas.mpl_connect("key_press_event", on_key),
+            fig.canvas.mpl_connect("close_event", on_close)]
 
 
 def pick_hints(photos: dict[str, dict[str, Path]], max_side: int = 1400) -> dict[str, dict[str, np.ndarray]]:
-    """Let the user click the four outer inner-corners of each photo (Esc skips, q quits).
+    """Let the user click the four outer inner-corners of each photo in a matplotlib window.
 
     Parameters
     ----------
     photos : ``{camera: {view: path}}`` of the photos that need hints.
-    max_side : long side of the window, pixels (the photo is shown reduced).
+    max_side : the photo is shown reduced by a whole factor to at most about this long side.
+
+    Returns
+    -------
+    ``{camera: {view: (4, 2)}}`` full-resolution pixels of the photos clicked and accepted;
+    skipped photos are left out, and after q (or closing the window) the rest too.
+
+    Raises
+    ------
+    InputError
+        No display or no interactive matplotlib backend (see :func:`display_problem`).
     """
+    problem = display_problem()
+    if problem:
+        raise InputError(problem)
+    import matplotlib.pyplot as plt
+
     from ..dataset import read_gray
 
-    if not display_available():
-        raise InputError("dualcal pick needs a display and OpenCV with GUI support "
-                         "(no DISPLAY, or opencv-python-headless is installed)")
-    window = "dualcal pick"
-    cv2.namedWindow(window, cv2.WINDOW_AUTOSIZE)
     out: dict[str, dict[str, np.ndarray]] = {}
-    try:
-        for cam, views in photos.items():
-            for view, path in views.items():
-                full = read_gray(path)
-                scale = min(1.0, max_side / max(full.shape))
-                shown = cv2.resize(full, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-                pts = _click_four(window, shown, scale, f"{cam}/{view}")
-                if pts is not None:
-                    out.setdefault(cam, {})[view] = pts
-    finally:
-        cv2.destroyWindow(window)
+    # q and Backspace are matplotlib's shortcuts for closing and going back a view; here they are ours
+    ours = ("q", "backspace")
+    keymaps = {name: [k for k in plt.rcParams[name] if k not in ours] for name in ("keymap.quit", "keymap.back")}
+    with plt.rc_context(keymaps):
+        fig, ax = plt.subplots(figsize=(10, 8))
+        plt.show(block=False)
+        try:
+            for cam, views in photos.items():
+                for view, path in views.items():
+                    try:
+                        full = read_gray(path)
+                    except InputError as exc:
+                        warn(f"skipped: {exc}")
+                        continue
+                    factor = max(1, int(np.ceil(max(full.shape) / max_side)))
+                    ax.clear()
+                    ax.imshow(reduce_image(full, factor), cmap="gray", interpolation="nearest")
+                    ax.set_axis_off()
+                    clicks = CornerClicks()
+                    ids = connect_clicks(fig, ax, clicks, f"{cam}/{view}")
+                    fig.canvas.start_event_loop(timeout=0)
+                    for cid in ids:
+                        fig.canvas.mpl_disconnect(cid)
+                    if clicks.outcome == "accept":
+                        out.setdefault(cam, {})[view] = to_full_resolution(clicks.points, factor)
+                    elif clicks.outcome == "quit":
+                        return out
+        finally:
+            plt.close(fig)
     return out

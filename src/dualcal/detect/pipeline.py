@@ -29,7 +29,7 @@ import numpy as np
 from ..board import Board
 from ..dataset import Dataset, read_gray
 from ..errors import DetectionError, InputError
-from ..io import atomic_output
+from ..io import atomic_output, make_output_folder
 from ..model import CameraCorners, CornerSet
 from ..progress import progress_bar, warn
 from .coarse import find_grid, reduce_image, reduction_factor, to_full_resolution
@@ -105,7 +105,10 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
     Returns
     -------
     :class:`PhotoResult`; ``uv is None`` with a one-line ``reason`` when the photo cannot be
-    read or the board is not found or fails its checks.
+    read or the board is not found or fails its checks. A failure that one photo can cause in
+    OpenCV, the file system or Pillow (``cv2.error``, ``OSError``, ``ValueError``) is reported
+    the same way, so one odd photo never stops a dataset; any other exception is a bug and
+    propagates.
     """
     try:
         full = read_gray(path)
@@ -138,10 +141,15 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
         return PhotoResult(uv, size, symmetric=symmetric, manual=manual)
     except (DetectionError, InputError) as exc:
         return PhotoResult(None, None, reason=str(exc).replace(f"{path}: ", ""))
+    except (cv2.error, OSError, ValueError) as exc:
+        return PhotoResult(None, None, reason=f"{type(exc).__name__}: {' '.join(str(exc).split())}")
 
 
 def write_overlay(path: Path, small: np.ndarray, uv: np.ndarray, factor: int, max_side: int = 1200) -> None:
-    """A small JPEG of the photo with every corner marked and numbered (corner 0 in red)."""
+    """A small JPEG of the photo with every corner marked and numbered (corner 0 in red).
+
+    ``path``'s folder must exist (see :func:`prepare_overlay_folders`).
+    """
     scale = min(1.0, max_side / max(small.shape)) / factor
     img = cv2.cvtColor(cv2.resize(small, None, fx=scale * factor, fy=scale * factor,
                                   interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
@@ -152,9 +160,24 @@ def write_overlay(path: Path, small: np.ndarray, uv: np.ndarray, factor: int, ma
         cv2.circle(img, p, 4 if k else 7, colour, 2)
         cv2.putText(img, str(k), (p[0] + 5, p[1] - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.4, colour, 1)
     _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as tmp:
         Path(tmp).write_bytes(buf.tobytes())
+
+
+def prepare_overlay_folders(overlays_dir, cameras) -> dict[str, Path]:
+    """``{camera: overlays_dir/camera}``, created; ``overlays_dir`` itself only if its parent exists."""
+    root = make_output_folder(overlays_dir)
+    return {cam: make_output_folder(root / cam) for cam in cameras}
+
+
+def warn_unpaired_cameras(dataset: Dataset) -> None:
+    """One warning per camera that shares no view key with the reference: nothing pairs it."""
+    ref_keys = set(dataset.cameras[dataset.reference])
+    for cam, photos in dataset.cameras.items():
+        if cam != dataset.reference and not ref_keys & set(photos):
+            warn(f"camera {cam!r} shares no view with the reference {dataset.reference!r} (e.g. "
+                 f"{next(iter(photos))!r} vs {next(iter(ref_keys))!r}): name photos of one instant alike "
+                 "(same stem, or what the --camera globs' wildcards match) or use --pair-by time")
 
 
 def _work(task) -> PhotoResult:
@@ -174,7 +197,8 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
     jobs : photos processed at once, in threads (default: all cores); each holds one photo.
     hints : ``{camera: {view: (4, 2)}}`` clicked corners (manual mode) for photos where the
         automatic search fails (see :mod:`dualcal.detect.manual`).
-    overlays_dir : write ``overlays_dir/<camera>/<view>.jpg`` with the detected corners drawn.
+    overlays_dir : write ``overlays_dir/<camera>/<view>.jpg`` with the detected corners drawn
+        (``overlays_dir`` is created if its parent exists).
     progress : draw a progress bar on stderr.
 
     Returns
@@ -185,17 +209,19 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
     Raises
     ------
     InputError
-        When no photo of the dataset yields the board.
+        When no photo of the dataset yields the board, or ``overlays_dir``'s parent is missing.
     """
     hints = hints or {}
     unknown = [f"{c}/{v}" for c, vs in hints.items() for v in vs
                if c not in dataset.cameras or v not in dataset.cameras[c]]
     if unknown:
         warn(f"hints for photos not in the dataset are ignored: {', '.join(sorted(unknown))}")
+    warn_unpaired_cameras(dataset)
+    overlay_dirs = {} if overlays_dir is None else prepare_overlay_folders(overlays_dir, dataset.cameras)
     tasks, keys = [], []
     for cam, photos in dataset.cameras.items():
         for view, photo in photos.items():
-            overlay = None if overlays_dir is None else Path(overlays_dir) / cam / f"{view}.jpg"
+            overlay = overlay_dirs[cam] / f"{view}.jpg" if overlay_dirs else None
             tasks.append((photo.path, board, hints.get(cam, {}).get(view), overlay))
             keys.append((cam, view))
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(tasks)))
