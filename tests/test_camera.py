@@ -86,3 +86,20 @@ def test_folding_distortion_inside_the_image_is_a_clear_error():
     with pytest.raises(NotInvertibleError, match="not monotonic"):
         check_invertible_in_image(folding)
     check_invertible_in_image(CAM)
+
+
+@settings(max_examples=200, deadline=None)
+@given(rotvec=st.tuples(*[st.floats(-0.8, 0.8)] * 3), t=st.tuples(st.floats(-100, 100), st.floats(-100, 100),
+                                                                 st.floats(300, 1500)),
+       X=st.tuples(st.floats(-150, 150), st.floats(-150, 150)))
+def test_projection_of_random_poses_back_projects_onto_the_ray(rotvec, t, X):
+    """Any board point in front of the camera projects to a pixel whose ray passes through it."""
+    from dualcal.camera import ideal_normalized_from_pixel
+    from dualcal.model import Pose
+    from dualcal.rotation import rotation_from_rotvec
+    Xc = Pose(rotation_from_rotvec(np.array(rotvec)), np.array(t)).apply(np.array([[X[0], X[1], 0.0]]))
+    xy = Xc[:, :2] / Xc[:, 2:]
+    if Xc[0, 2] <= 0 or np.hypot(*xy[0]) >= 0.99 * max_monotonic_radius(CAM.k1, CAM.k2):
+        return
+    uv = project_points(CAM, Xc)
+    np.testing.assert_allclose(ideal_normalized_from_pixel(CAM, uv), xy, atol=1e-10)
