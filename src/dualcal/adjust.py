@@ -429,7 +429,8 @@ def rig_relation(sol: Solution, c: int):
 
     ``rigid``: the adjusted relative pose itself. ``paper``: D and the angles (equal in every view
     by the constraints) from the first shared view, ``t`` of length D along the mean direction over
-    the views. ``none``: the mean of the per-view relative poses. Sigmas by propagation of the adjustment's covariance.
+    the views. ``none``: the mean of the per-view relative poses. Sigmas by propagation of the
+    adjustment's covariance.
     """
     p = sol.problem
     if p.mode == "rigid":
