@@ -281,6 +281,7 @@ class Solution:
     iterations: int
     n_constraints: int
     block_rms_px: list[float] = field(default_factory=list)
+    rigid_start: "Solution | None" = None   # paper mode: the rigid solution it started from
 
     def intrinsic_sigma(self, c: int) -> dict[str, float]:
         p = self.problem

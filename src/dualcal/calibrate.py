@@ -104,7 +104,7 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     # The paper's model starts from the rigid solution, which satisfies its constraints exactly.
     problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference)
     paper = adjust(problem, _initial_state(problem, *_starting_values(sol)))
-    _warn_if_paper_drifts(sol, paper)
+    paper.rigid_start = sol
     return paper
 
 
@@ -227,6 +227,8 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     if factor and rig_mode != "none":
         alone, blocks = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, "none", factor, dropped)
     sol, _ = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, rig_mode, factor, dropped, alone)
+    if sol.rigid_start is not None:     # judged once, on the final solution (not on outlier trials)
+        _warn_if_paper_drifts(sol.rigid_start, sol)
     rig = rig_model_from_solution(sol, corners, dropped)
     rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor)}
     return rig
