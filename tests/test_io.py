@@ -30,6 +30,33 @@ def test_corners_round_trip(tmp_path):
     np.testing.assert_allclose(back.cameras["right"].views["IMG_03"], cs.cameras["right"].views["IMG_03"], atol=1e-5)
 
 
+def test_null_corners_keep_their_place(tmp_path):
+    """A corner that was not measured is ``null`` in corners.json and a NaN row in memory: index k is corner k."""
+    cs = noisy_corner_set(make_truth("stereo", 4, seed=1), 0.1)
+    uv = cs.cameras["left"].views["IMG_01"]
+    uv[[0, 7, 53]] = np.nan
+    save_corners(tmp_path / "c.json", cs)
+    doc = json.loads((tmp_path / "c.json").read_text())
+    listed = doc["cameras"]["left"]["views"]["IMG_01"]
+    assert len(listed) == 54 and [k for k, p in enumerate(listed) if p is None] == [0, 7, 53]
+    back = load_corners(tmp_path / "c.json").cameras["left"].views["IMG_01"]
+    assert back.shape == (54, 2)
+    np.testing.assert_array_equal(np.isnan(back[:, 0]), np.isnan(uv[:, 0]))
+    np.testing.assert_allclose(back[1:7], uv[1:7], atol=1e-5)
+    assert "IMG_01" in load_corners(tmp_path / "c.json").cameras["left"].found()
+
+
+@pytest.mark.parametrize("views, message", [
+    ({"a": [None, None, None, None]}, "every corner is null"),
+    ({"a": [[1, 2], None, [3, float("nan")], [4, 5]]}, "NaN"),
+    ({"a": [[1, 2], None, [3], [4, 5]]}, "expected numbers"),
+])
+def test_malformed_null_corners_are_clear_errors(views, message):
+    doc = {"board": {"cols": 2, "rows": 2, "square_mm": 30}, "cameras": {"w": {"image_size": [9, 9], "views": views}}}
+    with pytest.raises(InputError, match=message):
+        corners_from_dict(doc)
+
+
 def test_calib_json_has_the_contract_keys_and_round_trips(tmp_path, rig):
     save_rig(tmp_path / "calib.json", rig)
     doc = json.loads((tmp_path / "calib.json").read_text())

@@ -158,6 +158,20 @@ def _finite_array(value, shape_tail, what: str) -> np.ndarray:
     return arr
 
 
+def _corner_array(value, n_corners: int, what: str) -> np.ndarray:
+    """A view's corners: a list of ``n_corners`` entries ``[u, v]`` or ``null`` (not measured),
+    as an (n_corners, 2) array with NaN rows for the ``null`` ones."""
+    if not isinstance(value, list) or len(value) != n_corners:
+        got = f"{len(value)} entries" if isinstance(value, list) else type(value).__name__
+        raise InputError(f"{what}: expected a list of {n_corners} corners ([u, v] or null), got {got}")
+    missing = [v is None for v in value]
+    if all(missing):
+        raise InputError(f"{what}: every corner is null (write null for the whole view instead)")
+    arr = np.full((n_corners, 2), np.nan)
+    arr[~np.array(missing)] = _finite_array([v for v in value if v is not None], (None, 2), what)
+    return arr
+
+
 def _image_size(value, what: str) -> tuple[int, int]:
     arr = _finite_array(value, (2,), f"{what} image_size")
     if np.any(arr <= 0) or np.any(arr != np.round(arr)):
@@ -181,7 +195,7 @@ def corners_from_dict(doc: dict, source: str = "corners.json") -> CornerSet:
             if pts is None:
                 views[str(key)] = None
                 continue
-            views[str(key)] = _finite_array(pts, (board.n_corners, 2),
+            views[str(key)] = _corner_array(pts, board.n_corners,
                                             f"{source}: camera {name!r} view {key!r} "
                                             f"(board {board.spec()} has {board.n_corners} corners)")
         meta = {k: v for k, v in entry.items() if k not in ("image_size", "views")}
@@ -192,12 +206,19 @@ def corners_from_dict(doc: dict, source: str = "corners.json") -> CornerSet:
     return CornerSet(board, cameras, reference)
 
 
+def _corner_list(uv: np.ndarray | None):
+    """A view's corners for corners.json: ``[u, v]`` per corner, ``null`` for NaN rows."""
+    if uv is None:
+        return None
+    return [[round(float(u), 5), round(float(v), 5)] if np.isfinite(u) and np.isfinite(v) else None
+            for u, v in np.asarray(uv, float)]
+
+
 def corners_to_dict(cs: CornerSet) -> dict:
     cams = {}
     for name, cam in cs.cameras.items():
         cams[name] = {"image_size": list(cam.image_size),
-                      "views": {k: (None if v is None else np.round(v, 5).tolist())
-                                for k, v in cam.views.items()},
+                      "views": {k: _corner_list(v) for k, v in cam.views.items()},
                       **cam.meta}
     doc = {"board": cs.board.to_dict(), "cameras": cams}
     if cs.reference is not None:

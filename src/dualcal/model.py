@@ -52,12 +52,20 @@ def mean_pose(poses: list[Pose]) -> Pose:
     return Pose(nearest_rotation(np.sum([p.R for p in poses], axis=0)), np.mean([p.t_mm for p in poses], axis=0))
 
 
+def observed_mask(uv_px: np.ndarray) -> np.ndarray:
+    """(N,) True for the corners of a view that were measured (rows that are not NaN)."""
+    return np.all(np.isfinite(np.asarray(uv_px, float)), axis=-1)
+
+
 @dataclass
 class CameraCorners:
     """Detected corners of one camera: ``views[key]`` is (N, 2) pixels, or None if not found.
 
-    ``meta`` holds extra per-camera information carried through corners.json (photo paths,
-    EXIF make, model and focal length, ...); keys are written as they are.
+    Inside a view, a corner that could not be measured (or was rejected) is a row of NaN: the
+    array keeps its length and order, so row k is always corner k (corners.json writes such a
+    corner as ``null``, see the contract). ``meta`` holds extra per-camera information carried
+    through corners.json (photo paths, EXIF make, model and focal length, ...); keys are written
+    as they are.
     """
 
     image_size: tuple[int, int]
@@ -65,7 +73,8 @@ class CameraCorners:
     meta: dict = field(default_factory=dict)
 
     def found(self) -> dict[str, np.ndarray]:
-        return {k: v for k, v in self.views.items() if v is not None}
+        """The views where the board was found (at least one corner measured)."""
+        return {k: v for k, v in self.views.items() if v is not None and observed_mask(v).any()}
 
 
 @dataclass
