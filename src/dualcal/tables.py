@@ -79,8 +79,8 @@ def result_tables(models: list[RigModel]) -> list[Table]:
 def photo_status(rig: RigModel) -> dict[str, dict[str, tuple[float | None, str]]]:
     """``[view][camera] -> (rms_px or None, status)`` for every photo of the calibration's corners.
 
-    The status is ``"kept"``, ``"board not found"``, ``"dropped: <why>"`` (the calibration's reason
-    up to its first ``;``; the RMS is the one it had when it was dropped), ``"left out by
+    The status is ``"kept"``, ``"board not found"``, ``"dropped: <why>"`` (the start of the
+    calibration's reason; the RMS is the one the photo had when it was dropped), ``"left out by
     --exclude"`` or ``"not used"`` (corners but no pose, e.g. no other camera saw that instant).
     """
     dropped = {(d.get("camera"), d.get("view")): d for d in rig.dropped_views if isinstance(d, dict)}
@@ -96,7 +96,7 @@ def photo_status(rig: RigModel) -> dict[str, dict[str, tuple[float | None, str]]
                 entry = (rig.view_rms_px.get(view, {}).get(cam), "kept")
             elif (cam, view) in dropped:
                 d = dropped[(cam, view)]
-                entry = (d.get("rms_px"), "dropped: " + str(d.get("reason", "outlier")).split(";")[0])
+                entry = (d.get("rms_px"), "dropped: " + str(d.get("reason", "outlier")).split(";")[0].split(" (")[0])
             else:
                 entry = (None, "not used")
             out.setdefault(view, {})[cam] = entry
