@@ -22,13 +22,14 @@ _API = {
     "project_points": "camera", "undistort_points": "camera", "distort_points": "camera",
     "calibrate_rig": "calibrate", "triangulate": "intersect", "evaluate": "evaluate",
     "undistort_image": "rectify", "rectified_camera": "rectify",
+    "stereo_rectify": "stereo", "rectify_points": "stereo", "StereoRectification": "stereo",
     # photos
     "open_dataset": "dataset", "detect_dataset": "detect", "detect_photo": "detect",
     # files
     "load_corners": "io", "save_corners": "io", "load_rig": "io", "save_rig": "io",
     "render_report": "report", "write_export": "export",
     # synthetic truth
-    "make_truth": "synth", "noisy_corner_set": "synth", "truth_rig_model": "synth",
+    "make_truth": "synth", "noisy_corner_set": "synth", "truth_rig_model": "synth", "write_photo_set": "render",
     # errors
     "DualcalError": "errors", "InputError": "errors", "EstimationError": "errors",
     "NotInvertibleError": "errors", "DetectionError": "errors",
