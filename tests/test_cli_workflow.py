@@ -51,7 +51,8 @@ def _dataset_with(tmp_path, photos, case):
 @pytest.mark.parametrize("case, words", [
     ("empty camera folder", ["camera folder", "/tele", "holds no photos", "move it out"]),
     ("nothing pairs", ["camera 'tele' pairs with", "'wide'", "'TELE_01' vs 'IMG_01'", "--pair-by time"]),
-    ("photos and subfolders", ["holds photos (screenshot.jpg, ...) and also subfolders", "its own subfolder"]),
+    ("photos and subfolders", ["holds photos (screenshot.jpg, ...) and also subfolders with photos (tele, wide)",
+                               "its own subfolder"]),
 ])
 def test_a_dataset_that_cannot_be_calibrated_is_refused_in_one_line(photos, tmp_path, run_cli, command, case, words):
     d = _dataset_with(tmp_path, photos, case)

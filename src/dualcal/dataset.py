@@ -13,7 +13,7 @@ its wildcards matched (``left*.jpg`` and ``right*.jpg`` pair ``left01`` with ``r
 
 Photos can be left out by ``exclude`` patterns (:func:`is_excluded`). A dataset that cannot be
 calibrated as it stands is refused with one clear error: a camera folder without photos, a folder
-holding photos and subfolders; and ``detect`` and ``calibrate`` refuse cameras whose photos
+holding photos and subfolders with photos; and ``detect`` and ``calibrate`` refuse cameras whose photos
 pair with none of the reference camera's (:func:`check_pairs`).
 
 Pixels are used as stored: the EXIF orientation tag is reported in the metadata, never applied.
@@ -47,8 +47,8 @@ try:  # HEIC/HEIF through pillow-heif
 except ImportError:  # pragma: no cover - pillow-heif is a dependency; HEIC is then unreadable
     pillow_heif = None
 
-__all__ = ["PHOTO_SUFFIXES", "Dataset", "Photo", "check_pairs", "exclude_views", "is_excluded", "open_dataset", "open_image",
-           "parse_camera_spec", "read_exif", "read_gray"]
+__all__ = ["PHOTO_SUFFIXES", "Dataset", "Photo", "check_pairs", "exclude_views", "is_excluded", "open_dataset",
+           "open_image", "parse_camera_spec", "read_exif", "read_gray"]
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic", ".heif")
 
@@ -335,8 +335,9 @@ def _list_folder(folder: Path) -> list[Path]:
 def _camera_folders(root: Path) -> dict[str, list[Path]]:
     """Photos per camera of a dataset folder: one subfolder per camera, or photos only (one camera).
 
-    A folder holding photos and subfolders, or a camera subfolder without photos, is refused:
-    either would silently leave photos out of the calibration.
+    A folder holding photos and subfolders with photos, or (in a folder of camera subfolders) a
+    subfolder without photos, is refused: either would silently leave photos or a camera out of
+    the calibration. Beside photos, a subfolder without photos (notes, a README) is ignored.
     """
     if not root.exists():
         raise InputError(f"dataset folder {str(root)!r} does not exist")
@@ -345,16 +346,17 @@ def _camera_folders(root: Path) -> dict[str, list[Path]]:
     entries = _list_folder(root)
     subdirs = [d for d in entries if d.is_dir() and not d.name.startswith(".")]
     photos = [p for p in entries if _is_photo(p)]
-    if subdirs and photos:
+    cams = {d.name: [p for p in _list_folder(d) if _is_photo(p)] for d in subdirs}
+    with_photos = [n for n, ps in cams.items() if ps]
+    if photos and with_photos:
         raise InputError(f"dataset folder {str(root)!r} holds photos ({photos[0].name}, ...) and also subfolders "
-                         f"({', '.join(d.name for d in subdirs[:3])}): put each camera's photos in its own "
+                         f"with photos ({', '.join(with_photos[:3])}): put each camera's photos in its own "
                          "subfolder, or move the subfolders out (or give the cameras with --camera NAME=GLOB)")
     if photos:
         return {root.resolve().name: photos}
-    if not subdirs:
+    if not with_photos:
         raise InputError(f"dataset folder {str(root)!r} holds no photos "
                          f"({', '.join(PHOTO_SUFFIXES)}) nor camera subfolders with photos")
-    cams = {d.name: [p for p in _list_folder(d) if _is_photo(p)] for d in subdirs}
     empty = [n for n, ps in cams.items() if not ps]
     if empty:
         raise InputError(f"camera folder {str(root / empty[0])!r} holds no photos ({', '.join(PHOTO_SUFFIXES)}): "
@@ -373,23 +375,26 @@ def is_excluded(patterns, camera: str, view: str, file_name: str | None = None) 
     return any(fnmatch.fnmatchcase(name, pattern) for pattern in patterns for name in names)
 
 
-def _exclude(files: dict[str, dict[str, Path]], patterns) -> dict[str, dict[str, Path]]:
-    """The photos of ``files`` (``[camera][key] -> path``) that ``patterns`` leave out; removes them."""
-    excluded = {}
+def _excluded_keys(files: dict[str, dict[str, str | None]], patterns) -> dict[str, list[str]]:
+    """The keys that ``patterns`` leave out of each camera, from ``files[camera][key] -> file name``.
+
+    A pattern that matches nothing is a warning; one that leaves a camera without photos an error.
+    """
+    out: dict[str, list[str]] = {}
+    used = set()
     for name, keyed in files.items():
-        out = {k: p for k, p in keyed.items() if is_excluded(patterns, name, k, p.name)}
-        for k in out:
-            del keyed[k]
-        if out:
-            excluded[name] = out
-        if not keyed:
+        for key, file_name in keyed.items():
+            hits = {p for p in patterns if is_excluded([p], name, key, file_name)}
+            used |= hits
+            if hits:
+                out.setdefault(name, []).append(key)
+        if len(out.get(name, ())) == len(keyed):
             raise InputError(f"--exclude {' '.join(patterns)} leaves camera {name!r} without photos")
-    unused = [p for p in patterns if not any(is_excluded([p], n, k, path.name)
-                                             for n, keyed in excluded.items() for k, path in keyed.items())]
-    for pattern in unused:
-        warn(f"--exclude {pattern!r} matches no photo (it is matched against view keys such as "
-             f"{next(iter(next(iter(files.values()))))!r}, file names and CAMERA/KEY)")
-    return excluded
+    for pattern in patterns:
+        if pattern not in used:
+            warn(f"--exclude {pattern!r} matches no photo (it is matched against view keys such as "
+                 f"{next(iter(next(iter(files.values()))))!r}, file names and CAMERA/KEY)")
+    return out
 
 
 def exclude_views(corners: CornerSet, patterns) -> CornerSet:
@@ -400,23 +405,14 @@ def exclude_views(corners: CornerSet, patterns) -> CornerSet:
     """
     if not patterns:
         return corners
-    cameras, hits = {}, set()
+    photos = {name: cam.meta.get("photos", {}) for name, cam in corners.cameras.items()}
+    keys = _excluded_keys({name: {v: Path(photos[name][v]).name if v in photos[name] else None for v in cam.views}
+                           for name, cam in corners.cameras.items()}, patterns)
+    cameras = {}
     for name, cam in corners.cameras.items():
-        photos = cam.meta.get("photos", {})
-        out = {}
-        for view in cam.views:
-            matched = {p for p in patterns if is_excluded([p], name, view, Path(photos.get(view, "")).name or None)}
-            hits |= matched
-            if matched:
-                out[view] = photos.get(view)
-        views = {v: uv for v, uv in cam.views.items() if v not in out}
-        if not views:
-            raise InputError(f"--exclude {' '.join(patterns)} leaves camera {name!r} without views")
+        out = {v: photos[name].get(v) for v in keys.get(name, ())}
         meta = {**cam.meta, "excluded": {**cam.meta.get("excluded", {}), **out}} if out else cam.meta
-        cameras[name] = CameraCorners(cam.image_size, views, meta)
-    for pattern in patterns:
-        if pattern not in hits:
-            warn(f"--exclude {pattern!r} matches no view (view keys, file names and CAMERA/KEY are matched)")
+        cameras[name] = CameraCorners(cam.image_size, {v: uv for v, uv in cam.views.items() if v not in out}, meta)
     return CornerSet(corners.board, cameras, corners.reference)
 
 
@@ -431,7 +427,7 @@ def check_pairs(dataset: Dataset, pair_by: str = "stem") -> None:
         if name == dataset.reference or ref_keys & set(photos):
             continue
         how = ("none was taken within --time-tolerance of one of the reference camera's" if pair_by == "time"
-               else f"e.g. {next(iter(photos))!r} vs {next(iter(ref_keys))!r}")
+               else f"e.g. {min(photos)!r} vs {min(ref_keys)!r}")
         raise InputError(f"{dataset.source}: no photo of camera {name!r} pairs with one of the reference camera "
                          f"{dataset.reference!r} ({how}): name the photos of one instant alike (same stem, or what "
                          "the --camera globs' wildcards match), pair them with --pair-by time, or calibrate each "
@@ -544,7 +540,10 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
         files = {n: _key_by_stem(n, ps) for n, ps in _camera_folders(Path(path)).items()}
         source = str(path)
 
-    excluded = _exclude(files, exclude) if exclude else {}
+    excluded = {}
+    if exclude:
+        keys = _excluded_keys({n: {k: p.name for k, p in f.items()} for n, f in files.items()}, exclude)
+        excluded = {n: {k: files[n].pop(k) for k in ks} for n, ks in keys.items()}
     skipped: list = []
     cams = {n: _read_headers(n, f, skipped) for n, f in sorted(files.items())}
     empty = [n for n, ps in cams.items() if not ps]

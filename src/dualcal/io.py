@@ -400,9 +400,10 @@ def check_evaluation_belongs(rig: RigModel, evaluation: dict, calib_source: str,
             raise InputError(f"{eval_source} was computed from another calibration than {calib_source} "
                              f"(fingerprint {str(stored)[7:19]}, {calib_source} has {own[7:19]}): {rerun}")
         return
+    named = {c for p in evaluation.get("per_pair", []) for c in p.get("cameras", ())}
+    named |= {case.split(":", 1)[-1] for case in evaluation.get("cases", {}) if case != "dual"}  # "dual:ultra"
     names = set(rig.cameras)
-    foreign = sorted({c for p in evaluation.get("per_pair", []) for c in p.get("cameras", ())} - names
-                     | {k.split(":", 1)[-1] for k in evaluation.get("cases", {}) if k != "dual"} - names)
+    foreign = sorted(named - names)
     if foreign:
         raise InputError(f"{eval_source} names cameras {', '.join(foreign)} that {calib_source} does not have "
                          f"(cameras: {', '.join(sorted(names))}): {rerun}")
@@ -412,7 +413,7 @@ def check_corners_fit(rig: RigModel, source: str, slack_px: float = 1.0) -> None
     """Raise :class:`InputError` when the corners calib.json carries do not fit its calibration.
 
     Each camera's RMS reprojection error over the views it has poses for is recomputed and must
-    stay within ``3 x rms_px + slack_px`` of what calib.json states: a calib.json assembled from
+    not exceed ``3 x rms_px + slack_px`` of the ``rms_px`` calib.json states: a calib.json assembled from
     parts of two calibrations (or whose corners were replaced) fails by many pixels. Cameras
     without a stated ``rms_px`` are not checked.
     """

@@ -74,7 +74,7 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
               help="Camera matrix of the output: the calibrated one (same), one that keeps every "
                    "source pixel (all), or one with no empty border (valid).")
 @click.option("--jobs", type=click.IntRange(min=1), default=None,
-              help="Photos rectified in parallel (default: all cores).")
+              help="Photos undistorted in parallel (default: all cores).")
 def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, out_dir: Path, keep: str,
                       jobs: int | None) -> None:
     """Remove lens distortion from photos (paper section 1.8), keeping their EXIF.

@@ -74,7 +74,7 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
         with open_image(written[name]) as img:
             images.append(np.asarray(img.convert("RGB")))
     check = epipolar_check_image(images, rect.vertical)
-    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(check, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
+    _, buf = cv2.imencode(".jpg", cv2.cvtColor(check, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
     with atomic_output(check_path) as tmp:
         Path(tmp).write_bytes(buf.tobytes())
     write_json_atomic(doc_path, {**rect.to_dict(), "calibration": str(calib),
