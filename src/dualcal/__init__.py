@@ -6,7 +6,8 @@ The package is the API; the ``dualcal`` command is a thin shell over it::
     corners = dualcal.load_corners("corners.json")            # or dualcal.detect_dataset(...)
     rig = dualcal.calibrate_rig(corners, skew=False, rig_mode="rigid")
     dualcal.save_rig("calib.json", rig)
-    print(dualcal.evaluate(rig)["cases"])
+    from dualcal.evaluate import evaluate      # (dualcal.evaluate is the submodule once it is imported)
+    print(evaluate(rig)["cases"])
 
 Conventions (pixels, board, poses, omega-phi-kappa) are in the README, section "Conventions".
 Names are imported on first use, so ``import dualcal`` stays light.
