@@ -2,9 +2,9 @@
 
 import pytest
 
-import dualcal.cli.calibrate as calibrate_cmd
+import dualcal.synth as synth_module
 
-COMMANDS = ["detect", "calibrate", "evaluate", "undistort", "report", "export", "synth", "pick"]
+COMMANDS = ["detect", "calibrate", "evaluate", "undistort", "rectify", "report", "export", "synth", "pick"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)
@@ -22,7 +22,7 @@ def test_unexpected_errors_are_one_line_and_the_traceback_needs_debug(run_cli, t
     def broken(*args, **kwargs):
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr(calibrate_cmd, "make_truth", broken)
+    monkeypatch.setattr(synth_module, "make_truth", broken)
     res = run_cli("synth", tmp_path / "s", "--no-photos")
     assert res.code == 1
     assert res.err_lines == ["dualcal: internal error: ZeroDivisionError: a bug (run again with --debug for the "

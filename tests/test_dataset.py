@@ -212,3 +212,33 @@ def test_unreadable_files_are_skipped_with_a_warning(tmp_path, capsys):
     ds = open_dataset(tmp_path / "cam")
     assert list(ds.cameras["cam"]) == ["good"]
     assert "bad.jpg" in capsys.readouterr().err
+
+
+def test_a_subfolder_without_photos_beside_photos_is_ignored(tmp_path):
+    """Like the real huawei-y5-2017 set: photos and a reference/ folder holding only notes."""
+    _photo(tmp_path / "phone" / "a.jpg")
+    (tmp_path / "phone" / "reference").mkdir()
+    (tmp_path / "phone" / "reference" / "README.md").write_text("notes")
+    assert list(open_dataset(tmp_path / "phone").cameras) == ["phone"]
+
+
+@pytest.mark.parametrize("setup, message", [
+    (lambda d: (_photo(d / "wide" / "a.jpg"), (d / "tele").mkdir()), "camera folder .*tele.* holds no photos"),
+    (lambda d: (_photo(d / "wide" / "a.jpg"), _photo(d / "shot.png")), "holds photos .* subfolders with photos"),
+])
+def test_datasets_that_would_lose_photos_or_a_camera_are_refused(tmp_path, setup, message):
+    d = tmp_path / "ds"
+    d.mkdir()
+    setup(d)
+    with pytest.raises(InputError, match=message):
+        open_dataset(d)
+
+
+def test_exclude_leaves_photos_out_and_lists_them(tmp_path):
+    for cam in ("wide", "tele"):
+        for k in (1, 2, 3):
+            _photo(tmp_path / cam / f"IMG_0{k}.jpg")
+    ds = open_dataset(tmp_path, exclude=["IMG_02", "tele/IMG_03"])
+    assert sorted(ds.cameras["wide"]) == ["IMG_01", "IMG_03"] and sorted(ds.cameras["tele"]) == ["IMG_01"]
+    assert sorted(ds.excluded["tele"]) == ["IMG_02", "IMG_03"]
+    assert ds.meta("tele")["excluded"]["IMG_03"].endswith("IMG_03.jpg")

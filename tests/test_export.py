@@ -7,6 +7,7 @@ exported parameters by the format's own conventions lands where dualcal projects
 from __future__ import annotations
 
 import ast
+import json
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -322,3 +323,23 @@ def test_cli_export_refuses_a_corners_json(rig, tmp_path, run_cli):
     assert code == 2
     assert "this is a corners.json, expected a calib.json" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_opencv_export_carries_the_stereo_rectification_of_dualcal_rectify(calib_json, rig, tmp_path, run_cli):
+    """Per other camera, R1 R2 P1 P2 Q exactly as `dualcal rectify` writes them for (reference, camera)."""
+    assert run_cli("export", calib_json, "--format", "opencv", "-o", tmp_path / "rig.yml").code == 0
+    fs = cv2.FileStorage(str(tmp_path / "rig.yml"), cv2.FILE_STORAGE_READ)
+    assert fs.getNode("wide").getNode("R1").empty()
+    for name in ("tele", "ultra"):
+        photos = []
+        for cam in ("wide", name):
+            w, h = rig.cameras[cam].image_size
+            cv2.imwrite(str(tmp_path / f"{cam}.png"), np.full((h, w), 128, np.uint8))
+            photos.append(f"{cam}={tmp_path / f'{cam}.png'}")
+        res = run_cli("rectify", calib_json, "--pair", *photos, "-o", tmp_path / name)
+        assert res.code == 0, res.err
+        doc = json.loads((tmp_path / name / "rectify.json").read_text())
+        node = fs.getNode(name)
+        for key in ("R1", "R2", "P1", "P2", "Q"):
+            np.testing.assert_array_equal(node.getNode(key).mat(), doc[key])
+        assert [int(node.getNode(k).real()) for k in ("rectified_width", "rectified_height")] == doc["image_size"]

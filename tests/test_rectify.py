@@ -265,7 +265,7 @@ def test_rotated_heic_is_rectified_in_its_stored_frame_and_keeps_its_orientation
 
 
 def test_a_photo_that_breaks_a_library_is_skipped_but_a_bug_is_not_hidden(tmp_path, monkeypatch):
-    task = (tmp_path / "left01.jpg", tmp_path / "out.jpg", STEREO_LEFT, STEREO_LEFT, 64, None)
+    task = (tmp_path / "left01.jpg", tmp_path / "out.jpg", STEREO_LEFT, STEREO_LEFT, 64)
     for error in (cv2.error("bad depth"), OSError(28, "No space left on device"), ValueError("bad mode")):
         def fail(*args, error=error):
             raise error

@@ -6,7 +6,8 @@ The package is the API; the ``dualcal`` command is a thin shell over it::
     corners = dualcal.load_corners("corners.json")            # or dualcal.detect_dataset(...)
     rig = dualcal.calibrate_rig(corners, skew=False, rig_mode="rigid")
     dualcal.save_rig("calib.json", rig)
-    print(dualcal.evaluate(rig)["cases"])
+    from dualcal.evaluate import evaluate      # (dualcal.evaluate is the submodule once it is imported)
+    print(evaluate(rig)["cases"])
 
 Conventions (pixels, board, poses, omega-phi-kappa) are in the README, section "Conventions".
 Names are imported on first use, so ``import dualcal`` stays light.
@@ -22,13 +23,14 @@ _API = {
     "project_points": "camera", "undistort_points": "camera", "distort_points": "camera",
     "calibrate_rig": "calibrate", "triangulate": "intersect", "evaluate": "evaluate",
     "undistort_image": "rectify", "rectified_camera": "rectify",
+    "stereo_rectify": "stereo", "rectify_points": "stereo", "StereoRectification": "stereo",
     # photos
     "open_dataset": "dataset", "detect_dataset": "detect", "detect_photo": "detect",
     # files
     "load_corners": "io", "save_corners": "io", "load_rig": "io", "save_rig": "io",
     "render_report": "report", "write_export": "export",
     # synthetic truth
-    "make_truth": "synth", "noisy_corner_set": "synth", "truth_rig_model": "synth",
+    "make_truth": "synth", "noisy_corner_set": "synth", "truth_rig_model": "synth", "write_photo_set": "render",
     # errors
     "DualcalError": "errors", "InputError": "errors", "EstimationError": "errors",
     "NotInvertibleError": "errors", "DetectionError": "errors",

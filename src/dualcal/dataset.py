@@ -11,6 +11,11 @@ its wildcards matched (``left*.jpg`` and ``right*.jpg`` pair ``left01`` with ``r
 ``01``), or, with ``pair_by="time"``, the reference camera's stem of the photo taken within
 ``time_tolerance_s`` of it (EXIF capture time).
 
+Photos can be left out by ``exclude`` patterns (:func:`is_excluded`). A dataset that cannot be
+calibrated as it stands is refused with one clear error: a camera folder without photos, a folder
+holding photos and subfolders with photos; and ``detect`` and ``calibrate`` refuse cameras whose photos
+pair with none of the reference camera's (:func:`check_pairs`).
+
 Pixels are used as stored: the EXIF orientation tag is reported in the metadata, never applied.
 Every photo is opened here, by :func:`read_exif` (header only), :func:`read_gray` (detection)
 and :func:`open_image` (rectification), so all formats and errors are handled in one place.
@@ -19,6 +24,7 @@ and :func:`open_image` (rectification), so all formats and errors are handled in
 from __future__ import annotations
 
 import contextlib
+import fnmatch
 import glob as globmod
 import os
 import re
@@ -31,7 +37,7 @@ import numpy as np
 from PIL import Image
 
 from .errors import InputError
-from .model import choose_reference
+from .model import CameraCorners, CornerSet, choose_reference
 from .progress import warn
 
 try:  # HEIC/HEIF through pillow-heif
@@ -41,8 +47,8 @@ try:  # HEIC/HEIF through pillow-heif
 except ImportError:  # pragma: no cover - pillow-heif is a dependency; HEIC is then unreadable
     pillow_heif = None
 
-__all__ = ["PHOTO_SUFFIXES", "Dataset", "Photo", "open_dataset", "open_image",
-           "parse_camera_spec", "read_exif", "read_gray"]
+__all__ = ["PHOTO_SUFFIXES", "Dataset", "Photo", "check_pairs", "exclude_views", "is_excluded", "open_dataset",
+           "open_image", "parse_camera_spec", "read_exif", "read_gray"]
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic", ".heif")
 
@@ -65,19 +71,22 @@ class Photo:
 class Dataset:
     """Cameras and their photos, keyed by view: ``cameras[name][view] -> Photo``.
 
-    ``skipped`` lists ``(path, reason)`` of files that looked like photos but could not be read.
+    ``skipped`` lists ``(path, reason)`` of files that looked like photos but could not be read;
+    ``excluded[name][view]`` the photos left out by ``exclude`` patterns.
     """
 
     cameras: dict[str, dict[str, Photo]]
     reference: str
     source: str
     skipped: list[tuple[Path, str]] = field(default_factory=list)
+    excluded: dict[str, dict[str, Path]] = field(default_factory=dict)
 
     def image_size(self, camera: str) -> tuple[int, int]:
         return next(iter(self.cameras[camera].values())).size
 
     def meta(self, camera: str) -> dict:
-        """corners.json ``meta`` of a camera: photo paths, EXIF make/model/focal, orientation."""
+        """corners.json ``meta`` of a camera: photo paths, EXIF make/model/focal, orientation, and
+        the photos left out by ``exclude`` (``excluded``: view -> path)."""
         photos = self.cameras[camera]
         first = next(iter(photos.values())).exif
         exif = {k: first[k] for k in ("make", "model", "focal_length_mm", "focal_length_35mm_mm")
@@ -88,6 +97,8 @@ class Dataset:
         if orientation:
             # Reported, never applied: coordinates are in the stored pixel frame.
             meta["exif_orientation"] = orientation
+        if self.excluded.get(camera):
+            meta["excluded"] = {v: str(p) for v, p in self.excluded[camera].items()}
         return meta
 
     def photo_count(self) -> int:
@@ -322,21 +333,105 @@ def _list_folder(folder: Path) -> list[Path]:
 
 
 def _camera_folders(root: Path) -> dict[str, list[Path]]:
+    """Photos per camera of a dataset folder: one subfolder per camera, or photos only (one camera).
+
+    A folder holding photos and subfolders with photos, or (in a folder of camera subfolders) a
+    subfolder without photos, is refused: either would silently leave photos or a camera out of
+    the calibration. Beside photos, a subfolder without photos (notes, a README) is ignored.
+    """
     if not root.exists():
         raise InputError(f"dataset folder {str(root)!r} does not exist")
     if not root.is_dir():
         raise InputError(f"{str(root)!r} is not a folder: give a dataset folder, or cameras with --camera NAME=GLOB")
     entries = _list_folder(root)
     subdirs = [d for d in entries if d.is_dir() and not d.name.startswith(".")]
-    cams = {d.name: [p for p in _list_folder(d) if _is_photo(p)] for d in subdirs}
-    cams = {n: ps for n, ps in cams.items() if ps}
-    if cams:
-        return cams
     photos = [p for p in entries if _is_photo(p)]
-    if not photos:
+    cams = {d.name: [p for p in _list_folder(d) if _is_photo(p)] for d in subdirs}
+    with_photos = [n for n, ps in cams.items() if ps]
+    if photos and with_photos:
+        raise InputError(f"dataset folder {str(root)!r} holds photos ({photos[0].name}, ...) and also subfolders "
+                         f"with photos ({', '.join(with_photos[:3])}): put each camera's photos in its own "
+                         "subfolder, or move the subfolders out (or give the cameras with --camera NAME=GLOB)")
+    if photos:
+        return {root.resolve().name: photos}
+    if not with_photos:
         raise InputError(f"dataset folder {str(root)!r} holds no photos "
                          f"({', '.join(PHOTO_SUFFIXES)}) nor camera subfolders with photos")
-    return {root.resolve().name: photos}
+    empty = [n for n, ps in cams.items() if not ps]
+    if empty:
+        raise InputError(f"camera folder {str(root / empty[0])!r} holds no photos ({', '.join(PHOTO_SUFFIXES)}): "
+                         f"put that camera's photos in it, or move it out of {str(root)!r}")
+    return cams
+
+
+def is_excluded(patterns, camera: str, view: str, file_name: str | None = None) -> bool:
+    """Whether a photo matches one of the ``--exclude`` glob patterns.
+
+    A pattern (:func:`fnmatch.fnmatchcase`) is matched against the view key (``IMG_03``: the
+    photos of every camera at that instant), the file name (``IMG_03.jpg``) and ``CAMERA/KEY``
+    (``tele/IMG_03``: that camera's photo only).
+    """
+    names = [view, f"{camera}/{view}"] + ([file_name] if file_name else [])
+    return any(fnmatch.fnmatchcase(name, pattern) for pattern in patterns for name in names)
+
+
+def _excluded_keys(files: dict[str, dict[str, str | None]], patterns) -> dict[str, list[str]]:
+    """The keys that ``patterns`` leave out of each camera, from ``files[camera][key] -> file name``.
+
+    A pattern that matches nothing is a warning; one that leaves a camera without photos an error.
+    """
+    out: dict[str, list[str]] = {}
+    used = set()
+    for name, keyed in files.items():
+        for key, file_name in keyed.items():
+            hits = {p for p in patterns if is_excluded([p], name, key, file_name)}
+            used |= hits
+            if hits:
+                out.setdefault(name, []).append(key)
+        if len(out.get(name, ())) == len(keyed):
+            raise InputError(f"--exclude {' '.join(patterns)} leaves camera {name!r} without photos")
+    for pattern in patterns:
+        if pattern not in used:
+            warn(f"--exclude {pattern!r} matches no photo (it is matched against view keys such as "
+                 f"{next(iter(next(iter(files.values()))))!r}, file names and CAMERA/KEY)")
+    return out
+
+
+def exclude_views(corners: CornerSet, patterns) -> CornerSet:
+    """``corners`` less the views that ``patterns`` leave out (:func:`is_excluded`).
+
+    The file name is taken from the camera's ``photos`` (corners.json), where it is known. The views
+    left out are added to each camera's ``excluded`` (view -> photo path or None).
+    """
+    if not patterns:
+        return corners
+    photos = {name: cam.meta.get("photos", {}) for name, cam in corners.cameras.items()}
+    keys = _excluded_keys({name: {v: Path(photos[name][v]).name if v in photos[name] else None for v in cam.views}
+                           for name, cam in corners.cameras.items()}, patterns)
+    cameras = {}
+    for name, cam in corners.cameras.items():
+        out = {v: photos[name].get(v) for v in keys.get(name, ())}
+        meta = {**cam.meta, "excluded": {**cam.meta.get("excluded", {}), **out}} if out else cam.meta
+        cameras[name] = CameraCorners(cam.image_size, {v: uv for v, uv in cam.views.items() if v not in out}, meta)
+    return CornerSet(corners.board, cameras, corners.reference)
+
+
+def check_pairs(dataset: Dataset, pair_by: str = "stem") -> None:
+    """Raise :class:`InputError` when some camera's photos pair with none of the reference camera's.
+
+    A rig cannot be calibrated then (``detect`` and ``calibrate`` refuse such a dataset; the
+    library's :func:`open_dataset` accepts it, for cameras to be used alone).
+    """
+    ref_keys = set(dataset.cameras[dataset.reference])
+    for name, photos in dataset.cameras.items():
+        if name == dataset.reference or ref_keys & set(photos):
+            continue
+        how = ("none was taken within --time-tolerance of one of the reference camera's" if pair_by == "time"
+               else f"e.g. {min(photos)!r} vs {min(ref_keys)!r}")
+        raise InputError(f"{dataset.source}: no photo of camera {name!r} pairs with one of the reference camera "
+                         f"{dataset.reference!r} ({how}): name the photos of one instant alike (same stem, or what "
+                         "the --camera globs' wildcards match), pair them with --pair-by time, or calibrate each "
+                         "camera on its own")
 
 
 def _key_by_stem(name: str, paths: list[Path]) -> dict[str, Path]:
@@ -400,7 +495,7 @@ def _pair_by_time(cams: dict[str, dict[str, Photo]], reference: str, tolerance_s
 
 
 def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | None = None,
-                 time_tolerance_s: float = 2.0) -> Dataset:
+                 time_tolerance_s: float = 2.0, exclude=()) -> Dataset:
     """Find the cameras and photos of a dataset and key them by view.
 
     Parameters
@@ -412,12 +507,15 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
     reference : the reference camera (default: ``wide`` if present, else the first sorted name);
         with ``pair_by="time"`` its stems are the view keys.
     time_tolerance_s : largest capture-time difference of two photos of the same instant.
+    exclude : glob patterns of photos to leave out (:func:`is_excluded`; with ``pair_by="time"``
+        the view key is the photo's own stem); they are listed in :attr:`Dataset.excluded`.
 
     Raises
     ------
     InputError
-        Missing or empty folder, a glob matching no photo, an unknown reference camera, a camera
-        whose photos differ in size, no readable photo.
+        Missing or empty folder, a camera folder without photos, a folder holding both photos and
+        subfolders, a glob matching no photo, an unknown reference camera, a camera whose photos
+        differ in size, no readable photo (see also :func:`check_pairs`).
     """
     if pair_by not in ("stem", "time"):
         raise InputError(f"--pair-by {pair_by!r}: choose stem or time")
@@ -442,6 +540,10 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
         files = {n: _key_by_stem(n, ps) for n, ps in _camera_folders(Path(path)).items()}
         source = str(path)
 
+    excluded = {}
+    if exclude:
+        keys = _excluded_keys({n: {k: p.name for k, p in f.items()} for n, f in files.items()}, exclude)
+        excluded = {n: {k: files[n].pop(k) for k in ks} for n, ks in keys.items()}
     skipped: list = []
     cams = {n: _read_headers(n, f, skipped) for n, f in sorted(files.items())}
     empty = [n for n, ps in cams.items() if not ps]
@@ -450,4 +552,4 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
     ref = choose_reference(cams, reference)
     if pair_by == "time":
         cams = _pair_by_time(cams, ref, time_tolerance_s)
-    return Dataset(cams, ref, source, skipped)
+    return Dataset(cams, ref, source, skipped, excluded)

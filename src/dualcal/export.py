@@ -95,8 +95,15 @@ def opencv_yaml(rig: RigModel) -> str:
     replaced by ``_``, and ``_`` put in front of a leading digit) holding
     ``image_width``, ``image_height`` (px), ``K`` (3x3, px), ``D`` (1x5: k1, k2, 0, 0, 0) and,
     for every camera with a pose relative to the reference, ``R`` (3x3) and ``T`` (3x1, mm)
-    such that ``X_cam = R X_ref + T`` (what ``cv2.stereoCalibrate`` returns).
+    such that ``X_cam = R X_ref + T`` (what ``cv2.stereoCalibrate`` returns). Each other camera
+    also carries the stereo rectification of the pair (reference = camera 1, this camera =
+    camera 2) that ``dualcal rectify`` computes with ``--keep valid``
+    (:func:`dualcal.stereo.stereo_rectify`): ``R1``, ``R2``, ``P1``, ``P2``, ``Q`` (what
+    ``cv2.stereoRectify`` returns) and ``rectified_width``, ``rectified_height``.
     """
+    from .errors import EstimationError
+    from .stereo import stereo_rectify
+
     keys = _distinct(rig.camera_order(), _opencv_key, "the OpenCV key")
     fs = cv2.FileStorage(".yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     fs.writeComment(f"dualcal {__version__} rig calibration. K in pixels (skew dropped), "
@@ -117,6 +124,16 @@ def opencv_yaml(rig: RigModel) -> str:
             pose = rig.pose_from_reference(name)
             fs.write("R", pose.R)
             fs.write("T", pose.t_mm.reshape(3, 1))
+        if name in rig.rig:
+            try:
+                rect = stereo_rectify(rig, rig.reference, name)
+            except EstimationError as exc:       # a folding lens, no overlap: the pair has no rectification
+                warn(f"no stereo rectification of {rig.reference} + {name} in the export: {exc}")
+            else:
+                for key in ("R1", "R2", "P1", "P2", "Q"):
+                    fs.write(key, getattr(rect, key))
+                fs.write("rectified_width", int(rect.image_size[0]))
+                fs.write("rectified_height", int(rect.image_size[1]))
         fs.endWriteStruct()
     return fs.releaseAndGetString()
 

@@ -9,6 +9,7 @@ never destroys an earlier result.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import tempfile
@@ -18,9 +19,10 @@ import numpy as np
 
 from . import __version__
 from .board import Board
-from .camera import INTRINSIC_NAMES, CameraModel
+from .camera import INTRINSIC_NAMES, CameraModel, project_points
 from .errors import InputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
+from .parallel import raise_if_cancelled
 
 # ---------------------------------------------------------------------------- atomic writes
 
@@ -81,6 +83,7 @@ def atomic_output(path, suffix: str | None = None):
         yield Path(tmp)
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
+        raise_if_cancelled()               # interrupted meanwhile: commit nothing
         os.chmod(tmp, 0o666 & ~_UMASK)     # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, path)
     except BaseException:
@@ -361,3 +364,69 @@ def save_rig(path, rig: RigModel) -> None:
 
 def load_evaluation(path) -> dict:
     return _load(path, "eval")
+
+
+# ---------------------------------------------------------------------------- files that belong together
+
+#: The calib.json keys that define a calibration (what is hashed by :func:`calibration_fingerprint`).
+FINGERPRINT_KEYS = ("board", "reference", "skew", "rig_mode", "cameras", "rig", "camera_poses", "corners")
+
+
+def calibration_fingerprint(rig: RigModel) -> str:
+    """``"sha256:<hex>"`` of the content of calib.json that defines the calibration.
+
+    The keys :data:`FINGERPRINT_KEYS` of :func:`rig_to_dict`, as canonical JSON (sorted keys, no
+    spaces), so the fingerprint does not change when a file is saved again, re-indented or
+    written by another dualcal version, and changes with any number of the calibration.
+    """
+    doc = rig_to_dict(rig)
+    text = json.dumps({k: doc[k] for k in FINGERPRINT_KEYS}, sort_keys=True, separators=(",", ":"),
+                      allow_nan=False)
+    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
+
+
+def check_evaluation_belongs(rig: RigModel, evaluation: dict, calib_source: str, eval_source: str) -> None:
+    """Raise :class:`InputError` unless ``evaluation`` (an eval.json) was computed from ``rig``.
+
+    Compared by :func:`calibration_fingerprint` (eval.json's ``calibration_fingerprint``); an
+    eval.json without one (written by hand or by an older dualcal) must at least name only
+    cameras of the calibration in its cases.
+    """
+    stored = evaluation.get("calibration_fingerprint")
+    rerun = f"run 'dualcal evaluate {calib_source} -o {eval_source}' again"
+    if stored is not None:
+        own = calibration_fingerprint(rig)
+        if stored != own:
+            raise InputError(f"{eval_source} was computed from another calibration than {calib_source} "
+                             f"(fingerprint {str(stored)[7:19]}, {calib_source} has {own[7:19]}): {rerun}")
+        return
+    named = {c for p in evaluation.get("per_pair", []) for c in p.get("cameras", ())}
+    named |= {case.split(":", 1)[-1] for case in evaluation.get("cases", {}) if case != "dual"}  # "dual:ultra"
+    names = set(rig.cameras)
+    foreign = sorted(named - names)
+    if foreign:
+        raise InputError(f"{eval_source} names cameras {', '.join(foreign)} that {calib_source} does not have "
+                         f"(cameras: {', '.join(sorted(names))}): {rerun}")
+
+
+def check_corners_fit(rig: RigModel, source: str, slack_px: float = 1.0) -> None:
+    """Raise :class:`InputError` when the corners calib.json carries do not fit its calibration.
+
+    Each camera's RMS reprojection error over the views it has poses for is recomputed and must
+    not exceed ``3 x rms_px + slack_px`` of the ``rms_px`` calib.json states: a calib.json assembled from
+    parts of two calibrations (or whose corners were replaced) fails by many pixels. Cameras
+    without a stated ``rms_px`` are not checked.
+    """
+    X = rig.board.object_points_mm()
+    for name, cam in rig.cameras.items():
+        stated = rig.camera_rms_px.get(name, np.nan)
+        views = rig.corners.cameras[name].views
+        poses = {v: p for v, p in rig.camera_poses.get(name, {}).items() if views.get(v) is not None}
+        if not np.isfinite(stated) or not poses:
+            continue
+        res = np.vstack([views[v] - project_points(cam, p.apply(X)) for v, p in poses.items()])
+        rms = float(np.sqrt(np.nanmean(np.sum(res**2, axis=1))))
+        if not rms <= 3 * stated + slack_px:
+            raise InputError(f"{source}: the corners it carries do not fit its calibration (camera {name!r}: "
+                             f"RMS {rms:.3g} px, the file says {stated:.3g} px): it was edited or assembled from "
+                             "different calibrations; calibrate again")

@@ -22,10 +22,7 @@ orientation tag stays true.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor
-from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
 
@@ -38,6 +35,7 @@ from .camera import (INTRINSIC_NAMES, CameraModel, check_invertible_in_image, ma
 from .dataset import open_image, read_exif
 from .errors import InputError
 from .io import atomic_output, make_output_folder, read_json
+from .parallel import interruptible_map, raise_if_cancelled
 from .progress import progress_bar, warn
 
 KEEP_MODES = ("same", "all", "valid")
@@ -106,48 +104,63 @@ def rectified_camera(cam: CameraModel, keep: str = "same") -> CameraModel:
 # ---------------------------------------------------------------------------- maps and images
 
 
-def rectify_map(cam: CameraModel, new_cam: CameraModel, row0: int, row1: int) -> tuple[np.ndarray, np.ndarray]:
+def rectify_map(cam: CameraModel, new_cam: CameraModel, row0: int, row1: int,
+                R: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Distorted source position of every output pixel in rows ``row0 .. row1 - 1``.
 
-    The forward model of eqs. 24-29 (module docstring), evaluated separably: ``y`` depends on
-    the row only, so the band costs a handful of (B, W) array operations. Output pixels whose
-    ideal radius lies beyond the model's monotonic range would fold back onto other source
-    pixels; they get the position ``(-1e6, -1e6)``, which remaps to the border value.
+    The forward model of eqs. 24-29 (module docstring). Without ``R`` it is evaluated
+    separably: ``y`` depends on the row only, so the band costs a handful of (B, W) array
+    operations. ``R`` (3, 3) turns the output camera against ``cam``, ``X_out = R X_cam`` (a
+    stereo rectification, :mod:`dualcal.stereo`): each output ray is turned back into ``cam``'s
+    frame first. Output pixels whose ideal radius lies beyond the model's monotonic range
+    would fold back onto other source pixels, and rays behind the camera have no source; they
+    get the position ``(-1e6, -1e6)``, which remaps to the border value.
 
     Returns
     -------
     map_x, map_y : (row1 - row0, W) float32 source ``u~, v~`` in pixels, as ``cv2.remap`` takes.
     """
     w = new_cam.image_size[0]
-    y = (np.arange(row0, row1, dtype=float) - new_cam.cy) / new_cam.fy                     # (B,)
-    x = ((np.arange(w, dtype=float) - new_cam.cx)[None, :] - new_cam.skew * y[:, None]) / new_cam.fx
-    r2 = x * x + (y * y)[:, None]                                                             # (B, W)
+    y = ((np.arange(row0, row1, dtype=float) - new_cam.cy) / new_cam.fy)[:, None]            # (B, 1)
+    x = ((np.arange(w, dtype=float) - new_cam.cx)[None, :] - new_cam.skew * y) / new_cam.fx  # (B, W)
+    behind = None
+    if R is not None:
+        (a, b, c), (d, e, f_), (g, h, i) = np.asarray(R, float).T    # rows of R^T: ray in cam's frame
+        z = g * x + h * y + i
+        behind = z <= 0
+        x, y = (a * x + b * y + c) / z, (d * x + e * y + f_) / z
+    r2 = x * x + y * y                                                                        # (B, W)
     f = radial_factor(r2, cam.k1, cam.k2)
-    yd = y[:, None] * f
+    yd = y * f
     map_x = (cam.fx * f) * x + cam.skew * yd + cam.cx
     map_y = cam.fy * yd + cam.cy
     r_max = max_monotonic_radius(cam.k1, cam.k2)
-    if np.isfinite(r_max):
-        folded = r2 > r_max * r_max
-        map_x[folded] = map_y[folded] = -1e6
+    invalid = r2 > r_max * r_max if np.isfinite(r_max) else np.zeros(map_x.shape, bool)
+    if behind is not None:
+        invalid |= behind
+    map_x[invalid] = map_y[invalid] = -1e6
     return map_x.astype(np.float32), map_y.astype(np.float32)
 
 
 def undistort_image(image: np.ndarray, cam: CameraModel, new_cam: CameraModel | None = None,
-                    band_rows: int = DEFAULT_BAND_ROWS, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+                    band_rows: int = DEFAULT_BAND_ROWS, interpolation: int = cv2.INTER_LINEAR,
+                    R: np.ndarray | None = None) -> np.ndarray:
     """The rectified image ``I'(u, v) = I(u~, v~)`` (paper eq. 29), computed in bands.
 
     Parameters
     ----------
     image : (H, W) or (H, W, C) array (uint8, uint16 or float32; C <= 4) taken by ``cam``.
     cam : the calibrated camera; ``cam.image_size`` must be ``(W, H)``.
-    new_cam : pinhole camera of the output (default: :func:`rectified_camera` ``(cam, "same")``).
+    new_cam : pinhole camera of the output (default: :func:`rectified_camera` ``(cam, "same")``);
+        its ``image_size`` is the output's.
     band_rows : rows per band; the result does not depend on it.
     interpolation : a ``cv2.INTER_*`` flag.
+    R : (3, 3) rotation of the output camera, ``X_out = R X_cam`` (see :func:`rectify_map`).
 
     Returns
     -------
-    (H, W[, C]) array of the input's dtype; pixels with no source are 0.
+    (H', W'[, C]) array of the input's dtype, ``(W', H') = new_cam.image_size``; pixels with no
+    source are 0.
 
     Raises
     ------
@@ -160,10 +173,12 @@ def undistort_image(image: np.ndarray, cam: CameraModel, new_cam: CameraModel | 
                          f"{cam.image_size[0]}x{cam.image_size[1]} px")
     new_cam = new_cam if new_cam is not None else rectified_camera(cam, "same")
     band_rows = max(1, int(band_rows))
-    out = np.zeros_like(image)
-    for row0 in range(0, h, band_rows):
-        row1 = min(h, row0 + band_rows)
-        map_x, map_y = rectify_map(cam, new_cam, row0, row1)
+    w_out, h_out = new_cam.image_size
+    out = np.zeros((h_out, w_out) + image.shape[2:], image.dtype)
+    for row0 in range(0, h_out, band_rows):
+        raise_if_cancelled()
+        row1 = min(h_out, row0 + band_rows)
+        map_x, map_y = rectify_map(cam, new_cam, row0, row1, R)
         # Only the source rows this band reaches (plus the interpolation support) are passed on;
         # the offset is an integer, so the float32 map stays exact and the result band-independent.
         inside = map_y[(map_y > -_REMAP_MARGIN_ROWS) & (map_y < h - 1 + _REMAP_MARGIN_ROWS)]
@@ -215,13 +230,16 @@ def _image_from(pixels: np.ndarray, mode: str) -> Image.Image:
 
 
 def undistort_file(src, dst, cam: CameraModel, new_cam: CameraModel | None = None,
-                   band_rows: int = DEFAULT_BAND_ROWS) -> Path:
+                   band_rows: int = DEFAULT_BAND_ROWS, R: np.ndarray | None = None,
+                   blur_sigma_px: float = 0.0) -> Path:
     """Rectify one photo file into ``dst`` (written atomically), keeping EXIF and ICC profile.
 
     The output format is the input's (JPEG at quality 95 with the source's chroma
     subsampling; HEIC at quality 95, in its stored frame with its EXIF orientation; 16-bit
-    grey stays 16-bit). Returns ``dst``. Raises :class:`InputError` for an unreadable file or
-    a wrong image size.
+    grey stays 16-bit). ``R`` turns the output camera (:func:`undistort_image`);
+    ``blur_sigma_px`` > 0 smooths the source first (a Gaussian of that sigma), against aliasing
+    where the output has fewer pixels per ray than the source. Returns ``dst``. Raises
+    :class:`InputError` for an unreadable file or a wrong image size.
     """
     src, dst = Path(src), Path(dst)
     img = open_image(src)
@@ -236,7 +254,9 @@ def undistort_file(src, dst, cam: CameraModel, new_cam: CameraModel | None = Non
             options["subsampling"] = sampling
     pixels, mode = _pixels(img)
     img.close()
-    out = _image_from(undistort_image(pixels, cam, new_cam, band_rows), mode)
+    if blur_sigma_px > 0:
+        pixels = cv2.GaussianBlur(pixels, (0, 0), blur_sigma_px)
+    out = _image_from(undistort_image(pixels, cam, new_cam, band_rows, R=R), mode)
     with atomic_output(dst) as tmp:
         out.save(tmp, format=fmt, **options)
     return dst
@@ -249,9 +269,7 @@ def _undistort_task(task) -> str | None:
     photo (an odd pixel format, a full disk): that photo is skipped, the others go on. Any other
     exception is a bug and is not caught.
     """
-    src, dst, cam, new_cam, band_rows, threads = task
-    if threads is not None:
-        cv2.setNumThreads(threads)
+    src, dst, cam, new_cam, band_rows = task
     try:
         undistort_file(src, dst, cam, new_cam, band_rows)
     except InputError as exc:
@@ -339,7 +357,7 @@ def undistort_files(sources, out_dir, cam: CameraModel, new_cam: CameraModel | N
     out_dir : output folder; created if its parent exists.
     cam : the calibrated camera.
     new_cam : pinhole camera of the output (default: :func:`rectified_camera` ``(cam, "same")``).
-    jobs : worker processes (default: all cores); 1 works in this process.
+    jobs : worker threads (default: all cores); 1 works in the calling thread.
     band_rows : rows per band (a worker needs about ``64 * band_rows * W`` bytes beyond the
         two images).
     progress : draw a progress bar on stderr.
@@ -360,19 +378,15 @@ def undistort_files(sources, out_dir, cam: CameraModel, new_cam: CameraModel | N
     sources = readable_photos(sources, cam)
     dests = output_paths(sources, out_dir)
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(dests)))
-    # With several workers each runs OpenCV on one thread, so the cores are not oversubscribed.
-    tasks = [(s, d, cam, new_cam, band_rows, None if jobs == 1 else 1) for s, d in zip(sources, dests, strict=True)]
+    tasks = [(s, d, cam, new_cam, band_rows) for s, d in zip(sources, dests, strict=True)]
     written = []
-    with progress_bar("undistorting photos", len(tasks), enabled=progress) as advance, ExitStack() as stack:
-        run = map
-        if jobs > 1:
-            # "spawn": a forked child would inherit OpenCV's thread pool in an unusable state.
-            run = stack.enter_context(ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"))).map
-        for task, problem in zip(tasks, run(_undistort_task, tasks), strict=True):
+    with progress_bar("undistorting photos", len(tasks), enabled=progress) as advance:
+        # threads (dualcal.parallel): decoding, remapping and encoding release the GIL, and a
+        # Ctrl-C stops every worker at its next band
+        for task, problem in zip(tasks, interruptible_map(_undistort_task, tasks, jobs), strict=True):
             if problem is None:
                 written.append(task[1])
             else:
                 warn(f"skipped: {problem}")
             advance()
     return written
-

@@ -1,8 +1,9 @@
-"""The paper's result tables (Tables 2-4) as rich tables, for the terminal.
+"""The paper's result tables (Tables 2-4) and the per-photo table, as rich tables for the terminal.
 
 Table 2/3: intrinsics and radial distortion of each camera, value +- sigma, Model 1 (skew = 0)
 next to Model 2 (skew free). Table 4: the rig, distance D between perspective centres (mm) and
-the relative angles (minutes of arc), for every non-reference camera.
+the relative angles (minutes of arc), for every non-reference camera. :func:`photo_table`: every
+photo of the calibration, its RMS per camera and whether it was kept, dropped or left out, and why.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from rich import box
 from rich.table import Table
 
 from .camera import INTRINSIC_NAMES
-from .model import RigModel
+from .model import RigModel, observed_mask
 
 _PAPER_NAMES = {"fx": "alpha = fx", "fy": "beta = fy", "skew": "gamma = skew", "cx": "u0 = cx",
                 "cy": "v0 = cy", "k1": "k1", "k2": "k2"}
@@ -73,3 +74,49 @@ def result_tables(models: list[RigModel]) -> list[Table]:
     tables = [camera_table(name, models) for name in models[0].cameras]
     rig = rig_table(models)
     return tables + ([rig] if rig is not None else [])
+
+
+def photo_status(rig: RigModel) -> dict[str, dict[str, tuple[float | None, str]]]:
+    """``[view][camera] -> (rms_px or None, status)`` for every photo of the calibration's corners.
+
+    The status is ``"kept"``, ``"board not found"``, ``"dropped: <why>"`` (the start of the
+    calibration's reason; the RMS is the one the photo had when it was dropped), ``"left out by
+    --exclude"`` or ``"not used"`` (corners but no pose, e.g. no other camera saw that instant).
+    """
+    dropped = {(d.get("camera"), d.get("view")): d for d in rig.dropped_views if isinstance(d, dict)}
+    out: dict[str, dict[str, tuple[float | None, str]]] = {}
+    for cam in rig.camera_order():
+        corners = rig.corners.cameras[cam]
+        for view in corners.meta.get("excluded", {}):
+            out.setdefault(view, {})[cam] = (None, "left out by --exclude")
+        for view, uv in corners.views.items():
+            if uv is None or not observed_mask(uv).any():
+                entry = (None, "board not found")
+            elif view in rig.camera_poses.get(cam, {}):
+                entry = (rig.view_rms_px.get(view, {}).get(cam), "kept")
+            elif (cam, view) in dropped:
+                d = dropped[(cam, view)]
+                entry = (d.get("rms_px"), "dropped: " + str(d.get("reason", "outlier")).split(";")[0].split(" (")[0])
+            else:
+                entry = (None, "not used")
+            out.setdefault(view, {})[cam] = entry
+    return dict(sorted(out.items()))
+
+
+def photo_table(rig: RigModel) -> Table:
+    """Every photo: its RMS (px) per camera and, where a photo was not kept, which and why."""
+    names = rig.camera_order()
+    status = photo_status(rig)
+    kept = sum(s == "kept" for per in status.values() for _, s in per.values())
+    total = sum(len(per) for per in status.values())
+    t = Table(title=f"Photos: {kept} of {total} kept; RMS reprojection error (px) per camera",
+              box=box.SIMPLE_HEAD)
+    t.add_column("view", no_wrap=True)
+    for name in names:
+        t.add_column(name, justify="right", no_wrap=True)
+    t.add_column("status")
+    for view, per in status.items():
+        cells = [f"{per[n][0]:.3f}" if n in per and per[n][0] is not None else "-" for n in names]
+        notes = [f"{n}: {per[n][1]}" for n in names if n in per and per[n][1] != "kept"]
+        t.add_row(view, *cells, "; ".join(notes) or "kept")
+    return t

@@ -1,14 +1,20 @@
 """The ``dualcal`` command: a thin shell over the library API.
 
-Each sub-module registers its commands on :data:`cli`. Errors the user can cause
+Each sub-module registers its commands on :data:`cli`; the command modules import only click
+at the top and the library inside each command, so ``dualcal --version`` and ``--help`` start
+without numpy, OpenCV, scipy or matplotlib. Errors the user can cause
 (:class:`~dualcal.errors.DualcalError`, bad flags) become one line on stderr and exit code 2;
-an unexpected error says so in one line (the traceback only with ``--debug``) and exits 1.
+Ctrl-C ends the command with one line and exit code 130 (worker pools stop at once, earlier
+outputs stay as they were); an unexpected error says so in one line (the traceback only with
+``--debug``) and exits 1.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 
 import click
 
@@ -25,6 +31,7 @@ def cli(debug: bool) -> None:
     \b
     photos --detect--> corners.json --calibrate--> calib.json --evaluate--> eval.json
                                                               --report----> report.html
+                                                              --rectify---> a stereo pair
     """
 
 
@@ -32,6 +39,7 @@ def cli(debug: bool) -> None:
 from . import calibrate as _calibrate  # noqa: E402,F401
 from . import detect as _detect  # noqa: E402,F401
 from . import evaluate as _evaluate  # noqa: E402,F401
+from . import rectify as _rectify  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
 
 
@@ -39,23 +47,27 @@ def _debug_requested(argv) -> bool:
     return "--debug" in argv or os.environ.get("DUALCAL_DEBUG") == "1"
 
 
+def _interrupted() -> None:
+    """One line and exit code 130; a second Ctrl-C while the workers wind down ends at once."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, lambda *_: os._exit(130))
+    click.echo("dualcal: interrupted", err=True)
+    sys.exit(130)
+
+
 def main(argv=None) -> None:
     """Entry point of the console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         cli.main(args=argv, prog_name="dualcal", standalone_mode=False)
-    except click.exceptions.Abort:
-        click.echo("dualcal: interrupted", err=True)
-        sys.exit(130)
+    except (click.exceptions.Abort, KeyboardInterrupt):
+        _interrupted()
     except click.exceptions.ClickException as exc:  # usage errors: exit code 2
         exc.show()
         sys.exit(2)
     except DualcalError as exc:
         click.echo(f"dualcal: error: {exc}", err=True)
         sys.exit(2)
-    except KeyboardInterrupt:
-        click.echo("dualcal: interrupted", err=True)
-        sys.exit(130)
     except BrokenPipeError:                 # e.g. `dualcal calibrate ... | head`: the reader left
         sys.stderr.close()
         sys.exit(1)

@@ -5,22 +5,19 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.console import Console
 
-from ..adjust import RIG_MODES
-from ..calibrate import calibrate_rig
-from ..errors import EstimationError, InputError
-from ..io import check_output_file, load_corners, make_output_folder, rig_to_dict, save_corners, save_rig, write_json_atomic
-from ..progress import warn
-from ..synth import PRESETS, make_truth, noisy_corner_set, truth_rig_model
-from ..tables import result_tables
+from ..errors import InputError
 from . import cli
-from .common import board_from_flags, board_options, check_board_agrees, default_jobs
+from .common import LazyChoice, board_from_flags, board_options, check_board_agrees, default_jobs, stdout_console
 from .detect import corners_from_dataset, dataset_options
 
 
 def _load_input(path: str, board_spec, square_mm, dataset_opts):
-    """corners.json as it is, or a dataset folder through detection."""
+    """corners.json as it is (less the views ``--exclude`` leaves out), or a dataset through detection."""
+    from ..dataset import exclude_views
+    from ..io import load_corners
+    from ..progress import warn
+
     flags = board_from_flags(board_spec, square_mm)
     if path is not None and Path(path).is_file() and dataset_opts.get("cameras"):
         raise InputError(f"{path} is a file, but --camera takes photos from globs: give a dataset folder "
@@ -37,7 +34,7 @@ def _load_input(path: str, board_spec, square_mm, dataset_opts):
         warn(f"{', '.join(ignored)} only apply to a dataset; {path} is a corners.json, so they are ignored")
     corners = load_corners(path)
     check_board_agrees(flags, corners.board, str(path))
-    return corners
+    return exclude_views(corners, dataset_opts.get("exclude", ()))
 
 
 @cli.command("calibrate")
@@ -45,7 +42,7 @@ def _load_input(path: str, board_spec, square_mm, dataset_opts):
 @board_options(required=False)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="calib.json to write.")
 @click.option("--skew", is_flag=True, help="Estimate skew (the paper's Model 2); default skew = 0 (Model 1).")
-@click.option("--rig", "rig_mode", type=click.Choice(RIG_MODES), default="rigid", show_default=True,
+@click.option("--rig", "rig_mode", type=LazyChoice("dualcal.adjust:RIG_MODES"), default="rigid", show_default=True,
               help="rigid: one relative pose per camera; paper: per-view poses with the paper's "
                    "constraints (equal baseline and angles); none: each camera alone.")
 @click.option("--drop-outliers/--keep-outliers", default=True, show_default=True,
@@ -59,9 +56,17 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
                       outlier_factor, compare_models, **dataset_opts):
     """Calibrate every camera and the rig from INPUT and write calib.json.
 
-    INPUT is a corners.json (from 'dualcal detect') or a dataset folder, in which case the
-    corners are detected first (same options as 'dualcal detect').
+    INPUT is a corners.json (from 'dualcal detect', also one edited by hand: views removed,
+    corners set to null) or a dataset folder, in which case the corners are detected first (same
+    options as 'dualcal detect'). Prints a table of every photo (RMS per camera, kept, dropped
+    or left out and why), then the parameters with their 1-sigma (the paper's Tables 2-4).
     """
+    from ..calibrate import calibrate_rig
+    from ..errors import EstimationError
+    from ..io import check_output_file, save_rig
+    from ..progress import warn
+    from ..tables import photo_table, result_tables
+
     if input_path is None and not dataset_opts.get("cameras"):
         raise click.UsageError("give INPUT (a corners.json or a dataset folder) or --camera NAME=GLOB")
     if not outlier_factor > 1:
@@ -79,16 +84,17 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
             models = [other, rig] if skew else [rig, other]
         except EstimationError as exc:
             warn(f"the other skew model could not be solved for comparison: {exc}")
-    console = Console()
+    console = stdout_console()
+    console.print(photo_table(rig))
     for table in result_tables(models):
         console.print(table)
     console.print(f"RMS reprojection error {rig.rms_px:.3f} px, s0 {rig.adjustment['s0_px']:.3f} px, "
-                  f"rig mode {rig.rig_mode}; written {output}", highlight=False)
+                  f"rig mode {rig.rig_mode}; written {output}")
 
 
 @cli.command("synth")
 @click.argument("outdir", type=click.Path(file_okay=False))
-@click.option("--preset", type=click.Choice(sorted(PRESETS)), default="note8", show_default=True,
+@click.option("--preset", type=LazyChoice("dualcal.synth:PRESETS"), default="note8", show_default=True,
               help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra).")
 @click.option("--views", type=int, default=13, show_default=True, help="Number of board poses.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed of poses, noise and photos.")
@@ -106,15 +112,18 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, jobs):
     OUTDIR/truth.json          the true calibration, in calib.json format
     OUTDIR/photos/<cam>/*.jpg  photo-like renders of the board (a dataset for 'dualcal detect')
     """
+    from .. import synth
+    from ..io import make_output_folder, rig_to_dict, save_corners, write_json_atomic
+
     if not 0 < scale <= 4:
         raise InputError(f"--scale {scale}: must be in (0, 4]")
     if noise_px < 0:
         raise InputError(f"--noise {noise_px}: must be >= 0")
     out = make_output_folder(outdir)
-    truth = make_truth(preset, views, seed, scale)
-    corners = noisy_corner_set(truth, noise_px, seed)
+    truth = synth.make_truth(preset, views, seed, scale)
+    corners = synth.noisy_corner_set(truth, noise_px, seed)
     save_corners(out / "corners.json", corners)
-    write_json_atomic(out / "truth.json", rig_to_dict(truth_rig_model(truth, corners)))
+    write_json_atomic(out / "truth.json", rig_to_dict(synth.truth_rig_model(truth, corners)))
     if photos:
         from ..render import write_photo_set
         write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs())

@@ -1,13 +1,39 @@
-"""Options and small helpers shared by the commands."""
+"""Options and small helpers shared by the commands.
+
+Nothing here imports numpy, OpenCV, scipy or matplotlib: the command modules are imported to
+register their commands on every start (``dualcal --version`` too), and import the library only
+inside the command functions.
+"""
 
 from __future__ import annotations
 
+import importlib
 import os
 
 import click
 
-from ..board import Board, parse_board_spec
 from ..errors import InputError
+
+
+class LazyChoice(click.Choice):
+    """A :class:`click.Choice` whose choices are a library constant, imported when first needed.
+
+    ``LazyChoice("dualcal.adjust:RIG_MODES")`` shows and checks the values of
+    ``dualcal.adjust.RIG_MODES`` without importing that module when the command is only listed.
+    """
+
+    def __init__(self, source: str):
+        self._source = source
+        super().__init__(())
+
+    @property
+    def choices(self):
+        module, name = self._source.split(":")
+        return tuple(getattr(importlib.import_module(module), name))
+
+    @choices.setter
+    def choices(self, _value):   # click's __init__ assigns the (empty) tuple it was given
+        pass
 
 
 def board_options(required: bool):
@@ -20,19 +46,29 @@ def board_options(required: bool):
     return decorate
 
 
-def board_from_flags(board_spec: str | None, square_mm: float | None) -> Board | None:
-    """A :class:`Board` from the flags, or None when neither is given."""
+def exclude_option(f):
+    """``--exclude PATTERN`` (repeatable): photos left out, see :func:`dualcal.dataset.is_excluded`."""
+    return click.option("--exclude", "exclude", multiple=True, metavar="PATTERN",
+                        help="Leave out the photos that match this glob (repeatable). It is matched "
+                             "against the view key (IMG_03: every camera's photo of that instant), the "
+                             "file name (IMG_03.jpg) and CAMERA/KEY (tele/IMG_03: that camera's photo "
+                             "only).")(f)
+
+
+def board_from_flags(board_spec: str | None, square_mm: float | None):
+    """A :class:`~dualcal.board.Board` from the flags, or None when neither is given."""
     if board_spec is None and square_mm is None:
         return None
     if board_spec is None or square_mm is None:
         raise InputError("give both --board COLSxROWS and --square MM")
     if not square_mm > 0:
         raise InputError(f"--square {square_mm}: must be a positive length in millimetres")
+    from ..board import Board, parse_board_spec
     cols, rows = parse_board_spec(board_spec)
     return Board(cols, rows, float(square_mm))
 
 
-def check_board_agrees(flags: Board | None, from_file: Board, source: str) -> Board:
+def check_board_agrees(flags, from_file, source: str):
     """The file's board, after checking that the flags (if any) say the same."""
     if flags is not None and (flags.cols, flags.rows) != (from_file.cols, from_file.rows):
         raise InputError(f"--board {flags.spec()} disagrees with {source}, which has "
@@ -45,3 +81,9 @@ def check_board_agrees(flags: Board | None, from_file: Board, source: str) -> Bo
 
 def default_jobs() -> int:
     return max(1, os.cpu_count() or 1)
+
+
+def stdout_console():
+    """A rich console on stdout that never wraps a plain line (paths stay whole for copying)."""
+    from rich.console import Console
+    return Console(soft_wrap=True, highlight=False)

@@ -1,28 +1,20 @@
-"""``dualcal detect`` and ``dualcal pick``, and the dataset options other commands share.
+"""``dualcal detect`` (photos to corners.json) and ``dualcal pick`` (the paper's manual mode).
 
-``calibrate`` accepts a dataset as its INPUT with the same flags: decorate it with
-:func:`dataset_options` and call :func:`corners_from_dataset` with its keyword arguments.
+:func:`dataset_options` adds the options that read a dataset; ``calibrate`` takes the same ones
+and passes them to :func:`corners_from_dataset` as keyword arguments.
 ``pick`` takes the same :func:`dataset_selection_options`, so its hints have the view keys
 ``detect`` and ``calibrate`` use.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import click
 
-from ..board import Board
-from ..dataset import open_dataset
-from ..detect import detect_dataset, detect_photo, display_problem, load_hints, pick_hints, save_hints
 from ..errors import InputError
-from ..io import check_output_file, save_corners
-from ..model import CornerSet
-from ..progress import track
 from . import cli
-from .common import board_from_flags, board_options, default_jobs
+from .common import board_from_flags, board_options, default_jobs, exclude_option
 
-DATASET_OPTION_NAMES = ("cameras", "pair_by", "time_tolerance_s", "reference", "jobs", "hints_path",
+DATASET_OPTION_NAMES = ("cameras", "pair_by", "time_tolerance_s", "reference", "exclude", "jobs", "hints_path",
                         "overlays_dir")
 
 _SELECTION_OPTIONS = [
@@ -35,6 +27,7 @@ _SELECTION_OPTIONS = [
                  metavar="SECONDS", help="Largest capture-time difference within a pair (--pair-by time)."),
     click.option("--reference", "reference", metavar="NAME", default=None,
                  help="Reference camera (default: 'wide' if present, else the first name)."),
+    exclude_option,
 ]
 
 _DETECTION_OPTIONS = [
@@ -51,7 +44,8 @@ _DETECTION_OPTIONS = [
 
 def dataset_selection_options(f):
     """Click options that find and pair a dataset's photos: ``--camera``, ``--pair-by``,
-    ``--time-tolerance``, ``--reference`` (keyword names as :func:`~dualcal.dataset.open_dataset`'s)."""
+    ``--time-tolerance``, ``--reference``, ``--exclude`` (keyword names as
+    :func:`~dualcal.dataset.open_dataset`'s)."""
     for option in reversed(_SELECTION_OPTIONS):
         f = option(f)
     return f
@@ -65,15 +59,23 @@ def dataset_options(f):
     return f
 
 
-def corners_from_dataset(dataset_path, board: Board, cameras=(), pair_by: str = "stem",
-                         time_tolerance_s: float = 2.0, reference: str | None = None,
-                         jobs: int | None = None, hints_path=None, overlays_dir=None) -> CornerSet:
+def corners_from_dataset(dataset_path, board, cameras=(), pair_by: str = "stem",
+                         time_tolerance_s: float = 2.0, reference: str | None = None, exclude=(),
+                         jobs: int | None = None, hints_path=None, overlays_dir=None):
     """Open a dataset and detect its corners (what ``detect`` does before writing corners.json).
 
-    A ``reference`` given is kept in the corner set (corners.json's top-level ``reference``).
+    A dataset in which some camera pairs with none of the reference camera's photos is refused
+    (:func:`~dualcal.dataset.check_pairs`). A ``reference`` given is kept in the corner set (corners.json's top-level ``reference``); the
+    photos ``exclude`` left out are listed in each camera's ``excluded`` (corners.json).
     """
+    from dataclasses import replace
+
+    from ..dataset import check_pairs, open_dataset
+    from ..detect import detect_dataset, load_hints
+
     dataset = open_dataset(dataset_path, cameras, pair_by=pair_by, reference=reference,
-                           time_tolerance_s=time_tolerance_s)
+                           time_tolerance_s=time_tolerance_s, exclude=exclude)
+    check_pairs(dataset, pair_by)
     hints = load_hints(hints_path) if hints_path else None
     corners = detect_dataset(dataset, board, jobs=jobs or default_jobs(), hints=hints, overlays_dir=overlays_dir)
     return replace(corners, reference=reference)
@@ -91,13 +93,29 @@ def detect_command(dataset, board_spec, square_mm, output, **opts):
     camera); or give the cameras one by one with --camera NAME=GLOB. A --reference given here
     is written into corners.json (top-level "reference"), so 'dualcal calibrate' uses it too.
     """
+    from ..io import check_output_file, save_corners
+
     check_output_file(output)
     board = board_from_flags(board_spec, square_mm)
     corners = corners_from_dataset(dataset, board, **opts)
     save_corners(output, corners)
     found = {c: sum(v is not None for v in cc.views.values()) for c, cc in corners.cameras.items()}
     summary = ", ".join(f"{c} {n}/{len(corners.cameras[c].views)}" for c, n in found.items())
-    click.echo(f"board found in: {summary} photos; wrote {output}", err=True)
+    excluded = sum(len(cc.meta.get("excluded", {})) for cc in corners.cameras.values())
+    left_out = f"; {excluded} left out by --exclude" if excluded else ""
+    click.echo(f"board found in: {summary} photos{left_out}; wrote {output}", err=True)
+
+
+def display_problem():
+    """Why no window can be opened here, or None (:func:`dualcal.detect.display_problem`)."""
+    from ..detect import display_problem as problem
+    return problem()
+
+
+def pick_hints(todo):
+    """The clicking session (:func:`dualcal.detect.pick_hints`)."""
+    from ..detect import pick_hints as pick
+    return pick(todo)
 
 
 @cli.command("pick")
@@ -114,6 +132,11 @@ def pick_command(dataset, board_spec, square_mm, all_photos, output, **selection
     the photo, q stops (the hints so far are kept); the toolbar zooms in. The result is a
     hints file for 'dualcal detect --hints' with the same dataset options. Needs a display.
     """
+    from ..dataset import open_dataset
+    from ..detect import detect_photo, save_hints
+    from ..io import check_output_file
+    from ..progress import track
+
     problem = display_problem()
     if problem:
         raise InputError(problem)

@@ -5,16 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.console import Console
-from rich.table import Table
 
 from ..errors import InputError
-from ..evaluate import evaluate
-from ..io import check_output_file, load_rig, write_json_atomic
-from ..rectify import (KEEP_MODES, check_same_rectified_camera, rectified_camera, rectified_camera_doc,
-                       rectified_json_path, undistort_files)
 from . import cli
-from .common import default_jobs
+from .common import LazyChoice, default_jobs, stdout_console
 
 
 def _case_photos(name: str, doc: dict) -> str:
@@ -23,8 +17,10 @@ def _case_photos(name: str, doc: dict) -> str:
     return f"{cams[0]}+{cams[1]}, one instant" if cams[0] != cams[1] else f"{cams[0]}, two instants"
 
 
-def evaluation_table(doc: dict, n_corners: int) -> Table:
-    """The eval.json document as a table like the paper's Tables 5 and 6."""
+def evaluation_table(doc: dict, n_corners: int):
+    """The eval.json document as a rich table like the paper's Tables 5 and 6."""
+    from rich.table import Table
+
     kind = "hold-out: each view resected with a calibration that left it out" if doc.get("holdout") \
         else "photos oriented by the calibration's own poses"
     table = Table(title=f"Stereo intersection of the {n_corners} board corners: RMSE in mm", caption=kind)
@@ -51,13 +47,19 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
 
     Every corner is intersected from two photos and compared with the board: the reference
     and another camera at the same instant (case "dual"), and each camera at two instants
-    (one case per camera). Prints RMSE X, Y, Z in mm per case and writes eval.json.
+    (one case per camera). Prints RMSE X, Y, Z in mm per case and writes eval.json, with the
+    fingerprint of the calibration it checked ("calibration_fingerprint"), so that 'dualcal
+    report' can refuse an eval.json of another calibration.
     """
+    from ..evaluate import evaluate
+    from ..io import calibration_fingerprint, check_corners_fit, check_output_file, load_rig, write_json_atomic
+
     check_output_file(output)
     rig = load_rig(calib)
+    check_corners_fit(rig, str(calib))
     doc = evaluate(rig, holdout=holdout)
-    write_json_atomic(output, doc)
-    Console().print(evaluation_table(doc, rig.board.n_corners))
+    write_json_atomic(output, {**doc, "calibration_fingerprint": calibration_fingerprint(rig)})
+    stdout_console().print(evaluation_table(doc, rig.board.n_corners))
 
 
 @cli.command("undistort")
@@ -68,18 +70,24 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
 @click.option("-o", "--output", "out_dir", required=True, metavar="OUTDIR",
               type=click.Path(file_okay=False, path_type=Path),
               help="Output folder (created if its parent exists); photos keep their names.")
-@click.option("--keep", type=click.Choice(KEEP_MODES), default="same", show_default=True,
+@click.option("--keep", type=LazyChoice("dualcal.rectify:KEEP_MODES"), default="same", show_default=True,
               help="Camera matrix of the output: the calibrated one (same), one that keeps every "
                    "source pixel (all), or one with no empty border (valid).")
 @click.option("--jobs", type=click.IntRange(min=1), default=None,
-              help="Photos rectified in parallel (default: all cores).")
+              help="Photos undistorted in parallel (default: all cores).")
 def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, out_dir: Path, keep: str,
                       jobs: int | None) -> None:
     """Remove lens distortion from photos (paper section 1.8), keeping their EXIF.
 
-    Writes OUTDIR/<photo name> for each photo and OUTDIR/<NAME>.rectified.json, the pinhole
-    camera (k1 = k2 = 0) of the rectified photos.
+    Only the lens distortion is removed: each photo keeps its camera's orientation, so this is
+    not a stereo rectification (for a pair whose corresponding points share a row, use 'dualcal
+    rectify'). Writes OUTDIR/<photo name> for each photo and OUTDIR/<NAME>.rectified.json, the
+    pinhole camera (k1 = k2 = 0) of the undistorted photos.
     """
+    from ..io import load_rig, write_json_atomic
+    from ..rectify import (check_same_rectified_camera, rectified_camera, rectified_camera_doc, rectified_json_path,
+                           undistort_files)
+
     rig = load_rig(calib)
     if camera_name not in rig.cameras:
         raise InputError(f"--camera {camera_name!r} is not in {calib} (cameras: {', '.join(rig.cameras)})")
@@ -91,6 +99,6 @@ def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, o
     if not written:
         raise InputError(f"none of the {len(images)} photos could be rectified (see the warnings above)")
     write_json_atomic(doc_path, rectified_camera_doc(camera_name, keep, calib, new_cam))
-    click.echo(f"{len(written)} of {len(images)} photos rectified into {out_dir} "
+    click.echo(f"{len(written)} of {len(images)} photos undistorted into {out_dir} "
                f"(fx={new_cam.fx:.2f} fy={new_cam.fy:.2f} cx={new_cam.cx:.2f} cy={new_cam.cy:.2f}, "
                f"k1=k2=0: {camera_name}.rectified.json)")

@@ -6,10 +6,8 @@ from pathlib import Path
 
 import click
 
-from ..export import FORMATS, write_export
-from ..io import check_output_file, load_evaluation, load_rig, write_text_atomic
-from ..report import render_report
 from . import cli
+from .common import LazyChoice
 
 
 @cli.command("report")
@@ -17,7 +15,8 @@ from . import cli
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="report.html to write.")
 @click.option("--eval", "eval_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="An eval.json of this calibration: adds the evaluation table (paper Tables 5, 6).")
+              help="An eval.json of this calibration (one of another calibration is refused): adds "
+                   "the evaluation table (paper Tables 5, 6).")
 def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
     """Write a self-contained HTML report of a calibration.
 
@@ -26,9 +25,17 @@ def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
     distortion curve and map, a 3-D view of the board poses and the rig, and the evaluation
     (paper Tables 5, 6) when --eval is given.
     """
+    from ..io import (check_corners_fit, check_evaluation_belongs, check_output_file, load_evaluation, load_rig,
+                      write_text_atomic)
+    from ..report import render_report
+
     check_output_file(output)  # fail before rendering, not after
     rig = load_rig(calib)
-    evaluation = load_evaluation(eval_path) if eval_path is not None else None
+    check_corners_fit(rig, str(calib))
+    evaluation = None
+    if eval_path is not None:
+        evaluation = load_evaluation(eval_path)
+        check_evaluation_belongs(rig, evaluation, str(calib), str(eval_path))
     html = render_report(rig, evaluation, progress=True)
     write_text_atomic(output, html)
     click.echo(f"report written to {output} ({len(html.encode()) / 1e6:.1f} MB)")
@@ -36,7 +43,7 @@ def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
 
 @cli.command("export")
 @click.argument("calib", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--format", "fmt", required=True, type=click.Choice(FORMATS),
+@click.option("--format", "fmt", required=True, type=LazyChoice("dualcal.export:FORMATS"),
               help="opencv: FileStorage YAML (K, D, R, T in mm); kalibr: camchain YAML (metres); "
                    "colmap: cameras.txt (OPENCV model); mrcal: one .cameramodel per camera (metres).")
 @click.option("-o", "--output", required=True, type=click.Path(),  # a str: keeps a trailing "/"
@@ -47,7 +54,9 @@ def export_command(calib: Path, fmt: str, output: str) -> None:
 
     \b
     opencv  cv2.FileStorage YAML: per camera K, D = (k1, k2, 0, 0, 0), image size,
-            and R, T with X_cam = R X_ref + T (T in millimetres)
+            and R, T with X_cam = R X_ref + T (T in millimetres); per other camera
+            the stereo rectification with the reference, R1 R2 P1 P2 Q (as 'dualcal
+            rectify' computes it)
     kalibr  camchain YAML: cam0 (reference), cam1, ...; pinhole + radtan,
             T_cn_cnm1 in metres
     colmap  cameras.txt, one OPENCV camera per rig camera (principal point + 0.5 px,
@@ -57,6 +66,9 @@ def export_command(calib: Path, fmt: str, output: str) -> None:
 
     None of these formats has a skew term: a non-zero skew is dropped with a warning.
     """
+    from ..export import write_export
+    from ..io import load_rig
+
     rig = load_rig(calib)
     for path in write_export(rig, fmt, output):
         click.echo(f"wrote {path}")

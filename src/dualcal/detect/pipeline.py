@@ -19,7 +19,6 @@ parallel threads and gathers a :class:`~dualcal.model.CornerSet`.
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +30,7 @@ from ..dataset import Dataset, read_gray
 from ..errors import DetectionError, InputError
 from ..io import atomic_output, make_output_folder
 from ..model import CameraCorners, CornerSet
+from ..parallel import interruptible_map
 from ..progress import progress_bar, warn
 from .coarse import find_grid, reduce_image, reduction_factor, to_full_resolution
 from .manual import grid_from_hints
@@ -228,11 +228,11 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
     results: list[PhotoResult] = []
     with progress_bar("detecting corners", len(tasks), enabled=progress) as advance:
         # threads, not processes: decoding, OpenCV's detectors and numpy's array loops release
-        # the GIL, and threads start at once, share the board and need no picklable state
-        with ThreadPoolExecutor(max_workers=jobs) as pool:
-            for r in pool.map(_work, tasks):
-                results.append(r)
-                advance()
+        # the GIL, and threads start at once, share the board and need no picklable state;
+        # a Ctrl-C cancels the photos not yet started (dualcal.parallel)
+        for r in interruptible_map(_work, tasks, jobs):
+            results.append(r)
+            advance()
 
     views: dict[str, dict[str, np.ndarray | None]] = {c: {} for c in dataset.cameras}
     symmetric = 0

@@ -33,7 +33,7 @@ from ..camera import (CameraModel, image_corner_radius, max_distorted_radius, ma
                       normalized_from_pixel, project_points, radial_factor, undistort_normalized,
                       undistort_points)
 from ..errors import NotInvertibleError
-from ..model import Pose, RigModel
+from ..model import Pose, RigModel, observed_mask
 
 #: Coverage hints: the outer ring of the image, as a share of the half-diagonal.
 OUTER_RING = 0.2
@@ -51,7 +51,10 @@ _REGION_NAMES = {(0, 0): "top-left", (0, 1): "top", (0, 2): "top-right",
 
 @dataclass(frozen=True)
 class ViewResiduals:
-    """Corners of one camera in one view: ``uv_px`` observed (N, 2), ``residual_px`` (N, 2)."""
+    """Measured corners of one camera in one view: ``uv_px`` observed (M, 2), ``residual_px`` (M, 2).
+
+    Corners that were not measured (NaN rows, :func:`dualcal.model.observed_mask`) are not in them.
+    """
 
     uv_px: np.ndarray
     residual_px: np.ndarray
@@ -73,7 +76,7 @@ def rig_residuals(rig: RigModel) -> dict[str, dict[str, ViewResiduals]]:
     """Residuals ``[camera][view]`` of every view that has both detected corners and a pose.
 
     Views without a pose (not found, or dropped by the calibration) are left out; views are
-    in sorted key order.
+    in sorted key order; corners not measured (NaN rows) are left out of each view.
     """
     X_board = rig.board.object_points_mm()
     out: dict[str, dict[str, ViewResiduals]] = {}
@@ -82,8 +85,9 @@ def rig_residuals(rig: RigModel) -> dict[str, dict[str, ViewResiduals]]:
         poses = rig.camera_poses.get(name, {})
         views = {}
         for view in sorted(set(found) & set(poses)):
-            uv = np.asarray(found[view], float)
-            uv_model = project_points(camera, poses[view].apply(X_board))
+            measured = observed_mask(found[view])
+            uv = np.asarray(found[view], float)[measured]
+            uv_model = project_points(camera, poses[view].apply(X_board[measured]))
             views[view] = ViewResiduals(uv, uv - uv_model)
         out[name] = views
     return out

@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import textwrap
 
 import matplotlib
 import numpy as np
@@ -101,6 +102,17 @@ def _image_axes_figure(image_size: tuple[int, int], long_side_in: float = 5.2,
     return fig, ax
 
 
+def wrap_text(text: str, width: int) -> str:
+    """``text`` broken into lines of at most ``width`` characters (long names too), for titles and labels."""
+    return "\n".join(textwrap.wrap(text, width, break_long_words=True, break_on_hyphens=False)) or text
+
+
+def set_title(ax, text: str) -> None:
+    """A left-aligned axes title, wrapped to the width of its figure so that it is never cut off."""
+    width_in = ax.figure.get_figwidth() * ax.get_position().width
+    ax.set_title(wrap_text(text, max(16, int(width_in * 72 / (STYLE["axes.titlesize"] * 0.62)))), loc="left")
+
+
 def _nice_length(x: float) -> float:
     """The 1, 2 or 5 times a power of ten nearest below ``x``."""
     if not x > 0:
@@ -117,7 +129,7 @@ def residual_quiver_figure(name: str, image_size: tuple[int, int],
     """Residual vectors drawn at their corners over the image, magnified, with a scale bar."""
     fig, ax = _image_axes_figure(image_size)
     if not residuals:
-        ax.set_title(f"{name}: no residuals")
+        set_title(ax, f"{name}: no residuals")
         return fig
     uv = np.vstack([r.uv_px for r in residuals.values()])
     res = np.vstack([r.residual_px for r in residuals.values()])
@@ -131,7 +143,7 @@ def residual_quiver_figure(name: str, image_size: tuple[int, int],
     ax.quiverkey(q, 0.80, 1.025, key, f"{key:g} px", labelpos="W", coordinates="axes",
                  color="0.1", fontproperties={"size": 8})
     fig.colorbar(q, ax=ax, shrink=0.6, label="|residual| (px)")
-    ax.set_title(f"{name}: residuals × {gain:,.0f}", loc="left")
+    set_title(ax, f"{name}: residuals × {gain:,.0f}")
     return fig
 
 
@@ -140,7 +152,7 @@ def residual_histogram_figure(name: str, residuals: dict[str, ViewResiduals]) ->
     fig = Figure(figsize=(5.2, 3.4), layout="constrained")
     ax = fig.add_subplot()
     if not residuals:
-        ax.set_title(f"{name}: no residuals")
+        set_title(ax, f"{name}: no residuals")
         return fig
     res = np.vstack([r.residual_px for r in residuals.values()])
     sd = res.std(axis=0)
@@ -153,7 +165,7 @@ def residual_histogram_figure(name: str, residuals: dict[str, ViewResiduals]) ->
                 label=f"{label}: σ = {sd[k]:.3f} px")
         pdf = np.exp(-0.5 * (x / sd[k]) ** 2) / (sd[k] * math.sqrt(2 * math.pi)) if sd[k] > 0 else 0 * x
         ax.plot(x, pdf * len(res) * width, color=colour, lw=0.8, ls="--")
-    ax.set_title(f"{name}: residual components ({len(res)} corners, RMS {rms_px(res):.3f} px)", loc="left")
+    set_title(ax, f"{name}: residual components ({len(res)} corners, RMS {rms_px(res):.3f} px)")
     ax.set_xlabel("residual (px)")
     ax.set_ylabel("corners per bin")
     ax.legend(frameon=False, fontsize=8, title="dashed: normal, same σ", title_fontsize=7.5)
@@ -162,16 +174,18 @@ def residual_histogram_figure(name: str, residuals: dict[str, ViewResiduals]) ->
 
 def view_rms_figure(view_rms: dict[str, dict[str, float]], camera_rms: dict[str, float],
                     outliers: dict[str, list[str]], outlier_limit_px: dict[str, float],
-                    left_out: dict[str, dict[str, str]]) -> Figure:
-    """Per-view RMS bars grouped by view, one bar per camera, outliers and left-out views marked.
+                    dropped_rms: dict[str, dict[str, float]], unmeasured: dict[str, list[str]]) -> Figure:
+    """Per-view RMS bars grouped by view, one bar per camera, outliers and photos not used marked.
 
     ``view_rms[camera][view]``; ``camera_rms[camera]`` is drawn as a dashed line and
     ``outlier_limit_px[camera]`` as a dotted one; ``outliers[camera]`` lists the views above
-    that limit; ``left_out[camera]`` holds the views without residuals (drawn as a cross on
-    the axis).
+    that limit (hatched bars). ``dropped_rms[camera][view]``: photos the calibration dropped, drawn
+    as dashed outlines at the RMS they had; ``unmeasured[camera]``: photos without any RMS (board
+    not found, left out), a cross on the axis. No bar is ever drawn at 0 for a photo not used.
     """
     cams = list(view_rms)
-    views = sorted({v for per in view_rms.values() for v in per} | {v for per in left_out.values() for v in per})
+    views = sorted({v for per in (view_rms, dropped_rms) for d in per.values() for v in d}
+                   | {v for vs in unmeasured.values() for v in vs})
     n = max(1, len(cams))
     fig = Figure(figsize=(min(14.0, max(7.0, 0.32 * len(views) * n + 1.5)), 3.6), layout="constrained")
     ax = fig.add_subplot()
@@ -179,17 +193,21 @@ def view_rms_figure(view_rms: dict[str, dict[str, float]], camera_rms: dict[str,
     x = np.arange(len(views))
     for i, cam in enumerate(cams):
         colour = camera_colour(i)
-        heights = np.array([view_rms[cam].get(v, np.nan) for v in views])
-        pos = x - 0.4 + width * (i + 0.5)
-        bars = ax.bar(pos, np.nan_to_num(heights), width * 0.92, color=colour, alpha=0.85, label=cam)
-        for bar, v in zip(bars, views):
+        pos = dict(zip(views, x - 0.4 + width * (i + 0.5)))
+        kept = [v for v in views if v in view_rms[cam]]
+        bars = ax.bar([pos[v] for v in kept], [view_rms[cam][v] for v in kept], width * 0.92, color=colour,
+                      alpha=0.85, label=wrap_text(cam, 24))
+        for bar, v in zip(bars, kept):
             if v in outliers.get(cam, ()):
                 bar.set_edgecolor(_OUTLIER_COLOUR)
                 bar.set_linewidth(1.6)
                 bar.set_hatch("///")
                 ax.annotate("!", (bar.get_x() + bar.get_width() / 2, bar.get_height()),
                             ha="center", va="bottom", color=_OUTLIER_COLOUR, fontweight="bold")
-        gone = [p for p, v in zip(pos, views) if v in left_out.get(cam, {})]
+        dropped = dropped_rms.get(cam, {})
+        ax.bar([pos[v] for v in dropped], list(dropped.values()), width * 0.92, fill=False, edgecolor=colour,
+               linestyle="--", linewidth=1.2)
+        gone = [pos[v] for v in unmeasured.get(cam, ())]
         ax.plot(gone, np.zeros(len(gone)), "x", color=colour, ms=7, mew=2, clip_on=False)
         for level, style in ((camera_rms.get(cam, math.nan), "--"), (outlier_limit_px.get(cam, math.nan), ":")):
             if math.isfinite(level):
@@ -197,11 +215,15 @@ def view_rms_figure(view_rms: dict[str, dict[str, float]], camera_rms: dict[str,
     ax.plot([], [], color="0.4", ls="--", lw=0.9, label="overall RMS")
     ax.plot([], [], color="0.4", ls=":", lw=0.9, label="outlier limit")
     if any(outliers.values()):
-        ax.bar([np.nan], [np.nan], color="white", edgecolor=_OUTLIER_COLOUR, hatch="///",
-               label="outlier")
+        ax.bar([np.nan], [np.nan], color="white", edgecolor=_OUTLIER_COLOUR, hatch="///", label="outlier")
+    if any(dropped_rms.values()):
+        ax.bar([np.nan], [np.nan], fill=False, edgecolor="0.4", linestyle="--", label="dropped")
+    if any(unmeasured.values()):
+        ax.plot([], [], "x", color="0.4", ms=7, mew=2, label="no RMS (not found,\nleft out)")
     ax.set_xticks(x, views, rotation=60 if len(views) > 8 else 0, ha="right" if len(views) > 8 else "center",
                   fontsize=7.5)
     ax.set_xlim(-0.6, len(views) - 0.4)
+    ax.set_ylim(bottom=0)
     ax.set_ylabel("RMS (px)")
     ax.set_title("RMS residual per view", loc="left")
     ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
@@ -233,7 +255,7 @@ def coverage_figure(name: str, image_size: tuple[int, int], boards_uv_px: list[n
                         fill=False, ls="--", lw=0.9, ec="#d62728"))
     fig.colorbar(im, ax=ax, shrink=0.6, label="views covering")
     share = float(np.mean(counts > 0))
-    ax.set_title(f"{name}: coverage ({len(boards_uv_px)} views, {share:.0%} of the image)", loc="left")
+    set_title(ax, f"{name}: coverage ({len(boards_uv_px)} views, {share:.0%} of the image)")
     return fig
 
 
@@ -243,16 +265,21 @@ def coverage_figure(name: str, image_size: tuple[int, int], boards_uv_px: list[n
 def distortion_curve_figure(curves: dict[str, DistortionCurve], reach_px: dict[str, float]) -> Figure:
     """Radial displacement (px) against the observed radius (px), one line per camera.
 
-    A dotted line marks the farthest corner actually observed; beyond it the curve is
-    extrapolated. A cross marks where the model folds over (undistortion no longer unique).
+    The curve is solid out to the farthest corner actually observed (a dot and a dotted line
+    mark it) and dashed beyond, where it is extrapolated. A cross marks where the model folds
+    over (undistortion no longer unique).
     """
     fig = Figure(figsize=(5.6, 3.6), layout="constrained")
     ax = fig.add_subplot()
     for i, (name, c) in enumerate(curves.items()):
         colour = camera_colour(i)
-        ax.plot(c.radius_px, c.shift_px, color=colour, lw=1.6, label=name)
-        if name in reach_px and math.isfinite(reach_px[name]):
-            ax.axvline(reach_px[name], color=colour, ls=":", lw=1.0)
+        reach = reach_px.get(name, math.nan)
+        seen = c.radius_px <= reach if math.isfinite(reach) else np.zeros(len(c.radius_px), bool)
+        ax.plot(c.radius_px[seen], c.shift_px[seen], color=colour, lw=1.8, label=wrap_text(name, 24))
+        ax.plot(c.radius_px[~seen], c.shift_px[~seen], color=colour, lw=1.0, ls="--")
+        if seen.any():
+            ax.axvline(reach, color=colour, ls=":", lw=1.0)
+            ax.plot(c.radius_px[seen][-1], c.shift_px[seen][-1], "o", color=colour, ms=5)
         if c.fold_radius_px is not None:
             ax.plot(c.radius_px[-1], c.shift_px[-1], "x", color=colour, ms=8, mew=2)
     ax.axhline(0.0, color="0.6", lw=0.6)
@@ -260,7 +287,8 @@ def distortion_curve_figure(curves: dict[str, DistortionCurve], reach_px: dict[s
     ax.set_xlabel("distance from the principal point (px)")
     ax.set_ylabel("radial displacement (px)")
     ax.set_title("Radial distortion out to the image corner", loc="left")
-    ax.legend(frameon=False, fontsize=8, title="dotted: last observed corner", title_fontsize=7.5)
+    ax.legend(frameon=False, fontsize=8, title="solid to the last observed corner (•, dotted),\n"
+              "dashed beyond: extrapolated", title_fontsize=7.5)
     return fig
 
 
@@ -276,7 +304,7 @@ def distortion_map_figure(name: str, camera: CameraModel, u: np.ndarray, v: np.n
     ax.clabel(cs, fmt="%g", fontsize=7)
     ax.plot(camera.cx, camera.cy, "+", color="#1f77b4", ms=10, mew=1.6)
     fig.colorbar(cf, ax=ax, shrink=0.6, label="distortion (px)")
-    ax.set_title(f"{name}: distortion over the image", loc="left")
+    set_title(ax, f"{name}: distortion over the image")
     return fig
 
 
@@ -301,16 +329,21 @@ def rig_figure(board: Board, board_poses: dict[str, Pose], cameras: dict[str, Ca
                frames: dict[str, Pose], reference: str) -> Figure:
     """The board in every view and the rig's cameras, in the reference camera frame (mm).
 
-    Left: 3-D view (plot axes x, z, -y so that up is up). Right: the perspective centres seen
-    from the front (x right, y down), where the rig's few millimetres are visible.
+    Left: 3-D view (plot axes x, z, -y so that up is up). Right, when there is more than one
+    camera: the perspective centres ``C = -R^T t`` seen from the front (x right, y down), where the
+    rig's few millimetres are visible, each labelled with its coordinates as the report's table
+    gives them.
     ``frames[camera]`` maps that camera's frame to the reference frame (camera -> reference).
     """
-    fig = Figure(figsize=(10.5, 5.2), layout="constrained")
-    gs = fig.add_gridspec(1, 3)
+    centres = len(frames) > 1
+    fig = Figure(figsize=(10.5 if centres else 7.0, 5.2), layout="constrained")
+    gs = fig.add_gridspec(1, 3 if centres else 1)
     colours = {name: camera_colour(i) for i, name in enumerate(cameras)}
-    _draw_rig_3d(fig.add_subplot(gs[0, :2], projection="3d"), board, board_poses, cameras, frames, colours)
-    fig.axes[0].set_title(f"Board poses and cameras in the {reference} camera frame", loc="left")
-    _draw_centres(fig.add_subplot(gs[0, 2]), {n: f.t_mm for n, f in frames.items()}, reference, colours)
+    ax3d = fig.add_subplot(gs[0, :2] if centres else gs[0, 0], projection="3d")
+    _draw_rig_3d(ax3d, board, board_poses, cameras, frames, colours)
+    set_title(ax3d, f"Board poses and cameras in the {reference} camera frame")
+    if centres:
+        _draw_centres(fig.add_subplot(gs[0, 2]), {n: f.t_mm for n, f in frames.items()}, reference, colours)
     return fig
 
 
@@ -336,7 +369,7 @@ def _draw_rig_3d(ax, board: Board, board_poses: dict[str, Pose], cameras: dict[s
         p = _to_plot(f)
         for j in range(1, 5):
             ax.plot(*zip(p[0], p[j]), color=colours[name], lw=1.0)
-        ax.plot(*np.vstack([p[1:], p[1:2]]).T, color=colours[name], lw=1.4, label=name)
+        ax.plot(*np.vstack([p[1:], p[1:2]]).T, color=colours[name], lw=1.4, label=wrap_text(name, 24))
     allp = _to_plot(np.vstack(pts))
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     ax.set_xlim(lo[0], hi[0])
@@ -357,21 +390,23 @@ def _draw_rig_3d(ax, board: Board, board_poses: dict[str, Pose], cameras: dict[s
 def _draw_centres(ax, centres_mm: dict[str, np.ndarray], reference: str, colours: dict[str, str]) -> None:
     """Perspective centres (reference frame, mm) seen from the front, baselines to the reference."""
     ref = centres_mm[reference]
-    for name, c in centres_mm.items():
-        ax.plot(c[0], c[1], "o", color=colours[name], ms=8)
-        ax.annotate(f"{name}\nz = {c[2]:+.2f} mm", (c[0], c[1]), textcoords="offset points",
-                    xytext=(8, 4), fontsize=8, color=colours[name])
-        if name != reference:
-            ax.plot([ref[0], c[0]], [ref[1], c[1]], color="0.5", lw=0.8, ls="--")
-            mid = (ref + c) / 2
-            ax.annotate(f"D = {np.linalg.norm(c - ref):.2f} mm", (mid[0], mid[1]),
-                        textcoords="offset points", xytext=(6, -10), fontsize=8, color="0.25")
     xy = np.array(list(centres_mm.values()))[:, :2]
     mid = (xy.min(axis=0) + xy.max(axis=0)) / 2
+    for name, c in centres_mm.items():
+        ax.plot(c[0], c[1], "o", color=colours[name], ms=8)
+        right = c[0] <= mid[0]            # label towards the middle, so it stays inside the axes
+        ax.annotate(f"{wrap_text(name, 18)}\nC = ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f})", (c[0], c[1]),
+                    textcoords="offset points", xytext=(6 if right else -6, 4), ha="left" if right else "right",
+                    fontsize=7.5, color=colours[name])
+        if name != reference:
+            ax.plot([ref[0], c[0]], [ref[1], c[1]], color="0.5", lw=0.8, ls="--")
+            half_way = (ref + c) / 2
+            ax.annotate(f"D = {np.linalg.norm(c - ref):.2f} mm", (half_way[0], half_way[1]),
+                        textcoords="offset points", xytext=(6, -10), fontsize=8, color="0.25")
     half = max(3.0, 0.7 * float(np.ptp(xy, axis=0).max()))
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] + half, mid[1] - half)
     ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm, down)")
-    ax.set_title("Perspective centres, front view", loc="left")
+    set_title(ax, f"Perspective centres C (mm) in the {reference} frame, front view")

@@ -21,13 +21,31 @@ from ..calibrate import OUTLIER_FLOOR_PX
 from ..camera import INTRINSIC_NAMES
 from ..model import RigModel
 from ..progress import track
+from ..tables import photo_status
 from . import analysis, figures
 
-#: Intrinsic parameters as the paper's Tables 2 and 3 name them, with their units.
-PARAMETER_LABELS = {"fx": ("f<sub>x</sub>", "α", "px"), "fy": ("f<sub>y</sub>", "β", "px"),
-                    "skew": ("skew", "γ", "px"), "cx": ("c<sub>x</sub>", "u<sub>0</sub>", "px"),
-                    "cy": ("c<sub>y</sub>", "v<sub>0</sub>", "px"), "k1": ("k<sub>1</sub>", "k<sub>1</sub>", ""),
-                    "k2": ("k<sub>2</sub>", "k<sub>2</sub>", "")}
+#: Intrinsic parameters: label with the paper's name (Tables 2 and 3) and unit.
+PARAMETER_LABELS = {"fx": "f<sub>x</sub> = α (px)", "fy": "f<sub>y</sub> = β (px)", "skew": "skew = γ (px)",
+                    "cx": "c<sub>x</sub> = u<sub>0</sub> (px)", "cy": "c<sub>y</sub> = v<sub>0</sub> (px)",
+                    "k1": "k<sub>1</sub>", "k2": "k<sub>2</sub>"}
+
+#: Plain labels of the adjustment's numbers (calib.json ``adjustment``), in the order shown.
+ADJUSTMENT_LABELS = {
+    "s0_px": "a-posteriori σ of a corner coordinate, s0 (px)",
+    "redundancy": "redundancy (observations − unknowns + constraints)",
+    "n_observations": "observations (corner coordinates)",
+    "n_parameters": "unknowns",
+    "n_constraints": "constraints (the paper's, rig mode paper)",
+    "iterations": "iterations",
+    "converged": "converged",
+    "termination": "why the solver stopped",
+}
+
+
+#: Plain words for the rig modes (calib.json ``rig_mode``).
+RIG_MODE_LABELS = {"rigid": "rigid: one relative pose per camera",
+                   "paper": "paper: poses per view, equal baseline and angles",
+                   "none": "none: each camera alone", "truth": "synthetic truth"}
 
 
 @dataclass
@@ -69,32 +87,34 @@ def _unique_slugs(names) -> dict[str, str]:
 
 
 def _cell(value: float, sigma: float) -> dict:
-    v, s = analysis.format_value_sigma(value, sigma)
-    return {"value": v, "sigma": s}
+    v, sig = analysis.format_value_sigma(value, sigma)
+    return {"value": v, "sigma": sig}
 
 
 def intrinsics_table(rig: RigModel, names: list[str]) -> list[dict]:
     """Rows of the intrinsics table (paper Tables 2-3): one row per parameter, a cell per camera."""
-    rows = []
-    for p in INTRINSIC_NAMES:
-        label, paper, unit = PARAMETER_LABELS[p]
-        cells = [_cell(getattr(rig.cameras[name], p), rig.camera_sigma.get(name, {}).get(p, math.nan))
-                 for name in names]
-        rows.append({"label": Markup(label), "paper": Markup(paper), "unit": unit, "cells": cells})
-    return rows
+    return [{"label": Markup(PARAMETER_LABELS[p]),
+             "cells": [_cell(getattr(rig.cameras[name], p), rig.camera_sigma.get(name, {}).get(p, math.nan))
+                       for name in names]}
+            for p in INTRINSIC_NAMES]
 
 
-def rig_table(rig: RigModel) -> list[dict]:
-    """Rows of the relative-orientation table (paper Table 4, plus t): one per non-reference camera."""
-    rows = []
-    for name, rel in rig.rig.items():
-        opk, s_opk = rel.pose.opk_arcmin, np.asarray(rel.sigma_opk_arcmin, float)
-        t, s_t = rel.pose.t_mm, np.asarray(rel.sigma_t_mm, float)
-        rows.append({"camera": name,
-                     "cells": [_cell(rel.baseline_mm, rel.sigma_baseline_mm)]
-                     + [_cell(opk[i], s_opk[i]) for i in range(3)]
-                     + [_cell(t[i], s_t[i]) for i in range(3)]})
-    return rows
+def rig_table(rig: RigModel) -> tuple[list[str], list[dict]]:
+    """The relative orientation (paper Table 4, plus t and the perspective centre): camera columns, rows.
+
+    One column per non-reference camera; rows D, omega, phi, kappa, t and ``C = -R^T t``, the
+    camera's perspective centre in the reference frame (what the rig figure draws; no sigma).
+    """
+    names = list(rig.rig)
+    quantities = [("baseline D (mm)", lambda r: (r.baseline_mm, r.sigma_baseline_mm))]
+    for i, a in enumerate(("ω", "φ", "κ")):
+        quantities.append((f"{a} (′)", lambda r, i=i: (r.pose.opk_arcmin[i], r.sigma_opk_arcmin[i])))
+    for i, a in enumerate("xyz"):
+        quantities.append((f"t<sub>{a}</sub> (mm)", lambda r, i=i: (r.pose.t_mm[i], r.sigma_t_mm[i])))
+    for i, a in enumerate("XYZ"):
+        quantities.append((f"centre C<sub>{a}</sub> (mm)", lambda r, i=i: (r.pose.center_mm[i], math.nan)))
+    rows = [{"label": Markup(label), "cells": [_cell(*get(rig.rig[n])) for n in names]} for label, get in quantities]
+    return names, rows
 
 
 def evaluation_table(evaluation: dict | None) -> list[dict]:
@@ -112,7 +132,48 @@ def evaluation_table(evaluation: dict | None) -> list[dict]:
     return rows
 
 
+def photos_table(rig: RigModel, names: list[str]) -> list[dict]:
+    """Every photo: RMS per camera (px) and, for a photo not kept, why (:func:`dualcal.tables.photo_status`)."""
+    rows = []
+    for view, per in photo_status(rig).items():
+        cells = [f"{per[n][0]:.3f}" if n in per and per[n][0] is not None else "–" for n in names]
+        notes = [f"{n}: {per[n][1]}" for n in names if n in per and per[n][1] != "kept"]
+        rows.append({"view": view, "cells": cells, "status": "; ".join(notes) or "kept"})
+    return rows
+
+
+def adjustment_rows(rig: RigModel) -> list[tuple[str, str]]:
+    """The adjustment's numbers and the options it ran with, with plain labels."""
+    adj, options = rig.adjustment, rig.calibration_options()
+    rows = []
+    for key, label in ADJUSTMENT_LABELS.items():
+        value = adj.get(key)
+        if value is None or (key == "n_constraints" and not value):
+            continue
+        if isinstance(value, bool):
+            value = "yes" if value else "no"
+        elif isinstance(value, float):
+            value = f"{value:.4g}"
+        rows.append((label, str(value)))
+    rows.append(("outlier photos", f"dropped above {options['outlier_factor']:g}× the camera's median RMS"
+                 if options["drop_outliers"] else "all kept (--keep-outliers)"))
+    return rows
+
+
 # ---------------------------------------------------------------------------- the page
+
+
+def _not_kept(rig: RigModel, names: list[str]) -> tuple[dict, dict]:
+    """``dropped[camera][view] -> RMS`` and ``unmeasured[camera] -> views`` for the per-view figure."""
+    dropped: dict[str, dict[str, float]] = {n: {} for n in names}
+    unmeasured: dict[str, list[str]] = {n: [] for n in names}
+    for view, per in photo_status(rig).items():
+        for n, (rms, status) in per.items():
+            if status.startswith("dropped") and rms is not None:
+                dropped[n][view] = rms
+            elif status != "kept":
+                unmeasured[n].append(view)
+    return dropped, unmeasured
 
 
 def _figure_jobs(rig: RigModel, names: list[str], found: dict[str, analysis.CameraFindings],
@@ -147,20 +208,23 @@ def _figure_jobs(rig: RigModel, names: list[str], found: dict[str, analysis.Came
          f"outlier limit (dotted): {options['outlier_factor']:g}× the camera's median view RMS, but at least "
          f"{OUTLIER_FLOOR_PX:g} px, the rule by which the calibration drops photos"
          f"{'' if options['drop_outliers'] else ' (this one kept them all: --keep-outliers)'}. "
-         "× marks a view left out (see the table of views left out).",
+         "Dashed outlines are photos the calibration dropped, at the RMS they had; × marks a photo with no "
+         "RMS (board not found, or left out); the table of photos says why.",
          lambda: figures.view_rms_figure({n: found[n].view_rms_px for n in names},
                                          {n: found[n].rms_px for n in names},
                                          {n: found[n].outliers for n in names},
                                          {n: found[n].outlier_limit_px for n in names},
-                                         {n: found[n].left_out for n in names})),
+                                         *_not_kept(rig, names))),
         (None, "fig-distortion-curve",
          "Radial distortion (paper eq. 13) against the distance from the principal point, out to "
-         "the farthest image corner; beyond the dotted line no corner was observed.",
+         "the farthest image corner: solid where corners were observed, dashed beyond the last one "
+         "(dot and dotted line), where the model is extrapolated.",
          lambda: figures.distortion_curve_figure({n: found[n].curve for n in names},
                                                  {n: found[n].reach_px for n in names})),
         (None, "fig-rig-3d",
-         f"Board poses and cameras in the reference ({rig.reference}) camera frame, mm; right: "
-         "the perspective centres seen from the front.",
+         f"Board poses and cameras in the reference ({rig.reference}) camera frame, mm"
+         + ("; right: the perspective centres C = −Rᵀt seen from the front, as in the relative orientation "
+            "table." if rig.rig else "."),
          lambda: figures.rig_figure(rig.board, rig.reference_poses(), cameras,
                                     analysis.rig_camera_frames(rig), rig.reference)),
     ]
@@ -203,18 +267,16 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
         camera_names=names,
         found=found,
         intrinsics=intrinsics_table(rig, names),
-        rig_rows=rig_table(rig),
+        rig_table=rig_table(rig),
+        photos=photos_table(rig, names),
         evaluation=evaluation_table(evaluation),
         evaluation_kind=("hold-out: each view oriented by a calibration that left it out"
                          if evaluation and evaluation.get("holdout")
                          else "photos oriented by the calibration's own poses"),
-        left_out=[{"camera": n, "view": view, "reason": reason}
-                  for n in names for view, reason in found[n].left_out.items()],
-        adjustment={k: f"{v:.4g}" if isinstance(v, float) else v
-                    for k, v in {**rig.adjustment, **rig.calibration_options()}.items()
-                    if not isinstance(v, (dict, list))},
+        adjustment=adjustment_rows(rig),
         hints=[h for n in names for h in found[n].hints],
         sections=list(sections.values()),
         shared=shared,
         skew_model="Model 2: skew free" if rig.skew else "Model 1: skew fixed to 0",
+        rig_mode=RIG_MODE_LABELS.get(rig.rig_mode, rig.rig_mode),
     )
