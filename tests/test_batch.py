@@ -180,6 +180,11 @@ def test_changed_inputs_or_options_redo_the_device(first_run, client):
     assert [r.device for r in again if not r.skipped] == ["unit-003"]
     assert next(r for r in again if r.device == "unit-003").ok
 
+    # without evaluation the device is done again, and its eval.json (of the earlier run) removed
+    [result] = batch.calibrate_fleet([unit], out, replace(OPTIONS, evaluate=False), client=client, progress=False)
+    assert result.ok and not result.skipped and "eval.dual.pairs" not in result.row
+    assert not (out / unit.name / "eval.json").exists() and (out / unit.name / "calib.json").is_file()
+
 
 def test_a_missing_output_redoes_the_device(first_run):
     out = first_run["out"]
@@ -335,6 +340,17 @@ def test_fleet_page_lists_failures_odd_devices_and_drift(first_run):
     assert "http://" not in page.replace("http://www.w3.org", "") and "<script" not in page
 
 
+def test_fleet_page_names_the_checks_that_failed():
+    table = _small_table([1.0, 2.0, 3.0], [1.0, 1.0, 1.0])
+    table["checks.rig_rigid.ok"] = [True, False, True]
+    table["checks.flat.ok"] = [True, False, False]
+    page = fleet.render_fleet(table)
+    checks = page[page.index('id="table-checks"'):page.index("</table>", page.index('id="table-checks"'))]
+    assert checks.count("<tr>") == 3
+    assert '<td class="l">d1</td><td class="l">rig_rigid, flat</td>' in checks
+    assert '<td class="l">d2</td><td class="l">flat</td>' in checks
+
+
 def test_fleet_page_of_a_fleet_where_everything_failed():
     table = pd.DataFrame({"device": ["a"], "status": ["failed: no photos"], "input": ["photos"]})
     page = fleet.render_fleet(table)
@@ -355,7 +371,7 @@ def test_cli_batch_on_a_cluster(run_cli, client, small_fleet, tmp_path):
     out = tmp_path / "out"
     res = run_cli("batch", small_fleet, "-o", out, "--scheduler", client.scheduler.address, "--no-evaluate")
     assert res.code == 0, res.err
-    assert res.err_lines[-1].startswith("2 devices: 2 calibrated, 0 failed; wrote ")
+    assert res.err_lines[-1].startswith("2 devices: 2 ok, 0 failed; wrote ")
     assert {p.name for p in out.iterdir()} == {"unit-001", "unit-002", "fleet.csv", "fleet.parquet", "fleet.html"}
     assert not (out / "unit-001" / "eval.json").exists() and (out / "unit-001" / "calib.json").is_file()
 
@@ -370,7 +386,7 @@ def test_cli_batch_on_a_cluster(run_cli, client, small_fleet, tmp_path):
     assert res.code == 1
     assert res.err_lines[-2:-1] == [f"dualcal: unit-003: failed: {small_fleet / 'unit-003' / 'corners.json'}: "
                                     "expected a JSON object at the top level"]
-    assert res.err_lines[-1].startswith("3 devices: 2 calibrated, 1 failed, 2 up to date from an earlier run;")
+    assert res.err_lines[-1].startswith("3 devices: 2 ok, 1 failed (2 up to date from an earlier run); wrote ")
     assert "Drift against the baseline" in (out / "fleet.html").read_text()
 
 

@@ -16,7 +16,8 @@ too few views, ...) is a row ``failed: <reason>``, recorded like a success, so t
 not repeat it while nothing changed. A worker that dies is replaced and its device tried again by
 Dask (up to ``distributed.scheduler.allowed-failures`` times, then the device fails saying so);
 such failures, and unexpected errors, are not recorded, so a re-run tries again. An interrupted
-run leaves every finished device intact: each file is written atomically and ``batch.json`` last.
+run leaves every finished device intact: each file is written atomically, and a task removes the
+device's old ``batch.json`` first and writes the new one last.
 
 :func:`fleet_row` turns a calib.json (and eval.json) into one flat row; :func:`fleet_table`
 collects the rows, :func:`write_fleet_tables` writes ``fleet.csv`` and ``fleet.parquet``. The
@@ -271,6 +272,8 @@ def calibrate_device(device: Device, out_folder, options: BatchOptions, snapshot
     exception is a row too, not recorded.
     """
     out_folder = make_output_folder(out_folder)
+    # An earlier record goes first: until the new one is written, the outputs are not up to date.
+    (out_folder / RECORD_NAME).unlink(missing_ok=True)
     start = time.perf_counter()
     stderr = io.StringIO()
     record = True
@@ -283,6 +286,8 @@ def calibrate_device(device: Device, out_folder, options: BatchOptions, snapshot
             if options.evaluate:
                 evaluation = evaluate(rig, holdout=options.holdout, progress=False)
                 write_json_atomic(out_folder / EVAL_NAME, evaluation)
+            else:       # an eval.json of an earlier calibration would not be of this one
+                (out_folder / EVAL_NAME).unlink(missing_ok=True)
         row = {"device": device.name, "status": "ok", "input": device.kind,
                "seconds": time.perf_counter() - start, **fleet_row(calib, evaluation)}
     except DualcalError as exc:

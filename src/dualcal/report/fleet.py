@@ -169,7 +169,7 @@ def spread_figure(parameters: list[Parameter], ok, z, k: float) -> Figure:
         ax.errorbar(x, y, yerr=yerr, fmt="o", ms=3, lw=0.8, color=camera_colour(0))
         if p.column in z:
             flag = np.abs(z[p.column].to_numpy(float)) > k
-            ax.plot(x[flag], y[flag], "o", ms=4, color=_FLAG_COLOUR)
+            ax.plot(x[flag], y[flag], "o", ms=4.5, color=_FLAG_COLOUR, zorder=3)
         ax.set_title(p.label, fontsize=8.5)
         ax.set_xticks([])
         ax.yaxis.set_major_locator(MaxNLocator(4))
