@@ -166,7 +166,8 @@ class BatchOptions:
 
 
 #: Labels of the entries of fixed-length lists in calib.json and eval.json.
-_LIST_LABELS = {"t_mm": "xyz", "rmse_mm": "xyz", "opk_arcmin": ("omega", "phi", "kappa"), "image_size": "wh"}
+_LIST_LABELS = {"t_mm": ("x", "y", "z"), "rmse_mm": ("x", "y", "z"), "opk_arcmin": ("omega", "phi", "kappa"),
+                "image_size": ("w", "h")}
 #: Parts of calib.json that are per view or per corner, not per device (and rotation matrices,
 #: whose angles are in ``opk_arcmin``).
 _NOT_IN_ROW = {"views", "corners", "camera_poses", "dropped_views", "R", "per_pair"}
@@ -445,7 +446,7 @@ def fleet_table(results: Iterable[DeviceResult]):
     Columns: :data:`LEADING_COLUMNS`, then every other column in the order of the first row that
     has it (calib.json's order); a device lacks what it did not produce (missing values).
     """
-    import pandas as pd
+    import pandas as pd     # here, not at the top: the workers, which import this module, never need it
 
     rows = sorted((r.row for r in results), key=lambda row: row["device"])
     columns = list(LEADING_COLUMNS)

@@ -74,7 +74,7 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     devices = find_devices(root, exclude=[out_dir])
     out_dir = make_output_folder(out_dir)
     options = BatchOptions(
-        board=board_from_flags(per_device.pop("board_spec", None), per_device.pop("square_mm", None)),
+        board=board_from_flags(per_device.pop("board_spec"), per_device.pop("square_mm")),
         calibrate={k: v for k, v in per_device.items() if k in _CALIBRATE_KWARGS},
         dataset={k: v for k, v in per_device.items() if k in _DATASET_KWARGS},
         evaluate=run_evaluate, holdout=holdout)

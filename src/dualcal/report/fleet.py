@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import jinja2
 import numpy as np
+import pandas as pd
 from markupsafe import Markup
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
@@ -49,10 +50,10 @@ class Parameter:
 
     @property
     def unit(self) -> str:
-        last = self.name.split(".")
-        if last[-1] in _PIXEL_PARAMETERS:
+        parts = self.name.split(".")
+        if parts[-1] in _PIXEL_PARAMETERS:
             return "px"
-        for part in last:
+        for part in parts:
             for suffix, unit in (("_mm", "mm"), ("_arcmin", "arcmin"), ("_px", "px")):
                 if part.endswith(suffix):
                     return unit
@@ -64,8 +65,6 @@ class Parameter:
 
 
 def _numeric(table, column: str) -> np.ndarray:
-    import pandas as pd
-
     return pd.to_numeric(table[column], errors="coerce").to_numpy(float)
 
 
@@ -99,8 +98,6 @@ def robust_spread(x: np.ndarray) -> float:
 
 def deviation_sigmas(table, parameters: list[Parameter]):
     """``(value - fleet median) / own sigma`` per device (rows) and parameter (columns)."""
-    import pandas as pd
-
     z = {}
     for p in parameters:
         x, s = _numeric(table, p.column), _numeric(table, p.sigma)
@@ -112,8 +109,6 @@ def deviation_sigmas(table, parameters: list[Parameter]):
 def drift_sigmas(table, baseline, parameters: list[Parameter]):
     """Drift of the devices that succeeded in both tables: ``(now - before) / sqrt(s_now^2 + s_before^2)``
     and ``now - before``, as two frames (devices x parameter columns present in both)."""
-    import pandas as pd
-
     now = succeeded(table).set_index("device")
     before = succeeded(baseline).drop_duplicates("device").set_index("device")
     devices = [d for d in now.index if d in before.index]
@@ -269,10 +264,9 @@ def render_fleet(table, baseline=None, flag_sigmas: float = 5.0, title: str | No
     figures = []
     with style():
         for group, params in _groups(estimated).items():
-            if len(ok):
-                fig_id = f"fig-spread-{slug(group)}"
-                svg = figure_svg(spread_figure(params, ok, z, flag_sigmas), fig_id)
-                figures.append({"id": fig_id, "group": group, "svg": Markup(svg)})
+            fig_id = f"fig-spread-{slug(group)}"
+            svg = figure_svg(spread_figure(params, ok, z, flag_sigmas), fig_id)
+            figures.append({"id": fig_id, "group": group, "svg": Markup(svg)})
         drift = None
         if baseline is not None:
             dz, delta = drift_sigmas(table, baseline, estimated)
