@@ -6,7 +6,8 @@ A synthetic fleet (:func:`dualcal.synth_fleet.write_fleet`: note8 units given as
 * by the peer: a plain loop in this process over the devices, each ``load_corners``,
   ``calibrate_rig``, ``save_rig``, ``evaluate`` and writing eval.json (the work of one task);
 * by :func:`dualcal.batch.calibrate_fleet` on a ``LocalCluster`` of 1 and of 2 worker processes,
-  (a) warm: the cluster already started, (b) cold: starting and closing the cluster included;
+  (a) warm: the cluster already started and dualcal imported in its workers, (b) cold: starting
+  and closing the cluster (and the workers' imports) included;
   then the table and the page (``fleet_table``, ``write_fleet_tables``, ``render_fleet``);
 * again, with every device up to date (the second run: no cluster, rows from batch.json), whose
   time is compared with the cold first run;
@@ -26,6 +27,7 @@ Run from the repository root::
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import os
 import shutil
@@ -100,7 +102,7 @@ def main() -> None:
         for workers in (1, 2):
             with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                               silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
-                client.submit(sum, [1]).result()            # workers up and answering
+                client.run(importlib.import_module, "dualcal.batch")     # workers up, dualcal imported
                 t_warm, results = timed(fleet_outputs, devices, fresh(base, f"warm{workers}"), client=client)
                 assert sum(r.ok for r in results) == n, [r.row["status"] for r in results if not r.ok]
             rows.append((f"batch, {workers} worker(s), cluster running", t_warm))

@@ -402,7 +402,8 @@ def calibrate_fleet(devices: list[Device], out_dir, options: BatchOptions, *, cl
     out_dir : existing folder; device ``d`` writes into ``out_dir/d``.
     options : what applies to every device.
     client : a ``dask.distributed.Client`` to use (and leave open).
-    workers, scheduler : for :func:`dask_client` when no ``client`` is given.
+    workers, scheduler : for :func:`dask_client` when no ``client`` is given (a local cluster gets
+        at most one worker per device to do).
     progress : a progress bar over the devices on stderr.
 
     Raises
@@ -424,7 +425,10 @@ def calibrate_fleet(devices: list[Device], out_dir, options: BatchOptions, *, cl
         return
     from dask.distributed import as_completed
 
-    own = contextlib.nullcontext(client) if client is not None else dask_client(workers, scheduler)
+    if client is not None:
+        own = contextlib.nullcontext(client)
+    else:       # no more local workers than devices to do
+        own = dask_client(min(workers, len(todo)) if workers else None, scheduler)
     with own as client, progress_bar("calibrating devices", len(todo), enabled=progress) as advance:
         futures = {client.submit(calibrate_device, device, out_dir / device.name, options, snapshot,
                                  pure=False): device

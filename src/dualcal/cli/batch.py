@@ -92,7 +92,7 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     for r in failed:
         click.echo(f"dualcal: {r.device}: {r.row['status']}", err=True)
     skipped = sum(r.skipped for r in results)
-    click.echo(f"{len(results)} devices: {len(results) - len(failed)} ok, {len(failed)} failed"
+    click.echo(f"{len(results)} device{'s' if len(results) != 1 else ''}: {len(results) - len(failed)} ok, {len(failed)} failed"
                f"{f' ({skipped} up to date from an earlier run)' if skipped else ''}; wrote "
                f"{', '.join(str(p) for p in written)}, {out_dir / 'fleet.html'}", err=True)
     if failed:
