@@ -419,6 +419,22 @@ def test_cli_batch_help_lists_the_options_of_calibrate(run_cli):
     assert "--overlays" not in res.out and "--compare-models" not in res.out
 
 
+def test_cli_batch_on_a_real_stereo_rig_agrees_with_bouguet(run_cli, client, shared_data, tmp_path):
+    """OpenCV's stereo sample as a device of photos (a link into shared/data): Bouguet's reference
+    values within the tolerances of tests/test_real_data.py."""
+    (tmp_path / "root").mkdir()
+    (tmp_path / "root" / "opencv-stereo").symlink_to(shared_data / "opencv-samples-stereo")
+    res = run_cli("batch", tmp_path / "root", "-o", tmp_path / "out", "--scheduler", client.scheduler.address,
+                  "--board", "9x6", "--square", "30", "--camera", "left=left*.jpg", "--camera", "right=right*.jpg",
+                  "--reference", "left")
+    assert res.code == 0, res.err
+    row = pd.read_parquet(tmp_path / "out" / "fleet.parquet").iloc[0]
+    assert row["input"] == "photos" and row["reference"] == "left" and row["left.views"] == row["right.views"] == 13
+    np.testing.assert_allclose([row["right.fx"], row["right.fy"]], [536.81377, 536.47649], atol=2.0)
+    np.testing.assert_allclose([row["right.cx"], row["right.cy"]], [326.28657, 250.10121], atol=3.0)
+    np.testing.assert_allclose([row[f"rig.right.t_mm.{a}"] for a in "xyz"], [-99.80198, 1.12443, 0.05041], atol=1.0)
+
+
 @pytest.mark.slow
 def test_ctrl_c_leaves_finished_devices_intact(fleet_root, tmp_path):
     """SIGINT to the whole process group, as a terminal sends it: one line, exit 130, finished devices
