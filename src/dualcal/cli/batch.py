@@ -13,19 +13,18 @@ from pathlib import Path
 
 import click
 
-from ..calibrate import calibrate_rig
-from ..dataset import open_dataset
 from ..errors import InputError
-from ..io import make_output_folder, write_text_atomic
-from ..progress import warn
 from . import cli
 from .calibrate import calibrate_command
 from .common import board_from_flags, default_jobs
 
-_CALIBRATE_KWARGS = set(inspect.signature(calibrate_rig).parameters) - {"corners"}
-_DATASET_KWARGS = set(inspect.signature(open_dataset).parameters) - {"path"}
-_PER_DEVICE = [p for p in calibrate_command.params
-               if p.name in _CALIBRATE_KWARGS | _DATASET_KWARGS | {"board_spec", "square_mm"}]
+# calibrate's options that do not apply per device: its input and output, and what only the
+# terminal shows or only a single dataset's detection uses. Every other option of calibrate is
+# one of calibrate_rig's or open_dataset's (the command sorts them when it runs), so a new
+# calibration option reaches batch without a change here. The library is imported only then,
+# to keep the CLI's start-up light.
+_NOT_PER_DEVICE = {"input_path", "output", "compare_models", "jobs", "hints_path", "overlays_dir"}
+_PER_DEVICE = [p for p in calibrate_command.params if p.name not in _NOT_PER_DEVICE]
 
 
 @cli.command("batch")
@@ -62,7 +61,16 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     some failed (their rows say why), 2 on bad usage.
     """
     from ..batch import BatchOptions, calibrate_fleet, find_devices, fleet_table, read_fleet_table, write_fleet_tables
+    from ..calibrate import calibrate_rig
+    from ..dataset import open_dataset
+    from ..io import make_output_folder, write_text_atomic
+    from ..progress import warn
     from ..report.fleet import render_fleet
+
+    calibrate_kwargs = set(inspect.signature(calibrate_rig).parameters) - {"corners"}
+    dataset_kwargs = set(inspect.signature(open_dataset).parameters) - {"path"}
+    unknown = set(per_device) - calibrate_kwargs - dataset_kwargs - {"board_spec", "square_mm"}
+    assert not unknown, f"calibrate options {sorted(unknown)} are neither calibrate_rig's nor open_dataset's"
 
     if scheduler is not None and workers is not None:
         raise InputError("--workers sets up a local cluster; with --scheduler the cluster's own workers run")
@@ -75,8 +83,8 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     out_dir = make_output_folder(out_dir)
     options = BatchOptions(
         board=board_from_flags(per_device.pop("board_spec"), per_device.pop("square_mm")),
-        calibrate={k: v for k, v in per_device.items() if k in _CALIBRATE_KWARGS},
-        dataset={k: v for k, v in per_device.items() if k in _DATASET_KWARGS},
+        calibrate={k: v for k, v in per_device.items() if k in calibrate_kwargs},
+        dataset={k: v for k, v in per_device.items() if k in dataset_kwargs},
         evaluate=run_evaluate, holdout=holdout)
     results = []
     for result in calibrate_fleet(devices, out_dir, options, workers=workers or default_jobs(),
