@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dualcal.camera import project_points
+from dualcal.camera import ideal_normalized_from_pixel, project_points
 from dualcal.errors import EstimationError
 from dualcal.rotation import rotation_from_opk
 from dualcal.model import Pose
@@ -126,3 +126,44 @@ def test_collinear_corners_do_not_span_a_plane():
     assert not spans_a_plane(xy[:8])                       # the first row of the 8 x 5 board: one line
     assert not spans_a_plane(xy[::8])                      # the first column
     assert spans_a_plane(xy[[0, 1, 8]])
+
+
+def test_a_view_of_four_corners_has_no_say_in_the_closed_form():
+    """A homography of 4 corners fits them exactly, noise and all: however wrong they are, the
+    closed form from the other (exact) views stays exact, and the view still gets its pose."""
+    truth = make_truth("note8", 7, seed=12)
+    cam, xy, views = _pinhole_views(truth, "tele")
+    uv = views["IMG_04"]
+    uv[np.setdiff1d(np.arange(len(uv)), [0, 1, 8, 9])] = np.nan
+    uv[[0, 1, 8, 9]] += np.random.default_rng(0).normal(0, 20.0, (4, 2))
+    est, poses = initial_camera(xy, views, cam.image_size)
+    np.testing.assert_allclose(est.as_vector()[:5], cam.as_vector()[:5], rtol=1e-7, atol=1e-5)
+    assert "IMG_04" in poses
+
+
+def test_linear_k1_k2_that_fold_the_lens_where_the_corners_are_start_at_zero(monkeypatch):
+    """A poor closed form (here: 4 x the focal length, the principal point far off) makes the
+    linear k1 k2 fold the lens inside the corners; the adjustment could not start from there."""
+    truth = make_truth("note8", 6, seed=14)
+    cam, xy, views = _pinhole_views(truth, "tele")
+    bad = dataclasses.replace(cam, fx=4 * cam.fx, fy=4 * cam.fy, cx=2900.0, cy=300.0)
+    monkeypatch.setattr("dualcal.zhang.intrinsics_from_homographies", lambda *args, **kwargs: bad)
+    est, _ = initial_camera(xy, views, cam.image_size)
+    assert est.k1 == est.k2 == 0.0
+    for uv in views.values():
+        ideal_normalized_from_pixel(est, uv)                       # raises if the lens folds there
+
+
+def test_a_pose_with_corners_behind_the_camera_is_replaced_by_resection(monkeypatch):
+    truth = make_truth("note8", 5, seed=15)
+    cam, xy, views = _pinhole_views(truth, "wide")
+    from dualcal import zhang
+    original = zhang.extrinsics_from_homography
+
+    def mirrored_first(K, H, calls=[]):
+        calls.append(1)
+        pose = original(K, H)
+        return Pose(pose.R, -pose.t_mm) if len(calls) == 1 else pose
+    monkeypatch.setattr("dualcal.zhang.extrinsics_from_homography", mirrored_first)
+    _, poses = initial_camera(xy, views, cam.image_size)
+    np.testing.assert_allclose(poses["IMG_01"].t_mm, truth.camera_pose("wide", "IMG_01").t_mm, atol=1e-6)
