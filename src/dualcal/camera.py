@@ -135,21 +135,22 @@ def undistort_radius(rd: np.ndarray, k1: float, k2: float, max_iter: int = 200):
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         r = target / radial_factor(target * target, k1, k2)
     r = np.where((r >= lo) & (r <= hi), r, 0.5 * (lo + hi))
+    tol = 4.0 * np.finfo(float).eps * np.maximum(target, np.finfo(float).tiny)
     for _ in range(max_iter):
         r2 = r * r
         f = r * radial_factor(r2, k1, k2) - target
-        done = (np.abs(f) <= 4.0 * np.finfo(float).eps * target) | (hi - lo <= 2.0 * np.finfo(float).eps * hi)
+        done = (np.abs(f) <= tol) | (hi - lo <= 2.0 * np.finfo(float).eps * hi)
         if done.all():
             out.flat[idx] = r
             return out, True
         if 2 * done.sum() >= done.size:                 # drop the settled radii (not every time: it costs)
             out.flat[idx[done]] = r[done]
             keep = ~done
-            idx, target, lo, hi, r, r2, f = idx[keep], target[keep], lo[keep], hi[keep], r[keep], r2[keep], f[keep]
+            idx, target, tol, lo, hi, r, r2, f, done = (a[keep] for a in (idx, target, tol, lo, hi, r, r2, f, done))
         lo, hi = np.where(f < 0, r, lo), np.where(f > 0, r, hi)
         with np.errstate(divide="ignore", invalid="ignore"):
             newton = r - f / (1.0 + r2 * (3.0 * k1 + 5.0 * k2 * r2))
-        r = np.where((newton > lo) & (newton < hi), newton, 0.5 * (lo + hi))
+        r = np.where(done, r, np.where((newton > lo) & (newton < hi), newton, 0.5 * (lo + hi)))
     out.flat[idx] = r
     return out, False
 
