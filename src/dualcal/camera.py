@@ -275,11 +275,19 @@ def image_corner_radius(cam: CameraModel) -> float:
     return float(np.max(np.linalg.norm(normalized_from_pixel(cam, corners), axis=1)))
 
 
-def check_invertible_in_image(cam: CameraModel) -> None:
-    """Raise :class:`NotInvertibleError` if undistortion is not unique somewhere in the image."""
+def check_invertible_in_image(cam: CameraModel, corners_may_fold: bool = False) -> None:
+    """Raise :class:`NotInvertibleError` if undistortion is not unique somewhere in the image.
+
+    With ``corners_may_fold`` a fold is accepted where it lies beyond the middle of every image
+    edge, i.e. where it cuts off only the image's corners (a forward remap masks those pixels).
+    """
     rd_max = max_distorted_radius(cam.k1, cam.k2)
-    rd_img = image_corner_radius(cam)
+    w, h = cam.image_size
+    edge_middles = np.array([[-0.5, (h - 1) / 2], [w - 0.5, (h - 1) / 2], [(w - 1) / 2, -0.5], [(w - 1) / 2, h - 0.5]])
+    rd_img = float(np.max(np.linalg.norm(normalized_from_pixel(cam, edge_middles), axis=1))) if corners_may_fold \
+        else image_corner_radius(cam)
     if rd_img > rd_max:
+        where = "at the middle of an image edge" if corners_may_fold else "inside the image"
         raise NotInvertibleError(
-            f"distortion k1={cam.k1:.4g}, k2={cam.k2:.4g} folds over inside the image: "
+            f"distortion k1={cam.k1:.4g}, k2={cam.k2:.4g} folds over {where}: "
             f"radius not monotonic beyond normalised {rd_max:.4g}, image reaches {rd_img:.4g}")
