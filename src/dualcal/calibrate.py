@@ -3,8 +3,10 @@
 :func:`calibrate_rig` is the whole of the paper's sections 1.3 to 1.7 for any number of cameras:
 Zhang's closed form per camera (:mod:`dualcal.zhang`), the rig's relative poses from the views
 the cameras share, then the joint adjustment (:mod:`dualcal.adjust`) in the chosen rig mode.
-Photos whose residuals are far out of line with the others are dropped one at a time, each with
-a recorded reason, and the adjustment is repeated.
+Each photo contributes the corners it measured; one whose corners cannot fix a homography (fewer
+than 4, or all on one line) is skipped with a warning. Photos whose residuals are far out of line
+with the others are dropped one at a time, each with a recorded reason, and the adjustment is
+repeated. A final adjustment that did not converge is said so, on stderr and in calib.json.
 """
 
 from __future__ import annotations
@@ -71,6 +73,8 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     the nearer when the rig is rigid, the second when the direction moves between instants.
     """
     _check_enough_views(blocks, names)
+    if mode == "paper" and start is None:
+        start = solve(X_board, names, sizes, blocks, reference, skew, "none")
     if start is not None:
         cams, poses = _starting_values(start)
     else:
@@ -79,9 +83,6 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
             cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew)
             cams.append(cam)
             poses.append(p)
-    if mode == "paper" and start is None:
-        start = solve(X_board, names, sizes, blocks, reference, skew, "none")
-        cams, poses = _starting_values(start)
     first_mode = "rigid" if mode == "paper" else mode
     problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference)
     sol = adjust(problem, initial_state(problem, cams, poses))

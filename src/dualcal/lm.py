@@ -5,15 +5,15 @@ The cost is ``F = r^T r`` (pixels squared). Each iteration solves ``(H + mu D) h
 Gauss-Newton matrix ``N = J^T J`` plus the exact second-order terms a curved model supplies
 (:class:`dualcal.normal_equations.NormalEquations`), or ``N`` alone where those make the system
 indefinite. Then only the residuals at ``x + h`` are evaluated (the Jacobian is computed again
-only for an accepted step). A trial whose cost is not finite (e.g. a corner at ``Z <= 0``, behind its camera) is
-rejected. The damping follows the gain ratio ``rho = (F - F(x + h)) / (F - L(h))`` of the actual
+only for an accepted step). A trial whose cost is not finite (e.g. a corner at ``Z <= 0``,
+behind its camera) is rejected. The damping follows the gain ratio ``rho = (F - F(x + h)) / (F - L(h))`` of the actual
 to the predicted decrease (Nielsen 1999; Madsen, Nielsen & Tingleff 2004, alg. 3.16): on
 ``rho > 0`` the step is taken and ``mu <- mu max(1/3, 1 - (2 rho - 1)^3)``, else
 ``mu <- mu nu, nu <- 2 nu``. With ``(H + mu D) h = -g`` the decrease that the quadratic model
 ``L(h) = F + 2 g^T h + h^T H h`` predicts is ``F - L(h) = -g^T h + mu h^T D h``.
 
-It stops on the first of (``s0 = sqrt(F / redundancy)``, never taken below ``floor_px``, the level
-of rounding in the pixel coordinates):
+It stops on the first of these tests (``s0 = sqrt(F / redundancy)``, never taken below
+``floor_px``, the level of rounding in the pixel coordinates; ``mu`` starts at ``mu0``):
 
 * gradient: ``max_j |g_j| / sqrt(N_jj F) <= gtol`` (the residuals are orthogonal to every
   Jacobian column; the infinity norm of the gradient, scaled so that it has no units);
@@ -96,7 +96,7 @@ def levenberg_marquardt(x: Any, linearise: Callable[[Any], tuple[float, NormalEq
     o = options
     F, ne = linearise(x)
     mu, nu, it = o.mu0, 2.0, 0
-    checked = None                  # (state of ne, factorization, distance) of the last undamped check
+    checked = None                  # (ne, distance, factorization) of the last undamped check
     stop = _gradient_test(ne, F, o)
     while True:
         if stop is not None:        # a test says "done": believe it only if the undamped step agrees

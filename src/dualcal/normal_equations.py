@@ -67,11 +67,6 @@ class NormalEquations:
     def n_global(self) -> int:
         return self.gg.shape[1]
 
-    @property
-    def n_parameters(self) -> int:
-        """Number of unknowns (used local slots only)."""
-        return self.n_global + int(self.local_used.sum())
-
     def gradient(self) -> np.ndarray:
         """``J^T r`` as one flat vector (module docstring)."""
         return np.concatenate([self.grad_g.sum(axis=0), self.grad_l.ravel()])
