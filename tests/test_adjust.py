@@ -14,8 +14,7 @@ from dualcal.calibrate import solve, usable_photos
 from dualcal.camera import CameraModel, project_points
 from dualcal.model import Pose, choose_reference
 from dualcal.poses import relative_pose
-from dualcal.rotation import (ARCMIN_PER_RAD, opk_from_rotation, rotation_from_opk, rotation_from_rotvec,
-                              rotvec_from_rotation)
+from dualcal.rotation import opk_from_rotation, rotation_from_opk, rotation_from_rotvec, rotvec_from_rotation
 from dualcal.synth import make_truth, noisy_corner_set
 
 
