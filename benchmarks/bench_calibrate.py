@@ -23,6 +23,9 @@ Two parts, printed as plain-text tables:
    (a) the paper's set-up, note8 preset, 13 views x 2 cameras x 40 corners (target < 1 s);
    (b) 50 views x 4 cameras x 100 corners, a 4-camera rig built here (target < 10 s).
    OpenCV's time is that of its calibrateCamera per camera + stereoCalibrate per extra camera.
+   Beside rigid, the paper's model (``rig_mode="paper"``) on the same corners: its time, the
+   iterations of its final adjustment and whether it converged; on the real stereo set of
+   ``../shared/data/opencv-samples-stereo`` too (corners detected here), where present.
    If dualcal misses a target, the top of a cProfile of its warm-up run is printed. The load
    average is printed with each case: dualcal's dense normal-equation algebra runs in OpenBLAS,
    whose threads slow down several-fold when the cores are busy with other work; on a shared
@@ -49,6 +52,7 @@ import statistics
 import time
 from collections import defaultdict
 from dataclasses import replace
+from pathlib import Path
 from unittest import mock
 
 import cv2
@@ -56,6 +60,8 @@ import numpy as np
 
 from dualcal import synth
 from dualcal.board import Board
+from dualcal.dataset import open_dataset
+from dualcal.detect import detect_dataset
 from dualcal.calibrate import calibrate_rig
 from dualcal.camera import CameraModel
 from dualcal.model import CornerSet, Pose, RigModel
@@ -69,6 +75,8 @@ ACCURACY_PRESETS = ("note8", "stereo", "triple")
 ACCURACY_VIEWS = 13
 
 RATIO_TARGET = 1.05
+PAPER_TIME_FACTOR = 5.0     # the paper's model within a few times rigid's time
+REAL_STEREO = Path(__file__).resolve().parents[2] / "shared" / "data" / "opencv-samples-stereo"
 Z_STD_RANGE = (0.8, 1.25)
 SMALL_TARGET_S = 1.0
 LARGE_TARGET_S = 10.0
@@ -307,19 +315,49 @@ def speed_case(label: str, truth: synth.SynthTruth, runs: int, target_s: float) 
     shape = f"{len(truth.view_poses)} views x {len(truth.cameras)} cameras x {n_corners} corners"
     t_dc, profile = timed_runs(lambda: calibrate_rig(corners, rig_mode="rigid"), runs)
     t_cv, _ = timed_runs(lambda: opencv_calibrate(corners, truth.reference), runs)
+    rigid, paper, t_paper = rigid_and_paper(corners, runs)
     met = t_dc < target_s
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     print_table(f"Speed ({label}): {shape}, noise 0.2 px, median of {runs} run(s) after a warm-up "
                 f"(load average now {load} on {os.cpu_count()} cores)",
-                ["method", "wall time s", "dualcal/OpenCV", f"target < {target_s:g} s"],
+                ["method", "wall time s", "dualcal/OpenCV", f"target < {target_s:g} s", "iterations", "converged"],
                 [["dualcal calibrate_rig (rigid, sigmas, outlier check)", f"{t_dc:.3f}", f"{t_dc / t_cv:.2f}",
-                  verdict(met)],
+                  verdict(met), rigid.adjustment["iterations"], rigid.adjustment["converged"]],
+                 ["dualcal calibrate_rig (paper, sigmas, outlier check)", f"{t_paper:.3f}", f"{t_paper / t_cv:.2f}",
+                  f"< {PAPER_TIME_FACTOR:g} x rigid: {verdict(t_paper < PAPER_TIME_FACTOR * t_dc)}",
+                  paper.adjustment["iterations"], paper.adjustment["converged"]],
                  [f"OpenCV calibrateCamera x{len(truth.cameras)} + stereoCalibrate x{len(truth.rig)}",
-                  f"{t_cv:.3f}", "", ""]])
+                  f"{t_cv:.3f}", "", "", "", ""]])
     if not met:
         print("dualcal misses the target; where its warm-up run spent the time (by own time):")
         profile.sort_stats("tottime").print_stats(12)
-    return {"case": label, "dualcal_s": t_dc, "opencv_s": t_cv, "target_s": target_s}
+    return {"case": label, "dualcal_s": t_dc, "opencv_s": t_cv, "target_s": target_s, "paper_s": t_paper,
+            "paper_converged": paper.adjustment["converged"]}
+
+
+def rigid_and_paper(corners: CornerSet, runs: int, **kwargs) -> tuple[RigModel, RigModel, float]:
+    """The rigid and the paper's calibration of ``corners``, and the paper's median time."""
+    rigid = calibrate_rig(corners, rig_mode="rigid", **kwargs)
+    paper = calibrate_rig(corners, rig_mode="paper", **kwargs)
+    t_paper, _ = timed_runs(lambda: calibrate_rig(corners, rig_mode="paper", **kwargs), runs)
+    return rigid, paper, t_paper
+
+
+def real_stereo_case(runs: int) -> dict | None:
+    """Rigid against the paper's model on the real stereo set (None where it is absent)."""
+    if not REAL_STEREO.is_dir():
+        print(f"\nreal stereo set not present at {REAL_STEREO}: skipped")
+        return None
+    corners = detect_dataset(open_dataset(REAL_STEREO, ["left=left*.jpg", "right=right*.jpg"]), Board(9, 6, 30.0),
+                             jobs=1, progress=False)
+    t_rigid, _ = timed_runs(lambda: calibrate_rig(corners, rig_mode="rigid"), runs)
+    rigid, paper, t_paper = rigid_and_paper(corners, runs)
+    rows = [[mode, f"{t:.3f}", f"{t / t_rigid:.2f}", m.adjustment["iterations"], m.adjustment["converged"],
+             f"{m.rig['right'].baseline_mm:.3f} +- {m.rig['right'].sigma_baseline_mm:.3f}"]
+            for mode, t, m in (("rigid", t_rigid, rigid), ("paper", t_paper, paper))]
+    print_table(f"Real stereo set ({REAL_STEREO.name}, 13 pairs, corners detected here): median of {runs} run(s)",
+                ["rig mode", "wall time s", "/ rigid", "iterations", "converged", "baseline mm"], rows)
+    return {"paper_s": t_paper, "rigid_s": t_rigid, "paper_converged": paper.adjustment["converged"]}
 
 
 # ----------------------------------------------------------------------------- main
@@ -357,6 +395,14 @@ def main(argv=None) -> int:
         for s in (speed_case(*case) for case in cases):
             rows.append([f"speed {s['case']}: dualcal s (OpenCV {s['opencv_s']:.3f} s)", f"{s['dualcal_s']:.3f}",
                          f"< {s['target_s']:g}", verdict(s["dualcal_s"] < s["target_s"])])
+            rows.append([f"speed {s['case']}: paper-mode s, converged {s['paper_converged']}", f"{s['paper_s']:.3f}",
+                         f"< {PAPER_TIME_FACTOR:g} x rigid",
+                         verdict(s["paper_converged"] and s["paper_s"] < PAPER_TIME_FACTOR * s["dualcal_s"])])
+        real = real_stereo_case(runs_small)
+        if real is not None:
+            rows.append([f"real stereo: paper-mode s (rigid {real['rigid_s']:.3f} s), converged {real['paper_converged']}",
+                         f"{real['paper_s']:.3f}", f"< {PAPER_TIME_FACTOR:g} x rigid",
+                         verdict(real["paper_converged"] and real["paper_s"] < PAPER_TIME_FACTOR * real["rigid_s"])])
     print_table("Summary", ["target", "value", "goal", "verdict"], rows)
     print(f"\ntotal benchmark time {time.perf_counter() - t0:.1f} s")
     return 0

@@ -42,3 +42,21 @@ def run_cli(capsys):
         return CliResult(exc.value.code, captured.out, captured.err)
 
     return run
+
+
+@pytest.fixture(autouse=True)
+def every_calibration_converges(request, monkeypatch):
+    """Issue 12: every calibration in the suite reports ``converged: true``. A test that forces a
+    solve not to converge says so with ``@pytest.mark.not_converged``."""
+    if request.node.get_closest_marker("not_converged"):
+        return
+    from dualcal import calibrate
+
+    package = calibrate.rig_model_from_solution
+
+    def checked(sol, *args, **kwargs):
+        rig = package(sol, *args, **kwargs)
+        assert rig.adjustment["converged"], f"a calibration did not converge: {rig.adjustment['termination']}"
+        return rig
+
+    monkeypatch.setattr(calibrate, "rig_model_from_solution", checked)

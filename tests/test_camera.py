@@ -6,8 +6,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dualcal.camera import (CameraModel, check_invertible_in_image, distort_normalized, distort_points,
-                            max_monotonic_radius, normalized_from_pixel, pixel_from_normalized,
-                            project_points, project_with_jacobians, undistort_normalized, undistort_points)
+                            max_distorted_radius, max_monotonic_radius, normalized_from_pixel, pixel_from_normalized,
+                            project_points, project_with_jacobians, undistort_normalized, undistort_points,
+                            undistort_radius)
 from dualcal.errors import NotInvertibleError
 from dualcal.synth import PRESETS
 
@@ -59,19 +60,53 @@ def test_undistort_points_round_trip_over_whole_image(preset):
         assert np.max(np.abs(back - uv)) < 1e-6
 
 
-@settings(max_examples=200, deadline=None)
-@given(k1=st.floats(-0.4, 0.4), k2=st.floats(-0.5, 1.5), x=st.floats(-0.6, 0.6), y=st.floats(-0.6, 0.6))
-def test_distort_undistort_round_trip_property(k1, k2, x, y):
-    xy = np.array([[x, y]])
-    r = np.hypot(x, y)
-    if r >= 0.999 * max_monotonic_radius(k1, k2):
-        with pytest.raises(NotInvertibleError):
-            r_max = max_monotonic_radius(k1, k2)
-            rd_max = r_max * (1 + k1 * r_max**2 + k2 * r_max**4)
-            undistort_normalized(np.array([[1.01 * rd_max, 0.0]]), k1, k2)
+@settings(max_examples=300, deadline=None)
+@given(k1=st.floats(-1.0, 1.0), k2=st.floats(-1.0, 1.5), s=st.floats(0.0, 0.999), angle=st.floats(0, 2 * np.pi))
+def test_undistort_inverts_distort_on_the_monotonic_branch(k1, k2, s, angle):
+    """undistort(distort(x)) = x for every radius up to the fold (or up to 3 where there is none).
+    Near the fold the inverse is ill-conditioned (d rd / dr -> 0), so the tolerance on x is the
+    rounding of rd divided by that slope; the distorted point itself is matched to rounding."""
+    r_max = max_monotonic_radius(k1, k2)
+    r = s * min(r_max, 3.0)
+    xy = r * np.array([[np.cos(angle), np.sin(angle)]])
+    xy_d = distort_normalized(xy, k1, k2)
+    back = undistort_normalized(xy_d, k1, k2)
+    rd = float(np.hypot(*xy_d[0]))
+    np.testing.assert_allclose(distort_normalized(back, k1, k2), xy_d, rtol=0, atol=1e-14 * max(1.0, rd))
+    slope = 1 + 3 * k1 * r**2 + 5 * k2 * r**4
+    np.testing.assert_allclose(back, xy, rtol=0, atol=1e-14 * max(1.0, rd) / slope)
+
+
+@settings(max_examples=100, deadline=None)
+@given(k1=st.floats(-1.0, 1.0), k2=st.floats(-1.0, 1.0), beyond=st.floats(1e-9, 1.0))
+def test_past_the_fold_is_a_named_error(k1, k2, beyond):
+    rd_max = max_distorted_radius(k1, k2)
+    if not np.isfinite(rd_max):
         return
-    back = undistort_normalized(distort_normalized(xy, k1, k2), k1, k2)
-    np.testing.assert_allclose(back, xy, atol=1e-12)
+    with pytest.raises(NotInvertibleError, match="folds over"):
+        undistort_normalized(np.array([[0.0, rd_max * (1 + beyond)]]), k1, k2)
+
+
+def test_undistortion_takes_the_root_before_the_fold():
+    """k1 = 0.6, k2 = -0.6: rd = 0.99 has two roots, 0.9155 (before the fold at r = 0.975) and
+    1.030 (after it, where the model folds back); Newton from the first-order start alone lands
+    on the second."""
+    k1, k2 = 0.6, -0.6
+    r, converged = undistort_radius(np.array([0.99]), k1, k2)
+    assert converged and r[0] < max_monotonic_radius(k1, k2)
+    assert r[0] == pytest.approx(0.9155, abs=1e-4)
+    assert r[0] * (1 + k1 * r[0] ** 2 + k2 * r[0] ** 4) == pytest.approx(0.99, abs=1e-15)
+    # right at the fold the slope vanishes; the bracket still converges on the residual
+    rd_max = max_distorted_radius(k1, k2)
+    r, converged = undistort_radius(np.array([rd_max, 0.5 * rd_max, 0.0]), k1, k2)
+    assert converged and r[0] == pytest.approx(max_monotonic_radius(k1, k2), rel=1e-7) and r[2] == 0.0
+
+
+def test_unmeasured_points_stay_unmeasured():
+    xy = np.array([[0.1, 0.2], [np.nan, np.nan], [-0.3, 0.05]])
+    back = undistort_normalized(distort_normalized(xy, CAM.k1, CAM.k2), CAM.k1, CAM.k2)
+    assert np.isnan(back[1]).all()
+    np.testing.assert_allclose(back[[0, 2]], xy[[0, 2]], atol=1e-14)
 
 
 def test_max_monotonic_radius_is_where_the_derivative_vanishes():

@@ -140,7 +140,6 @@ def test_a_corners_json_edited_by_hand_keeps_working(corners_json, tmp_path, run
     assert "IMG_06" not in rig.camera_poses["wide"]
 
 
-@pytest.mark.xfail(strict=True, reason="the solver does not take null corners yet (solver helper's issue 12)")
 def test_a_corners_json_with_null_corners_keeps_working(corners_json, tmp_path, run_cli):
     doc = json.loads(corners_json.read_text())
     for k in (0, 7, 20):

@@ -9,9 +9,10 @@ from scipy.optimize import least_squares
 
 from dualcal.camera import project_points
 from dualcal.errors import EstimationError, InputError
-from dualcal.evaluate import evaluate, resect, resect_view
+from dualcal.evaluate import evaluate, resect_view
 from dualcal.io import load_evaluation, save_rig
-from dualcal.model import Pose
+from dualcal.model import Pose, observed_mask
+from dualcal.resection import resect
 from dualcal.rotation import rotation_from_rotvec, rotvec_from_rotation
 from dualcal.synth import make_truth, noisy_corner_set, true_corners, truth_rig_model
 
@@ -73,6 +74,22 @@ def test_resect_view_ties_the_rig_cameras():
         np.testing.assert_allclose(photo.pose.t_mm, truth.camera_pose(cam, "IMG_02").t_mm, atol=1e-7)
 
 
+def test_resection_uses_the_corners_each_camera_measured():
+    """Exact corners, 40 % of each photo's missing (the two cameras miss different ones), and a
+    tele that saw only 3: the rig resection still returns the exact pose."""
+    truth = make_truth("note8", views=2, seed=4)
+    X = truth.board.object_points_mm()
+    uv = true_corners(truth)
+    rng = np.random.default_rng(0)
+    wide, tele = uv["wide"]["IMG_02"].copy(), uv["tele"]["IMG_02"].copy()
+    wide[rng.random(len(wide)) < 0.4] = np.nan
+    tele[3:] = np.nan
+    pose = resect(X, [truth.cameras["wide"], truth.cameras["tele"]], [IDENTITY, truth.rig["tele"]], [wide, tele])
+    np.testing.assert_allclose(pose.t_mm, truth.view_poses["IMG_02"].t_mm, atol=1e-7)
+    with pytest.raises(EstimationError, match="at least 4 measured corners"):
+        resect(X, [truth.cameras["tele"]], [IDENTITY], [tele])
+
+
 # ---------------------------------------------------------------------------- the cases
 
 
@@ -114,6 +131,39 @@ def test_views_without_a_pose_are_left_out():
     doc = evaluate(rig)
     assert doc["cases"]["dual"]["pairs"] == 4
     assert doc["cases"]["wide"]["pairs"] == 10 and doc["cases"]["tele"]["pairs"] == 6
+
+
+def test_pairs_intersect_the_corners_both_photos_measured(capsys):
+    truth = make_truth("stereo", views=3, seed=0)
+    rig = truth_rig_model(truth)
+    rng = np.random.default_rng(1)
+    for cam in rig.corners.cameras.values():
+        for uv in cam.views.values():
+            uv[rng.random(len(uv)) < 0.3] = np.nan
+    right, left = rig.corners.cameras["right"].views["IMG_02"], rig.corners.cameras["left"].views["IMG_02"]
+    right[:2], right[2:] = true_corners(truth)["right"]["IMG_02"][:2], np.nan
+    left[:2] = np.nan                                                 # no corner in common there
+    doc = evaluate(rig)
+    views = rig.corners.cameras
+    both = [observed_mask(views["left"].views[v]) & observed_mask(views["right"].views[v]) for v in ("IMG_01", "IMG_03")]
+    assert doc["cases"]["dual"]["pairs"] == 2 and doc["cases"]["dual"]["points"] == sum(m.sum() for m in both)
+    assert max(doc["cases"]["dual"]["rmse_mm"]) < 1e-6
+    assert "left/IMG_02 + right/IMG_02 left out: the two photos measured no corner in common" in capsys.readouterr().err
+
+
+def test_partial_views_through_calibration_and_hold_out():
+    """Corners missing at random (25 %): calibrate and evaluate, fitted and held out, stay near
+    the floor that the true calibration gives on the same corners."""
+    truth = make_truth("stereo", views=8, seed=0)
+    noisy = noisy_corner_set(truth, 0.15, seed=1)
+    rng = np.random.default_rng(2)
+    for cam in noisy.cameras.values():
+        for uv in cam.views.values():
+            uv[rng.random(len(uv)) < 0.25] = np.nan
+    floor = evaluate(truth_rig_model(truth, noisy))
+    rig = _calibrate(noisy)
+    _assert_within_floor(evaluate(rig), floor)
+    _assert_within_floor(evaluate(rig, holdout=True, progress=False), floor)
 
 
 def test_nothing_to_intersect_raises():

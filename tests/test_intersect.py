@@ -124,3 +124,11 @@ def test_synthetic_rig_corners_are_recovered():
     poses = [truth.camera_pose("wide", "IMG_01"), truth.camera_pose("tele", "IMG_01")]
     uv = [project_points(c, p.apply(X)) for c, p in zip(cams, poses)]
     np.testing.assert_allclose(triangulate(cams, poses, uv), X, atol=1e-6)
+
+
+def test_unmeasured_points_are_refused(scene):
+    X, cams, poses, uv = scene
+    partial = uv[1].copy()
+    partial[3] = np.nan
+    with pytest.raises(EstimationError, match="select the points all photos saw"):
+        triangulate(cams[:2], poses[:2], [uv[0], partial])

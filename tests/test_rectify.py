@@ -60,6 +60,28 @@ def test_model_that_folds_over_inside_the_image_is_refused():
     undistort_points(FOLDING, np.array([[320.0, 240.0], [400.0, 300.0]]))   # fine near the centre
 
 
+def test_keep_same_works_for_a_lens_that_folds_only_in_the_corners():
+    """k1 = -0.12 at fx = 300 on 640 x 480: the model folds at normalised radius 1.11, beyond the
+    middle of every edge (1.07) but inside the corners (1.33). The camera's own matrix still
+    rectifies the photo (the output's rays never reach the fold; the folded corner pixels of the
+    source are simply not used); the modes that trace the whole border, and points in those
+    corners, are refused."""
+    cam = CameraModel((640, 480), 300.0, 300.0, 0.0, 320.0, 240.0, -0.12, 0.0)
+    new_cam = rectified_camera(cam, "same")
+    assert new_cam == cam.with_distortion(0.0, 0.0)
+    out = undistort_image(np.full((480, 640), 200, np.uint8), cam, new_cam, interpolation=cv2.INTER_NEAREST)
+    map_x, map_y = rectify_map(cam, new_cam, 0, 480)
+    inside = (map_x >= 0) & (map_x <= 639) & (map_y >= 0) & (map_y <= 479)
+    assert inside.mean() > 0.9 and np.all(out[inside] == 200) and np.all(out[~inside] == 0)
+    for keep in ("all", "valid"):
+        with pytest.raises(NotInvertibleError, match="folds over inside the image"):
+            rectified_camera(cam, keep)
+    with pytest.raises(NotInvertibleError, match="not invertible beyond"):
+        undistort_points(cam, np.array([[0.0, 0.0]]))
+    with pytest.raises(NotInvertibleError, match="folds over at the middle of an image edge"):
+        rectified_camera(FOLDING, "same")
+
+
 @pytest.mark.parametrize("name", sorted(ALL_CAMERAS))
 def test_projected_3d_line_is_straight_after_undistortion(name):
     cam = ALL_CAMERAS[name]

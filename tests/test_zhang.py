@@ -5,13 +5,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dualcal.camera import project_points
+from dualcal.camera import ideal_normalized_from_pixel, project_points
 from dualcal.errors import EstimationError
 from dualcal.rotation import rotation_from_opk
 from dualcal.model import Pose
 from dualcal.synth import make_truth, true_corners
 from dualcal.zhang import (apply_homography, estimate_homography, extrinsics_from_homography, initial_camera,
-                           intrinsics_from_homographies, radial_distortion_linear)
+                           intrinsics_from_homographies, radial_distortion_linear, spans_a_plane)
 
 
 def _pinhole_views(truth, name, skew=0.0):
@@ -80,3 +80,90 @@ def test_parallel_views_are_degenerate():
         Hs.append(estimate_homography(xy, uv))
     with pytest.raises(EstimationError, match="parallel"):
         intrinsics_from_homographies(Hs, cam.image_size, skew=False)
+
+
+@pytest.mark.parametrize("n_views", [2, 3])
+@pytest.mark.parametrize("skew", [False, True])
+def test_zhang_with_two_and_three_views(n_views, skew):
+    """Model 1 (skew = 0) has 4 unknowns up to scale, two per view: 2 views determine it (the null
+    vector of a 4 x 5 system needs the full SVD). Model 2 has 5: 2 views are refused, saying so."""
+    truth = make_truth("note8", n_views, seed=7)
+    cam, xy, views = _pinhole_views(truth, "wide", skew=3.0 if skew else 0.0)
+    Hs = [estimate_homography(xy, views[v]) for v in sorted(views)]
+    if skew and n_views == 2:
+        with pytest.raises(EstimationError, match=r"skew free \(Model 2\) needs at least 3 views \(2 given\)"):
+            intrinsics_from_homographies(Hs, cam.image_size, skew=True)
+        return
+    est = intrinsics_from_homographies(Hs, cam.image_size, skew=skew)
+    np.testing.assert_allclose(est.as_vector()[:5], cam.as_vector()[:5], rtol=1e-7, atol=1e-5)
+
+
+def test_one_view_is_refused_in_model_1():
+    truth = make_truth("note8", 1, seed=7)
+    cam, xy, views = _pinhole_views(truth, "wide")
+    with pytest.raises(EstimationError, match=r"skew = 0 \(Model 1\) needs at least 2 views \(1 given\)"):
+        intrinsics_from_homographies([estimate_homography(xy, views["IMG_01"])], cam.image_size)
+
+
+def test_initial_camera_uses_the_corners_each_view_has():
+    """Views with corners not measured (NaN rows): each homography, pose and the linear k1 k2 use
+    the corners the view has; with exact corners the closed form is still exact."""
+    truth = make_truth("note8", 6, seed=8)
+    cam, xy, views = _pinhole_views(truth, "tele")
+    rng = np.random.default_rng(9)
+    for v, uv in views.items():
+        uv[rng.random(len(uv)) < 0.5] = np.nan
+        uv[:4] = np.nan
+    est, poses = initial_camera(xy, views, cam.image_size)
+    np.testing.assert_allclose(est.as_vector()[:5], cam.as_vector()[:5], rtol=1e-7, atol=1e-5)
+    assert abs(est.k1) < 1e-9 and abs(est.k2) < 1e-8
+    for v, pose in poses.items():
+        np.testing.assert_allclose(pose.t_mm, truth.camera_pose("tele", v).t_mm, atol=1e-6)
+
+
+def test_collinear_corners_do_not_span_a_plane():
+    xy = make_truth("note8", 1, seed=0).board.object_points_mm()[:, :2]
+    assert not spans_a_plane(xy[:8])                       # the first row of the 8 x 5 board: one line
+    assert not spans_a_plane(xy[::8])                      # the first column
+    assert spans_a_plane(xy[[0, 1, 8]])
+
+
+def test_a_view_of_four_corners_has_no_say_in_the_closed_form():
+    """A homography of 4 corners fits them exactly, noise and all: however wrong they are, the
+    closed form from the other (exact) views stays exact, and the view still gets its pose."""
+    truth = make_truth("note8", 7, seed=12)
+    cam, xy, views = _pinhole_views(truth, "tele")
+    uv = views["IMG_04"]
+    uv[np.setdiff1d(np.arange(len(uv)), [0, 1, 8, 9])] = np.nan
+    uv[[0, 1, 8, 9]] += np.random.default_rng(0).normal(0, 20.0, (4, 2))
+    est, poses = initial_camera(xy, views, cam.image_size)
+    np.testing.assert_allclose(est.as_vector()[:5], cam.as_vector()[:5], rtol=1e-7, atol=1e-5)
+    assert "IMG_04" in poses
+
+
+def test_linear_k1_k2_that_fold_the_lens_where_the_corners_are_start_at_zero(monkeypatch):
+    """A poor closed form (here: 4 x the focal length, the principal point far off) makes the
+    linear k1 k2 fold the lens inside the corners; the adjustment could not start from there."""
+    truth = make_truth("note8", 6, seed=14)
+    cam, xy, views = _pinhole_views(truth, "tele")
+    bad = dataclasses.replace(cam, fx=4 * cam.fx, fy=4 * cam.fy, cx=2900.0, cy=300.0)
+    monkeypatch.setattr("dualcal.zhang.intrinsics_from_homographies", lambda *args, **kwargs: bad)
+    est, _ = initial_camera(xy, views, cam.image_size)
+    assert est.k1 == est.k2 == 0.0
+    for uv in views.values():
+        ideal_normalized_from_pixel(est, uv)                       # raises if the lens folds there
+
+
+def test_a_pose_with_corners_behind_the_camera_is_replaced_by_resection(monkeypatch):
+    truth = make_truth("note8", 5, seed=15)
+    cam, xy, views = _pinhole_views(truth, "wide")
+    from dualcal import zhang
+    original = zhang.extrinsics_from_homography
+
+    def mirrored_first(K, H, calls=[]):
+        calls.append(1)
+        pose = original(K, H)
+        return Pose(pose.R, -pose.t_mm) if len(calls) == 1 else pose
+    monkeypatch.setattr("dualcal.zhang.extrinsics_from_homography", mirrored_first)
+    _, poses = initial_camera(xy, views, cam.image_size)
+    np.testing.assert_allclose(poses["IMG_01"].t_mm, truth.camera_pose("wide", "IMG_01").t_mm, atol=1e-6)

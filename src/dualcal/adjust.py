@@ -1,48 +1,107 @@
 """The joint least-squares adjustment of all cameras and views (paper section 1.7).
 
-Minimises the pixel reprojection error of every corner in every photo of every camera
-(eqs. 16-19) over the intrinsics ``[fx, fy, skew, cx, cy, k1, k2]`` of each camera and the
-poses, by Levenberg-Marquardt on the normal equations (block-sparse Jacobian). Three ways to
+Minimises the pixel reprojection error of every measured corner in every photo of every camera
+(eqs. 16-19) over the intrinsics of each camera (:data:`dualcal.camera.INTRINSIC_NAMES`, those
+left free) and the poses, by Levenberg-Marquardt (:mod:`dualcal.lm`) on normal equations kept per
+instant (:mod:`dualcal.normal_equations`). A photo's corners that were not measured (NaN rows)
+simply have no residual, so two cameras of one instant may see different corners. Three ways to
 tie the cameras together (``mode``):
 
-``rigid``  one board-to-reference pose per view and one reference-to-camera pose per extra
-           camera: the rig is rigid by construction (6 relative unknowns per camera).
-``paper``  every camera its own pose in every view, plus the paper's constraints (eqs. 20-23)
-           that the baseline D and the three relative angles are the same in every view:
-           4 (m - 1) equations per extra camera, solved as constrained least squares with
-           Lagrange multipliers, ``[[N, C^T], [C, 0]] [dx, k] = [-g, -c]`` (Mikhail &
-           Ackermann, ch. 9).
-``none``   every camera alone (no tie at all).
+``rigid``  per instant one board-to-reference pose; per extra camera one relative pose
+           ``X_c = R_c X_ref + t_c``: the rig is rigid by construction.
+``paper``  the paper's model (eqs. 20-23: baseline D and the three relative angles equal in every
+           instant), as a parametrisation rather than as constraints: per extra camera one
+           relative rotation ``R_c`` and one baseline length ``D_c`` shared by all instants, and
+           per instant its own unit direction ``u_v`` of the baseline (2 unknowns), so
+           ``X_c = R_c X_ref + D_c u_v``. In an instant the reference did not see, ``u_v`` stays
+           at its starting value (the model says nothing about it there).
+``none``   every camera alone: each photo its own board pose.
 
-Poses are updated multiplicatively, ``R <- exp([d]x) R``, ``t <- t + dt``; the covariance of
-a pose is that of ``(d, dt)``. Sigma of every parameter is ``sqrt(diag(Q) s0^2)`` with ``Q`` the
-(constrained) inverse normal matrix and ``s0^2 = v^T v / redundancy`` the a-posteriori variance
-factor; derived values (baseline, omega-phi-kappa) get theirs by propagation, ``J Q J^T s0^2``.
+Unknowns are *global* (intrinsics; ``R_c, t_c`` or ``R_c, D_c``) or *local* to one instant (its
+board pose, or each camera's in mode ``none``; the directions ``u_v``). :class:`Layout` says where
+each sits in the flat parameter vector. Rotations are updated by left increments and directions
+on the sphere (:mod:`dualcal.poses`), so covariances are those of the increments. Every
+Jacobian is analytic.
+
+To add a group of global parameters (e.g. a board shape shared by all photos): give it columns
+in :func:`_build_layout`, a field in :class:`State` updated in :meth:`State.updated`, and its
+Jacobian piece in :func:`_jacobian_pieces`, where ``J_X`` (d residual / d camera-frame point) and
+the rotations are at hand (d residual / d board point is ``J_X R_c R_v``).
+
+Sigma of every parameter is ``sqrt(diag(N^-1) s0^2)`` with ``s0^2 = v^T v / redundancy``;
+derived values (baseline, omega-phi-kappa) get theirs by propagation, ``J N^-1 J^T s0^2``.
 """
 
 from __future__ import annotations
 
+from collections import defaultdict
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
 
-from .camera import INTRINSIC_NAMES, CameraModel, project_with_jacobians
+from .camera import INTRINSIC_NAMES, CameraModel, project_points, project_with_jacobians
 from .errors import EstimationError
-from .model import Pose, mean_pose
-from .rotation import (ARCMIN_PER_RAD, opk_from_rotation, rotation_from_rotvec,
-                       rotvec_from_rotation)
+from .lm import LMOptions, levenberg_marquardt
+from .model import Pose, mean_pose, observed_mask
+from .normal_equations import Factorization, NormalEquations
+from .poses import moved_on_sphere, opk_jacobian, relative_pose, rotated, tangent_basis
+from .progress import warn
+from .rotation import ARCMIN_PER_RAD, cross_matrix, opk_from_rotation
 
 RIG_MODES = ("rigid", "paper", "none")
-_SKEW = INTRINSIC_NAMES.index("skew")
+NEAR_GIMBAL_DEG = 5.0    # |phi| within this of 90 degrees: omega and kappa are ill-defined
+
+
+# ----------------------------------------------------------------------------- what is observed
+
+
+@dataclass(frozen=True)
+class CameraBatch:
+    """All photos of one camera: ``blocks`` (B,) indices into ``Problem.blocks``, ``views`` (B,)
+    instant indices, ``uv_px`` (B, N, 2) corners (NaN rows unmeasured), ``observed`` (B, N)."""
+
+    camera: int
+    blocks: np.ndarray
+    views: np.ndarray
+    uv_px: np.ndarray
+    observed: np.ndarray
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where each unknown sits: global columns, and local slots within an instant's block.
+
+    Global (indices into the first ``n_global`` entries of the flat vector):
+    ``intrinsics[c]`` the free intrinsics of camera ``c`` (``free_intrinsics[c]``, a (K,) mask
+    over :data:`INTRINSIC_NAMES`); ``rig_rotation[c]`` (3) of each tied camera; ``rig_translation[c]``
+    (3, rigid) or ``baseline[c]`` (1, paper). Local (0 .. ``n_local``): ``pose[k]`` (6: rotation
+    increment, then translation) of pose slot ``k`` (slot 0 is the reference's board pose; in mode
+    ``none`` slot ``c`` is camera ``c``'s); ``direction[c]`` (2, paper). ``local_used`` (V, L) marks
+    the slots each instant has.
+    """
+
+    free_intrinsics: np.ndarray
+    intrinsics: dict[int, np.ndarray]
+    rig_rotation: dict[int, np.ndarray]
+    rig_translation: dict[int, np.ndarray]
+    baseline: dict[int, np.ndarray]
+    n_global: int
+    pose: dict[int, np.ndarray]
+    direction: dict[int, np.ndarray]
+    n_local: int
+    local_used: np.ndarray
+
+    def local_columns(self, view: int, slots: np.ndarray) -> np.ndarray:
+        """Flat indices of local ``slots`` of instant ``view``."""
+        return self.n_global + view * self.n_local + np.asarray(slots)
 
 
 @dataclass
 class Problem:
-    """What is observed: every camera's corners in every view it saw.
+    """What is observed: every camera's corners in every view it saw, and how the rig is tied.
 
-    ``blocks`` is a list of ``(camera index, view key, (N, 2) observed pixels)``; the corners are
-    those of ``X_board`` (N, 3) in the same order.
+    ``blocks`` is a list of ``(camera index, view key, (N, 2) pixels)``, one per photo; row k is
+    corner k of ``X_board`` (N, 3); unmeasured corners are NaN rows.
     """
 
     X_board: np.ndarray
@@ -57,416 +116,492 @@ class Problem:
         if self.mode not in RIG_MODES:
             raise EstimationError(f"--rig {self.mode!r} is unknown (choose from {', '.join(RIG_MODES)})")
         self.views = sorted({v for _, v, _ in self.blocks})
-        if self.mode == "rigid":
-            self.slots = [("view", v) for v in self.views] + \
-                [("rig", c) for c in range(len(self.cameras)) if c != self.reference]
-        else:
-            self.slots = [("pose", (c, v)) for c, v, _ in self.blocks]
-        self.slot_index = {s: i for i, s in enumerate(self.slots)}
-        self.free_intrinsics = [i for i in range(7) if self.skew or i != _SKEW]
-        self.n_intr = len(self.free_intrinsics)
-        self.n_params = self.n_intr * len(self.cameras) + 6 * len(self.slots)
-        # Per-view pose slots never share a residual with each other: their part of the normal
-        # matrix is block diagonal (6x6), which the solver eliminates first (see _BlockSolver).
-        local = [i for i, (kind, _) in enumerate(self.slots) if kind != "rig"]
-        self.local_columns = np.array([self.pose_columns(i) for i in local]).reshape(-1, 6)
-        is_local = np.zeros(self.n_params, bool)
-        is_local[self.local_columns.ravel()] = True
-        self.global_columns = np.flatnonzero(~is_local)
+        self.view_index = {v: i for i, v in enumerate(self.views)}
+        self.batches = []
+        for c in range(len(self.cameras)):
+            idx = np.array([b for b, (cc, _, _) in enumerate(self.blocks) if cc == c], int)
+            if len(idx):
+                uv = np.array([self.blocks[b][2] for b in idx], float)
+                self.batches.append(CameraBatch(c, idx, np.array([self.view_index[self.blocks[b][1]] for b in idx]),
+                                                uv, observed_mask(uv)))
+        self.layout = _build_layout(self)
 
-    def block_slots(self, b: int) -> tuple[int, int]:
-        """(pose slot, rig slot or -1) of block ``b``."""
-        c, v, _ = self.blocks[b]
-        if self.mode == "rigid":
-            rig = -1 if c == self.reference else self.slot_index[("rig", c)]
-            return self.slot_index[("view", v)], rig
-        return self.slot_index[("pose", (c, v))], -1
+    def tied(self, c: int) -> bool:
+        """Whether camera ``c`` is tied to the reference by a relative pose."""
+        return self.mode != "none" and c != self.reference
 
-    def intr_columns(self, c: int) -> np.ndarray:
-        return self.n_intr * c + np.arange(self.n_intr)
+    def pose_slot(self, c: int) -> int:
+        """The local pose slot camera ``c``'s photos hang on."""
+        return c if self.mode == "none" else 0
 
-    def pose_columns(self, slot: int) -> np.ndarray:
-        return self.n_intr * len(self.cameras) + 6 * slot + np.arange(6)
+    @property
+    def n_observations(self) -> int:
+        return 2 * int(sum(b.observed.sum() for b in self.batches))
+
+    @property
+    def n_parameters(self) -> int:
+        return self.layout.n_global + int(self.layout.local_used.sum())
+
+    def seen(self, c: int) -> np.ndarray:
+        """(V,) bool: the instants camera ``c`` saw."""
+        out = np.zeros(len(self.views), bool)
+        for b in self.batches:
+            if b.camera == c:
+                out[b.views] = True
+        return out
+
+
+def _take(counter: list[int], n: int) -> np.ndarray:
+    start = counter[0]
+    counter[0] += int(n)
+    return np.arange(start, counter[0])
+
+
+def _build_layout(p: Problem) -> Layout:
+    C, V = len(p.cameras), len(p.views)
+    free = np.ones((C, len(INTRINSIC_NAMES)), bool)
+    if not p.skew:
+        free[:, INTRINSIC_NAMES.index("skew")] = False
+    g = [0]
+    intrinsics = {c: _take(g, free[c].sum()) for c in range(C)}
+    tied = [c for c in range(C) if p.tied(c)]
+    rig_rotation = {c: _take(g, 3) for c in tied}
+    rig_translation = {c: _take(g, 3) for c in tied} if p.mode == "rigid" else {}
+    baseline = {c: _take(g, 1) for c in tied} if p.mode == "paper" else {}
+    loc = [0]
+    pose = {k: _take(loc, 6) for k in (range(C) if p.mode == "none" else [0])}
+    direction = {c: _take(loc, 2) for c in tied} if p.mode == "paper" else {}
+    used = np.zeros((V, loc[0]), bool)
+    for b in p.batches:
+        used[np.ix_(b.views, pose[p.pose_slot(b.camera)])] = True
+    for c, slots in direction.items():
+        used[np.ix_(p.seen(c) & p.seen(p.reference), slots)] = True
+    return Layout(free, intrinsics, rig_rotation, rig_translation, baseline, g[0], pose, direction, loc[0], used)
+
+
+# ----------------------------------------------------------------------------- the unknowns
 
 
 @dataclass
 class State:
-    """The unknowns: intrinsics (C, 7) and pose slots ``R`` (P, 3, 3), ``t`` (P, 3)."""
+    """The unknowns (conventions: README).
 
-    intr: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
+    intrinsics : (C, K) per camera, in the order of :data:`INTRINSIC_NAMES`.
+    pose_R, pose_t : (V, P, 3, 3), (V, P, 3) board-to-camera pose of each pose slot per instant.
+    rig_R : (C, 3, 3) reference-to-camera rotation (identity where the camera is not tied).
+    rig_t : (C, 3) reference-to-camera translation, mm (mode ``rigid``).
+    baseline_mm : (C,) the paper's D (mode ``paper``).
+    direction : (V, C, 3) unit direction of the baseline per instant (mode ``paper``).
+    """
 
-    def updated(self, problem: Problem, dx: np.ndarray) -> "State":
-        n = problem.n_intr * len(problem.cameras)
-        intr = self.intr.copy()
-        intr[:, problem.free_intrinsics] += dx[:n].reshape(len(problem.cameras), problem.n_intr)
-        d = dx[n:].reshape(-1, 6)
-        return State(intr, rotation_from_rotvec(d[:, :3]) @ self.R, self.t + d[:, 3:])
+    intrinsics: np.ndarray
+    pose_R: np.ndarray
+    pose_t: np.ndarray
+    rig_R: np.ndarray
+    rig_t: np.ndarray
+    baseline_mm: np.ndarray
+    direction: np.ndarray
+
+    def updated(self, layout: Layout, h: np.ndarray) -> "State":
+        """The state moved by a flat step ``h`` (numbering of :mod:`dualcal.normal_equations`)."""
+        h_g, h_l = h[:layout.n_global], h[layout.n_global:].reshape(len(self.pose_R), layout.n_local)
+        intr = self.intrinsics.copy()
+        for c, cols in layout.intrinsics.items():
+            intr[c, layout.free_intrinsics[c]] += h_g[cols]
+        rig_R, rig_t, D = self.rig_R.copy(), self.rig_t.copy(), self.baseline_mm.copy()
+        for c, cols in layout.rig_rotation.items():
+            rig_R[c] = rotated(rig_R[c], h_g[cols])
+        for c, cols in layout.rig_translation.items():
+            rig_t[c] += h_g[cols]
+        for c, cols in layout.baseline.items():
+            D[c] += h_g[cols[0]]
+        pose_R, pose_t, direction = self.pose_R.copy(), self.pose_t.copy(), self.direction.copy()
+        for k, slots in layout.pose.items():
+            pose_R[:, k] = rotated(pose_R[:, k], h_l[:, slots[:3]])
+            pose_t[:, k] += h_l[:, slots[3:]]
+        for c, slots in layout.direction.items():
+            direction[:, c] = moved_on_sphere(direction[:, c], h_l[:, slots])
+        return State(intr, pose_R, pose_t, rig_R, rig_t, D, direction)
 
     def camera(self, problem: Problem, c: int) -> CameraModel:
-        return CameraModel.from_vector(problem.image_sizes[c], self.intr[c])
+        return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c])
 
-    def pose(self, slot: int) -> Pose:
-        return Pose(self.R[slot].copy(), self.t[slot].copy())
+    def relative_t(self, problem: Problem, c: int, views: np.ndarray) -> np.ndarray:
+        """(B, 3) reference-to-camera ``c`` translation in the given instants (tied cameras)."""
+        if problem.mode == "rigid":
+            return np.broadcast_to(self.rig_t[c], (len(views), 3))
+        return self.baseline_mm[c] * self.direction[views, c]
+
+    def photo_pose(self, problem: Problem, c: int, view: int) -> Pose:
+        """Board-to-camera ``c`` pose in instant ``view``."""
+        k = problem.pose_slot(c)
+        pose = Pose(self.pose_R[view, k].copy(), self.pose_t[view, k].copy())
+        if not problem.tied(c):
+            return pose
+        return Pose(self.rig_R[c], self.relative_t(problem, c, np.array([view]))[0]).compose(pose)
 
 
-def residuals_and_normal_equations(problem: Problem, state: State, with_normal: bool = True):
-    """Residuals ``predicted - observed`` (2 per corner, block by block), and the normal matrix
-    ``N = J^T J`` (dense, n_params^2) and gradient ``J^T r``.
+def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict[str, Pose]]) -> State:
+    """Starting values in the problem's layout from every camera's own estimates.
 
-    The Jacobian is never stored whole: the rows of one photo depend only on its camera's
-    intrinsics and one or two pose slots, so each photo's dense (2N, k) piece is multiplied out
-    on its own and added into ``N`` at its columns.
+    ``cameras[c]`` is a CameraModel, ``poses[c][view]`` a board-to-camera Pose (e.g. from Zhang's
+    closed form, or from an earlier adjustment). A tied camera's relative pose starts at the mean
+    of its relative poses over the instants it shares with the reference (in mode ``paper``:
+    ``D`` at the mean baseline length, each instant's direction at its own).
     """
-    X = problem.X_board
-    n = len(X)
-    res = np.empty(2 * n * len(problem.blocks))
-    N = np.zeros((problem.n_params, problem.n_params)) if with_normal else None
-    grad = np.zeros(problem.n_params) if with_normal else None
-    by_cam: dict[int, list[int]] = {}
-    for b, (c, _, _) in enumerate(problem.blocks):
-        by_cam.setdefault(c, []).append(b)
-    for c, bl in by_cam.items():
-        bl = np.array(bl)
-        B = len(bl)
-        slots = np.array([problem.block_slots(b) for b in bl])
-        Rs, ts = state.R[slots[:, 0]], state.t[slots[:, 0]]
-        W = np.einsum("bij,nj->bni", Rs, X)                        # R_v X  (B, N, 3)
-        Y = W + ts[:, None, :]
-        has_rig = slots[0, 1] >= 0
-        if has_rig:
-            Rr, tr = state.R[slots[:, 1]], state.t[slots[:, 1]]
-            Xc = np.einsum("bij,bnj->bni", Rr, Y) + tr[:, None, :]
+    C, V, ref = len(cameras), len(problem.views), problem.reference
+    rig_R, rig_t = np.tile(np.eye(3), (C, 1, 1)), np.zeros((C, 3))
+    D, direction = np.zeros(C), np.zeros((V, C, 3))
+    for c in range(C):
+        if not problem.tied(c):
+            continue
+        shared = [v for v in poses[c] if v in poses[ref]]
+        if not shared:
+            raise EstimationError(f"camera {problem.cameras[c]!r} shares no view with the reference camera "
+                                  f"{problem.cameras[ref]!r}: photos of the same instant are needed")
+        rels = {v: relative_pose(poses[ref][v], poses[c][v]) for v in shared}
+        mean = mean_pose(list(rels.values()))
+        rig_R[c], rig_t[c] = mean.R, mean.t_mm
+        D[c] = np.mean([np.linalg.norm(rel.t_mm) for rel in rels.values()])
+        direction[:, c] = mean.t_mm / np.linalg.norm(mean.t_mm)
+        for v, rel in rels.items():
+            direction[problem.view_index[v], c] = rel.t_mm / np.linalg.norm(rel.t_mm)
+    slots = C if problem.mode == "none" else 1
+    pose_R, pose_t = np.tile(np.eye(3), (V, slots, 1, 1)), np.zeros((V, slots, 3))
+    state = State(np.array([cam.as_vector() for cam in cameras]), pose_R, pose_t, rig_R, rig_t, D, direction)
+    for i, v in enumerate(problem.views):
+        if problem.mode == "none":
+            for c in range(C):
+                if v in poses[c]:
+                    pose_R[i, c], pose_t[i, c] = poses[c][v].R, poses[c][v].t_mm
+            continue
+        c = ref if v in poses[ref] else next(c for c in range(C) if v in poses[c])
+        pose = poses[c][v]
+        if c != ref:     # seen only by other cameras: through the rig
+            rel = Pose(rig_R[c], state.relative_t(problem, c, np.array([i]))[0])
+            pose = rel.inverse().compose(pose)
+        pose_R[i, 0], pose_t[i, 0] = pose.R, pose.t_mm
+    return state
+
+
+# ----------------------------------------------------------------------------- residuals and Jacobians
+
+
+def _camera_points(problem: Problem, state: State, batch: CameraBatch):
+    """``W = R_v X`` (B, N, 3), the camera-frame points ``X_c`` (B, N, 3) and the relative
+    translation (B, 3) (None for an untied camera)."""
+    k = problem.pose_slot(batch.camera)
+    W = np.einsum("bij,nj->bni", state.pose_R[batch.views, k], problem.X_board)
+    Y = W + state.pose_t[batch.views, k][:, None, :]
+    if not problem.tied(batch.camera):
+        return W, Y, None
+    rel_t = state.relative_t(problem, batch.camera, batch.views)
+    return W, Y @ state.rig_R[batch.camera].T + rel_t[:, None, :], rel_t
+
+
+def corners_behind(problem: Problem, state: State) -> int:
+    """How many measured corners lie at ``Z <= 0``, behind their camera."""
+    return sum(int(np.sum(_camera_points(problem, state, b)[1][b.observed][:, 2] <= 0)) for b in problem.batches)
+
+
+def cost(problem: Problem, state: State, allowed_behind: int = 0) -> float:
+    """``r^T r`` over the measured corners, residuals only; ``inf`` if more than ``allowed_behind``
+    of them lie at ``Z <= 0`` (a projection from behind the camera is a mirror image, not a fit)."""
+    total, behind = 0.0, 0
+    for batch in problem.batches:
+        Xc = _camera_points(problem, state, batch)[1][batch.observed]
+        behind += int(np.sum(Xc[:, 2] <= 0))
+        if behind > allowed_behind:
+            return np.inf
+        with np.errstate(divide="ignore", invalid="ignore"):
+            total += float(np.sum((project_points(state.camera(problem, batch.camera), Xc)
+                                   - batch.uv_px[batch.observed]) ** 2))
+    return total if np.isfinite(total) else np.inf
+
+
+def residuals(problem: Problem, state: State) -> np.ndarray:
+    """(n_blocks, N, 2) predicted - observed pixels, NaN where a corner was not measured."""
+    out = np.full((len(problem.blocks), len(problem.X_board), 2), np.nan)
+    for batch in problem.batches:
+        Xc = _camera_points(problem, state, batch)[1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = project_points(state.camera(problem, batch.camera), Xc.reshape(-1, 3)).reshape(Xc.shape[:2] + (2,))
+        out[batch.blocks] = np.where(batch.observed[..., None], uv - batch.uv_px, np.nan)
+    return out
+
+
+def _jacobian_pieces(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, J_X, J_K):
+    """d residual / d unknowns of one camera's photos, as ``(columns, (B, N, 2, k))`` pieces:
+    a list of global pieces (columns in the flat vector) and one of local ones (slots)."""
+    lay, c = problem.layout, batch.camera
+    glob = [(lay.intrinsics[c], J_K[..., lay.free_intrinsics[c]])]
+    loc = []
+    M = J_X                                                              # d res / d (R_v X + t_v)
+    if problem.tied(c):
+        M = J_X @ state.rig_R[c]
+        glob.append((lay.rig_rotation[c], -np.cross(J_X, (Xc - rel_t[:, None, :])[:, :, None, :])))
+        if problem.mode == "rigid":
+            glob.append((lay.rig_translation[c], J_X))
         else:
-            Xc = Y
-        uv, J_X, J_K = project_with_jacobians(state.camera(problem, c), Xc.reshape(-1, 3))
-        obs = np.concatenate([problem.blocks[b][2] for b in bl])
-        r_b = (uv - obs).reshape(B, 2 * n)
-        res.reshape(len(problem.blocks), 2 * n)[bl] = r_b
-        if not with_normal:
-            continue
-        J_X = J_X.reshape(B, n, 2, 3)
-        M = J_X @ Rr[:, None] if has_rig else J_X                              # d res / d Y
-        parts = [J_K[:, :, problem.free_intrinsics].reshape(B, n, 2, -1),
-                 -np.cross(M, W[:, :, None, :]), M]                            # intrinsics, pose slot
-        cols = [np.broadcast_to(problem.intr_columns(c), (B, problem.n_intr)),
-                np.array([problem.pose_columns(s) for s in slots[:, 0]])]
-        if has_rig:                                                            # the rig's slot
-            parts += [-np.cross(J_X, (Xc - tr[:, None, :])[:, :, None, :]), J_X]
-            cols.append(np.array([problem.pose_columns(s) for s in slots[:, 1]]))
-        Jb = np.concatenate(parts, axis=-1).reshape(B, 2 * n, -1)             # (B, 2N, k)
-        cb = np.concatenate(cols, axis=1)                                      # (B, k)
-        JbT = np.swapaxes(Jb, 1, 2)
-        np.add.at(N, (cb[:, :, None], cb[:, None, :]), JbT @ Jb)
-        np.add.at(grad, cb, (JbT @ r_b[:, :, None])[:, :, 0])
-    return res, N, grad
+            u = state.direction[batch.views, c]
+            glob.append((lay.baseline[c], np.einsum("bnij,bj->bni", J_X, u)[..., None]))
+            free = lay.local_used[batch.views][:, lay.direction[c][0]]
+            d_dir = state.baseline_mm[c] * np.einsum("bnij,bjk->bnik", J_X, tangent_basis(u))
+            loc.append((lay.direction[c], d_dir * free[:, None, None, None]))
+    loc.insert(0, (lay.pose[problem.pose_slot(c)], np.concatenate([-np.cross(M, W[:, :, None, :]), M], axis=-1)))
+    return glob, loc
 
 
-# ----------------------------------------------------------------------------- the paper's constraints
+def _linearised_batches(problem: Problem, state: State):
+    """Per camera: ``(batch, r (B, 2N), J_g (B, 2N, k_g), global columns, J_l (B, 2N, k_l), local
+    slots)``, with the rows of unmeasured corners zero."""
+    for batch in problem.batches:
+        W, Xc, rel_t = _camera_points(problem, state, batch)
+        B, n = batch.observed.shape
+        with np.errstate(divide="ignore", invalid="ignore"):      # unmeasured corners may sit anywhere
+            uv, J_X, J_K = project_with_jacobians(state.camera(problem, batch.camera), Xc.reshape(-1, 3))
+        obs = batch.observed[:, :, None]
+        r = np.where(obs, uv.reshape(B, n, 2) - batch.uv_px, 0.0).reshape(B, 2 * n)
+        glob, loc = _jacobian_pieces(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3),
+                                     J_K.reshape(B, n, 2, -1))
+
+        def stacked(pieces):
+            J = np.concatenate([p for _, p in pieces], axis=-1)
+            return np.where(obs[..., None], J, 0.0).reshape(B, 2 * n, -1), np.concatenate([cols for cols, _ in pieces])
+        J_g, cols_g = stacked(glob)
+        J_l, slots_l = stacked(loc)
+        yield batch, r, J_g, cols_g, J_l, slots_l
 
 
-def relative_pose(ref: Pose, cam: Pose) -> Pose:
-    """Reference-to-camera pose from both board-to-camera poses of one view."""
-    return cam.compose(ref.inverse())
+def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
+    """``r^T r`` and the normal equations, assembled photo by photo from dense (2N, k) pieces."""
+    lay = problem.layout
+    ne = NormalEquations.zeros(lay.n_global, lay.local_used)
+    total = 0.0
+    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
+        total += float(np.sum(r * r))
+        v = batch.views[:, None, None]              # one photo per instant in a camera: no index repeats
+        J_gT, J_lT = np.swapaxes(J_g, 1, 2), np.swapaxes(J_l, 1, 2)
+        ne.gg[v, cg[:, None], cg[None, :]] += J_gT @ J_g
+        ne.gl[v, cg[:, None], sl[None, :]] += J_gT @ J_l
+        ne.ll[v, sl[:, None], sl[None, :]] += J_lT @ J_l
+        g_g, g_l = np.einsum("bki,bk->bi", J_g, r), np.einsum("bki,bk->bi", J_l, r)
+        ne.grad_g[batch.views[:, None], cg] += g_g
+        ne.grad_l[batch.views[:, None], sl] += g_l
+        if problem.mode == "paper" and problem.tied(batch.camera):
+            _add_sphere_curvature(problem, state, ne, batch, g_g[:, cg == lay.baseline[batch.camera][0]][:, 0],
+                                  g_l[:, np.isin(sl, lay.direction[batch.camera])])
+    return total, ne
 
 
-def _wrap_angles(a: np.ndarray, angles: slice) -> np.ndarray:
-    """``a`` with the entries ``angles`` (radians) folded into (-pi, pi]."""
-    a = np.array(a, dtype=float)
-    a[..., angles] = (a[..., angles] + np.pi) % (2 * np.pi) - np.pi
-    return a
+def _add_sphere_curvature(problem: Problem, state: State, ne: NormalEquations, batch: CameraBatch,
+                          g_D: np.ndarray, g_dir: np.ndarray) -> None:
+    """Add the exact second-order terms ``sum r d2r`` that the paper's baseline ``D u_v`` brings in.
 
-
-def _perturbed(R: np.ndarray, t: np.ndarray, i: int, step: float):
-    """``(R, t)`` stacks with increment ``i`` (0-2 rotation, 3-5 translation) set to ``step``."""
-    d = np.zeros(6)
-    d[i] = step
-    return rotation_from_rotvec(d[:3]) @ R, t + d[3:]
-
-
-def _numeric_jacobian(f, slots: list[int], state: State, angles: slice, step: float = 1e-6) -> np.ndarray:
-    """Central differences of ``f(state)`` with respect to the 6 increments of each pose slot;
-    the entries ``angles`` of ``f`` are angles, whose differences are folded into (-pi, pi]."""
-    f0 = f(state)
-    J = np.zeros((len(f0), 6 * len(slots)))
-    for k, s in enumerate(slots):
-        for i in range(6):
-            vals = []
-            for sign in (1.0, -1.0):
-                R, t = state.R.copy(), state.t.copy()
-                R[s], t[s] = _perturbed(R[s], t[s], i, sign * step)
-                vals.append(f(State(state.intr, R, t)))
-            J[:, 6 * k + i] = _wrap_angles(vals[0] - vals[1], angles) / (2 * step)
-    return J
-
-
-_OPK = slice(1, 4)     # the angles in d_opk's [D, omega, phi, kappa]
-
-
-def d_opk(R_ref, t_ref, R_cam, t_cam) -> np.ndarray:
-    """``[D, omega, phi, kappa]`` of the relative pose of each view (paper eqs. 20-23).
-
-    ``D = |C_cam - C_ref| = |t_rel|``; the angles are those of ``R_rel = R_cam R_ref^T``.
-    Works on stacks: (P, 3, 3) rotations, (P, 3) translations -> (P, 4).
+    The constraint ``|t_v| = D`` is curved: where an instant's baseline depth is poorly determined
+    its direction moves far, and Gauss-Newton alone then converges only linearly. On the sphere
+    ``u(delta) = u + B delta - |delta|^2 u / 2 + ...``, so ``d2 X_c / d delta^2 = -D u I`` and
+    ``d2 X_c / dD d delta = B``; through the projection (whose own curvature Gauss-Newton neglects
+    as usual) these give ``H_delta,delta = -D g_D I`` and ``H_D,delta = g_delta / D`` with the
+    photo's gradients ``g_D = sum r^T J_X u`` and ``g_delta = D sum r^T J_X B``. ``g_D`` (B,) and
+    ``g_dir`` (B, 2) are those gradients of each photo of ``batch``.
     """
-    R = R_cam @ np.swapaxes(R_ref, -1, -2)
-    t = t_cam - np.einsum("...ij,...j->...i", R, t_ref)
-    return np.concatenate([np.linalg.norm(t, axis=-1)[..., None], opk_from_rotation(R)], axis=-1)
+    lay, c = problem.layout, batch.camera
+    if ne.curvature_ll is None:
+        ne.curvature_ll, ne.curvature_gl = np.zeros_like(ne.ll), np.zeros_like(ne.gl)
+    D, dirs = state.baseline_mm[c], lay.direction[c]
+    free = lay.local_used[batch.views, dirs[0]]
+    ne.curvature_ll[batch.views[:, None], dirs, dirs] += (-D * g_D * free)[:, None]
+    ne.curvature_gl[batch.views[:, None], lay.baseline[c][0], dirs] += g_dir * free[:, None] / D
 
 
-def _d_opk_jacobian(R_ref, t_ref, R_cam, t_cam, step: float = 1e-6) -> np.ndarray:
-    """(P, 4, 12) derivatives of :func:`d_opk` by central differences: 6 increments of the
-    reference pose, then 6 of the camera pose."""
-    J = np.zeros((len(R_ref), 4, 12))
-    for i in range(6):
-        up, down = _perturbed(R_ref, t_ref, i, step), _perturbed(R_ref, t_ref, i, -step)
-        J[:, :, i] = _wrap_angles(d_opk(*up, R_cam, t_cam) - d_opk(*down, R_cam, t_cam), _OPK) / (2 * step)
-        up, down = _perturbed(R_cam, t_cam, i, step), _perturbed(R_cam, t_cam, i, -step)
-        J[:, :, 6 + i] = _wrap_angles(d_opk(R_ref, t_ref, *up) - d_opk(R_ref, t_ref, *down), _OPK) / (2 * step)
-    return J
+@dataclass(frozen=True)
+class InstantRows:
+    """The Jacobian rows of one instant's measured corners: ``J`` (m, k) over the flat parameter
+    indices ``columns`` (k,), residuals ``r`` (m,) (predicted - observed, px)."""
+
+    view: str
+    columns: np.ndarray
+    J: np.ndarray
+    r: np.ndarray
 
 
-def shared_views(problem: Problem, c: int) -> list[str]:
-    """Views seen by both the reference and camera ``c`` (in the order used by the constraints)."""
-    seen = {}
-    for cam, v, _ in problem.blocks:
-        seen.setdefault(v, set()).add(cam)
-    return [v for v in problem.views if {problem.reference, c} <= seen.get(v, set())]
+def instant_rows(problem: Problem, state: State) -> list[InstantRows]:
+    """The Jacobian rows of every instant's measured corners, in the order of ``problem.views``
+    (within an instant: camera by camera, corner by corner, u then v)."""
+    lay = problem.layout
+    parts = defaultdict(list)
+    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
+        rows = np.repeat(batch.observed, 2, axis=1)
+        for i, v in enumerate(batch.views):
+            used = lay.local_used[v, sl]
+            cols = np.concatenate([cg, lay.local_columns(v, sl[used])])
+            parts[v].append((cols, np.concatenate([J_g[i], J_l[i][:, used]], axis=1)[rows[i]], r[i][rows[i]]))
+    out = []
+    for v, pieces in sorted(parts.items()):
+        columns = np.unique(np.concatenate([cols for cols, _, _ in pieces]))
+        J = np.zeros((sum(len(r) for _, _, r in pieces), len(columns)))
+        row = 0
+        for cols, Jp, _ in pieces:
+            J[row:row + len(Jp), np.searchsorted(columns, cols)] = Jp
+            row += len(Jp)
+        out.append(InstantRows(problem.views[v], columns, J, np.concatenate([r for _, _, r in pieces])))
+    return out
 
 
-def paper_constraints(problem: Problem, state: State, with_jacobian: bool = True):
-    """The paper's constraints (eqs. 20-23) ``D_q - D_1 = 0``, ``d_omega_q - d_omega_1 = 0``,
-    ``d_phi_q - d_phi_1 = 0``, ``d_kappa_q - d_kappa_1 = 0`` for every extra camera and every
-    shared view ``q = 2..m``: values ``g`` (K,) and Jacobian ``C`` (K, n_params) or None."""
-    g_all, C_all = [], []
-    for c in range(len(problem.cameras)):
-        if c == problem.reference:
-            continue
-        views = shared_views(problem, c)
-        if len(views) < 2:
-            continue
-        ref_slots = np.array([problem.slot_index[("pose", (problem.reference, v))] for v in views])
-        cam_slots = np.array([problem.slot_index[("pose", (c, v))] for v in views])
-        args = (state.R[ref_slots], state.t[ref_slots], state.R[cam_slots], state.t[cam_slots])
-        f = d_opk(*args)
-        g_all.append(_wrap_angles(f[1:] - f[0], _OPK).ravel())
-        if not with_jacobian:
-            continue
-        J = _d_opk_jacobian(*args)
-        C = np.zeros((len(views) - 1, 4, problem.n_params))
-        for q in range(1, len(views)):
-            for slot, Jq, sign in ((ref_slots[q], J[q, :, :6], 1), (cam_slots[q], J[q, :, 6:], 1),
-                                   (ref_slots[0], J[0, :, :6], -1), (cam_slots[0], J[0, :, 6:], -1)):
-                C[q - 1][:, problem.pose_columns(slot)] += sign * Jq
-        C_all.append(C.reshape(-1, problem.n_params))
-    if not g_all:
-        return np.zeros(0), (np.zeros((0, problem.n_params)) if with_jacobian else None)
-    return np.concatenate(g_all), (np.vstack(C_all) if with_jacobian else None)
-
-
-# ----------------------------------------------------------------------------- the solver
+# ----------------------------------------------------------------------------- the solution
 
 
 @dataclass
 class Solution:
-    """Result of :func:`adjust`: the state, its covariance and the fit statistics."""
+    """Result of :func:`adjust`: the state, the fit and the factorized normal equations.
+
+    ``residuals`` is (n_blocks, N, 2), NaN where a corner was not measured; ``block_rms_px`` the
+    RMS length of each photo's 2-D residuals over its measured corners.
+    """
 
     problem: Problem
     state: State
-    covariance: np.ndarray          # s0^2 Q, (n_params, n_params)
-    residuals: np.ndarray           # predicted - observed, (2 N B,)
+    residuals: np.ndarray
     s0_px: float
     redundancy: int
     iterations: int
-    n_constraints: int
+    converged: bool
+    termination: str
+    normal: NormalEquations
+    factorization: Factorization
     block_rms_px: list[float] = field(default_factory=list)
-    rigid_start: "Solution | None" = None   # paper mode: the rigid solution it started from
+
+    def covariance(self, columns) -> np.ndarray:
+        """``s0^2 N^-1`` restricted to the flat parameter indices ``columns`` (mm, rad, px...)."""
+        return self.s0_px ** 2 * self.factorization.inverse_block(columns)
 
     def intrinsic_sigma(self, c: int) -> dict[str, float]:
-        p = self.problem
+        """1-sigma of every intrinsic of camera ``c`` (0 for a fixed one)."""
+        lay = self.problem.layout
         sig = dict.fromkeys(INTRINSIC_NAMES, 0.0)
-        diag = np.sqrt(np.maximum(np.diag(self.covariance)[p.intr_columns(c)], 0.0))
-        for i, s in zip(p.free_intrinsics, diag):
-            sig[INTRINSIC_NAMES[i]] = float(s)
+        cols = lay.intrinsics[c]
+        values = np.sqrt(np.maximum(np.diag(self.covariance(cols)), 0.0))
+        for name, s in zip(np.array(INTRINSIC_NAMES)[lay.free_intrinsics[c]], values):
+            sig[str(name)] = float(s)
         return sig
 
-    def propagate(self, f, slots: list[int], angles: slice) -> tuple[np.ndarray, np.ndarray]:
-        """Value of ``f(state)`` and its covariance ``J Cov J^T`` through the given pose slots."""
-        J = _numeric_jacobian(f, slots, self.state, angles)
-        idx = np.concatenate([self.problem.pose_columns(s) for s in slots])
-        return f(self.state), J @ self.covariance[np.ix_(idx, idx)] @ J.T
+    def per_instant_reduced(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each instant's ``S_v`` (V, G, G) and ``b_v`` (V, G), in the order of ``problem.views``
+        (:meth:`dualcal.normal_equations.Factorization.per_instant_reduced`); the globals are the
+        first ``G`` flat parameters (:class:`Layout`)."""
+        return self.factorization.per_instant_reduced()
+
+    def instant_rows(self) -> list[InstantRows]:
+        """:func:`instant_rows` at the solution (for a covariance clustered by instant; ``N^-1``
+        on any columns from :meth:`covariance` over ``s0^2``)."""
+        return instant_rows(self.problem, self.state)
 
 
-class _BlockSolver:
-    """Solves ``A x = b`` for the damped normal matrix by eliminating the pose blocks first.
-
-    The unknowns split into global ones (intrinsics, the rig's relative poses) and per-view pose
-    slots whose 6x6 blocks of ``A`` are independent of each other. With ``W = A_ll^-1 A_lg`` the
-    reduced system is ``S = A_gg - A_gl W`` (a few dozen unknowns), so the cost grows linearly,
-    not cubically, with the number of photos (the classical reduced camera system).
-    """
-
-    def __init__(self, A: np.ndarray, problem: Problem):
-        g, L = problem.global_columns, problem.local_columns
-        self.g, self.l = g, L.ravel()
-        blocks = A[L[:, :, None], L[:, None, :]]                               # (k, 6, 6)
-        self.blocks_inv = np.linalg.inv(np.linalg.cholesky(blocks))          # raises if not definite
-        self.blocks_inv = np.swapaxes(self.blocks_inv, -1, -2) @ self.blocks_inv
-        self.A_gl = A[np.ix_(g, self.l)]
-        self.W = self._block_solve(self.A_gl.T)
-        self.cho = scipy.linalg.cho_factor(A[np.ix_(g, g)] - self.A_gl @ self.W)
-
-    def _block_solve(self, b_l: np.ndarray) -> np.ndarray:
-        k = len(self.blocks_inv)
-        return (self.blocks_inv @ b_l.reshape(k, 6, -1)).reshape(b_l.shape)
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        """``A^-1 b`` for a vector (n,) or a matrix (n, m)."""
-        y_l = self._block_solve(b[self.l])
-        x = np.empty_like(b, dtype=float)
-        x[self.g] = scipy.linalg.cho_solve(self.cho, b[self.g] - self.A_gl @ y_l)
-        x[self.l] = y_l - self.W @ x[self.g]
-        return x
-
-
-class _KKTSolver:
-    """Solves ``A dx = -grad`` subject to ``C dx = -g`` (Lagrange multipliers, Mikhail & Ackermann
-    ch. 9) by the Schur complement: ``dx = y - A^-1 C^T k``, ``A y = -grad``,
-    ``(C A^-1 C^T) k = C y + g``. Also gives the minimum-norm (in the A metric) correction that
-    restores ``C dx = -g`` alone, used as a second-order correction after a nonlinear step."""
-
-    def __init__(self, A: np.ndarray, problem: Problem, C: np.ndarray | None):
-        self.A = _BlockSolver(A, problem)
-        self.C = C
-        if C is not None and len(C):
-            self.AiCt = self.A.solve(C.T)
-            self.S = C @ self.AiCt
-
-    def step(self, grad: np.ndarray, g: np.ndarray) -> np.ndarray:
-        y = self.A.solve(-grad)
-        if len(g) == 0:
-            return y
-        return y - self.AiCt @ np.linalg.solve(self.S, self.C @ y + g)
-
-    def correction(self, g: np.ndarray) -> np.ndarray:
-        return -self.AiCt @ np.linalg.solve(self.S, g)
-
-
-def adjust(problem: Problem, state: State, max_iter: int = 100, tol: float = 1e-10) -> Solution:
-    """Levenberg-Marquardt on the normal equations (with the paper's constraints in ``paper`` mode).
-
-    In ``paper`` mode every trial step is followed by up to three second-order corrections that
-    bring the (nonlinear) constraints back to zero before the step is judged by its cost.
+def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> Solution:
+    """Levenberg-Marquardt from ``state`` (:func:`dualcal.lm.levenberg_marquardt`).
 
     Raises
     ------
     EstimationError
-        If the normal matrix is singular (the data do not determine the parameters).
+        Fewer observations than unknowns, or a singular normal matrix (the data do not determine
+        the parameters).
     """
-    constrained = problem.mode == "paper"
-    r, Nmat, grad = residuals_and_normal_equations(problem, state)
-    g, C = paper_constraints(problem, state) if constrained else (np.zeros(0), None)
-    cost = r @ r
-    lam = 1e-4
-    it = 0
-    for it in range(1, max_iter + 1):
-        diag = np.maximum(np.diag(Nmat), 1e-12)
-        improved = False
-        while lam < 1e12:
-            try:
-                solver = _KKTSolver(Nmat + lam * np.diag(diag), problem, C)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            trial = state.updated(problem, solver.step(grad, g))
-            if constrained:
-                for _ in range(3):
-                    g_t = paper_constraints(problem, trial, with_jacobian=False)[0]
-                    if np.max(np.abs(g_t)) < 1e-12:
-                        break
-                    trial = trial.updated(problem, solver.correction(g_t))
-            r_new = residuals_and_normal_equations(problem, trial, with_normal=False)[0]
-            cost_new = r_new @ r_new
-            if np.isfinite(cost_new) and cost_new <= cost:
-                improved = True
-                break
-            lam *= 10
-        if not improved:
-            break
-        rel_change = (cost - cost_new) / max(cost, 1e-300)
-        state, cost = trial, cost_new
-        r, Nmat, grad = residuals_and_normal_equations(problem, state)
-        if constrained:
-            g, C = paper_constraints(problem, state)
-        lam = max(lam / 10, 1e-12)
-        if rel_change < tol:
-            break
-
+    redundancy = problem.n_observations - problem.n_parameters
+    if redundancy <= 0:
+        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
     try:
-        Q = _BlockSolver(Nmat, problem).solve(np.eye(len(Nmat)))
+        behind = corners_behind(problem, state)       # a poor start may have some: none may be added
+        res = levenberg_marquardt(state, lambda s: linearise(problem, s), lambda s: cost(problem, s, behind),
+                                  lambda s, h: s.updated(problem.layout, h), redundancy, options)
     except np.linalg.LinAlgError:
         raise EstimationError("the normal equations are singular: the photos do not determine every "
                               "parameter (too few views, or views all alike)") from None
-    n_con = len(g)
-    if n_con:
-        QC = Q @ C.T
-        Q = Q - QC @ np.linalg.solve(C @ QC, QC.T)
-    redundancy = len(r) - problem.n_params + n_con
-    if redundancy <= 0:
-        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
-    s0sq = float(r @ r) / redundancy
-    n = len(problem.X_board)
-    block_rms = np.sqrt(np.mean(r.reshape(len(problem.blocks), n, 2) ** 2, axis=(1, 2)) * 2)
-    return Solution(problem, state, Q * s0sq, r, float(np.sqrt(s0sq)), redundancy, it, n_con,
-                    block_rms.tolist())
+    r = residuals(problem, res.x)
+    block_rms = np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1))
+    return Solution(problem, res.x, r, float(np.sqrt(res.cost / redundancy)), redundancy, res.iterations,
+                    res.converged, res.termination, res.normal, res.factorization, block_rms.tolist())
 
 
 # ----------------------------------------------------------------------------- the rig's relative poses
 
 
+def shared_views(problem: Problem, c: int) -> list[str]:
+    """Views seen by both the reference and camera ``c``."""
+    both = problem.seen(c) & problem.seen(problem.reference)
+    return [v for v, ok in zip(problem.views, both) if ok]
+
+
 def rig_relation(sol: Solution, c: int):
     """Reference-to-camera ``c`` pose and 1-sigma of ``t_mm``, baseline D and opk (arcmin).
 
-    ``rigid``: the adjusted relative pose itself. ``paper``: D and the angles (equal in every view
-    by the constraints) from the first shared view, ``t`` of length D along the mean direction over
-    the views. ``none``: the mean of the per-view relative poses. Sigmas by propagation of the
-    adjustment's covariance.
+    ``rigid``: the adjusted ``R_c, t_c``. ``paper``: ``R_c``, and ``t`` of length ``D_c`` along the
+    mean of the instants' directions (D's sigma is that of the parameter itself). ``none``: the
+    mean of the instants' relative poses (its sigma to first order). Sigmas propagate the
+    covariance of the rotation increment, then of omega-phi-kappa through
+    :func:`dualcal.poses.opk_jacobian`; near ``phi = +-90 deg`` a warning says that omega and
+    kappa are then ill-defined.
     """
-    p = sol.problem
-    if p.mode == "rigid":
-        slot = p.slot_index[("rig", c)]
-        slots = [slot]
-
-        def f(s):
-            return _rig_values(s.pose(slot))
-    else:
-        views = shared_views(p, c)
-        if not views:
+    p, st, lay = sol.problem, sol.state, sol.problem.layout
+    if p.mode != "rigid":
+        views = np.flatnonzero(p.seen(c) & p.seen(p.reference))
+        if not len(views):
             raise EstimationError(f"camera {p.cameras[c]!r} shares no view with the reference "
                                   f"{p.cameras[p.reference]!r}: the rig cannot be determined")
-        pairs = [(p.slot_index[("pose", (p.reference, v))], p.slot_index[("pose", (c, v))]) for v in views]
-        slots = [s for pair in pairs for s in pair]
-
-        def f(s):
-            rels = [relative_pose(s.pose(a), s.pose(b)) for a, b in pairs]
-            t_mean = np.mean([q.t_mm for q in rels], axis=0)
-            if p.mode == "paper":
-                # D and the angles are equal in every view; only the direction of t is free.
-                D = np.linalg.norm(rels[0].t_mm)
-                return _rig_values(Pose(rels[0].R, D * t_mean / np.linalg.norm(t_mean)))
-            return _rig_values(mean_pose(rels))
-    values, cov = sol.propagate(f, slots, angles=slice(4, 10))   # opk and rotation vector
+    if p.mode == "rigid":
+        R, t = st.rig_R[c], st.rig_t[c]
+        cols = np.concatenate([lay.rig_rotation[c], lay.rig_translation[c]])
+        J_rot, J_t = np.eye(3, 6), np.eye(3, 6, 3)
+    elif p.mode == "paper":
+        R, D = st.rig_R[c], st.baseline_mm[c]
+        u, B = st.direction[views, c], tangent_basis(st.direction[views, c])
+        m = u.sum(axis=0)
+        m_hat = m / np.linalg.norm(m)
+        t = D * m_hat
+        cols = np.concatenate([lay.rig_rotation[c], lay.baseline[c],
+                               *[lay.local_columns(v, lay.direction[c]) for v in views]])
+        J_rot = np.eye(3, len(cols))
+        # t = D m / |m|: d t = m_hat dD + D (I - m_hat m_hat^T) / |m| B_v d delta_v
+        J_t = np.concatenate([np.zeros((3, 3)), m_hat[:, None],
+                              *(D * (np.eye(3) - np.outer(m_hat, m_hat)) / np.linalg.norm(m) @ B)], axis=1)
+    else:
+        R, t, J_rot, J_t, cols = _mean_relative_pose(sol, c, views)
+    J_D = (t / np.linalg.norm(t)) @ J_t
+    if p.mode == "paper":
+        J_D = np.sign(D) * np.eye(1, len(cols), 3)[0]
+    J = np.vstack([J_t, J_D, J_rot])
+    cov = J @ sol.covariance(cols) @ J.T
+    opk = opk_from_rotation(R)
+    if abs(abs(np.degrees(opk[1])) - 90.0) < NEAR_GIMBAL_DEG:
+        warn(f"camera {p.cameras[c]!r}: phi = {np.degrees(opk[1]):.1f} degrees, near the omega-phi-kappa "
+             "singularity at +-90: omega and kappa (and their sigmas) are ill-defined there; the rotation "
+             "itself (R in calib.json) is as well determined as ever")
+    J_opk = opk_jacobian(opk)
+    sigma_opk = np.sqrt(np.maximum(np.diag(J_opk @ cov[4:7, 4:7] @ J_opk.T), 0.0)) * ARCMIN_PER_RAD
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    pose = _pose_from_values(values)
-    return pose, sigma[0:3], float(sigma[3]), sigma[4:7] * ARCMIN_PER_RAD
+    return Pose(R.copy(), np.asarray(t, float).copy()), sigma[0:3], float(sigma[3]), sigma_opk
 
 
-def _rig_values(pose: Pose) -> np.ndarray:
-    """``[t (3), D, omega, phi, kappa]`` plus the rotation vector, for propagation."""
-    return np.concatenate([pose.t_mm, [np.linalg.norm(pose.t_mm)], opk_from_rotation(pose.R),
-                           rotvec_from_rotation(pose.R)])
+def _mean_relative_pose(sol: Solution, c: int, views: np.ndarray):
+    """Mode ``none``: the mean of the instants' relative poses and its first-order Jacobian.
 
-
-def _pose_from_values(values: np.ndarray) -> Pose:
-    return Pose(rotation_from_rotvec(values[7:10]), values[0:3].copy())
+    Per instant ``R_rel = R_c R_ref^T`` and ``t_rel = t_c - R_rel t_ref``. With left increments
+    ``(e, f)`` of the reference's board pose and ``(a, b)`` of camera ``c``'s:
+    ``d theta_rel = a - R_rel e`` and ``d t_rel = -R_rel [t_ref]x e - R_rel f + [R_rel t_ref]x a + b``.
+    The mean of the rotations moves by the mean of the increments (exact where they agree).
+    Returns ``R, t, J_rot (3, k), J_t (3, k)`` and the k flat columns.
+    """
+    p, st, lay = sol.problem, sol.state, sol.problem.layout
+    ref, n = p.reference, len(views)
+    rels, J_rot, J_t, cols = [], [], [], []
+    for v in views:
+        R_ref, t_ref = st.pose_R[v, ref], st.pose_t[v, ref]
+        rel = relative_pose(Pose(R_ref, t_ref), Pose(st.pose_R[v, c], st.pose_t[v, c]))
+        rels.append(rel)
+        Rr = rel.R
+        # reference increments (e rotation, f translation), then camera increments (a, b)
+        J_rot.append(np.hstack([-Rr, np.zeros((3, 3)), np.eye(3), np.zeros((3, 3))]) / n)
+        J_t.append(np.hstack([-Rr @ cross_matrix(t_ref), -Rr, cross_matrix(Rr @ t_ref), np.eye(3)]) / n)
+        cols += [lay.local_columns(v, lay.pose[ref]), lay.local_columns(v, lay.pose[c])]
+    mean = mean_pose(rels)
+    return mean.R, mean.t_mm, np.hstack(J_rot), np.hstack(J_t), np.concatenate(cols)

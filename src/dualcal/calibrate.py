@@ -3,21 +3,40 @@
 :func:`calibrate_rig` is the whole of the paper's sections 1.3 to 1.7 for any number of cameras:
 Zhang's closed form per camera (:mod:`dualcal.zhang`), the rig's relative poses from the views
 the cameras share, then the joint adjustment (:mod:`dualcal.adjust`) in the chosen rig mode.
-Photos whose residuals are far out of line with the others are dropped one at a time, each with
-a recorded reason, and the adjustment is repeated.
+Each photo contributes the corners it measured; one whose corners cannot fix a homography (fewer
+than 4, or all on one line) is skipped with a warning. Photos whose residuals are far out of line
+with the others are dropped one at a time, each with a recorded reason, and the adjustment is
+repeated. A final adjustment that did not converge is said so, on stderr and in calib.json.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .adjust import Problem, Solution, State, adjust, relative_pose, rig_relation, shared_views
+from .adjust import Problem, Solution, adjust, cost, initial_state, rig_relation, shared_views
 from .errors import EstimationError
-from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, mean_pose
+from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
-from .zhang import initial_camera
+from .zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
 
 MIN_VIEWS = 3
+
+
+def usable_photos(corners: CornerSet, names: list[str], xy_board: np.ndarray) -> list[tuple[int, str, np.ndarray]]:
+    """``(camera index, view, (N, 2) corners)`` of every photo whose measured corners determine a
+    homography: at least :data:`dualcal.zhang.MIN_HOMOGRAPHY_CORNERS`, not all on one line. Every
+    other photo where the board was found is skipped with a warning naming it."""
+    blocks = []
+    for c, name in enumerate(names):
+        for v, uv in sorted(corners.cameras[name].found().items()):
+            seen = observed_mask(uv)
+            if seen.sum() < MIN_HOMOGRAPHY_CORNERS or not spans_a_plane(xy_board[seen]):
+                warn(f"{name}/{v} skipped: its {int(seen.sum())} measured corner(s) "
+                     f"{'lie on one line' if seen.sum() >= MIN_HOMOGRAPHY_CORNERS else 'are too few'}; "
+                     f"a photo needs at least {MIN_HOMOGRAPHY_CORNERS} corners, not all on one line")
+                continue
+            blocks.append((c, v, uv))
+    return blocks
 
 
 def _check_enough_views(blocks, names) -> None:
@@ -28,47 +47,10 @@ def _check_enough_views(blocks, names) -> None:
                                   "(take more photos, or check that the board is found in them)")
 
 
-def _initial_state(problem: Problem, cams, poses) -> State:
-    """Initial values in the problem's layout from per-camera Zhang results.
-
-    ``cams[c]`` is a CameraModel, ``poses[c][view]`` a board-to-camera Pose.
-    """
-    intr = np.array([cam.as_vector() for cam in cams])
-    ref = problem.reference
-    rel = {}
-    for c in range(len(cams)):
-        if c == ref or problem.mode != "rigid":
-            continue
-        shared = [v for v in poses[c] if v in poses[ref]]
-        if not shared:
-            raise EstimationError(f"camera {problem.cameras[c]!r} shares no view with the reference camera "
-                                  f"{problem.cameras[ref]!r}: photos of the same instant are needed")
-        rel[c] = mean_pose([relative_pose(poses[ref][v], poses[c][v]) for v in shared])
-    slot_poses = []
-    for kind, key in problem.slots:
-        if kind == "view":
-            if key in poses[ref]:
-                slot_poses.append(poses[ref][key])
-            else:  # seen only by other cameras: go through the rig
-                c = next(c for c in rel if key in poses[c])
-                slot_poses.append(rel[c].inverse().compose(poses[c][key]))
-        elif kind == "rig":
-            slot_poses.append(rel[key])
-        else:
-            c, v = key
-            slot_poses.append(poses[c][v])
-    return State(intr, np.array([p.R for p in slot_poses]), np.array([p.t_mm for p in slot_poses]))
-
-
 def _block_poses(sol: Solution) -> dict[tuple[int, str], Pose]:
     """Board-to-camera pose of every observed (camera, view)."""
-    p, st = sol.problem, sol.state
-    out = {}
-    for b, (c, v, _) in enumerate(p.blocks):
-        slot, rig = p.block_slots(b)
-        pose = st.pose(slot)
-        out[(c, v)] = st.pose(rig).compose(pose) if rig >= 0 else pose
-    return out
+    p = sol.problem
+    return {(c, v): sol.state.photo_pose(p, c, p.view_index[v]) for c, v, _ in p.blocks}
 
 
 def _starting_values(sol: Solution):
@@ -85,9 +67,14 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples.
 
     Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
-    solution over the same photos (e.g. every camera adjusted alone).
+    solution over the same photos with every camera alone (rig mode ``none``). The paper's model
+    starts from the better (lower cost) of the rigid solution (every instant's baseline direction
+    the same) and the cameras-alone solution (each instant's own relative pose): the first is
+    the nearer when the rig is rigid, the second when the direction moves between instants.
     """
     _check_enough_views(blocks, names)
+    if mode == "paper" and start is None:
+        start = solve(X_board, names, sizes, blocks, reference, skew, "none")
     if start is not None:
         cams, poses = _starting_values(start)
     else:
@@ -98,33 +85,12 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
             poses.append(p)
     first_mode = "rigid" if mode == "paper" else mode
     problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference)
-    sol = adjust(problem, _initial_state(problem, cams, poses))
+    sol = adjust(problem, initial_state(problem, cams, poses))
     if mode != "paper":
         return sol
-    # The paper's model starts from the rigid solution, which satisfies its constraints exactly.
     problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference)
-    paper = adjust(problem, _initial_state(problem, *_starting_values(sol)))
-    paper.rigid_start = sol
-    return paper
-
-
-def _warn_if_paper_drifts(rigid: Solution, paper: Solution) -> None:
-    """Warn where the paper's model finds a baseline D far from the rigid model's.
-
-    The paper's constraints fix D and the angles but leave the direction of the baseline free in
-    every view; where the depth of each view's relative translation is poorly determined (few
-    views, noisy corners), D = |t| can drift away from the rigid solution.
-    """
-    for c, name in enumerate(paper.problem.cameras):
-        if c == paper.problem.reference or not shared_views(paper.problem, c):
-            continue
-        rel_r, rel_p = rig_relation(rigid, c), rig_relation(paper, c)
-        d_r, d_p = np.linalg.norm(rel_r[0].t_mm), np.linalg.norm(rel_p[0].t_mm)
-        sigma = np.hypot(rel_r[2], rel_p[2])
-        if abs(d_p - d_r) > 3 * sigma:
-            warn(f"{name}: the paper's model gives baseline D = {d_p:.3f} mm, the rigid model "
-                 f"{d_r:.3f} mm ({abs(d_p - d_r) / sigma:.0f} sigma apart): the paper's constraints leave "
-                 "the baseline direction free in every view; prefer --rig rigid for this data")
+    starts = [initial_state(problem, *_starting_values(s)) for s in (sol, start)]
+    return adjust(problem, min(starts, key=lambda state: cost(problem, state)))
 
 
 OUTLIER_FLOOR_PX = 0.05
@@ -220,15 +186,16 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
     sizes = [corners.cameras[n].image_size for n in names]
     X = corners.board.object_points_mm()
-    blocks = [(c, v, uv) for c, n in enumerate(names) for v, uv in sorted(corners.cameras[n].found().items())]
+    blocks = usable_photos(corners, names, X[:, :2])
     dropped: list[dict] = []
     factor = outlier_factor if drop_outliers else None
     alone = None
     if factor and rig_mode != "none":
         alone, blocks = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, "none", factor, dropped)
     sol, _ = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, rig_mode, factor, dropped, alone)
-    if sol.rigid_start is not None:     # judged once, on the final solution (not on outlier trials)
-        _warn_if_paper_drifts(sol.rigid_start, sol)
+    if not sol.converged:
+        warn(f"the adjustment (rig mode {rig_mode}, {'Model 2' if skew else 'Model 1'}) did not converge: "
+             f"{sol.termination}; the results and their sigmas are not those of the best fit")
     rig = rig_model_from_solution(sol, corners, dropped)
     rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor)}
     return rig
@@ -238,17 +205,16 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
     """Package an adjustment result as the :class:`RigModel` written to calib.json."""
     p, st = sol.problem, sol.state
     names = p.cameras
-    n = len(p.X_board)
-    sq = np.sum(sol.residuals.reshape(len(p.blocks), n, 2) ** 2, axis=2)       # (B, N) squared px
+    sq = np.sum(sol.residuals ** 2, axis=2)                 # (B, N) squared px, NaN where not measured
     cams = {name: st.camera(p, c) for c, name in enumerate(names)}
     sigma = {name: sol.intrinsic_sigma(c) for c, name in enumerate(names)}
     cam_rms = {}
     for c, name in enumerate(names):
         mask = [cc == c for cc, _, _ in p.blocks]
-        cam_rms[name] = float(np.sqrt(np.mean(sq[mask])))
+        cam_rms[name] = float(np.sqrt(np.nanmean(sq[mask])))
     view_rms: dict[str, dict[str, float]] = {}
     for b, (c, v, _) in enumerate(p.blocks):
-        view_rms.setdefault(v, {})[names[c]] = float(np.sqrt(np.mean(sq[b])))
+        view_rms.setdefault(v, {})[names[c]] = sol.block_rms_px[b]
     poses: dict[str, dict[str, Pose]] = {name: {} for name in names}
     for (c, v), pose in sorted(_block_poses(sol).items(), key=lambda kv: kv[0][1]):
         poses[names[c]][v] = pose
@@ -261,7 +227,7 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
             continue
         rig[name] = RigRelation(*rig_relation(sol, c))
     adjustment = {"s0_px": sol.s0_px, "redundancy": sol.redundancy, "iterations": sol.iterations,
-                  "n_observations": int(sol.residuals.size), "n_parameters": p.n_params,
-                  "n_constraints": sol.n_constraints}
+                  "converged": sol.converged, "termination": sol.termination,
+                  "n_observations": p.n_observations, "n_parameters": p.n_parameters}
     return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, cam_rms, rig, poses,
-                    dict(sorted(view_rms.items())), float(np.sqrt(np.mean(sq))), corners, adjustment, dropped)
+                    dict(sorted(view_rms.items())), float(np.sqrt(np.nanmean(sq))), corners, adjustment, dropped)

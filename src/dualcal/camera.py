@@ -93,41 +93,90 @@ def max_distorted_radius(k1: float, k2: float) -> float:
     return float(r_max * radial_factor(r_max**2, k1, k2)) if np.isfinite(r_max) else float("inf")
 
 
-def undistort_radius(rd: np.ndarray, k1: float, k2: float, tol: float = 1e-14, max_iter: int = 50):
-    """Solve ``rd = r (1 + k1 r^2 + k2 r^4)`` for ``r`` (paper eq. 25, typo corrected) by Newton.
+def _monotonic_bracket(rd: np.ndarray, k1: float, k2: float) -> tuple[np.ndarray, np.ndarray]:
+    """``[lo, hi]`` enclosing the root of ``r (1 + k1 r^2 + k2 r^4) = rd`` on the monotonic branch.
 
-    Starts from the first-order inverse ``rd / (1 + k1 rd^2 + k2 rd^4)``, so a few steps reach
-    machine precision. Returns ``(r, converged)``; ``converged`` is False if some radius did not
-    settle in ``max_iter`` steps (e.g. beyond :func:`max_distorted_radius`).
+    The branch is ``0 <= r <= max_monotonic_radius``; where that is infinite, ``hi`` doubles from
+    ``rd`` until the model passes ``rd``.
+    """
+    lo = np.zeros_like(rd)
+    r_max = max_monotonic_radius(k1, k2)
+    if np.isfinite(r_max):
+        return lo, np.full_like(rd, r_max)
+    hi = np.maximum(rd, 1e-300)
+    for _ in range(2100):                       # 2^2100 exceeds any float: the loop always ends
+        short = hi * radial_factor(hi * hi, k1, k2) < rd
+        if not short.any():
+            break
+        hi = np.where(short, 2.0 * hi, hi)
+    return lo, hi
+
+
+def undistort_radius(rd: np.ndarray, k1: float, k2: float, max_iter: int = 200):
+    """Solve ``rd = r (1 + k1 r^2 + k2 r^4)`` for ``r`` on the monotonic branch (paper eq. 25, typo
+    corrected): Newton's method safeguarded by bisection.
+
+    The root is kept in a bracket ``[lo, hi]`` of the branch ``0 <= r <= max_monotonic_radius``
+    (where the model increases, so the root there is unique), which every evaluation narrows; a
+    Newton step that would leave the bracket is replaced by its midpoint. Newton starts from the
+    first-order inverse ``rd / (1 + k1 rd^2 + k2 rd^4)`` (a few steps reach machine precision away
+    from the fold) and stops on the residual, ``|r (1 + k1 r^2 + k2 r^4) - rd| <= 4 eps rd``, or on a
+    bracket one rounding unit wide. Radii ``rd`` beyond :func:`max_distorted_radius` have no root
+    on the branch: the caller must refuse them (:func:`undistort_normalized` does). NaN stays NaN.
+
+    Returns ``(r, converged)``; ``converged`` is False if some radius did not settle in ``max_iter``
+    evaluations.
     """
     rd = np.asarray(rd, dtype=float)
-    r = rd / radial_factor(rd * rd, k1, k2)
+    out = np.full(rd.shape, np.nan)
+    idx = np.flatnonzero(np.isfinite(rd))               # the radii still being solved for
+    target = rd.ravel()[idx]
+    lo, hi = _monotonic_bracket(target, k1, k2)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        r = target / radial_factor(target * target, k1, k2)
+    r = np.where((r >= lo) & (r <= hi), r, 0.5 * (lo + hi))
+    tol = 4.0 * np.finfo(float).eps * np.maximum(target, np.finfo(float).tiny)
     for _ in range(max_iter):
         r2 = r * r
-        step = (r * radial_factor(r2, k1, k2) - rd) / (1.0 + r2 * (3.0 * k1 + 5.0 * k2 * r2))
-        r = r - step
-        if np.all(np.abs(step) <= tol * np.maximum(1.0, np.abs(r))):
-            return r, True
-    return r, False
+        f = r * radial_factor(r2, k1, k2) - target
+        done = (np.abs(f) <= tol) | (hi - lo <= 2.0 * np.finfo(float).eps * hi)
+        if done.all():
+            out.flat[idx] = r
+            return out, True
+        if 2 * done.sum() >= done.size:                 # drop the settled radii (not every time: it costs)
+            out.flat[idx[done]] = r[done]
+            keep = ~done
+            idx, target, tol, lo, hi, r, r2, f, done = (a[keep] for a in (idx, target, tol, lo, hi, r, r2, f, done))
+        lo, hi = np.where(f < 0, r, lo), np.where(f > 0, r, hi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            newton = r - f / (1.0 + r2 * (3.0 * k1 + 5.0 * k2 * r2))
+        r = np.where(done, r, np.where((newton > lo) & (newton < hi), newton, 0.5 * (lo + hi)))
+    out.flat[idx] = r
+    return out, False
 
 
 def undistort_normalized(xy_d: np.ndarray, k1: float, k2: float) -> np.ndarray:
     """Distorted normalised coordinates (N, 2) -> ideal ones (paper eqs. 24-27).
 
-    Finds the undistorted radius with :func:`undistort_radius`, then scales ``(xd, yd)`` by
-    ``r / rd`` (eqs. 26, 27). Raises :class:`NotInvertibleError` where a radius lies beyond the
-    monotonic range of the model or Newton does not converge.
+    Finds the undistorted radius on the monotonic branch with :func:`undistort_radius`, then
+    scales ``(xd, yd)`` by ``r / rd`` (eqs. 26, 27). NaN rows (corners not measured) stay NaN.
+
+    Raises
+    ------
+    NotInvertibleError
+        Where a radius lies beyond the fold of the model (:func:`max_distorted_radius`), where the
+        distorted image of the monotonic branch ends, or if the root does not settle.
     """
     xy_d = np.asarray(xy_d, dtype=float)
-    rd = np.sqrt(np.sum(xy_d * xy_d, axis=-1))
+    rd = np.hypot(xy_d[..., 0], xy_d[..., 1])
     rd_max = max_distorted_radius(k1, k2)
     if np.any(rd > rd_max):
         raise NotInvertibleError(
             f"distortion k1={k1:.4g}, k2={k2:.4g} is not invertible beyond normalised "
-            f"radius {rd_max:.4g} (asked for {rd.max():.4g})")
+            f"radius {rd_max:.4g}, where the model folds over (asked for {np.nanmax(rd):.4g})")
     r, converged = undistort_radius(rd, k1, k2)
     if not converged:
-        raise NotInvertibleError("undistortion did not converge in 50 Newton steps")
+        raise NotInvertibleError("undistortion did not converge (radius too close to the fold of the model)")
     scale = np.divide(r, rd, out=np.ones_like(rd), where=rd > 0)
     return xy_d * scale[..., None]
 
@@ -226,11 +275,19 @@ def image_corner_radius(cam: CameraModel) -> float:
     return float(np.max(np.linalg.norm(normalized_from_pixel(cam, corners), axis=1)))
 
 
-def check_invertible_in_image(cam: CameraModel) -> None:
-    """Raise :class:`NotInvertibleError` if undistortion is not unique somewhere in the image."""
+def check_invertible_in_image(cam: CameraModel, corners_may_fold: bool = False) -> None:
+    """Raise :class:`NotInvertibleError` if undistortion is not unique somewhere in the image.
+
+    With ``corners_may_fold`` a fold is accepted where it lies beyond the middle of every image
+    edge, i.e. where it cuts off only the image's corners (a forward remap masks those pixels).
+    """
     rd_max = max_distorted_radius(cam.k1, cam.k2)
-    rd_img = image_corner_radius(cam)
+    w, h = cam.image_size
+    edge_middles = np.array([[-0.5, (h - 1) / 2], [w - 0.5, (h - 1) / 2], [(w - 1) / 2, -0.5], [(w - 1) / 2, h - 0.5]])
+    rd_img = float(np.max(np.linalg.norm(normalized_from_pixel(cam, edge_middles), axis=1))) if corners_may_fold \
+        else image_corner_radius(cam)
     if rd_img > rd_max:
+        where = "at the middle of an image edge" if corners_may_fold else "inside the image"
         raise NotInvertibleError(
-            f"distortion k1={cam.k1:.4g}, k2={cam.k2:.4g} folds over inside the image: "
+            f"distortion k1={cam.k1:.4g}, k2={cam.k2:.4g} folds over {where}: "
             f"radius not monotonic beyond normalised {rd_max:.4g}, image reaches {rd_img:.4g}")

@@ -1,7 +1,8 @@
 """The paper's 3-D check: stereo intersection of the board corners (section 2, Tables 5, 6).
 
-Every board corner is intersected from two oriented photos (:func:`dualcal.intersect.triangulate`)
-and compared with the board's known geometry, in the board frame, as RMSE per axis. The cases:
+Every board corner that both photos of a pair measured is intersected from them
+(:func:`dualcal.intersect.triangulate`) and compared with the board's known geometry, in the
+board frame, as RMSE per axis. The cases:
 
 * ``dual``: the reference camera and another camera at the same instant (paper case 1), for
   every view both saw. With more than two cameras, ``dual`` pairs the reference with the first
@@ -14,7 +15,7 @@ Orientation of the photos:
 * by default the calibration's own poses (as in the paper: the check uses the photos the
   calibration was fitted to);
 * ``holdout=True``: each view is left out of the calibration in turn, and its photos are then
-  oriented by space resection (:func:`resect`) with the intrinsics and rig that calibration
+  oriented by space resection (:func:`dualcal.resection.resect`) with the intrinsics and rig that calibration
   found, so no ray comes from a calibration that saw its photo. A pair of two instants takes
   each photo from its own fold. Each fold repeats the full calibration: its settings (skew,
   rig mode, reference, outlier options) and its photos, those it dropped left out.
@@ -30,17 +31,16 @@ import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from .adjust import RIG_MODES
 from .board import Board
-from .camera import CameraModel, ideal_normalized_from_pixel, project_with_jacobians
+from .camera import CameraModel
 from .errors import EstimationError, InputError
 from .intersect import triangulate
-from .model import CameraCorners, CornerSet, Pose, RigModel
+from .model import CameraCorners, CornerSet, Pose, RigModel, observed_mask
 from .progress import progress_bar, warn
-from .rotation import cross_matrix, rotation_from_rotvec
+from .resection import resect
 
 _IDENTITY = Pose(np.eye(3), np.zeros(3))
 
@@ -52,63 +52,6 @@ class OrientedPhoto:
     camera: CameraModel
     pose: Pose
     uv_px: np.ndarray
-
-
-# ---------------------------------------------------------------------------- space resection
-
-
-def _initial_pose(X_board: np.ndarray, cam: CameraModel, uv_px: np.ndarray) -> Pose:
-    """Board -> camera pose from undistorted normalised corners (IPPE, exact for a planar board)."""
-    xy = ideal_normalized_from_pixel(cam, uv_px)
-    ok, rvec, tvec = cv2.solvePnP(X_board.astype(np.float64), xy.astype(np.float64), np.eye(3), None,
-                                  flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        raise EstimationError("space resection: no initial pose (degenerate corners?)")
-    return Pose(rotation_from_rotvec(rvec.ravel()), tvec.ravel())
-
-
-def resect(X_board: np.ndarray, cameras: list[CameraModel], rig: list[Pose], uv_px: list[np.ndarray],
-           max_iter: int = 30, tol: float = 1e-12) -> Pose:
-    """Space resection of one instant of a rig: the board -> reference pose.
-
-    Minimises the pixel residuals of every camera's corners by Gauss-Newton, the rig being
-    fixed: camera ``i`` sees ``X_i = rig[i] (pose X_board)``. One camera alone is the case
-    ``rig = [identity]``. The start comes from the first camera by IPPE
-    (``cv2.solvePnP`` on undistorted normalised corners). The update is
-    ``R <- exp([w]x) R, t <- exp([w]x) t + dt``, so ``d X_ref = -[X_ref]x w + dt``.
-
-    Parameters
-    ----------
-    X_board : (N, 3) board corners, mm (planar, Z = 0).
-    cameras, rig, uv_px : per camera its model, its pose relative to the reference camera
-        (reference -> camera) and its (N, 2) observed corners.
-
-    Returns
-    -------
-    Pose mapping the board to the reference camera.
-
-    Raises
-    ------
-    EstimationError
-        Degenerate corners or no convergence.
-    """
-    pose = rig[0].inverse().compose(_initial_pose(X_board, cameras[0], uv_px[0]))
-    for _ in range(max_iter):
-        X_ref = pose.apply(X_board)
-        d_Xref = np.concatenate([-cross_matrix(X_ref), np.broadcast_to(np.eye(3), X_ref.shape + (3,))], axis=2)
-        J, r = [], []
-        for cam, rel, uv in zip(cameras, rig, uv_px, strict=True):
-            uv_hat, J_X, _ = project_with_jacobians(cam, rel.apply(X_ref))
-            J.append((J_X @ rel.R @ d_Xref).reshape(-1, 6))
-            r.append((uv_hat - uv).ravel())
-        J, r = np.vstack(J), np.concatenate(r)
-        step, _, rank, _ = np.linalg.lstsq(J, -r, rcond=None)
-        if rank < 6:
-            raise EstimationError("space resection is degenerate (corners on a line?)")
-        pose = Pose(rotation_from_rotvec(step[:3]), step[3:]).compose(pose)
-        if np.max(np.abs(step)) <= tol * max(1.0, np.linalg.norm(pose.t_mm)):
-            return pose
-    raise EstimationError(f"space resection did not converge in {max_iter} Gauss-Newton steps")
 
 
 # ---------------------------------------------------------------------------- orienting photos
@@ -150,8 +93,8 @@ def resect_view(calib: RigModel, view: str, corners: CornerSet) -> dict[str, Ori
     what the check tests; in rig mode ``none`` each camera is resected on its own.
     """
     X = corners.board.object_points_mm()
-    seen = {c: cc.views[view] for c, cc in corners.cameras.items()
-            if c in calib.cameras and cc.views.get(view) is not None}
+    photos = {c: cc.found().get(view) for c, cc in corners.cameras.items() if c in calib.cameras}
+    seen = {c: uv for c, uv in photos.items() if uv is not None}
     tied = [c for c in seen if calib.rig_mode != "none" and (c == calib.reference or c in calib.rig)]
     groups = ([tied] if tied else []) + [[c] for c in seen if c not in tied]
     out = {}
@@ -218,9 +161,19 @@ def case_pairs(photos: dict[str, dict[str, OrientedPhoto]], reference: str) -> d
 
 
 def pair_errors(board: Board, a: OrientedPhoto, b: OrientedPhoto) -> np.ndarray:
-    """(N, 3) intersected corners minus their board coordinates, mm (board frame)."""
-    X = triangulate([a.camera, b.camera], [a.pose, b.pose], [a.uv_px, b.uv_px])
-    return X - board.object_points_mm()
+    """(n, 3) intersected corners minus their board coordinates, mm (board frame), for the n
+    corners both photos measured (in corner order).
+
+    Raises
+    ------
+    EstimationError
+        No corner seen in both photos, or a degenerate intersection.
+    """
+    both = observed_mask(a.uv_px) & observed_mask(b.uv_px)
+    if not both.any():
+        raise EstimationError("the two photos measured no corner in common")
+    X = triangulate([a.camera, b.camera], [a.pose, b.pose], [a.uv_px[both], b.uv_px[both]])
+    return X - board.object_points_mm()[both]
 
 
 def _rmse(err: np.ndarray) -> list[float]:

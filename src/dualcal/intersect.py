@@ -96,7 +96,7 @@ def triangulate(cameras: Sequence[CameraModel], poses: Sequence[Pose], uv_px: Se
     Parameters
     ----------
     cameras, poses, uv_px : per photo its camera, its pose (common frame -> camera) and its
-        (N, 2) observed pixels of the same N points.
+        (N, 2) observed pixels of the same N points (all measured: no NaN rows).
     max_iter, tol_mm : Gauss-Newton stops when no point moves more than ``tol_mm``.
 
     Returns
@@ -106,8 +106,11 @@ def triangulate(cameras: Sequence[CameraModel], poses: Sequence[Pose], uv_px: Se
     Raises
     ------
     EstimationError
-        Parallel rays, a point behind a camera, or no convergence.
+        An unmeasured (NaN) point, parallel rays, a point behind a camera, or no convergence.
     """
+    if not all(np.all(np.isfinite(uv)) for uv in uv_px):
+        raise EstimationError("space intersection needs every point measured in every photo: select the "
+                              "points all photos saw (unmeasured corners are NaN rows)")
     rays = [viewing_rays(c, p, uv) for c, p, uv in zip(cameras, poses, uv_px, strict=True)]
     X = intersect_rays(np.array([c for c, _ in rays]), np.array([d for _, d in rays]))
     for _ in range(max_iter):

@@ -76,11 +76,13 @@ def rectified_camera(cam: CameraModel, keep: str = "same") -> CameraModel:
     InputError
         Unknown ``keep``.
     NotInvertibleError
-        The distortion folds over inside the image, so the rectified image is not defined.
+        The distortion folds over inside the image, so the rectified image is not defined;
+        with ``"same"`` only a fold that reaches the middle of an image edge is refused (one in
+        the corners costs those corners, which :func:`rectify_map` masks).
     """
     if keep not in KEEP_MODES:
         raise InputError(f"--keep {keep!r} is unknown (choose from {', '.join(KEEP_MODES)})")
-    check_invertible_in_image(cam)
+    check_invertible_in_image(cam, corners_may_fold=keep == "same")
     if keep == "same":
         return cam.with_distortion(0.0, 0.0)
     # Trace the image border into ideal normalised coordinates (eqs. 24-27).

@@ -8,7 +8,9 @@
   (section 1.5, eq. 11).
 * :func:`radial_distortion_linear`: linear least squares for k1, k2 (section 1.6, eqs. 13-15).
 
-Board points are the board's ``(X, Y)`` in mm (Z = 0); image points are pixels ``(u, v)``.
+Board points are the board's ``(X, Y)`` in mm (Z = 0); image points are pixels ``(u, v)``. A
+view may have corners that were not measured (NaN rows, :func:`dualcal.model.observed_mask`):
+each view uses the corners it has, at least :data:`MIN_HOMOGRAPHY_CORNERS` not on one line.
 """
 
 from __future__ import annotations
@@ -16,10 +18,20 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
-from .camera import CameraModel
+from .camera import CameraModel, max_distorted_radius, normalized_from_pixel
 from .errors import EstimationError
-from .model import Pose
+from .model import Pose, observed_mask
+from .resection import planar_pose
 from .rotation import nearest_rotation
+
+MIN_HOMOGRAPHY_CORNERS = 4      # a homography has 8 unknowns; each corner gives 2 equations
+
+
+def spans_a_plane(xy_board: np.ndarray) -> bool:
+    """Whether (N, 2) board points are not all on one line (so that they fix a homography)."""
+    centred = np.asarray(xy_board, float) - np.mean(xy_board, axis=0)
+    s = np.linalg.svd(centred, compute_uv=False)
+    return len(s) == 2 and s[1] > 1e-9 * s[0]
 
 
 def _normalising_transform(pts: np.ndarray) -> np.ndarray:
@@ -61,8 +73,8 @@ def estimate_homography(xy_board: np.ndarray, uv: np.ndarray, refine: bool = Tru
     """
     xy_board = np.asarray(xy_board, float)
     uv = np.asarray(uv, float)
-    if len(xy_board) < 4:
-        raise EstimationError("a homography needs at least 4 points")
+    if len(xy_board) < MIN_HOMOGRAPHY_CORNERS:
+        raise EstimationError(f"a homography needs at least {MIN_HOMOGRAPHY_CORNERS} points")
     H = _homography_dlt(xy_board, uv)
     if not refine:
         return H
@@ -93,14 +105,17 @@ def _v_row(H: np.ndarray, i: int, j: int) -> np.ndarray:
                      hi[2] * hj[0] + hi[0] * hj[2], hi[2] * hj[1] + hi[1] * hj[2], hi[2] * hj[2]])
 
 
-def intrinsics_from_homographies(homographies, image_size, skew: bool = False) -> CameraModel:
+def intrinsics_from_homographies(homographies, image_size, skew: bool = False, weights=None) -> CameraModel:
     """Zhang's closed form with Burger's formulas (paper section 1.4); no distortion.
 
     Parameters
     ----------
-    homographies : sequence of (3, 3) board-to-pixel homographies, at least 3 (2 with ``skew=False``)
+    homographies : sequence of (3, 3) board-to-pixel homographies: at least 2 with ``skew=False``
+        (4 equations for the 4 degrees of freedom of ``B`` up to scale), 3 with ``skew=True`` (5)
     image_size : (W, H), used to condition the system (pixels are centred and scaled first)
     skew : False fixes gamma = 0 (Model 1), True estimates it (Model 2)
+    weights : one per homography (default 1): each view's two equations are multiplied by it
+        (a view of weight 0 is left out)
 
     Raises
     ------
@@ -111,24 +126,31 @@ def intrinsics_from_homographies(homographies, image_size, skew: bool = False) -
     s = 0.5 * (w + h)
     # Condition: work in centred, scaled pixels (an upper-triangular similarity keeps A upper triangular).
     Nrm = np.array([[1.0 / s, 0.0, -0.5 * (w - 1) / s], [0.0, 1.0 / s, -0.5 * (h - 1) / s], [0.0, 0.0, 1.0]])
+    weights = np.ones(len(homographies)) if weights is None else np.asarray(weights, float)
     rows = []
-    for H in homographies:
-        Hn = Nrm @ H
-        Hn = Hn / np.linalg.norm(Hn[:, :2])
-        rows += [_v_row(Hn, 0, 1), _v_row(Hn, 0, 0) - _v_row(Hn, 1, 1)]
-    V = np.array(rows)
-    if not skew:
-        V = np.delete(V, 1, axis=1)                 # b2 = 0  <=>  gamma = 0
-    needed = V.shape[1] - 1
-    if len(V) < needed:
-        raise EstimationError(f"Zhang's closed form needs at least {int(np.ceil(needed / 2))} views")
-    _, sv, Vt = np.linalg.svd(V, full_matrices=False)
+    for H, weight in zip(homographies, weights, strict=True):
+        if weight > 0:
+            Hn = Nrm @ H
+            Hn = Hn / np.linalg.norm(Hn[:, :2])
+            rows += [weight * _v_row(Hn, 0, 1), weight * (_v_row(Hn, 0, 0) - _v_row(Hn, 1, 1))]
+    V = np.array(rows).reshape(-1, 6)
+    free = [i for i in range(6) if skew or i != 1]
+    V = V[:, free]                                  # b2 = 0  <=>  gamma = 0
+    n = len(free)                                   # unknowns of b; b is found up to scale
+    views_needed = int(np.ceil((n - 1) / 2))
+    if len(V) < n - 1:
+        model = "with skew free (Model 2)" if skew else "with skew = 0 (Model 1)"
+        raise EstimationError(f"Zhang's closed form {model} needs at least {views_needed} views "
+                              f"({len(V) // 2} given)")
+    # b spans the null space of V: the last right singular vector of the *full* decomposition
+    # (with fewer rows than unknowns a reduced SVD does not contain it).
+    _, sv, Vt = np.linalg.svd(V, full_matrices=True)
+    sv = np.concatenate([sv, np.zeros(n - len(sv))])
     if sv[-2] < 1e-6 * sv[0]:
         raise EstimationError("the views do not determine the intrinsics: the board poses are (nearly) "
                               "parallel to each other; take photos with the board tilted in different directions")
-    b = Vt[-1]
-    if not skew:
-        b = np.insert(b, 1, 0.0)
+    b = np.zeros(6)
+    b[free] = Vt[-1]
     if b[0] < 0:                                    # B = A^-T A^-1 up to scale: make it positive
         b = -b
     b1, b2, b3, b4, b5, b6 = b
@@ -171,12 +193,15 @@ def radial_distortion_linear(cam: CameraModel, poses, xy_board: np.ndarray, obse
 
     For each point, ``(u - u0, v - v0) (k1 r^2 + k2 r^4) = (u~ - u, v~ - v)`` where ``(u, v)``
     is the ideal (distortion-free) projection, ``r`` its normalised radius and ``(u~, v~)`` the
-    observed pixel. ``u - u0`` includes the skew term: ``fx x + gamma y``.
+    observed pixel. ``u - u0`` includes the skew term: ``fx x + gamma y``. Rows of ``observed``
+    that are NaN (corners not measured) are left out.
     """
     X = np.column_stack([xy_board, np.zeros(len(xy_board))])
     D_rows, d_rows = [], []
     for pose, uv_obs in zip(poses, observed):
-        Xc = pose.apply(X)
+        seen = observed_mask(uv_obs)
+        uv_obs = uv_obs[seen]
+        Xc = pose.apply(X[seen])
         x, y = Xc[:, 0] / Xc[:, 2], Xc[:, 1] / Xc[:, 2]
         r2 = x * x + y * y
         du = cam.fx * x + cam.skew * y
@@ -193,13 +218,38 @@ def radial_distortion_linear(cam: CameraModel, poses, xy_board: np.ndarray, obse
 def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False):
     """Zhang's full initialisation of one camera: intrinsics, k1 k2 and one pose per view.
 
+    ``views[k]`` is (N, 2), NaN rows for corners not measured; every view needs at least
+    :data:`MIN_HOMOGRAPHY_CORNERS` corners not on one line (``dualcal.calibrate`` skips the others).
     Returns ``(CameraModel, {view: Pose})``: homographies (section 1.3), closed-form intrinsics
-    (1.4), one pose per view (1.5), then k1 k2 by linear least squares (1.6). These are the
-    starting values of the joint adjustment, which refines all of them together.
+    (1.4), one pose per view (1.5), then k1 k2 by linear least squares (1.6). The closed form
+    weighs each view by its homography's redundancy (``sqrt(2 n - 8)`` for n corners: one of 4
+    corners has none, and no say; unweighted, a single such view of a narrow lens that sees
+    small parts of the board was seen to make fx 790 px for a true 6059). A start the
+    adjustment could not move from is avoided: linear k1 k2
+    that fold over where the corners are become 0, and a pose with a corner behind the camera is
+    replaced by space resection (IPPE). These are the starting values of the joint adjustment,
+    which refines all of them together.
     """
     keys = sorted(views)
-    Hs = [estimate_homography(xy_board, views[k]) for k in keys]
-    cam = intrinsics_from_homographies(Hs, image_size, skew)
+    seen = [observed_mask(views[k]) for k in keys]
+    Hs = [estimate_homography(xy_board[m], views[k][m]) for k, m in zip(keys, seen)]
+    # A homography of n corners has 2n - 8 redundant equations; one of 4 corners fits them
+    # exactly, noise and all, and would pull the closed form as hard as one of 40.
+    weights = [np.sqrt(2.0 * m.sum() - 2 * MIN_HOMOGRAPHY_CORNERS) for m in seen]
+    cam = intrinsics_from_homographies(Hs, image_size, skew, weights)
+    # a pose that puts a corner behind the camera (from a poor closed form) is replaced by IPPE's
+    X = np.column_stack([xy_board, np.zeros(len(xy_board))])
     poses = [extrinsics_from_homography(cam.K, H) for H in Hs]
-    k1, k2 = radial_distortion_linear(cam, poses, xy_board, [views[k] for k in keys])
-    return cam.with_distortion(k1, k2), dict(zip(keys, poses))
+    poses = [pose if np.all(pose.apply(X[m])[:, 2] > 0) else planar_pose(X, cam, views[k])
+             for k, m, pose in zip(keys, seen, poses)]
+    cam = _admissible_distortion(cam.with_distortion(*radial_distortion_linear(
+        cam, poses, xy_board, [views[k] for k in keys])), [views[k][m] for k, m in zip(keys, seen)])
+    return cam, dict(zip(keys, poses))
+
+
+def _admissible_distortion(cam: CameraModel, observed: list[np.ndarray]) -> CameraModel:
+    """``cam``, or ``cam`` without distortion if its k1 k2 fold over inside the radius that the
+    measured corners reach (a linear estimate from a poor closed form; the adjustment cannot
+    start from a lens that is not invertible where the corners are)."""
+    rd = max(np.max(np.linalg.norm(normalized_from_pixel(cam, uv), axis=1)) for uv in observed)
+    return cam if rd < max_distorted_radius(cam.k1, cam.k2) else cam.with_distortion(0.0, 0.0)

@@ -1,0 +1,166 @@
+"""Normal equations in the block structure of the reduced camera system, kept per instant.
+
+The unknowns of the adjustment split into ``G`` *global* parameters, shared by many photos
+(intrinsics, the rig's relative pose, later the board's shape), and for each of ``V`` instants
+(view keys) ``L`` *local* parameters that only the photos of that instant see (the board pose,
+the per-instant baseline direction of the paper's model). Every residual belongs to one instant,
+so ``N = J^T J`` is an arrow matrix::
+
+    N = [[ sum_v Ngg_v,  Ngl_1,  Ngl_2, ...],
+         [ Nlg_1,        Nll_1,  0,     ...],
+         [ Nlg_2,        0,      Nll_2, ...], ...]
+
+and :class:`NormalEquations` keeps exactly those pieces, instant by instant (``Ngg_v`` too, so that
+the contribution of one instant can be taken out again, e.g. for a jackknife over instants).
+The damped system ``(N + mu D) h = -g`` (``D = diag N``, Marquardt's scaling) is solved by
+eliminating the locals first (:class:`Factorization`): with ``W_v = A_ll,v^-1 A_lg,v`` the reduced
+matrix ``S = A_gg - sum_v A_gl,v W_v`` has only ``G`` rows, so the cost grows linearly with the
+number of instants. The same factorization at ``mu = 0`` gives every block of ``N^-1`` that a
+covariance needs, without forming ``N^-1`` whole.
+
+Parameters are numbered in one flat vector: the ``G`` globals, then instant ``v``'s locals at
+``G + v L + j``. An instant may use fewer than ``L`` locals (``local_used``); the unused slots
+have no Jacobian column, are held at zero step and never enter a covariance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+
+@dataclass
+class NormalEquations:
+    """``J^T J`` and ``J^T r`` (``r`` = predicted - observed) per instant (module docstring).
+
+    Attributes
+    ----------
+    gg : (V, G, G) each instant's part of the global-global block.
+    gl : (V, G, L) global-local blocks.
+    ll : (V, L, L) local-local blocks.
+    grad_g : (V, G) each instant's part of the global gradient.
+    grad_l : (V, L) local gradients.
+    local_used : (V, L) bool, which local slots are parameters in each instant.
+    curvature_gl, curvature_ll : None, or (V, G, L) and (V, L, L) second-order terms
+        ``sum r d2r / dp dq`` of the Hessian that a curved model adds to ``J^T J`` (used for the
+        steps with ``second_order=True``, never for a covariance).
+    """
+
+    gg: np.ndarray
+    gl: np.ndarray
+    ll: np.ndarray
+    grad_g: np.ndarray
+    grad_l: np.ndarray
+    local_used: np.ndarray
+    curvature_gl: np.ndarray | None = None
+    curvature_ll: np.ndarray | None = None
+
+    @classmethod
+    def zeros(cls, n_global: int, local_used: np.ndarray) -> "NormalEquations":
+        V, L = local_used.shape
+        return cls(np.zeros((V, n_global, n_global)), np.zeros((V, n_global, L)), np.zeros((V, L, L)),
+                   np.zeros((V, n_global)), np.zeros((V, L)), local_used)
+
+    @property
+    def n_global(self) -> int:
+        return self.gg.shape[1]
+
+    def gradient(self) -> np.ndarray:
+        """``J^T r`` as one flat vector (module docstring)."""
+        return np.concatenate([self.grad_g.sum(axis=0), self.grad_l.ravel()])
+
+    def diagonal(self) -> np.ndarray:
+        """``diag N`` as one flat vector; 1 for unused local slots (so it can divide)."""
+        d_l = np.where(self.local_used, np.diagonal(self.ll, axis1=1, axis2=2), 1.0)
+        return np.concatenate([np.diagonal(self.gg, axis1=1, axis2=2).sum(axis=0), d_l.ravel()])
+
+    def metric(self, h: np.ndarray) -> float:
+        """``h^T N h`` for a flat vector ``h`` (the squared change of the residuals ``J h``)."""
+        G, (V, L) = self.n_global, self.ll.shape[:2]
+        h_g, h_l = h[:G], h[G:].reshape(V, L)
+        return float(h_g @ self.gg.sum(axis=0) @ h_g + 2.0 * np.einsum("g,vgl,vl->", h_g, self.gl, h_l)
+                     + np.einsum("vi,vij,vj->", h_l, self.ll, h_l))
+
+    def factor(self, mu: float = 0.0, second_order: bool = False) -> "Factorization":
+        """Factorization of ``N + mu diag(N)`` (with ``second_order``: plus the curvature terms);
+        raises ``numpy.linalg.LinAlgError`` if it is not positive definite."""
+        return Factorization(self, mu, second_order)
+
+
+class Factorization:
+    """``A = N + mu diag(N)`` (+ curvature terms) with the locals eliminated (module docstring)."""
+
+    def __init__(self, ne: NormalEquations, mu: float, second_order: bool = False):
+        self.ne = ne
+        d_l = np.diagonal(ne.ll, axis1=1, axis2=2)
+        # unused slots get 1 on the diagonal: decoupled (their Jacobian columns are zero) and invertible
+        A_ll = ne.ll + _diag_embed(np.where(ne.local_used, mu * d_l, 1.0))
+        gl = ne.gl
+        if second_order and ne.curvature_ll is not None:
+            A_ll = A_ll + ne.curvature_ll
+            gl = gl + ne.curvature_gl
+        self.gl = gl
+        chol = np.linalg.cholesky(A_ll)                              # raises if not positive definite
+        chol_inv = np.linalg.inv(chol)
+        self.ll_inv = np.swapaxes(chol_inv, 1, 2) @ chol_inv         # (V, L, L)
+        self.W = self.ll_inv @ np.swapaxes(gl, 1, 2)               # (V, L, G)
+        A_gg = ne.gg.sum(axis=0)
+        A_gg = A_gg + mu * np.diag(np.diag(A_gg))
+        self.S = A_gg - np.einsum("vgl,vlh->gh", gl, self.W)
+        self.cho = scipy.linalg.cho_factor(self.S)                   # raises LinAlgError too
+
+    def step(self) -> np.ndarray:
+        """The flat step ``h`` solving ``A h = -g``."""
+        ne = self.ne
+        y_l = -np.einsum("vij,vj->vi", self.ll_inv, ne.grad_l)
+        h_g = scipy.linalg.cho_solve(self.cho, -ne.grad_g.sum(axis=0) - np.einsum("vgl,vl->g", self.gl, y_l))
+        h_l = y_l - self.W @ h_g
+        return np.concatenate([h_g, np.where(ne.local_used, h_l, 0.0).ravel()])
+
+    def global_inverse(self) -> np.ndarray:
+        """(G, G) ``S^-1``: at ``mu = 0`` the global block of ``N^-1``."""
+        return scipy.linalg.cho_solve(self.cho, np.eye(len(self.S)))
+
+    def inverse_block(self, columns: np.ndarray) -> np.ndarray:
+        """``A^-1`` restricted to the flat parameter indices ``columns`` (k,), as a (k, k) matrix.
+
+        ``(A^-1)_gg = S^-1``, ``(A^-1)_lg,v = -W_v S^-1`` and
+        ``(A^-1)_ll,vw = [v = w] A_ll,v^-1 + W_v S^-1 W_w^T``.
+        """
+        columns = np.asarray(columns, int)
+        G, L = self.ne.n_global, self.ne.ll.shape[1]
+        is_local = columns >= G
+        v, j = np.divmod(columns - G, L)
+        # each column as the combination of globals it stands for: e_g, or -W_v[j] for a local
+        E = np.zeros((len(columns), G))
+        E[np.flatnonzero(~is_local), columns[~is_local]] = 1.0
+        E[is_local] = -self.W[v[is_local], j[is_local]]
+        out = E @ self.global_inverse() @ E.T
+        loc = np.flatnonzero(is_local)
+        same = v[loc][:, None] == v[loc][None, :]
+        out[np.ix_(loc, loc)] += np.where(same, self.ll_inv[v[loc][:, None], j[loc][:, None], j[loc][None, :]], 0.0)
+        return out
+
+    def per_instant_reduced(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each instant's contribution to the reduced system of the globals.
+
+        Returns ``S_v`` (V, G, G) and ``b_v`` (V, G) with ``S_v = Ngg_v - Ngl_v Nll_v^-1 Nlg_v`` and
+        ``b_v = g_g,v - Ngl_v Nll_v^-1 g_l,v``: at ``mu = 0``, ``sum_v S_v`` is the reduced normal
+        matrix (the inverse of the globals' covariance over ``s0^2``) and ``sum_v b_v`` the reduced
+        gradient (zero at the solution). Leaving instant ``v`` out moves the globals, to first
+        order, by ``(S - S_v)^-1 b_v`` (a linearised jackknife over instants).
+        """
+        ne = self.ne
+        S_v = ne.gg - ne.gl @ self.W
+        b_v = ne.grad_g - np.einsum("vgl,vl->vg", ne.gl, np.einsum("vij,vj->vi", self.ll_inv, ne.grad_l))
+        return S_v, b_v
+
+
+def _diag_embed(d: np.ndarray) -> np.ndarray:
+    """(..., n) -> (..., n, n) diagonal matrices."""
+    out = np.zeros(d.shape + d.shape[-1:])
+    idx = np.arange(d.shape[-1])
+    out[..., idx, idx] = d
+    return out

@@ -1,0 +1,298 @@
+"""The joint adjustment (dualcal.adjust): exact Jacobians on partial views in every rig mode, the
+paper's model as the constrained form it replaces, sigma propagation, the per-instant pieces of
+the reduced system, and optimality against an independent solver."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from dualcal.adjust import (Problem, adjust, cost, initial_state, instant_rows, linearise, residuals,
+                            rig_relation)
+from dualcal.calibrate import solve, usable_photos
+from dualcal.camera import CameraModel, project_points
+from dualcal.model import Pose, choose_reference
+from dualcal.poses import relative_pose
+from dualcal.rotation import opk_from_rotation, rotation_from_opk, rotation_from_rotvec, rotvec_from_rotation
+from dualcal.synth import make_truth, noisy_corner_set
+
+
+def _corners(preset, views, seed, noise, missing=0.3, absent=()):
+    """A synthetic corner set with a share ``missing`` of the corners not measured (NaN) and the
+    photos ``absent`` ((camera, view) pairs) not taken."""
+    truth = make_truth(preset, views, seed=seed)
+    corners = noisy_corner_set(truth, noise, seed=seed + 1)
+    rng = np.random.default_rng(seed + 2)
+    for name, cc in corners.cameras.items():
+        for v, uv in cc.views.items():
+            uv[rng.random(len(uv)) < missing] = np.nan
+            if (name, v) in absent:
+                cc.views[v] = None
+    return truth, corners
+
+
+def _setup(corners, mode="rigid", skew=False):
+    """The arguments of :func:`dualcal.calibrate.solve` for ``corners``."""
+    names = sorted(corners.cameras)
+    X = corners.board.object_points_mm()
+    sizes = [corners.cameras[n].image_size for n in names]
+    return X, names, sizes, usable_photos(corners, names, X[:, :2]), names.index(choose_reference(names)), skew, mode
+
+
+def _truth_state(problem, truth, wiggle=0.0, seed=0):
+    """The true state in ``problem``'s layout, moved by a random step of size ``wiggle`` (so that
+    the residuals are not zero and the paper's directions differ between instants)."""
+    cams = [truth.cameras[n] for n in problem.cameras]
+    poses = [{v: truth.camera_pose(n, v) for v in truth.view_poses} for n in problem.cameras]
+    state = initial_state(problem, cams, poses)
+    rng = np.random.default_rng(seed)
+    h = rng.normal(0, wiggle, problem.layout.n_global + problem.layout.local_used.size)
+    h[problem.layout.n_global:] *= problem.layout.local_used.ravel()
+    h[problem.layout.n_global:] *= 1e-2                  # poses: radians and mm
+    return state.updated(problem.layout, h)
+
+
+def _used(problem):
+    return np.concatenate([np.ones(problem.layout.n_global, bool), problem.layout.local_used.ravel()])
+
+
+def _flat_residuals(problem, state):
+    r = residuals(problem, state)
+    return r[np.isfinite(r[..., 0])].ravel()
+
+
+def _numeric_jacobian(problem, state, step=1e-6):
+    n = len(_used(problem))
+    J = np.zeros((len(_flat_residuals(problem, state)), n))
+    for j in np.flatnonzero(_used(problem)):
+        e = np.zeros(n)
+        e[j] = step
+        J[:, j] = (_flat_residuals(problem, state.updated(problem.layout, e))
+                   - _flat_residuals(problem, state.updated(problem.layout, -e))) / (2 * step)
+    return J
+
+
+def _dense(ne):
+    """The whole normal matrix and gradient from the per-instant pieces (flat numbering)."""
+    G, (V, L) = ne.n_global, ne.local_used.shape
+    N = np.zeros((G + V * L, G + V * L))
+    N[:G, :G] = ne.gg.sum(axis=0)
+    for v in range(V):
+        s = slice(G + v * L, G + (v + 1) * L)
+        N[:G, s], N[s, :G], N[s, s] = ne.gl[v], ne.gl[v].T, ne.ll[v]
+    return N, ne.gradient()
+
+
+PARTIAL_CASES = [("stereo", "rigid", ()), ("triple", "rigid", (("wide", "IMG_02"),)),
+                 ("triple", "paper", (("wide", "IMG_02"), ("ultra", "IMG_01"))),
+                 ("note8", "none", (("tele", "IMG_03"),))]
+
+
+@pytest.mark.parametrize("preset,mode,absent", PARTIAL_CASES)
+def test_jacobian_rows_of_every_instant_match_central_differences(preset, mode, absent):
+    """Partial views (30 % of the corners missing, whole photos absent, in paper mode an instant
+    without the reference): each instant's Jacobian rows, and the normal equations assembled from
+    them, are those of the residuals' central differences."""
+    truth, corners = _corners(preset, 4, seed=3, noise=0.1, absent=absent)
+    args = _setup(corners, mode)
+    problem = Problem(*args[:4], mode=mode, reference=args[4])
+    state = _truth_state(problem, truth, wiggle=1e-3)
+    J = _numeric_jacobian(problem, state)
+    r = _flat_residuals(problem, state)
+    counts = [2 * int(np.isfinite(uv[:, 0]).sum()) for _, _, uv in problem.blocks]
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    N_rows, g_rows = np.zeros((J.shape[1],) * 2), np.zeros(J.shape[1])
+    for inst in instant_rows(problem, state):
+        rows = np.concatenate([np.arange(starts[b], starts[b + 1]) for b, (_, v, _) in enumerate(problem.blocks)
+                               if v == inst.view])
+        block = J[rows]
+        np.testing.assert_allclose(inst.J, block[:, inst.columns], rtol=1e-5, atol=1e-5 * np.abs(block).max())
+        others = np.delete(block, inst.columns, axis=1)
+        assert np.abs(others).max() <= 1e-6 * np.abs(block).max()
+        np.testing.assert_allclose(inst.r, r[rows], atol=1e-12)
+        N_rows[np.ix_(inst.columns, inst.columns)] += inst.J.T @ inst.J
+        g_rows[inst.columns] += inst.J.T @ inst.r
+    F, ne = linearise(problem, state)
+    N, g = _dense(ne)
+    used = _used(problem)
+    np.testing.assert_allclose(N[np.ix_(used, used)], N_rows[np.ix_(used, used)], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(g[used], g_rows[used], rtol=1e-9, atol=1e-9)
+    assert F == pytest.approx(r @ r, rel=1e-12) and cost(problem, state) == pytest.approx(F, rel=1e-12)
+
+
+def _relative_values(problem, state):
+    """``[D, omega, phi, kappa]`` of every instant the reference and the other camera of a
+    two-camera rig share, from each camera's own pose (mode ``none``): the quantities of the
+    paper's constraints (eqs. 20-23)."""
+    ref, other, out = problem.reference, 1 - problem.reference, []
+    for v in np.flatnonzero(problem.seen(ref) & problem.seen(other)):
+        rel = relative_pose(Pose(state.pose_R[v, ref], state.pose_t[v, ref]),
+                            Pose(state.pose_R[v, other], state.pose_t[v, other]))
+        out.append(np.concatenate([[np.linalg.norm(rel.t_mm)], opk_from_rotation(rel.R)]))
+    return np.array(out)
+
+
+def test_the_paper_parametrisation_solves_the_constrained_form():
+    """The paper's model as a parametrisation and as constraints on every camera's own poses
+    (``D_q = D_1`` and equal angles, q = 2..m, Lagrange multipliers) have the same solution and
+    the same covariance: at the parametrised solution the constraints hold, the gradient of the
+    cost over the free poses is a combination of the constraints' gradients (the KKT
+    conditions), and the constrained covariance ``N^-1 - N^-1 C^T (C N^-1 C^T)^-1 C N^-1`` gives
+    D and the intrinsics the sigmas the parametrisation reports."""
+    truth, corners = _corners("note8", 6, seed=5, noise=0.2, missing=0.2)
+    args = _setup(corners, "paper")
+    sol = solve(*args)
+    p = sol.problem
+    free = Problem(*args[:4], mode="none", reference=args[4])
+    cams = [sol.state.camera(p, c) for c in range(2)]
+    poses = [{v: sol.state.photo_pose(p, c, p.view_index[v]) for cc, v, _ in p.blocks if cc == c} for c in range(2)]
+    x = initial_state(free, cams, poses)
+    F, ne = linearise(free, x)
+    assert F == pytest.approx(sol.s0_px ** 2 * sol.redundancy, rel=1e-12)
+    values = _relative_values(free, x)
+    np.testing.assert_allclose(values - values[0], 0.0, atol=1e-9)          # the constraints hold
+
+    def constraints(state):
+        vals = _relative_values(free, state)
+        return (vals[1:] - vals[0]).ravel()
+    used = _used(free)
+    C = np.zeros((len(constraints(x)), len(used)))
+    for j in np.flatnonzero(used):
+        e = np.zeros(len(used))
+        e[j] = 1e-6
+        C[:, j] = (constraints(x.updated(free.layout, e)) - constraints(x.updated(free.layout, -e))) / 2e-6
+    N, g = _dense(ne)
+    N, g, C = N[np.ix_(used, used)], g[used], C[:, used]
+    lam = np.linalg.lstsq(C.T, g, rcond=None)[0]
+    assert np.linalg.norm(g - C.T @ lam) < 1e-6 * np.linalg.norm(g)       # KKT
+    assert sol.redundancy == free.n_observations - free.n_parameters + len(C)
+    Ni = np.linalg.inv(N)
+    Q = sol.s0_px ** 2 * (Ni - Ni @ C.T @ np.linalg.solve(C @ Ni @ C.T, C @ Ni))
+    J_D = np.zeros(len(used))          # D = |t| of the first shared instant, by central differences
+    for k, j in enumerate(np.flatnonzero(used)):
+        e = np.zeros(len(used))
+        e[j] = 1e-6
+        J_D[k] = (_relative_values(free, x.updated(free.layout, e))[0, 0]
+                  - _relative_values(free, x.updated(free.layout, -e))[0, 0]) / 2e-6
+    assert np.sqrt(J_D @ Q @ J_D) == pytest.approx(rig_relation(sol, 1 - p.reference)[2], rel=1e-4)
+    for c in range(2):
+        cols = free.layout.intrinsics[c]
+        np.testing.assert_allclose(np.sqrt(np.diag(Q)[cols]),
+                                   [s for s in sol.intrinsic_sigma(c).values() if s > 0], rtol=1e-4)
+
+
+@pytest.mark.parametrize("mode,rtol", [("rigid", 1e-5), ("paper", 1e-5), ("none", 2e-2)])
+def test_rig_sigmas_are_the_propagated_covariance(mode, rtol):
+    """t, D and omega-phi-kappa of every tied camera: their sigmas are ``J Cov J^T`` with ``J`` by
+    central differences of what :func:`rig_relation` reports (mode ``none``: its first-order
+    mean of rotations, hence the looser tolerance)."""
+    truth, corners = _corners("triple", 5, seed=6, noise=0.2, missing=0.2)
+    sol = solve(*_setup(corners, mode))
+    p = sol.problem
+    cols = np.flatnonzero(_used(p))
+    cov = sol.covariance(cols)
+    for c in (c for c in range(3) if c != p.reference):
+        def values(state):
+            pose = rig_relation(dataclasses.replace(sol, state=state), c)[0]
+            return np.concatenate([pose.t_mm, [np.linalg.norm(pose.t_mm)], pose.opk_arcmin])
+        J = np.zeros((7, len(cols)))
+        for k, j in enumerate(cols):
+            e = np.zeros(len(_used(p)))
+            e[j] = 1e-7
+            J[:, k] = (values(sol.state.updated(p.layout, e)) - values(sol.state.updated(p.layout, -e))) / 2e-7
+        expected = np.sqrt(np.diag(J @ cov @ J.T))
+        _, sigma_t, sigma_D, sigma_opk = rig_relation(sol, c)
+        np.testing.assert_allclose(np.concatenate([sigma_t, [sigma_D], sigma_opk]), expected, rtol=rtol)
+
+
+def test_leaving_an_instant_out_moves_the_globals_as_its_reduced_pieces_predict():
+    """The per-instant pieces of the reduced system (for a jackknife over instants): they add up
+    to the inverse of the globals' covariance, the reduced gradient vanishes at the solution, and
+    ``(S - S_v)^-1 b_v`` is the shift of the globals when instant v is left out, to first order."""
+    truth, corners = _corners("note8", 10, seed=7, noise=0.2, missing=0.2)
+    X, names, sizes, blocks, ref, skew, mode = _setup(corners, "rigid")
+    sol = solve(X, names, sizes, blocks, ref, skew, mode)
+    p, lay = sol.problem, sol.problem.layout
+    S_v, b_v = sol.per_instant_reduced()
+    G = lay.n_global
+    np.testing.assert_allclose(sol.s0_px ** 2 * np.linalg.inv(S_v.sum(axis=0)), sol.covariance(np.arange(G)),
+                               rtol=1e-6)
+    sigma = np.sqrt(np.diag(sol.covariance(np.arange(G))))
+    assert np.abs(np.linalg.solve(S_v.sum(axis=0), b_v.sum(axis=0)) / sigma).max() < 1e-3   # at the minimum
+    for v in (2, 6):
+        view = p.views[v]
+        predicted = np.linalg.solve(S_v.sum(axis=0) - S_v[v], b_v[v])
+        kept = [b for b in blocks if b[1] != view]
+        q = Problem(X, names, sizes, kept, mode, skew, ref)
+        cams = [sol.state.camera(p, c) for c in range(2)]
+        poses = [{bv: sol.state.photo_pose(p, c, p.view_index[bv]) for cc, bv, _ in kept if cc == c} for c in range(2)]
+        refit = adjust(q, initial_state(q, cams, poses)).state
+        actual = np.zeros(G)
+        for c in range(2):
+            actual[lay.intrinsics[c]] = (refit.intrinsics[c] - sol.state.intrinsics[c])[lay.free_intrinsics[c]]
+        tele = 1 - ref
+        actual[lay.rig_rotation[tele]] = rotvec_from_rotation(refit.rig_R[tele] @ sol.state.rig_R[tele].T)
+        actual[lay.rig_translation[tele]] = refit.rig_t[tele] - sol.state.rig_t[tele]
+        assert np.abs((predicted - actual) / sigma).max() < 0.05 * np.abs(actual / sigma).max()
+
+
+def test_the_rigid_solution_is_the_optimum_of_an_independent_model():
+    """The same photos (30 % of the corners missing) fitted by scipy's least_squares on a model
+    written here from the contract's formulas, started away from dualcal's solution: it comes
+    back to it."""
+    truth, corners = _corners("stereo", 5, seed=8, noise=0.2, missing=0.3)
+    args = _setup(corners, "rigid")
+    sol = solve(*args)
+    p, st = sol.problem, sol.state
+    X, V = p.X_board, len(p.views)
+
+    def unpack(x):
+        intr = x[:12].reshape(2, 6)
+        cams = [CameraModel(p.image_sizes[c], *intr[c, :2], 0.0, *intr[c, 2:]) for c in range(2)]
+        rig = Pose(rotation_from_rotvec(x[12:15]), x[15:18])
+        views = [Pose(rotation_from_rotvec(x[18 + 6 * v:21 + 6 * v]), x[21 + 6 * v:24 + 6 * v]) for v in range(V)]
+        return cams, rig, views
+
+    def res(x):
+        cams, rig, views = unpack(x)
+        out = []
+        for c, view, uv in p.blocks:
+            pose = views[p.view_index[view]]
+            if c != p.reference:
+                pose = rig.compose(pose)
+            seen = np.isfinite(uv[:, 0])
+            out.append((project_points(cams[c], pose.apply(X[seen])) - uv[seen]).ravel())
+        return np.concatenate(out)
+
+    tied = 1 - p.reference
+    x0 = np.concatenate([np.delete(st.intrinsics[c], 2) for c in range(2)]
+                        + [rotvec_from_rotation(st.rig_R[tied]), st.rig_t[tied]]
+                        + [np.concatenate([rotvec_from_rotation(st.pose_R[v, 0]), st.pose_t[v, 0]]) for v in range(V)])
+    assert res(x0) @ res(x0) == pytest.approx(sol.s0_px ** 2 * sol.redundancy, rel=1e-12)
+    start = x0 + np.random.default_rng(0).normal(0, 1e-3, len(x0)) * np.maximum(1, np.abs(x0)) * 1e-2
+    fit = least_squares(res, start, xtol=1e-15, ftol=1e-15, gtol=1e-15, x_scale="jac")
+    assert 2 * fit.cost == pytest.approx(res(x0) @ res(x0), rel=1e-9)
+    sigma = np.array([s for c in range(2) for s in sol.intrinsic_sigma(c).values() if s > 0])
+    assert np.abs((fit.x[:12] - x0[:12]) / sigma).max() < 1e-3
+
+
+def test_a_corner_behind_a_camera_makes_a_state_inadmissible():
+    truth, corners = _corners("stereo", 3, seed=1, noise=0.0, missing=0.0)
+    args = _setup(corners)
+    p = Problem(*args[:4], mode="rigid", reference=args[4])
+    state = _truth_state(p, truth)
+    assert cost(p, state) < 1e-18
+    state.pose_t[0, 0] *= -1                                 # instant 0's board behind the cameras
+    assert cost(p, state) == np.inf
+
+
+def test_omega_phi_kappa_near_the_gimbal_lock_warn(capsys):
+    truth, corners = _corners("stereo", 4, seed=2, noise=0.1, missing=0.0)
+    sol = solve(*_setup(corners))
+    state = dataclasses.replace(sol.state, rig_R=sol.state.rig_R.copy())
+    state.rig_R[1] = rotation_from_opk(np.radians([0.1, 88.0, 0.2]))
+    rig_relation(dataclasses.replace(sol, state=state), 1)
+    assert "phi = 88.0 degrees, near the omega-phi-kappa singularity" in capsys.readouterr().err
+    rig_relation(sol, 1)
+    assert "singularity" not in capsys.readouterr().err
