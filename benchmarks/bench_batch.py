@@ -41,7 +41,7 @@ from dask.distributed import Client, LocalCluster
 
 from dualcal import batch
 from dualcal.calibrate import calibrate_rig
-from dualcal.evaluate import evaluate
+from dualcal.evaluation import evaluate
 from dualcal.io import load_corners, save_rig, write_json_atomic
 from dualcal.report.fleet import render_fleet
 from dualcal.synth_fleet import write_fleet

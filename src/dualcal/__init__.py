@@ -6,8 +6,7 @@ The package is the API; the ``dualcal`` command is a thin shell over it::
     corners = dualcal.load_corners("corners.json")            # or dualcal.detect_dataset(...)
     rig = dualcal.calibrate_rig(corners, skew=False, rig_mode="rigid")
     dualcal.save_rig("calib.json", rig)
-    from dualcal.evaluate import evaluate      # (dualcal.evaluate is the submodule once it is imported)
-    print(evaluate(rig)["cases"])
+    print(dualcal.evaluate(rig)["cases"])
 
 Conventions (pixels, board, poses, omega-phi-kappa) are in the README, section "Conventions".
 Names are imported on first use, so ``import dualcal`` stays light.
@@ -21,7 +20,7 @@ _API = {
     "CameraCorners": "model", "RigModel": "model", "RigRelation": "model",
     # the math
     "project_points": "camera", "undistort_points": "camera", "distort_points": "camera",
-    "calibrate_rig": "calibrate", "triangulate": "intersect", "evaluate": "evaluate",
+    "calibrate_rig": "calibrate", "triangulate": "intersect", "evaluate": "evaluation",
     "undistort_image": "rectify", "rectified_camera": "rectify",
     "stereo_rectify": "stereo", "rectify_points": "stereo", "StereoRectification": "stereo",
     # photos

@@ -42,7 +42,7 @@ from .calibrate import calibrate_rig
 from .dataset import open_dataset
 from .detect import detect_dataset
 from .errors import DualcalError, InputError
-from .evaluate import evaluate
+from .evaluation import evaluate
 from .io import atomic_output, load_corners, make_output_folder, read_json, rig_to_dict, write_json_atomic
 from .progress import progress_bar
 
@@ -128,7 +128,7 @@ class BatchOptions:
     ``rig_mode``, ``reference``, ``drop_outliers``, ``outlier_factor``, ...), ``dataset`` those of
     :func:`dualcal.dataset.open_dataset` for devices of photos (``cameras`` with globs relative to
     each device folder, ``pair_by``, ...). ``board`` is needed for photos and, where given, must
-    agree with every corners.json. ``evaluate`` writes eval.json (:func:`dualcal.evaluate.evaluate`,
+    agree with every corners.json. ``evaluate`` writes eval.json (:func:`dualcal.evaluation.evaluate`,
     with ``holdout``).
     """
 

@@ -2,7 +2,7 @@
 
 The inverse problem of :mod:`dualcal.intersect`: the cameras are calibrated and the board's
 geometry is known, the board-to-camera pose is sought. It orients the photos that a calibration
-did not see (the hold-out check of :mod:`dualcal.evaluate`). Corners that were not measured
+did not see (the hold-out check of :mod:`dualcal.evaluation`). Corners that were not measured
 (NaN rows, :func:`dualcal.model.observed_mask`) are left out; each camera may have seen other
 corners.
 

@@ -51,7 +51,7 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
     fingerprint of the calibration it checked ("calibration_fingerprint"), so that 'dualcal
     report' can refuse an eval.json of another calibration.
     """
-    from ..evaluate import evaluate
+    from ..evaluation import evaluate
     from ..io import calibration_fingerprint, check_corners_fit, check_output_file, load_rig, write_json_atomic
 
     check_output_file(output)

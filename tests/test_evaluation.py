@@ -1,4 +1,4 @@
-"""The paper's stereo-intersection check (dualcal.evaluate) and ``dualcal evaluate``."""
+"""The paper's stereo-intersection check (dualcal.evaluation) and ``dualcal evaluate``."""
 
 import json
 from dataclasses import replace
@@ -9,7 +9,7 @@ from scipy.optimize import least_squares
 
 from dualcal.camera import project_points
 from dualcal.errors import EstimationError, InputError
-from dualcal.evaluate import evaluate, resect_view
+from dualcal.evaluation import evaluate, resect_view
 from dualcal.io import load_evaluation, save_rig
 from dualcal.model import Pose, observed_mask
 from dualcal.resection import resect
