@@ -13,7 +13,8 @@ from dualcal.board import Board
 from dualcal.camera import project_points
 from dualcal.cli import main
 from dualcal.dataset import open_dataset
-from dualcal.detect import detect_dataset, detect_photo, grid_from_hints, grid_smoothness_px, load_hints, save_hints
+from dualcal.detect import (detect_dataset, detect_photo, grid_from_hints, load_hints, neighbour_residuals_px,
+                            save_hints, validate_grid)
 from dualcal.detect.coarse import reduce_image, reduction_factor, to_full_resolution
 from dualcal.detect.manual import CornerClicks, connect_clicks
 from dualcal.errors import InputError
@@ -139,13 +140,29 @@ def test_reduced_image_keeps_pixel_centres():
     assert reduction_factor((640, 480)) == 1
 
 
-def test_grid_smoothness_flags_a_misplaced_corner():
+def test_neighbours_predict_exact_corners_through_a_strongly_distorting_lens():
+    truth = make_truth("stereo", views=6, seed=1)            # k1 = -0.29 at 640 x 480
+    for uv in true_corners(truth)["left"].values():
+        res = neighbour_residuals_px(uv, (6, 9))
+        assert np.all(np.isfinite(res)) and res.max() < 0.03
+        assert validate_grid(uv, truth.board) is None
+
+
+def test_validate_grid_names_a_misplaced_corner_a_fold_and_too_few_corners():
     truth = make_truth("note8", views=1, seed=1, scale=0.25)
-    g = true_corners(truth)["wide"]["IMG_01"].reshape(5, 8, 2).copy()
-    spacing = np.linalg.norm(g[0, 1] - g[0, 0])
-    assert grid_smoothness_px(g) < 0.02 * spacing
-    g[2, 3] += 0.3 * spacing
-    assert grid_smoothness_px(g) > 0.15 * spacing
+    b = truth.board
+    uv = true_corners(truth)["wide"]["IMG_01"]
+    assert validate_grid(uv, b) is None
+    bad = uv.copy()
+    bad[19] += [0.9, -0.4]
+    assert validate_grid(bad, b) == f"corner 19 is {neighbour_residuals_px(bad, (5, 8))[19]:.2f} px from where its neighbours put it"
+    folded = uv.copy()
+    folded[[10, 11]] = folded[[11, 10]]
+    assert "folds over itself" in validate_grid(folded, b)
+    few = uv.copy()
+    few[: b.n_corners // 2] = np.nan
+    assert validate_grid(few, b) == "only 20 of 40 corners passed their checks (at least 21 needed: more than half of the board)"
+    assert validate_grid(uv[:-1], b) == "39 corners, expected 40"
 
 
 @pytest.fixture(scope="module")
@@ -229,14 +246,14 @@ def test_a_photo_that_breaks_opencv_is_skipped_but_a_bug_is_not_hidden(small_set
     def opencv_fails(*args, **kwargs):
         raise cv2.error("unsupported format")
 
-    monkeypatch.setattr("dualcal.detect.pipeline.refine_corners", opencv_fails)
+    monkeypatch.setattr("dualcal.detect.pipeline.measure_grid", opencv_fails)
     res = detect_photo(path, truth.board)
     assert res.uv is None and "unsupported format" in res.reason
 
     def bug(*args, **kwargs):
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr("dualcal.detect.pipeline.refine_corners", bug)
+    monkeypatch.setattr("dualcal.detect.pipeline.measure_grid", bug)
     with pytest.raises(ZeroDivisionError):
         detect_photo(path, truth.board)
 

@@ -7,10 +7,12 @@ Per photo (:func:`detect_photo`), one photo in memory at a time:
    (:mod:`.manual`);
 2. sample the squares: they must alternate like a chessboard, the outer ring too, and the
    board must not continue beyond it (:mod:`.order`); put the corners in the contract's order;
-3. refine each corner at full resolution in its own small window (:mod:`.refine`);
-4. check the refined grid: every row and column of corners must lie on a smooth curve
-   (perspective and lens distortion bend them only gently), and no corner may have moved far
-   from its coarse position. A grid that fails is reported as not found, never returned.
+3. refine each corner at full resolution in a window fitted to its own squares, check it
+   against the homography of its neighbours and refine it again from there if it disagrees;
+   a corner that still fails is a NaN row (``null`` in corners.json), not a lost photo
+   (:func:`.refine.measure_grid`);
+4. check the grid as a whole (:func:`.grid.validate_grid`): enough corners left, no fold, no
+   corner off its neighbours' prediction. A grid that fails is reported as not found.
 
 :func:`detect_dataset` runs that over every photo of a :class:`~dualcal.dataset.Dataset` in
 parallel threads and gathers a :class:`~dualcal.model.CornerSet`.
@@ -35,9 +37,10 @@ from ..progress import progress_bar, warn
 from .coarse import find_grid, reduce_image, reduction_factor, to_full_resolution
 from .manual import grid_from_hints
 from .order import check_colours, order_grid, square_colours
-from .refine import refine_corners
+from .grid import validate_grid
+from .refine import measure_grid
 
-__all__ = ["PhotoResult", "detect_photo", "detect_dataset", "grid_smoothness_px"]
+__all__ = ["PhotoResult", "detect_photo", "detect_dataset"]
 
 
 @dataclass
@@ -49,33 +52,6 @@ class PhotoResult:
     reason: str = ""
     symmetric: bool = False
     manual: bool = False
-
-
-def grid_smoothness_px(grid: np.ndarray) -> float:
-    """Largest distance of a corner from a cubic through its row or column (pixels).
-
-    A (rows, cols, 2) grid of a flat board seen through a lens lies on gently bent curves, so
-    a cubic in the corner index fits each row and column to a fraction of a pixel; a corner
-    put in the wrong place stands out by a good part of a square.
-    """
-    worst = 0.0
-    for lines in (grid, np.swapaxes(grid, 0, 1)):
-        n = lines.shape[1]
-        deg = min(3, n - 2)
-        if deg < 1:
-            continue
-        t = np.linspace(-1.0, 1.0, n)
-        V = np.vander(t, deg + 1)
-        P = V @ np.linalg.pinv(V)                     # projector onto the polynomials
-        res = np.einsum("ij,ljk->lik", P, lines) - lines
-        worst = max(worst, float(np.max(np.linalg.norm(res, axis=2))))
-    return worst
-
-
-def _spacing_px(grid: np.ndarray) -> float:
-    d = np.concatenate([np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
-                        np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()])
-    return float(np.median(d))
 
 
 def _coarse(full: np.ndarray, board: Board):
@@ -123,19 +99,10 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
         check_colours(colours, board.cols, board.rows)
         # clicked grids too: whichever end the user started from, the contract's order
         coarse, symmetric = order_grid(grid, colours, board)
-        uv = refine_corners(full, coarse, (board.rows, board.cols), wide_start=manual)
-        g = uv.reshape(board.rows, board.cols, 2)
-        spacing = _spacing_px(g)
-        moved = float(np.max(np.linalg.norm(uv - coarse, axis=1)))
-        # a coarse corner is off by a pixel or a few (or by more when predicted from four
-        # clicks), never by a good part of a square: a corner that moved that far has run
-        # to another feature
-        limit = (0.4 if manual else 0.25) * spacing
-        if moved > limit:
-            raise DetectionError(f"a corner moved {moved:.1f} px in refinement (limit {limit:.1f} px)")
-        bend = grid_smoothness_px(g)
-        if bend > 0.15 * spacing:
-            raise DetectionError(f"the grid is not smooth ({bend:.1f} px off, corners {spacing:.0f} px apart)")
+        uv = measure_grid(full, coarse, (board.rows, board.cols), wide_start=manual)
+        reason = validate_grid(uv, board)
+        if reason:
+            raise DetectionError(reason)
         if overlay_path is not None:
             write_overlay(overlay_path, small, uv, f)
         return PhotoResult(uv, size, symmetric=symmetric, manual=manual)
@@ -146,7 +113,7 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
 
 
 def write_overlay(path: Path, small: np.ndarray, uv: np.ndarray, factor: int, max_side: int = 1200) -> None:
-    """A small JPEG of the photo with every corner marked and numbered (corner 0 in red).
+    """A small JPEG of the photo with every measured corner marked and numbered (corner 0 in red).
 
     ``path``'s folder must exist (see :func:`prepare_overlay_folders`).
     """
@@ -155,6 +122,8 @@ def write_overlay(path: Path, small: np.ndarray, uv: np.ndarray, factor: int, ma
                                   interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
     pts = (uv + 0.5) * scale - 0.5
     for k, (u, v) in enumerate(pts):
+        if not (np.isfinite(u) and np.isfinite(v)):
+            continue
         colour = (0, 0, 255) if k == 0 else (0, 200, 0)
         p = (int(round(u)), int(round(v)))
         cv2.circle(img, p, 4 if k else 7, colour, 2)
