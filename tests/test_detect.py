@@ -16,10 +16,12 @@ from dualcal.dataset import open_dataset
 from dualcal.detect import (detect_dataset, detect_photo, grid_from_hints, load_hints, neighbour_residuals_px,
                             save_hints, validate_grid)
 from dualcal.detect.coarse import reduce_image, reduction_factor, to_full_resolution
+from dualcal.detect.grid import OUTLIER_CEIL_FRACTION, local_spacing_px
 from dualcal.detect.manual import CornerClicks, connect_clicks
+from dualcal.detect.refine import drop_outliers
 from dualcal.errors import InputError
 from dualcal.io import load_corners
-from dualcal.model import Pose
+from dualcal.model import Pose, observed_mask
 from dualcal.render import render_view, write_photo_set
 from dualcal.rotation import rotation_from_opk
 from dualcal.synth import make_truth, true_corners
@@ -163,6 +165,32 @@ def test_validate_grid_names_a_misplaced_corner_a_fold_and_too_few_corners():
     few[: b.n_corners // 2] = np.nan
     assert validate_grid(few, b) == "only 20 of 40 corners passed their checks (at least 21 needed: more than half of the board)"
     assert validate_grid(uv[:-1], b) == "39 corners, expected 40"
+
+
+def _stored_grids():
+    data = json.loads((Path(__file__).parent / "data" / "real_grids.json").read_text())["grids"]
+    return {name: (Board.from_dict(g["board"]), np.array([[np.nan, np.nan] if p is None else p for p in g["uv"]]))
+            for name, g in data.items()}
+
+
+@pytest.mark.parametrize("name", sorted(_stored_grids()))
+def test_stored_real_grids_pass_and_one_corner_moved_by_a_pixel_costs_that_corner(name):
+    board, uv = _stored_grids()[name]
+    shape = (board.rows, board.cols)
+    assert validate_grid(uv, board) is None
+    seen = np.flatnonzero(observed_mask(uv))
+    rng = np.random.default_rng(len(name))
+    for k in rng.choice(seen, 4, replace=False):
+        bad = uv.copy()
+        bad[k] += 1.2 * local_spacing_px(uv, shape)[k] * OUTLIER_CEIL_FRACTION * np.array([0.8, -0.6]) + [1.0, 0.0]
+        reason = validate_grid(bad, board)
+        assert reason is not None and reason.startswith(f"corner {k} is "), (k, reason)
+        cleaned = drop_outliers(bad, shape, local_spacing_px(uv, shape))
+        lost = set(np.flatnonzero(~observed_mask(cleaned))) - set(np.flatnonzero(~observed_mask(uv)))
+        # the planted corner, and at most one neighbour that was near its limit and lost the
+        # planted corner from its prediction (the stereo set's corners are 0.2 px noisy)
+        assert k in lost and len(lost) <= 2, (k, lost)
+        assert validate_grid(cleaned, board) is None
 
 
 @pytest.fixture(scope="module")

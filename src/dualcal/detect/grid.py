@@ -22,7 +22,7 @@ import numpy as np
 from ..board import Board
 from ..model import observed_mask
 
-__all__ = ["local_spacing_px", "neighbour_predictions", "neighbour_residuals_px", "outlier_limit_px", "outlier_excess",
+__all__ = ["local_spacing_px", "neighbour_predictions", "predict_from_neighbours", "neighbour_residuals_px", "outlier_limit_px", "worst_outlier",
            "min_corners", "validate_grid"]
 
 #: An accepted corner lies within ``OUTLIER_TIMES`` the photo's median neighbour residual of its
@@ -36,6 +36,10 @@ OUTLIER_TIMES = 4.0
 OUTLIER_FLOOR_PX = 0.3
 OUTLIER_CEIL_PX = 0.5
 OUTLIER_CEIL_FRACTION = 0.008
+#: The gain (:func:`predict_from_neighbours`) of an inner corner's prediction from its full
+#: 5 x 5 patch; a corner whose prediction carries more noise (the board's edge, 0.65-0.8, and
+#: its four corners, about 2) gets a limit larger by sqrt(1 + gain^2) / sqrt(1 + INNER_GAIN^2).
+INNER_GAIN = 0.43
 
 
 def _grid(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -83,6 +87,14 @@ def _neighbourhoods(shape: tuple[int, int]):
 def neighbour_predictions(uv: np.ndarray, shape: tuple[int, int], skip=None) -> np.ndarray:
     """(N, 2) position of every corner predicted from its neighbours, leaving itself out.
 
+    See :func:`predict_from_neighbours`, which also says how sensitive each prediction is.
+    """
+    return predict_from_neighbours(uv, shape, skip)[0]
+
+
+def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int], skip=None):
+    """Leave-one-out predictions of every corner and their sensitivity to the neighbours' errors.
+
     Parameters
     ----------
     uv : (N, 2) corners in grid order (row-major, ``shape[1]`` per row); NaN rows are unmeasured.
@@ -91,8 +103,11 @@ def neighbour_predictions(uv: np.ndarray, shape: tuple[int, int], skip=None) -> 
 
     Returns
     -------
-    (N, 2) predictions, NaN where a corner has fewer than 8 measured neighbours within two
-    rows and columns.
+    pred : (N, 2) predictions, NaN where a corner has fewer than 8 measured neighbours within
+        two rows and columns.
+    gain : (N,) how much of a neighbour's error reaches the prediction: the root sum of squares
+        of the weights of the neighbours in a quadratic fit (about 0.4 for an inner corner, 2-3
+        for a corner of the board, whose prediction is an extrapolation).
 
     Notes
     -----
@@ -134,10 +149,11 @@ def neighbour_predictions(uv: np.ndarray, shape: tuple[int, int], skip=None) -> 
     left = np.where(valid[..., None], p - fitted, 0.0)                       # (N, M, 2)
     Q = np.stack([o, x, y, x * x, x * y, y * y], axis=-1) * w[..., None]     # (N, M, 6)
     with np.errstate(invalid="ignore"):
-        coef = np.linalg.pinv(Q, rcond=1e-8) @ left                          # (N, 6, 2)
+        Qinv = np.linalg.pinv(Q, rcond=1e-8)                                 # (N, 6, M)
+        coef = Qinv @ left                                                   # (N, 6, 2)
     pred = (at_zero + coef[:, 0, :]) * spread[:, None] + mean
     pred[~enough | ~np.all(np.isfinite(pred), axis=1)] = np.nan
-    return pred.reshape(N, 2)
+    return pred, np.sqrt(np.sum(Qinv[:, 0, :] ** 2, axis=1))
 
 
 def neighbour_residuals_px(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -145,28 +161,68 @@ def neighbour_residuals_px(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray
     return np.linalg.norm(np.asarray(uv, float) - neighbour_predictions(uv, shape), axis=1)
 
 
-def outlier_limit_px(spacing_px: np.ndarray, typical_px: float) -> np.ndarray:
+def outlier_limit_px(spacing_px: np.ndarray, typical_px: float, gain=INNER_GAIN) -> np.ndarray:
     """Largest accepted neighbour residual of corners ``spacing_px`` from their nearest neighbour.
 
     ``typical_px`` is the photo's median neighbour residual (its corner noise and the board's
-    own departures from a true grid); see :data:`OUTLIER_TIMES` for the rule.
+    own departures from a true grid), ``gain`` that of each corner's prediction; see
+    :data:`OUTLIER_TIMES` and :data:`INNER_GAIN` for the rule.
     """
     ceil = np.maximum(OUTLIER_CEIL_PX, OUTLIER_CEIL_FRACTION * np.asarray(spacing_px, float))
-    return np.clip(OUTLIER_TIMES * typical_px, OUTLIER_FLOOR_PX, ceil)
+    noise = np.sqrt((1.0 + np.asarray(gain, float) ** 2) / (1.0 + INNER_GAIN**2))
+    return np.clip(OUTLIER_TIMES * typical_px, OUTLIER_FLOOR_PX, ceil) * np.maximum(noise, 1.0)
 
 
-def outlier_excess(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray | None = None):
-    """(N,) neighbour residual of each corner over its :func:`outlier_limit_px` (> 1: an outlier).
+def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray | None = None,
+                  candidates: int = 4):
+    """The corner to reject first, or None when every corner that can be judged is within its limit.
 
-    ``spacing_px`` defaults to :func:`local_spacing_px` of ``uv``. NaN where a corner cannot be
-    judged. Also returns the (N,) residuals, pixels.
+    Parameters
+    ----------
+    uv : (N, 2) corners in grid order, NaN rows unmeasured.
+    shape : ``(rows, cols)``.
+    spacing_px : (N,) spacing that sets each corner's limit; default :func:`local_spacing_px` of ``uv``.
+    candidates : how many of the corners over their limit are tried (see below).
+
+    Returns
+    -------
+    ``(k, residual_px)`` or None.
+
+    Notes
+    -----
+    One bad corner also spoils the predictions of its neighbours, and it can push the
+    extrapolated prediction of a board corner next to it further than its own residual. So the
+    corners over their :func:`outlier_limit_px` are tried, the ``candidates`` of them whose
+    residual is largest for the noise their prediction carries (residual / sqrt(1 + gain^2),
+    :func:`predict_from_neighbours`) first: each is left out in turn, and the one whose absence
+    leaves the others closest to their predictions (least sum of squared residual / limit) is
+    the corner to reject.
     """
-    res = neighbour_residuals_px(uv, shape)
+    uv = np.asarray(uv, float)
+    pred, gain = predict_from_neighbours(uv, shape)
+    res = np.linalg.norm(uv - pred, axis=1)
+    finite = np.isfinite(res)
+    if not finite.any():
+        return None
     if spacing_px is None:
         spacing_px = local_spacing_px(uv, shape)
-    finite = res[np.isfinite(res)]
-    typical = float(np.median(finite)) if len(finite) else 0.0
-    return res / outlier_limit_px(spacing_px, typical), res
+    limit = outlier_limit_px(spacing_px, float(np.median(res[finite])), gain)
+    over = finite & (res > limit)
+    if not over.any():
+        return None
+    z = np.where(over, res / np.sqrt(1.0 + gain**2), -np.inf)
+    tried = np.argsort(-z)[: min(candidates, int(over.sum()))]
+    if len(tried) == 1:
+        return int(tried[0]), float(res[tried[0]])
+
+    def left_over(k):
+        without = uv.copy()
+        without[k] = np.nan
+        r = np.linalg.norm(without - neighbour_predictions(without, shape), axis=1) / limit
+        return float(np.sum(np.where(np.isfinite(r), r * r, 0.0)))
+
+    k = int(min(tried, key=left_over))
+    return k, float(res[k])
 
 
 def min_corners(board: Board) -> int:
@@ -194,7 +250,7 @@ def validate_grid(uv: np.ndarray, board: Board) -> str | None:
     (:func:`min_corners`); every grid cell with four measured corners is a convex quadrilateral
     turning the same way as the others (no fold, no crossed rows); every measured corner that
     can be judged sits within :func:`outlier_limit_px` of its neighbours' prediction
-    (:func:`outlier_excess`).
+    (:func:`worst_outlier`).
     """
     uv = np.asarray(uv, float)
     if uv.shape != (board.n_corners, 2):
@@ -216,8 +272,7 @@ def validate_grid(uv: np.ndarray, board: Board) -> str | None:
         if majority == 0 or np.any(signs != majority):
             r, c = np.argwhere(full)[np.flatnonzero(np.any(signs != majority, axis=1))[0]]
             return f"the grid folds over itself at the cell of corner {r * board.cols + c}"
-    over, res = outlier_excess(uv, shape)
-    if np.nanmax(over, initial=0.0) > 1.0:
-        k = int(np.nanargmax(over))
-        return f"corner {k} is {res[k]:.2f} px from where its neighbours put it"
+    worst = worst_outlier(uv, shape)
+    if worst is not None:
+        return f"corner {worst[0]} is {worst[1]:.2f} px from where its neighbours put it"
     return None

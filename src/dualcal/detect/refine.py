@@ -251,19 +251,17 @@ def _grid_direction(g: np.ndarray, axis: int) -> np.ndarray:
 def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.ndarray) -> np.ndarray:
     """``uv`` with the corners that disagree with their neighbours set to NaN, worst first.
 
-    The worst corner (largest :func:`~dualcal.detect.grid.outlier_excess`) goes first and the
-    residuals are computed again, so that one bad corner does not take with it its neighbours,
-    whose predictions it spoiled. What is left passes :func:`~dualcal.detect.grid.validate_grid`'s
+    The worst corner (:func:`~dualcal.detect.grid.worst_outlier`) goes first and the residuals
+    are computed again, so that one bad corner does not take with it its neighbours, whose
+    predictions it spoiled. What is left passes :func:`~dualcal.detect.grid.validate_grid`'s
     residual check.
     """
-    from .grid import outlier_excess
+    from .grid import worst_outlier
 
     uv = np.array(uv, float)
-    while True:
-        over, _ = outlier_excess(uv, grid_shape, spacing_px)
-        if not np.nanmax(over, initial=0.0) > 1.0:
-            return uv
-        uv[int(np.nanargmax(over))] = np.nan
+    while (worst := worst_outlier(uv, grid_shape, spacing_px)) is not None:
+        uv[worst[0]] = np.nan
+    return uv
 
 
 def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, int],
@@ -291,24 +289,24 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
     -------
     (N, 2) corners, NaN rows for the corners that failed.
     """
-    from .grid import local_spacing_px, neighbour_predictions, outlier_excess
+    from .grid import local_spacing_px, outlier_limit_px, predict_from_neighbours
 
     coarse = np.asarray(coarse_uv, float)
     spacing = local_spacing_px(coarse, grid_shape)
-    pred = neighbour_predictions(coarse, grid_shape)
+    pred, _ = predict_from_neighbours(coarse, grid_shape)
     far = np.linalg.norm(coarse - pred, axis=1) > 0.15 * spacing
     start = np.where(far[:, None], pred, coarse)
     uv, ok = refine_corners(img, start, grid_shape, spacing, wide_start=wide_start)
     uv[~ok] = np.nan
     uv = drop_outliers(uv, grid_shape, spacing)
     lost = ~np.all(np.isfinite(uv), axis=1)
-    pred = neighbour_predictions(uv, grid_shape)
+    pred, gain = predict_from_neighbours(uv, grid_shape)
     retry = lost & np.all(np.isfinite(pred), axis=1)
     if retry.any():
         again, ok = refine_corners(img, np.where(retry[:, None], pred, uv), grid_shape, spacing, only=retry)
-        trial = np.where((retry & ok)[:, None], again, uv)
-        over, _ = outlier_excess(trial, grid_shape, spacing)
-        keep = retry & ok & (over <= 1.0)
+        res = np.linalg.norm(uv - pred, axis=1)
+        typical = float(np.nanmedian(res)) if np.isfinite(res).any() else 0.0
+        keep = retry & ok & (np.linalg.norm(again - pred, axis=1) <= outlier_limit_px(spacing, typical, gain))
         uv[keep] = again[keep]
         uv = drop_outliers(uv, grid_shape, spacing)
     return uv
