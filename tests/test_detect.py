@@ -233,6 +233,17 @@ def test_dataset_with_nothing_usable_is_an_input_error(small_set, tmp_path):
         detect_dataset(open_dataset(photos), Board(9, 6, 30.0), jobs=1, progress=False)
 
 
+def test_detect_names_the_board_that_is_found_when_squares_were_counted(small_set, run_cli, tmp_path):
+    _, photos = small_set
+    for wrong in ("9x6", "5x8"):                       # squares counted; counts swapped
+        res = run_cli("detect", photos, "--board", wrong, "--square", "30", "-o", tmp_path / "c.json", "--jobs", "1")
+        assert res.code == 2
+        assert f"no {wrong} chessboard found in any photo" in res.err_lines[-1]
+        assert "found as --board 8x5 in 3 of 3 photo(s) tried" in res.err_lines[-1]
+    res = run_cli("detect", photos, "--board", "4x3", "--square", "30", "-o", tmp_path / "c.json", "--jobs", "1")
+    assert res.code == 2 and "check --board (inner corners, COLSxROWS)" in res.err
+
+
 def test_detect_command_writes_corners_json_and_overlays(small_set, tmp_path):
     truth, photos = small_set
     out, overlays = tmp_path / "corners.json", tmp_path / "ov"

@@ -40,7 +40,7 @@ from .order import check_colours, order_grid, square_colours
 from .grid import validate_grid
 from .refine import measure_grid
 
-__all__ = ["PhotoResult", "detect_photo", "detect_dataset"]
+__all__ = ["PhotoResult", "detect_photo", "detect_dataset", "likely_boards", "suggest_board"]
 
 
 @dataclass
@@ -149,6 +149,29 @@ def warn_unpaired_cameras(dataset: Dataset) -> None:
                  "(same stem, or what the --camera globs' wildcards match) or use --pair-by time")
 
 
+def likely_boards(board: Board) -> list[Board]:
+    """The ``--board`` a user most likely meant when ``board`` is not found: squares counted
+    instead of inner corners (``cols-1 x rows-1``), the counts swapped, or both."""
+    c, r, s = board.cols, board.rows, board.square_mm
+    sizes = [(c - 1, r - 1), (r, c), (r - 1, c - 1)]
+    return [Board(a, b, s) for a, b in dict.fromkeys(sizes) if min(a, b) >= 2 and (a, b) != (c, r)]
+
+
+def suggest_board(paths, board: Board, tries: int = 3) -> str:
+    """A sentence naming the ``--board`` under which the board is found in ``paths`` (the first
+    ``tries`` of them), or "" when none of :func:`likely_boards` is."""
+    paths = list(paths)[:tries]
+    best, best_found = None, 0
+    for other in likely_boards(board):
+        found = sum(detect_photo(p, other).uv is not None for p in paths)
+        if found > best_found:
+            best, best_found = other, found
+    if best is None:
+        return ""
+    return (f"the board is found as --board {best.spec()} in {best_found} of {len(paths)} photo(s) tried "
+            f"(--board counts inner corners, COLSxROWS)")
+
+
 def _work(task) -> PhotoResult:
     path, board, hint, overlay = task
     return detect_photo(path, board, hint, overlay)
@@ -218,9 +241,14 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
              "was taken as the candidate nearest the image's top-left; make sure every camera saw the "
              "board the same way up")
     found = sum(v is not None for vs in views.values() for v in vs.values())
-    if found == 0:
-        raise InputError(f"no {board.spec()} chessboard found in any photo of {dataset.source} "
-                         f"({len(tasks)} photos): check --board (inner corners, COLSxROWS)")
+    if 2 * found < len(tasks):
+        missed = [path for (path, *_), res in zip(tasks, results) if res.uv is None]
+        hint = suggest_board(missed, board)
+        if found == 0:
+            raise InputError(f"no {board.spec()} chessboard found in any photo of {dataset.source} "
+                             f"({len(tasks)} photos): " + (hint or "check --board (inner corners, COLSxROWS)"))
+        if hint:
+            warn(f"{board.spec()} found in only {found} of {len(tasks)} photos: {hint}")
     cameras = {}
     for cam in dataset.cameras:
         meta = dataset.meta(cam)
