@@ -235,11 +235,11 @@ def test_dataset_with_nothing_usable_is_an_input_error(small_set, tmp_path):
 
 def test_detect_names_the_board_that_is_found_when_squares_were_counted(small_set, run_cli, tmp_path):
     _, photos = small_set
-    for wrong in ("9x6", "5x8"):                       # squares counted; counts swapped
+    for wrong, right in (("9x6", "8x5"), ("6x9", "5x8")):      # squares counted (and swapped)
         res = run_cli("detect", photos, "--board", wrong, "--square", "30", "-o", tmp_path / "c.json", "--jobs", "1")
         assert res.code == 2
         assert f"no {wrong} chessboard found in any photo" in res.err_lines[-1]
-        assert "found as --board 8x5 in 3 of 3 photo(s) tried" in res.err_lines[-1]
+        assert f"found as --board {right} in 3 of 3 photo(s) tried" in res.err_lines[-1]
     res = run_cli("detect", photos, "--board", "4x3", "--square", "30", "-o", tmp_path / "c.json", "--jobs", "1")
     assert res.code == 2 and "check --board (inner corners, COLSxROWS)" in res.err
 
