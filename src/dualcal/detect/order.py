@@ -97,28 +97,53 @@ def square_colours(gray: np.ndarray, grid_px: np.ndarray, factor: int = 1) -> Sq
     inner = values[2:R + 1, 2:C + 1]
     a, b = np.meshgrid(np.arange(C - 1), np.arange(R - 1))
     even = (a + b) % 2 == 0
-    diff = np.nanmean(inner[~even]) - np.nanmean(inner[even])
+    # medians, not means: a glare spot on a dark square or a shadow over a few light ones must
+    # not decide which squares are the dark ones
+    diff = np.nanmedian(inner[~even]) - np.nanmedian(inner[even])
     return SquareColours(values, bool(diff > 0), float(abs(diff)))
 
 
-def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = 8.0) -> None:
-    """Raise :class:`DetectionError` unless the squares look like exactly a ``cols x rows`` board."""
+def _neighbour_mean(values: np.ndarray) -> np.ndarray:
+    """Mean of the (up to) four edge-neighbours of every square, NaN-aware."""
+    pad = np.pad(values, 1, constant_values=np.nan)
+    stack = np.stack([pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]])
+    n = np.sum(np.isfinite(stack), axis=0)
+    total = np.nansum(stack, axis=0)
+    return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = 8.0,
+                  max_odd_share: float = 0.1) -> None:
+    """Raise :class:`DetectionError` unless the squares look like exactly a ``cols x rows`` board.
+
+    Each square is compared with its four neighbours (local contrast, so a shadow across the
+    board or uneven light does not matter): it must be darker than them where the chessboard
+    has a dark square and lighter where it has a light one. Up to ``max_odd_share`` of the inner
+    squares (at least one) may disagree, for glare on a dark square or a smudge; the outer ring
+    must agree in 80 % of its squares, and the squares one further out must not continue the
+    pattern (else the photo shows a larger board and the detector found part of it).
+    """
     if not col.contrast >= min_contrast:
         raise DetectionError(f"squares show too little contrast ({col.contrast:.1f} grey levels)")
     a, b = np.meshgrid(np.arange(-2, cols + 1), np.arange(-2, rows + 1))
     dark = ((a + b) % 2 == 0) == col.even_is_dark
-    sign = np.where(dark, -1.0, 1.0)                     # expected side of the mid-grey
+    sign = np.where(dark, -1.0, 1.0)                     # expected side of the neighbours
     inner = (a >= 0) & (a <= cols - 2) & (b >= 0) & (b <= rows - 2)
-    mid = 0.5 * (np.nanmean(col.values[inner & dark]) + np.nanmean(col.values[inner & ~dark]))
-    score = (col.values - mid) * sign / (0.5 * col.contrast)     # +1: as a chessboard predicts
     ring = ((a == -1) | (a == cols - 1) | (b == -1) | (b == rows - 1)) & ~(
         (a < -1) | (b < -1) | (a > cols - 1) | (b > rows - 1))
-    if np.nanmin(score[inner]) < 0.2:
-        raise DetectionError("the squares between the corners do not alternate like a chessboard")
-    seen = ring & np.isfinite(score)
-    if seen.sum() < 4 or np.mean(score[seen] > 0.2) < 0.8:
+    board_part = np.where(inner | ring, col.values, np.nan)
+    local = (board_part - _neighbour_mean(board_part)) * sign / col.contrast   # about +1 as predicted
+    seen = inner & np.isfinite(local)
+    odd = int(np.sum(local[seen] < 0.2))
+    if odd > max(1, int(max_odd_share * seen.sum())):
+        raise DetectionError(f"the squares between the corners do not alternate like a chessboard "
+                             f"({odd} of {int(seen.sum())} do not)")
+    seen = ring & np.isfinite(local)
+    if seen.sum() < 4 or np.mean(local[seen] > 0.2) < 0.8:
         raise DetectionError("the outer ring of squares does not continue the chessboard "
                              "(a different board, or the board is cut off)")
+    mid = 0.5 * (np.nanmedian(col.values[inner & dark]) + np.nanmedian(col.values[inner & ~dark]))
+    score = (col.values - mid) * sign / (0.5 * col.contrast)     # +1: as a chessboard predicts
     sides = {"left": (a == -2) & (b >= 0) & (b <= rows - 2), "right": (a == cols) & (b >= 0) & (b <= rows - 2),
              "top": (b == -2) & (a >= 0) & (a <= cols - 2), "bottom": (b == rows) & (a >= 0) & (a <= cols - 2)}
     for name, side in sides.items():
