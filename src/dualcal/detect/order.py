@@ -23,7 +23,7 @@ import numpy as np
 from ..board import Board
 from ..errors import DetectionError
 
-__all__ = ["SquareColours", "square_colours", "order_grid", "right_handed"]
+__all__ = ["SquareColours", "square_colours", "check_colours", "order_grid", "place_partial_grid", "right_handed"]
 
 
 @dataclass
@@ -152,6 +152,52 @@ def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float 
         if len(s) >= 2 and np.mean(s) > 0.5:
             raise DetectionError(f"the chessboard continues beyond its outer ring ({name} side of the grid): "
                                  f"the board is larger than {cols}x{rows} inner corners")
+
+
+def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board: Board) -> np.ndarray:
+    """The whole board's (rows, cols, 2) grid from a part of it found by the detector.
+
+    Every placement of the part (either way round) inside the board is extended to the whole
+    board through the homography of the part and sampled (:func:`square_colours`); the one
+    whose squares look like exactly the board (:func:`check_colours`: its outer ring continues
+    the chessboard, the squares beyond do not) is returned. The extended corners are a start
+    only, off by up to a few pixels where the lens bends the grid; the refinement takes them
+    from there.
+
+    Raises
+    ------
+    DetectionError
+        When no placement, or more than one, fits.
+    """
+    R, C = board.rows, board.cols
+    h, w = gray.shape
+    size = np.array([w, h]) * factor
+    fits = []
+    for part in (part_px, np.swapaxes(part_px, 0, 1)):
+        r, c = part.shape[:2]
+        if r > R or c > C or r * c < 9:
+            continue
+        jj, ii = np.meshgrid(np.arange(c), np.arange(r))
+        src = np.column_stack([jj.ravel(), ii.ravel()]).astype(np.float32)
+        H, _ = cv2.findHomography(src, part.reshape(-1, 2).astype(np.float32), 0)
+        if H is None:
+            continue
+        for i0 in range(R - r + 1):
+            for j0 in range(C - c + 1):
+                J, I = np.meshgrid(np.arange(C) - j0, np.arange(R) - i0)
+                pts = cv2.perspectiveTransform(np.column_stack([J.ravel(), I.ravel()]).astype(np.float32)[None], H)[0]
+                grid = pts.reshape(R, C, 2).astype(float)
+                if np.any(grid < 0) or np.any(grid > size - 1):
+                    continue
+                try:
+                    check_colours(square_colours(gray, grid, factor), C, R)
+                except DetectionError:
+                    continue
+                fits.append(grid)
+    if len(fits) != 1:
+        raise DetectionError(f"no {board.spec()} chessboard found" + (
+            " (a part of one was, but not where it lies on the board)" if fits else ""))
+    return fits[0]
 
 
 def right_handed(grid: np.ndarray) -> bool:

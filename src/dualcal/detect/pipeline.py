@@ -4,7 +4,9 @@ Per photo (:func:`detect_photo`), one photo in memory at a time:
 
 1. decode the photo once, reduce it to 1/2-1/8 size and find the grid there (:mod:`.coarse`),
    or, where that fails and the user clicked four corners, predict the grid from them
-   (:mod:`.manual`);
+   (:mod:`.manual`); failing that, find the largest part of the board the detector can and
+   place it on the board by the colours of the squares around it (glare on a square, a
+   shadow);
 2. sample the squares: they must alternate like a chessboard, the outer ring too, and the
    board must not continue beyond it (:mod:`.order`); put the corners in the contract's order;
 3. refine each corner at full resolution in a window fitted to its own squares, check it
@@ -34,9 +36,9 @@ from ..errors import DetectionError, InputError
 from ..io import atomic_output, make_output_folder
 from ..model import CameraCorners, CornerSet
 from ..progress import progress_bar, warn
-from .coarse import find_grid, reduce_image, reduction_factor, to_full_resolution
+from .coarse import find_grid, find_partial_grid, reduce_image, reduction_factor, to_full_resolution
 from .manual import grid_from_hints
-from .order import check_colours, order_grid, square_colours
+from .order import check_colours, order_grid, place_partial_grid, square_colours
 from .grid import validate_grid
 from .refine import measure_grid
 
@@ -91,10 +93,15 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
         size = (full.shape[1], full.shape[0])
         small, f, grid = _coarse(full, board)
         manual = grid is None and hint_uv is not None
-        if grid is None and not manual:
-            raise DetectionError(f"no {board.spec()} chessboard found")
         if manual:
             grid = grid_from_hints(hint_uv, board)
+        elif grid is None:
+            # glare, a shadow or blur can hide a square: find the part of the board on one
+            # side of it and place it on the board by the squares' colours
+            part = find_partial_grid(small)
+            if part is None:
+                raise DetectionError(f"no {board.spec()} chessboard found")
+            grid = place_partial_grid(to_full_resolution(part, f), small, f, board)
         colours = square_colours(small, grid, f)
         check_colours(colours, board.cols, board.rows)
         # clicked grids too: whichever end the user started from, the contract's order
