@@ -122,6 +122,7 @@ def test_manual_mode_predicts_the_grid_from_four_clicks(tmp_path, monkeypatch):
     assert np.max(np.linalg.norm(predicted - uv_true, axis=1)) < 15
     # force the automatic search to fail, so that the hints are used
     monkeypatch.setattr("dualcal.detect.pipeline.find_grid", lambda *a, **k: None)
+    monkeypatch.setattr("dualcal.detect.pipeline.find_partial_grid", lambda *a, **k: None)
     assert detect_photo(path, b).uv is None
     res = detect_photo(path, b, hint_uv=clicks)
     assert res.manual and res.uv is not None
