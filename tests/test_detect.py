@@ -19,9 +19,10 @@ from dualcal.detect.coarse import reduce_image, reduction_factor, to_full_resolu
 from dualcal.detect.grid import OUTLIER_CEIL_FRACTION, local_spacing_px
 from dualcal.detect.manual import CornerClicks, connect_clicks
 from dualcal.detect.refine import drop_outliers
+from dualcal.detect.symmetry import align_symmetric_numbering
 from dualcal.errors import InputError
 from dualcal.io import load_corners
-from dualcal.model import Pose, observed_mask
+from dualcal.model import CameraCorners, CornerSet, Pose, observed_mask
 from dualcal.render import render_view, write_photo_set
 from dualcal.rotation import rotation_from_opk
 from dualcal.synth import make_truth, true_corners
@@ -192,6 +193,52 @@ def test_stored_real_grids_pass_and_one_corner_moved_by_a_pixel_costs_that_corne
         # planted corner from its prediction (the stereo set's corners are 0.2 px noisy)
         assert k in lost and len(lost) <= 2, (k, lost)
         assert validate_grid(cleaned, board) is None
+
+
+def _symmetric_rig(right_roll_deg: float, views: int = 12):
+    """A stereo rig looking at a 6x4 board (180-degree symmetric), the right camera turned about
+    its axis by ``right_roll_deg``, the board turned in the image by 0-180 degrees over the views."""
+    board = Board(6, 4, 30.0)
+    truth = make_truth("stereo", views=views, seed=3, board=board)
+    turn = Pose(rotation_from_opk([0.0, 0.0, np.radians(right_roll_deg)]), np.zeros(3))
+    rig = {"right": turn.compose(truth.rig["right"])}
+    poses = {v: Pose(rotation_from_opk([0.0, 0.0, np.pi * k / views]), np.zeros(3)).compose(p)
+             for k, (v, p) in enumerate(truth.view_poses.items())}
+    truth = replace(truth, rig=rig, view_poses=poses)
+    tc = true_corners(truth)
+    detected = CornerSet(board, {c: CameraCorners(truth.cameras[c].image_size,
+                                                  {v: _expected_order(uv, board) for v, uv in views_.items()})
+                                 for c, views_ in tc.items()})
+    return truth, tc, detected
+
+
+@pytest.mark.parametrize("right_roll_deg", [0.0, 60.0, 120.0, 180.0])
+def test_a_symmetric_board_is_numbered_alike_in_every_camera_of_an_instant(right_roll_deg):
+    truth, tc, detected = _symmetric_rig(right_roll_deg)
+
+    def alike(cs, v):
+        return [np.allclose(cs.cameras[c].views[v], tc[c][v]) for c in ("left", "right")]
+
+    disagree = sum(len(set(alike(detected, v))) == 2 for v in truth.view_poses)
+    # with the cameras turned against each other the top-left rule alone numbers some instants differently
+    assert disagree >= 2 or right_roll_deg == 0.0
+    aligned, turned = align_symmetric_numbering(detected, "left")
+    assert turned == disagree
+    for v in truth.view_poses:
+        left, right = alike(aligned, v)
+        assert left == right, v
+        assert np.allclose(aligned.cameras["left"].views[v], detected.cameras["left"].views[v])
+
+
+def test_a_symmetric_board_on_a_rig_that_is_not_rigid_is_refused():
+    truth, tc, detected = _symmetric_rig(90.0)
+    right = detected.cameras["right"]
+    keys = list(right.views)
+    shuffled = dict(zip(keys, [right.views[k] for k in keys[5:] + keys[:5]]))
+    bad = replace(detected, cameras={**detected.cameras, "right": replace(right, views=shuffled)})
+    with pytest.raises(InputError, match=r"cannot be numbered alike in cameras 'left' and 'right': their relative "
+                                         r"pose agrees in only \d+ of 12 instants"):
+        align_symmetric_numbering(bad, "left")
 
 
 @pytest.fixture(scope="module")

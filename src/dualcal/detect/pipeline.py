@@ -41,6 +41,7 @@ from .manual import grid_from_hints
 from .order import check_colours, order_grid, place_partial_grid, square_colours
 from .grid import validate_grid
 from .refine import measure_grid
+from .symmetry import align_symmetric_numbering
 
 __all__ = ["PhotoResult", "detect_photo", "detect_dataset", "likely_boards", "suggest_board"]
 
@@ -243,10 +244,6 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         if res.uv is None:
             warn(f"{path}: skipped: {res.reason}")
         symmetric += res.symmetric
-    if symmetric:
-        warn(f"board {board.spec()} looks the same turned by 180 degrees: in {symmetric} photo(s) corner 0 "
-             "was taken as the candidate nearest the image's top-left; make sure every camera saw the "
-             "board the same way up")
     found = sum(v is not None for vs in views.values() for v in vs.values())
     if 2 * found < len(tasks):
         missed = [path for (path, *_), res in zip(tasks, results) if res.uv is None]
@@ -265,4 +262,13 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         cameras[cam] = CameraCorners(dataset.image_size(cam), views[cam], meta)
         if all(v is None for v in views[cam].values()):
             warn(f"camera {cam!r}: the board was found in none of its photos")
-    return CornerSet(board, cameras)
+    corners = CornerSet(board, cameras)
+    if symmetric:
+        how = "the candidate nearest the image's top-left"
+        if len(cameras) > 1:
+            corners, turned = align_symmetric_numbering(corners, dataset.reference)
+            how += (f" in camera {dataset.reference!r}, and in the other cameras the numbering that fits the rig's "
+                    f"relative pose ({turned} photo(s) renumbered)")
+        warn(f"board {board.spec()} looks the same turned by 180 degrees: in {symmetric} photo(s) corner 0 was "
+             f"taken as {how}")
+    return corners
