@@ -1,6 +1,8 @@
 """Chessboard detection on photo-like renders with known truth: accuracy, order, self-checks."""
 
 import json
+import subprocess
+import sys
 import zlib
 from dataclasses import replace
 from pathlib import Path
@@ -239,6 +241,47 @@ def test_a_symmetric_board_on_a_rig_that_is_not_rigid_is_refused():
     with pytest.raises(InputError, match=r"cannot be numbered alike in cameras 'left' and 'right': their relative "
                                          r"pose agrees in only \d+ of 12 instants"):
         align_symmetric_numbering(bad, "left")
+
+
+def test_importing_detection_pulls_in_neither_scipy_nor_matplotlib():
+    code = "import sys, dualcal.detect; print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'matplotlib'}))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def _glare_on_a_dark_square(cam, pose, board, uv_true, rng):
+    """A glare spot (radius 0.3 square, half of full white) on a random inner dark square."""
+    a, b = int(rng.integers(0, board.cols - 1)), int(rng.integers(0, board.rows - 1))
+    a -= (a + b) % 2                                        # a + b even: a dark square
+    centre = project_points(cam, pose.apply(np.array([[(a + 0.5) * board.square_mm, (b + 0.5) * board.square_mm, 0]])))
+    square_px = np.linalg.norm(uv_true[1] - uv_true[0])
+    return [(centre[0, 0], centre[0, 1], 0.3 * square_px, 0.5)]
+
+
+@pytest.mark.slow
+def test_steep_boards_with_glare_and_shadow_are_found_and_a_planted_bad_corner_costs_that_corner(tmp_path):
+    board = Board(11, 8, 20.0)
+    truth = make_truth("note8", views=3, seed=2, scale=0.5, min_tilt_deg=45, max_tilt_deg=65, fill=(0.3, 0.6),
+                       board=board)
+    tc = true_corners(truth)
+    rng = np.random.default_rng(0)
+    for i, view in enumerate(truth.view_poses):
+        cam, pose, uv_true = truth.cameras["tele"], truth.camera_pose("tele", view), tc["tele"][view]
+        planted = int(rng.integers(0, board.n_corners))
+        kw = dict(blur_px=1.5, glare=_glare_on_a_dark_square(cam, pose, board, uv_true, rng),
+                  shadow=(rng.uniform(0, 2 * np.pi), 0.0, 0.35, 15.0))
+        for outliers in ((), ((planted, 0.12 * board.square_mm, 0.0),)):
+            img = render_view(cam, pose, board, np.random.default_rng(i), outliers=outliers, **kw)
+            path = tmp_path / f"{view}.png"
+            cv2.imwrite(str(path), img)
+            res = detect_photo(path, board)
+            assert res.uv is not None, (view, outliers, res.reason)
+            seen = observed_mask(res.uv)
+            assert _rms(res.uv[seen], uv_true[seen]) < 0.05
+            if outliers:
+                assert not seen[planted] and (~seen).sum() <= 3, (view, planted, np.flatnonzero(~seen))
+            else:
+                assert (~seen).sum() <= 2
 
 
 @pytest.fixture(scope="module")

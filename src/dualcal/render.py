@@ -143,10 +143,11 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
     shadow : ``(angle_rad, offset_px, depth, softness_px)``: the light is dimmed by ``depth``
         (0..1) beyond the line at signed distance ``offset_px`` from the image centre, normal
         ``(cos angle, sin angle)``, with a soft edge of width ``softness_px``.
-    outliers : planted bad corners, each ``(k, du_mm, dv_mm)``: around inner corner ``k`` the
-        board is drawn shifted by ``(du_mm, dv_mm)`` along its X and Y (within a third of a
-        square, fading out smoothly), so the photo shows that corner out of place while
-        :func:`~dualcal.camera.project_points` still gives the true one.
+    outliers : planted bad corners, each ``(k, dX_mm, dY_mm)``: around inner corner ``k`` the
+        board is drawn shifted by ``(dX_mm, dY_mm)`` along its X and Y (rigidly within a fifth of
+        a square, fading out by half a square), so the photo shows that corner at board point
+        ``X_k + (dX, dY)`` while :func:`~dualcal.camera.project_points` still gives the true
+        one. Shifts up to 0.19 of a square are drawn exactly (the shading does not fold).
 
     Returns
     -------
@@ -217,8 +218,9 @@ def _plant_outliers(X: np.ndarray, Y: np.ndarray, board: Board, outliers) -> tup
     s = board.square_mm
     for k, dX, dY in outliers:
         r, c = divmod(int(k), board.cols)
-        rho2 = ((X - c * s) ** 2 + (Y - r * s) ** 2) / (s / 3.0) ** 2
-        w = np.exp(-rho2 * rho2)                                   # 1 at the corner, 0 a third of a square off
+        rho = np.hypot(X - c * s, Y - r * s) / (0.5 * s)
+        # 1 within a fifth of a square of the corner, 0 beyond half a square, cosine between
+        w = 0.5 + 0.5 * np.cos(np.pi * np.clip((rho - 0.4) / 0.6, 0.0, 1.0))
         X, Y = X - dX * w, Y - dY * w
     return X, Y
 
