@@ -19,6 +19,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .grid import local_spacing_px, neighbour_residuals_px
+
 __all__ = ["reduction_factor", "reduce_image", "find_grid", "find_partial_grid", "to_full_resolution"]
 
 _ATTEMPTS = (
@@ -84,8 +86,6 @@ def _trim_to_consistent(part: np.ndarray, min_size: int, tolerance: float = 0.08
     """Drop border rows and columns of a grid until every corner is within ``tolerance`` of its
     spacing from its neighbours' prediction (the detector's grid can run on past the damage
     into the background at its edge); None when less than ``min_size x min_size`` is left."""
-    from .grid import local_spacing_px, neighbour_residuals_px
-
     while min(part.shape[:2]) >= min_size:
         flat = part.reshape(-1, 2)
         bad = neighbour_residuals_px(flat, part.shape[:2]) / local_spacing_px(flat, part.shape[:2])

@@ -1,6 +1,8 @@
 """Sub-pixel corners at full resolution, in small windows only (paper section 1.2, last step).
 
-Two steps per corner, both touching only a window around it:
+Each corner has its own window, 0.4 of the distance to its nearest neighbour (on a tilted
+board the squares of one photo range from a few to many tens of pixels). Two steps per
+corner, both touching only that window:
 
 1. ``cv2.cornerSubPix`` (gradient orthogonality, Förstner / Bouguet) from the coarse position:
    a wide basin of convergence, accurate to a few hundredths of a pixel.
@@ -19,8 +21,12 @@ Two steps per corner, both touching only a window around it:
    It uses every pixel's value rather than only gradient directions, so with sensor noise it
    is more precise than step 1. Where the printed squares do not quite meet (home-made
    boards), it returns the crossing of the four edges, which gradient orthogonality in a small
-   window does not. A corner whose fit does not converge inside its window keeps the step-1
-   value.
+   window does not. A corner whose fit does not converge inside its window is reported as
+   failed.
+
+:func:`measure_grid` then checks every corner against its neighbours (:mod:`.grid`), refines
+again from the neighbours' prediction where it disagrees, and makes a NaN row of what still
+fails.
 
 Pixel ``(row i, col j)`` has its centre at ``(u=j, v=i)``.
 """
@@ -29,6 +35,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+
+from .grid import local_spacing_px, outlier_limit_px, predict_from_neighbours, worst_outlier
 
 __all__ = ["refine_corners", "fit_saddles", "window_half_size", "drop_outliers", "measure_grid"]
 
@@ -108,20 +116,24 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
     ok = valid.copy()
     lam = np.full(K, 1e-3)
     cost = _cost(p, qx, qy, z)
+    active = np.arange(K)                    # corners still converging: only these are iterated
     for _ in range(iterations):
-        J, res = _jacobian(p, qx, qy, z)
+        pa, za = p[active], z[active]
+        J, res = _jacobian(pa, qx, qy, za)
         Jt = np.swapaxes(J, 1, 2)
         JtJ = (Jt @ J).astype(float)
         Jtr = (Jt @ res[..., None])[..., 0].astype(float)
         D = np.einsum("kii->ki", JtJ) + 1e-12
-        step = np.linalg.solve(JtJ + lam[:, None, None] * D[:, :, None] * np.eye(9),
-                               -Jtr[..., None])[..., 0]
-        trial = p + step
-        new_cost = _cost(trial, qx, qy, z)
-        better = new_cost < cost
-        p[better], cost[better] = trial[better], new_cost[better]
-        lam = np.where(better, lam * 0.3, lam * 10.0)
-        if np.all((np.max(np.abs(step[:, :2]), axis=1) < 1e-4) | (lam > 1e4)):
+        la = lam[active]
+        step = np.linalg.solve(JtJ + la[:, None, None] * D[:, :, None] * np.eye(9), -Jtr[..., None])[..., 0]
+        trial = pa + step
+        new_cost = _cost(trial, qx, qy, za)
+        better = new_cost < cost[active]
+        p[active[better]], cost[active[better]] = trial[better], new_cost[better]
+        lam[active] = np.where(better, la * 0.3, la * 10.0)
+        done = (np.max(np.abs(step[:, :2]), axis=1) < 1e-4) | (lam[active] > 1e4)
+        active = active[~done]
+        if len(active) == 0:
             break
     rms = np.sqrt(cost / max(1, z.shape[1]))
     inside = np.all(np.abs(p[:, :2]) < 0.5 * half, axis=1) & (p[:, 4] > 0.2) & (p[:, 4] < half)
@@ -206,8 +218,6 @@ def refine_corners(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int],
     ok : (N,) True where the blurred-corner fit converged inside the corner's window; elsewhere
         ``uv`` holds the ``cornerSubPix`` result, which the caller should not trust as it is.
     """
-    from .grid import local_spacing_px
-
     rows, cols = grid_shape
     start = np.array(uv, float).reshape(rows * cols, 2)
     spacing = local_spacing_px(start, grid_shape) if spacing_px is None else np.asarray(spacing_px, float)
@@ -256,8 +266,6 @@ def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.nd
     predictions it spoiled. What is left passes :func:`~dualcal.detect.grid.validate_grid`'s
     residual check.
     """
-    from .grid import worst_outlier
-
     uv = np.array(uv, float)
     while (worst := worst_outlier(uv, grid_shape, spacing_px)) is not None:
         uv[worst[0]] = np.nan
@@ -289,8 +297,6 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
     -------
     (N, 2) corners, NaN rows for the corners that failed.
     """
-    from .grid import local_spacing_px, outlier_limit_px, predict_from_neighbours
-
     coarse = np.asarray(coarse_uv, float)
     spacing = local_spacing_px(coarse, grid_shape)
     pred, _ = predict_from_neighbours(coarse, grid_shape)
