@@ -139,8 +139,10 @@ def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int], skip=None):
     rows_u = np.stack([x, y, o, z, z, z, -u * x, -u * y, -u], axis=-1)
     rows_v = np.stack([z, z, z, x, y, o, -v * x, -v * y, -v], axis=-1)
     A = np.concatenate([rows_u, rows_v], axis=1) * np.concatenate([w, w], axis=1)[..., None]
-    _, _, Vt = np.linalg.svd(A, full_matrices=False)
-    h = Vt[:, -1, :]                                                          # (N, 9)
+    # the null vector of A: eigenvector of the smallest eigenvalue of A^T A (coordinates are
+    # normalised, so the 9 x 9 normal matrix is well conditioned; far cheaper than an SVD of A)
+    _, vecs = np.linalg.eigh(np.swapaxes(A, 1, 2) @ A)
+    h = vecs[:, :, 0]                                                         # (N, 9)
     with np.errstate(divide="ignore", invalid="ignore"):
         den = h[:, None, 6] * x + h[:, None, 7] * y + h[:, None, 8]
         fitted = np.stack([(h[:, None, 0] * x + h[:, None, 1] * y + h[:, None, 2]) / den,
@@ -149,7 +151,8 @@ def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int], skip=None):
     left = np.where(valid[..., None], p - fitted, 0.0)                       # (N, M, 2)
     Q = np.stack([o, x, y, x * x, x * y, y * y], axis=-1) * w[..., None]     # (N, M, 6)
     with np.errstate(invalid="ignore"):
-        Qinv = np.linalg.pinv(Q, rcond=1e-8)                                 # (N, 6, M)
+        Qt = np.swapaxes(Q, 1, 2)
+        Qinv = np.linalg.solve(Qt @ Q + 1e-9 * np.eye(6), Qt)               # (N, 6, M)
         coef = Qinv @ left                                                   # (N, 6, 2)
     pred = (at_zero + coef[:, 0, :]) * spread[:, None] + mean
     pred[~enough | ~np.all(np.isfinite(pred), axis=1)] = np.nan
