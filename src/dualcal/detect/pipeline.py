@@ -37,9 +37,9 @@ from ..io import atomic_output, make_output_folder
 from ..model import CameraCorners, CornerSet
 from ..progress import progress_bar, warn
 from .coarse import find_grid, find_partial_grid, reduce_image, reduction_factor, to_full_resolution
+from .grid import validate_grid
 from .manual import grid_from_hints
 from .order import check_colours, order_grid, place_partial_grid, square_colours
-from .grid import validate_grid
 from .refine import measure_grid
 from .symmetry import align_symmetric_numbering
 
