@@ -54,10 +54,13 @@ def rough_rotations(board: Board, views: dict[str, np.ndarray], image_size) -> d
         seen = observed_mask(uv)
         Hs[key] = estimate_homography(xy[seen], uv[seen], refine=False)
     w, h = image_size
+    guess = CameraModel(tuple(image_size), float(max(w, h)), float(max(w, h)), 0.0, (w - 1) / 2, (h - 1) / 2).K
     try:
         K = intrinsics_from_homographies(list(Hs.values()), image_size).K
     except EstimationError:
-        K = CameraModel(tuple(image_size), float(max(w, h)), float(max(w, h)), 0.0, (w - 1) / 2, (h - 1) / 2).K
+        K = guess
+    if not np.all(np.isfinite(K)):
+        K = guess
     return {key: extrinsics_from_homography(K, H).R for key, H in Hs.items()}
 
 
