@@ -22,8 +22,8 @@ import numpy as np
 from ..board import Board
 from ..model import observed_mask
 
-__all__ = ["local_spacing_px", "neighbour_predictions", "predict_from_neighbours", "neighbour_residuals_px", "outlier_limit_px", "worst_outlier",
-           "min_corners", "validate_grid"]
+__all__ = ["local_spacing_px", "neighbour_predictions", "predict_from_neighbours", "neighbour_residuals_px",
+           "outlier_limit_px", "worst_outlier", "min_corners", "validate_grid"]
 
 #: An accepted corner lies within ``OUTLIER_TIMES`` the photo's median neighbour residual of its
 #: neighbours' prediction (:func:`outlier_limit_px`), but the limit is never below
@@ -70,36 +70,32 @@ def _neighbourhoods(shape: tuple[int, int]):
     """(N, M) indices of each corner's neighbours and their (N, M, 2) offsets ``(dc, dr)``.
 
     A corner's neighbours are the other corners within two rows and columns (a 5 x 5 patch,
-    cut at the board's edge), ordered by Chebyshev distance, so the first ones are the ring of
-    eight (``M = 24``, padded with -1).
+    cut at the board's edge: ``M = 24``, indices -1 outside the board).
     """
     R, C = shape
-    offs = sorted(((dc, dr) for dr in range(-2, 3) for dc in range(-2, 3) if dr or dc),
-                  key=lambda o: (max(abs(o[0]), abs(o[1])), o[1], o[0]))
-    offs = np.array(offs)
+    offs = np.array([(dc, dr) for dr in range(-2, 3) for dc in range(-2, 3) if dr or dc])
     r, c = np.divmod(np.arange(R * C), C)
     rr, cc = r[:, None] + offs[None, :, 1], c[:, None] + offs[None, :, 0]
     inside = (rr >= 0) & (rr < R) & (cc >= 0) & (cc < C)
     idx = np.where(inside, rr * C + cc, -1)
-    return idx, np.broadcast_to(offs, idx.shape + (2,)).astype(float), offs
+    return idx, np.broadcast_to(offs, idx.shape + (2,)).astype(float)
 
 
-def neighbour_predictions(uv: np.ndarray, shape: tuple[int, int], skip=None) -> np.ndarray:
+def neighbour_predictions(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(N, 2) position of every corner predicted from its neighbours, leaving itself out.
 
     See :func:`predict_from_neighbours`, which also says how sensitive each prediction is.
     """
-    return predict_from_neighbours(uv, shape, skip)[0]
+    return predict_from_neighbours(uv, shape)[0]
 
 
-def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int], skip=None):
+def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int]):
     """Leave-one-out predictions of every corner and their sensitivity to the neighbours' errors.
 
     Parameters
     ----------
     uv : (N, 2) corners in grid order (row-major, ``shape[1]`` per row); NaN rows are unmeasured.
     shape : ``(rows, cols)``.
-    skip : (N,) bool, corners not to use as neighbours (besides the NaN rows), or None.
 
     Returns
     -------
@@ -123,8 +119,8 @@ def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int], skip=None):
     """
     uv = np.asarray(uv, float)
     N = len(uv)
-    use = observed_mask(uv) if skip is None else observed_mask(uv) & ~np.asarray(skip, bool)
-    idx, offs, _ = _neighbourhoods(shape)
+    use = observed_mask(uv)
+    idx, offs = _neighbourhoods(shape)
     valid = (idx >= 0) & use[np.maximum(idx, 0)]
     enough = valid.sum(axis=1) >= 8
     pts = np.where(valid[..., None], uv[np.maximum(idx, 0)], 0.0)          # (N, M, 2)
