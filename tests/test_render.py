@@ -95,3 +95,39 @@ def test_another_board_size_renders_with_its_own_layout():
     img = render_view(truth.cameras["left"], truth.view_poses["IMG_01"], board, noise=0.0)
     found, corners = cv2.findChessboardCornersSB(img, (5, 3))
     assert found
+
+
+def test_glare_saturates_its_spot_and_a_shadow_dims_its_side(truth):
+    cam, pose = truth.cameras["tele"], truth.camera_pose("tele", "IMG_01")
+    W, H = cam.image_size
+    plain = render_view(cam, pose, truth.board, np.random.default_rng(0), noise=0.0).astype(float)
+    spot = (W / 3, H / 3, 20.0, 1.5)
+    glared = render_view(cam, pose, truth.board, np.random.default_rng(0), noise=0.0, glare=[spot]).astype(float)
+    u, v = int(spot[0]), int(spot[1])
+    assert glared[v, u] == 255 and np.array_equal(glared[:, -50:], plain[:, -50:])
+    # the line through the image centre with normal +u: the right half is dimmed by 60 %
+    shaded = render_view(cam, pose, truth.board, np.random.default_rng(0), noise=0.0,
+                         shadow=(0.0, 0.0, 0.6, 5.0)).astype(float)
+    left, right = slice(0, W // 2 - 40), slice(W // 2 + 40, W)
+    np.testing.assert_allclose(shaded[:, left], plain[:, left], atol=1.0)
+    bright = plain[:, right] > 40
+    np.testing.assert_allclose(shaded[:, right][bright] / plain[:, right][bright], 0.4, atol=0.03)
+
+
+def test_a_planted_corner_is_drawn_where_it_was_moved_and_the_others_stay(truth):
+    cam, pose = truth.cameras["wide"], truth.camera_pose("wide", "IMG_02")
+    b = truth.board
+    uv_true = true_corners(truth)["wide"]["IMG_02"]
+    k, shift_mm = 19, np.array([2.0, -1.0])
+    img = render_view(cam, pose, b, np.random.default_rng(1), noise=0.0, outliers=[(k, *shift_mm)])
+    g = uv_true.reshape(b.rows, b.cols, 2)
+    dirs = np.stack([np.gradient(g, axis=1).reshape(-1, 2), np.gradient(g, axis=0).reshape(-1, 2)], 1)
+    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+    X = b.object_points_mm()
+    moved = project_points(cam, pose.apply(X[k:k + 1] + [*shift_mm, 0.0]))
+    start = uv_true.copy()
+    start[k] = moved
+    fit, ok, _ = fit_saddles(img, start, dirs, half=6)
+    assert ok[k] and np.linalg.norm(fit[k] - moved) < 0.05
+    others = np.arange(b.n_corners) != k
+    assert np.max(np.linalg.norm(fit[others] - uv_true[others], axis=1)) < 0.02

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -112,7 +113,10 @@ def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray
 def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Generator | None = None, *,
                 blur_px: float = 1.2, noise: float = 0.012, white: float = 0.88, black: float = 0.07,
                 margin_squares: float = 0.8, vignetting: float = 0.3, uneven_light: float = 0.15,
-                background: float = 0.3, clutter: int = 80, band_rows: int = 256) -> np.ndarray:
+                background: float = 0.3, clutter: int = 80, band_rows: int = 256,
+                glare: Sequence[tuple[float, float, float, float]] = (),
+                shadow: tuple[float, float, float, float] | None = None,
+                outliers: Sequence[tuple[int, float, float]] = ()) -> np.ndarray:
     """Render the board as photographed by ``cam`` at ``pose``.
 
     Parameters
@@ -133,10 +137,22 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
     clutter : number of random shapes (boxes, discs, bars of random grey) drawn in the
         background, as the room behind a board in a real photo (0: a plain background).
     band_rows : rows rendered at once (bounds memory: about 100 bytes per pixel of a band).
+    glare : specular highlights, each ``(u, v, radius_px, strength)``: light added to the
+        signal (in units of full white) as a Gaussian of standard deviation ``radius_px``; where
+        the sum passes full white the sensor saturates. One on a dark square can wash it out.
+    shadow : ``(angle_rad, offset_px, depth, softness_px)``: the light is dimmed by ``depth``
+        (0..1) beyond the line at signed distance ``offset_px`` from the image centre, normal
+        ``(cos angle, sin angle)``, with a soft edge of width ``softness_px``.
+    outliers : planted bad corners, each ``(k, dX_mm, dY_mm)``: around inner corner ``k`` the
+        board is drawn shifted by ``(dX_mm, dY_mm)`` along its X and Y (rigidly within a fifth of
+        a square, fading out by half a square), so the photo shows that corner at board point
+        ``X_k + (dX, dY)`` while :func:`~dualcal.camera.project_points` still gives the true
+        one. Shifts up to 0.19 of a square are drawn exactly (the shading does not fold).
 
     Returns
     -------
-    (H, W) uint8 image. Corner ``k`` of the board sits at ``project_points(cam, pose.apply(X_k))``.
+    (H, W) uint8 image. Corner ``k`` of the board sits at ``project_points(cam, pose.apply(X_k))``
+    (except the ``outliers``).
     """
     check_invertible_in_image(cam)
     rng = np.random.default_rng(0) if rng is None else rng
@@ -169,6 +185,7 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
         rows = slice(max(a0, b0) - a0, min(a1, b1) - a0)
         if rows.stop > rows.start and c1 > c0:
             X, Y, front = board_coordinates(cam, pose, u[c0:c1], v[rows])
+            X, Y = _plant_outliers(X, Y, board, outliers)
             # footprint of one pixel in board mm (axis-aligned, centred: symmetric)
             hX = 0.5 * (np.abs(np.gradient(X, axis=1)) + np.abs(np.gradient(X, axis=0))) + 1e-9
             hY = 0.5 * (np.abs(np.gradient(Y, axis=1)) + np.abs(np.gradient(Y, axis=0))) + 1e-9
@@ -177,14 +194,35 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
                                                              white, black, bg), bg)
         gain = ((1.0 - (vignetting / r_corner**2) * (du * du + dv * dv))
                 * (1.0 + light[0] * du + light[1] * dv))
+        if shadow is not None:
+            angle, offset, depth, soft = shadow
+            dist = np.cos(angle) * (u - 0.5 * (W - 1))[None, :] + np.sin(angle) * (v - 0.5 * (H - 1))[:, None]
+            gain = gain * (1.0 - depth / (1.0 + np.exp(-(dist - offset) / max(soft, 1e-3)))).astype(np.float32)
         signal = refl.astype(np.float32) * gain
+        for gu, gv, radius, strength in glare:
+            signal = signal + (strength * np.exp(-((u[None, :] - gu) ** 2 + (v[:, None] - gv) ** 2)
+                                                 / (2.0 * radius**2))).astype(np.float32)
         if blur_px > 0:
             signal = cv2.GaussianBlur(signal, (0, 0), blur_px, borderType=cv2.BORDER_REFLECT)
         signal = signal[r0 - a0: r0 - a0 + (r1 - r0)]
+        if glare:
+            signal = np.minimum(signal, 1.0)                # the sensor saturates
         sigma = noise * np.sqrt(0.1 + 0.9 * np.clip(signal, 0.0, None))
         noisy = signal + sigma * rng.standard_normal(signal.shape, dtype=np.float32)
         out[r0:r1] = np.clip(np.rint(noisy * 255.0), 0, 255).astype(np.uint8)
     return out
+
+
+def _plant_outliers(X: np.ndarray, Y: np.ndarray, board: Board, outliers) -> tuple[np.ndarray, np.ndarray]:
+    """Board coordinates with the neighbourhood of each planted corner shifted (see :func:`render_view`)."""
+    s = board.square_mm
+    for k, dX, dY in outliers:
+        r, c = divmod(int(k), board.cols)
+        rho = np.hypot(X - c * s, Y - r * s) / (0.5 * s)
+        # 1 within a fifth of a square of the corner, 0 beyond half a square, cosine between
+        w = 0.5 + 0.5 * np.cos(np.pi * np.clip((rho - 0.4) / 0.6, 0.0, 1.0))
+        X, Y = X - dX * w, Y - dY * w
+    return X, Y
 
 
 def _clutter(size: tuple[int, int], rng: np.random.Generator, shapes: int, level: float) -> np.ndarray:

@@ -8,9 +8,16 @@ radians unless a name says otherwise (``opk_arcmin``).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 ARCMIN_PER_RAD = 180.0 * 60.0 / np.pi
+
+
+def _rotation():
+    """scipy's ``Rotation``, imported on first use: importing this module (and with it
+    ``dualcal.model`` and ``dualcal.detect``) must not pull in scipy, so commands start fast."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
 
 
 def cross_matrix(v: np.ndarray) -> np.ndarray:
@@ -29,12 +36,12 @@ def cross_matrix(v: np.ndarray) -> np.ndarray:
 
 def rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     """Rodrigues: (3,) or (N, 3) rotation vectors (radians) -> (3, 3) or (N, 3, 3)."""
-    return Rotation.from_rotvec(rotvec).as_matrix()
+    return _rotation().from_rotvec(rotvec).as_matrix()
 
 
 def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
     """Inverse of :func:`rotation_from_rotvec`."""
-    return Rotation.from_matrix(R).as_rotvec()
+    return _rotation().from_matrix(R).as_rotvec()
 
 
 def nearest_rotation(M: np.ndarray) -> np.ndarray:
@@ -47,7 +54,7 @@ def nearest_rotation(M: np.ndarray) -> np.ndarray:
 def rotation_from_opk(opk_rad) -> np.ndarray:
     """``[omega, phi, kappa]`` (radians) -> ``Rz(kappa) @ Ry(phi) @ Rx(omega)``."""
     omega, phi, kappa = np.asarray(opk_rad, dtype=float)
-    return Rotation.from_euler("ZYX", [kappa, phi, omega]).as_matrix()
+    return _rotation().from_euler("ZYX", [kappa, phi, omega]).as_matrix()
 
 
 def opk_from_rotation(R: np.ndarray) -> np.ndarray:

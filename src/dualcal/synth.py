@@ -123,19 +123,22 @@ def _all_visible(cams: dict[str, CameraModel], poses: dict[str, Pose], X: np.nda
 
 
 def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
-               max_tilt_deg: float = 40.0) -> SynthTruth:
+               max_tilt_deg: float = 40.0, min_tilt_deg: float = 5.0,
+               fill: tuple[float, float] | None = None, board: Board | None = None) -> SynthTruth:
     """Draw a rig from ``preset`` and ``views`` board poses seen whole by every camera.
 
-    Poses look at a random point of the board from a tilt of 5 to ``max_tilt_deg`` degrees,
-    with a random roll, at a distance where the board fills a random share of the narrowest
-    camera's frame. The outer ring of squares stays inside every image too.
+    Poses look at a random point of the board from a tilt of ``min_tilt_deg`` to
+    ``max_tilt_deg`` degrees (steep views: e.g. 45 to 65), with a random roll, at a distance
+    where the board fills a random share, drawn from ``fill`` (default: the preset's), of the
+    narrowest camera's frame (a small share: small squares). ``board`` replaces the preset's
+    board. The outer ring of squares stays inside every image too.
     """
     if preset not in PRESETS:
         raise InputError(f"--preset {preset!r} is unknown (choose from {', '.join(PRESETS)})")
     if views < 1:
         raise InputError("--views must be at least 1")
     p = PRESETS[preset]
-    board: Board = p["board"]
+    board = board or p["board"]
     cameras = {n: scale_camera(c, scale) for n, c in p["cameras"].items()}
     reference = next(iter(cameras))
     rig = {n: Pose(q.R.copy(), q.t_mm.copy()) for n, q in p["rig"].items()}
@@ -148,7 +151,7 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     centre = np.array([(board.cols - 1) * s / 2, (board.rows - 1) * s / 2, 0.0])
     extent = np.hypot((board.cols + 1) * s, (board.rows + 1) * s)
     narrowest = max(cameras.values(), key=lambda c: c.fx / min(c.image_size))
-    fmin, fmax = p["fill"]
+    fmin, fmax = fill or p["fill"]
 
     view_poses = {}
     attempts = 0
@@ -157,7 +160,7 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
         if attempts > 20000 * views:
             raise EstimationError(f"could not place {views} views for preset {preset!r} with the whole board "
                                   "in every camera")
-        tilt = np.radians(rng.uniform(5.0, max_tilt_deg))
+        tilt = np.radians(rng.uniform(min_tilt_deg, max_tilt_deg))
         azim = rng.uniform(0, 2 * np.pi)
         fill = rng.uniform(fmin, fmax)
         dist = narrowest.fx * extent / (fill * min(narrowest.image_size))

@@ -9,10 +9,11 @@ per-photo / per-dataset drivers (:mod:`.pipeline`).
 from .coarse import find_grid, reduction_factor
 from .manual import display_problem, grid_from_hints, load_hints, pick_hints, save_hints
 from .order import order_grid
-from .pipeline import PhotoResult, detect_dataset, detect_photo, grid_smoothness_px
-from .refine import fit_saddles, refine_corners
+from .grid import min_corners, neighbour_predictions, neighbour_residuals_px, predict_from_neighbours, validate_grid
+from .pipeline import PhotoResult, detect_dataset, detect_photo
+from .refine import fit_saddles, measure_grid, refine_corners
 
 __all__ = ["PhotoResult", "detect_dataset", "detect_photo", "display_problem", "find_grid", "fit_saddles",
-           "grid_from_hints",
-           "grid_smoothness_px", "load_hints", "order_grid", "pick_hints", "reduction_factor",
-           "refine_corners", "save_hints"]
+           "grid_from_hints", "load_hints", "measure_grid", "min_corners", "neighbour_predictions",
+           "neighbour_residuals_px", "order_grid", "predict_from_neighbours", "pick_hints", "reduction_factor", "refine_corners",
+           "save_hints", "validate_grid"]

@@ -19,7 +19,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["reduction_factor", "reduce_image", "find_grid", "to_full_resolution"]
+from .grid import local_spacing_px, neighbour_residuals_px
+
+__all__ = ["reduction_factor", "reduce_image", "find_grid", "find_partial_grid", "to_full_resolution"]
 
 _ATTEMPTS = (
     ("classic", cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK),
@@ -58,6 +60,43 @@ def find_grid(gray: np.ndarray, cols: int, rows: int) -> np.ndarray | None:
             found, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=flags)
         if found and corners is not None and len(corners) == cols * rows:
             return corners.reshape(rows, cols, 2).astype(float)
+    return None
+
+
+def find_partial_grid(gray: np.ndarray, min_size: int = 3) -> np.ndarray | None:
+    """The largest chessboard grid ``findChessboardCornersSB`` can grow in ``gray``, any size.
+
+    Where glare washes out a square, or a shadow or blur hides part of the board, the whole
+    board is not found, but the part on one side of the damage is (``CALIB_CB_LARGER`` with a
+    ``min_size x min_size`` pattern), less the rows and columns at its edge that disagree with
+    the rest. Returns a (r, c, 2) grid in the detector's order, or None;
+    which part of the board it is, is for :func:`dualcal.detect.order.place_partial_grid` to say.
+    """
+    flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_LARGER
+    found, corners, meta = cv2.findChessboardCornersSBWithMeta(gray, (min_size, min_size), flags)
+    if not found or corners is None or meta is None:
+        return None
+    rows, cols = meta.shape[:2]
+    if len(corners) != rows * cols:
+        return None
+    return _trim_to_consistent(corners.reshape(rows, cols, 2).astype(float), min_size)
+
+
+def _trim_to_consistent(part: np.ndarray, min_size: int, tolerance: float = 0.08) -> np.ndarray | None:
+    """Drop border rows and columns of a grid until every corner is within ``tolerance`` of its
+    spacing from its neighbours' prediction (the detector's grid can run on past the damage
+    into the background at its edge); None when less than ``min_size x min_size`` is left."""
+    while min(part.shape[:2]) >= min_size:
+        flat = part.reshape(-1, 2)
+        bad = neighbour_residuals_px(flat, part.shape[:2]) / local_spacing_px(flat, part.shape[:2])
+        # not finite: a corner on top of its neighbour (every corner of a 3 x 3 grid or more
+        # has the 8 neighbours a prediction needs)
+        bad = np.where(np.isfinite(bad), bad, 1.0).reshape(part.shape[:2])
+        if bad.max() <= tolerance:
+            return part
+        sides = {"top": bad[0].sum(), "bottom": bad[-1].sum(), "left": bad[:, 0].sum(), "right": bad[:, -1].sum()}
+        worst = max(sides, key=sides.get)
+        part = {"top": part[1:], "bottom": part[:-1], "left": part[:, 1:], "right": part[:, :-1]}[worst]
     return None
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from ..board import Board
 from ..errors import DetectionError
 
-__all__ = ["SquareColours", "square_colours", "order_grid", "right_handed"]
+__all__ = ["SquareColours", "square_colours", "check_colours", "order_grid", "place_partial_grid", "right_handed"]
 
 
 @dataclass
@@ -97,28 +97,53 @@ def square_colours(gray: np.ndarray, grid_px: np.ndarray, factor: int = 1) -> Sq
     inner = values[2:R + 1, 2:C + 1]
     a, b = np.meshgrid(np.arange(C - 1), np.arange(R - 1))
     even = (a + b) % 2 == 0
-    diff = np.nanmean(inner[~even]) - np.nanmean(inner[even])
+    # medians, not means: a glare spot on a dark square or a shadow over a few light ones must
+    # not decide which squares are the dark ones
+    diff = np.nanmedian(inner[~even]) - np.nanmedian(inner[even])
     return SquareColours(values, bool(diff > 0), float(abs(diff)))
 
 
-def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = 8.0) -> None:
-    """Raise :class:`DetectionError` unless the squares look like exactly a ``cols x rows`` board."""
+def _neighbour_mean(values: np.ndarray) -> np.ndarray:
+    """Mean of the (up to) four edge-neighbours of every square, NaN-aware."""
+    pad = np.pad(values, 1, constant_values=np.nan)
+    stack = np.stack([pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]])
+    n = np.sum(np.isfinite(stack), axis=0)
+    total = np.nansum(stack, axis=0)
+    return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = 8.0,
+                  max_odd_share: float = 0.1) -> None:
+    """Raise :class:`DetectionError` unless the squares look like exactly a ``cols x rows`` board.
+
+    Each square is compared with its four neighbours (local contrast, so a shadow across the
+    board or uneven light does not matter): it must be darker than them where the chessboard
+    has a dark square and lighter where it has a light one. Up to ``max_odd_share`` of the inner
+    squares (at least one) may disagree, for glare on a dark square or a smudge; the outer ring
+    must agree in 80 % of its squares, and the squares one further out must not continue the
+    pattern (else the photo shows a larger board and the detector found part of it).
+    """
     if not col.contrast >= min_contrast:
         raise DetectionError(f"squares show too little contrast ({col.contrast:.1f} grey levels)")
     a, b = np.meshgrid(np.arange(-2, cols + 1), np.arange(-2, rows + 1))
     dark = ((a + b) % 2 == 0) == col.even_is_dark
-    sign = np.where(dark, -1.0, 1.0)                     # expected side of the mid-grey
+    sign = np.where(dark, -1.0, 1.0)                     # expected side of the neighbours
     inner = (a >= 0) & (a <= cols - 2) & (b >= 0) & (b <= rows - 2)
-    mid = 0.5 * (np.nanmean(col.values[inner & dark]) + np.nanmean(col.values[inner & ~dark]))
-    score = (col.values - mid) * sign / (0.5 * col.contrast)     # +1: as a chessboard predicts
     ring = ((a == -1) | (a == cols - 1) | (b == -1) | (b == rows - 1)) & ~(
         (a < -1) | (b < -1) | (a > cols - 1) | (b > rows - 1))
-    if np.nanmin(score[inner]) < 0.2:
-        raise DetectionError("the squares between the corners do not alternate like a chessboard")
-    seen = ring & np.isfinite(score)
-    if seen.sum() < 4 or np.mean(score[seen] > 0.2) < 0.8:
+    board_part = np.where(inner | ring, col.values, np.nan)
+    local = (board_part - _neighbour_mean(board_part)) * sign / col.contrast   # about +1 as predicted
+    seen = inner & np.isfinite(local)
+    odd = int(np.sum(local[seen] < 0.2))
+    if odd > max(1, int(max_odd_share * seen.sum())):
+        raise DetectionError(f"the squares between the corners do not alternate like a chessboard "
+                             f"({odd} of {int(seen.sum())} do not)")
+    seen = ring & np.isfinite(local)
+    if seen.sum() < 4 or np.mean(local[seen] > 0.2) < 0.8:
         raise DetectionError("the outer ring of squares does not continue the chessboard "
                              "(a different board, or the board is cut off)")
+    mid = 0.5 * (np.nanmedian(col.values[inner & dark]) + np.nanmedian(col.values[inner & ~dark]))
+    score = (col.values - mid) * sign / (0.5 * col.contrast)     # +1: as a chessboard predicts
     sides = {"left": (a == -2) & (b >= 0) & (b <= rows - 2), "right": (a == cols) & (b >= 0) & (b <= rows - 2),
              "top": (b == -2) & (a >= 0) & (a <= cols - 2), "bottom": (b == rows) & (a >= 0) & (a <= cols - 2)}
     for name, side in sides.items():
@@ -127,6 +152,52 @@ def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float 
         if len(s) >= 2 and np.mean(s) > 0.5:
             raise DetectionError(f"the chessboard continues beyond its outer ring ({name} side of the grid): "
                                  f"the board is larger than {cols}x{rows} inner corners")
+
+
+def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board: Board) -> np.ndarray:
+    """The whole board's (rows, cols, 2) grid from a part of it found by the detector.
+
+    Every placement of the part (either way round) inside the board is extended to the whole
+    board through the homography of the part and sampled (:func:`square_colours`); the one
+    whose squares look like exactly the board (:func:`check_colours`: its outer ring continues
+    the chessboard, the squares beyond do not) is returned. The extended corners are a start
+    only, off by up to a few pixels where the lens bends the grid; the refinement takes them
+    from there.
+
+    Raises
+    ------
+    DetectionError
+        When no placement, or more than one, fits.
+    """
+    R, C = board.rows, board.cols
+    h, w = gray.shape
+    size = np.array([w, h]) * factor
+    fits = []
+    for part in (part_px, np.swapaxes(part_px, 0, 1)):
+        r, c = part.shape[:2]
+        if r > R or c > C or r * c < 9:
+            continue
+        jj, ii = np.meshgrid(np.arange(c), np.arange(r))
+        src = np.column_stack([jj.ravel(), ii.ravel()]).astype(np.float32)
+        H, _ = cv2.findHomography(src, part.reshape(-1, 2).astype(np.float32), 0)
+        if H is None:
+            continue
+        for i0 in range(R - r + 1):
+            for j0 in range(C - c + 1):
+                J, I = np.meshgrid(np.arange(C) - j0, np.arange(R) - i0)
+                pts = cv2.perspectiveTransform(np.column_stack([J.ravel(), I.ravel()]).astype(np.float32)[None], H)[0]
+                grid = pts.reshape(R, C, 2).astype(float)
+                if np.any(grid < 0) or np.any(grid > size - 1):
+                    continue
+                try:
+                    check_colours(square_colours(gray, grid, factor), C, R)
+                except DetectionError:
+                    continue
+                fits.append(grid)
+    if len(fits) != 1:
+        raise DetectionError(f"no {board.spec()} chessboard found" + (
+            " (a part of one was, but not where it lies on the board)" if fits else ""))
+    return fits[0]
 
 
 def right_handed(grid: np.ndarray) -> bool:

@@ -4,13 +4,17 @@ Per photo (:func:`detect_photo`), one photo in memory at a time:
 
 1. decode the photo once, reduce it to 1/2-1/8 size and find the grid there (:mod:`.coarse`),
    or, where that fails and the user clicked four corners, predict the grid from them
-   (:mod:`.manual`);
+   (:mod:`.manual`); failing that, find the largest part of the board the detector can and
+   place it on the board by the colours of the squares around it (glare on a square, a
+   shadow);
 2. sample the squares: they must alternate like a chessboard, the outer ring too, and the
    board must not continue beyond it (:mod:`.order`); put the corners in the contract's order;
-3. refine each corner at full resolution in its own small window (:mod:`.refine`);
-4. check the refined grid: every row and column of corners must lie on a smooth curve
-   (perspective and lens distortion bend them only gently), and no corner may have moved far
-   from its coarse position. A grid that fails is reported as not found, never returned.
+3. refine each corner at full resolution in a window fitted to its own squares, check it
+   against the homography of its neighbours and refine it again from there if it disagrees;
+   a corner that still fails is a NaN row (``null`` in corners.json), not a lost photo
+   (:func:`.refine.measure_grid`);
+4. check the grid as a whole (:func:`.grid.validate_grid`): enough corners left, no fold, no
+   corner off its neighbours' prediction. A grid that fails is reported as not found.
 
 :func:`detect_dataset` runs that over every photo of a :class:`~dualcal.dataset.Dataset` in
 parallel threads and gathers a :class:`~dualcal.model.CornerSet`.
@@ -32,12 +36,14 @@ from ..io import atomic_output, make_output_folder
 from ..model import CameraCorners, CornerSet
 from ..parallel import interruptible_map
 from ..progress import progress_bar, warn
-from .coarse import find_grid, reduce_image, reduction_factor, to_full_resolution
+from .coarse import find_grid, find_partial_grid, reduce_image, reduction_factor, to_full_resolution
+from .grid import validate_grid
 from .manual import grid_from_hints
-from .order import check_colours, order_grid, square_colours
-from .refine import refine_corners
+from .order import check_colours, order_grid, place_partial_grid, square_colours
+from .refine import measure_grid
+from .symmetry import align_symmetric_numbering
 
-__all__ = ["PhotoResult", "detect_photo", "detect_dataset", "grid_smoothness_px"]
+__all__ = ["PhotoResult", "detect_photo", "detect_dataset", "likely_boards", "suggest_board"]
 
 
 @dataclass
@@ -49,33 +55,6 @@ class PhotoResult:
     reason: str = ""
     symmetric: bool = False
     manual: bool = False
-
-
-def grid_smoothness_px(grid: np.ndarray) -> float:
-    """Largest distance of a corner from a cubic through its row or column (pixels).
-
-    A (rows, cols, 2) grid of a flat board seen through a lens lies on gently bent curves, so
-    a cubic in the corner index fits each row and column to a fraction of a pixel; a corner
-    put in the wrong place stands out by a good part of a square.
-    """
-    worst = 0.0
-    for lines in (grid, np.swapaxes(grid, 0, 1)):
-        n = lines.shape[1]
-        deg = min(3, n - 2)
-        if deg < 1:
-            continue
-        t = np.linspace(-1.0, 1.0, n)
-        V = np.vander(t, deg + 1)
-        P = V @ np.linalg.pinv(V)                     # projector onto the polynomials
-        res = np.einsum("ij,ljk->lik", P, lines) - lines
-        worst = max(worst, float(np.max(np.linalg.norm(res, axis=2))))
-    return worst
-
-
-def _spacing_px(grid: np.ndarray) -> float:
-    d = np.concatenate([np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
-                        np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()])
-    return float(np.median(d))
 
 
 def _coarse(full: np.ndarray, board: Board):
@@ -115,27 +94,23 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
         size = (full.shape[1], full.shape[0])
         small, f, grid = _coarse(full, board)
         manual = grid is None and hint_uv is not None
-        if grid is None and not manual:
-            raise DetectionError(f"no {board.spec()} chessboard found")
         if manual:
             grid = grid_from_hints(hint_uv, board)
+        elif grid is None:
+            # glare, a shadow or blur can hide a square: find the part of the board on one
+            # side of it and place it on the board by the squares' colours
+            part = find_partial_grid(small)
+            if part is None:
+                raise DetectionError(f"no {board.spec()} chessboard found")
+            grid = place_partial_grid(to_full_resolution(part, f), small, f, board)
         colours = square_colours(small, grid, f)
         check_colours(colours, board.cols, board.rows)
         # clicked grids too: whichever end the user started from, the contract's order
         coarse, symmetric = order_grid(grid, colours, board)
-        uv = refine_corners(full, coarse, (board.rows, board.cols), wide_start=manual)
-        g = uv.reshape(board.rows, board.cols, 2)
-        spacing = _spacing_px(g)
-        moved = float(np.max(np.linalg.norm(uv - coarse, axis=1)))
-        # a coarse corner is off by a pixel or a few (or by more when predicted from four
-        # clicks), never by a good part of a square: a corner that moved that far has run
-        # to another feature
-        limit = (0.4 if manual else 0.25) * spacing
-        if moved > limit:
-            raise DetectionError(f"a corner moved {moved:.1f} px in refinement (limit {limit:.1f} px)")
-        bend = grid_smoothness_px(g)
-        if bend > 0.15 * spacing:
-            raise DetectionError(f"the grid is not smooth ({bend:.1f} px off, corners {spacing:.0f} px apart)")
+        uv = measure_grid(full, coarse, (board.rows, board.cols), wide_start=manual)
+        reason = validate_grid(uv, board)
+        if reason:
+            raise DetectionError(reason)
         if overlay_path is not None:
             write_overlay(overlay_path, small, uv, f)
         return PhotoResult(uv, size, symmetric=symmetric, manual=manual)
@@ -146,7 +121,7 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
 
 
 def write_overlay(path: Path, small: np.ndarray, uv: np.ndarray, factor: int, max_side: int = 1200) -> None:
-    """A small JPEG of the photo with every corner marked and numbered (corner 0 in red).
+    """A small JPEG of the photo with every measured corner marked and numbered (corner 0 in red).
 
     ``path``'s folder must exist (see :func:`prepare_overlay_folders`).
     """
@@ -155,6 +130,8 @@ def write_overlay(path: Path, small: np.ndarray, uv: np.ndarray, factor: int, ma
                                   interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
     pts = (uv + 0.5) * scale - 0.5
     for k, (u, v) in enumerate(pts):
+        if not (np.isfinite(u) and np.isfinite(v)):
+            continue
         colour = (0, 0, 255) if k == 0 else (0, 200, 0)
         p = (int(round(u)), int(round(v)))
         cv2.circle(img, p, 4 if k else 7, colour, 2)
@@ -178,6 +155,29 @@ def warn_unpaired_cameras(dataset: Dataset) -> None:
             warn(f"camera {cam!r} shares no view with the reference {dataset.reference!r} (e.g. "
                  f"{next(iter(photos))!r} vs {next(iter(ref_keys))!r}): name photos of one instant alike "
                  "(same stem, or what the --camera globs' wildcards match) or use --pair-by time")
+
+
+def likely_boards(board: Board) -> list[Board]:
+    """The ``--board`` a user most likely meant when ``board`` is not found: squares counted
+    instead of inner corners (``cols-1 x rows-1``), the counts swapped, or both."""
+    c, r, s = board.cols, board.rows, board.square_mm
+    sizes = [(c - 1, r - 1), (r, c), (r - 1, c - 1)]
+    return [Board(a, b, s) for a, b in dict.fromkeys(sizes) if min(a, b) >= 2 and (a, b) != (c, r)]
+
+
+def suggest_board(paths, board: Board, tries: int = 3) -> str:
+    """A sentence naming the ``--board`` under which the board is found in ``paths`` (the first
+    ``tries`` of them), or "" when none of :func:`likely_boards` is."""
+    paths = list(paths)[:tries]
+    best, best_found = None, 0
+    for other in likely_boards(board):
+        found = sum(detect_photo(p, other).uv is not None for p in paths)
+        if found > best_found:
+            best, best_found = other, found
+    if best is None:
+        return ""
+    return (f"the board is found as --board {best.spec()} in {best_found} of {len(paths)} photo(s) tried "
+            f"(--board counts inner corners, COLSxROWS)")
 
 
 def _work(task) -> PhotoResult:
@@ -244,14 +244,15 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         if res.uv is None:
             warn(f"{path}: skipped: {res.reason}")
         symmetric += res.symmetric
-    if symmetric:
-        warn(f"board {board.spec()} looks the same turned by 180 degrees: in {symmetric} photo(s) corner 0 "
-             "was taken as the candidate nearest the image's top-left; make sure every camera saw the "
-             "board the same way up")
     found = sum(v is not None for vs in views.values() for v in vs.values())
-    if found == 0:
-        raise InputError(f"no {board.spec()} chessboard found in any photo of {dataset.source} "
-                         f"({len(tasks)} photos): check --board (inner corners, COLSxROWS)")
+    if 2 * found < len(tasks):
+        missed = [path for (path, *_), res in zip(tasks, results) if res.uv is None]
+        hint = suggest_board(missed, board)
+        if found == 0:
+            raise InputError(f"no {board.spec()} chessboard found in any photo of {dataset.source} "
+                             f"({len(tasks)} photos): " + (hint or "check --board (inner corners, COLSxROWS)"))
+        if hint:
+            warn(f"{board.spec()} found in only {found} of {len(tasks)} photos: {hint}")
     cameras = {}
     for cam in dataset.cameras:
         meta = dataset.meta(cam)
@@ -261,4 +262,13 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         cameras[cam] = CameraCorners(dataset.image_size(cam), views[cam], meta)
         if all(v is None for v in views[cam].values()):
             warn(f"camera {cam!r}: the board was found in none of its photos")
-    return CornerSet(board, cameras)
+    corners = CornerSet(board, cameras)
+    if symmetric:
+        how = "the candidate nearest the image's top-left"
+        if len(cameras) > 1:
+            corners, turned = align_symmetric_numbering(corners, dataset.reference)
+            how += (f" in camera {dataset.reference!r}, and in the other cameras the numbering that fits the rig's "
+                    f"relative pose ({turned} photo(s) renumbered)")
+        warn(f"board {board.spec()} looks the same turned by 180 degrees: in {symmetric} photo(s) corner 0 was "
+             f"taken as {how}")
+    return corners

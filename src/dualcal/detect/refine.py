@@ -1,6 +1,8 @@
 """Sub-pixel corners at full resolution, in small windows only (paper section 1.2, last step).
 
-Two steps per corner, both touching only a window around it:
+Each corner has its own window, 0.4 of the distance to its nearest neighbour (on a tilted
+board the squares of one photo range from a few to many tens of pixels). Two steps per
+corner, both touching only that window:
 
 1. ``cv2.cornerSubPix`` (gradient orthogonality, Förstner / Bouguet) from the coarse position:
    a wide basin of convergence, accurate to a few hundredths of a pixel.
@@ -19,8 +21,12 @@ Two steps per corner, both touching only a window around it:
    It uses every pixel's value rather than only gradient directions, so with sensor noise it
    is more precise than step 1. Where the printed squares do not quite meet (home-made
    boards), it returns the crossing of the four edges, which gradient orthogonality in a small
-   window does not. A corner whose fit does not converge inside its window keeps the step-1
-   value.
+   window does not. A corner whose fit does not converge inside its window is reported as
+   failed.
+
+:func:`measure_grid` then checks every corner against its neighbours (:mod:`.grid`), refines
+again from the neighbours' prediction where it disagrees, and makes a NaN row of what still
+fails.
 
 Pixel ``(row i, col j)`` has its centre at ``(u=j, v=i)``.
 """
@@ -30,17 +36,20 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["refine_corners", "fit_saddles", "window_half_size"]
+from .grid import local_spacing_px, outlier_limit_px, predict_from_neighbours, worst_outlier
+
+__all__ = ["refine_corners", "fit_saddles", "window_half_size", "drop_outliers", "measure_grid"]
 
 
 def window_half_size(spacing_px: np.ndarray, lo: int = 3, hi: int = 24) -> np.ndarray:
-    """Half-size of the refinement window for corners ``spacing_px`` apart: about a third of it.
+    """Half-size of the refinement window of a corner ``spacing_px`` from its nearest neighbour.
 
-    A window must not reach the next corner; a third of the spacing leaves room for a start
-    off by a few pixels. Larger windows see more of the four edges (more precise, and on
+    A window must not reach the next corner; 0.4 of the distance to the nearest of the eight
+    neighbours (diagonals included, so a sheared grid is covered) leaves room for a start off
+    by a few pixels. Larger windows see more of the four edges (more precise, and on
     boards whose squares do not quite meet, a better-defined crossing), up to ``hi``.
     """
-    return np.clip(np.floor(0.34 * np.asarray(spacing_px, float)), lo, hi).astype(int)
+    return np.clip(np.floor(0.4 * np.asarray(spacing_px, float)), lo, hi).astype(int)
 
 
 def _subpix(img: np.ndarray, uv: np.ndarray, half: int) -> np.ndarray:
@@ -107,20 +116,24 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
     ok = valid.copy()
     lam = np.full(K, 1e-3)
     cost = _cost(p, qx, qy, z)
+    active = np.arange(K)                    # corners still converging: only these are iterated
     for _ in range(iterations):
-        J, res = _jacobian(p, qx, qy, z)
+        pa, za = p[active], z[active]
+        J, res = _jacobian(pa, qx, qy, za)
         Jt = np.swapaxes(J, 1, 2)
         JtJ = (Jt @ J).astype(float)
         Jtr = (Jt @ res[..., None])[..., 0].astype(float)
         D = np.einsum("kii->ki", JtJ) + 1e-12
-        step = np.linalg.solve(JtJ + lam[:, None, None] * D[:, :, None] * np.eye(9),
-                               -Jtr[..., None])[..., 0]
-        trial = p + step
-        new_cost = _cost(trial, qx, qy, z)
-        better = new_cost < cost
-        p[better], cost[better] = trial[better], new_cost[better]
-        lam = np.where(better, lam * 0.3, lam * 10.0)
-        if np.all((np.max(np.abs(step[:, :2]), axis=1) < 1e-4) | (lam > 1e4)):
+        la = lam[active]
+        step = np.linalg.solve(JtJ + la[:, None, None] * D[:, :, None] * np.eye(9), -Jtr[..., None])[..., 0]
+        trial = pa + step
+        new_cost = _cost(trial, qx, qy, za)
+        better = new_cost < cost[active]
+        p[active[better]], cost[active[better]] = trial[better], new_cost[better]
+        lam[active] = np.where(better, la * 0.3, la * 10.0)
+        done = (np.max(np.abs(step[:, :2]), axis=1) < 1e-4) | (lam[active] > 1e4)
+        active = active[~done]
+        if len(active) == 0:
             break
     rms = np.sqrt(cost / max(1, z.shape[1]))
     inside = np.all(np.abs(p[:, :2]) < 0.5 * half, axis=1) & (p[:, 4] > 0.2) & (p[:, 4] < half)
@@ -174,33 +187,132 @@ def _jacobian(p, qx, qy, z):
     return J, res
 
 
+def _groups(half: np.ndarray):
+    """Indices of the corners sharing each window half-size (windows are batched per size)."""
+    for h in np.unique(half):
+        yield int(h), np.flatnonzero(half == h)
+
+
 def refine_corners(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int],
-                   wide_start: bool = False) -> np.ndarray:
-    """Refine grid corners at full resolution, each in its own small window.
+                   spacing_px: np.ndarray | None = None, wide_start: bool = False,
+                   only: np.ndarray | None = None):
+    """Refine grid corners at full resolution, each in a window fitted to its own squares.
 
     Parameters
     ----------
     img : (H, W) uint8 full-resolution image.
-    uv : (rows*cols, 2) coarse corners in row-major grid order (any of the grid's orders).
+    uv : (rows*cols, 2) starting corners in row-major grid order (any of the grid's orders);
+        NaN rows are left alone.
     grid_shape : ``(rows, cols)`` of ``uv``.
-    wide_start : start with a window of nearly half the corner spacing, for starting points
-        that may be off by many pixels (corners predicted from four clicks).
+    spacing_px : (rows*cols,) distance from each corner to its nearest neighbour, which sets its
+        window (:func:`window_half_size`); default: measured on ``uv``
+        (:func:`~dualcal.detect.grid.local_spacing_px`).
+    wide_start : first pull every corner in with a window of nearly half its spacing, for
+        starting points that may be off by many pixels (corners predicted from four clicks).
+    only : (N,) bool, refine only these corners (the others are returned as they are, not ok);
+        all others still set the grid's directions.
 
     Returns
     -------
-    (N, 2) refined corners, pixels, in the order of ``uv``.
+    uv : (N, 2) refined corners, pixels, in the order of ``uv``.
+    ok : (N,) True where the blurred-corner fit converged inside the corner's window; elsewhere
+        ``uv`` holds the ``cornerSubPix`` result, which the caller should not trust as it is.
     """
     rows, cols = grid_shape
-    g = np.asarray(uv, float).reshape(rows, cols, 2)
-    along_c = np.gradient(g, axis=1)                       # (rows, cols, 2) between neighbours
-    along_r = np.gradient(g, axis=0)
-    spacing = np.minimum(np.linalg.norm(along_c, axis=2), np.linalg.norm(along_r, axis=2)).ravel()
-    start = g.reshape(-1, 2)
+    start = np.array(uv, float).reshape(rows * cols, 2)
+    spacing = local_spacing_px(start, grid_shape) if spacing_px is None else np.asarray(spacing_px, float)
+    todo = np.isfinite(spacing) & np.all(np.isfinite(start), axis=1)
+    if only is not None:
+        todo &= np.asarray(only, bool)
+    half = np.where(todo, window_half_size(np.where(todo, spacing, 0.0)), 0)
     if wide_start:
-        start = _subpix(img, start, int(np.clip(0.45 * spacing.min(), 3, 80)))
-    half = int(np.min(window_half_size(spacing)))
-    first = _subpix(img, start, min(half, 11))
-    dirs = np.stack([along_c.reshape(-1, 2), along_r.reshape(-1, 2)], axis=1)
-    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
-    fit, ok, _ = fit_saddles(img, first, dirs, half)
-    return np.where(ok[:, None], fit, first)
+        wide = np.clip(np.floor(0.45 * np.where(todo, spacing, 0.0)), 3, 80).astype(int)
+        for h, k in _groups(wide[todo]):
+            k = np.flatnonzero(todo)[k]
+            start[k] = _subpix(img, start[k], h)
+    g = start.reshape(rows, cols, 2)
+    dirs = np.stack([_grid_direction(g, axis=1), _grid_direction(g, axis=0)], axis=1)
+    out = start.copy()
+    ok = np.zeros(len(start), bool)
+    for h, k in _groups(half[todo]):
+        k = np.flatnonzero(todo)[k]
+        first = _subpix(img, start[k], h)
+        fit, good, _ = fit_saddles(img, first, dirs[k], h)
+        out[k] = np.where(good[:, None], fit, first)
+        ok[k] = good & (np.linalg.norm(out[k] - start[k], axis=1) < h)
+    return out, ok
+
+
+def _grid_direction(g: np.ndarray, axis: int) -> np.ndarray:
+    """(N, 2) unit direction of the grid line through each corner along ``axis`` (NaN-tolerant)."""
+    fwd = np.diff(g, axis=axis)
+    pad = [(0, 0)] * 3
+    pad[axis] = (1, 0)
+    back_d = np.pad(fwd, pad, constant_values=np.nan)
+    pad[axis] = (0, 1)
+    fwd_d = np.pad(fwd, pad, constant_values=np.nan)
+    d = np.where(np.isfinite(fwd_d), fwd_d, 0.0) + np.where(np.isfinite(back_d), back_d, 0.0)
+    d = d.reshape(-1, 2)
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    fallback = np.array([1.0, 0.0]) if axis == 1 else np.array([0.0, 1.0])
+    return np.where(n > 0, d / np.where(n > 0, n, 1.0), fallback)
+
+
+def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.ndarray) -> np.ndarray:
+    """``uv`` with the corners that disagree with their neighbours set to NaN, worst first.
+
+    The worst corner (:func:`~dualcal.detect.grid.worst_outlier`) goes first and the residuals
+    are computed again, so that one bad corner does not take with it its neighbours, whose
+    predictions it spoiled. What is left passes :func:`~dualcal.detect.grid.validate_grid`'s
+    residual check.
+    """
+    uv = np.array(uv, float)
+    while (worst := worst_outlier(uv, grid_shape, spacing_px)) is not None:
+        uv[worst[0]] = np.nan
+    return uv
+
+
+def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, int],
+                 wide_start: bool = False) -> np.ndarray:
+    """Sub-pixel corners of a whole grid, each checked against its neighbours.
+
+    1. A coarse corner further than 0.15 of its spacing from its neighbours' prediction (the
+       classic detector's corners at the border of a tilted board can be 5-13 px off) starts
+       from that prediction instead.
+    2. Every corner is refined in its own window (:func:`refine_corners`); a corner whose fit
+       fails is dropped, and so, worst first, is every corner further than
+       :func:`~dualcal.detect.grid.outlier_limit_px` from its neighbours' prediction
+       (:func:`drop_outliers`).
+    3. Each dropped corner gets a second chance: refined again from where its remaining
+       neighbours put it, and kept if its fit converges there within the limit.
+
+    Parameters
+    ----------
+    img : (H, W) uint8 full-resolution image.
+    coarse_uv : (N, 2) starting corners in grid order.
+    grid_shape : ``(rows, cols)``.
+    wide_start : see :func:`refine_corners`.
+
+    Returns
+    -------
+    (N, 2) corners, NaN rows for the corners that failed.
+    """
+    coarse = np.asarray(coarse_uv, float)
+    spacing = local_spacing_px(coarse, grid_shape)
+    pred, _ = predict_from_neighbours(coarse, grid_shape)
+    far = np.linalg.norm(coarse - pred, axis=1) > 0.15 * spacing
+    start = np.where(far[:, None], pred, coarse)
+    uv, ok = refine_corners(img, start, grid_shape, spacing, wide_start=wide_start)
+    uv[~ok] = np.nan
+    uv = drop_outliers(uv, grid_shape, spacing)
+    lost = ~np.all(np.isfinite(uv), axis=1)
+    pred, gain = predict_from_neighbours(uv, grid_shape)
+    retry = lost & np.all(np.isfinite(pred), axis=1)
+    if retry.any():
+        again, ok = refine_corners(img, np.where(retry[:, None], pred, uv), grid_shape, spacing, only=retry)
+        res = np.linalg.norm(uv - pred, axis=1)
+        typical = float(np.nanmedian(res)) if np.isfinite(res).any() else 0.0
+        keep = retry & ok & (np.linalg.norm(again - pred, axis=1) <= outlier_limit_px(spacing, typical, gain))
+        uv[keep] = again[keep]
+        uv = drop_outliers(uv, grid_shape, spacing)
+    return uv
