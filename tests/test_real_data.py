@@ -32,8 +32,6 @@ BOUGUET = DATA / "bouguet-calib-example"
 
 # until the solver uses views with null corners (another branch), it fails on them with
 # LinAlgError; an assertion failure is still a failure
-_NULLS_NOT_YET_USED = pytest.mark.xfail(raises=np.linalg.LinAlgError, strict=False,
-                                        reason="calibrate does not yet take views with null corners")
 
 
 def _need(folder: Path):
@@ -121,7 +119,6 @@ def test_every_huawei_board_found(huawei_corners):
     assert worst <= 1.0 and lost < 0.2
 
 
-@_NULLS_NOT_YET_USED
 def test_stereo_calibration_agrees_with_bouguet(stereo_corners):
     calibrate = pytest.importorskip("dualcal.calibrate")
     rig = calibrate.calibrate_rig(stereo_corners, rig_mode="rigid", reference="left")
@@ -134,7 +131,6 @@ def test_stereo_calibration_agrees_with_bouguet(stereo_corners):
     np.testing.assert_allclose(rig.rig["right"].pose.t_mm, [-99.80198, 1.12443, 0.05041], atol=1.0)
 
 
-@_NULLS_NOT_YET_USED
 def test_huawei_calibration_agrees_with_matlab(huawei_corners):
     calibrate = pytest.importorskip("dualcal.calibrate")
     rig = calibrate.calibrate_rig(huawei_corners, rig_mode="none")

@@ -585,8 +585,6 @@ STEREO = DATA / "opencv-samples-stereo"
 @pytest.mark.skipif(not (STEREO / "left01.jpg").exists(), reason=f"real photos not found at {STEREO}")
 # detection now leaves a few null corners in these photos; until the solver takes them (another
 # branch) it fails on them with LinAlgError; any assertion failure is still a failure
-@pytest.mark.xfail(raises=np.linalg.LinAlgError, strict=False,
-                   reason="calibrate does not yet take views with null corners")
 def test_end_to_end_real_stereo_photos(tmp_path, run_cli):
     """Bouguet's stereo pairs: detect, calibrate, report and export; T against Bouguet's published value.
 
