@@ -84,19 +84,19 @@ def _dense(ne):
     return N, ne.gradient()
 
 
-PARTIAL_CASES = [("stereo", "rigid", ()), ("triple", "rigid", (("wide", "IMG_02"),)),
-                 ("triple", "paper", (("wide", "IMG_02"), ("ultra", "IMG_01"))),
-                 ("note8", "none", (("tele", "IMG_03"),))]
+PARTIAL_CASES = [("stereo", "rigid", (), False), ("triple", "rigid", (("wide", "IMG_02"),), True),
+                 ("triple", "paper", (("wide", "IMG_02"), ("ultra", "IMG_01")), True),
+                 ("note8", "none", (("tele", "IMG_03"),), False), ("note8", "none", (), True)]
 
 
-@pytest.mark.parametrize("preset,mode,absent", PARTIAL_CASES)
-def test_jacobian_rows_of_every_instant_match_central_differences(preset, mode, absent):
+@pytest.mark.parametrize("preset,mode,absent,board_shape", PARTIAL_CASES)
+def test_jacobian_rows_of_every_instant_match_central_differences(preset, mode, absent, board_shape):
     """Partial views (30 % of the corners missing, whole photos absent, in paper mode an instant
-    without the reference): each instant's Jacobian rows, and the normal equations assembled from
-    them, are those of the residuals' central differences."""
+    without the reference), with and without the board's shape: each instant's Jacobian rows, and
+    the normal equations assembled from them, are those of the residuals' central differences."""
     truth, corners = _corners(preset, 4, seed=3, noise=0.1, absent=absent)
     args = _setup(corners, mode)
-    problem = Problem(*args[:4], mode=mode, reference=args[4])
+    problem = Problem(*args[:4], mode=mode, reference=args[4], board_shape=board_shape)
     state = _truth_state(problem, truth, wiggle=1e-3)
     J = _numeric_jacobian(problem, state)
     r = _flat_residuals(problem, state)

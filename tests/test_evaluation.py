@@ -199,8 +199,9 @@ def test_a_camera_named_like_a_case_is_refused():
 
 
 @pytest.mark.parametrize("options, expected", [
-    (None, {"drop_outliers": True, "outlier_factor": 3.0}),                 # written before options were recorded
-    ({"drop_outliers": False, "outlier_factor": 4.5}, {"drop_outliers": False, "outlier_factor": 4.5}),
+    (None, {"drop_outliers": True, "outlier_factor": 4.0, "board_shape": "auto"}),   # written before options were recorded
+    ({"drop_outliers": False, "outlier_factor": 4.5, "board_shape": "flat"},
+     {"drop_outliers": False, "outlier_factor": 4.5, "board_shape": "flat"}),
 ])
 def test_holdout_folds_repeat_the_calibration(monkeypatch, options, expected):
     """Each fold gets the calibration's options and its photos minus the held-out view; photos it

@@ -84,13 +84,20 @@ def test_views_without_corners_or_pose_are_left_out(rig):
     assert "IMG_03" not in res["wide"] and "IMG_03" in res["tele"]
 
 
+def _views(lengths):
+    """ViewResiduals whose corner residuals have the given lengths (along u)."""
+    return {v: analysis.ViewResiduals(np.zeros((len(x), 2)), np.column_stack([x, np.zeros(len(x))]))
+            for v, x in lengths.items()}
+
+
 def test_outlier_views_follow_the_calibrations_rule():
-    """A view is out of line when its RMS exceeds calibrate's limit: factor x the median, at least 0.05 px."""
-    rms = {"a": 0.30, "b": 0.32, "c": 0.28, "d": 0.97, "e": 0.70}   # median 0.32
-    assert analysis.view_outlier_limit_px(rms, 3.0) == pytest.approx(0.96)
-    assert analysis.outlier_views(rms, 3.0) == ["d"]
-    assert analysis.outlier_views(rms, 2.0) == ["d", "e"]
-    tiny = {"a": 0.010, "b": 0.012, "c": 0.040}                       # 3 x median 0.036 < 0.05
+    """A view is out of line when its RMS exceeds calibrate's limit for one corner: factor x the
+    median corner residual of the camera, at least 0.05 px."""
+    res = _views({"a": [0.3, 0.3], "b": [0.32, 0.32], "c": [0.28, 0.28], "d": [0.97, 0.97], "e": [0.7, 0.7]})
+    assert analysis.view_outlier_limit_px(res, 3.0) == pytest.approx(0.96)     # median 0.32
+    assert analysis.outlier_views(res, 3.0) == ["d"]
+    assert analysis.outlier_views(res, 2.0) == ["d", "e"]
+    tiny = _views({"a": [0.010], "b": [0.012], "c": [0.040]})                # 3 x median 0.036 < 0.05
     assert analysis.view_outlier_limit_px(tiny, 3.0) == outlier_limit_px(0.012, 3.0) == 0.05
     assert analysis.outlier_views(tiny, 3.0) == []
     assert analysis.outlier_views({}, 3.0) == []
@@ -231,7 +238,7 @@ def test_every_figure_is_there_with_svg_and_caption(page):
         fig = page.figures[fig_id]
         assert "svg" in fig["tags"] and "path" in fig["tags"], fig_id
         assert words in fig["caption"], fig_id
-    rule = "3× the camera's median view RMS, but at least 0.05 px, the rule by which the calibration drops photos"
+    rule = "3× the median residual of the camera's corners, but at least 0.05 px (the calibration leaves out"
     assert rule in page.figures["fig-view-rms"]["caption"]
 
 
@@ -290,7 +297,8 @@ def test_tables_hold_the_calibration(page, rig):
 
 def test_the_adjustment_has_plain_labels(page):
     cells = page.cells["table-adjustment"]
-    assert "outlier photos" in cells and "dropped above 3× the camera's median RMS" in cells
+    assert "outliers" in cells
+    assert "corners above 3× the camera's median residual left out, photos where most corners are dropped" in cells
     assert _row(cells, "a-posteriori σ of a corner coordinate, s0 (px)", 2)[1] == "0.301"
     assert _row(cells, "converged", 2)[1] == "yes"
     assert _row(cells, "why the solver stopped", 2)[1] == "the step fell below the tolerance"
@@ -323,15 +331,17 @@ def test_outlier_view_is_found_and_hinted(rig):
 
 
 def test_outliers_use_the_factor_the_calibration_was_run_with(rig):
-    """The recorded ``outlier_factor`` sets the limit; files without it get calibrate's 3."""
+    """The recorded ``outlier_factor`` sets the limit (that of one corner: ``factor`` x the median
+    length of the camera's corner residuals); files without it get calibrate's 4."""
     noisy = _with_noisy_tele_view(rig, 5.0)
-    for options, factor in [(None, 3.0), ({"drop_outliers": True, "outlier_factor": 8.0}, 8.0)]:
+    for options, factor in [(None, 4.0), ({"drop_outliers": True, "outlier_factor": 12.0}, 12.0)]:
         adjustment = {} if options is None else {"options": options}
         found = analysis.camera_findings(replace(noisy, adjustment=adjustment))["tele"]
-        median = float(np.median(list(found.view_rms_px.values())))
+        median = float(np.median(np.concatenate([np.linalg.norm(r.residual_px, axis=1)
+                                                 for r in found.residuals.values()])))
         assert found.outlier_limit_px == outlier_limit_px(median, factor)
         assert found.outliers == [v for v, r in found.view_rms_px.items() if r > found.outlier_limit_px]
-    assert found.outliers == [] and found.view_rms_px["IMG_04"] > 4 * median   # 8 x the median is not reached
+    assert found.outliers == [] and found.view_rms_px["IMG_04"] > 4 * median   # 12 x the median is not reached
 
 
 def test_hints_and_left_out_views_are_on_the_page(html, rig):

@@ -7,7 +7,7 @@ cluster (like the intrinsics) and one local parameter per cluster (like its boar
 import numpy as np
 import pytest
 
-from dualcal.uncertainty import ClusterRows, clustered_covariance, leverage_adjusted_residuals
+from dualcal.uncertainty import ClusterRows, cluster_scores, clustered_covariance, leverage_adjusted_residuals
 
 G, M, P = 10, 30, 3          # clusters, rows per cluster, global parameters
 
@@ -48,7 +48,8 @@ def _draws(correlated: bool, n_draws: int, seed: int):
         beta, N_inv, clusters, s0sq = _fit(X_blocks, y_blocks)
         est.append(beta[:P] - truth)
         var_formal.append(np.diag(N_inv)[:P] * s0sq)
-        var_cr2.append(np.diag(clustered_covariance(clusters, N_inv))[:P])
+        block = lambda cols: N_inv[np.ix_(cols, cols)]          # noqa: E731
+        var_cr2.append(np.diag(clustered_covariance(cluster_scores(clusters, block), block, np.arange(P))))
     return np.array(est), np.array(var_formal), np.array(var_cr2)
 
 

@@ -23,22 +23,30 @@ each sits in the flat parameter vector. Rotations are updated by left increments
 on the sphere (:mod:`dualcal.poses`), so covariances are those of the increments. Every
 Jacobian is analytic.
 
-To add a group of global parameters (e.g. a board shape shared by all photos): give it columns
-in :func:`_build_layout`, a field in :class:`State` updated in :meth:`State.updated`, and its
-Jacobian piece in :func:`_jacobian_pieces`, where ``J_X`` (d residual / d camera-frame point) and
-the rotations are at hand (d residual / d board point is ``J_X R_c R_v``).
+With ``board_shape`` the board is not taken as flat: three global unknowns, shared by every
+photo, give its out-of-plane shape (:data:`dualcal.board.SHAPE_TERMS`: sag, bend, twist), so the
+corners sit at ``X + Z(X) e_z``.
 
-Sigma of every parameter is ``sqrt(diag(N^-1) s0^2)`` with ``s0^2 = v^T v / redundancy``;
-derived values (baseline, omega-phi-kappa) get theirs by propagation, ``J N^-1 J^T s0^2``.
+To add a group of global parameters: give it columns in :func:`_build_layout`, a field in
+:class:`State` updated in :meth:`State.updated`, and its Jacobian piece in
+:func:`_jacobian_pieces`, where ``J_X`` (d residual / d camera-frame point) and the rotations are
+at hand (d residual / d board point is ``J_X R_c R_v``).
+
+Two covariances of the unknowns (``kind``): ``formal``, the textbook ``N^-1 s0^2`` with
+``s0^2 = v^T v / redundancy``, and ``clustered``, from how the instants disagree with each other
+(:mod:`dualcal.uncertainty`), which holds where the corner errors of one photo are correlated
+(real photos). Derived values (baseline, omega-phi-kappa) get theirs by propagation, ``J Cov J^T``.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
+from .board import SHAPE_TERMS, shape_basis, shaped_points_mm
 from .camera import INTRINSIC_NAMES, CameraModel, project_points, project_with_jacobians
 from .errors import EstimationError
 from .lm import LMOptions, levenberg_marquardt
@@ -47,8 +55,10 @@ from .normal_equations import Factorization, NormalEquations
 from .poses import moved_on_sphere, opk_jacobian, relative_pose, rotated, tangent_basis
 from .progress import warn
 from .rotation import ARCMIN_PER_RAD, cross_matrix, opk_from_rotation
+from .uncertainty import cluster_scores, clustered_covariance
 
 RIG_MODES = ("rigid", "paper", "none")
+COVARIANCE_KINDS = ("clustered", "formal")
 NEAR_GIMBAL_DEG = 5.0    # |phi| within this of 90 degrees: omega and kappa are ill-defined
 
 
@@ -74,7 +84,8 @@ class Layout:
     Global (indices into the first ``n_global`` entries of the flat vector):
     ``intrinsics[c]`` the free intrinsics of camera ``c`` (``free_intrinsics[c]``, a (K,) mask
     over :data:`INTRINSIC_NAMES`); ``rig_rotation[c]`` (3) of each tied camera; ``rig_translation[c]``
-    (3, rigid) or ``baseline[c]`` (1, paper). Local (0 .. ``n_local``): ``pose[k]`` (6: rotation
+    (3, rigid) or ``baseline[c]`` (1, paper); ``board_shape`` (3, or none) the board's shape
+    coefficients. Local (0 .. ``n_local``): ``pose[k]`` (6: rotation
     increment, then translation) of pose slot ``k`` (slot 0 is the reference's board pose; in mode
     ``none`` slot ``c`` is camera ``c``'s); ``direction[c]`` (2, paper). ``local_used`` (V, L) marks
     the slots each instant has.
@@ -85,6 +96,7 @@ class Layout:
     rig_rotation: dict[int, np.ndarray]
     rig_translation: dict[int, np.ndarray]
     baseline: dict[int, np.ndarray]
+    board_shape: np.ndarray
     n_global: int
     pose: dict[int, np.ndarray]
     direction: dict[int, np.ndarray]
@@ -111,6 +123,7 @@ class Problem:
     mode: str = "rigid"
     skew: bool = False
     reference: int = 0
+    board_shape: bool = False
 
     def __post_init__(self):
         if self.mode not in RIG_MODES:
@@ -124,6 +137,7 @@ class Problem:
                 uv = np.array([self.blocks[b][2] for b in idx], float)
                 self.batches.append(CameraBatch(c, idx, np.array([self.view_index[self.blocks[b][1]] for b in idx]),
                                                 uv, observed_mask(uv)))
+        self.shape_basis = shape_basis(self.X_board)          # (N, 3), used when board_shape
         self.layout = _build_layout(self)
 
     def tied(self, c: int) -> bool:
@@ -168,6 +182,7 @@ def _build_layout(p: Problem) -> Layout:
     rig_rotation = {c: _take(g, 3) for c in tied}
     rig_translation = {c: _take(g, 3) for c in tied} if p.mode == "rigid" else {}
     baseline = {c: _take(g, 1) for c in tied} if p.mode == "paper" else {}
+    board_shape = _take(g, len(SHAPE_TERMS) if p.board_shape else 0)
     loc = [0]
     pose = {k: _take(loc, 6) for k in (range(C) if p.mode == "none" else [0])}
     direction = {c: _take(loc, 2) for c in tied} if p.mode == "paper" else {}
@@ -176,7 +191,8 @@ def _build_layout(p: Problem) -> Layout:
         used[np.ix_(b.views, pose[p.pose_slot(b.camera)])] = True
     for c, slots in direction.items():
         used[np.ix_(p.seen(c) & p.seen(p.reference), slots)] = True
-    return Layout(free, intrinsics, rig_rotation, rig_translation, baseline, g[0], pose, direction, loc[0], used)
+    return Layout(free, intrinsics, rig_rotation, rig_translation, baseline, board_shape, g[0], pose, direction,
+                  loc[0], used)
 
 
 # ----------------------------------------------------------------------------- the unknowns
@@ -192,6 +208,8 @@ class State:
     rig_t : (C, 3) reference-to-camera translation, mm (mode ``rigid``).
     baseline_mm : (C,) the paper's D (mode ``paper``).
     direction : (V, C, 3) unit direction of the baseline per instant (mode ``paper``).
+    board_shape_mm : (3,) the board's shape coefficients (:data:`dualcal.board.SHAPE_TERMS`; zero
+        for a flat board).
     """
 
     intrinsics: np.ndarray
@@ -201,6 +219,7 @@ class State:
     rig_t: np.ndarray
     baseline_mm: np.ndarray
     direction: np.ndarray
+    board_shape_mm: np.ndarray = field(default_factory=lambda: np.zeros(len(SHAPE_TERMS)))
 
     def updated(self, layout: Layout, h: np.ndarray) -> "State":
         """The state moved by a flat step ``h`` (numbering of :mod:`dualcal.normal_equations`)."""
@@ -215,13 +234,14 @@ class State:
             rig_t[c] += h_g[cols]
         for c, cols in layout.baseline.items():
             D[c] += h_g[cols[0]]
+        shape = self.board_shape_mm + h_g[layout.board_shape] if len(layout.board_shape) else self.board_shape_mm
         pose_R, pose_t, direction = self.pose_R.copy(), self.pose_t.copy(), self.direction.copy()
         for k, slots in layout.pose.items():
             pose_R[:, k] = rotated(pose_R[:, k], h_l[:, slots[:3]])
             pose_t[:, k] += h_l[:, slots[3:]]
         for c, slots in layout.direction.items():
             direction[:, c] = moved_on_sphere(direction[:, c], h_l[:, slots])
-        return State(intr, pose_R, pose_t, rig_R, rig_t, D, direction)
+        return State(intr, pose_R, pose_t, rig_R, rig_t, D, direction, shape)
 
     def camera(self, problem: Problem, c: int) -> CameraModel:
         return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c])
@@ -241,13 +261,15 @@ class State:
         return Pose(self.rig_R[c], self.relative_t(problem, c, np.array([view]))[0]).compose(pose)
 
 
-def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict[str, Pose]]) -> State:
+def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict[str, Pose]],
+                  board_shape_mm: np.ndarray | None = None) -> State:
     """Starting values in the problem's layout from every camera's own estimates.
 
     ``cameras[c]`` is a CameraModel, ``poses[c][view]`` a board-to-camera Pose (e.g. from Zhang's
     closed form, or from an earlier adjustment). A tied camera's relative pose starts at the mean
     of its relative poses over the instants it shares with the reference (in mode ``paper``:
-    ``D`` at the mean baseline length, each instant's direction at its own).
+    ``D`` at the mean baseline length, each instant's direction at its own). The board's shape
+    starts at ``board_shape_mm`` (default flat).
     """
     C, V, ref = len(cameras), len(problem.views), problem.reference
     rig_R, rig_t = np.tile(np.eye(3), (C, 1, 1)), np.zeros((C, 3))
@@ -268,7 +290,8 @@ def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict
             direction[problem.view_index[v], c] = rel.t_mm / np.linalg.norm(rel.t_mm)
     slots = C if problem.mode == "none" else 1
     pose_R, pose_t = np.tile(np.eye(3), (V, slots, 1, 1)), np.zeros((V, slots, 3))
-    state = State(np.array([cam.as_vector() for cam in cameras]), pose_R, pose_t, rig_R, rig_t, D, direction)
+    shape = np.zeros(len(SHAPE_TERMS)) if board_shape_mm is None else np.array(board_shape_mm, float)
+    state = State(np.array([cam.as_vector() for cam in cameras]), pose_R, pose_t, rig_R, rig_t, D, direction, shape)
     for i, v in enumerate(problem.views):
         if problem.mode == "none":
             for c in range(C):
@@ -291,7 +314,8 @@ def _camera_points(problem: Problem, state: State, batch: CameraBatch):
     """``W = R_v X`` (B, N, 3), the camera-frame points ``X_c`` (B, N, 3) and the relative
     translation (B, 3) (None for an untied camera)."""
     k = problem.pose_slot(batch.camera)
-    W = np.einsum("bij,nj->bni", state.pose_R[batch.views, k], problem.X_board)
+    X = shaped_points_mm(problem.X_board, state.board_shape_mm) if problem.board_shape else problem.X_board
+    W = np.einsum("bij,nj->bni", state.pose_R[batch.views, k], X)
     Y = W + state.pose_t[batch.views, k][:, None, :]
     if not problem.tied(batch.camera):
         return W, Y, None
@@ -349,6 +373,10 @@ def _jacobian_pieces(problem: Problem, state: State, batch: CameraBatch, W, Xc, 
             d_dir = state.baseline_mm[c] * np.einsum("bnij,bjk->bnik", J_X, tangent_basis(u))
             loc.append((lay.direction[c], d_dir * free[:, None, None, None]))
     loc.insert(0, (lay.pose[problem.pose_slot(c)], np.concatenate([-np.cross(M, W[:, :, None, :]), M], axis=-1)))
+    if problem.board_shape:       # d X_board / d w = basis e_z, seen through R_v: its third column
+        normal = state.pose_R[batch.views, problem.pose_slot(c)][:, :, 2]                # (B, 3)
+        along = np.einsum("bnij,bj->bni", M, normal)                                      # (B, N, 2)
+        glob.append((lay.board_shape, along[..., None] * problem.shape_basis[None, :, None, :]))
     return glob, loc
 
 
@@ -416,6 +444,31 @@ def _add_sphere_curvature(problem: Problem, state: State, ne: NormalEquations, b
 
 
 @dataclass(frozen=True)
+class PhotoRows:
+    """The Jacobian rows of one photo's measured corners: ``J`` (m, k) over the flat parameter
+    indices ``columns`` (k,), residuals ``r`` (m,) (predicted - observed, px; corner by corner, u
+    then v); ``block`` is the photo's index in ``Problem.blocks``."""
+
+    block: int
+    columns: np.ndarray
+    J: np.ndarray
+    r: np.ndarray
+
+
+def photo_rows(problem: Problem, state: State) -> list[PhotoRows]:
+    """The Jacobian rows of every photo's measured corners, in the order of ``problem.blocks``."""
+    lay = problem.layout
+    out = []
+    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
+        rows = np.repeat(batch.observed, 2, axis=1)
+        for i, (b, v) in enumerate(zip(batch.blocks, batch.views)):
+            used = lay.local_used[v, sl]
+            J = np.concatenate([J_g[i], J_l[i][:, used]], axis=1)[rows[i]]
+            out.append(PhotoRows(int(b), np.concatenate([cg, lay.local_columns(v, sl[used])]), J, r[i][rows[i]]))
+    return sorted(out, key=lambda pr: pr.block)
+
+
+@dataclass(frozen=True)
 class InstantRows:
     """The Jacobian rows of one instant's measured corners: ``J`` (m, k) over the flat parameter
     indices ``columns`` (k,), residuals ``r`` (m,) (predicted - observed, px)."""
@@ -429,23 +482,19 @@ class InstantRows:
 def instant_rows(problem: Problem, state: State) -> list[InstantRows]:
     """The Jacobian rows of every instant's measured corners, in the order of ``problem.views``
     (within an instant: camera by camera, corner by corner, u then v)."""
-    lay = problem.layout
     parts = defaultdict(list)
-    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
-        rows = np.repeat(batch.observed, 2, axis=1)
-        for i, v in enumerate(batch.views):
-            used = lay.local_used[v, sl]
-            cols = np.concatenate([cg, lay.local_columns(v, sl[used])])
-            parts[v].append((cols, np.concatenate([J_g[i], J_l[i][:, used]], axis=1)[rows[i]], r[i][rows[i]]))
+    for pr in photo_rows(problem, state):
+        parts[problem.view_index[problem.blocks[pr.block][1]]].append(pr)
     out = []
     for v, pieces in sorted(parts.items()):
-        columns = np.unique(np.concatenate([cols for cols, _, _ in pieces]))
-        J = np.zeros((sum(len(r) for _, _, r in pieces), len(columns)))
+        pieces.sort(key=lambda pr: problem.blocks[pr.block][0])
+        columns = np.unique(np.concatenate([pr.columns for pr in pieces]))
+        J = np.zeros((sum(len(pr.r) for pr in pieces), len(columns)))
         row = 0
-        for cols, Jp, _ in pieces:
-            J[row:row + len(Jp), np.searchsorted(columns, cols)] = Jp
-            row += len(Jp)
-        out.append(InstantRows(problem.views[v], columns, J, np.concatenate([r for _, _, r in pieces])))
+        for pr in pieces:
+            J[row:row + len(pr.r), np.searchsorted(columns, pr.columns)] = pr.J
+            row += len(pr.r)
+        out.append(InstantRows(problem.views[v], columns, J, np.concatenate([pr.r for pr in pieces])))
     return out
 
 
@@ -472,16 +521,25 @@ class Solution:
     factorization: Factorization
     block_rms_px: list[float] = field(default_factory=list)
 
-    def covariance(self, columns) -> np.ndarray:
-        """``s0^2 N^-1`` restricted to the flat parameter indices ``columns`` (mm, rad, px...)."""
-        return self.s0_px ** 2 * self.factorization.inverse_block(columns)
+    def covariance(self, columns, kind: str = "formal") -> np.ndarray:
+        """The covariance of the flat parameters ``columns`` (mm, rad, px...): ``formal``
+        ``s0^2 N^-1``, or ``clustered`` by instant (module docstring)."""
+        if kind == "formal":
+            return self.s0_px ** 2 * self.factorization.inverse_block(columns)
+        if kind != "clustered":
+            raise ValueError(f"covariance kind {kind!r} is not one of {COVARIANCE_KINDS}")
+        return clustered_covariance(self._cluster_scores, self.factorization.inverse_block, columns)
 
-    def intrinsic_sigma(self, c: int) -> dict[str, float]:
-        """1-sigma of every intrinsic of camera ``c`` (0 for a fixed one)."""
+    @cached_property
+    def _cluster_scores(self):
+        return cluster_scores(self.instant_rows(), self.factorization.inverse_block)
+
+    def intrinsic_sigma(self, c: int, kind: str = "formal") -> dict[str, float]:
+        """1-sigma of every intrinsic of camera ``c`` (0 for a fixed one), of covariance ``kind``."""
         lay = self.problem.layout
         sig = dict.fromkeys(INTRINSIC_NAMES, 0.0)
         cols = lay.intrinsics[c]
-        values = np.sqrt(np.maximum(np.diag(self.covariance(cols)), 0.0))
+        values = np.sqrt(np.maximum(np.diag(self.covariance(cols, kind)), 0.0))
         for name, s in zip(np.array(INTRINSIC_NAMES)[lay.free_intrinsics[c]], values):
             sig[str(name)] = float(s)
         return sig
@@ -532,15 +590,26 @@ def shared_views(problem: Problem, c: int) -> list[str]:
     return [v for v, ok in zip(problem.views, both) if ok]
 
 
-def rig_relation(sol: Solution, c: int):
-    """Reference-to-camera ``c`` pose and 1-sigma of ``t_mm``, baseline D and opk (arcmin).
+@dataclass(frozen=True)
+class RigLinearisation:
+    """The reference-to-camera pose ``R``, ``t`` (mm) reported for a camera and its first-order
+    dependence on the flat parameters ``columns`` (k,): ``J_t`` (3, k), ``J_D`` (k,) of the baseline
+    length, ``J_rot`` (3, k) of the rotation's left increment."""
+
+    R: np.ndarray
+    t: np.ndarray
+    J_t: np.ndarray
+    J_D: np.ndarray
+    J_rot: np.ndarray
+    columns: np.ndarray
+
+
+def rig_linearisation(sol: Solution, c: int) -> RigLinearisation:
+    """The rig relation of camera ``c`` as :func:`rig_relation` reports it, linearised.
 
     ``rigid``: the adjusted ``R_c, t_c``. ``paper``: ``R_c``, and ``t`` of length ``D_c`` along the
     mean of the instants' directions (D's sigma is that of the parameter itself). ``none``: the
-    mean of the instants' relative poses (its sigma to first order). Sigmas propagate the
-    covariance of the rotation increment, then of omega-phi-kappa through
-    :func:`dualcal.poses.opk_jacobian`; near ``phi = +-90 deg`` a warning says that omega and
-    kappa are then ill-defined.
+    mean of the instants' relative poses (to first order).
     """
     p, st, lay = sol.problem, sol.state, sol.problem.layout
     if p.mode != "rigid":
@@ -569,17 +638,67 @@ def rig_relation(sol: Solution, c: int):
     J_D = (t / np.linalg.norm(t)) @ J_t
     if p.mode == "paper":
         J_D = np.sign(D) * np.eye(1, len(cols), 3)[0]
-    J = np.vstack([J_t, J_D, J_rot])
-    cov = J @ sol.covariance(cols) @ J.T
+    return RigLinearisation(np.array(R, float), np.array(t, float), J_t, J_D, J_rot, cols)
+
+
+def rig_relation(sol: Solution, c: int, kind: str = "formal", warn_gimbal: bool = True):
+    """Reference-to-camera ``c`` pose and 1-sigma of ``t_mm``, baseline D and opk (arcmin), from
+    the covariance ``kind`` (``formal`` or ``clustered``, :meth:`Solution.covariance`).
+
+    The pose is that of :func:`rig_linearisation`. Sigmas propagate the covariance of the rotation
+    increment, then of omega-phi-kappa through :func:`dualcal.poses.opk_jacobian`; near
+    ``phi = +-90 deg`` a warning (``warn_gimbal``) says that omega and kappa are then ill-defined.
+    """
+    p = sol.problem
+    lin = rig_linearisation(sol, c)
+    R, t = lin.R, lin.t
+    J = np.vstack([lin.J_t, lin.J_D, lin.J_rot])
+    cov = J @ sol.covariance(lin.columns, kind) @ J.T
     opk = opk_from_rotation(R)
-    if abs(abs(np.degrees(opk[1])) - 90.0) < NEAR_GIMBAL_DEG:
+    if warn_gimbal and abs(abs(np.degrees(opk[1])) - 90.0) < NEAR_GIMBAL_DEG:
         warn(f"camera {p.cameras[c]!r}: phi = {np.degrees(opk[1]):.1f} degrees, near the omega-phi-kappa "
              "singularity at +-90: omega and kappa (and their sigmas) are ill-defined there; the rotation "
              "itself (R in calib.json) is as well determined as ever")
     J_opk = opk_jacobian(opk)
     sigma_opk = np.sqrt(np.maximum(np.diag(J_opk @ cov[4:7, 4:7] @ J_opk.T), 0.0)) * ARCMIN_PER_RAD
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    return Pose(R.copy(), np.asarray(t, float).copy()), sigma[0:3], float(sigma[3]), sigma_opk
+    return Pose(R.copy(), t.copy()), sigma[0:3], float(sigma[3]), sigma_opk
+
+
+def parameter_covariance(sol: Solution, kinds=COVARIANCE_KINDS) -> tuple[list[str], dict[str, np.ndarray]]:
+    """The joint covariance of what a calibration reports, for each covariance kind.
+
+    Parameters, in order: every camera's free intrinsics (``"<camera>.<name>"``); for every camera
+    with a rig relation its rotation's left increment (``"<camera>.rig.rotation_rad.x"``, ``.y``,
+    ``.z``: ``R <- exp([d]x) R``) and its translation (``"<camera>.rig.t_mm.x"``, ...), as
+    :func:`rig_linearisation` reports them; the board's shape coefficients
+    (``"board.shape_mm.xx"``, ...) where estimated. Returns the names and ``{kind: (k, k)}``, the
+    correlations kept (e.g. for the uncertainty of a measurement with the rig).
+    """
+    p, lay = sol.problem, sol.problem.layout
+    names, rows = [], []                 # each reported parameter as a combination of flat columns
+    for c, name in enumerate(p.cameras):
+        for col, n in zip(lay.intrinsics[c], np.array(INTRINSIC_NAMES)[lay.free_intrinsics[c]]):
+            names.append(f"{name}.{n}")
+            rows.append({col: 1.0})
+    for c, name in enumerate(p.cameras):
+        if c == p.reference or (p.mode == "none" and not (p.seen(c) & p.seen(p.reference)).any()):
+            continue
+        lin = rig_linearisation(sol, c)
+        for what, J in (("rotation_rad", lin.J_rot), ("t_mm", lin.J_t)):
+            for axis, row in zip("xyz", J):
+                names.append(f"{name}.rig.{what}.{axis}")
+                rows.append(dict(zip(lin.columns.tolist(), row)))
+    for col, term in zip(lay.board_shape, SHAPE_TERMS):
+        names.append(f"board.shape_mm.{term}")
+        rows.append({col: 1.0})
+    columns = np.array(sorted({col for row in rows for col in row}), int)
+    index = {col: i for i, col in enumerate(columns)}
+    J = np.zeros((len(rows), len(columns)))
+    for i, row in enumerate(rows):
+        for col, value in row.items():
+            J[i, index[col]] += value
+    return names, {kind: J @ sol.covariance(columns, kind) @ J.T for kind in kinds}
 
 
 def _mean_relative_pose(sol: Solution, c: int, views: np.ndarray):

@@ -83,3 +83,39 @@ def parse_board_spec(spec: str) -> tuple[int, int]:
 def is_black_square(a, b):
     """True where square ``(a, b)`` (indexed as in the module docstring) is black."""
     return (np.asarray(a) + np.asarray(b)) % 2 == 0
+
+
+# ---------------------------------------------------------------------------- the board's shape
+
+SHAPE_TERMS = ("xx", "yy", "xy")
+"""The out-of-plane shape of a real board: ``Z = w_xx x'^2 + w_yy y'^2 + w_xy x' y'`` (mm), with
+``x', y'`` the board coordinates scaled to [-1, 1] over the corners. A printed board glued on
+card or foam sags, bends along one axis or twists; these are the low-order shapes it takes (a
+plane itself is absorbed by every photo's pose). Each coefficient is the height, in mm, that its
+term reaches at the edge (``xx``, ``yy``) or the corner (``xy``) of the corner grid."""
+
+
+def shape_basis(xy_mm: np.ndarray) -> np.ndarray:
+    """(N, 3) values of the :data:`SHAPE_TERMS` at board points ``xy_mm`` (N, 2), scaled to [-1, 1]
+    over the points' own extent (pass all of a board's corners)."""
+    xy = np.asarray(xy_mm, float)[:, :2]
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    s = (xy - 0.5 * (lo + hi)) / np.maximum(0.5 * (hi - lo), 1e-12)
+    return np.column_stack([s[:, 0] ** 2, s[:, 1] ** 2, s[:, 0] * s[:, 1]])
+
+
+def shaped_points_mm(X_board: np.ndarray, shape_mm: np.ndarray | None) -> np.ndarray:
+    """Board points (N, 3) moved out of plane by the shape coefficients ``shape_mm`` (3,) (None: flat)."""
+    X = np.array(X_board, float)
+    if shape_mm is not None:
+        X[:, 2] = X[:, 2] + shape_basis(X) @ np.asarray(shape_mm, float)
+    return X
+
+
+def sag_mm(X_board: np.ndarray, shape_mm: np.ndarray | None) -> float:
+    """Largest distance of the shaped board's corners from their best-fitting plane, mm."""
+    if shape_mm is None:
+        return 0.0
+    Z = shape_basis(X_board) @ np.asarray(shape_mm, float)
+    A = np.column_stack([np.asarray(X_board, float)[:, :2], np.ones(len(Z))])
+    return float(np.max(np.abs(Z - A @ np.linalg.lstsq(A, Z, rcond=None)[0])))

@@ -1,39 +1,63 @@
-"""From corners to a calibrated rig: initialisation, joint adjustment, outlier views.
+"""From corners to a calibrated rig: initialisation, joint adjustment, outliers, board shape, checks.
 
 :func:`calibrate_rig` is the whole of the paper's sections 1.3 to 1.7 for any number of cameras:
 Zhang's closed form per camera (:mod:`dualcal.zhang`), the rig's relative poses from the views
 the cameras share, then the joint adjustment (:mod:`dualcal.adjust`) in the chosen rig mode.
 Each photo contributes the corners it measured; one whose corners cannot fix a homography (fewer
-than 4, or all on one line) is skipped with a warning. Photos whose residuals are far out of line
-with the others are dropped one at a time, each with a recorded reason, and the adjustment is
-repeated. A final adjustment that did not converge is said so, on stderr and in calib.json.
+than 4, or all on one line) is skipped with a warning.
+
+Outliers are single corners: one whose residual is far above the typical residual of its camera
+is left out (``dropped_corners``), and a photo is dropped only when most of its corners are
+outliers (a moved board, a wrong numbering), each with a recorded reason; they are looked for
+first with every camera alone, so that a bad photo shows in its own camera's residuals, then in
+the rig. The board's shape (sag, bend, twist: :data:`dualcal.board.SHAPE_TERMS`) is estimated
+where the photos show it beyond their noise. Every sigma comes twice: clustered by instant (it
+holds on real photos) and the textbook one; :mod:`dualcal.checks` then says how far to trust the
+result. A final adjustment that did not converge is said so, on stderr and in calib.json.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .adjust import Problem, Solution, adjust, cost, initial_state, rig_relation, shared_views
+from dataclasses import dataclass
+
+from .adjust import (COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state, parameter_covariance,
+                     rig_relation, shared_views)
+from .board import SHAPE_TERMS
+from .checks import run_checks
 from .errors import EstimationError
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
 from .zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
 
 MIN_VIEWS = 3
+BOARD_SHAPES = ("auto", "flat", "fit")
+#: The board's shape is kept where its coefficients differ from zero at this significance level.
+SHAPE_SIGNIFICANCE = 0.01
+
+
+def unusable_reason(uv: np.ndarray, xy_board: np.ndarray) -> str | None:
+    """Why a photo's measured corners cannot determine a homography (None if they can): fewer than
+    :data:`dualcal.zhang.MIN_HOMOGRAPHY_CORNERS`, or all on one line."""
+    seen = observed_mask(uv)
+    if seen.sum() >= MIN_HOMOGRAPHY_CORNERS and spans_a_plane(xy_board[seen]):
+        return None
+    return (f"its {int(seen.sum())} measured corner(s) "
+            f"{'lie on one line' if seen.sum() >= MIN_HOMOGRAPHY_CORNERS else 'are too few'}; "
+            f"a photo needs at least {MIN_HOMOGRAPHY_CORNERS} corners, not all on one line")
 
 
 def usable_photos(corners: CornerSet, names: list[str], xy_board: np.ndarray) -> list[tuple[int, str, np.ndarray]]:
     """``(camera index, view, (N, 2) corners)`` of every photo whose measured corners determine a
-    homography: at least :data:`dualcal.zhang.MIN_HOMOGRAPHY_CORNERS`, not all on one line. Every
-    other photo where the board was found is skipped with a warning naming it."""
+    homography (:func:`unusable_reason`). Every other photo where the board was found is skipped
+    with a warning naming it."""
     blocks = []
     for c, name in enumerate(names):
         for v, uv in sorted(corners.cameras[name].found().items()):
-            seen = observed_mask(uv)
-            if seen.sum() < MIN_HOMOGRAPHY_CORNERS or not spans_a_plane(xy_board[seen]):
-                warn(f"{name}/{v} skipped: its {int(seen.sum())} measured corner(s) "
-                     f"{'lie on one line' if seen.sum() >= MIN_HOMOGRAPHY_CORNERS else 'are too few'}; "
-                     f"a photo needs at least {MIN_HOMOGRAPHY_CORNERS} corners, not all on one line")
+            reason = unusable_reason(uv, xy_board)
+            if reason:
+                warn(f"{name}/{v} skipped: {reason}")
                 continue
             blocks.append((c, v, uv))
     return blocks
@@ -58,25 +82,47 @@ def _starting_values(sol: Solution):
     bp = _block_poses(sol)
     n = len(sol.problem.cameras)
     cams = [sol.state.camera(sol.problem, c) for c in range(n)]
-    poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c} for c in range(n)]
+    poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c and (c, v) in bp} for c in range(n)]
     return cams, poses
 
 
+@dataclass(frozen=True)
+class Setup:
+    """What every adjustment of one calibration shares: the board's corners ``X_board`` (N, 3), the
+    camera names and image sizes, the reference's index, the skew model and the rig mode."""
+
+    X_board: np.ndarray
+    names: list[str]
+    sizes: list[tuple[int, int]]
+    reference: int
+    skew: bool
+    mode: str
+
+
 def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
-          start: Solution | None = None) -> Solution:
+          start: Solution | None = None, board_shape: bool = False) -> Solution:
     """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples.
 
     Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
-    solution over the same photos with every camera alone (rig mode ``none``). The paper's model
-    starts from the better (lower cost) of the rigid solution (every instant's baseline direction
-    the same) and the cameras-alone solution (each instant's own relative pose): the first is
-    the nearer when the rig is rigid, the second when the direction moves between instants.
+    solution over the same photos (or a superset of them: photos it did not see start from
+    Zhang's), whose board shape is kept as the start too. The paper's model starts from the
+    better (lower cost) of the rigid solution (every instant's baseline direction the same) and
+    the cameras-alone solution (each instant's own relative pose): the first is the nearer when
+    the rig is rigid, the second when the direction moves between instants. With
+    ``board_shape`` the board's out-of-plane shape is estimated too.
     """
     _check_enough_views(blocks, names)
     if mode == "paper" and start is None:
-        start = solve(X_board, names, sizes, blocks, reference, skew, "none")
+        start = solve(X_board, names, sizes, blocks, reference, skew, "none", board_shape=board_shape)
+    shape = start.state.board_shape_mm if start is not None else None
     if start is not None:
         cams, poses = _starting_values(start)
+        missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
+        if missing:
+            zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew)[1]
+                     for c in {c for c, _ in missing}}
+            for c, v in missing:
+                poses[c][v] = zhang[c][v]
     else:
         cams, poses = [], []
         for c, size in enumerate(sizes):
@@ -84,85 +130,168 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
             cams.append(cam)
             poses.append(p)
     first_mode = "rigid" if mode == "paper" else mode
-    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference)
-    sol = adjust(problem, initial_state(problem, cams, poses))
+    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape)
+    sol = adjust(problem, initial_state(problem, cams, poses, shape))
     if mode != "paper":
         return sol
-    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference)
-    starts = [initial_state(problem, *_starting_values(s)) for s in (sol, start)]
+    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape)
+    starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
     return adjust(problem, min(starts, key=lambda state: cost(problem, state)))
 
 
 OUTLIER_FLOOR_PX = 0.05
+#: A photo is dropped when more than this share of its corners are outliers.
+MOST_CORNERS = 0.5
 
 
 def outlier_limit_px(camera_median_px: float, factor: float) -> float:
-    """RMS above which a photo is out of line: ``factor`` x the median photo RMS of its own camera
-    (cameras differ in noise), but never below :data:`OUTLIER_FLOOR_PX`. The report uses it too."""
+    """Residual above which a corner is an outlier: ``factor`` x the median length of its camera's
+    corner residuals (cameras differ in noise), but never below :data:`OUTLIER_FLOOR_PX`. For
+    independent equal errors the median length is 1.18 sigma, so the default factor 4 puts the
+    limit at 4.7 sigma, which a good corner exceeds once in 60 000. The report uses it too."""
     return max(factor * camera_median_px, OUTLIER_FLOOR_PX)
 
 
-def find_outlier(sol: Solution, factor: float):
-    """The photo furthest above its camera's outlier limit, as ``(block, rms, limit)``, or None."""
-    rms = np.asarray(sol.block_rms_px)
+def corner_outliers(sol: Solution, factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which measured corners are outliers: ``(B, N)`` bool, and each photo's limit (B,) px."""
+    length = np.linalg.norm(sol.residuals, axis=2)                       # (B, N), NaN where not measured
     cams = np.array([c for c, _, _ in sol.problem.blocks])
-    limit = np.empty_like(rms)
+    limit = np.empty(len(cams))
     for c in np.unique(cams):
-        limit[cams == c] = outlier_limit_px(float(np.median(rms[cams == c])), factor)
-    worst = int(np.argmax(rms / limit))
-    if rms[worst] <= limit[worst]:
+        limit[cams == c] = outlier_limit_px(float(np.nanmedian(length[cams == c])), factor)
+    with np.errstate(invalid="ignore"):
+        return length > limit[:, None], limit
+
+
+def find_outlier(sol: Solution, factor: float):
+    """The photo with the largest share of outlier corners, if more than :data:`MOST_CORNERS` of
+    them are, as ``(block, share, limit_px)``; else None."""
+    out, limit = corner_outliers(sol, factor)
+    measured = np.isfinite(sol.residuals[..., 0]).sum(axis=1)
+    share = out.sum(axis=1) / np.maximum(measured, 1)
+    worst = int(np.argmax(share))
+    if share[worst] <= MOST_CORNERS:
         return None
-    return worst, float(rms[worst]), float(limit[worst])
+    return worst, float(share[worst]), float(limit[worst])
 
 
 def _views_left(blocks, c: int) -> int:
     return sum(1 for blk in blocks if blk[0] == c)
 
 
-def _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, mode, factor, dropped, start=None):
-    """Solve, drop the worst photo while one is out of line, solve again; returns (solution, blocks).
+MAX_CORNER_ROUNDS = 5
+
+
+def _adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corners, start=None):
+    """Solve, drop outlier photos and then outlier corners while there are any, solve again;
+    returns ``(solution, blocks)``.
 
     In a tied rig a bad photo pulls the shared pose and so spreads its error over every photo of
-    that instant; of the photos of the flagged instant that are themselves out of line, the one
-    whose removal fits best is dropped, and only if the fit then really improves.
+    that instant; of the photos of the flagged instant whose corners are mostly outliers, the one
+    whose removal fits best is dropped, and only if the fit then really improves. Corners are
+    dropped a round at a time (at most :data:`MAX_CORNER_ROUNDS`), as the limit is recomputed.
     """
-    sol = solve(X, names, sizes, blocks, ref, skew, mode, start)
-    while True:
-        out = find_outlier(sol, factor) if factor else None
-        if out is None:
+    s = setup
+    names = s.names
+    sol = solve(s.X_board, names, s.sizes, blocks, s.reference, s.skew, s.mode, start)
+    rounds = 0
+    while factor:
+        out = find_outlier(sol, factor)
+        if out is not None:
+            b, share, limit = out
+            view = blocks[b][1]
+            candidates = [b] if s.mode == "none" else [i for i, blk in enumerate(blocks) if blk[1] == view]
+            candidates = [i for i in candidates if _views_left(blocks, blocks[i][0]) > MIN_VIEWS]
+            if s.mode != "none":
+                shares = _outlier_shares(sol, factor)
+                candidates = [i for i in candidates if shares[i] > MOST_CORNERS]
+            if not candidates:
+                warn(f"{names[blocks[b][0]]}/{view}: {share:.0%} of its corners are outliers (limit {limit:.3g} px) "
+                     f"but it cannot be dropped: only {MIN_VIEWS} views left for {names[blocks[b][0]]!r}")
+                return sol, blocks
+            # a fresh start: the solution with the bad photo in it may be far off
+            trials = [(solve(s.X_board, names, s.sizes, blocks[:i] + blocks[i + 1:], s.reference, s.skew, s.mode), i)
+                      for i in candidates]
+            best, i = min(trials, key=lambda t: t[0].s0_px)
+            if best.s0_px >= sol.s0_px:
+                warn(f"{names[blocks[b][0]]}/{view}: {share:.0%} of its corners are outliers (limit {limit:.3g} px) "
+                     "but dropping the photo does not improve the fit: kept")
+                return sol, blocks
+            c, rms_i = blocks[i][0], sol.block_rms_px[i]
+            reason = (f"{share:.0%} of its corners are outliers (residual above {limit:.3g} px, {factor:g} x the "
+                      f"median of {names[c]!r}; photo RMS {rms_i:.3g} px) in rig mode {s.mode}; without it s0 falls "
+                      f"from {sol.s0_px:.3g} to {best.s0_px:.3g} px (moved board, wrong corner order, blur, or "
+                      "another zoom/focus setting?)")
+            warn(f"dropping {names[c]}/{view}: {reason}")
+            dropped.append({"camera": names[c], "view": view, "rms_px": rms_i, "reason": reason})
+            sol, blocks = best, blocks[:i] + blocks[i + 1:]
+            continue
+        bad, limit = corner_outliers(sol, factor)
+        if not bad.any() or rounds >= MAX_CORNER_ROUNDS:
             return sol, blocks
-        b, rms, limit = out
-        view = blocks[b][1]
-        if mode == "none":
-            candidates = [b]
-        else:
-            cams = np.array([blk[0] for blk in blocks])
-            rms_all = np.asarray(sol.block_rms_px)
-            candidates = [i for i, blk in enumerate(blocks) if blk[1] == view and rms_all[i] > outlier_limit_px(
-                float(np.median(rms_all[cams == blk[0]])), factor)]
-        candidates = [i for i in candidates if _views_left(blocks, blocks[i][0]) > MIN_VIEWS]
-        if not candidates:
-            warn(f"{names[blocks[b][0]]}/{view} is out of line (RMS {rms:.3g} px, limit {limit:.3g} px) "
-                 f"but cannot be dropped: only {MIN_VIEWS} views left for {names[blocks[b][0]]!r}")
-            return sol, blocks
-        trials = [(solve(X, names, sizes, blocks[:i] + blocks[i + 1:], ref, skew, mode), i) for i in candidates]
-        best, i = min(trials, key=lambda t: t[0].s0_px)
-        if best.s0_px >= sol.s0_px:
-            warn(f"{names[blocks[b][0]]}/{view} is out of line (RMS {rms:.3g} px, limit {limit:.3g} px) "
-                 "but dropping it does not improve the fit: kept")
-            return sol, blocks
-        c, rms_i = blocks[i][0], sol.block_rms_px[i]
-        reason = (f"reprojection RMS {rms_i:.3g} px above the limit {limit:.3g} px ({factor:g} x the median "
-                  f"of {names[c]!r}) in rig mode {mode}; without it s0 falls from {sol.s0_px:.3g} to "
-                  f"{best.s0_px:.3g} px (moved board, wrong corner order, blur, or another zoom/focus setting?)")
-        warn(f"dropping {names[c]}/{view}: {reason}")
-        dropped.append({"camera": names[c], "view": view, "rms_px": rms_i, "reason": reason})
-        sol, blocks = best, blocks[:i] + blocks[i + 1:]
+        rounds += 1
+        blocks = _without_corners(setup, sol, blocks, bad, limit, dropped, dropped_corners)
+        sol = solve(s.X_board, names, s.sizes, blocks, s.reference, s.skew, s.mode, sol)
+    return sol, blocks
+
+
+def _outlier_shares(sol: Solution, factor: float) -> np.ndarray:
+    out, _ = corner_outliers(sol, factor)
+    return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1)
+
+
+def _without_corners(setup: Setup, sol: Solution, blocks, bad, limit, dropped, dropped_corners):
+    """``blocks`` with the outlier corners ``bad`` (B, N) set to NaN, each recorded; a photo left
+    unable to fix a homography is dropped, with the reason."""
+    out = []
+    length = np.linalg.norm(sol.residuals, axis=2)
+    for b, (c, v, uv) in enumerate(blocks):
+        if not bad[b].any():
+            out.append((c, v, uv))
+            continue
+        for k in np.flatnonzero(bad[b]):
+            dropped_corners.append({"camera": setup.names[c], "view": v, "corner": int(k),
+                                    "residual_px": float(length[b, k]), "limit_px": float(limit[b])})
+        uv = np.array(uv, float)
+        uv[bad[b]] = np.nan
+        reason = unusable_reason(uv, setup.X_board[:, :2])
+        if reason and _views_left(out, c) + _views_left(blocks[b + 1:], c) >= MIN_VIEWS:
+            reason = f"without its {int(bad[b].sum())} outlier corner(s) {reason}"
+            warn(f"dropping {setup.names[c]}/{v}: {reason}")
+            dropped.append({"camera": setup.names[c], "view": v, "rms_px": sol.block_rms_px[b], "reason": reason})
+            continue
+        out.append((c, v, uv if reason is None else blocks[b][2]))
+    return out
+
+
+def board_shape_test(sol: Solution) -> dict:
+    """Whether the board's shape estimated in ``sol`` differs from flat beyond the photos' noise.
+
+    Hotelling's test of the three shape coefficients against the covariance clustered by instant
+    (so that noise correlated within photos does not pass for a bent board): with ``G`` instants,
+    ``T2 = w^T Cov^-1 w`` is compared with ``p (G-1) / (G-p) F(p, G-p)`` at
+    :data:`SHAPE_SIGNIFICANCE`. Returns ``{"t2", "limit", "significant", "coefficients_mm",
+    "sigma_mm"}``; with too few instants to judge (``G <= p + 1``) ``limit`` is None and the shape
+    is not significant.
+    """
+    from scipy.stats import f as f_dist
+
+    cols = sol.problem.layout.board_shape
+    w = sol.state.board_shape_mm
+    cov = sol.covariance(cols, "clustered")
+    p, G = len(cols), len(sol.problem.views)
+    doc = {"coefficients_mm": dict(zip(SHAPE_TERMS, map(float, w))),
+           "sigma_mm": dict(zip(SHAPE_TERMS, map(float, np.sqrt(np.maximum(np.diag(cov), 0.0)))))}
+    if G <= p + 1:
+        return {**doc, "t2": None, "limit": None, "significant": False}
+    t2 = float(w @ np.linalg.lstsq(cov, w, rcond=None)[0])
+    limit = float(p * (G - 1) / (G - p) * f_dist.ppf(1.0 - SHAPE_SIGNIFICANCE, p, G - p))
+    return {**doc, "t2": t2, "limit": limit, "significant": bool(t2 > limit)}
 
 
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
                   reference: str | None = None, drop_outliers: bool = True,
-                  outlier_factor: float = 3.0) -> RigModel:
+                  outlier_factor: float = 4.0, board_shape: str = "auto") -> RigModel:
     """Calibrate every camera of a rig and the rig itself from chessboard corners.
 
     Parameters
@@ -172,42 +301,70 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     rig_mode : ``rigid``, ``paper`` or ``none`` (see :mod:`dualcal.adjust`)
     reference : name of the reference camera (default: the one recorded in ``corners``, else ``wide``,
         else the first name)
-    drop_outliers : drop photos whose RMS exceeds ``outlier_factor`` x the median, one at a time.
+    drop_outliers : leave out corners whose residual exceeds ``outlier_factor`` x the median of
+        their camera (:func:`outlier_limit_px`), and photos where most corners are outliers.
         Outliers are looked for first with every camera adjusted alone (so that a bad photo shows
         in its own camera's residuals, not spread over the rig), then in ``rig_mode`` (which
         also reveals a board moved between the shots of one instant).
+    board_shape : ``auto`` estimates the board's out-of-plane shape and keeps it where the photos
+        show it beyond their noise (:func:`board_shape_test`), ``fit`` always keeps it, ``flat``
+        takes the board as flat.
 
     Raises
     ------
     EstimationError
         Fewer than 3 usable views for a camera, degenerate views, no shared view in a rig.
     """
+    if board_shape not in BOARD_SHAPES:
+        raise EstimationError(f"--board-shape {board_shape!r} is unknown (choose from {', '.join(BOARD_SHAPES)})")
     names = sorted(corners.cameras)
     ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
     sizes = [corners.cameras[n].image_size for n in names]
     X = corners.board.object_points_mm()
     blocks = usable_photos(corners, names, X[:, :2])
     dropped: list[dict] = []
+    dropped_corners: list[dict] = []
     factor = outlier_factor if drop_outliers else None
-    alone = None
-    if factor and rig_mode != "none":
-        alone, blocks = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, "none", factor, dropped)
-    sol, _ = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, rig_mode, factor, dropped, alone)
+    setup = Setup(X, names, sizes, ref, skew, rig_mode)
+    alone, blocks = _adjust_dropping_outliers(Setup(X, names, sizes, ref, skew, "none"), blocks, factor, dropped,
+                                              dropped_corners)
+    sol = alone
+    if rig_mode != "none":
+        sol, rig_blocks = _adjust_dropping_outliers(setup, blocks, factor, dropped, dropped_corners, alone)
+        if rig_blocks is not blocks:      # the rig dropped photos or corners: the same photos alone
+            alone = solve(X, names, sizes, rig_blocks, ref, skew, "none", sol)
+    flat = sol
+    shape_test = None
+    if board_shape != "flat":
+        shaped = solve(X, names, sizes, sol.problem.blocks, ref, skew, rig_mode, sol, board_shape=True)
+        shape_test = board_shape_test(shaped)
+        if board_shape == "fit" or shape_test["significant"]:
+            sol = shaped
     if not sol.converged:
         warn(f"the adjustment (rig mode {rig_mode}, {'Model 2' if skew else 'Model 1'}) did not converge: "
              f"{sol.termination}; the results and their sigmas are not those of the best fit")
-    rig = rig_model_from_solution(sol, corners, dropped)
-    rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor)}
+    rig = rig_model_from_solution(sol, corners, dropped, dropped_corners)
+    rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor),
+                                 "board_shape": board_shape}
+    if shape_test is not None:
+        rig.adjustment["board_shape_test"] = shape_test
+    rig.checks = run_checks(rig, sol, flat, alone)
     return rig
 
 
-def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict]) -> RigModel:
-    """Package an adjustment result as the :class:`RigModel` written to calib.json."""
+def _larger(a: dict[str, float], b: dict[str, float]) -> dict[str, float]:
+    return {k: max(a[k], b[k]) for k in a}
+
+
+def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict],
+                            dropped_corners: list[dict] = ()) -> RigModel:
+    """Package an adjustment result as the :class:`RigModel` written to calib.json (no checks)."""
     p, st = sol.problem, sol.state
     names = p.cameras
     sq = np.sum(sol.residuals ** 2, axis=2)                 # (B, N) squared px, NaN where not measured
     cams = {name: st.camera(p, c) for c, name in enumerate(names)}
-    sigma = {name: sol.intrinsic_sigma(c) for c, name in enumerate(names)}
+    sigma_formal = {name: sol.intrinsic_sigma(c, "formal") for c, name in enumerate(names)}
+    sigma = {name: _larger(sol.intrinsic_sigma(c, "clustered"), sigma_formal[name]) for c, name in enumerate(names)}
     cam_rms = {}
     for c, name in enumerate(names):
         mask = [cc == c for cc, _, _ in p.blocks]
@@ -225,9 +382,21 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
         if p.mode == "none" and not shared_views(p, c):
             warn(f"camera {name!r} shares no view with {names[p.reference]!r}: no rig relation for it")
             continue
-        rig[name] = RigRelation(*rig_relation(sol, c))
+        pose, *clustered = rig_relation(sol, c, "clustered")
+        _, *formal = rig_relation(sol, c, "formal", warn_gimbal=False)
+        rig[name] = RigRelation(pose, *(np.maximum(a, b) for a, b in zip(clustered, formal)),
+                                dict(zip(("t_mm", "baseline_mm", "opk_arcmin"), formal)))
     adjustment = {"s0_px": sol.s0_px, "redundancy": sol.redundancy, "iterations": sol.iterations,
                   "converged": sol.converged, "termination": sol.termination,
                   "n_observations": p.n_observations, "n_parameters": p.n_parameters}
+    shape = shape_sigma = None
+    if p.board_shape:
+        shape = st.board_shape_mm.copy()
+        cols = p.layout.board_shape
+        shape_sigma = np.sqrt(np.maximum(np.maximum(np.diag(sol.covariance(cols, "clustered")),
+                                                    np.diag(sol.covariance(cols, "formal"))), 0.0))
+    names_cov, covs = parameter_covariance(sol, COVARIANCE_KINDS)
+    covariance = {"parameters": names_cov, **{k: covs[k].tolist() for k in COVARIANCE_KINDS}}
     return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, cam_rms, rig, poses,
-                    dict(sorted(view_rms.items())), float(np.sqrt(np.nanmean(sq))), corners, adjustment, dropped)
+                    dict(sorted(view_rms.items())), float(np.sqrt(np.nanmean(sq))), corners, adjustment, dropped,
+                    sigma_formal, shape, shape_sigma, list(dropped_corners), {}, covariance)

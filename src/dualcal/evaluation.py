@@ -1,8 +1,9 @@
 """The paper's 3-D check: stereo intersection of the board corners (section 2, Tables 5, 6).
 
 Every board corner that both photos of a pair measured is intersected from them
-(:func:`dualcal.intersect.triangulate`) and compared with the board's known geometry, in the
-board frame, as RMSE per axis. The cases:
+(:func:`dualcal.intersect.triangulate`) and compared with the board's known geometry (its shape as
+calibrated, :meth:`dualcal.model.RigModel.board_points_mm`: flat, or bent where the calibration
+estimated that), in the board frame, as RMSE per axis. The cases:
 
 * ``dual``: the reference camera and another camera at the same instant (paper case 1), for
   every view both saw. With more than two cameras, ``dual`` pairs the reference with the first
@@ -34,7 +35,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .adjust import RIG_MODES
-from .board import Board
 from .camera import CameraModel
 from .errors import EstimationError, InputError
 from .intersect import triangulate
@@ -58,10 +58,11 @@ class OrientedPhoto:
 
 
 def fitted_photos(rig: RigModel) -> dict[str, dict[str, OrientedPhoto]]:
-    """Every photo with the pose the calibration fitted to it: ``[camera][view]``."""
+    """Every photo with the pose the calibration fitted to it and the corners it used: ``[camera][view]``."""
     out = {}
+    used = rig.used_corners()
     for cam, model in rig.cameras.items():
-        corners = rig.corners.cameras[cam].found()
+        corners = used.cameras[cam].found()
         out[cam] = {v: OrientedPhoto(model, pose, corners[v])
                     for v, pose in rig.camera_poses.get(cam, {}).items() if v in corners}
     return out
@@ -75,16 +76,6 @@ def _without(corners: CornerSet, left_out: Callable[[str, str], bool]) -> Corner
     return CornerSet(corners.board, cams)
 
 
-def used_corners(rig: RigModel) -> CornerSet:
-    """The corners the calibration used: ``rig.corners`` without the photos it dropped.
-
-    ``rig.dropped_views`` lists them as ``{"camera", "view", ...}``; an entry without a camera
-    drops the view in every camera.
-    """
-    dropped = {(d.get("camera"), d.get("view")) for d in rig.dropped_views}
-    return _without(rig.corners, lambda cam, view: (cam, view) in dropped or (None, view) in dropped)
-
-
 def resect_view(calib: RigModel, view: str, corners: CornerSet) -> dict[str, OrientedPhoto]:
     """Orient the photos of one view with a calibration: ``{camera: photo}``.
 
@@ -92,7 +83,7 @@ def resect_view(calib: RigModel, view: str, corners: CornerSet) -> dict[str, Ori
     resected together, one board pose for the whole rig, so the rig's relative pose is part of
     what the check tests; in rig mode ``none`` each camera is resected on its own.
     """
-    X = corners.board.object_points_mm()
+    X = calib.board_points_mm()
     photos = {c: cc.found().get(view) for c, cc in corners.cameras.items() if c in calib.cameras}
     seen = {c: uv for c, uv in photos.items() if uv is not None}
     tied = [c for c in seen if calib.rig_mode != "none" and (c == calib.reference or c in calib.rig)]
@@ -110,8 +101,8 @@ def holdout_photos(rig: RigModel, progress: bool = True) -> dict[str, dict[str, 
     """Every photo oriented by a calibration that did not see its view (leave one view out).
 
     Calls :func:`dualcal.calibrate.calibrate_rig` once per view, as the full calibration was
-    run: with the photos it used (:func:`used_corners`) of all other views and its settings
-    (skew, rig mode, reference, :meth:`RigModel.calibration_options`); then :func:`resect_view` orients
+    run: with the photos and corners it used (:meth:`RigModel.used_corners`) of all other views and its
+    settings (skew, rig mode, reference, :meth:`RigModel.calibration_options`); then :func:`resect_view` orients
     the view's used photos. Only views the full calibration kept are evaluated.
     """
     from .calibrate import calibrate_rig   # the adjustment is only needed here
@@ -120,16 +111,14 @@ def holdout_photos(rig: RigModel, progress: bool = True) -> dict[str, dict[str, 
         raise InputError(f"--holdout recalibrates, which needs a rig mode of {', '.join(RIG_MODES)} "
                          f"(this calibration has {rig.rig_mode!r})")
     options = rig.calibration_options()
-    corners = used_corners(rig)
+    corners = rig.used_corners()
     views = sorted({v for poses in rig.camera_poses.values() for v in poses})
     out: dict[str, dict[str, OrientedPhoto]] = {cam: {} for cam in rig.cameras}
     with progress_bar("hold-out folds", len(views), enabled=progress) as advance:
         for view in views:
             try:
                 calib = calibrate_rig(_without(corners, lambda _, v: v == view), skew=rig.skew,
-                                      rig_mode=rig.rig_mode, reference=rig.reference,
-                                      drop_outliers=bool(options["drop_outliers"]),
-                                      outlier_factor=float(options["outlier_factor"]))
+                                      rig_mode=rig.rig_mode, reference=rig.reference, **options)
             except EstimationError as exc:
                 raise EstimationError(f"hold-out calibration without view {view!r} failed: {exc}") from None
             kept = {c for c, poses in rig.camera_poses.items() if view in poses}
@@ -160,9 +149,9 @@ def case_pairs(photos: dict[str, dict[str, OrientedPhoto]], reference: str) -> d
     return {name: pairs for name, pairs in cases.items() if pairs}
 
 
-def pair_errors(board: Board, a: OrientedPhoto, b: OrientedPhoto) -> np.ndarray:
-    """(n, 3) intersected corners minus their board coordinates, mm (board frame), for the n
-    corners both photos measured (in corner order).
+def pair_errors(X_board: np.ndarray, a: OrientedPhoto, b: OrientedPhoto) -> np.ndarray:
+    """(n, 3) intersected corners minus their board coordinates ``X_board`` (N, 3), mm (board frame),
+    for the n corners both photos measured (in corner order).
 
     Raises
     ------
@@ -173,21 +162,22 @@ def pair_errors(board: Board, a: OrientedPhoto, b: OrientedPhoto) -> np.ndarray:
     if not both.any():
         raise EstimationError("the two photos measured no corner in common")
     X = triangulate([a.camera, b.camera], [a.pose, b.pose], [a.uv_px[both], b.uv_px[both]])
-    return X - board.object_points_mm()[both]
+    return X - X_board[both]
 
 
 def _rmse(err: np.ndarray) -> list[float]:
     return np.sqrt(np.mean(err**2, axis=0)).tolist()
 
 
-def stereo_cases(board: Board, photos: dict[str, dict[str, OrientedPhoto]], reference: str) -> dict:
-    """Intersect every pair of every case: the eval.json document (without ``holdout``)."""
+def stereo_cases(X_board: np.ndarray, photos: dict[str, dict[str, OrientedPhoto]], reference: str) -> dict:
+    """Intersect every pair of every case against the board's corners ``X_board`` (N, 3): the
+    eval.json document (without ``holdout``)."""
     cases, per_pair = {}, []
     for name, pairs in case_pairs(photos, reference).items():
         errors = []
         for (ca, va), (cb, vb) in pairs:
             try:
-                err = pair_errors(board, photos[ca][va], photos[cb][vb])
+                err = pair_errors(X_board, photos[ca][va], photos[cb][vb])
             except EstimationError as exc:
                 warn(f"case {name}: pair {ca}/{va} + {cb}/{vb} left out: {exc}")
                 continue
@@ -230,7 +220,7 @@ def evaluate(rig: RigModel, holdout: bool = False, progress: bool = True) -> dic
                          "('dual', 'dual:<camera>'): give it another name when detecting the corners "
                          "(--camera NAME=GLOB) and calibrate again")
     photos = holdout_photos(rig, progress) if holdout else fitted_photos(rig)
-    doc = stereo_cases(rig.board, photos, rig.reference)
+    doc = stereo_cases(rig.board_points_mm(), photos, rig.reference)
     if not doc["cases"]:
         raise EstimationError("nothing to intersect: no camera has two oriented photos and no view has two cameras")
     doc["holdout"] = bool(holdout)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .board import Board
+from .board import SHAPE_TERMS, Board, sag_mm
 from .camera import INTRINSIC_NAMES, CameraModel, project_points
 from .errors import InputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
@@ -259,21 +259,29 @@ def rig_to_dict(rig: RigModel) -> dict:
         entry = {"image_size": list(cam.image_size)}
         entry.update({n: float(getattr(cam, n)) for n in INTRINSIC_NAMES})
         entry["sigma"] = {n: float(s) for n, s in rig.camera_sigma[name].items()}
+        if name in rig.camera_sigma_formal:
+            entry["sigma_formal"] = {n: float(s) for n, s in rig.camera_sigma_formal[name].items()}
         entry["rms_px"] = float(rig.camera_rms_px[name])
         cameras[name] = entry
     rig_doc = {}
     for name, rel in rig.rig.items():
         rig_doc[name] = {**rel.pose.to_dict(), "baseline_mm": rel.baseline_mm,
                          "opk_arcmin": rel.pose.opk_arcmin.tolist(),
-                         "sigma": {"baseline_mm": float(rel.sigma_baseline_mm),
-                                   "opk_arcmin": np.asarray(rel.sigma_opk_arcmin).tolist(),
-                                   "t_mm": np.asarray(rel.sigma_t_mm).tolist()}}
+                         "sigma": _rig_sigma_doc(rel.sigma_t_mm, rel.sigma_baseline_mm, rel.sigma_opk_arcmin)}
+        if rel.sigma_formal:
+            f = rel.sigma_formal
+            rig_doc[name]["sigma_formal"] = _rig_sigma_doc(f["t_mm"], f["baseline_mm"], f["opk_arcmin"])
     views = {}
     for view, pose in rig.reference_poses().items():
         views[view] = {**pose.to_dict(), "rms_px": rig.view_rms_px.get(view, {})}
-    return {
+    board = rig.board.to_dict()
+    if rig.board_shape_mm is not None:
+        board["sag_mm"] = sag_mm(rig.board.object_points_mm(), rig.board_shape_mm)
+        board["shape_mm"] = dict(zip(SHAPE_TERMS, map(float, rig.board_shape_mm)))
+        board["shape_sigma_mm"] = dict(zip(SHAPE_TERMS, map(float, rig.board_shape_sigma_mm)))
+    doc = {
         "dualcal_version": __version__,
-        "board": rig.board.to_dict(),
+        "board": board,
         "reference": rig.reference,
         "skew": bool(rig.skew),
         "rig_mode": rig.rig_mode,
@@ -286,7 +294,22 @@ def rig_to_dict(rig: RigModel) -> dict:
                          for cam, poses in rig.camera_poses.items()},
         "adjustment": rig.adjustment,
         "dropped_views": rig.dropped_views,
+        "dropped_corners": rig.dropped_corners,
+        "checks": rig.checks,
     }
+    if rig.covariance is not None:
+        doc["covariance"] = rig.covariance
+    return doc
+
+
+def _rig_sigma_doc(t_mm, baseline_mm, opk_arcmin) -> dict:
+    return {"baseline_mm": float(baseline_mm), "opk_arcmin": np.asarray(opk_arcmin, float).tolist(),
+            "t_mm": np.asarray(t_mm, float).tolist()}
+
+
+def _rig_sigma(d: dict) -> tuple[np.ndarray, float, np.ndarray]:
+    return (np.asarray(d.get("t_mm", [np.nan] * 3), float), float(d.get("baseline_mm", np.nan)),
+            np.asarray(d.get("opk_arcmin", [np.nan] * 3), float))
 
 
 def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
@@ -294,20 +317,21 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
     try:
         corners = corners_from_dict(doc["corners"], f"{source} corners")
         board = Board.from_dict(doc["board"])
-        cameras, sigma, rms = {}, {}, {}
+        cameras, sigma, sigma_formal, rms = {}, {}, {}, {}
         for name, e in doc["cameras"].items():
             size = _image_size(e["image_size"], f"{source}: camera {name!r}")
             vec = [float(e[n]) for n in INTRINSIC_NAMES]
             cameras[name] = CameraModel.from_vector(size, vec)
             sigma[name] = {k: float(v) for k, v in e.get("sigma", {}).items()}
+            if "sigma_formal" in e:
+                sigma_formal[name] = {k: float(v) for k, v in e["sigma_formal"].items()}
             rms[name] = float(e.get("rms_px", float("nan")))
         rig = {}
         for name, e in doc["rig"].items():
-            s = e.get("sigma", {})
-            rig[name] = RigRelation(_pose_from_dict(e, f"{source}: rig {name!r}"),
-                                    np.asarray(s.get("t_mm", [np.nan] * 3), float),
-                                    float(s.get("baseline_mm", np.nan)),
-                                    np.asarray(s.get("opk_arcmin", [np.nan] * 3), float))
+            formal = dict(zip(("t_mm", "baseline_mm", "opk_arcmin"), _rig_sigma(e["sigma_formal"]))) \
+                if "sigma_formal" in e else {}
+            rig[name] = RigRelation(_pose_from_dict(e, f"{source}: rig {name!r}"), *_rig_sigma(e.get("sigma", {})),
+                                    formal)
         reference = str(doc["reference"])
         if "camera_poses" in doc:
             poses = {cam: {v: _pose_from_dict(p, f"{source}: {cam} {v}") for v, p in d.items()}
@@ -319,9 +343,14 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
                 poses[name] = {v: rel.pose.compose(p) for v, p in ref.items()}
         view_rms = {v: {c: float(x) for c, x in (p.get("rms_px") or {}).items()}
                     for v, p in doc.get("views", {}).items()}
+        shape = doc["board"].get("shape_mm")
+        shape_sigma = doc["board"].get("shape_sigma_mm", {})
         model = RigModel(board, reference, bool(doc.get("skew", False)), str(doc.get("rig_mode", "rigid")),
                          cameras, sigma, rms, rig, poses, view_rms, float(doc.get("rms_px", np.nan)),
-                         corners, doc.get("adjustment", {}), doc.get("dropped_views", []))
+                         corners, doc.get("adjustment", {}), doc.get("dropped_views", []), sigma_formal,
+                         None if shape is None else np.array([float(shape[t]) for t in SHAPE_TERMS]),
+                         None if shape is None else np.array([float(shape_sigma.get(t, np.nan)) for t in SHAPE_TERMS]),
+                         list(doc.get("dropped_corners", [])), dict(doc.get("checks", {})), doc.get("covariance"))
     except (KeyError, TypeError, AttributeError, ValueError) as exc:
         raise InputError(f"{source}: malformed calib.json ({type(exc).__name__}: {exc})") from None
     _check_consistent(model, source)
@@ -417,10 +446,11 @@ def check_corners_fit(rig: RigModel, source: str, slack_px: float = 1.0) -> None
     parts of two calibrations (or whose corners were replaced) fails by many pixels. Cameras
     without a stated ``rms_px`` are not checked.
     """
-    X = rig.board.object_points_mm()
+    X = rig.board_points_mm()
+    used = rig.used_corners()
     for name, cam in rig.cameras.items():
         stated = rig.camera_rms_px.get(name, np.nan)
-        views = rig.corners.cameras[name].views
+        views = used.cameras[name].views
         poses = {v: p for v, p in rig.camera_poses.get(name, {}).items() if views.get(v) is not None}
         if not np.isfinite(stated) or not poses:
             continue

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .board import Board
+from .board import Board, shaped_points_mm
 from .camera import CameraModel
 from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
 
@@ -99,12 +99,18 @@ def choose_reference(names, override: str | None = None) -> str:
 
 @dataclass
 class RigRelation:
-    """Pose of a non-reference camera relative to the reference, with 1-sigma uncertainties."""
+    """Pose of a non-reference camera relative to the reference, with 1-sigma uncertainties.
+
+    ``sigma_*`` are the sigmas that hold on real photos (as ``RigModel.camera_sigma``); ``sigma_formal``
+    the textbook ones, ``{"t_mm": (3,), "baseline_mm": float, "opk_arcmin": (3,)}`` (empty when
+    unknown).
+    """
 
     pose: Pose
     sigma_t_mm: np.ndarray
     sigma_baseline_mm: float
     sigma_opk_arcmin: np.ndarray
+    sigma_formal: dict = field(default_factory=dict)
 
     @property
     def baseline_mm(self) -> float:
@@ -118,6 +124,16 @@ class RigModel:
 
     ``camera_poses[cam][view]`` is the board-to-camera pose of every camera in every view it
     saw; ``views[view]`` (the contract's ``views``) is the reference camera's.
+
+    ``camera_sigma`` holds the 1-sigmas that hold on real photos (the larger of the one from the
+    covariance clustered by instant, :mod:`dualcal.uncertainty`, and the textbook one),
+    ``camera_sigma_formal`` the textbook ones. Where the
+    board's shape was estimated, ``board_shape_mm`` (3,) holds its coefficients
+    (:data:`dualcal.board.SHAPE_TERMS`) and ``board_shape_sigma_mm`` their sigmas; None for a flat
+    board. ``dropped_corners`` lists the single corners the calibration left out
+    (``{"camera", "view", "corner", "residual_px"}``), ``checks`` the named checks of the result
+    (:mod:`dualcal.checks`), ``covariance`` the joint covariance of the calibrated parameters
+    (``{"parameters": [names], "clustered": (k, k), "formal": (k, k)}``) or None.
     """
 
     board: Board
@@ -134,11 +150,42 @@ class RigModel:
     corners: CornerSet
     adjustment: dict = field(default_factory=dict)
     dropped_views: list[dict] = field(default_factory=list)
+    camera_sigma_formal: dict[str, dict[str, float]] = field(default_factory=dict)
+    board_shape_mm: np.ndarray | None = None
+    board_shape_sigma_mm: np.ndarray | None = None
+    dropped_corners: list[dict] = field(default_factory=list)
+    checks: dict = field(default_factory=dict)
+    covariance: dict | None = None
 
     def calibration_options(self) -> dict:
-        """How the calibration treated outliers: ``{"drop_outliers": bool, "outlier_factor": float}``,
-        from ``adjustment["options"]``; files written before it was recorded get the defaults."""
-        return {"drop_outliers": True, "outlier_factor": 3.0, **self.adjustment.get("options", {})}
+        """The options the calibration ran with (``adjustment["options"]``: ``drop_outliers``,
+        ``outlier_factor``, ``board_shape``, ...); files written before one was recorded get its default."""
+        return {"drop_outliers": True, "outlier_factor": 4.0, "board_shape": "auto", **self.adjustment.get("options", {})}
+
+    def board_points_mm(self) -> np.ndarray:
+        """(N, 3) the board's corners as calibrated: flat, or shaped by ``board_shape_mm``."""
+        return shaped_points_mm(self.board.object_points_mm(), self.board_shape_mm)
+
+    def used_corners(self) -> CornerSet:
+        """The corners the calibration used: ``corners`` without the photos it dropped
+        (``dropped_views``; an entry without a camera drops the view in every camera) and with the
+        single corners it dropped (``dropped_corners``) set to NaN."""
+        views_out = {(d.get("camera"), d.get("view")) for d in self.dropped_views}
+        corners_out: dict[tuple[str, str], list[int]] = {}
+        for d in self.dropped_corners:
+            corners_out.setdefault((d["camera"], d["view"]), []).append(int(d["corner"]))
+        cams = {}
+        for name, cc in self.corners.cameras.items():
+            views = {}
+            for v, uv in cc.views.items():
+                if (name, v) in views_out or (None, v) in views_out:
+                    continue
+                if uv is not None and (name, v) in corners_out:
+                    uv = np.array(uv, float)
+                    uv[corners_out[(name, v)]] = np.nan
+                views[v] = uv
+            cams[name] = CameraCorners(cc.image_size, views, cc.meta)
+        return CornerSet(self.corners.board, cams, self.corners.reference)
 
     def camera_order(self) -> list[str]:
         """Camera names, the reference first, then the others in calib.json's order."""

@@ -25,7 +25,8 @@ MIN_RESECTION_CORNERS = 4      # IPPE's start needs four points of the plane
 
 def planar_pose(X_board: np.ndarray, cam: CameraModel, uv_px: np.ndarray) -> Pose:
     """Board -> camera pose from the measured corners of one photo of the planar board (IPPE on
-    undistorted normalised corners: exact for exact corners).
+    undistorted normalised corners: exact for exact corners). A board whose shape was estimated
+    (corners off the plane Z = 0) gets the pose of its flat approximation, a start for :func:`resect`.
 
     Raises
     ------
@@ -37,8 +38,8 @@ def planar_pose(X_board: np.ndarray, cam: CameraModel, uv_px: np.ndarray) -> Pos
         raise EstimationError(f"space resection needs at least {MIN_RESECTION_CORNERS} measured corners "
                               f"({int(seen.sum())} given)")
     xy = ideal_normalized_from_pixel(cam, uv_px[seen])
-    ok, rvec, tvec = cv2.solvePnP(X_board[seen].astype(np.float64), xy.astype(np.float64), np.eye(3), None,
-                                  flags=cv2.SOLVEPNP_IPPE)
+    flat = np.column_stack([X_board[seen, :2], np.zeros(int(seen.sum()))]).astype(np.float64)
+    ok, rvec, tvec = cv2.solvePnP(flat, xy.astype(np.float64), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
     if not ok:
         raise EstimationError("space resection: no initial pose (degenerate corners?)")
     return Pose(rotation_from_rotvec(rvec.ravel()), tvec.ravel())
@@ -56,7 +57,7 @@ def resect(X_board: np.ndarray, cameras: list[CameraModel], rig: list[Pose], uv_
 
     Parameters
     ----------
-    X_board : (N, 3) board corners, mm (planar, Z = 0).
+    X_board : (N, 3) board corners, mm (Z = 0 for a flat board).
     cameras, rig, uv_px : per camera its model, its pose relative to the reference camera
         (reference -> camera) and its (N, 2) observed corners (NaN rows: not measured).
 

@@ -1,7 +1,9 @@
 """The paper's result tables (Tables 2-4) and the per-photo table, as rich tables for the terminal.
 
 Table 2/3: intrinsics and radial distortion of each camera, value +- sigma, Model 1 (skew = 0)
-next to Model 2 (skew free). Table 4: the rig, distance D between perspective centres (mm) and
+next to Model 2 (skew free). ``sigma`` is the one that holds on real photos (from the scatter
+between the instants, never below the textbook one, which calib.json keeps as ``sigma_formal``):
+one standard deviation of the value, while RMS values are of the 2-D length of a corner's residual. Table 4: the rig, distance D between perspective centres (mm) and
 the relative angles (minutes of arc), for every non-reference camera. :func:`photo_table`: every
 photo of the calibration, its RMS per camera and whether it was kept, dropped or left out, and why.
 """
@@ -28,7 +30,8 @@ def _model_label(rig: RigModel) -> str:
 
 def camera_table(name: str, models: list[RigModel]) -> Table:
     """Intrinsics of camera ``name`` in each model (the paper's Tables 2 and 3)."""
-    t = Table(title=f"Camera {name!r}: intrinsics (px) and radial distortion, 1 sigma", box=box.SIMPLE_HEAD)
+    t = Table(title=f"Camera {name!r}: intrinsics (px) and radial distortion, 1 sigma", box=box.SIMPLE_HEAD,
+              caption=_SIGMA_CAPTION)
     t.add_column("parameter")
     for m in models:
         t.add_column(f"{_model_label(m)}", justify="right")
@@ -39,8 +42,12 @@ def camera_table(name: str, models: list[RigModel]) -> Table:
         for m in models:
             row += _pm(getattr(m.cameras[name], p), m.camera_sigma[name][p], digits)
         t.add_row(*row)
-    t.add_row("RMS (px)", *[x for m in models for x in (f"{m.camera_rms_px[name]:.3f}", "")])
+    t.add_row("RMS (px, 2-D)", *[x for m in models for x in (f"{m.camera_rms_px[name]:.3f}", "")])
     return t
+
+
+_SIGMA_CAPTION = ("sigma: from the scatter between the instants, never below the textbook value "
+                  "(calib.json: sigma_formal); RMS: of each corner's 2-D residual")
 
 
 def rig_table(models: list[RigModel]) -> Table | None:
@@ -49,7 +56,7 @@ def rig_table(models: list[RigModel]) -> Table | None:
     if not first.rig:
         return None
     t = Table(title=f"Rig relative to {first.reference!r}: D (mm) and angles (minutes of arc), 1 sigma",
-              box=box.SIMPLE_HEAD)
+              box=box.SIMPLE_HEAD, caption=_SIGMA_CAPTION)
     t.add_column("camera")
     t.add_column("value")
     for m in models:

@@ -46,14 +46,20 @@ def _load_input(path: str, board_spec, square_mm, dataset_opts):
               help="rigid: one relative pose per camera; paper: per-view poses with the paper's "
                    "constraints (equal baseline and angles); none: each camera alone.")
 @click.option("--drop-outliers/--keep-outliers", default=True, show_default=True,
-              help="Drop photos whose residuals are far out of line, one at a time, and re-adjust.")
-@click.option("--outlier-factor", type=float, default=3.0, show_default=True,
-              help="A photo is an outlier when its RMS exceeds this many times the median.")
+              help="Leave out corners whose residuals are far out of line (and photos where most corners are), "
+                   "and re-adjust.")
+@click.option("--outlier-factor", type=float, default=4.0, show_default=True,
+              help="A corner is an outlier when its residual exceeds this many times the median residual of "
+                   "its camera; a photo, when most of its corners are.")
+@click.option("--board-shape", "board_shape", type=click.Choice(["auto", "flat", "fit"]), default="auto",
+              show_default=True,
+              help="auto: estimate the board's sag, bend and twist and keep them where the photos show them "
+                   "beyond their noise; fit: always keep them; flat: take the board as flat.")
 @click.option("--compare-models/--no-compare-models", default=True, show_default=True,
               help="Also solve the other skew model and print both side by side, as the paper's tables do.")
 @dataset_options
 def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode, drop_outliers,
-                      outlier_factor, compare_models, **dataset_opts):
+                      outlier_factor, board_shape, compare_models, **dataset_opts):
     """Calibrate every camera and the rig from INPUT and write calib.json.
 
     INPUT is a corners.json (from 'dualcal detect', also one edited by hand: views removed,
@@ -61,7 +67,9 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
     options as 'dualcal detect'). Prints a table of every photo (RMS per camera, kept, dropped
     or left out and why), then the parameters with their 1-sigma (the paper's Tables 2-4).
     """
+    from ..board import SHAPE_TERMS, sag_mm
     from ..calibrate import calibrate_rig
+    from ..checks import failed_checks, verdict
     from ..errors import EstimationError
     from ..io import check_output_file, save_rig
     from ..progress import warn
@@ -74,7 +82,7 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
     check_output_file(output)
     corners = _load_input(input_path, board_spec, square_mm, dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
-                  outlier_factor=outlier_factor)
+                  outlier_factor=outlier_factor, board_shape=board_shape)
     rig = calibrate_rig(corners, skew=skew, **kwargs)
     save_rig(output, rig)
     models = [rig]
@@ -88,8 +96,14 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
     console.print(photo_table(rig))
     for table in result_tables(models):
         console.print(table)
-    console.print(f"RMS reprojection error {rig.rms_px:.3f} px, s0 {rig.adjustment['s0_px']:.3f} px, "
-                  f"rig mode {rig.rig_mode}; written {output}")
+    if rig.board_shape_mm is not None:
+        console.print(f"board shape estimated: sag {sag_mm(rig.board.object_points_mm(), rig.board_shape_mm):.2f} mm "
+                      f"({', '.join(f'{t} {w:+.2f} mm' for t, w in zip(SHAPE_TERMS, rig.board_shape_mm))})")
+    console.print(f"RMS reprojection error (2-D, per corner) {rig.rms_px:.3f} px, s0 (per coordinate) "
+                  f"{rig.adjustment['s0_px']:.3f} px, rig mode {rig.rig_mode}; written {output}")
+    console.print(verdict(rig.checks))
+    for name in failed_checks(rig.checks):
+        console.print(f"  {name}: {rig.checks[name]['message']}")
 
 
 @cli.command("synth")

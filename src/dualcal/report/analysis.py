@@ -4,8 +4,9 @@ Everything is recomputed from what calib.json carries (intrinsics, every camera'
 in every view, the detected corners), never stored twice:
 
 * :func:`rig_residuals`: observed minus projected corners, per camera and view (pixels);
-* :func:`rms_px`, :func:`outlier_views`: per-view RMS and the views out of line, by the rule
-  the calibration drops photos by (:func:`dualcal.calibrate.outlier_limit_px`);
+* :func:`rms_px`, :func:`outlier_views`: per-view RMS and the views out of line: those whose RMS
+  is above the limit at which the calibration takes a corner for an outlier
+  (:func:`dualcal.calibrate.outlier_limit_px`), so that most of their corners are;
 * :func:`coverage_counts`, :func:`coverage_hints`: where on each sensor the board was seen,
   and plain-words warnings where it was not;
 * :func:`distortion_curve`, :func:`displacement_map`: the size of the radial distortion of
@@ -76,12 +77,14 @@ def rig_residuals(rig: RigModel) -> dict[str, dict[str, ViewResiduals]]:
     """Residuals ``[camera][view]`` of every view that has both detected corners and a pose.
 
     Views without a pose (not found, or dropped by the calibration) are left out; views are
-    in sorted key order; corners not measured (NaN rows) are left out of each view.
+    in sorted key order; corners not measured (NaN rows) or dropped by the calibration are left
+    out of each view; the board is the one calibrated (:meth:`RigModel.board_points_mm`).
     """
-    X_board = rig.board.object_points_mm()
+    X_board = rig.board_points_mm()
+    used = rig.used_corners()
     out: dict[str, dict[str, ViewResiduals]] = {}
     for name, camera in rig.cameras.items():
-        found = rig.corners.cameras[name].found() if name in rig.corners.cameras else {}
+        found = used.cameras[name].found() if name in used.cameras else {}
         poses = rig.camera_poses.get(name, {})
         views = {}
         for view in sorted(set(found) & set(poses)):
@@ -115,21 +118,20 @@ def left_out_views(rig: RigModel) -> dict[str, dict[str, str]]:
     return out
 
 
-def view_outlier_limit_px(view_rms: dict[str, float], factor: float) -> float:
-    """RMS above which a view of one camera is out of line, from the views' RMS ``[view]`` (px).
-
-    The calibration's own rule, :func:`dualcal.calibrate.outlier_limit_px` of the median view
-    RMS and ``factor``; NaN without views.
-    """
-    if not view_rms:
+def view_outlier_limit_px(residuals: dict[str, ViewResiduals], factor: float) -> float:
+    """RMS above which a view of one camera is out of line (px): the calibration's limit for one
+    corner, :func:`dualcal.calibrate.outlier_limit_px` of the median length of the camera's corner
+    residuals and ``factor``; NaN without views."""
+    lengths = [np.linalg.norm(r.residual_px, axis=1) for r in residuals.values()]
+    if not lengths or not sum(len(x) for x in lengths):
         return math.nan
-    return outlier_limit_px(float(np.median(list(view_rms.values()))), factor)
+    return outlier_limit_px(float(np.median(np.concatenate(lengths))), factor)
 
 
-def outlier_views(view_rms: dict[str, float], factor: float) -> list[str]:
+def outlier_views(residuals: dict[str, ViewResiduals], factor: float) -> list[str]:
     """Views of one camera whose RMS exceeds :func:`view_outlier_limit_px` (sorted keys)."""
-    limit = view_outlier_limit_px(view_rms, factor)
-    return sorted(v for v, r in view_rms.items() if r > limit)
+    limit = view_outlier_limit_px(residuals, factor)
+    return sorted(v for v, r in residuals.items() if r.rms_px > limit)
 
 
 # ---------------------------------------------------------------------------- coverage
@@ -376,8 +378,8 @@ def camera_findings(rig: RigModel) -> dict[str, CameraFindings]:
         res = residuals[name]
         boards = [r.uv_px for r in res.values()]
         view_rms = {v: r.rms_px for v, r in res.items()}
-        limit = view_outlier_limit_px(view_rms, factor)
-        outliers = outlier_views(view_rms, factor)
+        limit = view_outlier_limit_px(res, factor)
+        outliers = outlier_views(res, factor)
         cell = max(camera.image_size) * COVERAGE_CELL_SHARE
         counts = coverage_counts(camera.image_size, boards, cell)
         curve = distortion_curve(camera)

@@ -155,7 +155,8 @@ def adjustment_rows(rig: RigModel) -> list[tuple[str, str]]:
         elif isinstance(value, float):
             value = f"{value:.4g}"
         rows.append((label, str(value)))
-    rows.append(("outlier photos", f"dropped above {options['outlier_factor']:g}× the camera's median RMS"
+    rows.append(("outliers", f"corners above {options['outlier_factor']:g}× the camera's median residual left out, "
+                             "photos where most corners are dropped"
                  if options["drop_outliers"] else "all kept (--keep-outliers)"))
     return rows
 
@@ -205,8 +206,9 @@ def _figure_jobs(rig: RigModel, names: list[str], found: dict[str, analysis.Came
     jobs += [
         (None, "fig-view-rms",
          f"RMS residual of every view, per camera; hatched bars are outliers, views above their camera's "
-         f"outlier limit (dotted): {options['outlier_factor']:g}× the camera's median view RMS, but at least "
-         f"{OUTLIER_FLOOR_PX:g} px, the rule by which the calibration drops photos"
+         f"outlier limit for one corner (dotted): {options['outlier_factor']:g}× the median residual of the "
+         f"camera's corners, but at least {OUTLIER_FLOOR_PX:g} px (the calibration leaves out corners above it, "
+         "and drops a photo where most of its corners are)"
          f"{'' if options['drop_outliers'] else ' (this one kept them all: --keep-outliers)'}. "
          "Dashed outlines are photos the calibration dropped, at the RMS they had; × marks a photo with no "
          "RMS (board not found, or left out); the table of photos says why.",
