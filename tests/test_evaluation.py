@@ -199,7 +199,7 @@ def test_a_camera_named_like_a_case_is_refused():
 
 
 @pytest.mark.parametrize("options, expected", [
-    (None, {"drop_outliers": True, "outlier_factor": 4.0, "board_shape": "auto"}),   # written before options were recorded
+    (None, {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto"}),   # written before options were recorded
     ({"drop_outliers": False, "outlier_factor": 4.5, "board_shape": "flat"},
      {"drop_outliers": False, "outlier_factor": 4.5, "board_shape": "flat"}),
 ])

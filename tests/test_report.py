@@ -332,9 +332,9 @@ def test_outlier_view_is_found_and_hinted(rig):
 
 def test_outliers_use_the_factor_the_calibration_was_run_with(rig):
     """The recorded ``outlier_factor`` sets the limit (that of one corner: ``factor`` x the median
-    length of the camera's corner residuals); files without it get calibrate's 4."""
+    length of the camera's corner residuals); files without it get calibrate's 6."""
     noisy = _with_noisy_tele_view(rig, 5.0)
-    for options, factor in [(None, 4.0), ({"drop_outliers": True, "outlier_factor": 12.0}, 12.0)]:
+    for options, factor in [(None, 6.0), ({"drop_outliers": True, "outlier_factor": 12.0}, 12.0)]:
         adjustment = {} if options is None else {"options": options}
         found = analysis.camera_findings(replace(noisy, adjustment=adjustment))["tele"]
         median = float(np.median(np.concatenate([np.linalg.norm(r.residual_px, axis=1)

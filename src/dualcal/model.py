@@ -160,7 +160,7 @@ class RigModel:
     def calibration_options(self) -> dict:
         """The options the calibration ran with (``adjustment["options"]``: ``drop_outliers``,
         ``outlier_factor``, ``board_shape``, ...); files written before one was recorded get its default."""
-        return {"drop_outliers": True, "outlier_factor": 4.0, "board_shape": "auto", **self.adjustment.get("options", {})}
+        return {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto", **self.adjustment.get("options", {})}
 
     def board_points_mm(self) -> np.ndarray:
         """(N, 3) the board's corners as calibrated: flat, or shaped by ``board_shape_mm``."""

@@ -48,7 +48,7 @@ def _load_input(path: str, board_spec, square_mm, dataset_opts):
 @click.option("--drop-outliers/--keep-outliers", default=True, show_default=True,
               help="Leave out corners whose residuals are far out of line (and photos where most corners are), "
                    "and re-adjust.")
-@click.option("--outlier-factor", type=float, default=4.0, show_default=True,
+@click.option("--outlier-factor", type=float, default=6.0, show_default=True,
               help="A corner is an outlier when its residual exceeds this many times the median residual of "
                    "its camera; a photo, when most of its corners are.")
 @click.option("--board-shape", "board_shape", type=click.Choice(["auto", "flat", "fit"]), default="auto",
