@@ -36,15 +36,22 @@ MIN_INSTANTS = 8
 FIT_RMS_LIMIT_PX = 1.0
 #: False-alarm rate of the rigidity test, for all instants together and (Bonferroni) per instant.
 RIGID_FALSE_ALARM = 1e-3
+#: An instant is named only where it also fits this many times worse than the photo-level noise
+#: allows per degree of freedom: that noise is estimated (from the intrinsics' scatter) and real
+#: errors have long tails, while a shot out of sync or a lens that moved fits hundreds of times worse.
+RIGID_INSTANT_RATIO = 10.0
 #: A photo's own focal length this many sigma from the others' is a refocus.
 FOCUS_SIGMAS = 5.0
+#: Noise below this (px) is numerical: exact synthetic corners are judged against it instead.
+NOISE_FLOOR_PX = 1e-6
 #: Thresholds of ``determination``.
 MAX_FOCAL_REL = 0.01               # sigma of fx, fy relative to the value
 MAX_CENTRE_REL = 0.01              # sigma of cx, cy relative to the image width, height
 MAX_DISTORTION_PX = 0.5            # sigma of the radial distortion at the outermost corner measured
 MAX_BASELINE_REL = 0.02            # sigma of the baseline relative to it
 MAX_ANGLE_ARCMIN = 30.0            # sigma of omega, phi, kappa
-#: ``lens_model``: outer (> 0.7 of the half-diagonal) to inner (< 0.4) RMS ratio that says the model misses terms.
+#: ``lens_model``: RMS of the outermost third of a camera's corners (by their distance from the
+#: principal point) over that of the innermost third, beyond which the model misses terms.
 EDGE_RATIO = 2.0
 
 
@@ -63,7 +70,7 @@ def _block_costs(sol: Solution) -> np.ndarray:
     return np.nansum(sol.residuals ** 2, axis=(1, 2))
 
 
-def rig_rigid(tied: Solution, alone: Solution) -> dict | None:
+def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None = None) -> dict | None:
     """Whether every instant's photos fit one rigid relative pose (None for a rig of one camera or
     mode ``none``).
 
@@ -73,15 +80,16 @@ def rig_rigid(tied: Solution, alone: Solution) -> dict | None:
     chi-square with ``6`` (rigid; ``4`` for the paper's model, whose baseline direction is free) degrees
     of freedom per tied camera of the instant, ``T = sum T_v`` with as many less one instant's worth
     per tied camera. The check fails where ``T`` or any ``T_v`` is beyond its chi-square quantile at
-    :data:`RIGID_FALSE_ALARM` (per instant, divided by the number of instants).
+    :data:`RIGID_FALSE_ALARM` (per instant, divided by the number of instants, and where the instant
+    also fits :data:`RIGID_INSTANT_RATIO` times worse than the noise per degree of freedom).
     """
     from scipy.stats import chi2
 
     p = tied.problem
     if p.mode == "none" or len(p.cameras) < 2:
         return None
-    kappa2 = max(design_effect(alone).values())
-    noise = kappa2 * alone.s0_px ** 2
+    kappa2 = max((design_effect(alone) if kappa2 is None else kappa2).values())
+    noise = max(kappa2 * alone.s0_px ** 2, NOISE_FLOOR_PX ** 2)
     extra = _block_costs(tied) - _block_costs(alone)
     per = 6 if p.mode == "rigid" else 4
     stats, dofs = {}, {}
@@ -100,7 +108,8 @@ def rig_rigid(tied: Solution, alone: Solution) -> dict | None:
     total = float(sum(stats.values()))
     limit_total = float(chi2.ppf(1.0 - RIGID_FALSE_ALARM, dof))
     limits = {v: float(chi2.ppf(1.0 - RIGID_FALSE_ALARM / len(stats), k)) for v, k in dofs.items()}
-    flagged = sorted((v for v in stats if stats[v] > limits[v]), key=lambda v: -stats[v])
+    flagged = sorted((v for v in stats if stats[v] > max(limits[v], RIGID_INSTANT_RATIO * dofs[v])),
+                     key=lambda v: -stats[v])
     ok = total <= limit_total and not flagged
     ratio = total / dof
     doc = {"ok": ok, "ratio": ratio, "limit_ratio": limit_total / dof, "design_effect": kappa2,
@@ -121,30 +130,47 @@ def rig_rigid(tied: Solution, alone: Solution) -> dict | None:
     return doc
 
 
-def focus_drift(alone: Solution) -> dict:
-    """Photos whose own focal length is off: each photo's focal scale fitted with its own pose and
-    every other parameter held (linearised at the solution), against its sigma in photo-level
-    noise; flagged beyond :data:`FOCUS_SIGMAS`."""
-    p, lay = alone.problem, alone.problem.layout
-    kappa2 = design_effect(alone)
+def focus_drift(sol: Solution, kappa2: dict[int, float]) -> dict:
+    """Photos whose own focal length is off.
+
+    Each photo's focal scale (``fx``, ``fy`` times ``1 + s``) is fitted with its instant's own
+    unknowns (the board pose; in a rig it is held by the instant's other photos too, so a tele that
+    refocused shows against the wide) and every other parameter held, linearised at the solution
+    ``sol``; ``s`` against its sigma in photo-level noise (``kappa2[c]`` for camera ``c``) is flagged
+    beyond :data:`FOCUS_SIGMAS`.
+    """
+    p, lay = sol.problem, sol.problem.layout
+    by_instant: dict[str, list] = {}
+    for pr in photo_rows(p, sol.state):
+        by_instant.setdefault(p.blocks[pr.block][1], []).append(pr)
     flagged = []
-    for pr in photo_rows(p, alone.state):
-        c, view, _ = p.blocks[pr.block]
-        fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are always free
-        col = {int(k): i for i, k in enumerate(pr.columns)}
-        cam = alone.state.intrinsics[c]
-        J_scale = cam[0] * pr.J[:, col[fx_col]] + cam[1] * pr.J[:, col[fy_col]]
-        local = [i for i, k in enumerate(pr.columns) if k >= lay.n_global]
-        A = np.column_stack([pr.J[:, local], J_scale])
-        N = A.T @ A
-        try:
-            x = np.linalg.solve(N, -A.T @ pr.r)
-            var = kappa2[c] * alone.s0_px ** 2 * np.linalg.inv(N)[-1, -1]
-        except np.linalg.LinAlgError:
-            continue
-        z = x[-1] / np.sqrt(var)
-        if abs(z) > FOCUS_SIGMAS:
-            flagged.append({"camera": p.cameras[c], "view": view, "focal_change": float(x[-1]), "sigmas": float(z)})
+    for view, rows in by_instant.items():
+        local = np.unique(np.concatenate([pr.columns[pr.columns >= lay.n_global] for pr in rows]))
+        m = sum(len(pr.r) for pr in rows)
+        J_local, r = np.zeros((m, len(local))), np.concatenate([pr.r for pr in rows])
+        row = 0
+        for pr in rows:
+            own = pr.columns >= lay.n_global
+            J_local[row:row + len(pr.r), np.searchsorted(local, pr.columns[own])] = pr.J[:, own]
+            row += len(pr.r)
+        row = 0
+        for pr in rows:
+            c = p.blocks[pr.block][0]
+            col = {int(k): i for i, k in enumerate(pr.columns)}
+            fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are always free
+            cam = sol.state.intrinsics[c]
+            J_scale = np.zeros(m)
+            J_scale[row:row + len(pr.r)] = cam[0] * pr.J[:, col[fx_col]] + cam[1] * pr.J[:, col[fy_col]]
+            row += len(pr.r)
+            A = np.column_stack([J_local, J_scale])
+            try:
+                inv = np.linalg.inv(A.T @ A)
+            except np.linalg.LinAlgError:
+                continue
+            s = -(inv @ (A.T @ r))[-1]
+            z = s / np.sqrt(max(kappa2[c] * sol.s0_px ** 2, NOISE_FLOOR_PX ** 2) * inv[-1, -1])
+            if abs(z) > FOCUS_SIGMAS:
+                flagged.append({"camera": p.cameras[c], "view": view, "focal_change": float(s), "sigmas": float(z)})
     flagged.sort(key=lambda f: -abs(f["sigmas"]))
     if not flagged:
         return {"ok": True, "flagged": [], "message": f"no photo's own focal length is off by more than "
@@ -238,14 +264,13 @@ def lens_model_fit(sol: Solution) -> dict:
     for c, name in enumerate(p.cameras):
         cam = sol.state.camera(p, c)
         w, h = cam.image_size
-        half_diag = 0.5 * np.hypot(w, h)
         rho_all, len_all = [], []
         for b, (cc, view, uv) in enumerate(p.blocks):
             if cc != c:
                 continue
             length = np.linalg.norm(sol.residuals[b], axis=1)
             seen = np.isfinite(length)
-            rho = np.hypot(uv[seen, 0] - cam.cx, uv[seen, 1] - cam.cy) / half_diag
+            rho = np.hypot(uv[seen, 0] - cam.cx, uv[seen, 1] - cam.cy)
             rho_all.append(rho)
             len_all.append(length[seen])
             if _edge_ratio(rho, length[seen]) > EDGE_RATIO:
@@ -261,12 +286,13 @@ def lens_model_fit(sol: Solution) -> dict:
                        "residual plots"}
 
 
-def _edge_ratio(rho: np.ndarray, length: np.ndarray, min_points: int = 20) -> float:
-    """RMS of the residual lengths beyond 0.7 of the half-diagonal over that within 0.4 (NaN if either
-    has fewer than ``min_points``)."""
-    inner, outer = length[rho < 0.4], length[rho > 0.7]
-    if len(inner) < min_points or len(outer) < min_points:
+def _edge_ratio(rho: np.ndarray, length: np.ndarray, min_points: int = 10) -> float:
+    """RMS of the residual lengths of the outermost third of the corners (by ``rho``) over that of the
+    innermost third (NaN with fewer than ``min_points`` in a third)."""
+    if len(rho) < 3 * min_points:
         return float("nan")
+    lo, hi = np.quantile(rho, [1 / 3, 2 / 3])
+    inner, outer = length[rho <= lo], length[rho >= hi]
     return float(np.sqrt(np.mean(outer ** 2)) / max(np.sqrt(np.mean(inner ** 2)), 1e-12))
 
 
@@ -282,10 +308,11 @@ def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solutio
     rig mode with a flat board and ``alone`` every camera alone, over the same photos (for
     ``rig_rigid`` and ``focus``)."""
     checks = {"converged": convergence(sol), "photos": photo_count(rig), "fit": fit_quality(rig)}
-    rigid = rig_rigid(tied_flat, alone)
+    kappa2 = design_effect(alone)
+    rigid = rig_rigid(tied_flat, alone, kappa2)
     if rigid is not None:
         checks["rig_rigid"] = rigid
-    checks["focus"] = focus_drift(alone)
+    checks["focus"] = focus_drift(tied_flat, kappa2)
     checks["determination"] = determination(rig)
     checks["lens_model"] = lens_model_fit(sol)
     return checks

@@ -110,6 +110,7 @@ class Factorization:
         A_gg = A_gg + mu * np.diag(np.diag(A_gg))
         self.S = A_gg - np.einsum("vgl,vlh->gh", gl, self.W)
         self.cho = scipy.linalg.cho_factor(self.S)                   # raises LinAlgError too
+        self._S_inv = None
 
     def step(self) -> np.ndarray:
         """The flat step ``h`` solving ``A h = -g``."""
@@ -120,8 +121,10 @@ class Factorization:
         return np.concatenate([h_g, np.where(ne.local_used, h_l, 0.0).ravel()])
 
     def global_inverse(self) -> np.ndarray:
-        """(G, G) ``S^-1``: at ``mu = 0`` the global block of ``N^-1``."""
-        return scipy.linalg.cho_solve(self.cho, np.eye(len(self.S)))
+        """(G, G) ``S^-1``: at ``mu = 0`` the global block of ``N^-1`` (computed once)."""
+        if self._S_inv is None:
+            self._S_inv = scipy.linalg.cho_solve(self.cho, np.eye(len(self.S)))
+        return self._S_inv
 
     def inverse_block(self, columns: np.ndarray) -> np.ndarray:
         """``A^-1`` restricted to the flat parameter indices ``columns`` (k,), as a (k, k) matrix.

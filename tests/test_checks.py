@@ -1,0 +1,127 @@
+"""The checks of a calibration (dualcal.checks): each one passes on a clean synthetic rig and
+fails, with a message that names the cause, on a rig built to break it."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from dualcal.calibrate import calibrate_rig, solve, usable_photos
+from dualcal.camera import project_points
+from dualcal.checks import failed_checks, lens_model_fit, verdict
+from dualcal.model import CameraCorners, CornerSet, Pose
+from dualcal.rotation import rotation_from_rotvec
+from dualcal.synth import make_truth, noisy_corner_set, true_corners
+
+
+@pytest.fixture(scope="module")
+def clean():
+    truth = make_truth("stereo", 13, seed=21)
+    return truth, calibrate_rig(noisy_corner_set(truth, 0.1, seed=22))
+
+
+def _jittered(truth, jitter_mm, jitter_deg, seed, instants=None):
+    """Corners of a rig whose second camera's relative pose moves between instants (all, or the
+    ``instants`` named): unsynchronised shots, or a lens that moved."""
+    rng = np.random.default_rng(seed)
+    X = truth.board.object_points_mm()
+    cams = {}
+    for name, cam in truth.cameras.items():
+        views = {}
+        for v, pose in truth.view_poses.items():
+            P = pose if name == truth.reference else truth.rig[name].compose(pose)
+            if name != truth.reference and (instants is None or v in instants):
+                jitter = Pose(rotation_from_rotvec(rng.normal(0, np.radians(jitter_deg), 3)), rng.normal(0, jitter_mm, 3))
+                P = jitter.compose(P)
+            views[v] = project_points(cam, P.apply(X)) + rng.normal(0, 0.1, (len(X), 2))
+        cams[name] = CameraCorners(cam.image_size, views)
+    return CornerSet(truth.board, cams)
+
+
+def test_a_clean_rig_passes_every_check(clean):
+    _, rig = clean
+    assert set(rig.checks) == {"converged", "photos", "fit", "rig_rigid", "focus", "determination", "lens_model"}
+    assert failed_checks(rig.checks) == [], {k: v["message"] for k, v in rig.checks.items() if not v["ok"]}
+    assert verdict(rig.checks).startswith("verdict: all 7 checks pass")
+
+
+def test_unsynchronised_shots_fail_rig_rigid():
+    """Every instant's relative pose jittered by 0.5 mm and 0.02 degrees (a phone moving 30 ms
+    between the two shots): the instants do not fit one rigid rig."""
+    truth = make_truth("stereo", 13, seed=21)
+    rig = calibrate_rig(_jittered(truth, 0.5, 0.02, seed=3))
+    check = rig.checks["rig_rigid"]
+    assert not check["ok"] and check["ratio"] > 10 * check["limit_ratio"]
+    assert "not fit" in check["message"]
+    assert "rig_rigid" in verdict(rig.checks)
+
+
+def test_a_lens_that_moved_in_one_instant_is_named():
+    truth = make_truth("stereo", 13, seed=21)
+    rig = calibrate_rig(_jittered(truth, 1.0, 0.05, seed=4, instants={"IMG_05"}))
+    check = rig.checks["rig_rigid"]
+    assert not check["ok"] and check["flagged"] == ["IMG_05"]
+    assert "IMG_05" in check["message"]
+
+
+def test_a_refocused_photo_is_named():
+    """The tele's photo of one instant taken with a focal length 1 % longer (the phone refocused):
+    the wide's photo of that instant holds the board's pose, so the tele's own focal length shows."""
+    truth = make_truth("note8", 13, seed=21)
+    corners = noisy_corner_set(truth, 0.1, seed=22)
+    cam = truth.cameras["tele"]
+    zoomed = dataclasses.replace(cam, fx=cam.fx * 1.01, fy=cam.fy * 1.01)
+    X = truth.board.object_points_mm()
+    corners.cameras["tele"].views["IMG_07"] = project_points(zoomed, truth.camera_pose("tele", "IMG_07").apply(X)) \
+        + np.random.default_rng(1).normal(0, 0.1, (len(X), 2))
+    rig = calibrate_rig(corners, drop_outliers=False)
+    check = rig.checks["focus"]
+    assert not check["ok"] and "refocused" in check["message"]
+    # the worst is that photo; the wide's of the same instant comes next (one of the two changed)
+    assert [(f["camera"], f["view"]) for f in check["flagged"][:2]] == [("tele", "IMG_07"), ("wide", "IMG_07")]
+    assert check["flagged"][0]["focal_change"] == pytest.approx(0.01, abs=0.003)
+    assert check["flagged"][0]["sigmas"] > 20
+
+
+def test_few_frontal_photos_say_what_is_poorly_determined():
+    """Six boards tilted at most 8 degrees: too few instants, and the focal length poorly
+    determined, each said in plain words with what would help."""
+    truth = make_truth("stereo", 6, seed=2, max_tilt_deg=8.0)
+    rig = calibrate_rig(noisy_corner_set(truth, 0.2, seed=3), rig_mode="none")
+    assert not rig.checks["photos"]["ok"] and "only 6 instants" in rig.checks["photos"]["message"]
+    det = rig.checks["determination"]
+    assert not det["ok"] and "fx known only to" in det["message"] and "tilted" in det["message"]
+
+
+def test_corners_far_off_fail_the_fit_check():
+    truth = make_truth("stereo", 13, seed=21)
+    rig = calibrate_rig(noisy_corner_set(truth, 1.5, seed=5))
+    assert not rig.checks["fit"]["ok"] and "far above what corner detection achieves" in rig.checks["fit"]["message"]
+
+
+def test_residuals_growing_towards_the_edge_fail_the_lens_model_check():
+    """The rule itself, on a clean solution whose residuals are then made to grow with the distance
+    from the principal point (9 x at the outermost corner): the check fails, naming the camera; the
+    clean residuals pass."""
+    truth = make_truth("stereo", 13, seed=21)
+    corners = noisy_corner_set(truth, 0.1, seed=6)
+    names = sorted(corners.cameras)
+    X = corners.board.object_points_mm()
+    sol = solve(X, names, [corners.cameras[n].image_size for n in names], usable_photos(corners, names, X[:, :2]),
+                0, False, "rigid")
+    assert lens_model_fit(sol)["ok"]
+    cams = [sol.state.camera(sol.problem, c) for c in range(2)]
+    rho = [np.hypot(uv[:, 0] - cams[c].cx, uv[:, 1] - cams[c].cy) for c, _, uv in sol.problem.blocks]
+    outermost = max(np.max(r) for r in rho)
+    grown = sol.residuals * np.array([1 + 8 * (r / outermost) ** 2 for r in rho])[..., None]
+    check = lens_model_fit(dataclasses.replace(sol, residuals=grown))
+    assert not check["ok"] and "misses terms" in check["message"] and "right (" in check["message"]
+
+
+def test_true_corners_of_every_instant_make_the_check_quiet():
+    """Exact corners: the design effect stays 1 and nothing is flagged (no division by zero)."""
+    truth = make_truth("stereo", 10, seed=8)
+    exact = CornerSet(truth.board, {n: CameraCorners(truth.cameras[n].image_size, v)
+                                    for n, v in true_corners(truth).items()})
+    rig = calibrate_rig(exact)
+    assert rig.checks["rig_rigid"]["ok"] and rig.checks["focus"]["ok"]
