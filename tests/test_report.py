@@ -45,6 +45,14 @@ def rig():
                       "options": {"drop_outliers": True, "outlier_factor": 3.0}}
     del rig.camera_poses["tele"]["IMG_08"]
     rig.corners.cameras["wide"].views["IMG_07"] = None     # board not found in that photo
+    rig.camera_sigma_formal = {name: {k: v / 3 for k, v in SIGMA.items()} for name in rig.cameras}
+    for rel in rig.rig.values():
+        rel.sigma_formal = {"t_mm": rel.sigma_t_mm / 3, "baseline_mm": rel.sigma_baseline_mm / 3,
+                            "opk_arcmin": rel.sigma_opk_arcmin / 3}
+    rig.checks = {"converged": {"ok": True, "message": "the adjustment converged in 6 iterations"},
+                  "determination": {"ok": False, "message": "tele distortion known only to +-1.6 px at the outermost "
+                                    "corner measured: add photos with the board near the corners and edges of the "
+                                    "frame; wide fx known only to +-1.2 %: add photos with the board tilted"}}
     return rig
 
 
@@ -273,14 +281,15 @@ def test_tables_hold_the_calibration(page, rig):
     cells = page.cells["table-intrinsics"]
     wide, tele = rig.cameras["wide"], rig.cameras["tele"]
     fx = [analysis.format_value_sigma(c.fx, 3.1) for c in (wide, tele)]
-    assert _row(cells, "fx = α (px)", 3)[1:] == [f"{v} ± {s}" for v, s in fx]
+    # with the textbook sigma (here a third) beside it, to the sigma's digits
+    assert _row(cells, "fx = α (px)", 3)[1:] == [f"{v} ± {s} (formal {3.1 / 3:.1f})" for v, s in fx]
     assert _row(cells, "k2", 2)[1].startswith(analysis.format_value_sigma(wide.k2, 0.2)[0] + " ")
     assert _row(cells, "skew = γ (px)", 2)[1].endswith("± fixed")
     rig_cells = page.cells["table-rig"]
     tele_rel = rig.rig["tele"]
-    assert _row(rig_cells, "baseline D (mm)", 2)[1] == "{} ± {}".format(*analysis.format_value_sigma(
+    assert _row(rig_cells, "baseline D (mm)", 2)[1] == "{} ± {} (formal 0.07)".format(*analysis.format_value_sigma(
         tele_rel.baseline_mm, 0.21))
-    assert _row(rig_cells, "κ (′)", 2)[1] == "{} ± {}".format(*analysis.format_value_sigma(
+    assert _row(rig_cells, "κ (′)", 2)[1] == "{} ± {} (formal 0.30)".format(*analysis.format_value_sigma(
         tele_rel.pose.opk_arcmin[2], 0.9))
     # the perspective centre, as the rig figure labels it: C = -R^T t, the opposite sign of t
     centre = tele_rel.pose.center_mm
@@ -519,7 +528,9 @@ def long_names_page(rig, tmp_path_factory):
     evaluation = {"cases": {"dual": EVALUATION["cases"]["dual"],
                             **{LONG_NAMES[k]: v for k, v in EVALUATION["cases"].items() if k != "dual"}}}
     path = tmp_path_factory.mktemp("page") / "report.html"
-    path.write_text(render_report(_renamed(rig, LONG_NAMES), evaluation), encoding="utf-8")
+    bent = replace(_renamed(rig, LONG_NAMES), board_shape_mm=np.array([0.12, -0.25, 0.68]),
+                   board_shape_sigma_mm=np.array([0.04, 0.07, 0.04]))
+    path.write_text(render_report(bent, evaluation), encoding="utf-8")
     return path
 
 
@@ -625,3 +636,29 @@ def test_end_to_end_real_stereo_photos(tmp_path, run_cli):
     fs = cv2.FileStorage(str(tmp_path / "stereo.yml"), cv2.FILE_STORAGE_READ)
     T = fs.getNode("right").getNode("T").mat()
     assert np.all(np.abs(T.ravel() - [-99.80198, 1.12443, 0.05041]) < [0.3, 0.3, 0.8]), T.ravel()
+
+
+def test_the_verdict_the_checks_the_board_shape_and_both_sigmas_are_on_the_page():
+    """A calibration of a bent board whose corners are far off (1.5 px): the verdict and the
+    failing fit check at the top, the board's shape in the summary, the textbook sigma beside
+    every sigma."""
+    from dualcal.board import shaped_points_mm
+    from dualcal.calibrate import calibrate_rig
+
+    truth = synth.make_truth("stereo", 10, seed=3)
+    X = shaped_points_mm(truth.board.object_points_mm(), np.array([0.8, 0.0, 0.6]))
+    rng = np.random.default_rng(4)
+    cams = {n: CameraCorners(c.image_size, {v: project_points(c, truth.camera_pose(n, v).apply(X))
+                                            + rng.normal(0, 1.5, (len(X), 2)) for v in truth.view_poses})
+            for n, c in truth.cameras.items()}
+    rig = calibrate_rig(CornerSet(truth.board, cams), board_shape="fit")
+    assert not rig.checks["fit"]["ok"]
+    out = render_report(rig)
+    page = _Page()
+    page.feed(out)
+    assert 'id="verdict"' in out and "verdict: use with care" in out
+    checks = page.cells["table-checks"]
+    assert _row(checks, "fit", 3)[1] == "FAIL" and _row(checks, "converged", 3)[1] == "pass"
+    assert "bent by" in out and "sag, bend and twist" in out
+    intrinsics = " ".join(page.cells["table-intrinsics"])
+    assert intrinsics.count("(formal ") == 2 * 6 and "(formal " in " ".join(page.cells["table-rig"])

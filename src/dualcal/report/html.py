@@ -17,7 +17,9 @@ import numpy as np
 from markupsafe import Markup
 
 from .. import __version__
+from ..board import SHAPE_TERMS, sag_mm
 from ..calibrate import OUTLIER_FLOOR_PX
+from ..checks import verdict
 from ..camera import INTRINSIC_NAMES
 from ..model import RigModel
 from ..progress import track
@@ -86,16 +88,21 @@ def _unique_slugs(names) -> dict[str, str]:
 # ---------------------------------------------------------------------------- tables
 
 
-def _cell(value: float, sigma: float) -> dict:
+def _cell(value: float, sigma: float, formal: float | None = None) -> dict:
+    """A value ± its sigma, and the textbook sigma (``formal``, None where unknown) to the sigma's digits."""
     v, sig = analysis.format_value_sigma(value, sigma)
-    return {"value": v, "sigma": sig}
+    cell = {"value": v, "sigma": sig, "formal": None}
+    if formal is not None and math.isfinite(formal) and math.isfinite(sigma) and sigma > 0:
+        digits = len(sig.split(".")[1]) if "." in sig else 0
+        cell["formal"] = f"{formal:.{digits}f}"
+    return cell
 
 
 def intrinsics_table(rig: RigModel, names: list[str]) -> list[dict]:
     """Rows of the intrinsics table (paper Tables 2-3): one row per parameter, a cell per camera."""
     return [{"label": Markup(PARAMETER_LABELS[p]),
-             "cells": [_cell(getattr(rig.cameras[name], p), rig.camera_sigma.get(name, {}).get(p, math.nan))
-                       for name in names]}
+             "cells": [_cell(getattr(rig.cameras[name], p), rig.camera_sigma.get(name, {}).get(p, math.nan),
+                             rig.camera_sigma_formal.get(name, {}).get(p)) for name in names]}
             for p in INTRINSIC_NAMES]
 
 
@@ -106,11 +113,17 @@ def rig_table(rig: RigModel) -> tuple[list[str], list[dict]]:
     camera's perspective centre in the reference frame (what the rig figure draws; no sigma).
     """
     names = list(rig.rig)
-    quantities = [("baseline D (mm)", lambda r: (r.baseline_mm, r.sigma_baseline_mm))]
+
+    def formal(r, key, i=None):
+        value = r.sigma_formal.get(key)
+        return None if value is None else float(value if i is None else value[i])
+    quantities = [("baseline D (mm)", lambda r: (r.baseline_mm, r.sigma_baseline_mm, formal(r, "baseline_mm")))]
     for i, a in enumerate(("ω", "φ", "κ")):
-        quantities.append((f"{a} (′)", lambda r, i=i: (r.pose.opk_arcmin[i], r.sigma_opk_arcmin[i])))
+        quantities.append((f"{a} (′)", lambda r, i=i: (r.pose.opk_arcmin[i], r.sigma_opk_arcmin[i],
+                                                       formal(r, "opk_arcmin", i))))
     for i, a in enumerate("xyz"):
-        quantities.append((f"t<sub>{a}</sub> (mm)", lambda r, i=i: (r.pose.t_mm[i], r.sigma_t_mm[i])))
+        quantities.append((f"t<sub>{a}</sub> (mm)", lambda r, i=i: (r.pose.t_mm[i], r.sigma_t_mm[i],
+                                                                   formal(r, "t_mm", i))))
     for i, a in enumerate("XYZ"):
         quantities.append((f"centre C<sub>{a}</sub> (mm)", lambda r, i=i: (r.pose.center_mm[i], math.nan)))
     rows = [{"label": Markup(label), "cells": [_cell(*get(rig.rig[n])) for n in names]} for label, get in quantities]
@@ -140,6 +153,23 @@ def photos_table(rig: RigModel, names: list[str]) -> list[dict]:
         notes = [f"{n}: {per[n][1]}" for n in names if n in per and per[n][1] != "kept"]
         rows.append({"view": view, "cells": cells, "status": "; ".join(notes) or "kept"})
     return rows
+
+
+def checks_table(rig: RigModel) -> list[dict]:
+    """The calibration's checks (calib.json ``checks``): name, passed or not, the message."""
+    return [{"name": name, "ok": bool(check.get("ok", True)), "message": check.get("message", "")}
+            for name, check in rig.checks.items()]
+
+
+def board_shape_text(rig: RigModel) -> dict | None:
+    """The board's shape, where the calibration estimated it: ``{"sag_mm", "text"}``."""
+    if rig.board_shape_mm is None:
+        return None
+    sag = sag_mm(rig.board.object_points_mm(), rig.board_shape_mm)
+    terms = ", ".join(f"{t} {w:+.2f} ± {s:.2f} mm" for t, w, s in
+                      zip(SHAPE_TERMS, rig.board_shape_mm, rig.board_shape_sigma_mm))
+    return {"sag_mm": sag, "text": f"its corners are up to {sag:.2f} mm off a plane (the heights reached at "
+                                   f"the edges and corners of the grid by its sag, bend and twist: {terms})"}
 
 
 def adjustment_rows(rig: RigModel) -> list[tuple[str, str]]:
@@ -276,6 +306,9 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
                          if evaluation and evaluation.get("holdout")
                          else "photos oriented by the calibration's own poses"),
         adjustment=adjustment_rows(rig),
+        checks=checks_table(rig),
+        verdict=verdict(rig.checks) if rig.checks else None,
+        board_shape=board_shape_text(rig),
         hints=[h for n in names for h in found[n].hints],
         sections=list(sections.values()),
         shared=shared,
