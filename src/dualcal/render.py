@@ -125,7 +125,8 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
                 background: float = 0.3, clutter: int = 80, band_rows: int = 256,
                 glare: Sequence[tuple[float, float, float, float]] = (),
                 shadow: tuple[float, float, float, float] | None = None,
-                outliers: Sequence[tuple[int, float, float]] = ()) -> np.ndarray:
+                outliers: Sequence[tuple[int, float, float]] = (),
+                swapped_markers: Sequence[tuple[int, int]] = ()) -> np.ndarray:
     """Render the board as photographed by ``cam`` at ``pose``.
 
     Parameters
@@ -158,6 +159,8 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
         a square, fading out by half a square), so the photo shows that corner at board point
         ``X_k + (dX, dY)`` while :func:`~dualcal.camera.project_points` still gives the true
         one. Shifts up to 0.19 of a square are drawn exactly (the shading does not fold).
+    swapped_markers : planted misread ids of a ChArUco board, each ``(i, j)``: marker ``i`` is
+        drawn with the code of id ``j``, so a detector reads id ``j`` in marker ``i``'s square.
 
     Returns
     -------
@@ -180,7 +183,7 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
     bg_u = [np.sin(bg_freq[0] * u + bg_phase[0]), np.sin(bg_freq[2] * u + bg_phase[2]),
             np.cos(bg_freq[2] * u + bg_phase[2])]
     scene = _clutter((W, H), rng, clutter, background)
-    markers = marker_texture(board) if board.charuco is not None else None
+    markers = marker_texture(board, swapped_markers) if board.charuco is not None else None
 
     out = np.empty((H, W), np.uint8)
     for r0 in range(0, H, band_rows):

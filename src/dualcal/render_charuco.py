@@ -39,8 +39,12 @@ class MarkerTexture:
     square_mm: float
 
 
-def marker_texture(board: Board) -> MarkerTexture:
-    """The :class:`MarkerTexture` of a ChArUco board whose dictionary is known."""
+def marker_texture(board: Board, swapped=()) -> MarkerTexture:
+    """The :class:`MarkerTexture` of a ChArUco board whose dictionary is known.
+
+    ``swapped``: pairs ``(i, j)``, marker ``i`` drawn with the code of id ``j`` (a misprinted or,
+    to a detector, misread marker: the tests plant them).
+    """
     import cv2
 
     ch = board.charuco
@@ -49,7 +53,9 @@ def marker_texture(board: Board) -> MarkerTexture:
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, ch.dictionary))
     bits = dictionary.markerSize
     cells = bits + 2
-    dark = np.stack([1.0 - cv2.aruco.generateImageMarker(dictionary, i, cells, borderBits=1) / 255.0
+    code = dict(enumerate(range(ch.n_markers)))
+    code.update({int(i): int(j) for i, j in swapped})
+    dark = np.stack([1.0 - cv2.aruco.generateImageMarker(dictionary, code[i], cells, borderBits=1) / 255.0
                      for i in range(ch.n_markers)])
     sat = np.zeros((ch.n_markers, cells + 1, cells + 1))
     sat[:, 1:, 1:] = dark.cumsum(axis=1).cumsum(axis=2)
