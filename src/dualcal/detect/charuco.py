@@ -268,9 +268,11 @@ def detect_charuco(full: np.ndarray, board: Board) -> np.ndarray:
     if len(ids) == 0:
         raise DetectionError(f"no marker of {board.describe()} found")
     if len(_layouts(board)) == 2:
+        # the two layouts number the markers one square apart but for those at the ends of the
+        # rows, which only the right layout fits: more markers fitting the other one refute this
         own, other = (agreeing_markers(uv, ids, board, legacy) for legacy in (board.charuco.legacy,
                                                                                not board.charuco.legacy))
-        if other > max(own, 3) * 1.5:
+        if other > own:
             which = "OpenCV's current layout" if board.charuco.legacy else "OpenCV's legacy layout (OpenCV < 4.6)"
             raise DetectionError(f"the markers are laid out as on {which}, not as {board.describe()} says")
     ok = check_markers(uv, ids, board)
