@@ -11,7 +11,7 @@ from .common import board_options
 
 @cli.command("board")
 @click.argument("spec", metavar="[COLSxROWS|charuco:SXxSY]", required=False)
-@board_options(required=False)
+@board_options(required=False, dictionary_default="the smallest DICT_5X5 that holds the markers")
 @click.option("--paper", default="auto", show_default=True, metavar="NAME",
               help="A4, A3, A2, A1, A0, letter, legal (either orientation), fit (the board and its margins) "
                    "or auto (the smallest A size that holds the board).")

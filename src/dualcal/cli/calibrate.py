@@ -121,7 +121,7 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
               help="Gaussian noise (px, per coordinate) added to the true corners in corners.json.")
 @click.option("--photos/--no-photos", default=True, show_default=True, help="Render photo-like JPEGs.")
 @click.option("--jobs", type=click.IntRange(min=1), default=None, help="Photos rendered in parallel (default: all cores).")
-@board_options(required=False)
+@board_options(required=False, dictionary_default="the smallest DICT_5X5 that holds the markers")
 @click.option("--coverage", metavar="LO:HI", default=None,
               help="Share of the board's corners the narrowest camera sees, drawn per view from LO to HI "
                    "(ChArUco boards; default 0.3:1 for them, the whole board for a chessboard).")

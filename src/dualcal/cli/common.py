@@ -40,13 +40,14 @@ class LazyChoice(click.Choice):
 BOARD_OPTION_NAMES = ("board_spec", "square_mm", "marker_mm", "dictionary")
 
 
-def board_options(required: bool):
+def board_options(required: bool, dictionary_default: str = "found from the photos"):
     """``--board``, ``--square MM`` and, for a ChArUco board, ``--marker MM`` and ``--dictionary NAME``;
-    ``--board`` and ``--square`` optional where the input file names the board."""
+    ``--board`` and ``--square`` optional where the input file names the board. ``dictionary_default``
+    says in the help what a ChArUco board without ``--dictionary`` gets."""
     def decorate(f):
         f = click.option("--dictionary", "dictionary", metavar="NAME", default=None,
                          help="ChArUco boards: OpenCV's name of the markers' dictionary, e.g. DICT_5X5_100 "
-                              "(default: found from the photos).")(f)
+                              f"(default: {dictionary_default}).")(f)
         f = click.option("--marker", "marker_mm", type=float, metavar="MM", default=None,
                          help="ChArUco boards: side of one marker in millimetres.")(f)
         f = click.option("--square", "square_mm", type=float, metavar="MM", required=required,

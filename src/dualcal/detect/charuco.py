@@ -4,8 +4,10 @@ A ChArUco board (:mod:`dualcal.board`) is a chessboard with an ArUco marker in e
 square; the markers' ids say which part of the board a photo shows, so a photo may show any
 part of it. Per photo (:func:`detect_charuco`):
 
-1. **Markers** on a reduced image (1/2-1/8 size, as for chessboards; at twice the resolution
-   when the markers found there are small or few), by OpenCV's ``cv2.aruco.CharucoDetector``.
+1. **Markers** and their ids on a reduced image (1/2-1/8 size, as for chessboards; at twice the
+   resolution when the markers found there are small or few), by OpenCV's ``cv2.aruco``
+   marker detector (what ``CharucoDetector`` runs first), with the dictionary cut to the board's
+   markers. OpenCV's own interpolation of the corners is not used: it would trust every id.
 2. **Ids checked against the board's geometry** (:func:`check_markers`): each marker's four
    corners are predicted by the homography of the other markers around it on the board (those
    within :data:`NEIGHBOUR_RADIUS_SQUARES` squares), leaving it out; the worst marker further
@@ -86,12 +88,11 @@ def aruco_dictionary(name: str, n_markers: int | None = None):
     return cv2.aruco.Dictionary(full.bytesList[:n_markers], full.markerSize, full.maxCorrectionBits)
 
 
-def opencv_board(board: Board, dictionary: str | None = None, legacy: bool | None = None):
-    """The ``cv2.aruco.CharucoBoard`` of a ChArUco board (its dictionary and layout, or those given)."""
+def opencv_board(board: Board):
+    """The ``cv2.aruco.CharucoBoard`` of a ChArUco board whose dictionary and layout are known."""
     ch = board.charuco
-    cb = cv2.aruco.CharucoBoard(tuple(ch.squares), board.square_mm, ch.marker_mm,
-                                aruco_dictionary(dictionary or ch.dictionary))
-    cb.setLegacyPattern(bool(ch.legacy if legacy is None else legacy))
+    cb = cv2.aruco.CharucoBoard(tuple(ch.squares), board.square_mm, ch.marker_mm, aruco_dictionary(ch.dictionary))
+    cb.setLegacyPattern(bool(ch.legacy))
     return cb
 
 
@@ -150,6 +151,15 @@ def _marker_errors(uv: np.ndarray, ids: np.ndarray, board_xy: np.ndarray, centre
     return err
 
 
+def _marker_geometry(board: Board, legacy: bool | None):
+    """Board-frame marker corners (M, 4, 2), their centres and the neighbour radius, mm, on the
+    board's layout or on ``legacy``'s."""
+    if legacy is not None:
+        board = replace(board, charuco=replace(board.charuco, legacy=legacy))
+    board_xy = board.marker_corners_mm()[:, :, :2]
+    return board_xy, board_xy.mean(axis=1), NEIGHBOUR_RADIUS_SQUARES * board.square_mm
+
+
 def check_markers(uv: np.ndarray, ids: np.ndarray, board: Board, legacy: bool | None = None) -> np.ndarray:
     """(M,) True for the markers whose ids agree with the board's geometry (module docstring, step 2).
 
@@ -158,14 +168,10 @@ def check_markers(uv: np.ndarray, ids: np.ndarray, board: Board, legacy: bool | 
     uv : (M, 4, 2) marker corners, pixels; ids : (M,) their ids.
     board : the ChArUco board; ``legacy`` overrides its layout (to test the other one).
     """
-    if legacy is not None:
-        board = replace(board, charuco=replace(board.charuco, legacy=legacy))
-    board_xy = board.marker_corners_mm()[:, :, :2]
-    centres = board_xy.mean(axis=1)
-    radius = NEIGHBOUR_RADIUS_SQUARES * board.square_mm
+    geometry = _marker_geometry(board, legacy)
     alive = np.ones(len(ids), bool)
     while alive.any():
-        err = _marker_errors(uv, ids, board_xy, centres, radius, alive)
+        err = _marker_errors(uv, ids, *geometry, alive)
         bad = alive & ~(err <= MARKER_TOLERANCE)
         if not bad.any():
             break
@@ -174,6 +180,13 @@ def check_markers(uv: np.ndarray, ids: np.ndarray, board: Board, legacy: bool | 
         # neighbour can judge go once every judged one agrees
         alive[np.argmax(np.where(finite, err, -1.0)) if finite.any() else bad] = False
     return alive
+
+
+def agreeing_markers(uv: np.ndarray, ids: np.ndarray, board: Board, legacy: bool | None = None) -> int:
+    """How many markers agree with their neighbours at once (one pass of :func:`check_markers`,
+    nothing dropped): a quick score of a dictionary or layout, high only for the right one."""
+    err = _marker_errors(uv, ids, *_marker_geometry(board, legacy), np.ones(len(ids), bool))
+    return int(np.sum(err <= MARKER_TOLERANCE))
 
 
 def predict_corners(uv: np.ndarray, ids: np.ndarray, board: Board):
@@ -229,17 +242,6 @@ def _find_markers(full: np.ndarray, board: Board):
         if f == 1 or (len(ids) >= 4 and side >= MIN_PX_PER_CELL * cells):
             return best
         f //= 2
-
-
-def agreeing_markers(uv: np.ndarray, ids: np.ndarray, board: Board, legacy: bool | None = None) -> int:
-    """How many markers agree with their neighbours at once (one pass of :func:`check_markers`,
-    nothing dropped): a quick score of a dictionary or layout, high only for the right one."""
-    if legacy is not None:
-        board = replace(board, charuco=replace(board.charuco, legacy=legacy))
-    board_xy = board.marker_corners_mm()[:, :, :2]
-    err = _marker_errors(uv, ids, board_xy, board_xy.mean(axis=1), NEIGHBOUR_RADIUS_SQUARES * board.square_mm,
-                         np.ones(len(ids), bool))
-    return int(np.sum(err <= MARKER_TOLERANCE))
 
 
 def _layouts(board: Board) -> tuple[bool, ...]:
