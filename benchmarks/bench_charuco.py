@@ -252,14 +252,14 @@ def main(argv=None) -> int:
     names = list(errors["dualcal"][0])
     table = {p: {q: float(np.sqrt(np.mean([e[q] ** 2 for e in errs]))) for q in names} for p, errs in errors.items()}
     print(f"\ncalibration: RMS error vs truth over {args.sets} set(s)")
-    print(f"{'parameter':22s}" + "".join(f"{p:>16s}" for p in ("dualcal", "OpenCV", "dc solver/cv pts",
-                                                              "cv solver/dc pts")) + f"{'dualcal/OpenCV':>16s}")
+    print(f"{'parameter':22s}" + "".join(f"{p:>18s}" for p in ("dualcal", "OpenCV", "dualcal on cv pts",
+                                                              "OpenCV on dc pts")) + f"{'dualcal/OpenCV':>16s}")
     ratios = []
     for q in names:
         ratios.append(table["dualcal"][q] / table["OpenCV"][q])
-        print(f"{q:22s}" + "".join(f"{table[p][q]:>16.5g}" for p in pipelines) + f"{ratios[-1]:>16.3f}")
+        print(f"{q:22s}" + "".join(f"{table[p][q]:>18.5g}" for p in pipelines) + f"{ratios[-1]:>16.3f}")
     mean_ratio = float(np.exp(np.mean(np.log(ratios))))
-    print(f"{'geometric mean':22s}" + " " * 16 * len(pipelines) + f"{mean_ratio:>16.3f}")
+    print(f"{'geometric mean':22s}" + " " * 18 * len(pipelines) + f"{mean_ratio:>16.3f}")
 
     failed = []
     if stats["missed"]:

@@ -167,11 +167,17 @@ class Board:
             return "charuco:{}x{}".format(*self.charuco.squares)
         return f"{self.cols}x{self.rows}"
 
-    def describe(self) -> str:
-        """The board in words, for messages: ``"8x5 chessboard"``, ``"ChArUco board charuco:11x8 (DICT_5X5_50)"``."""
+    def describe(self, sizes: bool = False) -> str:
+        """The board in words, for messages: ``"8x5 chessboard"``, ``"ChArUco board charuco:11x8 (DICT_5X5_50)"``;
+        with ``sizes``, its square (and marker) size too."""
         if self.charuco is None:
-            return f"{self.spec()} chessboard"
-        return f"ChArUco board {self.spec()}" + (f" ({self.charuco.dictionary})" if self.charuco.dictionary else "")
+            text = f"{self.spec()} chessboard"
+        else:
+            text = f"ChArUco board {self.spec()}" + (f" ({self.charuco.dictionary})" if self.charuco.dictionary else "")
+        if sizes:
+            text += f" of {self.square_mm:g} mm squares"
+            text += f" and {self.charuco.marker_mm:g} mm markers" if self.charuco is not None else ""
+        return text
 
     def black_parity(self) -> int:
         """Square ``(a, b)`` is black where ``(a + b) % 2`` equals this (0, except on OpenCV's legacy
