@@ -6,7 +6,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import board_options
+from .common import board_from_flags, board_options
 
 
 @cli.command("board")
@@ -32,7 +32,6 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
     """
     from ..boardprint import write_board
     from ..io import check_output_file
-    from .common import board_from_flags
 
     if spec is not None and board_spec is not None and spec != board_spec:
         raise InputError(f"the board is given twice ({spec} and --board {board_spec}): give it once")
@@ -40,8 +39,6 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
         raise click.UsageError("give the board: COLSxROWS or charuco:SXxSY (or --board), with --square MM")
     check_output_file(output)
     board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary)
-    if board is None or square_mm is None:
-        raise InputError("give the side of a square with --square MM")
     layout = write_board(board, output, paper=paper, dpi=dpi)
     w, h = layout.page_mm
     click.echo(f"{layout.board.describe()}, squares of {layout.board.square_mm:g} mm, on a {w:.0f} x {h:.0f} mm page: "
