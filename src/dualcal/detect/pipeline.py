@@ -80,7 +80,8 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
     Parameters
     ----------
     path : photo file (JPEG, PNG, TIFF, HEIC).
-    board : the expected board; a board of another size is not accepted.
+    board : the expected board; a board of another size is not accepted. A ChArUco board whose
+        dictionary or layout is not given gets them from this photo.
     hint_uv : (4, 2) clicked corners 0, cols-1, N-1, N-cols (manual mode), used when the
         automatic search fails (chessboards only).
     overlay_path : where to write a small JPEG with the corners and their numbers drawn.
@@ -97,7 +98,8 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
         full = read_gray(path)
         size = (full.shape[1], full.shape[0])
         if board.charuco is not None:
-            uv = detect_charuco(full, board)
+            # a dataset settles the dictionary and layout first (detect_dataset); one photo alone tells its own
+            uv = detect_charuco(full, board if board.charuco.resolved else resolve_board(board, [full]))
             if overlay_path is not None:
                 f = reduction_factor(size)
                 write_overlay(overlay_path, reduce_image(full, f), uv, f)
