@@ -69,12 +69,12 @@ def page_layout(board: Board, paper: str = "auto", dpi: float | None = None) -> 
     w, h = (board.cols + 1) * board.square_mm, (board.rows + 1) * board.square_mm
     q = _quiet_zone_mm(board)
     need = (w + 2 * q, h + 2 * q + TEXT_MM)
+    if paper not in PAPERS and paper not in ("auto", "fit"):
+        raise InputError(f"--paper {paper!r}: choose auto, fit or one of {', '.join(PAPERS)}")
     if paper == "fit":
         page = need
     else:
-        names = [p for p in ("A4", "A3", "A2", "A1", "A0")] if paper == "auto" else [paper]
-        if paper != "auto" and paper not in PAPERS:
-            raise InputError(f"--paper {paper!r}: choose auto, fit or one of {', '.join(PAPERS)}")
+        names = ["A4", "A3", "A2", "A1", "A0"] if paper == "auto" else [paper]
         page = None
         for name in names:
             for size in (PAPERS[name], PAPERS[name][::-1]):

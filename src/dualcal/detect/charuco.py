@@ -24,7 +24,8 @@ part of it. Per photo (:func:`detect_charuco`):
    (in pixels, as the local homography maps it, less the blur) holds only the four squares'
    edges, which is the model the fit assumes. A corner whose fit fails or lands further than
    :data:`CORNER_TOLERANCE` of its spacing from its markers' prediction is left out; then,
-   where a corner has enough measured neighbours, the chessboard check of
+   where a corner has enough measured neighbours and its squares are small enough for their
+   homography to follow the lens (:data:`GRID_CHECK_SPACING`), the chessboard check of
    :mod:`dualcal.detect.grid` (leave-one-out homography of its neighbours) drops what disagrees.
 4. **The view as a whole** (:func:`dualcal.detect.grid.validate_grid`): at least
    :data:`dualcal.detect.grid.MIN_CHARUCO_CORNERS` corners, not on one line, no fold.
@@ -32,7 +33,10 @@ part of it. Per photo (:func:`detect_charuco`):
 The dictionary and, for an even number of rows of squares, the layout (OpenCV's current one or
 its legacy one, :mod:`dualcal.board`) are found from the photos when the board does not say
 (:func:`resolve_board`): the family of dictionaries and the layout whose markers agree with the
-board's geometry in the most markers.
+board's geometry in the most markers, over as many photos as it takes to tell the layouts apart
+(they differ only at the ends of the rows of markers). A photo that fits the other layout better
+than the board's is refused (:func:`detect_charuco`); one that shows no end of a row fits both,
+so the layout must come from the dataset (or the file).
 """
 
 from __future__ import annotations
