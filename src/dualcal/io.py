@@ -182,9 +182,18 @@ def _image_size(value, what: str) -> tuple[int, int]:
     return int(arr[0]), int(arr[1])
 
 
+def board_from_dict(entry, source: str) -> Board:
+    """The board entry of a corners.json or calib.json (a chessboard, or a ChArUco board with its
+    ``charuco`` entry, see the contract), validated; the error names ``source``."""
+    try:
+        return Board.from_dict(entry if isinstance(entry, dict) else {})
+    except InputError as exc:
+        raise InputError(f"{source}: {exc}") from None
+
+
 def corners_from_dict(doc: dict, source: str = "corners.json") -> CornerSet:
     """Validate a corners.json document and build a :class:`CornerSet`."""
-    board = Board.from_dict(doc.get("board") or {})
+    board = board_from_dict(doc.get("board"), source)
     cams = doc.get("cameras")
     if not isinstance(cams, dict) or not cams:
         raise InputError(f"{source}: 'cameras' must be a non-empty object")
@@ -316,7 +325,7 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
     """Validate a calib.json document and build a :class:`RigModel`."""
     try:
         corners = corners_from_dict(doc["corners"], f"{source} corners")
-        board = Board.from_dict(doc["board"])
+        board = board_from_dict(doc["board"], source)
         cameras, sigma, sigma_formal, rms = {}, {}, {}, {}
         for name, e in doc["cameras"].items():
             size = _image_size(e["image_size"], f"{source}: camera {name!r}")
