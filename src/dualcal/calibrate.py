@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from .adjust import Problem, Solution, adjust, cost, initial_state, rig_relation, shared_views
-from .errors import EstimationError
+from .camera import DEFAULT_LENS_MODEL, LENS_MODELS
+from .errors import EstimationError, InputError
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
 from .zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
@@ -63,8 +64,9 @@ def _starting_values(sol: Solution):
 
 
 def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
-          start: Solution | None = None) -> Solution:
-    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples.
+          start: Solution | None = None, model: str = DEFAULT_LENS_MODEL) -> Solution:
+    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples;
+    ``model``: the lens model of every camera (:data:`dualcal.camera.LENS_MODELS`).
 
     Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
     solution over the same photos with every camera alone (rig mode ``none``). The paper's model
@@ -74,21 +76,21 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     """
     _check_enough_views(blocks, names)
     if mode == "paper" and start is None:
-        start = solve(X_board, names, sizes, blocks, reference, skew, "none")
+        start = solve(X_board, names, sizes, blocks, reference, skew, "none", model=model)
     if start is not None:
         cams, poses = _starting_values(start)
     else:
         cams, poses = [], []
         for c, size in enumerate(sizes):
-            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew)
+            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew, model)
             cams.append(cam)
             poses.append(p)
     first_mode = "rigid" if mode == "paper" else mode
-    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference)
+    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, model)
     sol = adjust(problem, initial_state(problem, cams, poses))
     if mode != "paper":
         return sol
-    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference)
+    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, model)
     starts = [initial_state(problem, *_starting_values(s)) for s in (sol, start)]
     return adjust(problem, min(starts, key=lambda state: cost(problem, state)))
 
@@ -119,14 +121,15 @@ def _views_left(blocks, c: int) -> int:
     return sum(1 for blk in blocks if blk[0] == c)
 
 
-def _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, mode, factor, dropped, start=None):
+def _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, mode, factor, dropped, start=None,
+                              model: str = DEFAULT_LENS_MODEL):
     """Solve, drop the worst photo while one is out of line, solve again; returns (solution, blocks).
 
     In a tied rig a bad photo pulls the shared pose and so spreads its error over every photo of
     that instant; of the photos of the flagged instant that are themselves out of line, the one
     whose removal fits best is dropped, and only if the fit then really improves.
     """
-    sol = solve(X, names, sizes, blocks, ref, skew, mode, start)
+    sol = solve(X, names, sizes, blocks, ref, skew, mode, start, model)
     while True:
         out = find_outlier(sol, factor) if factor else None
         if out is None:
@@ -145,7 +148,8 @@ def _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, mode, factor, 
             warn(f"{names[blocks[b][0]]}/{view} is out of line (RMS {rms:.3g} px, limit {limit:.3g} px) "
                  f"but cannot be dropped: only {MIN_VIEWS} views left for {names[blocks[b][0]]!r}")
             return sol, blocks
-        trials = [(solve(X, names, sizes, blocks[:i] + blocks[i + 1:], ref, skew, mode), i) for i in candidates]
+        trials = [(solve(X, names, sizes, blocks[:i] + blocks[i + 1:], ref, skew, mode, model=model), i)
+                  for i in candidates]
         best, i = min(trials, key=lambda t: t[0].s0_px)
         if best.s0_px >= sol.s0_px:
             warn(f"{names[blocks[b][0]]}/{view} is out of line (RMS {rms:.3g} px, limit {limit:.3g} px) "
@@ -162,7 +166,7 @@ def _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, mode, factor, 
 
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
                   reference: str | None = None, drop_outliers: bool = True,
-                  outlier_factor: float = 3.0) -> RigModel:
+                  outlier_factor: float = 3.0, model: str = DEFAULT_LENS_MODEL) -> RigModel:
     """Calibrate every camera of a rig and the rig itself from chessboard corners.
 
     Parameters
@@ -176,12 +180,18 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         Outliers are looked for first with every camera adjusted alone (so that a bad photo shows
         in its own camera's residuals, not spread over the rig), then in ``rig_mode`` (which
         also reveals a board moved between the shots of one instant).
+    model : the lens model of every camera, a key of :data:`dualcal.camera.LENS_MODELS`:
+        ``k1k2`` (the paper's), ``k1k2k3``, ``k1k2p1p2`` or ``k1k2p1p2k3`` (OpenCV's five coefficients)
 
     Raises
     ------
+    InputError
+        An unknown lens model.
     EstimationError
         Fewer than 3 usable views for a camera, degenerate views, no shared view in a rig.
     """
+    if model not in LENS_MODELS:
+        raise InputError(f"--model {model!r} is unknown (choose from {', '.join(LENS_MODELS)})")
     names = sorted(corners.cameras)
     ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
     sizes = [corners.cameras[n].image_size for n in names]
@@ -191,13 +201,15 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     factor = outlier_factor if drop_outliers else None
     alone = None
     if factor and rig_mode != "none":
-        alone, blocks = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, "none", factor, dropped)
-    sol, _ = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, rig_mode, factor, dropped, alone)
+        alone, blocks = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, "none", factor, dropped,
+                                                  model=model)
+    sol, _ = _adjust_dropping_outliers(X, names, sizes, blocks, ref, skew, rig_mode, factor, dropped, alone, model)
     if not sol.converged:
         warn(f"the adjustment (rig mode {rig_mode}, {'Model 2' if skew else 'Model 1'}) did not converge: "
              f"{sol.termination}; the results and their sigmas are not those of the best fit")
     rig = rig_model_from_solution(sol, corners, dropped)
-    rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor)}
+    rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor),
+                                 "model": model}
     return rig
 
 

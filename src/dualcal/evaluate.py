@@ -111,7 +111,7 @@ def holdout_photos(rig: RigModel, progress: bool = True) -> dict[str, dict[str, 
 
     Calls :func:`dualcal.calibrate.calibrate_rig` once per view, as the full calibration was
     run: with the photos it used (:func:`used_corners`) of all other views and its settings
-    (skew, rig mode, reference, :meth:`RigModel.calibration_options`); then :func:`resect_view` orients
+    (skew, rig mode, reference, lens model, :meth:`RigModel.calibration_options`); then :func:`resect_view` orients
     the view's used photos. Only views the full calibration kept are evaluated.
     """
     from .calibrate import calibrate_rig   # the adjustment is only needed here
@@ -129,7 +129,7 @@ def holdout_photos(rig: RigModel, progress: bool = True) -> dict[str, dict[str, 
                 calib = calibrate_rig(_without(corners, lambda _, v: v == view), skew=rig.skew,
                                       rig_mode=rig.rig_mode, reference=rig.reference,
                                       drop_outliers=bool(options["drop_outliers"]),
-                                      outlier_factor=float(options["outlier_factor"]))
+                                      outlier_factor=float(options["outlier_factor"]), model=rig.model)
             except EstimationError as exc:
                 raise EstimationError(f"hold-out calibration without view {view!r} failed: {exc}") from None
             kept = {c for c, poses in rig.camera_poses.items() if view in poses}

@@ -135,6 +135,20 @@ class RigModel:
     adjustment: dict = field(default_factory=dict)
     dropped_views: list[dict] = field(default_factory=list)
 
+    @property
+    def model(self) -> str:
+        """The lens model of the cameras (calib.json's ``model``; every camera of a rig has the same).
+
+        Raises
+        ------
+        ValueError
+            Cameras of different lens models (no calibration makes such a rig).
+        """
+        models = {cam.model for cam in self.cameras.values()}
+        if len(models) != 1:
+            raise ValueError(f"the cameras of a rig have one lens model, these have {sorted(models)}")
+        return models.pop()
+
     def calibration_options(self) -> dict:
         """How the calibration treated outliers: ``{"drop_outliers": bool, "outlier_factor": float}``,
         from ``adjustment["options"]``; files written before it was recorded get the defaults."""

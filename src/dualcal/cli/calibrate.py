@@ -49,11 +49,14 @@ def _load_input(path: str, board_spec, square_mm, dataset_opts):
               help="Drop photos whose residuals are far out of line, one at a time, and re-adjust.")
 @click.option("--outlier-factor", type=float, default=3.0, show_default=True,
               help="A photo is an outlier when its RMS exceeds this many times the median.")
+@click.option("--model", "model", type=LazyChoice("dualcal.camera:LENS_MODELS"), default="k1k2", show_default=True,
+              help="Lens model: k1k2 (the paper's, two radial terms), k1k2k3 (three), k1k2p1p2 (two radial and "
+                   "two tangential), k1k2p1p2k3 (OpenCV's five coefficients).")
 @click.option("--compare-models/--no-compare-models", default=True, show_default=True,
               help="Also solve the other skew model and print both side by side, as the paper's tables do.")
 @dataset_options
 def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode, drop_outliers,
-                      outlier_factor, compare_models, **dataset_opts):
+                      outlier_factor, model, compare_models, **dataset_opts):
     """Calibrate every camera and the rig from INPUT and write calib.json.
 
     INPUT is a corners.json (from 'dualcal detect', also one edited by hand: views removed,
@@ -74,7 +77,7 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
     check_output_file(output)
     corners = _load_input(input_path, board_spec, square_mm, dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
-                  outlier_factor=outlier_factor)
+                  outlier_factor=outlier_factor, model=model)
     rig = calibrate_rig(corners, skew=skew, **kwargs)
     save_rig(output, rig)
     models = [rig]
@@ -89,13 +92,14 @@ def calibrate_command(input_path, board_spec, square_mm, output, skew, rig_mode,
     for table in result_tables(models):
         console.print(table)
     console.print(f"RMS reprojection error {rig.rms_px:.3f} px, s0 {rig.adjustment['s0_px']:.3f} px, "
-                  f"rig mode {rig.rig_mode}; written {output}")
+                  f"rig mode {rig.rig_mode}, lens model {rig.model}; written {output}")
 
 
 @cli.command("synth")
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--preset", type=LazyChoice("dualcal.synth:PRESETS"), default="note8", show_default=True,
-              help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra).")
+              help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra), "
+                   "stereo5 (the 640x480 pair with OpenCV's five-coefficient lenses, k1 k2 p1 p2 k3).")
 @click.option("--views", type=int, default=13, show_default=True, help="Number of board poses.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed of poses, noise and photos.")
 @click.option("--scale", type=float, default=1.0, show_default=True,
