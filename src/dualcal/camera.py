@@ -169,35 +169,43 @@ def distort_normalized(xy: np.ndarray, k1: float, k2: float, p1: float = 0.0, p2
     return out + np.stack(tangential_shift(xy[..., 0], xy[..., 1], p1, p2), axis=-1)
 
 
-def _first_positive_root(coefficients) -> float:
-    """Smallest positive real root of the polynomial ``1 + c1 s + c2 s^2 + c3 s^3`` (``inf`` if none)."""
-    c1, c2, c3 = coefficients
+def _quadratic_roots(a: float, b: float, c: float) -> list[float]:
+    """Real roots of ``a s^2 + b s + c`` (numerically stable; a vanishing ``a`` leaves the linear root)."""
+    if a == 0.0:
+        return [-c / b] if b != 0.0 else []
+    disc = b * b - 4.0 * a * c
+    if disc < 0.0:
+        return []
+    q = -0.5 * (b + np.copysign(np.sqrt(disc), b))
+    with np.errstate(over="ignore", divide="ignore"):   # q / a is +-inf for a vanishing a: no root there
+        return [q / a, c / q] if q != 0.0 else []
+
+
+#: Squared radii searched for the fold of a radial model with k3: up to r = 1e30, beyond any lens.
+_S_MAX = 1e60
+
+
+def _first_positive_root(c1: float, c2: float, c3: float) -> float:
+    """Smallest positive root of ``P(s) = 1 + c1 s + c2 s^2 + c3 s^3`` (``inf`` if none).
+
+    ``P(0) = 1``. Without ``c3`` the quadratic formula. With it, ``P`` is monotonic between the
+    roots of ``P'`` (a quadratic), so the first of those pieces on which ``P`` reaches 0 brackets
+    the root, which Brent's method finds; that holds for any ``c3``, also one so small that the
+    cubic's third root is astronomically far away (roots beyond :data:`_S_MAX` count as none).
+    """
     if c3 == 0.0:
-        a, b = c2, c1                            # a s^2 + b s + 1 = 0
-        if a == 0.0:
-            roots = [-1.0 / b] if b != 0.0 else []
-        else:
-            disc = b * b - 4.0 * a
-            if disc < 0.0:
-                roots = []
-            else:                                # the numerically stable pair of roots
-                q = -0.5 * (b + np.copysign(np.sqrt(disc), b))
-                with np.errstate(over="ignore"):  # q / a is +-inf for a vanishing c2: no root there
-                    roots = [q / a, 1.0 / q] if q != 0.0 else []
-    else:
-        candidates = np.roots([c3, c2, c1, 1.0])
-        roots = [float(s.real) for s in candidates if abs(s.imag) <= 1e-7 * abs(s)]
-        polished = []
-        for s in roots:                          # a few Newton steps against the eigenvalues' rounding
-            for _ in range(3):
-                slope = c1 + s * (2.0 * c2 + 3.0 * c3 * s)
-                if slope == 0.0:
-                    break
-                s -= (1.0 + s * (c1 + s * (c2 + c3 * s))) / slope
-            polished.append(s)
-        roots = polished
-    positive = [s for s in roots if s > 0.0]
-    return min(positive) if positive else float("inf")
+        return min([s for s in _quadratic_roots(c2, c1, 1.0) if s > 0.0], default=float("inf"))
+    from scipy.optimize import brentq
+
+    def P(s):
+        return 1.0 + s * (c1 + s * (c2 + c3 * s))
+
+    a = 0.0
+    for b in sorted(s for s in _quadratic_roots(3.0 * c3, 2.0 * c2, c1) if 0.0 < s < _S_MAX) + [_S_MAX]:
+        if P(b) <= 0.0:
+            return float(brentq(P, a, b, xtol=1e-300, rtol=4.0 * np.finfo(float).eps, maxiter=1000))
+        a = b
+    return float("inf")
 
 
 def max_monotonic_radius(k1: float, k2: float, k3: float = 0.0) -> float:
@@ -206,7 +214,7 @@ def max_monotonic_radius(k1: float, k2: float, k3: float = 0.0) -> float:
     ``d rd / dr = 1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6``; its first positive root in ``r^2`` bounds the
     region where the radial part of the lens has a unique inverse. Returns ``inf`` when there is none.
     """
-    s = _first_positive_root((3.0 * k1, 5.0 * k2, 7.0 * k3))
+    s = _first_positive_root(3.0 * k1, 5.0 * k2, 7.0 * k3)
     return float(np.sqrt(s)) if np.isfinite(s) else float("inf")
 
 
@@ -477,11 +485,24 @@ def image_corner_radius(cam: CameraModel) -> float:
     return float(np.max(np.linalg.norm(normalized_from_pixel(cam, corners), axis=1)))
 
 
-def _image_samples(image_size: tuple[int, int], n: int = 33) -> np.ndarray:
-    """(M, 2) pixels on an ``n`` x ``n`` grid over the image, its outer edges included."""
-    w, h = image_size
-    u, v = np.meshgrid(np.linspace(-0.5, w - 0.5, n), np.linspace(-0.5, h - 0.5, n))
-    return np.column_stack([u.ravel(), v.ravel()])
+def _folds_tangentially(cam: CameraModel, rd_img: float, samples: int = 129) -> bool:
+    """Whether the full model folds (its Jacobian's determinant is not positive) at an ideal point
+    whose distorted image lies inside the image and within normalised radius ``rd_img``.
+
+    Samples a square grid of ideal points out to the radius whose radial distortion reaches
+    ``rd_img`` (10 % beyond, for the tangential shift), at most to the radial part's fold.
+    """
+    k1, k2, k3 = cam.radial
+    rd_max = max_distorted_radius(k1, k2, k3)
+    r_out = float(undistort_radius(np.array([min(1.1 * rd_img, rd_max)]), k1, k2, k3)[0][0])
+    t = np.linspace(-r_out, r_out, samples)
+    x, y = (a.ravel() for a in np.meshgrid(t, t))
+    xd, yd, (a, b, d), r2 = _distorted_with_jacobian(x, y, *cam.distortion)
+    uv = pixel_from_normalized(cam, np.column_stack([xd, yd]))
+    w, h = cam.image_size
+    seen = ((r2 <= r_out * r_out) & (np.hypot(xd, yd) <= rd_img) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5)
+            & (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5))
+    return bool(np.any(a[seen] * d[seen] - b[seen] ** 2 <= 0))
 
 
 def check_invertible_in_image(cam: CameraModel, corners_may_fold: bool = False) -> None:
@@ -489,9 +510,9 @@ def check_invertible_in_image(cam: CameraModel, corners_may_fold: bool = False) 
 
     With ``corners_may_fold`` a fold is accepted where it lies beyond the middle of every image
     edge, i.e. where it cuts off only the image's corners (a forward remap masks those pixels).
-    The radial part is checked exactly (its fold radius, :func:`max_distorted_radius`); a lens
-    with tangential terms is also undistorted on a grid over that part of the image, which
-    fails where the full model folds (:func:`undistort_normalized`).
+    The radial part is checked exactly (its fold radius, :func:`max_distorted_radius`); for a lens
+    with tangential terms the determinant of the full model's Jacobian must also be positive on a
+    dense grid of the ideal points that the image shows.
     """
     rd_max = max_distorted_radius(*cam.radial)
     w, h = cam.image_size
@@ -503,10 +524,6 @@ def check_invertible_in_image(cam: CameraModel, corners_may_fold: bool = False) 
         raise NotInvertibleError(
             f"distortion {_coefficients_text(cam.k1, cam.k2, k3=cam.k3)} folds over {where}: "
             f"radius not monotonic beyond normalised {rd_max:.4g}, image reaches {rd_img:.4g}")
-    if cam.tangential:
-        xy_d = normalized_from_pixel(cam, _image_samples(cam.image_size))
-        try:
-            undistort_normalized(xy_d[np.linalg.norm(xy_d, axis=1) <= rd_img], *cam.distortion)
-        except NotInvertibleError as exc:
-            raise NotInvertibleError(f"distortion {_coefficients_text(*cam.distortion)} folds over {where}: "
-                                     f"{exc}") from None
+    if cam.tangential and _folds_tangentially(cam, rd_img):
+        raise NotInvertibleError(f"distortion {_coefficients_text(*cam.distortion)} folds over {where}: its "
+                                 "tangential terms fold the image there, so undistortion is not unique")
