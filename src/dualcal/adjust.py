@@ -1,11 +1,11 @@
 """The joint least-squares adjustment of all cameras and views (paper section 1.7).
 
 Minimises the pixel reprojection error of every measured corner in every photo of every camera
-(eqs. 16-19) over the intrinsics of each camera (those of its lens model that are left free,
-:func:`dualcal.camera.intrinsic_names`) and the poses, by Levenberg-Marquardt (:mod:`dualcal.lm`)
-on normal equations kept per instant (:mod:`dualcal.normal_equations`). A photo's corners that
-were not measured (NaN rows) simply have no residual, so two cameras of one instant may see
-different corners. Three ways to tie the cameras together (``mode``):
+(eqs. 16-19) over the intrinsics of each camera (:data:`dualcal.camera.INTRINSIC_NAMES`, those
+left free) and the poses, by Levenberg-Marquardt (:mod:`dualcal.lm`) on normal equations kept per
+instant (:mod:`dualcal.normal_equations`). A photo's corners that were not measured (NaN rows)
+simply have no residual, so two cameras of one instant may see different corners. Three ways to
+tie the cameras together (``mode``):
 
 ``rigid``  per instant one board-to-reference pose; per extra camera one relative pose
            ``X_c = R_c X_ref + t_c``: the rig is rigid by construction.
@@ -73,12 +73,12 @@ class Layout:
     """Where each unknown sits: global columns, and local slots within an instant's block.
 
     Global (indices into the first ``n_global`` entries of the flat vector):
-    ``intrinsics[c]`` the free intrinsics of camera ``c`` (``free_intrinsics[c]``, a (K,) mask over
-    the lens model's :func:`~dualcal.camera.intrinsic_names`); ``rig_rotation[c]`` (3) of each tied
-    camera; ``rig_translation[c]`` (3, rigid) or ``baseline[c]`` (1, paper). Local (0 ..
-    ``n_local``): ``pose[k]`` (6: rotation increment, then translation) of pose slot ``k`` (slot 0
-    is the reference's board pose; in mode ``none`` slot ``c`` is camera ``c``'s); ``direction[c]``
-    (2, paper). ``local_used`` (V, L) marks the slots each instant has.
+    ``intrinsics[c]`` the free intrinsics of camera ``c`` (``free_intrinsics[c]``, a (K,) mask
+    over :data:`INTRINSIC_NAMES`); ``rig_rotation[c]`` (3) of each tied camera; ``rig_translation[c]``
+    (3, rigid) or ``baseline[c]`` (1, paper). Local (0 .. ``n_local``): ``pose[k]`` (6: rotation
+    increment, then translation) of pose slot ``k`` (slot 0 is the reference's board pose; in mode
+    ``none`` slot ``c`` is camera ``c``'s); ``direction[c]`` (2, paper). ``local_used`` (V, L) marks
+    the slots each instant has.
     """
 
     free_intrinsics: np.ndarray
@@ -164,10 +164,10 @@ def _take(counter: list[int], n: int) -> np.ndarray:
 
 def _build_layout(p: Problem) -> Layout:
     C, V = len(p.cameras), len(p.views)
-    names = intrinsic_names(p.model)     # fx fy skew cx cy and the lens model's coefficients; the others are 0
-    free = np.ones((C, len(names)), bool)
+    # skew per --skew; the lens coefficients of the model (the others stay at 0)
+    free = np.tile([n in intrinsic_names(p.model) for n in INTRINSIC_NAMES], (C, 1))
     if not p.skew:
-        free[:, names.index("skew")] = False
+        free[:, INTRINSIC_NAMES.index("skew")] = False
     g = [0]
     intrinsics = {c: _take(g, free[c].sum()) for c in range(C)}
     tied = [c for c in range(C) if p.tied(c)]
@@ -192,7 +192,7 @@ def _build_layout(p: Problem) -> Layout:
 class State:
     """The unknowns (conventions: README).
 
-    intrinsics : (C, K) per camera, in the order of the lens model's :func:`~dualcal.camera.intrinsic_names`.
+    intrinsics : (C, K) per camera, in the order of :data:`INTRINSIC_NAMES`.
     pose_R, pose_t : (V, P, 3, 3), (V, P, 3) board-to-camera pose of each pose slot per instant.
     rig_R : (C, 3, 3) reference-to-camera rotation (identity where the camera is not tied).
     rig_t : (C, 3) reference-to-camera translation, mm (mode ``rigid``).
@@ -230,8 +230,7 @@ class State:
         return State(intr, pose_R, pose_t, rig_R, rig_t, D, direction)
 
     def camera(self, problem: Problem, c: int) -> CameraModel:
-        return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c], problem.model,
-                                       intrinsic_names(problem.model))
+        return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c], problem.model)
 
     def relative_t(self, problem: Problem, c: int, views: np.ndarray) -> np.ndarray:
         """(B, 3) reference-to-camera ``c`` translation in the given instants (tied cameras)."""
@@ -275,8 +274,7 @@ def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict
             direction[problem.view_index[v], c] = rel.t_mm / np.linalg.norm(rel.t_mm)
     slots = C if problem.mode == "none" else 1
     pose_R, pose_t = np.tile(np.eye(3), (V, slots, 1, 1)), np.zeros((V, slots, 3))
-    intrinsics = np.array([cam.as_vector(intrinsic_names(problem.model)) for cam in cameras])
-    state = State(intrinsics, pose_R, pose_t, rig_R, rig_t, D, direction)
+    state = State(np.array([cam.as_vector() for cam in cameras]), pose_R, pose_t, rig_R, rig_t, D, direction)
     for i, v in enumerate(problem.views):
         if problem.mode == "none":
             for c in range(C):
@@ -363,7 +361,6 @@ def _jacobian_pieces(problem: Problem, state: State, batch: CameraBatch, W, Xc, 
 def _linearised_batches(problem: Problem, state: State):
     """Per camera: ``(batch, r (B, 2N), J_g (B, 2N, k_g), global columns, J_l (B, 2N, k_l), local
     slots)``, with the rows of unmeasured corners zero."""
-    model_columns = [INTRINSIC_NAMES.index(name) for name in intrinsic_names(problem.model)]
     for batch in problem.batches:
         W, Xc, rel_t = _camera_points(problem, state, batch)
         B, n = batch.observed.shape
@@ -372,7 +369,7 @@ def _linearised_batches(problem: Problem, state: State):
         obs = batch.observed[:, :, None]
         r = np.where(obs, uv.reshape(B, n, 2) - batch.uv_px, 0.0).reshape(B, 2 * n)
         glob, loc = _jacobian_pieces(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3),
-                                     J_K.reshape(B, n, 2, -1)[..., model_columns])
+                                     J_K.reshape(B, n, 2, -1))
 
         def stacked(pieces):
             J = np.concatenate([p for _, p in pieces], axis=-1)
@@ -491,7 +488,7 @@ class Solution:
         sig = dict.fromkeys(INTRINSIC_NAMES, 0.0)
         cols = lay.intrinsics[c]
         values = np.sqrt(np.maximum(np.diag(self.covariance(cols)), 0.0))
-        for name, s in zip(np.array(intrinsic_names(self.problem.model))[lay.free_intrinsics[c]], values):
+        for name, s in zip(np.array(INTRINSIC_NAMES)[lay.free_intrinsics[c]], values):
             sig[str(name)] = float(s)
         return sig
 

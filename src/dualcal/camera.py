@@ -100,17 +100,14 @@ class CameraModel:
         """Whether the lens has tangential terms (``p1`` or ``p2`` not zero)."""
         return self.p1 != 0.0 or self.p2 != 0.0
 
-    def as_vector(self, names: tuple[str, ...] = INTRINSIC_NAMES) -> np.ndarray:
-        """The intrinsics ``names``: by default ``[fx, fy, skew, cx, cy, k1, k2, p1, p2, k3]``
-        (:data:`INTRINSIC_NAMES`); ``intrinsic_names(cam.model)`` gives those of its lens model."""
-        return np.array([getattr(self, n) for n in names], dtype=float)
+    def as_vector(self) -> np.ndarray:
+        """``[fx, fy, skew, cx, cy, k1, k2, p1, p2, k3]`` (order of :data:`INTRINSIC_NAMES`)."""
+        return np.array([getattr(self, n) for n in INTRINSIC_NAMES], dtype=float)
 
     @classmethod
-    def from_vector(cls, image_size, vec, model: str = DEFAULT_LENS_MODEL,
-                    names: tuple[str, ...] = INTRINSIC_NAMES) -> "CameraModel":
-        """The camera of :meth:`as_vector` ``vec`` of intrinsics ``names`` (a shorter ``vec`` leaves the
-        last names at their defaults, 0 for the lens coefficients)."""
-        return cls(tuple(int(s) for s in image_size), **{n: float(x) for n, x in zip(names, vec)}, model=model)
+    def from_vector(cls, image_size, vec, model: str = DEFAULT_LENS_MODEL) -> "CameraModel":
+        """The camera of :meth:`as_vector` ``vec`` (a shorter one leaves the last coefficients 0)."""
+        return cls(tuple(int(s) for s in image_size), *(float(x) for x in vec), model=model)
 
     def with_distortion(self, k1: float, k2: float, p1: float = 0.0, p2: float = 0.0,
                         k3: float = 0.0) -> "CameraModel":
