@@ -447,9 +447,8 @@ def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
     J_K[:, 1, 4] = 1.0
     pu = cam.fx * x + cam.skew * y
     pv = cam.fy * y
-    r4 = r2 * r2
-    J_K[:, 0, 5], J_K[:, 0, 6], J_K[:, 0, 9] = pu * r2, pu * r4, pu * r4 * r2
-    J_K[:, 1, 5], J_K[:, 1, 6], J_K[:, 1, 9] = pv * r2, pv * r4, pv * r4 * r2
+    J_K[:, 0, 5], J_K[:, 0, 6], J_K[:, 0, 9] = pu * r2, pu * r2 * r2, pu * r2 * r2 * r2
+    J_K[:, 1, 5], J_K[:, 1, 6], J_K[:, 1, 9] = pv * r2, pv * r2 * r2, pv * r2 * r2 * r2
     dxd_dp1, dyd_dp1 = 2.0 * x * y, r2 + 2.0 * y * y           # and d(xd, yd)/dp2 = (r2 + 2 x^2, 2 x y)
     dxd_dp2, dyd_dp2 = r2 + 2.0 * x * x, dxd_dp1
     J_K[:, 0, 7] = cam.fx * dxd_dp1 + cam.skew * dyd_dp1
