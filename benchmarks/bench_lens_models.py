@@ -86,7 +86,8 @@ def opencv_fit(corners, model: str) -> tuple[dict, float]:
     a, b = names
     rms, K1, D1, K2, D2, *_ = cv2.stereoCalibrate(
         [X] * len(views), img[a], img[b], fits[a][1], fits[a][2], fits[b][1], fits[b][2], size,
-        flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12))
+        flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS,
+        criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12))
     return {a: _parameters(K1, D1), b: _parameters(K2, D2)}, float(rms)
 
 
@@ -113,8 +114,9 @@ def compare(name: str) -> None:
         adj = rig.adjustment
         n = adj["n_observations"]
         noise_only = base["s0_px"] * np.sqrt((n - base["n_parameters"]) / (n - adj["n_parameters"]))
-        lens = "; ".join(f"{cam}: " + ", ".join(f"{p} {_value_sigma(getattr(rig.cameras[cam], p), rig.camera_sigma[cam][p], 5)}"
-                                                for p in LENS_MODELS[m]) for cam in rig.cameras)
+        lens = "; ".join(f"{cam}: " + ", ".join(
+            f"{p} {_value_sigma(getattr(rig.cameras[cam], p), rig.camera_sigma[cam][p], 5)}" for p in LENS_MODELS[m])
+            for cam in rig.cameras)
         print(f"{m:<12} {adj['n_parameters']:>8} {rig.rms_px:>7.4f} {cv[m][1]:>10.4f} {adj['s0_px']:>8.4f} "
               f"{noise_only:>13.4f}  {lens}{'' if adj['converged'] else '  (NOT CONVERGED)'}")
     print()

@@ -241,7 +241,7 @@ def _monotonic_bracket(rd: np.ndarray, k1: float, k2: float, k3: float) -> tuple
     return lo, hi
 
 
-def undistort_radius(rd: np.ndarray, k1: float, k2: float, k3: float = 0.0, max_iter: int = 200):
+def undistort_radius(rd: np.ndarray, k1: float, k2: float, max_iter: int = 200, k3: float = 0.0):
     """Solve ``rd = r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` for ``r`` on the monotonic branch (paper eq. 25,
     typo corrected): Newton's method safeguarded by bisection.
 
@@ -294,7 +294,7 @@ def _radial_inverse(xy_r: np.ndarray, k1: float, k2: float, k3: float) -> np.nda
     """Ideal points whose radial distortion alone gives ``xy_r`` (N, 2) (eqs. 25-27): the radius from
     :func:`undistort_radius`, the direction kept. A radius beyond the fold is taken at the fold."""
     rd = np.hypot(xy_r[..., 0], xy_r[..., 1])
-    r, converged = undistort_radius(np.minimum(rd, max_distorted_radius(k1, k2, k3)), k1, k2, k3)
+    r, converged = undistort_radius(np.minimum(rd, max_distorted_radius(k1, k2, k3)), k1, k2, k3=k3)
     if not converged:
         raise NotInvertibleError("undistortion did not converge (radius too close to the fold of the model)")
     return xy_r * np.divide(r, rd, out=np.ones_like(rd), where=rd > 0)[..., None]
@@ -333,15 +333,16 @@ def _undistort_tangential(xy_d: np.ndarray, k1: float, k2: float, p1: float, p2:
         xd, yd, (a, b, d), _ = _distorted_with_jacobian(x, y, k1, k2, p1, p2, k3)
         fx, fy = xd - tx, yd - ty
         det = a * d - b * b
-        if np.all(np.maximum(np.abs(fx), np.abs(fy)) <= tol):
+        done = np.maximum(np.abs(fx), np.abs(fy)) <= tol
+        if done.all():
             break
         with np.errstate(divide="ignore", invalid="ignore"):
-            sx, sy = (d * fx - b * fy) / det, (a * fy - b * fx) / det
+            sx, sy = np.where(done, 0.0, (d * fx - b * fy) / det), np.where(done, 0.0, (a * fy - b * fx) / det)
         for _ in range(60):                     # stay on the branch where the radial part increases
-            out = (x - sx) ** 2 + (y - sy) ** 2 > r2_max
-            if not out.any():
+            outside = (x - sx) ** 2 + (y - sy) ** 2 > r2_max
+            if not outside.any():
                 break
-            sx, sy = np.where(out, 0.5 * sx, sx), np.where(out, 0.5 * sy, sy)
+            sx, sy = np.where(outside, 0.5 * sx, sx), np.where(outside, 0.5 * sy, sy)
         x, y = x - sx, y - sy
     else:
         raise NotInvertibleError(f"undistortion with {_coefficients_text(k1, k2, p1, p2, k3)} did not converge "
@@ -490,7 +491,7 @@ def _folds_tangentially(cam: CameraModel, rd_img: float, samples: int = 129) -> 
     """
     k1, k2, k3 = cam.radial
     rd_max = max_distorted_radius(k1, k2, k3)
-    r_out = float(undistort_radius(np.array([min(1.1 * rd_img, rd_max)]), k1, k2, k3)[0][0])
+    r_out = float(undistort_radius(np.array([min(1.1 * rd_img, rd_max)]), k1, k2, k3=k3)[0][0])
     t = np.linspace(-r_out, r_out, samples)
     x, y = (a.ravel() for a in np.meshgrid(t, t))
     xd, yd, (a, b, d), r2 = _distorted_with_jacobian(x, y, *cam.distortion)

@@ -255,10 +255,10 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
     weighs each view by its homography's redundancy (``sqrt(2 n - 8)`` for n corners: one of 4
     corners has none, and no say; unweighted, a single such view of a narrow lens that sees
     small parts of the board was seen to make fx 790 px for a true 6059). A start the
-    adjustment could not move from is avoided: linear coefficients
-    whose radial part folds over where the corners are become 0, and a pose with a corner behind the camera is
-    replaced by space resection (IPPE). These are the starting values of the joint adjustment,
-    which refines all of them together.
+    adjustment could not move from is avoided: linear coefficients whose radial part folds over
+    where the corners are become 0, and a pose with a corner behind the camera is replaced by
+    space resection (IPPE). These are the starting values of the joint adjustment, which refines
+    all of them together.
     """
     keys = sorted(views)
     seen = [observed_mask(views[k]) for k in keys]
