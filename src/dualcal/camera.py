@@ -111,7 +111,7 @@ class CameraModel:
 
     def with_distortion(self, k1: float, k2: float, p1: float = 0.0, p2: float = 0.0,
                         k3: float = 0.0) -> "CameraModel":
-        """The same camera and lens model with other coefficients."""
+        """The same camera and lens model with other coefficients (those not given are 0)."""
         return replace(self, k1=float(k1), k2=float(k2), p1=float(p1), p2=float(p2), k3=float(k3))
 
     def pinhole(self) -> "CameraModel":
