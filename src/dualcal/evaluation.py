@@ -102,7 +102,8 @@ def holdout_photos(rig: RigModel, progress: bool = True) -> dict[str, dict[str, 
 
     Calls :func:`dualcal.calibrate.calibrate_rig` once per view, as the full calibration was
     run: with the photos and corners it used (:meth:`RigModel.used_corners`) of all other views and its
-    settings (skew, rig mode, reference, :meth:`RigModel.calibration_options`); then :func:`resect_view` orients
+    settings (skew, rig mode, reference, :meth:`RigModel.calibration_options`: outliers, board shape, lens
+    model); then :func:`resect_view` orients
     the view's used photos. Only views the full calibration kept are evaluated.
     """
     from .calibrate import calibrate_rig   # the adjustment is only needed here

@@ -106,7 +106,7 @@ def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray
     """
     yd = ((v - cam.cy) / cam.fy)[:, None]
     xd = (u[None, :] - cam.cx - cam.skew * yd) / cam.fx
-    xy = undistort_normalized(np.stack(np.broadcast_arrays(xd, yd), axis=-1), cam.k1, cam.k2)  # (B, W, 2)
+    xy = undistort_normalized(np.stack(np.broadcast_arrays(xd, yd), axis=-1), *cam.distortion)  # (B, W, 2)
     x, y = xy[..., 0], xy[..., 1]
     Hinv = np.linalg.inv(np.column_stack([pose.R[:, 0], pose.R[:, 1], pose.t_mm]))
     w = Hinv[2, 0] * x + Hinv[2, 1] * y + Hinv[2, 2]          # = 1 / Z_cam

@@ -13,6 +13,9 @@ Presets
             the paper's set-up: 8x5 inner corners of 30 mm)
 ``stereo``  a 640x480 stereo rig with a 100 mm baseline (like OpenCV's stereo sample)
 ``triple``  wide + tele + ultra-wide (three cameras, 12 MP portrait)
+``stereo5`` the ``stereo`` rig with OpenCV's five-coefficient lens model (``k1k2p1p2k3``): left as
+            OpenCV's own calibration of its stereo sample's left camera (``left_intrinsics.yml``:
+            k3 = 0.238, p1 = 0.0018), right as Bouguet's joint stereo result (p1 = -0.0006, k3 = 0)
 """
 
 from __future__ import annotations
@@ -70,6 +73,15 @@ PRESETS = {
         fill=(0.45, 0.85),
     ),
 }
+PRESETS["stereo5"] = dict(
+    PRESETS["stereo"],
+    cameras={
+        "left": CameraModel((640, 480), 535.9157, 535.9157, 0.0, 342.2832, 235.5708, -0.26637, -0.03859,
+                            0.00178, -0.00028, 0.23839, model="k1k2p1p2k3"),
+        "right": CameraModel((640, 480), 536.81377, 536.47649, 0.0, 326.28657, 250.10121, -0.28943, 0.10690,
+                             -0.00059, 0.00014, 0.0, model="k1k2p1p2k3"),
+    },
+)
 
 
 @dataclass

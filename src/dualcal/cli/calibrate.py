@@ -55,11 +55,14 @@ def _load_input(path: str, flags, dataset_opts):
               show_default=True,
               help="auto: estimate the board's sag, bend and twist and keep them where the photos show them "
                    "beyond their noise; fit: always keep them; flat: take the board as flat.")
+@click.option("--model", "model", type=LazyChoice("dualcal.camera:LENS_MODELS"), default="k1k2", show_default=True,
+              help="Lens model: k1k2 (the paper's, two radial terms), k1k2k3 (three), k1k2p1p2 (two radial and "
+                   "two tangential), k1k2p1p2k3 (OpenCV's five coefficients).")
 @click.option("--compare-models/--no-compare-models", default=True, show_default=True,
               help="Also solve the other skew model and print both side by side, as the paper's tables do.")
 @dataset_options
 def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, output, skew, rig_mode,
-                      drop_outliers, outlier_factor, board_shape, compare_models, **dataset_opts):
+                      drop_outliers, outlier_factor, board_shape, model, compare_models, **dataset_opts):
     """Calibrate every camera and the rig from INPUT and write calib.json.
 
     INPUT is a corners.json (from 'dualcal detect', also one edited by hand: views removed,
@@ -82,7 +85,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     check_output_file(output)
     corners = _load_input(input_path, board_from_flags(board_spec, square_mm, marker_mm, dictionary), dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
-                  outlier_factor=outlier_factor, board_shape=board_shape)
+                  outlier_factor=outlier_factor, board_shape=board_shape, model=model)
     rig = calibrate_rig(corners, skew=skew, **kwargs)
     save_rig(output, rig)
     models = [rig]
@@ -100,7 +103,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
         console.print(f"board shape estimated: sag {sag_mm(rig.board.object_points_mm(), rig.board_shape_mm):.2f} mm "
                       f"({', '.join(f'{t} {w:+.2f} mm' for t, w in zip(SHAPE_TERMS, rig.board_shape_mm))})")
     console.print(f"RMS reprojection error (2-D, per corner) {rig.rms_px:.3f} px, s0 (per coordinate) "
-                  f"{rig.adjustment['s0_px']:.3f} px, rig mode {rig.rig_mode}; written {output}")
+                  f"{rig.adjustment['s0_px']:.3f} px, rig mode {rig.rig_mode}, lens model {rig.model}; written {output}")
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
         console.print(f"  {name}: {rig.checks[name]['message']}")
@@ -126,7 +129,8 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @cli.command("synth")
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--preset", type=LazyChoice("dualcal.synth:PRESETS"), default="note8", show_default=True,
-              help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra).")
+              help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra), "
+                   "stereo5 (the 640x480 pair with OpenCV's five-coefficient lenses, k1 k2 p1 p2 k3).")
 @click.option("--views", type=int, default=13, show_default=True, help="Number of board poses.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed of poses, noise and photos.")
 @click.option("--scale", type=float, default=1.0, show_default=True,
