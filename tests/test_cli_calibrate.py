@@ -70,6 +70,30 @@ def test_calibrate_model_flag_fits_opencvs_lens_and_records_it(tmp_path, run_cli
         assert f"{entry['p1']:.5f}" in res.out
 
 
+def test_calibrate_compares_the_lens_models_and_records_the_comparison(tmp_path, run_cli):
+    """Every lens model on the same corners: a table, one recommendation in calib.json and in the
+    line below the table (with the command to use it where it is not the model used)."""
+    out = tmp_path / "set"
+    assert run_cli("synth", out, "--preset", "stereo5", "--views", "8", "--seed", "2", "--noise", "0.1",
+                   "--no-photos").code == 0
+    res = run_cli("calibrate", out / "corners.json", "-o", out / "calib.json", "--no-compare-models")
+    assert res.code == 0, res.err
+    scores = json.loads((out / "calib.json").read_text())["adjustment"]["lens_models"]
+    assert [s["model"] for s in scores] == ["k1k2", "k1k2k3", "k1k2p1p2", "k1k2p1p2k3"]
+    (best,) = [s for s in scores if s["recommended"]]
+    assert min(s["worse_se"] for s in scores) == 0 and best["worse_se"] <= 2
+    assert all(s["worse_se"] > 2 for s in scores if s["coefficients"] < best["coefficients"])
+    assert "Lens models: RMS (px)" in res.out
+    advice = next(line for line in res.out.splitlines() if line.startswith("lens model "))
+    if best["model"] == "k1k2":
+        assert advice.startswith("lens model k1k2: no richer model")
+    else:
+        assert f"--model {best['model']}" in advice
+    res = run_cli("calibrate", out / "corners.json", "-o", out / "c2.json", "--no-compare-models", "--no-compare-lens")
+    assert res.code == 0 and "lens_models" not in json.loads((out / "c2.json").read_text())["adjustment"]
+    assert "Lens models" not in res.out
+
+
 def test_an_unknown_lens_model_is_refused_by_the_flag(synth_dir, run_cli):
     res = run_cli("calibrate", synth_dir / "corners.json", "-o", synth_dir / "c.json", "--model", "fisheye")
     assert res.code == 2 and "Invalid value for '--model'" in res.err and "k1k2p1p2k3" in res.err

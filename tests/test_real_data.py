@@ -169,6 +169,21 @@ def test_stereo_tangential_terms_agree_with_bouguet(stereo_corners):
     assert rig.adjustment["s0_px"] < 0.98 * noise_only
 
 
+@pytest.mark.parametrize("name, kwargs, recommended", [
+    ("stereo", dict(rig_mode="rigid", reference="left"), "k1k2p1p2"),   # Bouguet's choice for this rig
+    ("bouguet", {}, "k1k2"), ("huawei", dict(rig_mode="none"), "k1k2")])
+def test_the_lens_model_recommended_by_held_out_instants(name, kwargs, recommended, request):
+    """Held-out instants choose the tangential terms where they are real (the stereo rig: they
+    predict the unseen instants better by several standard errors) and the paper's model elsewhere."""
+    selection = pytest.importorskip("dualcal.model_selection")
+    calibrate = pytest.importorskip("dualcal.calibrate")
+    corners = request.getfixturevalue(f"{name}_corners")
+    scores = {s.model: s for s in selection.compare_lens_models(calibrate.calibrate_rig(corners, **kwargs))}
+    assert [m for m, s in scores.items() if s.recommended] == [recommended]
+    if recommended != "k1k2":
+        assert scores["k1k2"].worse_se > 2.5
+
+
 def test_huawei_calibration_agrees_with_matlab(huawei_corners):
     calibrate = pytest.importorskip("dualcal.calibrate")
     rig = calibrate.calibrate_rig(huawei_corners, rig_mode="none")

@@ -42,7 +42,12 @@ def rig():
     rig.adjustment = {"s0_px": 0.301, "redundancy": 1100, "iterations": 6, "n_observations": 1200,
                       "n_parameters": 100, "n_constraints": 0, "converged": True,
                       "termination": "the step fell below the tolerance",
-                      "options": {"drop_outliers": True, "outlier_factor": 3.0}}
+                      "options": {"drop_outliers": True, "outlier_factor": 3.0},
+                      "held_out_rms_px": 0.4431,
+                      "lens_models": [{"model": "k1k2", "coefficients": 2, "fit_rms_px": 0.425, "held_out_rms_px": 0.4431,
+                                       "worse_se": 3.4, "recommended": False},
+                                      {"model": "k1k2p1p2", "coefficients": 4, "fit_rms_px": 0.418,
+                                       "held_out_rms_px": 0.4372, "worse_se": 0.0, "recommended": True}]}
     del rig.camera_poses["tele"]["IMG_08"]
     rig.corners.cameras["wide"].views["IMG_07"] = None     # board not found in that photo
     rig.camera_sigma_formal = {name: {k: v / 3 for k, v in SIGMA.items()} for name in rig.cameras}
@@ -338,6 +343,13 @@ def test_the_adjustment_has_plain_labels(page):
     assert _row(cells, "why the solver stopped", 2)[1] == "the step fell below the tolerance"
     assert not any(c.startswith("constraints") for c in cells)      # none in rig mode rigid
     assert not [c for c in cells if "_" in c or c in ("True", "False")]
+    assert _row(cells, "RMS error of an instant left out of the calibration (px, per corner)", 2)[1] == "0.4431"
+
+
+def test_the_lens_models_compared_are_on_the_page(page):
+    cells = page.cells["table-lens-models"]
+    assert _row(cells, "k1k2", 6)[1:] == ["2", "0.4250", "0.4431", "3.4", "used"]
+    assert _row(cells, "k1k2p1p2", 6)[1:] == ["4", "0.4180", "0.4372", "0.0", "recommended"]
 
 
 def test_summary_states_modes_and_rms(html):

@@ -7,7 +7,8 @@ cluster (like the intrinsics) and one local parameter per cluster (like its boar
 import numpy as np
 import pytest
 
-from dualcal.uncertainty import ClusterRows, cluster_scores, clustered_covariance, leverage_adjusted_residuals
+from dualcal.uncertainty import (ClusterRows, cluster_scores, clustered_covariance, held_out_residuals,
+                                 leverage_adjusted_residuals)
 
 G, M, P = 10, 30, 3          # clusters, rows per cluster, global parameters
 
@@ -84,3 +85,28 @@ def test_self_determined_directions_are_projected_out():
     assert abs(adj.sum()) < 1e-9
     with pytest.raises(ValueError):
         leverage_adjusted_residuals(J, r[:4], M)
+
+
+def test_held_out_residuals_are_those_of_the_fit_without_the_cluster():
+    """Linear model: ``(I - H)^-1 r`` is exactly the residual of a cluster predicted by the fit of the
+    others, its own intercept fitted to it again; a cluster without which the others cannot
+    determine a parameter has none."""
+    rng = np.random.default_rng(4)
+    X_blocks = _design(rng)
+    y_blocks = [Xc @ np.array([1.0, -2.0, 0.5]) + rng.normal() + rng.normal(0, 0.3, M) for Xc in X_blocks]
+    _, N_inv, clusters, _ = _fit(X_blocks, y_blocks)
+    block = lambda cols: N_inv[np.ix_(cols, cols)]          # noqa: E731
+    for c in (0, 7):
+        others = [i for i in range(G) if i != c]
+        J = np.zeros(((G - 1) * M, P + G - 1))
+        for k, i in enumerate(others):
+            J[k * M:(k + 1) * M, :P] = X_blocks[i]
+            J[k * M:(k + 1) * M, P + k] = 1.0
+        beta = np.linalg.lstsq(J, np.concatenate([y_blocks[i] for i in others]), rcond=None)[0]
+        pred = X_blocks[c] @ beta[:P]
+        expected = pred - np.mean(pred - y_blocks[c]) - y_blocks[c]        # its intercept refitted
+        cl = clusters[c]
+        np.testing.assert_allclose(held_out_residuals(cl.J, cl.r, block(cl.columns), 1), expected, atol=1e-10)
+    J = np.column_stack([np.ones(5), np.arange(5.0)])       # the only cluster to see the slope
+    r = rng.normal(size=5)
+    assert held_out_residuals(J, r - r.mean(), np.linalg.inv(J.T @ J), 1) is None

@@ -56,7 +56,7 @@ from .normal_equations import Factorization, NormalEquations
 from .poses import moved_on_sphere, opk_jacobian, relative_pose, rotated, tangent_basis
 from .progress import warn
 from .rotation import ARCMIN_PER_RAD, cross_matrix, opk_from_rotation
-from .uncertainty import cluster_scores, clustered_covariance
+from .uncertainty import cluster_scores, clustered_covariance, held_out_residuals
 
 RIG_MODES = ("rigid", "paper", "none")
 COVARIANCE_KINDS = ("clustered", "formal")
@@ -559,7 +559,20 @@ class Solution:
     def instant_rows(self) -> list[InstantRows]:
         """:func:`instant_rows` at the solution (for a covariance clustered by instant; ``N^-1``
         on any columns from :meth:`covariance` over ``s0^2``)."""
+        return self._instant_rows
+
+    @cached_property
+    def _instant_rows(self) -> list[InstantRows]:
         return instant_rows(self.problem, self.state)
+
+    def held_out_residuals(self) -> dict[str, np.ndarray | None]:
+        """Every instant's residuals (px, as :class:`InstantRows`) predicted by the adjustment
+        without it, its own poses fitted to it again: a linearised leave-one-instant-out
+        (:func:`dualcal.uncertainty.held_out_residuals`); None for an instant the others cannot
+        do without (the only one to show some parameter)."""
+        G, inverse = self.problem.layout.n_global, self.factorization.inverse_block
+        return {ir.view: held_out_residuals(ir.J, ir.r, inverse(ir.columns), int(np.sum(ir.columns >= G)))
+                for ir in self.instant_rows()}
 
 
 def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> Solution:

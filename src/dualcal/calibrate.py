@@ -373,6 +373,20 @@ def _larger(a: dict[str, float], b: dict[str, float]) -> dict[str, float]:
     return {k: max(a[k], b[k]) for k in a}
 
 
+def held_out_error(sol: Solution) -> dict:
+    """The error on instants the calibration did not see (:meth:`Solution.held_out_residuals`):
+    ``held_out_rms_px``, the RMS length of the 2-D held-out residual per corner over the instants
+    that can be left out, and ``held_out_per_instant`` ``{view: {"rms_px", "corners"}}``."""
+    per_instant = {}
+    for view, e in sol.held_out_residuals().items():
+        if e is not None:
+            per_instant[view] = {"rms_px": float(np.sqrt(2 * np.mean(e ** 2))), "corners": len(e) // 2}
+    squares = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
+    corners = sum(d["corners"] for d in per_instant.values())
+    return {"held_out_rms_px": float(np.sqrt(squares / corners)) if corners else None,
+            "held_out_per_instant": per_instant}
+
+
 def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict],
                             dropped_corners: list[dict] = ()) -> RigModel:
     """Package an adjustment result as the :class:`RigModel` written to calib.json (no checks)."""
@@ -405,7 +419,7 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
                                 dict(zip(("t_mm", "baseline_mm", "opk_arcmin"), formal)))
     adjustment = {"s0_px": sol.s0_px, "redundancy": sol.redundancy, "iterations": sol.iterations,
                   "converged": sol.converged, "termination": sol.termination,
-                  "n_observations": p.n_observations, "n_parameters": p.n_parameters}
+                  "n_observations": p.n_observations, "n_parameters": p.n_parameters, **held_out_error(sol)}
     shape = shape_sigma = None
     if p.board_shape:
         shape = st.board_shape_mm.copy()

@@ -129,3 +129,31 @@ def photo_table(rig: RigModel) -> Table:
         notes = [f"{n}: {per[n][1]}" for n in names if n in per and per[n][1] != "kept"]
         t.add_row(view, *cells, "; ".join(notes) or "kept")
     return t
+
+
+def lens_model_table(scores, used: str) -> Table:
+    """The lens models side by side (:func:`dualcal.model_selection.score_lens_models`): fit and
+    held-out RMS (px), how many standard errors worse than the best held out, the one recommended
+    and the one ``used`` by the calibration."""
+    t = Table(title="Lens models: RMS (px) on the photos fitted, and on each instant left out of the calibration",
+              caption="vs best: how many standard errors the held-out error exceeds the best model's",
+              box=box.SIMPLE_HEAD)
+    for col in ("model", "terms", "fit", "held out", "vs best", ""):
+        t.add_column(col, justify="left" if col in ("model", "") else "right", no_wrap=True)
+    for s in scores:
+        notes = (["recommended"] if s.recommended else []) + (["used"] if s.model == used else [])
+        t.add_row(s.model, str(s.coefficients), f"{s.fit_rms_px:.4f}", f"{s.held_out_rms_px:.4f}",
+                  f"{s.worse_se:.1f}", ", ".join(notes))
+    return t
+
+
+def lens_model_advice(scores, used: str) -> str:
+    """One line: the recommended model and, where it is not ``used``, how to calibrate with it."""
+    best = next(s for s in scores if s.recommended)
+    if best.model == used:
+        return (f"lens model {used}: no richer model predicts the instants left out better by more than "
+                f"its noise (held-out RMS {best.held_out_rms_px:.4f} px)")
+    mine = next((s for s in scores if s.model == used), None)
+    versus = f" vs {mine.held_out_rms_px:.4f} px for {used}, {mine.worse_se:.1f} SE worse" if mine else ""
+    return (f"lens model {best.model} recommended (held-out RMS {best.held_out_rms_px:.4f} px{versus}): "
+            f"calibrate again with --model {best.model}")

@@ -42,9 +42,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ClusterRows", "cluster_scores", "clustered_covariance", "leverage_adjusted_residuals"]
+__all__ = ["ClusterRows", "cluster_scores", "clustered_covariance", "held_out_residuals", "leverage_adjusted_residuals"]
 
 _SELF_DETERMINED = 1e-9    # 1 - eigenvalue below which a direction is fixed by its cluster alone
+_HELD_OUT_OWN = 1e-6       # the same, for asking whether the other clusters determine a direction
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,13 @@ class ClusterRows:
     r: np.ndarray
 
 
+def _hat_eigen(J: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues ``lam`` and row-space eigenvectors ``U`` of the cluster's hat block ``H = J M J^T``."""
+    Q, R = np.linalg.qr(J)
+    lam, V = np.linalg.eigh(R @ M @ R.T)
+    return lam, Q @ V
+
+
 def leverage_adjusted_residuals(J: np.ndarray, r: np.ndarray, M: np.ndarray) -> np.ndarray:
     """``(I - H)^-1/2 r`` with ``H = J M J^T`` (Bell & McCaffrey's CR2 adjustment).
 
@@ -65,13 +73,30 @@ def leverage_adjusted_residuals(J: np.ndarray, r: np.ndarray, M: np.ndarray) -> 
     r : (m,) its residuals.
     M : (k, k) the inverse normal matrix restricted to those columns.
     """
-    Q, R = np.linalg.qr(J)
-    lam, V = np.linalg.eigh(R @ M @ R.T)
-    U = Q @ V                                                   # eigenvectors of H in row space
+    lam, U = _hat_eigen(J, M)
     keep = 1.0 - lam > _SELF_DETERMINED
     factor = np.where(keep, 1.0 / np.sqrt(np.where(keep, 1.0 - lam, 1.0)), 0.0) - 1.0
     # r + U (f - 1) U^T r: (I - H)^-1/2 on the span of J, identity outside it; the self-determined
     # directions (f = 0) are projected out, their residual is zero at the optimum anyway
+    return r + U @ (factor * (U.T @ r))
+
+
+def held_out_residuals(J: np.ndarray, r: np.ndarray, M: np.ndarray, n_own: int) -> np.ndarray | None:
+    """The cluster's residuals as the fit without it predicts them: ``(I - H)^-1 r``, or None.
+
+    For a linear least-squares problem this is exact: leaving the cluster out moves the shared
+    parameters so that its residuals become ``(I - H)^-1 r`` once its ``n_own`` own columns (the
+    parameters no other cluster has, e.g. its board poses) are fitted to it again (the grouped form
+    of the PRESS residuals). At the optimum ``r`` has no component along those own columns, the
+    directions where ``H`` has eigenvalue 1, so they are left as they are. ``None`` when more than
+    ``n_own`` eigenvalues are 1: without the cluster the others do not determine everything it
+    touches, and no prediction exists. Arguments as :func:`leverage_adjusted_residuals`.
+    """
+    lam, U = _hat_eigen(J, M)
+    own = 1.0 - lam <= _HELD_OUT_OWN
+    if own.sum() > n_own:
+        return None
+    factor = np.where(own, 1.0, 1.0 / np.where(own, 1.0, 1.0 - lam)) - 1.0
     return r + U @ (factor * (U.T @ r))
 
 

@@ -23,7 +23,7 @@ from .common import BOARD_OPTION_NAMES, board_from_flags, default_jobs
 # one of calibrate_rig's or open_dataset's (the command sorts them when it runs), so a new
 # calibration option reaches batch without a change here. The library is imported only then,
 # to keep the CLI's start-up light.
-_NOT_PER_DEVICE = {"input_path", "output", "compare_models", "jobs", "hints_path", "overlays_dir"}
+_NOT_PER_DEVICE = {"input_path", "output", "compare_models", "compare_lens", "jobs", "hints_path", "overlays_dir"}
 _PER_DEVICE = [p for p in calibrate_command.params if p.name not in _NOT_PER_DEVICE]
 
 

@@ -60,9 +60,13 @@ def _load_input(path: str, flags, dataset_opts):
                    "two tangential), k1k2p1p2k3 (OpenCV's five coefficients).")
 @click.option("--compare-models/--no-compare-models", default=True, show_default=True,
               help="Also solve the other skew model and print both side by side, as the paper's tables do.")
+@click.option("--compare-lens/--no-compare-lens", "compare_lens", default=True, show_default=True,
+              help="Also calibrate with every other lens model, compare them by their error on instants left "
+                   "out of the calibration, and recommend one (recorded in calib.json).")
 @dataset_options
 def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, output, skew, rig_mode,
-                      drop_outliers, outlier_factor, board_shape, model, compare_models, **dataset_opts):
+                      drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens,
+                      **dataset_opts):
     """Calibrate every camera and the rig from INPUT and write calib.json.
 
     INPUT is a corners.json (from 'dualcal detect', also one edited by hand: views removed,
@@ -75,8 +79,9 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     from ..checks import failed_checks, verdict
     from ..errors import EstimationError
     from ..io import check_output_file, save_rig
+    from ..model_selection import compare_lens_models
     from ..progress import warn
-    from ..tables import photo_table, result_tables
+    from ..tables import lens_model_advice, lens_model_table, photo_table, result_tables
 
     if input_path is None and not dataset_opts.get("cameras"):
         raise click.UsageError("give INPUT (a corners.json or a dataset folder) or --camera NAME=GLOB")
@@ -87,6 +92,13 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
                   outlier_factor=outlier_factor, board_shape=board_shape, model=model)
     rig = calibrate_rig(corners, skew=skew, **kwargs)
+    lens_scores = None
+    if compare_lens:
+        try:
+            lens_scores = compare_lens_models(rig)
+            rig.adjustment["lens_models"] = [s.to_dict() for s in lens_scores]
+        except EstimationError as exc:
+            warn(f"the lens models could not be compared: {exc}")
     save_rig(output, rig)
     models = [rig]
     if compare_models:
@@ -104,6 +116,9 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
                       f"({', '.join(f'{t} {w:+.2f} mm' for t, w in zip(SHAPE_TERMS, rig.board_shape_mm))})")
     console.print(f"RMS reprojection error (2-D, per corner) {rig.rms_px:.3f} px, s0 (per coordinate) "
                   f"{rig.adjustment['s0_px']:.3f} px, rig mode {rig.rig_mode}, lens model {rig.model}; written {output}")
+    if lens_scores:
+        console.print(lens_model_table(lens_scores, rig.model))
+        console.print(lens_model_advice(lens_scores, rig.model))
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
         console.print(f"  {name}: {rig.checks[name]['message']}")

@@ -38,6 +38,7 @@ ADJUSTMENT_LABELS = {
     "redundancy": "redundancy (observations − unknowns + constraints)",
     "n_observations": "observations (corner coordinates)",
     "n_parameters": "unknowns",
+    "held_out_rms_px": "RMS error of an instant left out of the calibration (px, per corner)",
     "n_constraints": "constraints (the paper's, rig mode paper)",
     "iterations": "iterations",
     "converged": "converged",
@@ -310,6 +311,8 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
                          if evaluation and evaluation.get("holdout")
                          else "photos oriented by the calibration's own poses"),
         adjustment=adjustment_rows(rig),
+        lens_models=rig.adjustment.get("lens_models"),
+        model=rig.model,
         checks=checks_table(rig),
         verdict=verdict(rig.checks) if rig.checks else None,
         board_shape=board_shape_text(rig),
