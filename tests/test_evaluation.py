@@ -289,10 +289,16 @@ def test_evaluate_command(tmp_path, run_cli):
     res = run_cli("evaluate", tmp_path / "calib.json", "-o", tmp_path / "eval.json")
     assert res.code == 0, res.err
     doc = load_evaluation(tmp_path / "eval.json")
-    rows = [line for line in res.out.splitlines() if line.startswith("│")]
+    tables, pose_free = res.out.split("Pose-free length check")
+    rows = [line for line in tables.splitlines() if line.startswith("│")]
     assert [r.split("│")[1].strip() for r in rows] == ["dual", "wide", "tele"]
     for row, case in zip(rows, doc["cases"].values()):
         assert [float(x) for x in row.split("│")[3:6]] == pytest.approx(case["rmse_mm"], abs=6e-4)
+    rows = [line.split("│")[1:-1] for line in pose_free.splitlines() if line.startswith("│")]
+    assert [r[0].strip() for r in rows] == ["dual"]
+    case = doc["pose_free"]["dual"]
+    assert [float(x) for x in rows[0][1:3]] == pytest.approx([case["rms_mm"], case["max_mm"]], abs=6e-4)
+    assert int(rows[0][3]) == case["lengths"] == 4 * 40 * 39 // 2 and int(rows[0][4]) == case["instants"] == 4
 
 
 def test_evaluate_command_errors(tmp_path, run_cli):
