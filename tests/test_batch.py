@@ -419,6 +419,19 @@ def test_cli_batch_help_lists_the_options_of_calibrate(run_cli):
     assert "--overlays" not in res.out and "--compare-models" not in res.out
 
 
+def test_cli_batch_takes_calibrates_lens_model(run_cli, client, small_fleet, tmp_path):
+    """--model is one of calibrate's options, so every device gets it: calib.json and the fleet table
+    name the model and carry its coefficients."""
+    assert "--model" in run_cli("batch", "--help").out
+    res = run_cli("batch", small_fleet, "-o", tmp_path / "out", "--scheduler", client.scheduler.address,
+                  "--no-evaluate", "--model", "k1k2p1p2")
+    assert res.code == 0, res.err
+    table = pd.read_parquet(tmp_path / "out" / "fleet.parquet")
+    assert list(table["model"]) == ["k1k2p1p2"] * 2
+    assert table[["wide.p1", "tele.p2", "wide.sigma.p1"]].notna().all().all() and "wide.k3" not in table
+    assert json.loads((tmp_path / "out" / "unit-001" / "calib.json").read_text())["model"] == "k1k2p1p2"
+
+
 def test_cli_batch_on_a_real_stereo_rig_agrees_with_bouguet(run_cli, client, shared_data, tmp_path):
     """OpenCV's stereo sample as a device of photos (a link into shared/data): Bouguet's reference
     values within the tolerances of tests/test_real_data.py."""

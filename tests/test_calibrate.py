@@ -14,7 +14,7 @@ import pytest
 from dualcal.board import sag_mm, shaped_points_mm
 from dualcal.calibrate import calibrate_rig
 from dualcal.camera import INTRINSIC_NAMES, project_points
-from dualcal.errors import EstimationError
+from dualcal.errors import EstimationError, InputError
 from dualcal.model import CameraCorners, CornerSet, Pose
 from dualcal.rotation import rotation_from_rotvec
 from dualcal.synth import make_truth, noisy_corner_set
@@ -30,7 +30,8 @@ def test_exact_corners_give_the_exact_rig(preset, mode, skew):
     truth = make_truth(preset, 10, seed=11)
     rig = calibrate_rig(noisy_corner_set(truth, 0.0), skew=skew, rig_mode=mode)
     for name, err in _intrinsic_errors(rig, truth).items():
-        scale = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-7, 1e-6]) * np.maximum(1, np.abs(truth.cameras[name].as_vector()))
+        tolerance = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-7, 1e-6, 1e-7, 1e-7, 1e-6])   # ..., p1, p2, k3
+        scale = tolerance * np.maximum(1, np.abs(truth.cameras[name].as_vector()))
         assert np.all(np.abs(err) < scale), (name, err)
     for name, rel in rig.rig.items():
         np.testing.assert_allclose(rel.pose.t_mm, truth.rig[name].t_mm, atol=1e-5)
@@ -164,6 +165,50 @@ def test_a_bent_board_is_found_and_costs_little():
     assert np.all(ratio < 1.3), np.round(ratio, 2)
 
 
+@pytest.mark.parametrize("mode", ["rigid", "paper", "none"])
+def test_exact_corners_give_the_exact_lens_of_every_coefficient(mode):
+    """OpenCV's five-coefficient lens (synth preset stereo5: k3 = 0.238, p1 = 0.0018 on the left)
+    comes back exactly: corners to 1e-6 px, every coefficient to 1e-9."""
+    truth = make_truth("stereo5", 10, seed=11)
+    rig = calibrate_rig(noisy_corner_set(truth, 0.0), rig_mode=mode, model="k1k2p1p2k3")
+    assert rig.model == "k1k2p1p2k3" and rig.rms_px < 1e-6
+    for name, cam in rig.cameras.items():
+        true = truth.cameras[name]
+        np.testing.assert_allclose(cam.distortion, true.distortion, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(cam.as_vector()[:5], true.as_vector()[:5], rtol=1e-8, atol=1e-6)
+    for name, rel in rig.rig.items():
+        np.testing.assert_allclose(rel.pose.t_mm, truth.rig[name].t_mm, atol=1e-6)
+
+
+def test_noisy_corners_recover_a_tangential_lens_within_4_sigma():
+    truth = make_truth("stereo5", 13, seed=7)
+    rig = calibrate_rig(noisy_corner_set(truth, 0.2, seed=8), model="k1k2p1p2k3")
+    for name, err in _intrinsic_errors(rig, truth).items():
+        sig = np.array([rig.camera_sigma[name][p] for p in INTRINSIC_NAMES])
+        free = sig > 0
+        assert free.sum() == 9                          # all but skew
+        assert np.all(np.abs(err[free]) < 4 * sig[free]), (name, err, sig)
+    assert rig.adjustment["s0_px"] == pytest.approx(0.2, rel=0.1)
+
+
+def test_monte_carlo_sigmas_of_the_tangential_terms_are_honest():
+    """30 noise draws on stereo5 in OpenCV's model: error / sigma of p1, p2 (and k3) spreads by 0.8-1.25."""
+    truth = make_truth("stereo5", 13, seed=5)
+    z = {"p1": [], "p2": [], "k3": []}
+    for k in range(30):
+        rig = calibrate_rig(noisy_corner_set(truth, 0.2, seed=300 + k), model="k1k2p1p2k3", drop_outliers=False)
+        for name, cam in rig.cameras.items():
+            for p in z:
+                z[p].append((getattr(cam, p) - getattr(truth.cameras[name], p)) / rig.camera_sigma[name][p])
+    spreads = {p: round(float(np.std(v, ddof=1)), 2) for p, v in z.items()}
+    assert all(0.8 <= s <= 1.25 for s in spreads.values()), spreads
+
+
+def test_an_unknown_lens_model_is_an_input_error():
+    with pytest.raises(InputError, match="--model 'fisheye' is unknown \\(choose from k1k2, k1k2k3, k1k2p1p2"):
+        calibrate_rig(noisy_corner_set(make_truth("stereo", 4, seed=0), 0.0), model="fisheye")
+
+
 def _plant(corners, truth, camera, view, uv):
     corners.cameras[camera].views[view] = uv
     return corners
@@ -282,7 +327,8 @@ def test_a_noisier_camera_keeps_its_photos():
     rig = calibrate_rig(corners)
     assert rig.dropped_views == []
     assert len(rig.dropped_corners) == 0                     # of 1560: the limit is ~7 sigma of each camera
-    assert rig.adjustment["options"] == {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto"}
+    assert rig.adjustment["options"] == {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto",
+                                         "model": "k1k2"}
 
 
 def _partial_views(corners, rng, missing=0.3, tele_window=0.25):

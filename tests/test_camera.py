@@ -5,14 +5,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dualcal.camera import (CameraModel, check_invertible_in_image, distort_normalized, distort_points,
-                            max_distorted_radius, max_monotonic_radius, normalized_from_pixel, pixel_from_normalized,
-                            project_points, project_with_jacobians, undistort_normalized, undistort_points,
-                            undistort_radius)
+import cv2
+
+from dualcal.camera import (INTRINSIC_NAMES, LENS_MODELS, CameraModel, check_invertible_in_image, distort_normalized,
+                            distort_points, intrinsic_names, max_distorted_radius, max_monotonic_radius,
+                            normalized_from_pixel, pixel_from_normalized, project_points, project_with_jacobians,
+                            undistort_normalized, undistort_points, undistort_radius)
 from dualcal.errors import NotInvertibleError
 from dualcal.synth import PRESETS
 
 CAM = CameraModel((3024, 4032), 3127.2, 3136.0, 2.5, 1453.7, 2021.1, 0.08, -0.20)
+#: OpenCV's five-coefficient lens (and skew) on the same sensor
+CAM5 = CameraModel((3024, 4032), 3127.2, 3136.0, 2.5, 1453.7, 2021.1, 0.08, -0.20, 0.0021, -0.0013, 0.15,
+                   model="k1k2p1p2k3")
 
 
 def test_projection_follows_the_contract_formula():
@@ -24,25 +29,64 @@ def test_projection_follows_the_contract_formula():
     np.testing.assert_allclose(project_points(CAM, X)[0], expected, rtol=0, atol=1e-9)
 
 
-def test_jacobians_match_central_differences():
+@pytest.mark.parametrize("cam", [CAM, CAM5], ids=["k1k2", "k1k2p1p2k3"])
+def test_jacobians_match_central_differences(cam):
     rng = np.random.default_rng(0)
     X = np.column_stack([rng.uniform(-200, 200, 20), rng.uniform(-300, 300, 20), rng.uniform(400, 900, 20)])
-    _, J_X, J_K = project_with_jacobians(CAM, X)
+    _, J_X, J_K = project_with_jacobians(cam, X)
+    assert J_K.shape == (20, 2, len(INTRINSIC_NAMES))
     h = 1e-4
     for i in range(3):
         d = np.zeros(3)
         d[i] = h
-        num = (project_points(CAM, X + d) - project_points(CAM, X - d)) / (2 * h)
+        num = (project_points(cam, X + d) - project_points(cam, X - d)) / (2 * h)
         np.testing.assert_allclose(J_X[:, :, i], num, rtol=1e-6, atol=1e-7)
-    vec = CAM.as_vector()
-    for i in range(7):
+    vec = cam.as_vector()
+    for i in range(len(INTRINSIC_NAMES)):         # every coefficient, also those the model lacks
         step = 1e-6 * max(1.0, abs(vec[i]))
         plus, minus = vec.copy(), vec.copy()
         plus[i] += step
         minus[i] -= step
-        num = (project_points(CameraModel.from_vector(CAM.image_size, plus), X)
-               - project_points(CameraModel.from_vector(CAM.image_size, minus), X)) / (2 * step)
+        num = (project_points(CameraModel.from_vector(cam.image_size, plus, "k1k2p1p2k3"), X)
+               - project_points(CameraModel.from_vector(cam.image_size, minus, "k1k2p1p2k3"), X)) / (2 * step)
         np.testing.assert_allclose(J_K[:, :, i], num, rtol=1e-5, atol=1e-6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_projection_and_jacobians_agree_with_opencv(seed):
+    """cv2.projectPoints of random cameras with OpenCV's five coefficients (no skew: OpenCV has
+    none): the same pixels, and its Jacobian with respect to the translation (at R = I, t = 0: d uv
+    / d X_cam), f, c and the distortion coefficients is dualcal's."""
+    rng = np.random.default_rng(seed)
+    f = rng.uniform(300, 6000)
+    k = (rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.3), rng.uniform(-0.01, 0.01), rng.uniform(-0.01, 0.01),
+         rng.uniform(-0.3, 0.3))
+    cam = CameraModel((4000, 3000), f, f * rng.uniform(0.98, 1.02), 0.0, rng.uniform(1800, 2200),
+                      rng.uniform(1300, 1700), *k, model="k1k2p1p2k3")
+    X = np.column_stack([rng.uniform(-0.5, 0.5, (30, 2)), np.ones(30)]) * rng.uniform(300, 3000, (30, 1))
+    uv, J_X, J_K = project_with_jacobians(cam, X)
+    uv_cv, J_cv = cv2.projectPoints(X, np.zeros(3), np.zeros(3), cam.K, np.array(cam.distortion))
+    scale = np.maximum(1.0, np.abs(J_K))
+    np.testing.assert_allclose(uv, uv_cv.reshape(-1, 2), rtol=0, atol=1e-8)
+    np.testing.assert_allclose(project_points(cam, X), uv, rtol=0, atol=1e-9)
+    J_cv = J_cv.reshape(-1, 2, 15)                 # rvec, tvec, (fx, fy), (cx, cy), (k1, k2, p1, p2, k3)
+    np.testing.assert_allclose(J_X, J_cv[:, :, 3:6], rtol=1e-9, atol=1e-9)
+    columns = [INTRINSIC_NAMES.index(n) for n in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")]
+    np.testing.assert_allclose(J_K[:, :, columns] / scale[:, :, columns], J_cv[:, :, 6:] / scale[:, :, columns],
+                               rtol=0, atol=1e-9)
+
+
+def test_the_paper_model_is_the_lens_model_k1k2():
+    """Lens models list their coefficients; a camera's coefficients outside its model are zero."""
+    assert LENS_MODELS["k1k2"] == ("k1", "k2") and LENS_MODELS["k1k2p1p2k3"] == ("k1", "k2", "p1", "p2", "k3")
+    assert intrinsic_names() == ("fx", "fy", "skew", "cx", "cy", "k1", "k2")
+    assert CAM.model == "k1k2" and (CAM.p1, CAM.p2, CAM.k3) == (0.0, 0.0, 0.0)
+    assert CAM5.distortion == (0.08, -0.20, 0.0021, -0.0013, 0.15)
+    with pytest.raises(ValueError, match="lens model k1k2 has no p1, k3"):
+        CameraModel((640, 480), 500.0, 500.0, 0.0, 320.0, 240.0, 0.1, 0.0, p1=0.001, k3=0.2)
+    with pytest.raises(ValueError, match="lens model 'fisheye' is unknown"):
+        CameraModel((640, 480), 500.0, 500.0, 0.0, 320.0, 240.0, model="fisheye")
 
 
 def test_pixel_and_normalized_are_inverse_with_skew():
@@ -51,7 +95,7 @@ def test_pixel_and_normalized_are_inverse_with_skew():
 
 
 @pytest.mark.parametrize("preset", sorted(PRESETS))
-def test_undistort_points_round_trip_over_whole_image(preset):
+def test_undistort_points_round_trip_over_whole_image(preset):   # stereo5: tangential lenses
     for cam in PRESETS[preset]["cameras"].values():
         w, h = cam.image_size
         u, v = np.meshgrid(np.linspace(-0.5, w - 0.5, 41), np.linspace(-0.5, h - 0.5, 41))
@@ -75,6 +119,67 @@ def test_undistort_inverts_distort_on_the_monotonic_branch(k1, k2, s, angle):
     np.testing.assert_allclose(distort_normalized(back, k1, k2), xy_d, rtol=0, atol=1e-14 * max(1.0, rd))
     slope = 1 + 3 * k1 * r**2 + 5 * k2 * r**4
     np.testing.assert_allclose(back, xy, rtol=0, atol=1e-14 * max(1.0, rd) / slope)
+
+
+def _radial_slope(r, k1, k2, k3=0.0):
+    """d rd / dr of rd = r (1 + k1 r^2 + k2 r^4 + k3 r^6)."""
+    return 1 + 3 * k1 * r**2 + 5 * k2 * r**4 + 7 * k3 * r**6
+
+
+@settings(max_examples=400, deadline=None)
+@given(k1=st.floats(-1.0, 1.0), k2=st.floats(-1.0, 1.5), k3=st.floats(-1.0, 1.0), p1=st.floats(-0.02, 0.02),
+       p2=st.floats(-0.02, 0.02), s=st.floats(0.0, 0.95), angle=st.floats(0, 2 * np.pi))
+def test_undistort_inverts_the_full_model_on_its_invertible_range(k1, k2, k3, p1, p2, s, angle):
+    """OpenCV's model, tangential terms up to 0.02 (ten times a real lens'): undistort(distort(x)) = x
+    within 95 % of the radial part's fold (at most radius 1, 45 degrees off axis) where the radial
+    slope d rd / dr is at least 0.25, i.e. well away from the fold, where the tangential terms
+    cannot fold the image. The distorted point is matched to the rounding of the residual test,
+    the ideal one to that over the Jacobian's smallest singular value."""
+    r = s * min(max_monotonic_radius(k1, k2, k3), 1.0)
+    if _radial_slope(r, k1, k2, k3) < 0.25:
+        return
+    xy = r * np.array([[np.cos(angle), np.sin(angle)]])
+    xy_d = distort_normalized(xy, k1, k2, p1, p2, k3)
+    back = undistort_normalized(xy_d, k1, k2, p1, p2, k3)
+    tol = 16 * np.finfo(float).eps * max(1.0, float(np.abs(xy_d).max()))
+    np.testing.assert_allclose(distort_normalized(back, k1, k2, p1, p2, k3), xy_d, rtol=0, atol=tol)
+    cam = CameraModel((2, 2), 1.0, 1.0, 0.0, 0.0, 0.0, k1, k2, p1, p2, k3, model="k1k2p1p2k3")
+    _, J_X, _ = project_with_jacobians(cam, np.array([[*xy[0], 1.0]]))
+    sigma_min = np.linalg.svd(J_X[0, :, :2], compute_uv=False)[-1]
+    np.testing.assert_allclose(back, xy, rtol=0, atol=4 * tol / sigma_min)
+
+
+@settings(max_examples=200, deadline=None)
+@given(k1=st.floats(-1.0, 1.0), k2=st.floats(-1.0, 1.0), k3=st.floats(-1.0, 1.0))
+def test_max_monotonic_radius_with_k3_is_the_first_root_of_the_slope(k1, k2, k3):
+    """The radial part r (1 + k1 r^2 + k2 r^4 + k3 r^6) increases up to the radius, where its slope
+    vanishes (inf: everywhere up to 10 here)."""
+    r_max = max_monotonic_radius(k1, k2, k3)
+    if r_max < 1e6:                                # (beyond, the terms overflow)
+        terms = 1 + 3 * abs(k1) * r_max**2 + 5 * abs(k2) * r_max**4 + 7 * abs(k3) * r_max**6
+        assert abs(_radial_slope(r_max, k1, k2, k3)) <= 1e-9 * terms
+    r = np.linspace(0.0, min(r_max, 10.0), 2001)[:-1]
+    assert np.all(_radial_slope(r, k1, k2, k3) > 0)
+    assert max_monotonic_radius(k1, k2, 0.0) == max_monotonic_radius(k1, k2)
+
+
+def test_a_tangential_lens_that_folds_is_a_named_error():
+    """p1 = 0.3 (150 times a real lens'): the tangential terms fold the image where y < -0.56
+    (the Jacobian's determinant (1 + 2 p1 y)(1 + 6 p1 y) - 4 p1^2 x^2 changes sign) although the
+    radial part is the identity; the image check says so. A point no ideal point reaches from the
+    radial start is a named error too."""
+    folding = CameraModel((640, 480), 300.0, 300.0, 0.0, 320.0, 240.0, p1=0.3, model="k1k2p1p2")
+    with pytest.raises(NotInvertibleError, match="p1=0.3 folds over inside the image: its tangential terms"):
+        check_invertible_in_image(folding)
+    with pytest.raises(NotInvertibleError, match="did not converge"):
+        undistort_normalized(np.array([[0.0, -2.0]]), *folding.distortion)
+    inside = CameraModel((640, 480), 800.0, 800.0, 0.0, 320.0, 240.0, p1=0.3, model="k1k2p1p2")  # |y| <= 0.3
+    check_invertible_in_image(inside)
+    check_invertible_in_image(CAM5)
+    # and a radial fold inside the image is still found first, with the coefficients named
+    radial = CameraModel((640, 480), 300.0, 300.0, 0.0, 320.0, 240.0, -0.6, 0.0, 0.001, 0.0, 0.0, "k1k2p1p2k3")
+    with pytest.raises(NotInvertibleError, match="k1=-0.6, k2=0 folds over inside the image: radius not monotonic"):
+        check_invertible_in_image(radial)
 
 
 @settings(max_examples=100, deadline=None)
@@ -102,9 +207,10 @@ def test_undistortion_takes_the_root_before_the_fold():
     assert converged and r[0] == pytest.approx(max_monotonic_radius(k1, k2), rel=1e-7) and r[2] == 0.0
 
 
-def test_unmeasured_points_stay_unmeasured():
+@pytest.mark.parametrize("cam", [CAM, CAM5], ids=["k1k2", "k1k2p1p2k3"])
+def test_unmeasured_points_stay_unmeasured(cam):
     xy = np.array([[0.1, 0.2], [np.nan, np.nan], [-0.3, 0.05]])
-    back = undistort_normalized(distort_normalized(xy, CAM.k1, CAM.k2), CAM.k1, CAM.k2)
+    back = undistort_normalized(distort_normalized(xy, *cam.distortion), *cam.distortion)
     assert np.isnan(back[1]).all()
     np.testing.assert_allclose(back[[0, 2]], xy[[0, 2]], atol=1e-14)
 

@@ -50,6 +50,31 @@ def test_calibrate_modes_are_recorded(synth_dir, run_cli, flags, mode, skew):
     assert doc["rig_mode"] == mode and doc["skew"] is skew
 
 
+def test_calibrate_model_flag_fits_opencvs_lens_and_records_it(tmp_path, run_cli):
+    """`dualcal synth --preset stereo5` (OpenCV's five-coefficient lenses), then `calibrate --model
+    k1k2p1p2k3`: calib.json names the model, has p1 p2 k3 with their sigmas, and the table shows them."""
+    out = tmp_path / "set"
+    assert run_cli("synth", out, "--preset", "stereo5", "--views", "8", "--seed", "2", "--noise", "0.1",
+                   "--no-photos").code == 0
+    res = run_cli("calibrate", out / "corners.json", "-o", out / "calib.json", "--model", "k1k2p1p2k3",
+                  "--no-compare-models")
+    assert res.code == 0, res.err
+    assert "lens model k1k2p1p2k3" in res.out and "lens distortion" in res.out
+    doc = json.loads((out / "calib.json").read_text())
+    assert doc["model"] == "k1k2p1p2k3" and doc["adjustment"]["options"]["model"] == "k1k2p1p2k3"
+    truth = load_rig(out / "truth.json")
+    assert truth.model == "k1k2p1p2k3"
+    for name, entry in doc["cameras"].items():
+        for p in ("p1", "p2", "k3"):
+            assert abs(entry[p] - getattr(truth.cameras[name], p)) < 4 * entry["sigma"][p], (name, p)
+        assert f"{entry['p1']:.5f}" in res.out
+
+
+def test_an_unknown_lens_model_is_refused_by_the_flag(synth_dir, run_cli):
+    res = run_cli("calibrate", synth_dir / "corners.json", "-o", synth_dir / "c.json", "--model", "fisheye")
+    assert res.code == 2 and "Invalid value for '--model'" in res.err and "k1k2p1p2k3" in res.err
+
+
 def test_board_flag_that_disagrees_with_the_file(synth_dir, run_cli):
     res = run_cli("calibrate", synth_dir / "corners.json", "--board", "9x6", "--square", "30", "-o", synth_dir / "c.json")
     _assert_one_line_error(res, "--board 9x6 disagrees")

@@ -225,7 +225,7 @@ def test_holdout_folds_repeat_the_calibration(monkeypatch, options, expected):
     views = sorted(truth.view_poses)
     assert len(folds) == len(views)
     for held_out, (photos, kwargs) in zip(views, folds):
-        assert kwargs == {"skew": False, "rig_mode": "rigid", "reference": "wide", **expected}
+        assert kwargs == {"skew": False, "rig_mode": "rigid", "reference": "wide", "model": "k1k2", **expected}
         assert photos == {(c, v) for c in ("wide", "tele") for v in views if v != held_out} - {("tele", "IMG_03")}
     assert doc["cases"]["dual"]["pairs"] == 4 and doc["cases"]["tele"]["pairs"] == 6
     assert doc["cases"]["wide"]["pairs"] == 10 and max(doc["cases"]["wide"]["rmse_mm"]) < 1e-6

@@ -343,3 +343,90 @@ def test_opencv_export_carries_the_stereo_rectification_of_dualcal_rectify(calib
         for key in ("R1", "R2", "P1", "P2", "Q"):
             np.testing.assert_array_equal(node.getNode(key).mat(), doc[key])
         assert [int(node.getNode(k).real()) for k in ("rectified_width", "rectified_height")] == doc["image_size"]
+
+
+# ---------------------------------------------------------------------------- lens models
+
+
+@pytest.fixture(scope="module")
+def rig5():
+    """The stereo pair with OpenCV's five-coefficient lenses (synth preset stereo5: k3, p1, p2 not zero)."""
+    return synth.truth_rig_model(synth.make_truth("stereo5", views=3, seed=2))
+
+
+@pytest.fixture(scope="module")
+def rig4(rig5):
+    """The same pair in the model k1k2p1p2 (k3 dropped)."""
+    return replace(rig5, cameras={n: replace(c, k3=0.0, model="k1k2p1p2") for n, c in rig5.cameras.items()})
+
+
+def _camera_frame_points(rig, name, view="IMG_02"):
+    X = rig.camera_poses[name][view].apply(rig.board.object_points_mm())
+    return X, project_points(rig.cameras[name], X)
+
+
+@pytest.mark.parametrize("which", ["rig4", "rig5"])
+def test_opencv_export_writes_all_five_coefficients_and_projects_like_dualcal(which, request, tmp_path):
+    rig = request.getfixturevalue(which)
+    write_export(rig, "opencv", tmp_path / "rig.yml")
+    fs = cv2.FileStorage(str(tmp_path / "rig.yml"), cv2.FILE_STORAGE_READ)
+    for name, cam in rig.cameras.items():
+        node = fs.getNode(name)
+        np.testing.assert_array_equal(node.getNode("D").mat(), [cam.distortion])
+        assert node.getNode("lens_model").string() == cam.model
+        X, uv = _camera_frame_points(rig, name)
+        uv_cv, _ = cv2.projectPoints(X, np.zeros(3), np.zeros(3), node.getNode("K").mat(), node.getNode("D").mat())
+        np.testing.assert_allclose(uv_cv.reshape(-1, 2), uv, atol=1e-6)
+
+
+def test_kalibr_radtan_holds_p1_p2_and_refuses_k3(rig4, rig5):
+    doc = yaml.safe_load(kalibr_yaml(rig4))
+    for i, name in enumerate(rig4.camera_order()):
+        cam = rig4.cameras[name]
+        assert doc[f"cam{i}"]["distortion_coeffs"] == [cam.k1, cam.k2, cam.p1, cam.p2]
+    with pytest.raises(InputError, match="kalibr's radtan model has no k3, which the lens model k1k2p1p2k3 of "
+                                         "left, right has: export to opencv, colmap or mrcal"):
+        kalibr_yaml(rig5)
+
+
+def _colmap_rows(rig):
+    rows = [ln.split() for ln in colmap_cameras_txt(rig).splitlines() if not ln.startswith("#")]
+    return dict(zip(rig.camera_order(), rows))
+
+
+@pytest.mark.parametrize("which, colmap_model, n_params", [("rig4", "OPENCV", 8), ("rig5", "FULL_OPENCV", 12)])
+def test_colmap_model_of_each_lens_model_projects_like_dualcal_half_a_pixel_apart(which, colmap_model, n_params,
+                                                                                 request):
+    """COLMAP's OPENCV (k1 k2 p1 p2) and FULL_OPENCV (k1 k2 p1 p2 k3 k4 k5 k6, a rational radial
+    factor) by their own formulas, on the exported numbers."""
+    rig = request.getfixturevalue(which)
+    for name, row in _colmap_rows(rig).items():
+        assert row[1] == colmap_model and len(row) == 4 + n_params
+        p = [float(v) for v in row[4:]] + [0.0] * (12 - n_params)
+        fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6 = p
+        assert p[4:9] == list(rig.cameras[name].distortion) and p[9:] == [0.0, 0.0, 0.0]
+        X, uv = _camera_frame_points(rig, name)
+        x, y = X[:, 0] / X[:, 2], X[:, 1] / X[:, 2]
+        r2 = x * x + y * y
+        radial = (1 + k1 * r2 + k2 * r2**2 + k3 * r2**3) / (1 + k4 * r2 + k5 * r2**2 + k6 * r2**3)
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + 2 * p2 * x * y + p1 * (r2 + 2 * y * y)
+        np.testing.assert_allclose(np.column_stack([fx * xd + cx, fy * yd + cy]), uv + 0.5, atol=1e-6)
+
+
+@pytest.mark.parametrize("which, lensmodel", [("rig4", "LENSMODEL_OPENCV4"), ("rig5", "LENSMODEL_OPENCV5")])
+def test_mrcal_lensmodel_of_each_lens_model(which, lensmodel, request):
+    rig = request.getfixturevalue(which)
+    for name in rig.camera_order():
+        cam = rig.cameras[name]
+        doc = _parse_cameramodel(mrcal_cameramodel(rig, name))
+        assert doc["lensmodel"] == lensmodel
+        n = 4 if lensmodel.endswith("4") else 5
+        assert doc["intrinsics"] == [cam.fx, cam.fy, cam.cx, cam.cy, *cam.distortion[:n]]
+
+
+def test_cli_kalibr_export_of_a_k3_model_is_one_line(rig5, tmp_path, run_cli):
+    io.save_rig(tmp_path / "calib.json", rig5)
+    res = run_cli("export", tmp_path / "calib.json", "--format", "kalibr", "-o", tmp_path / "camchain.yaml")
+    assert res.code == 2 and len(res.err_lines) == 1 and "radtan model has no k3" in res.err
+    assert not (tmp_path / "camchain.yaml").exists()

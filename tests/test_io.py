@@ -77,6 +77,54 @@ def test_calib_json_has_the_contract_keys_and_round_trips(tmp_path, rig):
     assert back.camera_sigma == rig.camera_sigma
 
 
+@pytest.fixture(scope="module")
+def rig5():
+    return calibrate_rig(noisy_corner_set(make_truth("stereo5", 6, seed=3), 0.1, seed=3), model="k1k2p1p2k3")
+
+
+def test_calib_json_of_the_paper_model_keeps_the_keys_of_before(rig):
+    """k1k2: the camera entries are those of the contract (no p1, p2, k3), ``model`` names the model."""
+    doc = rig_to_dict(rig)
+    assert doc["model"] == "k1k2"
+    for entry in doc["cameras"].values():
+        names = {"fx", "fy", "skew", "cx", "cy", "k1", "k2"}
+        assert set(entry) == names | {"image_size", "sigma", "sigma_formal", "rms_px"}
+        assert set(entry["sigma"]) == set(entry["sigma_formal"]) == names
+
+
+def test_calib_json_of_opencvs_model_has_its_coefficients_and_round_trips(tmp_path, rig5):
+    save_rig(tmp_path / "calib.json", rig5)
+    doc = json.loads((tmp_path / "calib.json").read_text())
+    assert doc["model"] == "k1k2p1p2k3"
+    for name, entry in doc["cameras"].items():
+        assert {"p1", "p2", "k3"} <= set(entry) and {"p1", "p2", "k3"} <= set(entry["sigma"])
+        assert entry["p1"] == rig5.cameras[name].p1 and entry["sigma"]["k3"] == rig5.camera_sigma[name]["k3"] > 0
+    back = load_rig(tmp_path / "calib.json")
+    assert back.cameras == rig5.cameras and back.model == "k1k2p1p2k3"
+    assert back.camera_sigma == rig5.camera_sigma
+
+
+def test_a_calib_json_written_before_lens_models_reads_as_k1k2(rig):
+    """A calib.json of main before this change: no ``model``, cameras with k1 k2 only."""
+    doc = rig_to_dict(rig)
+    del doc["model"]
+    back = rig_from_dict(doc)
+    assert back.model == "k1k2" and back.cameras == rig.cameras
+    assert all((cam.p1, cam.p2, cam.k3) == (0.0, 0.0, 0.0) for cam in back.cameras.values())
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["cameras"]["left"].update(p1=0.001), "camera 'left' has p1, which its lens model k1k2 does not"),
+    (lambda d: d.update(model="k1k2p1p2"), "camera 'left' lacks p1, p2 of its lens model k1k2p1p2"),
+    (lambda d: d.update(model="fisheye"), "lens model 'fisheye' is unknown"),
+])
+def test_camera_keys_must_fit_the_lens_model(edit, message):
+    doc = rig_to_dict(calibrate_rig(noisy_corner_set(make_truth("stereo", 4, seed=1), 0.0), rig_mode="none"))
+    edit(doc)
+    with pytest.raises(InputError, match=message):
+        rig_from_dict(doc)
+
+
 def test_minimal_calib_json_derives_camera_poses(rig):
     doc = rig_to_dict(rig)
     for key in ("camera_poses", "adjustment", "dropped_views"):

@@ -150,11 +150,11 @@ def test_rendered_line_is_straight_after_rectification(cam):
     assert np.max(np.abs(u_found - u_line)[inside]) < 0.05             # straight, and where it belongs
 
 
+@pytest.mark.parametrize("cam", [STEREO_LEFT, PRESETS["stereo5"]["cameras"]["left"]], ids=["k1k2", "k1k2p1p2k3"])
 @pytest.mark.parametrize("keep", KEEP_MODES)
-def test_maps_and_images_agree_with_opencv(keep):
-    cam = STEREO_LEFT
+def test_maps_and_images_agree_with_opencv(keep, cam):
     new_cam = rectified_camera(cam, keep)
-    dist = np.array([cam.k1, cam.k2, 0.0, 0.0])
+    dist = np.array(cam.distortion)                 # OpenCV's five coefficients
     cv_x, cv_y = cv2.initUndistortRectifyMap(cam.K, dist, None, new_cam.K, cam.image_size, cv2.CV_32FC1)
     map_x, map_y = rectify_map(cam, new_cam, 0, cam.image_size[1])
     assert max(np.max(np.abs(map_x - cv_x)), np.max(np.abs(map_y - cv_y))) < 1e-3

@@ -57,6 +57,21 @@ def test_rendered_corners_sit_exactly_where_the_model_projects_them(truth, cam_n
     assert np.all(np.abs(err.mean(axis=0)) < 0.002)
 
 
+def test_a_lens_with_tangential_terms_renders_its_corners_where_the_model_projects_them():
+    """The stereo pair with OpenCV's five-coefficient lenses (p1 = 0.0018, k3 = 0.238 on the left)."""
+    truth = make_truth("stereo5", views=1, seed=3)
+    for name, cam in truth.cameras.items():
+        pose = truth.camera_pose(name, "IMG_01")
+        img = render_view(cam, pose, truth.board, np.random.default_rng(1), noise=0.0)
+        uv_true = true_corners(truth)[name]["IMG_01"]
+        g = uv_true.reshape(truth.board.rows, truth.board.cols, 2)
+        dirs = np.stack([np.gradient(g, axis=1).reshape(-1, 2), np.gradient(g, axis=0).reshape(-1, 2)], 1)
+        dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+        fit, ok, _ = fit_saddles(img, uv_true + np.random.default_rng(2).normal(0, 0.3, uv_true.shape), dirs, half=8)
+        assert ok.all()
+        assert np.sqrt(np.mean(np.sum((fit - uv_true) ** 2, axis=1))) < 0.01
+
+
 def test_bands_do_not_change_the_image(truth):
     cam, pose = truth.cameras["wide"], truth.camera_pose("wide", "IMG_01")
     small = replace(cam, image_size=(cam.image_size[0], 700))

@@ -168,6 +168,31 @@ def test_displacement_matches_undistortion():
     assert d[0] == 0 and np.isnan(d[1])
 
 
+def test_a_tangential_lens_has_its_radial_part_as_curve_and_the_whole_lens_as_map():
+    cam = synth.PRESETS["stereo5"]["cameras"]["left"]                   # k1 k2 p1 p2 k3
+    radial = replace(cam, p1=0.0, p2=0.0, model="k1k2k3")
+    curve, radial_curve = analysis.distortion_curve(cam), analysis.distortion_curve(radial)
+    np.testing.assert_array_equal(curve.radius_px, radial_curve.radius_px)
+    np.testing.assert_array_equal(curve.shift_px, radial_curve.shift_px)
+    uv = np.array([[0.0, 0.0], [639.0, 479.0], [100.0, 400.0]])
+    d = analysis.displacement_px(cam, uv)
+    np.testing.assert_allclose(d, np.linalg.norm(uv - undistort_points(cam, uv), axis=1), atol=1e-9)
+    assert np.max(np.abs(d - analysis.displacement_px(radial, uv))) > 0.1      # p1 = 0.0018 moves corners
+
+
+def test_the_page_of_a_tangential_lens_lists_its_coefficients_and_says_what_the_curve_shows():
+    rig = synth.truth_rig_model(synth.make_truth("stereo5", views=4, seed=0))
+    sigma = dict(SIGMA, p1=1e-4, p2=2e-4, k3=0.05)
+    rig.camera_sigma = {name: sigma for name in rig.cameras}
+    p = _Page()
+    p.feed(render_report(rig))
+    cells = p.cells["table-intrinsics"]
+    for label in ("p1", "p2", "k3"):
+        values = [analysis.format_value_sigma(getattr(rig.cameras[n], label), sigma[label]) for n in ("left", "right")]
+        assert _row(cells, label, 3)[1:] == [f"{v} ± {s}" for v, s in values]
+    assert "radial part of the lens only" in p.figures["fig-distortion-curve"]["caption"]
+
+
 @pytest.mark.parametrize("value, sigma, expected", [
     (3127.2083, 12.894, ("3127", "13")),
     (-0.01834, 0.0431, ("-0.018", "0.043")),

@@ -21,7 +21,8 @@ from dualcal.synth import make_truth, true_corners, truth_rig_model
 
 # (preset, first camera, second camera, vertical): a horizontal stereo rig, the note8 wide + tele
 # (baseline along the columns), and ultra-wide + tele of the triple rig (focal lengths 1700 and 6100 px)
-PAIRS = [("stereo", "left", "right", False), ("note8", "wide", "tele", True), ("triple", "ultra", "tele", True)]
+PAIRS = [("stereo", "left", "right", False), ("note8", "wide", "tele", True), ("triple", "ultra", "tele", True),
+         ("stereo5", "left", "right", False)]   # and the stereo pair with OpenCV's five-coefficient lenses
 
 
 @pytest.fixture(scope="module", params=PAIRS, ids=[f"{p}-{a}-{b}" for p, a, b, _ in PAIRS])
@@ -34,7 +35,7 @@ def pair(request):
 def _opencv(rig, first, second, alpha):
     c1, c2 = rig.cameras[first], rig.cameras[second]
     pose = rig.pose_from_reference(second).compose(rig.pose_from_reference(first).inverse())
-    d = [np.array([c.k1, c.k2, 0.0, 0.0, 0.0]) for c in (c1, c2)]
+    d = [np.array(c.distortion) for c in (c1, c2)]
     return cv2.stereoRectify(c1.K, d[0], c2.K, d[1], c1.image_size, pose.R, pose.t_mm.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY,
                              alpha=alpha)
 
@@ -97,7 +98,7 @@ def test_maps_follow_the_points_and_opencvs_maps(pair):
         sample = np.column_stack([cv2.remap(m, r[:, 0:1].astype(np.float32), r[:, 1:2].astype(np.float32),
                                             cv2.INTER_LINEAR).ravel() for m in (map_x, map_y)])
         assert np.max(np.abs(sample - uv)) < 0.02 * max(1.0, cam.fx / rect.camera.fx)
-        cv_x, cv_y = cv2.initUndistortRectifyMap(cam.K, np.array([cam.k1, cam.k2, 0, 0, 0.0]), rect.rotation(name),
+        cv_x, cv_y = cv2.initUndistortRectifyMap(cam.K, np.array(cam.distortion), rect.rotation(name),
                                                  rect.P1[:, :3], rect.image_size, cv2.CV_32FC1)
         inside = (map_x > 0) & (map_x < cam.image_size[0] - 1) & (map_y > 0) & (map_y < cam.image_size[1] - 1)
         assert inside.mean() > 0.05

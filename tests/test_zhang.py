@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dualcal.camera import ideal_normalized_from_pixel, project_points
+from dualcal.camera import LENS_MODELS, ideal_normalized_from_pixel, project_points
 from dualcal.errors import EstimationError
 from dualcal.rotation import rotation_from_opk
 from dualcal.model import Pose
@@ -58,6 +58,31 @@ def test_linear_k1_k2_exact_with_true_intrinsics_and_poses():
     k1, k2 = radial_distortion_linear(cam.with_distortion(0, 0), [truth.camera_pose("left", v) for v in keys],
                                       truth.board.object_points_mm()[:, :2], [obs[v] for v in keys])
     assert k1 == pytest.approx(cam.k1, abs=1e-9) and k2 == pytest.approx(cam.k2, abs=1e-9)
+
+
+@pytest.mark.parametrize("name, model, exact", [("left", "k1k2p1p2k3", True), ("right", "k1k2p1p2", True),
+                                               ("right", "k1k2p1p2k3", True), ("left", "k1k2p1p2", False)])
+def test_linear_lens_coefficients_exact_with_true_intrinsics_and_poses(name, model, exact):
+    """Eq. 15 extended to OpenCV's lens (synth preset stereo5; its right camera has k3 = 0): the
+    coefficients come back exactly wherever the model has every coefficient the lens has; without
+    the left lens' k3 = 0.238 they do not."""
+    truth = make_truth("stereo5", 6, seed=4)
+    cam = truth.cameras[name]
+    obs = true_corners(truth)[name]
+    keys = sorted(obs)
+    coefficients = radial_distortion_linear(cam.pinhole(), [truth.camera_pose(name, v) for v in keys],
+                                            truth.board.object_points_mm()[:, :2], [obs[v] for v in keys], model)
+    true = [getattr(cam, n) for n in LENS_MODELS[model]]
+    error = np.max(np.abs(np.array(coefficients) - true))
+    assert (error < 1e-9) if exact else (error > 1e-3)
+
+
+def test_initial_camera_starts_the_lens_model_asked_for():
+    truth = make_truth("stereo5", 8, seed=2)
+    obs = true_corners(truth)["right"]
+    cam, poses = initial_camera(truth.board.object_points_mm()[:, :2], obs, truth.cameras["right"].image_size,
+                                model="k1k2p1p2")
+    assert cam.model == "k1k2p1p2" and cam.k3 == 0.0 and cam.p1 != 0.0 and set(poses) == set(obs)
 
 
 def test_initial_camera_is_close_enough_to_start_the_adjustment():

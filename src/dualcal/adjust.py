@@ -47,7 +47,8 @@ from functools import cached_property
 import numpy as np
 
 from .board import SHAPE_TERMS, shape_basis, shaped_points_mm
-from .camera import INTRINSIC_NAMES, CameraModel, project_points, project_with_jacobians
+from .camera import (DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS, CameraModel, intrinsic_names, project_points,
+                     project_with_jacobians)
 from .errors import EstimationError
 from .lm import LMOptions, levenberg_marquardt
 from .model import Pose, mean_pose, observed_mask
@@ -113,7 +114,8 @@ class Problem:
     """What is observed: every camera's corners in every view it saw, and how the rig is tied.
 
     ``blocks`` is a list of ``(camera index, view key, (N, 2) pixels)``, one per photo; row k is
-    corner k of ``X_board`` (N, 3); unmeasured corners are NaN rows.
+    corner k of ``X_board`` (N, 3); unmeasured corners are NaN rows. ``model`` is every camera's
+    lens model (:data:`dualcal.camera.LENS_MODELS`): its coefficients are free, the others stay 0.
     """
 
     X_board: np.ndarray
@@ -124,10 +126,13 @@ class Problem:
     skew: bool = False
     reference: int = 0
     board_shape: bool = False
+    model: str = DEFAULT_LENS_MODEL
 
     def __post_init__(self):
         if self.mode not in RIG_MODES:
             raise EstimationError(f"--rig {self.mode!r} is unknown (choose from {', '.join(RIG_MODES)})")
+        if self.model not in LENS_MODELS:
+            raise EstimationError(f"--model {self.model!r} is unknown (choose from {', '.join(LENS_MODELS)})")
         self.views = sorted({v for _, v, _ in self.blocks})
         self.view_index = {v: i for i, v in enumerate(self.views)}
         self.batches = []
@@ -173,7 +178,8 @@ def _take(counter: list[int], n: int) -> np.ndarray:
 
 def _build_layout(p: Problem) -> Layout:
     C, V = len(p.cameras), len(p.views)
-    free = np.ones((C, len(INTRINSIC_NAMES)), bool)
+    # skew per --skew; the lens coefficients of the model (the others stay at 0)
+    free = np.tile([n in intrinsic_names(p.model) for n in INTRINSIC_NAMES], (C, 1))
     if not p.skew:
         free[:, INTRINSIC_NAMES.index("skew")] = False
     g = [0]
@@ -244,7 +250,7 @@ class State:
         return State(intr, pose_R, pose_t, rig_R, rig_t, D, direction, shape)
 
     def camera(self, problem: Problem, c: int) -> CameraModel:
-        return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c])
+        return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c], problem.model)
 
     def relative_t(self, problem: Problem, c: int, views: np.ndarray) -> np.ndarray:
         """(B, 3) reference-to-camera ``c`` translation in the given instants (tied cameras)."""

@@ -249,9 +249,12 @@ def _failed(device: Device, reason: str, seconds: float | None = None) -> dict:
 def _device_corners(device: Device, options: BatchOptions):
     if device.kind == "corners":
         corners = load_corners(device.folder / "corners.json")
-        if options.board is not None and options.board != corners.board:
+        if options.board is not None and not options.board.matches(corners.board):
             raise InputError(f"--board {options.board.spec()} --square {options.board.square_mm:g} disagrees with "
-                             f"its corners.json (board {corners.board.spec()}, {corners.board.square_mm:g} mm)")
+                             f"its corners.json (board {corners.board.spec()}, {corners.board.square_mm:g} mm)"
+                             if options.board.charuco is None else
+                             f"the options' {options.board.describe(sizes=True)} disagrees with its corners.json "
+                             f"({corners.board.describe(sizes=True)})")
         return corners
     dataset = open_dataset(device.folder, **options.dataset)
     return detect_dataset(dataset, options.board, jobs=1, progress=False)

@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from .adjust import (COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state, parameter_covariance,
                      rig_relation, shared_views)
 from .board import SHAPE_TERMS
+from .camera import DEFAULT_LENS_MODEL, LENS_MODELS
 from .checks import run_checks
-from .errors import EstimationError
+from .errors import EstimationError, InputError
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
 from .zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
@@ -89,7 +90,8 @@ def _starting_values(sol: Solution):
 @dataclass(frozen=True)
 class Setup:
     """What every adjustment of one calibration shares: the board's corners ``X_board`` (N, 3), the
-    camera names and image sizes, the reference's index, the skew model and the rig mode."""
+    camera names and image sizes, the reference's index, the skew model, the rig mode and the lens
+    model."""
 
     X_board: np.ndarray
     names: list[str]
@@ -97,11 +99,19 @@ class Setup:
     reference: int
     skew: bool
     mode: str
+    model: str = DEFAULT_LENS_MODEL
+
+    def solve(self, blocks, start: "Solution | None" = None, mode: str | None = None,
+              board_shape: bool = False) -> "Solution":
+        """:func:`solve` with these settings (``mode`` overrides the rig mode)."""
+        return solve(self.X_board, self.names, self.sizes, blocks, self.reference, self.skew, mode or self.mode,
+                     start, board_shape, self.model)
 
 
 def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
-          start: Solution | None = None, board_shape: bool = False) -> Solution:
-    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples.
+          start: Solution | None = None, board_shape: bool = False, model: str = DEFAULT_LENS_MODEL) -> Solution:
+    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples;
+    ``model``: the lens model of every camera (:data:`dualcal.camera.LENS_MODELS`).
 
     Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
     solution over the same photos (or a superset of them: photos it did not see start from
@@ -113,7 +123,7 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     """
     _check_enough_views(blocks, names)
     if mode == "paper" and start is None:
-        start = solve(X_board, names, sizes, blocks, reference, skew, "none", board_shape=board_shape)
+        start = solve(X_board, names, sizes, blocks, reference, skew, "none", board_shape=board_shape, model=model)
     shape = start.state.board_shape_mm if start is not None else None
     if start is not None:
         cams, poses = _starting_values(start)
@@ -126,15 +136,15 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     else:
         cams, poses = [], []
         for c, size in enumerate(sizes):
-            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew)
+            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew, model)
             cams.append(cam)
             poses.append(p)
     first_mode = "rigid" if mode == "paper" else mode
-    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape)
+    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape, model)
     sol = adjust(problem, initial_state(problem, cams, poses, shape))
     if mode != "paper":
         return sol
-    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape)
+    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape, model)
     starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
     return adjust(problem, min(starts, key=lambda state: cost(problem, state)))
 
@@ -196,7 +206,7 @@ def _adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_cor
     """
     s = setup
     names = s.names
-    sol = solve(s.X_board, names, s.sizes, blocks, s.reference, s.skew, s.mode, start)
+    sol = s.solve(blocks, start)
     rounds = 0
     while factor:
         out = find_outlier(sol, factor)
@@ -213,8 +223,7 @@ def _adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_cor
                      f"but it cannot be dropped: only {MIN_VIEWS} views left for {names[blocks[b][0]]!r}")
                 return sol, blocks
             # a fresh start: the solution with the bad photo in it may be far off
-            trials = [(solve(s.X_board, names, s.sizes, blocks[:i] + blocks[i + 1:], s.reference, s.skew, s.mode), i)
-                      for i in candidates]
+            trials = [(s.solve(blocks[:i] + blocks[i + 1:]), i) for i in candidates]
             best, i = min(trials, key=lambda t: t[0].s0_px)
             if best.s0_px >= sol.s0_px:
                 warn(f"{names[blocks[b][0]]}/{view}: {share:.0%} of its corners are outliers (limit {limit:.3g} px) "
@@ -234,7 +243,7 @@ def _adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_cor
             return sol, blocks
         rounds += 1
         blocks = _without_corners(setup, sol, blocks, bad, limit, dropped, dropped_corners)
-        sol = solve(s.X_board, names, s.sizes, blocks, s.reference, s.skew, s.mode, sol)
+        sol = s.solve(blocks, sol)
     return sol, blocks
 
 
@@ -294,7 +303,7 @@ def board_shape_test(sol: Solution) -> dict:
 
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
                   reference: str | None = None, drop_outliers: bool = True,
-                  outlier_factor: float = 6.0, board_shape: str = "auto") -> RigModel:
+                  outlier_factor: float = 6.0, board_shape: str = "auto", model: str = DEFAULT_LENS_MODEL) -> RigModel:
     """Calibrate every camera of a rig and the rig itself from chessboard corners.
 
     Parameters
@@ -312,14 +321,20 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     board_shape : ``auto`` estimates the board's out-of-plane shape and keeps it where the photos
         show it beyond their noise (:func:`board_shape_test`), ``fit`` always keeps it, ``flat``
         takes the board as flat.
+    model : the lens model of every camera, a key of :data:`dualcal.camera.LENS_MODELS`:
+        ``k1k2`` (the paper's), ``k1k2k3``, ``k1k2p1p2`` or ``k1k2p1p2k3`` (OpenCV's five coefficients)
 
     Raises
     ------
+    InputError
+        An unknown lens model or board shape option.
     EstimationError
         Fewer than 3 usable views for a camera, degenerate views, no shared view in a rig.
     """
     if board_shape not in BOARD_SHAPES:
-        raise EstimationError(f"--board-shape {board_shape!r} is unknown (choose from {', '.join(BOARD_SHAPES)})")
+        raise InputError(f"--board-shape {board_shape!r} is unknown (choose from {', '.join(BOARD_SHAPES)})")
+    if model not in LENS_MODELS:
+        raise InputError(f"--model {model!r} is unknown (choose from {', '.join(LENS_MODELS)})")
     names = sorted(corners.cameras)
     ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
     sizes = [corners.cameras[n].image_size for n in names]
@@ -328,18 +343,17 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     dropped: list[dict] = []
     dropped_corners: list[dict] = []
     factor = outlier_factor if drop_outliers else None
-    setup = Setup(X, names, sizes, ref, skew, rig_mode)
-    alone, blocks = _adjust_dropping_outliers(Setup(X, names, sizes, ref, skew, "none"), blocks, factor, dropped,
-                                              dropped_corners)
+    setup = Setup(X, names, sizes, ref, skew, rig_mode, model)
+    alone, blocks = _adjust_dropping_outliers(replace(setup, mode="none"), blocks, factor, dropped, dropped_corners)
     sol = alone
     if rig_mode != "none":
         sol, rig_blocks = _adjust_dropping_outliers(setup, blocks, factor, dropped, dropped_corners, alone)
         if rig_blocks is not blocks:      # the rig dropped photos or corners: the same photos alone
-            alone = solve(X, names, sizes, rig_blocks, ref, skew, "none", sol)
+            alone = setup.solve(rig_blocks, sol, mode="none")
     flat = sol
     shape_test = None
     if board_shape != "flat":
-        shaped = solve(X, names, sizes, sol.problem.blocks, ref, skew, rig_mode, sol, board_shape=True)
+        shaped = setup.solve(sol.problem.blocks, sol, board_shape=True)
         shape_test = board_shape_test(shaped)
         if board_shape == "fit" or shape_test["significant"]:
             sol = shaped
@@ -348,7 +362,7 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
              f"{sol.termination}; the results and their sigmas are not those of the best fit")
     rig = rig_model_from_solution(sol, corners, dropped, dropped_corners)
     rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor),
-                                 "board_shape": board_shape}
+                                 "board_shape": board_shape, "model": model}
     if shape_test is not None:
         rig.adjustment["board_shape_test"] = shape_test
     rig.checks = run_checks(rig, sol, flat, alone)

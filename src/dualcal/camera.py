@@ -1,15 +1,24 @@
-"""The camera model: pinhole with skew and two radial terms (paper eqs. 1, 13, 24-28).
+"""The camera model: pinhole with skew and a lens model (paper eqs. 1, 13, 24-28).
 
 Conventions (README, "Conventions"):
 
 * Camera frame: x right, y down, z forward; a point ``X_cam`` projects to normalised
   coordinates ``x = X/Z, y = Y/Z``.
-* Radial distortion (paper eq. 13; eq. 25 corrected): ``r2 = x^2 + y^2``,
-  ``xd = x (1 + k1 r2 + k2 r2^2)``, likewise ``yd``.
+* Lens distortion, OpenCV's model term for term (so that exports are exact), ``r2 = x^2 + y^2``::
+
+      xd = x (1 + k1 r2 + k2 r2^2 + k3 r2^3) + 2 p1 x y + p2 (r2 + 2 x^2)
+      yd = y (1 + k1 r2 + k2 r2^2 + k3 r2^3) + p1 (r2 + 2 y^2) + 2 p2 x y
+
+  The paper's model (eq. 13; eq. 25 corrected) is the lens model ``k1k2``: ``p1 = p2 = k3 = 0``,
+  and with those zero every function here computes exactly what it computed before the other
+  coefficients existed. :data:`LENS_MODELS` names the models; a :class:`CameraModel` says which
+  one it is, and its coefficients outside that model are zero.
 * Pixels: ``u = fx xd + skew yd + cx``, ``v = fy yd + cy``; pixel ``(row i, col j)`` has its
   centre at ``(u=j, v=i)``. ``fx, fy, skew, cx, cy`` are the paper's alpha, beta, gamma, u0, v0.
 
 Arrays of points are ``(N, 2)`` (pixels or normalised) or ``(N, 3)`` (camera frame, mm).
+Functions on normalised coordinates take the coefficients in OpenCV's order,
+``(k1, k2, p1=0, p2=0, k3=0)``, so ``f(xy, *cam.distortion)`` applies a camera's lens.
 """
 
 from __future__ import annotations
@@ -20,12 +29,36 @@ import numpy as np
 
 from .errors import NotInvertibleError
 
-INTRINSIC_NAMES = ("fx", "fy", "skew", "cx", "cy", "k1", "k2")
+#: Lens coefficients in OpenCV's order (its ``distCoeffs``).
+DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3")
+INTRINSIC_NAMES = ("fx", "fy", "skew", "cx", "cy") + DISTORTION_NAMES
+
+#: Lens models by name; each name lists its coefficients. ``k1k2`` is the paper's (the default),
+#: ``k1k2p1p2k3`` OpenCV's five-coefficient model.
+LENS_MODELS = {
+    "k1k2": ("k1", "k2"),
+    "k1k2k3": ("k1", "k2", "k3"),
+    "k1k2p1p2": ("k1", "k2", "p1", "p2"),
+    "k1k2p1p2k3": ("k1", "k2", "p1", "p2", "k3"),
+}
+DEFAULT_LENS_MODEL = "k1k2"
+
+
+def intrinsic_names(model: str = DEFAULT_LENS_MODEL) -> tuple[str, ...]:
+    """The intrinsics of a camera of lens model ``model``: ``fx fy skew cx cy`` and its coefficients."""
+    return INTRINSIC_NAMES[:5] + LENS_MODELS[model]
 
 
 @dataclass(frozen=True)
 class CameraModel:
-    """Intrinsics of one camera. ``image_size`` is ``(width, height)`` in pixels."""
+    """Intrinsics of one camera. ``image_size`` is ``(width, height)`` in pixels; ``model`` is its
+    lens model (a key of :data:`LENS_MODELS`), whose coefficients it may have; the others are 0.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``model``, or a non-zero coefficient the model does not have.
+    """
 
     image_size: tuple[int, int]
     fx: float
@@ -35,92 +68,188 @@ class CameraModel:
     cy: float
     k1: float = 0.0
     k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+    model: str = DEFAULT_LENS_MODEL
+
+    def __post_init__(self):
+        if self.model not in LENS_MODELS:
+            raise ValueError(f"lens model {self.model!r} is unknown (choose from {', '.join(LENS_MODELS)})")
+        foreign = [n for n in DISTORTION_NAMES if n not in LENS_MODELS[self.model] and getattr(self, n) != 0.0]
+        if foreign:
+            raise ValueError(f"lens model {self.model} has no {', '.join(foreign)}")
 
     @property
     def K(self) -> np.ndarray:
         """The paper's matrix A: ``[[fx, skew, cx], [0, fy, cy], [0, 0, 1]]``."""
         return np.array([[self.fx, self.skew, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
+    @property
+    def distortion(self) -> tuple[float, float, float, float, float]:
+        """``(k1, k2, p1, p2, k3)``: OpenCV's ``distCoeffs`` of this lens."""
+        return self.k1, self.k2, self.p1, self.p2, self.k3
+
+    @property
+    def radial(self) -> tuple[float, float, float]:
+        """``(k1, k2, k3)``: the radial part of the lens."""
+        return self.k1, self.k2, self.k3
+
+    @property
+    def tangential(self) -> bool:
+        """Whether the lens has tangential terms (``p1`` or ``p2`` not zero)."""
+        return self.p1 != 0.0 or self.p2 != 0.0
+
     def as_vector(self) -> np.ndarray:
-        """``[fx, fy, skew, cx, cy, k1, k2]`` (order of :data:`INTRINSIC_NAMES`)."""
+        """``[fx, fy, skew, cx, cy, k1, k2, p1, p2, k3]`` (order of :data:`INTRINSIC_NAMES`)."""
         return np.array([getattr(self, n) for n in INTRINSIC_NAMES], dtype=float)
 
     @classmethod
-    def from_vector(cls, image_size, vec) -> "CameraModel":
-        return cls(tuple(int(s) for s in image_size), *(float(x) for x in vec))
+    def from_vector(cls, image_size, vec, model: str = DEFAULT_LENS_MODEL) -> "CameraModel":
+        """The camera of :meth:`as_vector` ``vec`` (a shorter one leaves the last coefficients 0)."""
+        return cls(tuple(int(s) for s in image_size), *(float(x) for x in vec), model=model)
 
-    def with_distortion(self, k1: float, k2: float) -> "CameraModel":
-        return replace(self, k1=float(k1), k2=float(k2))
+    def with_distortion(self, k1: float, k2: float, p1: float = 0.0, p2: float = 0.0,
+                        k3: float = 0.0) -> "CameraModel":
+        """The same camera and lens model with other coefficients (those not given are 0)."""
+        return replace(self, k1=float(k1), k2=float(k2), p1=float(p1), p2=float(p2), k3=float(k3))
+
+    def pinhole(self) -> "CameraModel":
+        """The same matrix A without lens distortion (lens model ``k1k2``, every coefficient 0)."""
+        return replace(self, k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0, model=DEFAULT_LENS_MODEL)
 
 
-def radial_factor(r2: np.ndarray, k1: float, k2: float) -> np.ndarray:
-    """``1 + k1 r^2 + k2 r^4`` for squared radii ``r2``."""
-    return 1.0 + r2 * (k1 + k2 * r2)
+def radial_factor(r2: np.ndarray, k1: float, k2: float, k3: float = 0.0) -> np.ndarray:
+    """``1 + k1 r^2 + k2 r^4 + k3 r^6`` for squared radii ``r2``."""
+    if k3 == 0.0:
+        return 1.0 + r2 * (k1 + k2 * r2)
+    return 1.0 + r2 * (k1 + r2 * (k2 + k3 * r2))
 
 
-def distort_normalized(xy: np.ndarray, k1: float, k2: float) -> np.ndarray:
-    """Ideal normalised coordinates (N, 2) -> distorted ones (paper eq. 13 model)."""
+def _radial_slope(r2: np.ndarray, k1: float, k2: float, k3: float = 0.0) -> np.ndarray:
+    """``d rd / dr = 1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6`` of ``rd = r (1 + k1 r^2 + k2 r^4 + k3 r^6)``."""
+    return radial_factor(r2, 3.0 * k1, 5.0 * k2, 7.0 * k3)
+
+
+def tangential_shift(x: np.ndarray, y: np.ndarray, p1: float, p2: float) -> tuple[np.ndarray, np.ndarray]:
+    """The tangential terms ``(2 p1 x y + p2 (r2 + 2 x^2), p1 (r2 + 2 y^2) + 2 p2 x y)`` at ideal ``x, y``."""
+    r2 = x * x + y * y
+    return 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x), p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+
+
+def _distorted_with_jacobian(x: np.ndarray, y: np.ndarray, k1: float, k2: float, p1: float, p2: float,
+                             k3: float):
+    """``xd, yd`` of ideal ``x, y`` (the module's model) and the Jacobian ``d(xd, yd) / d(x, y)`` as
+    ``(a, b, d)``: ``[[a, b], [b, d]]`` (it is symmetric). Also returns ``r2``."""
+    r2 = x * x + y * y
+    f = radial_factor(r2, k1, k2, k3)
+    g = 2.0 * (k1 + 2.0 * k2 * r2) if k3 == 0.0 else 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))  # 2 df/dr2
+    xd, yd = x * f, y * f
+    a, b, d = f + x * x * g, x * y * g, f + y * y * g
+    if p1 != 0.0 or p2 != 0.0:
+        tx, ty = tangential_shift(x, y, p1, p2)
+        xd, yd = xd + tx, yd + ty
+        a = a + 2.0 * p1 * y + 6.0 * p2 * x
+        b = b + 2.0 * p1 * x + 2.0 * p2 * y
+        d = d + 6.0 * p1 * y + 2.0 * p2 * x
+    return xd, yd, (a, b, d), r2
+
+
+def distort_normalized(xy: np.ndarray, k1: float, k2: float, p1: float = 0.0, p2: float = 0.0,
+                       k3: float = 0.0) -> np.ndarray:
+    """Ideal normalised coordinates (N, 2) -> distorted ones (the module's model; paper eq. 13)."""
     xy = np.asarray(xy, dtype=float)
     r2 = np.sum(xy * xy, axis=-1, keepdims=True)
-    return xy * radial_factor(r2, k1, k2)
+    out = xy * radial_factor(r2, k1, k2, k3)
+    if p1 == 0.0 and p2 == 0.0:
+        return out
+    return out + np.stack(tangential_shift(xy[..., 0], xy[..., 1], p1, p2), axis=-1)
 
 
-def max_monotonic_radius(k1: float, k2: float) -> float:
-    """Largest undistorted radius up to which ``rd = r (1 + k1 r^2 + k2 r^4)`` is increasing.
-
-    ``d rd / dr = 1 + 3 k1 r^2 + 5 k2 r^4``; its first positive root in ``r^2`` bounds the
-    region where undistortion is unique. Returns ``inf`` when there is none.
-    """
-    a, b = 5.0 * k2, 3.0 * k1                   # a s^2 + b s + 1 = 0 in s = r^2
+def _quadratic_roots(a: float, b: float, c: float) -> list[float]:
+    """Real roots of ``a s^2 + b s + c`` (numerically stable; a vanishing ``a`` leaves the linear root)."""
     if a == 0.0:
-        roots = [-1.0 / b] if b != 0.0 else []
-    else:
-        disc = b * b - 4.0 * a
-        if disc < 0.0:
-            roots = []
-        else:                                    # the numerically stable pair of roots
-            q = -0.5 * (b + np.copysign(np.sqrt(disc), b))
-            with np.errstate(over="ignore"):     # q / a is +-inf for a vanishing k2: no root there
-                roots = [q / a, 1.0 / q] if q != 0.0 else []
-    positive = [s for s in roots if s > 0.0]
-    return float(np.sqrt(min(positive))) if positive else float("inf")
+        return [-c / b] if b != 0.0 else []
+    disc = b * b - 4.0 * a * c
+    if disc < 0.0:
+        return []
+    q = -0.5 * (b + np.copysign(np.sqrt(disc), b))
+    with np.errstate(over="ignore", divide="ignore"):   # q / a is +-inf for a vanishing a: no root there
+        return [q / a, c / q] if q != 0.0 else []
 
 
-def max_distorted_radius(k1: float, k2: float) -> float:
-    """Largest distorted normalised radius the model reaches before it folds over (``inf`` if never):
-    ``rd`` at :func:`max_monotonic_radius`. Undistortion is unique only below it."""
-    r_max = max_monotonic_radius(k1, k2)
-    return float(r_max * radial_factor(r_max**2, k1, k2)) if np.isfinite(r_max) else float("inf")
+#: Squared radii searched for the fold of a radial model with k3: up to r = 1e30, beyond any lens.
+_S_MAX = 1e60
 
 
-def _monotonic_bracket(rd: np.ndarray, k1: float, k2: float) -> tuple[np.ndarray, np.ndarray]:
-    """``[lo, hi]`` enclosing the root of ``r (1 + k1 r^2 + k2 r^4) = rd`` on the monotonic branch.
+def _first_positive_root(c1: float, c2: float, c3: float) -> float:
+    """Smallest positive root of ``P(s) = 1 + c1 s + c2 s^2 + c3 s^3`` (``inf`` if none).
+
+    ``P(0) = 1``. Without ``c3`` the quadratic formula. With it, ``P`` is monotonic between the
+    roots of ``P'`` (a quadratic), so the first of those pieces on which ``P`` reaches 0 brackets
+    the root, which Brent's method finds; that holds for any ``c3``, also one so small that the
+    cubic's third root is astronomically far away (roots beyond :data:`_S_MAX` count as none).
+    """
+    if c3 == 0.0:
+        return min([s for s in _quadratic_roots(c2, c1, 1.0) if s > 0.0], default=float("inf"))
+    from scipy.optimize import brentq
+
+    def P(s):
+        return 1.0 + s * (c1 + s * (c2 + c3 * s))
+
+    a = 0.0
+    for b in sorted(s for s in _quadratic_roots(3.0 * c3, 2.0 * c2, c1) if 0.0 < s < _S_MAX) + [_S_MAX]:
+        if P(b) <= 0.0:
+            return float(brentq(P, a, b, xtol=1e-300, rtol=4.0 * np.finfo(float).eps, maxiter=1000))
+        a = b
+    return float("inf")
+
+
+def max_monotonic_radius(k1: float, k2: float, k3: float = 0.0) -> float:
+    """Largest undistorted radius up to which ``rd = r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` is increasing.
+
+    ``d rd / dr = 1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6``; its first positive root in ``r^2`` bounds the
+    region where the radial part of the lens has a unique inverse. Returns ``inf`` when there is none.
+    """
+    s = _first_positive_root(3.0 * k1, 5.0 * k2, 7.0 * k3)
+    return float(np.sqrt(s)) if np.isfinite(s) else float("inf")
+
+
+def max_distorted_radius(k1: float, k2: float, k3: float = 0.0) -> float:
+    """Largest distorted normalised radius the radial model reaches before it folds over (``inf`` if
+    never): ``rd`` at :func:`max_monotonic_radius`. Undistortion is unique only below it."""
+    r_max = max_monotonic_radius(k1, k2, k3)
+    return float(r_max * radial_factor(r_max**2, k1, k2, k3)) if np.isfinite(r_max) else float("inf")
+
+
+def _monotonic_bracket(rd: np.ndarray, k1: float, k2: float, k3: float) -> tuple[np.ndarray, np.ndarray]:
+    """``[lo, hi]`` enclosing the root of ``r (1 + k1 r^2 + k2 r^4 + k3 r^6) = rd`` on the monotonic branch.
 
     The branch is ``0 <= r <= max_monotonic_radius``; where that is infinite, ``hi`` doubles from
     ``rd`` until the model passes ``rd``.
     """
     lo = np.zeros_like(rd)
-    r_max = max_monotonic_radius(k1, k2)
+    r_max = max_monotonic_radius(k1, k2, k3)
     if np.isfinite(r_max):
         return lo, np.full_like(rd, r_max)
     hi = np.maximum(rd, 1e-300)
     for _ in range(2100):                       # 2^2100 exceeds any float: the loop always ends
-        short = hi * radial_factor(hi * hi, k1, k2) < rd
+        short = hi * radial_factor(hi * hi, k1, k2, k3) < rd
         if not short.any():
             break
         hi = np.where(short, 2.0 * hi, hi)
     return lo, hi
 
 
-def undistort_radius(rd: np.ndarray, k1: float, k2: float, max_iter: int = 200):
-    """Solve ``rd = r (1 + k1 r^2 + k2 r^4)`` for ``r`` on the monotonic branch (paper eq. 25, typo
-    corrected): Newton's method safeguarded by bisection.
+def undistort_radius(rd: np.ndarray, k1: float, k2: float, max_iter: int = 200, k3: float = 0.0):
+    """Solve ``rd = r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` for ``r`` on the monotonic branch (paper eq. 25,
+    typo corrected): Newton's method safeguarded by bisection.
 
     The root is kept in a bracket ``[lo, hi]`` of the branch ``0 <= r <= max_monotonic_radius``
     (where the model increases, so the root there is unique), which every evaluation narrows; a
     Newton step that would leave the bracket is replaced by its midpoint. Newton starts from the
-    first-order inverse ``rd / (1 + k1 rd^2 + k2 rd^4)`` (a few steps reach machine precision away
-    from the fold) and stops on the residual, ``|r (1 + k1 r^2 + k2 r^4) - rd| <= 4 eps rd``, or on a
+    first-order inverse ``rd / (1 + k1 rd^2 + ...)`` (a few steps reach machine precision away
+    from the fold) and stops on the residual, ``|r (1 + k1 r^2 + ...) - rd| <= 4 eps rd``, or on a
     bracket one rounding unit wide. Radii ``rd`` beyond :func:`max_distorted_radius` have no root
     on the branch: the caller must refuse them (:func:`undistort_normalized` does). NaN stays NaN.
 
@@ -131,14 +260,14 @@ def undistort_radius(rd: np.ndarray, k1: float, k2: float, max_iter: int = 200):
     out = np.full(rd.shape, np.nan)
     idx = np.flatnonzero(np.isfinite(rd))               # the radii still being solved for
     target = rd.ravel()[idx]
-    lo, hi = _monotonic_bracket(target, k1, k2)
+    lo, hi = _monotonic_bracket(target, k1, k2, k3)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        r = target / radial_factor(target * target, k1, k2)
+        r = target / radial_factor(target * target, k1, k2, k3)
     r = np.where((r >= lo) & (r <= hi), r, 0.5 * (lo + hi))
     tol = 4.0 * np.finfo(float).eps * np.maximum(target, np.finfo(float).tiny)
     for _ in range(max_iter):
         r2 = r * r
-        f = r * radial_factor(r2, k1, k2) - target
+        f = r * radial_factor(r2, k1, k2, k3) - target
         done = (np.abs(f) <= tol) | (hi - lo <= 2.0 * np.finfo(float).eps * hi)
         if done.all():
             out.flat[idx] = r
@@ -149,36 +278,110 @@ def undistort_radius(rd: np.ndarray, k1: float, k2: float, max_iter: int = 200):
             idx, target, tol, lo, hi, r, r2, f, done = (a[keep] for a in (idx, target, tol, lo, hi, r, r2, f, done))
         lo, hi = np.where(f < 0, r, lo), np.where(f > 0, r, hi)
         with np.errstate(divide="ignore", invalid="ignore"):
-            newton = r - f / (1.0 + r2 * (3.0 * k1 + 5.0 * k2 * r2))
+            newton = r - f / _radial_slope(r2, k1, k2, k3)
         r = np.where(done, r, np.where((newton > lo) & (newton < hi), newton, 0.5 * (lo + hi)))
     out.flat[idx] = r
     return out, False
 
 
-def undistort_normalized(xy_d: np.ndarray, k1: float, k2: float) -> np.ndarray:
-    """Distorted normalised coordinates (N, 2) -> ideal ones (paper eqs. 24-27).
+def _coefficients_text(k1: float, k2: float, p1: float = 0.0, p2: float = 0.0, k3: float = 0.0) -> str:
+    """``k1=.., k2=..`` and the other coefficients where they are not zero, for messages."""
+    values = dict(zip(DISTORTION_NAMES, (k1, k2, p1, p2, k3)))
+    return ", ".join(f"{n}={v:.4g}" for n, v in values.items() if n in ("k1", "k2") or v != 0.0)
 
-    Finds the undistorted radius on the monotonic branch with :func:`undistort_radius`, then
-    scales ``(xd, yd)`` by ``r / rd`` (eqs. 26, 27). NaN rows (corners not measured) stay NaN.
+
+def _radial_inverse(xy_r: np.ndarray, k1: float, k2: float, k3: float) -> np.ndarray:
+    """Ideal points whose radial distortion alone gives ``xy_r`` (N, 2) (eqs. 25-27): the radius from
+    :func:`undistort_radius`, the direction kept. A radius beyond the fold is taken at the fold."""
+    rd = np.hypot(xy_r[..., 0], xy_r[..., 1])
+    r, converged = undistort_radius(np.minimum(rd, max_distorted_radius(k1, k2, k3)), k1, k2, k3=k3)
+    if not converged:
+        raise NotInvertibleError("undistortion did not converge (radius too close to the fold of the model)")
+    return xy_r * np.divide(r, rd, out=np.ones_like(rd), where=rd > 0)[..., None]
+
+
+#: Newton on the full model stops when the residual is this many rounding units (of 1 or the radius).
+_NEWTON_TOL_EPS = 16.0
+_NEWTON_MAX_ITER = 50
+_START_ITERATIONS = 3          # fixed-point steps x <- radial inverse(xd - tangential shift(x)) before Newton
+
+
+def _undistort_tangential(xy_d: np.ndarray, k1: float, k2: float, p1: float, p2: float, k3: float) -> np.ndarray:
+    """Ideal points (N, 2) that distort onto ``xy_d`` (N, 2) under the full model; NaN rows stay NaN.
+
+    Start: the radial inverse of ``xd`` less the tangential shift of the current estimate, a few
+    times (the shift taken first at ``xd`` itself). Then 2-D Newton on the full model, each step
+    halved while it would leave the radial part's monotonic branch, stopped on the residual,
+    ``max |distort(x) - xd| <= 16 eps max(|xd|, 1)``.
 
     Raises
     ------
     NotInvertibleError
-        Where a radius lies beyond the fold of the model (:func:`max_distorted_radius`), where the
-        distorted image of the monotonic branch ends, or if the root does not settle.
+        Where Newton does not settle, or settles where the Jacobian's determinant is not positive
+        (the tangential terms fold the image there).
+    """
+    idx = np.flatnonzero(np.all(np.isfinite(xy_d), axis=-1))
+    target = xy_d[idx]
+    xy = target
+    for _ in range(_START_ITERATIONS):
+        xy = _radial_inverse(target - np.column_stack(tangential_shift(xy[:, 0], xy[:, 1], p1, p2)), k1, k2, k3)
+    x, y = xy[:, 0], xy[:, 1]
+    tx, ty = target[:, 0], target[:, 1]
+    r2_max = max_monotonic_radius(k1, k2, k3) ** 2
+    tol = _NEWTON_TOL_EPS * np.finfo(float).eps * np.maximum(np.maximum(np.abs(tx), np.abs(ty)), 1.0)
+    for _ in range(_NEWTON_MAX_ITER):
+        xd, yd, (a, b, d), _ = _distorted_with_jacobian(x, y, k1, k2, p1, p2, k3)
+        fx, fy = xd - tx, yd - ty
+        det = a * d - b * b
+        done = np.maximum(np.abs(fx), np.abs(fy)) <= tol
+        if done.all():
+            break
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sx, sy = np.where(done, 0.0, (d * fx - b * fy) / det), np.where(done, 0.0, (a * fy - b * fx) / det)
+        for _ in range(60):                     # stay on the branch where the radial part increases
+            outside = (x - sx) ** 2 + (y - sy) ** 2 > r2_max
+            if not outside.any():
+                break
+            sx, sy = np.where(outside, 0.5 * sx, sx), np.where(outside, 0.5 * sy, sy)
+        x, y = x - sx, y - sy
+    else:
+        raise NotInvertibleError(f"undistortion with {_coefficients_text(k1, k2, p1, p2, k3)} did not converge "
+                                 "(a point too close to where the model folds over)")
+    if not np.all(det > 0):
+        raise NotInvertibleError(f"distortion {_coefficients_text(k1, k2, p1, p2, k3)} folds over where asked: "
+                                 "the tangential terms fold the image there, so undistortion is not unique")
+    out = np.full(xy_d.shape, np.nan)
+    out[idx, 0], out[idx, 1] = x, y
+    return out
+
+
+def undistort_normalized(xy_d: np.ndarray, k1: float, k2: float, p1: float = 0.0, p2: float = 0.0,
+                         k3: float = 0.0) -> np.ndarray:
+    """Distorted normalised coordinates (N, 2) -> ideal ones (paper eqs. 24-27, the module's model).
+
+    Finds the undistorted radius of the radial part on its monotonic branch with
+    :func:`undistort_radius`, and scales ``(xd, yd)`` by ``r / rd`` (eqs. 26, 27). Where ``p1`` or
+    ``p2`` is not zero, that radial solution (of ``xd`` less its tangential shift) starts 2-D
+    Newton on the full model, stopped on the residual (:func:`_undistort_tangential`). NaN rows
+    (corners not measured) stay NaN.
+
+    Raises
+    ------
+    NotInvertibleError
+        Radial lens: where a radius lies beyond the fold of the model (:func:`max_distorted_radius`)
+        or the root does not settle. Tangential lens: where Newton does not settle on the radial
+        part's monotonic branch with a positive Jacobian (the full model folds there).
     """
     xy_d = np.asarray(xy_d, dtype=float)
+    if p1 != 0.0 or p2 != 0.0:
+        return _undistort_tangential(xy_d.reshape(-1, 2), k1, k2, p1, p2, k3).reshape(xy_d.shape)
     rd = np.hypot(xy_d[..., 0], xy_d[..., 1])
-    rd_max = max_distorted_radius(k1, k2)
+    rd_max = max_distorted_radius(k1, k2, k3)
     if np.any(rd > rd_max):
         raise NotInvertibleError(
-            f"distortion k1={k1:.4g}, k2={k2:.4g} is not invertible beyond normalised "
+            f"distortion {_coefficients_text(k1, k2, k3=k3)} is not invertible beyond normalised "
             f"radius {rd_max:.4g}, where the model folds over (asked for {np.nanmax(rd):.4g})")
-    r, converged = undistort_radius(rd, k1, k2)
-    if not converged:
-        raise NotInvertibleError("undistortion did not converge (radius too close to the fold of the model)")
-    scale = np.divide(r, rd, out=np.ones_like(rd), where=rd > 0)
-    return xy_d * scale[..., None]
+    return _radial_inverse(xy_d, k1, k2, k3)
 
 
 def pixel_from_normalized(cam: CameraModel, xy_d: np.ndarray) -> np.ndarray:
@@ -201,7 +404,7 @@ def project_points(cam: CameraModel, X_cam: np.ndarray) -> np.ndarray:
     """Camera-frame points (N, 3) -> distorted pixels (N, 2)."""
     X_cam = np.asarray(X_cam, dtype=float)
     xy = X_cam[..., :2] / X_cam[..., 2:3]
-    return pixel_from_normalized(cam, distort_normalized(xy, cam.k1, cam.k2))
+    return pixel_from_normalized(cam, distort_normalized(xy, *cam.distortion))
 
 
 def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
@@ -211,21 +414,19 @@ def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
     -------
     uv : (N, 2) pixels
     d_uv_d_X : (N, 2, 3) derivative with respect to the camera-frame point
-    d_uv_d_intrinsics : (N, 2, 7) derivative with respect to ``[fx, fy, skew, cx, cy, k1, k2]``
+    d_uv_d_intrinsics : (N, 2, 10) derivative with respect to the intrinsics in the order of
+        :data:`INTRINSIC_NAMES`, ``[fx, fy, skew, cx, cy, k1, k2, p1, p2, k3]`` (every lens
+        coefficient, whichever the camera's model has)
     """
     X_cam = np.asarray(X_cam, dtype=float)
     X, Y, Z = X_cam[:, 0], X_cam[:, 1], X_cam[:, 2]
     iz = 1.0 / Z
     x, y = X * iz, Y * iz
-    r2 = x * x + y * y
-    f = radial_factor(r2, cam.k1, cam.k2)
-    xd, yd = x * f, y * f
+    xd, yd, (dxd_dx, dxd_dy, dyd_dy), r2 = _distorted_with_jacobian(x, y, *cam.distortion)
+    dyd_dx = dxd_dy
     u = cam.fx * xd + cam.skew * yd + cam.cx
     v = cam.fy * yd + cam.cy
 
-    g = 2.0 * (cam.k1 + 2.0 * cam.k2 * r2)      # d f / d r2 times 2
-    dxd_dx, dxd_dy = f + x * x * g, x * y * g
-    dyd_dx, dyd_dy = dxd_dy, f + y * y * g
     du_dx = cam.fx * dxd_dx + cam.skew * dyd_dx
     du_dy = cam.fx * dxd_dy + cam.skew * dyd_dy
     dv_dx, dv_dy = cam.fy * dyd_dx, cam.fy * dyd_dy
@@ -239,7 +440,7 @@ def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
     J_X[:, 1, 1] = dv_dy * iz
     J_X[:, 1, 2] = -(dv_dx * x + dv_dy * y) * iz
 
-    J_K = np.zeros((n, 2, 7))
+    J_K = np.zeros((n, 2, len(INTRINSIC_NAMES)))
     J_K[:, 0, 0] = xd
     J_K[:, 0, 2] = yd
     J_K[:, 0, 3] = 1.0
@@ -247,14 +448,20 @@ def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
     J_K[:, 1, 4] = 1.0
     pu = cam.fx * x + cam.skew * y
     pv = cam.fy * y
-    J_K[:, 0, 5], J_K[:, 0, 6] = pu * r2, pu * r2 * r2
-    J_K[:, 1, 5], J_K[:, 1, 6] = pv * r2, pv * r2 * r2
+    J_K[:, 0, 5], J_K[:, 0, 6], J_K[:, 0, 9] = pu * r2, pu * r2 * r2, pu * r2 * r2 * r2
+    J_K[:, 1, 5], J_K[:, 1, 6], J_K[:, 1, 9] = pv * r2, pv * r2 * r2, pv * r2 * r2 * r2
+    dxd_dp1, dyd_dp1 = 2.0 * x * y, r2 + 2.0 * y * y           # and d(xd, yd)/dp2 = (r2 + 2 x^2, 2 x y)
+    dxd_dp2, dyd_dp2 = r2 + 2.0 * x * x, dxd_dp1
+    J_K[:, 0, 7] = cam.fx * dxd_dp1 + cam.skew * dyd_dp1
+    J_K[:, 1, 7] = cam.fy * dyd_dp1
+    J_K[:, 0, 8] = cam.fx * dxd_dp2 + cam.skew * dyd_dp2
+    J_K[:, 1, 8] = cam.fy * dyd_dp2
     return np.stack([u, v], axis=-1), J_X, J_K
 
 
 def ideal_normalized_from_pixel(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
     """Observed (distorted) pixels -> ideal normalised coordinates ``(X/Z, Y/Z)`` of their rays."""
-    return undistort_normalized(normalized_from_pixel(cam, uv), cam.k1, cam.k2)
+    return undistort_normalized(normalized_from_pixel(cam, uv), *cam.distortion)
 
 
 def undistort_points(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
@@ -265,7 +472,7 @@ def undistort_points(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
 def distort_points(cam: CameraModel, uv_ideal: np.ndarray) -> np.ndarray:
     """Ideal pinhole pixels -> observed (distorted) pixels; inverse of :func:`undistort_points`."""
     xy = normalized_from_pixel(cam, uv_ideal)
-    return pixel_from_normalized(cam, distort_normalized(xy, cam.k1, cam.k2))
+    return pixel_from_normalized(cam, distort_normalized(xy, *cam.distortion))
 
 
 def image_corner_radius(cam: CameraModel) -> float:
@@ -275,19 +482,45 @@ def image_corner_radius(cam: CameraModel) -> float:
     return float(np.max(np.linalg.norm(normalized_from_pixel(cam, corners), axis=1)))
 
 
+def _folds_tangentially(cam: CameraModel, rd_img: float, samples: int = 129) -> bool:
+    """Whether the full model folds (its Jacobian's determinant is not positive) at an ideal point
+    whose distorted image lies inside the image and within normalised radius ``rd_img``.
+
+    Samples a square grid of ideal points out to the radius whose radial distortion reaches
+    ``rd_img`` (10 % beyond, for the tangential shift), at most to the radial part's fold.
+    """
+    k1, k2, k3 = cam.radial
+    rd_max = max_distorted_radius(k1, k2, k3)
+    r_out = float(undistort_radius(np.array([min(1.1 * rd_img, rd_max)]), k1, k2, k3=k3)[0][0])
+    t = np.linspace(-r_out, r_out, samples)
+    x, y = (a.ravel() for a in np.meshgrid(t, t))
+    xd, yd, (a, b, d), r2 = _distorted_with_jacobian(x, y, *cam.distortion)
+    uv = pixel_from_normalized(cam, np.column_stack([xd, yd]))
+    w, h = cam.image_size
+    seen = ((r2 <= r_out * r_out) & (np.hypot(xd, yd) <= rd_img) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5)
+            & (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5))
+    return bool(np.any(a[seen] * d[seen] - b[seen] ** 2 <= 0))
+
+
 def check_invertible_in_image(cam: CameraModel, corners_may_fold: bool = False) -> None:
     """Raise :class:`NotInvertibleError` if undistortion is not unique somewhere in the image.
 
     With ``corners_may_fold`` a fold is accepted where it lies beyond the middle of every image
     edge, i.e. where it cuts off only the image's corners (a forward remap masks those pixels).
+    The radial part is checked exactly (its fold radius, :func:`max_distorted_radius`); for a lens
+    with tangential terms the determinant of the full model's Jacobian must also be positive on a
+    dense grid of the ideal points that the image shows.
     """
-    rd_max = max_distorted_radius(cam.k1, cam.k2)
+    rd_max = max_distorted_radius(*cam.radial)
     w, h = cam.image_size
     edge_middles = np.array([[-0.5, (h - 1) / 2], [w - 0.5, (h - 1) / 2], [(w - 1) / 2, -0.5], [(w - 1) / 2, h - 0.5]])
     rd_img = float(np.max(np.linalg.norm(normalized_from_pixel(cam, edge_middles), axis=1))) if corners_may_fold \
         else image_corner_radius(cam)
+    where = "at the middle of an image edge" if corners_may_fold else "inside the image"
     if rd_img > rd_max:
-        where = "at the middle of an image edge" if corners_may_fold else "inside the image"
         raise NotInvertibleError(
-            f"distortion k1={cam.k1:.4g}, k2={cam.k2:.4g} folds over {where}: "
+            f"distortion {_coefficients_text(cam.k1, cam.k2, k3=cam.k3)} folds over {where}: "
             f"radius not monotonic beyond normalised {rd_max:.4g}, image reaches {rd_img:.4g}")
+    if cam.tangential and _folds_tangentially(cam, rd_img):
+        raise NotInvertibleError(f"distortion {_coefficients_text(*cam.distortion)} folds over {where}: its "
+                                 "tangential terms fold the image there, so undistortion is not unique")

@@ -115,9 +115,9 @@ def holdout_photos(rig: RigModel, progress: bool = True,
 
     Calls :func:`dualcal.calibrate.calibrate_rig` once per view, as the full calibration was
     run: with the photos and corners it used (:meth:`RigModel.used_corners`) of all other views and its
-    settings (skew, rig mode, reference, :meth:`RigModel.calibration_options`); then :func:`resect_view` orients
-    the view's used photos. Only views the full calibration kept are evaluated. ``folds``, where
-    given, receives each view's calibration (``folds[view]``).
+    settings (skew, rig mode, reference, :meth:`RigModel.calibration_options`: outliers, board shape, lens
+    model); then :func:`resect_view` orients the view's used photos. Only views the full calibration
+    kept are evaluated. ``folds``, where given, receives each view's calibration (``folds[view]``).
     """
     from .calibrate import calibrate_rig   # the adjustment is only needed here
 

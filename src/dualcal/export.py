@@ -5,14 +5,27 @@ format     file(s)                             rig pose                     leng
 =========  ==================================  ===========================  ===========
 opencv     one FileStorage YAML                ``X_cam = R X_ref + T``      millimetres
 kalibr     one camchain YAML (cam0, cam1, ..)  ``T_cn_cnm1``: previous cam  metres
-colmap     one ``cameras.txt`` (OPENCV model)  none (intrinsics only)       –
+colmap     one ``cameras.txt``                 none (intrinsics only)       –
 mrcal      one ``.cameramodel`` per camera     ``rt_cam_ref``               metres
 =========  ==================================  ===========================  ===========
 
 Cameras are numbered from the reference camera (cam0 / camera id 1), then the others in the
-order of calib.json. Every format uses OpenCV's radial-tangential model with ``k1, k2`` and
-zero tangential (and ``k3``) terms, which is exactly dualcal's model (paper eq. 13). None of
-them has a skew term: a non-zero ``skew`` (the paper's gamma, Model 2) is dropped, with a
+order of calib.json. Every format writes the lens model it is given, in OpenCV's
+radial-tangential model, which is exactly dualcal's (:mod:`dualcal.camera`), the coefficients a
+lens model lacks being 0:
+
+==========  ==========================  ======================  =====================  ===================
+lens model  opencv ``D``                kalibr ``radtan``       colmap                 mrcal
+==========  ==========================  ======================  =====================  ===================
+k1k2        k1 k2 0 0 0                 k1 k2 0 0               OPENCV                 LENSMODEL_OPENCV4
+k1k2p1p2    k1 k2 p1 p2 0               k1 k2 p1 p2             OPENCV                 LENSMODEL_OPENCV4
+k1k2k3      k1 k2 0 0 k3                refused (no k3)         FULL_OPENCV            LENSMODEL_OPENCV5
+k1k2p1p2k3  k1 k2 p1 p2 k3              refused (no k3)         FULL_OPENCV            LENSMODEL_OPENCV5
+==========  ==========================  ======================  =====================  ===================
+
+(COLMAP's OPENCV is ``k1 k2 p1 p2``, its FULL_OPENCV ``k1 k2 p1 p2 k3 k4 k5 k6``, here with
+``k4 = k5 = k6 = 0``; mrcal's OPENCV4 and OPENCV5 are OpenCV's first four and five.) None of
+the formats has a skew term: a non-zero ``skew`` (the paper's gamma, Model 2) is dropped, with a
 warning. Pixel convention: OpenCV, Kalibr and mrcal centre pixel ``(row i, col j)`` at
 ``(j, i)`` like dualcal; COLMAP centres it at ``(j + 0.5, i + 0.5)``, so its principal point
 is shifted by half a pixel.
@@ -29,7 +42,7 @@ import cv2
 import numpy as np
 
 from . import __version__
-from .camera import CameraModel
+from .camera import LENS_MODELS, CameraModel
 from .errors import InputError
 from .io import check_output_file, write_text_atomic
 from .model import RigModel
@@ -46,9 +59,9 @@ def skewed_cameras(rig: RigModel) -> dict[str, float]:
     return {name: cam.skew for name, cam in rig.cameras.items() if cam.skew != 0.0}
 
 
-def _distortion5(cam: CameraModel) -> np.ndarray:
-    """OpenCV's ``(k1, k2, p1, p2, k3)`` for dualcal's two radial terms."""
-    return np.array([cam.k1, cam.k2, 0.0, 0.0, 0.0])
+def _has_k3(cam: CameraModel) -> bool:
+    """Whether the camera's lens model has ``k3`` (which a four-coefficient format cannot hold)."""
+    return "k3" in LENS_MODELS[cam.model]
 
 
 def _safe_name(name: str) -> str:
@@ -93,7 +106,8 @@ def opencv_yaml(rig: RigModel) -> str:
     Top level: ``reference`` (name), ``cameras`` (sequence of names, reference first), then a
     map per camera (key: the name, characters other than letters, digits, ``-`` and ``_``
     replaced by ``_``, and ``_`` put in front of a leading digit) holding
-    ``image_width``, ``image_height`` (px), ``K`` (3x3, px), ``D`` (1x5: k1, k2, 0, 0, 0) and,
+    ``image_width``, ``image_height`` (px), ``K`` (3x3, px), ``D`` (1x5: k1, k2, p1, p2, k3, zero
+    where the lens model lacks them), ``lens_model`` (dualcal's name of it) and,
     for every camera with a pose relative to the reference, ``R`` (3x3) and ``T`` (3x1, mm)
     such that ``X_cam = R X_ref + T`` (what ``cv2.stereoCalibrate`` returns). Each other camera
     also carries the stereo rectification of the pair (reference = camera 1, this camera =
@@ -119,7 +133,8 @@ def opencv_yaml(rig: RigModel) -> str:
         fs.write("image_width", int(cam.image_size[0]))
         fs.write("image_height", int(cam.image_size[1]))
         fs.write("K", np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]]))
-        fs.write("D", _distortion5(cam).reshape(1, 5))
+        fs.write("D", np.array(cam.distortion).reshape(1, 5))
+        fs.write("lens_model", cam.model)
         if name == rig.reference or name in rig.rig:
             pose = rig.pose_from_reference(name)
             fs.write("R", pose.R)
@@ -162,12 +177,23 @@ def kalibr_yaml(rig: RigModel) -> str:
     """Kalibr camchain YAML: ``cam0`` (the reference), ``cam1``, ... .
 
     Each camera: ``camera_model: pinhole``, ``intrinsics: [fu, fv, pu, pv]`` (px),
-    ``distortion_model: radtan``, ``distortion_coeffs: [k1, k2, 0, 0]``,
+    ``distortion_model: radtan``, ``distortion_coeffs: [k1, k2, p1, p2]`` (``p1 = p2 = 0`` for
+    the paper's ``k1k2``),
     ``resolution: [w, h]``, ``rostopic``, ``cam_overlaps`` (every other camera: all saw the same
     board) and, from cam1 on, ``T_cn_cnm1``: the 4x4 transform taking camera n-1 coordinates to
     camera n coordinates, translation in metres.
+
+    Raises
+    ------
+    InputError
+        For a lens model with ``k3``, which radtan does not have.
     """
     order = rig.camera_order()
+    with_k3 = [name for name in order if _has_k3(rig.cameras[name])]
+    if with_k3:
+        raise InputError(f"kalibr's radtan model has no k3, which the lens model {rig.cameras[with_k3[0]].model} "
+                         f"of {', '.join(with_k3)} has: export to opencv, colmap or mrcal, which hold it, or "
+                         "calibrate with --model k1k2p1p2")
     topics = _distinct(order, lambda name: f"/{_safe_name(name).replace('-', '_')}/image_raw", "the rostopic")
     lines = [f"# dualcal {__version__} rig calibration: "
              + ", ".join(f"cam{i} = {name}" for i, name in enumerate(order))
@@ -187,7 +213,7 @@ def kalibr_yaml(rig: RigModel) -> str:
         overlaps = ", ".join(str(j) for j in range(len(order)) if j != i)
         lines += [f"  cam_overlaps: [{overlaps}]",
                   "  camera_model: pinhole",
-                  f"  distortion_coeffs: {_yaml_list([cam.k1, cam.k2, 0.0, 0.0])}",
+                  f"  distortion_coeffs: {_yaml_list([cam.k1, cam.k2, cam.p1, cam.p2])}",
                   "  distortion_model: radtan",
                   f"  intrinsics: {_yaml_list([cam.fx, cam.fy, cam.cx, cam.cy])}",
                   f"  resolution: [{cam.image_size[0]}, {cam.image_size[1]}]",
@@ -200,10 +226,12 @@ def kalibr_yaml(rig: RigModel) -> str:
 
 
 def colmap_cameras_txt(rig: RigModel) -> str:
-    """COLMAP ``cameras.txt``: one OPENCV camera per rig camera, ids 1, 2, ... .
+    """COLMAP ``cameras.txt``: one camera per rig camera, ids 1, 2, ... .
 
-    ``CAMERA_ID OPENCV WIDTH HEIGHT fx fy cx cy k1 k2 p1 p2`` with ``cx, cy`` moved by +0.5 px
-    to COLMAP's pixel convention (centre of the top-left pixel at (0.5, 0.5)).
+    ``CAMERA_ID OPENCV WIDTH HEIGHT fx fy cx cy k1 k2 p1 p2``, or for a lens model with ``k3``
+    ``CAMERA_ID FULL_OPENCV WIDTH HEIGHT fx fy cx cy k1 k2 p1 p2 k3 k4 k5 k6`` (``k4 = k5 = k6 =
+    0``), with ``cx, cy`` moved by +0.5 px to COLMAP's pixel convention (centre of the top-left
+    pixel at (0.5, 0.5)).
     """
     order = rig.camera_order()
     lines = ["# Camera list with one line of data per camera:",
@@ -213,8 +241,11 @@ def colmap_cameras_txt(rig: RigModel) -> str:
              + "; principal point in COLMAP's convention (dualcal's + 0.5 px), skew dropped"]
     for i, name in enumerate(order, 1):
         cam = rig.cameras[name]
-        params = [cam.fx, cam.fy, cam.cx + 0.5, cam.cy + 0.5, cam.k1, cam.k2, 0.0, 0.0]
-        lines.append(f"{i} OPENCV {cam.image_size[0]} {cam.image_size[1]} "
+        params = [cam.fx, cam.fy, cam.cx + 0.5, cam.cy + 0.5, cam.k1, cam.k2, cam.p1, cam.p2]
+        model = "OPENCV"
+        if _has_k3(cam):
+            params, model = params + [cam.k3, 0.0, 0.0, 0.0], "FULL_OPENCV"
+        lines.append(f"{i} {model} {cam.image_size[0]} {cam.image_size[1]} "
                      + " ".join(repr(float(p)) for p in params))
     return "\n".join(lines) + "\n"
 
@@ -226,14 +257,18 @@ def mrcal_cameramodel(rig: RigModel, name: str) -> str:
     """mrcal ``.cameramodel`` text of camera ``name`` (a Python-literal dict with comments).
 
     ``lensmodel: LENSMODEL_OPENCV4`` with ``intrinsics = [fx, fy, cx, cy, k1, k2, p1, p2]``
-    (px), ``extrinsics = rt_cam_ref = [rx, ry, rz, tx, ty, tz]``: rotation vector (radians)
-    and translation (metres) taking reference camera coordinates to this camera's, and
+    (px), or for a lens model with ``k3`` ``LENSMODEL_OPENCV5`` with ``[..., p2, k3]``;
+    ``extrinsics = rt_cam_ref = [rx, ry, rz, tx, ty, tz]``: rotation vector (radians) and
+    translation (metres) taking reference camera coordinates to this camera's, and
     ``imagersize = [w, h]``. The reference camera has zero extrinsics.
     """
     cam = rig.cameras[name]
     pose = rig.pose_from_reference(name)
     rt = np.concatenate([rotvec_from_rotation(pose.R), pose.t_mm / _MM_PER_M])
-    intrinsics = [cam.fx, cam.fy, cam.cx, cam.cy, cam.k1, cam.k2, 0.0, 0.0]
+    intrinsics = [cam.fx, cam.fy, cam.cx, cam.cy, *cam.distortion[:4]]
+    lensmodel = "LENSMODEL_OPENCV4"
+    if _has_k3(cam):
+        intrinsics, lensmodel = intrinsics + [cam.k3], "LENSMODEL_OPENCV5"
 
     def literal(values):
         return "[ " + " ".join(f"{float(v)!r}," for v in values) + " ]"
@@ -242,7 +277,7 @@ def mrcal_cameramodel(rig: RigModel, name: str) -> str:
         f"# dualcal {__version__}: camera {name!r} of a rig calibrated with reference {rig.reference!r}",
         "# extrinsics translation in metres; skew dropped",
         "{",
-        "    'lensmodel':  'LENSMODEL_OPENCV4',",
+        f"    'lensmodel':  '{lensmodel}',",
         "    # intrinsics are fx,fy,cx,cy,distortion0,distortion1,....",
         f"    'intrinsics': {literal(intrinsics)},",
         "    # extrinsics are rt_fromref",
@@ -286,9 +321,9 @@ def export_files(rig: RigModel, fmt: str, output: str | Path) -> dict[Path, str]
     Raises
     ------
     InputError
-        for an unknown format, two cameras whose names the format would spell alike, or, in
-        kalibr and mrcal (which place every camera relative to the reference), a rig whose
-        cameras have no relative pose (rig mode ``none``).
+        for an unknown format, two cameras whose names the format would spell alike, in kalibr
+        and mrcal (which place every camera relative to the reference), a rig whose cameras
+        have no relative pose (rig mode ``none``), or in kalibr, a lens model with ``k3``.
     """
     if fmt not in FORMATS:
         raise InputError(f"--format {fmt!r} is unknown (choose from {', '.join(FORMATS)})")

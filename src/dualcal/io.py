@@ -20,7 +20,7 @@ import numpy as np
 
 from . import __version__
 from .board import SHAPE_TERMS, Board, sag_mm
-from .camera import INTRINSIC_NAMES, CameraModel, project_points
+from .camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names, project_points
 from .errors import InputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
 from .parallel import raise_if_cancelled
@@ -185,9 +185,18 @@ def _image_size(value, what: str) -> tuple[int, int]:
     return int(arr[0]), int(arr[1])
 
 
+def board_from_dict(entry, source: str) -> Board:
+    """The board entry of a corners.json or calib.json (a chessboard, or a ChArUco board with its
+    ``charuco`` entry, see the contract), validated; the error names ``source``."""
+    try:
+        return Board.from_dict(entry if isinstance(entry, dict) else {})
+    except InputError as exc:
+        raise InputError(f"{source}: {exc}") from None
+
+
 def corners_from_dict(doc: dict, source: str = "corners.json") -> CornerSet:
     """Validate a corners.json document and build a :class:`CornerSet`."""
-    board = Board.from_dict(doc.get("board") or {})
+    board = board_from_dict(doc.get("board"), source)
     cams = doc.get("cameras")
     if not isinstance(cams, dict) or not cams:
         raise InputError(f"{source}: 'cameras' must be a non-empty object")
@@ -259,11 +268,12 @@ def rig_to_dict(rig: RigModel) -> dict:
     """The calib.json document of a :class:`RigModel` (contract keys first, extensions after)."""
     cameras = {}
     for name, cam in rig.cameras.items():
+        names = intrinsic_names(cam.model)        # the model's coefficients only (k1k2: the keys of old files)
         entry = {"image_size": list(cam.image_size)}
-        entry.update({n: float(getattr(cam, n)) for n in INTRINSIC_NAMES})
-        entry["sigma"] = {n: float(s) for n, s in rig.camera_sigma[name].items()}
+        entry.update({n: float(getattr(cam, n)) for n in names})
+        entry["sigma"] = {n: float(s) for n, s in rig.camera_sigma[name].items() if n in names}
         if name in rig.camera_sigma_formal:
-            entry["sigma_formal"] = {n: float(s) for n, s in rig.camera_sigma_formal[name].items()}
+            entry["sigma_formal"] = {n: float(s) for n, s in rig.camera_sigma_formal[name].items() if n in names}
         entry["rms_px"] = float(rig.camera_rms_px[name])
         cameras[name] = entry
     rig_doc = {}
@@ -288,6 +298,7 @@ def rig_to_dict(rig: RigModel) -> dict:
         "reference": rig.reference,
         "skew": bool(rig.skew),
         "rig_mode": rig.rig_mode,
+        "model": rig.model,
         "cameras": cameras,
         "rig": rig_doc,
         "views": views,
@@ -319,15 +330,19 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
     """Validate a calib.json document and build a :class:`RigModel`."""
     try:
         corners = corners_from_dict(doc["corners"], f"{source} corners")
-        board = Board.from_dict(doc["board"])
+        board = board_from_dict(doc["board"], source)
+        model = _lens_model(doc, source)
         cameras, sigma, sigma_formal, rms = {}, {}, {}, {}
         for name, e in doc["cameras"].items():
             size = _image_size(e["image_size"], f"{source}: camera {name!r}")
-            vec = [float(e[n]) for n in INTRINSIC_NAMES]
-            cameras[name] = CameraModel.from_vector(size, vec)
+            _check_lens_keys(e, model, f"{source}: camera {name!r}")
+            cameras[name] = CameraModel(size, **{n: float(e[n]) for n in intrinsic_names(model)}, model=model)
             sigma[name] = {k: float(v) for k, v in e.get("sigma", {}).items()}
+            # coefficients outside the model are fixed at 0: sigma 0, as the adjustment gives them
+            sigma[name].update({n: 0.0 for n in DISTORTION_NAMES if n not in LENS_MODELS[model]})
             if "sigma_formal" in e:
                 sigma_formal[name] = {k: float(v) for k, v in e["sigma_formal"].items()}
+                sigma_formal[name].update({n: 0.0 for n in DISTORTION_NAMES if n not in LENS_MODELS[model]})
             rms[name] = float(e.get("rms_px", float("nan")))
         rig = {}
         for name, e in doc["rig"].items():
@@ -358,6 +373,25 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
         raise InputError(f"{source}: malformed calib.json ({type(exc).__name__}: {exc})") from None
     _check_consistent(model, source)
     return model
+
+
+def _lens_model(doc: dict, source: str) -> str:
+    """calib.json's ``model``; a file without one (written before lens models) is the paper's ``k1k2``."""
+    model = doc.get("model", DEFAULT_LENS_MODEL)
+    if model not in LENS_MODELS:
+        raise InputError(f"{source}: lens model {model!r} is unknown (dualcal knows {', '.join(LENS_MODELS)})")
+    return model
+
+
+def _check_lens_keys(entry: dict, model: str, what: str) -> None:
+    """Raise :class:`InputError` unless a camera entry has exactly the lens coefficients of ``model``."""
+    missing = [n for n in LENS_MODELS[model] if n not in entry]
+    if missing:
+        raise InputError(f"{what} lacks {', '.join(missing)} of its lens model {model} (calib.json 'model')")
+    foreign = [n for n in DISTORTION_NAMES if n in entry and n not in LENS_MODELS[model]]
+    if foreign:
+        raise InputError(f"{what} has {', '.join(foreign)}, which its lens model {model} does not have "
+                         "(calib.json 'model'; a file without one is k1k2)")
 
 
 def _is_rotation(R: np.ndarray) -> bool:

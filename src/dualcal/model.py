@@ -157,10 +157,26 @@ class RigModel:
     checks: dict = field(default_factory=dict)
     covariance: dict | None = None
 
+    @property
+    def model(self) -> str:
+        """The lens model of the cameras (calib.json's ``model``; every camera of a rig has the same).
+
+        Raises
+        ------
+        ValueError
+            Cameras of different lens models (no calibration makes such a rig).
+        """
+        models = {cam.model for cam in self.cameras.values()}
+        if len(models) != 1:
+            raise ValueError(f"the cameras of a rig have one lens model, these have {sorted(models)}")
+        return models.pop()
+
     def calibration_options(self) -> dict:
         """The options the calibration ran with (``adjustment["options"]``: ``drop_outliers``,
-        ``outlier_factor``, ``board_shape``, ...); files written before one was recorded get its default."""
-        return {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto", **self.adjustment.get("options", {})}
+        ``outlier_factor``, ``board_shape``, ``model``: :func:`dualcal.calibrate.calibrate_rig`'s keyword
+        arguments); files written before one was recorded get its default."""
+        return {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto", "model": self.model,
+                **self.adjustment.get("options", {})}
 
     def board_points_mm(self) -> np.ndarray:
         """(N, 3) the board's corners as calibrated: flat, or shaped by ``board_shape_mm``."""

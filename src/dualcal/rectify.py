@@ -5,11 +5,13 @@ output pixel ``(u, v)`` the distorted source position ``(u~, v~)`` follows from 
 model, so no equation has to be solved per pixel:
 
 * ``(x, y) = A'^-1 (u, v, 1)`` with the output matrix ``A'`` (eq. 28 inverted),
-* ``(x~, y~) = (x, y) (1 + k1 r^2 + k2 r^4)`` (eq. 13; eq. 25 corrected),
+* ``(x~, y~) = (x, y) (1 + k1 r^2 + k2 r^4)`` (eq. 13; eq. 25 corrected), or the camera's full
+  lens model (:mod:`dualcal.camera`: ``k3`` and the tangential ``p1, p2``),
 * ``(u~, v~) = A (x~, y~, 1)`` with the camera's matrix ``A`` (eq. 24 inverted),
 
 then the source is resampled there with ``cv2.remap``. Points go the other way with
-Newton-Raphson on the radial polynomial (eqs. 25-27): :func:`dualcal.camera.undistort_points`.
+Newton-Raphson on the radial polynomial (eqs. 25-27), and 2-D Newton on the full model where it
+has tangential terms: :func:`dualcal.camera.undistort_points`.
 
 The output matrix ``A'`` is chosen by ``keep`` (see :func:`rectified_camera`): the camera's own
 ``A`` (``"same"``), one that keeps every source pixel (``"all"``) or one that shows only valid
@@ -30,8 +32,8 @@ import cv2
 import numpy as np
 from PIL import Image, JpegImagePlugin
 
-from .camera import (INTRINSIC_NAMES, CameraModel, check_invertible_in_image, max_monotonic_radius,
-                     normalized_from_pixel, radial_factor, undistort_points)
+from .camera import (CameraModel, check_invertible_in_image, intrinsic_names, max_monotonic_radius,
+                     normalized_from_pixel, radial_factor, tangential_shift, undistort_points)
 from .dataset import open_image, read_exif
 from .errors import InputError
 from .io import atomic_output, make_output_folder, read_json
@@ -59,7 +61,8 @@ def _border_pixels(image_size: tuple[int, int], n: int = _BORDER_SAMPLES) -> dic
 
 
 def rectified_camera(cam: CameraModel, keep: str = "same") -> CameraModel:
-    """The pinhole camera (``k1 = k2 = 0``) of the rectified image, same size as ``cam``'s.
+    """The pinhole camera (no lens distortion, :meth:`~dualcal.camera.CameraModel.pinhole`) of the
+    rectified image, same size as ``cam``'s.
 
     Parameters
     ----------
@@ -84,9 +87,9 @@ def rectified_camera(cam: CameraModel, keep: str = "same") -> CameraModel:
         raise InputError(f"--keep {keep!r} is unknown (choose from {', '.join(KEEP_MODES)})")
     check_invertible_in_image(cam, corners_may_fold=keep == "same")
     if keep == "same":
-        return cam.with_distortion(0.0, 0.0)
+        return cam.pinhole()
     # Trace the image border into ideal normalised coordinates (eqs. 24-27).
-    edges = {name: normalized_from_pixel(cam.with_distortion(0.0, 0.0), undistort_points(cam, uv))
+    edges = {name: normalized_from_pixel(cam.pinhole(), undistort_points(cam, uv))
              for name, uv in _border_pixels(cam.image_size).items()}
     if keep == "all":
         xy = np.vstack(list(edges.values()))
@@ -99,8 +102,8 @@ def rectified_camera(cam: CameraModel, keep: str = "same") -> CameraModel:
     aspect = cam.fx / cam.fy
     fit = (min if keep == "all" else max)((w - 1) / (aspect * (x1 - x0)), (h - 1) / (y1 - y0))
     fx, fy = float(aspect * fit), float(fit)
-    return replace(cam, fx=fx, fy=fy, skew=0.0, cx=float((w - 1) / 2 - fx * (x0 + x1) / 2),
-                   cy=float((h - 1) / 2 - fy * (y0 + y1) / 2), k1=0.0, k2=0.0)
+    return replace(cam.pinhole(), fx=fx, fy=fy, skew=0.0, cx=float((w - 1) / 2 - fx * (x0 + x1) / 2),
+                   cy=float((h - 1) / 2 - fy * (y0 + y1) / 2))
 
 
 # ---------------------------------------------------------------------------- maps and images
@@ -132,11 +135,16 @@ def rectify_map(cam: CameraModel, new_cam: CameraModel, row0: int, row1: int,
         behind = z <= 0
         x, y = (a * x + b * y + c) / z, (d * x + e * y + f_) / z
     r2 = x * x + y * y                                                                        # (B, W)
-    f = radial_factor(r2, cam.k1, cam.k2)
+    f = radial_factor(r2, *cam.radial)
     yd = y * f
-    map_x = (cam.fx * f) * x + cam.skew * yd + cam.cx
+    if cam.tangential:
+        tx, ty = tangential_shift(x, y, cam.p1, cam.p2)
+        yd = yd + ty
+        map_x = cam.fx * (x * f + tx) + cam.skew * yd + cam.cx
+    else:
+        map_x = (cam.fx * f) * x + cam.skew * yd + cam.cx
     map_y = cam.fy * yd + cam.cy
-    r_max = max_monotonic_radius(cam.k1, cam.k2)
+    r_max = max_monotonic_radius(*cam.radial)
     invalid = r2 > r_max * r_max if np.isfinite(r_max) else np.zeros(map_x.shape, bool)
     if behind is not None:
         invalid |= behind
@@ -321,9 +329,10 @@ def rectified_json_path(out_dir, camera_name: str) -> Path:
 
 
 def rectified_camera_doc(camera_name: str, keep: str, calibration, new_cam: CameraModel) -> dict:
-    """The content of ``NAME.rectified.json``: where the camera came from and its intrinsics."""
+    """The content of ``NAME.rectified.json``: where the camera came from and its intrinsics
+    (``fx fy skew cx cy k1 k2``, the lens coefficients 0)."""
     return {"camera": camera_name, "keep": keep, "calibration": str(calibration),
-            "image_size": list(new_cam.image_size), **{k: getattr(new_cam, k) for k in INTRINSIC_NAMES}}
+            "image_size": list(new_cam.image_size), **{k: getattr(new_cam, k) for k in intrinsic_names()}}
 
 
 def check_same_rectified_camera(doc_path, new_cam: CameraModel) -> None:
@@ -338,7 +347,7 @@ def check_same_rectified_camera(doc_path, new_cam: CameraModel) -> None:
         return
     doc = read_json(doc_path)
     try:
-        old = CameraModel.from_vector(doc["image_size"], [doc[k] for k in INTRINSIC_NAMES])
+        old = CameraModel.from_vector(doc["image_size"], [doc[k] for k in intrinsic_names()])
         same = old.image_size == new_cam.image_size and np.allclose(old.as_vector(), new_cam.as_vector(),
                                                                      rtol=1e-9, atol=1e-12)
     except (KeyError, TypeError, ValueError):

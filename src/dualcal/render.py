@@ -44,6 +44,7 @@ from .camera import CameraModel, check_invertible_in_image, project_points, undi
 from .io import atomic_output
 from .model import Pose
 from .progress import progress_bar
+from .render_charuco import MarkerTexture, marker_darkness, marker_texture
 
 __all__ = ["render_view", "write_photo_set", "photo_seed"]
 
@@ -65,8 +66,12 @@ def _box_mean(F, x: np.ndarray, h: np.ndarray, lo: float, hi: float) -> np.ndarr
 
 
 def _reflectance(X: np.ndarray, Y: np.ndarray, hX: np.ndarray, hY: np.ndarray, board: Board,
-                 margin_mm: float, white: float, black: float, background: np.ndarray) -> np.ndarray:
-    """Box-filtered reflectance at board points ``(X, Y)`` mm with footprint half-widths ``hX, hY``."""
+                 margin_mm: float, white: float, black: float, background: np.ndarray,
+                 markers: MarkerTexture | None = None) -> np.ndarray:
+    """Box-filtered reflectance at board points ``(X, Y)`` mm with footprint half-widths ``hX, hY``.
+
+    ``markers``: a ChArUco board's markers (:mod:`dualcal.render_charuco`), drawn in its white squares.
+    """
     s = board.square_mm
     tri = lambda x: _square_wave_integral(x, s)  # noqa: E731
     ident = lambda x: x                          # noqa: E731
@@ -75,6 +80,10 @@ def _reflectance(X: np.ndarray, Y: np.ndarray, hX: np.ndarray, hY: np.ndarray, b
     inside = _box_mean(ident, X, hX, x0, x1) * _box_mean(ident, Y, hY, y0, y1)
     product = _box_mean(tri, X, hX, x0, x1) * _box_mean(tri, Y, hY, y0, y1)
     black_share = 0.5 * (inside + product)          # black where sq(X) sq(Y) = +1, i.e. a + b even
+    if board.black_parity():                        # OpenCV's legacy ChArUco layout: the other squares
+        black_share = inside - black_share
+    if markers is not None:
+        black_share = black_share + marker_darkness(markers, X, Y, hX, hY)
     paper = (_box_mean(ident, X, hX, x0 - margin_mm, x1 + margin_mm)
              * _box_mean(ident, Y, hY, y0 - margin_mm, y1 + margin_mm))
     return background * (1.0 - paper) + white * paper - (white - black) * black_share
@@ -97,7 +106,7 @@ def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray
     """
     yd = ((v - cam.cy) / cam.fy)[:, None]
     xd = (u[None, :] - cam.cx - cam.skew * yd) / cam.fx
-    xy = undistort_normalized(np.stack(np.broadcast_arrays(xd, yd), axis=-1), cam.k1, cam.k2)  # (B, W, 2)
+    xy = undistort_normalized(np.stack(np.broadcast_arrays(xd, yd), axis=-1), *cam.distortion)  # (B, W, 2)
     x, y = xy[..., 0], xy[..., 1]
     Hinv = np.linalg.inv(np.column_stack([pose.R[:, 0], pose.R[:, 1], pose.t_mm]))
     w = Hinv[2, 0] * x + Hinv[2, 1] * y + Hinv[2, 2]          # = 1 / Z_cam
@@ -116,14 +125,16 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
                 background: float = 0.3, clutter: int = 80, band_rows: int = 256,
                 glare: Sequence[tuple[float, float, float, float]] = (),
                 shadow: tuple[float, float, float, float] | None = None,
-                outliers: Sequence[tuple[int, float, float]] = ()) -> np.ndarray:
+                outliers: Sequence[tuple[int, float, float]] = (),
+                swapped_markers: Sequence[tuple[int, int]] = ()) -> np.ndarray:
     """Render the board as photographed by ``cam`` at ``pose``.
 
     Parameters
     ----------
     cam : camera model; ``cam.image_size = (W, H)`` sets the photo size.
     pose : board-to-camera pose.
-    board : the chessboard (inner corners and square size).
+    board : the chessboard (inner corners and square size), or a ChArUco board with a known
+        dictionary and layout (its markers drawn with :mod:`dualcal.render_charuco`).
     rng : random generator for the lighting direction, background and sensor noise
         (``None``: a fixed seed).
     blur_px : standard deviation of the Gaussian optical blur, pixels (0: none).
@@ -148,6 +159,8 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
         a square, fading out by half a square), so the photo shows that corner at board point
         ``X_k + (dX, dY)`` while :func:`~dualcal.camera.project_points` still gives the true
         one. Shifts up to 0.19 of a square are drawn exactly (the shading does not fold).
+    swapped_markers : planted misread ids of a ChArUco board, each ``(i, j)``: marker ``i`` is
+        drawn with the code of id ``j``, so a detector reads id ``j`` in marker ``i``'s square.
 
     Returns
     -------
@@ -170,6 +183,7 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
     bg_u = [np.sin(bg_freq[0] * u + bg_phase[0]), np.sin(bg_freq[2] * u + bg_phase[2]),
             np.cos(bg_freq[2] * u + bg_phase[2])]
     scene = _clutter((W, H), rng, clutter, background)
+    markers = marker_texture(board, swapped_markers) if board.charuco is not None else None
 
     out = np.empty((H, W), np.uint8)
     for r0 in range(0, H, band_rows):
@@ -191,7 +205,7 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
             hY = 0.5 * (np.abs(np.gradient(Y, axis=1)) + np.abs(np.gradient(Y, axis=0))) + 1e-9
             bg = refl[rows, c0:c1]
             refl[rows, c0:c1] = np.where(front, _reflectance(X, Y, hX, hY, board, margin_mm,
-                                                             white, black, bg), bg)
+                                                             white, black, bg, markers), bg)
         gain = ((1.0 - (vignetting / r_corner**2) * (du * du + dv * dv))
                 * (1.0 + light[0] * du + light[1] * dv))
         if shadow is not None:

@@ -2,8 +2,10 @@
 
 A :class:`SynthTruth` is a rig (intrinsics of every camera, the pose of every camera relative
 to the reference) and a set of board poses chosen so that the whole board is seen by every
-camera. From it come exact corners (:func:`true_corners`), noisy corner sets
-(:func:`noisy_corner_set`) and, in :mod:`dualcal.render`, photo-like images.
+camera, or, with ``coverage`` (for ChArUco boards), so that the narrowest camera sees only
+part of it. From it come exact corners (:func:`true_corners`; a corner outside a camera's
+frame is a NaN row), noisy corner sets (:func:`noisy_corner_set`) and, in
+:mod:`dualcal.render`, photo-like images.
 
 Presets
 -------
@@ -11,6 +13,9 @@ Presets
             the paper's set-up: 8x5 inner corners of 30 mm)
 ``stereo``  a 640x480 stereo rig with a 100 mm baseline (like OpenCV's stereo sample)
 ``triple``  wide + tele + ultra-wide (three cameras, 12 MP portrait)
+``stereo5`` the ``stereo`` rig with OpenCV's five-coefficient lens model (``k1k2p1p2k3``): left as
+            OpenCV's own calibration of its stereo sample's left camera (``left_intrinsics.yml``:
+            k3 = 0.238, p1 = 0.0018), right as Bouguet's joint stereo result (p1 = -0.0006, k3 = 0)
 """
 
 from __future__ import annotations
@@ -20,12 +25,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .board import Board
-from .camera import INTRINSIC_NAMES, CameraModel, project_points
+from .camera import INTRINSIC_NAMES, CameraModel, max_monotonic_radius, project_points
 from .errors import EstimationError, InputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
 from .rotation import ARCMIN_PER_RAD, rotation_from_opk
 
 _W, _H = 3024, 4032
+
+#: On partial views (``coverage``), the share of the board's corners every camera but the
+#: narrowest sees at least: the wide of a phone sees nearly all of a board held close to the tele.
+OTHERS_COVERAGE = 0.8
 
 
 def _opk(arcmin):
@@ -64,6 +73,15 @@ PRESETS = {
         fill=(0.45, 0.85),
     ),
 }
+PRESETS["stereo5"] = dict(
+    PRESETS["stereo"],
+    cameras={
+        "left": CameraModel((640, 480), 535.9157, 535.9157, 0.0, 342.2832, 235.5708, -0.26637, -0.03859,
+                            0.00178, -0.00028, 0.23839, model="k1k2p1p2k3"),
+        "right": CameraModel((640, 480), 536.81377, 536.47649, 0.0, 326.28657, 250.10121, -0.28943, 0.10690,
+                             -0.00059, 0.00014, 0.0, model="k1k2p1p2k3"),
+    },
+)
 
 
 @dataclass
@@ -122,9 +140,22 @@ def _all_visible(cams: dict[str, CameraModel], poses: dict[str, Pose], X: np.nda
     return True
 
 
+def in_frame(cam: CameraModel, X_cam: np.ndarray) -> np.ndarray:
+    """(N,) True for camera-frame points (N, 3) that ``cam`` sees: in front of it, short of the
+    lens's fold (:func:`~dualcal.camera.max_monotonic_radius`) and projected inside the image."""
+    X_cam = np.asarray(X_cam, float)
+    front = X_cam[:, 2] > 0
+    xy = X_cam[:, :2] / np.where(front, X_cam[:, 2], 1.0)[:, None]
+    uv = project_points(cam, np.where(front[:, None], X_cam, 1.0))
+    w, h = cam.image_size
+    inside = np.all((uv >= 0) & (uv <= [w - 1, h - 1]), axis=1)
+    return front & (np.hypot(xy[:, 0], xy[:, 1]) < max_monotonic_radius(cam.k1, cam.k2)) & inside
+
+
 def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
                max_tilt_deg: float = 40.0, min_tilt_deg: float = 5.0,
-               fill: tuple[float, float] | None = None, board: Board | None = None) -> SynthTruth:
+               fill: tuple[float, float] | None = None, board: Board | None = None,
+               coverage: tuple[float, float] | None = None) -> SynthTruth:
     """Draw a rig from ``preset`` and ``views`` board poses seen whole by every camera.
 
     Poses look at a random point of the board from a tilt of ``min_tilt_deg`` to
@@ -132,6 +163,12 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     where the board fills a random share, drawn from ``fill`` (default: the preset's), of the
     narrowest camera's frame (a small share: small squares). ``board`` replaces the preset's
     board. The outer ring of squares stays inside every image too.
+
+    ``coverage = (lo, hi)``: partial views, for boards whose markers number the corners
+    (ChArUco). The narrowest camera sees between ``lo`` and ``hi`` of the board's inner corners
+    (inside its frame, :func:`in_frame`), looking at a random point of the whole board from
+    nearer (the board fills up to ``1.1 / sqrt(lo)`` of its frame); every other camera sees at
+    least :data:`OTHERS_COVERAGE` of them.
     """
     if preset not in PRESETS:
         raise InputError(f"--preset {preset!r} is unknown (choose from {', '.join(PRESETS)})")
@@ -150,36 +187,61 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     X = np.vstack([board.object_points_mm(), outline])
     centre = np.array([(board.cols - 1) * s / 2, (board.rows - 1) * s / 2, 0.0])
     extent = np.hypot((board.cols + 1) * s, (board.rows + 1) * s)
-    narrowest = max(cameras.values(), key=lambda c: c.fx / min(c.image_size))
+    narrowest = max(cameras, key=lambda n: cameras[n].fx / min(cameras[n].image_size))
     fmin, fmax = fill or p["fill"]
+    if coverage is not None:
+        lo, hi = coverage
+        if not 0 < lo <= hi <= 1:
+            raise InputError(f"coverage {lo:g}-{hi:g}: needs 0 < lo <= hi <= 1")
+        fmax = max(fmax, 1.1 / np.sqrt(lo))
+    reach = 0.15 if coverage is None else 0.45
 
     view_poses = {}
     attempts = 0
+    aim = None
     while len(view_poses) < views:
         attempts += 1
         if attempts > 20000 * views:
-            raise EstimationError(f"could not place {views} views for preset {preset!r} with the whole board "
-                                  "in every camera")
+            seen = "the whole board in every camera" if coverage is None else f"coverage {lo:g}-{hi:g}"
+            raise EstimationError(f"could not place {views} views for preset {preset!r} with {seen}")
+        if coverage is not None and aim is None:
+            aim = rng.uniform(lo, hi)        # a share drawn per view, so that small ones are not rare
         tilt = np.radians(rng.uniform(min_tilt_deg, max_tilt_deg))
         azim = rng.uniform(0, 2 * np.pi)
         fill = rng.uniform(fmin, fmax)
-        dist = narrowest.fx * extent / (fill * min(narrowest.image_size))
+        dist = cameras[narrowest].fx * extent / (fill * min(cameras[narrowest].image_size))
         direction = -np.array([np.sin(tilt) * np.cos(azim), np.sin(tilt) * np.sin(azim), np.cos(tilt)])
-        target = centre + np.array([rng.uniform(-0.15, 0.15) * board.cols * s,
-                                    rng.uniform(-0.15, 0.15) * board.rows * s, 0.0])
+        target = centre + np.array([rng.uniform(-reach, reach) * board.cols * s,
+                                    rng.uniform(-reach, reach) * board.rows * s, 0.0])
         roll = rng.uniform(-np.pi, np.pi)
         ref_pose = _look_at_pose(target + dist * direction, target, roll)
         poses = {reference: ref_pose, **{n: q.compose(ref_pose) for n, q in rig.items()}}
-        if _all_visible(cameras, poses, X, margin=0.01):
+        if coverage is None:
+            ok = _all_visible(cameras, poses, X, margin=0.01)
+        else:
+            share = {n: in_frame(c, poses[n].apply(X[:board.n_corners])).mean() for n, c in cameras.items()}
+            ok = (lo <= share[narrowest] <= hi and abs(share[narrowest] - aim) <= 0.1
+                  and all(share[n] >= OTHERS_COVERAGE for n in cameras if n != narrowest))
+        if ok:
             view_poses[f"IMG_{len(view_poses) + 1:02d}"] = ref_pose
+            aim = None
     return SynthTruth(board, cameras, reference, rig, view_poses)
 
 
 def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
-    """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner."""
+    """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner; NaN rows for the
+    corners a camera does not see (:func:`in_frame`: only on partial views)."""
     X = truth.board.object_points_mm()
-    return {cam: {v: project_points(model, truth.camera_pose(cam, v).apply(X)) for v in truth.view_poses}
-            for cam, model in truth.cameras.items()}
+    out = {}
+    for cam, model in truth.cameras.items():
+        out[cam] = {}
+        for v in truth.view_poses:
+            Xc = truth.camera_pose(cam, v).apply(X)
+            seen = in_frame(model, Xc)
+            uv = project_points(model, np.where(seen[:, None], Xc, 1.0))
+            uv[~seen] = np.nan
+            out[cam][v] = uv
+    return out
 
 
 def noisy_corner_set(truth: SynthTruth, noise_px: float, seed: int = 0) -> CornerSet:

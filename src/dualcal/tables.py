@@ -13,11 +13,11 @@ from __future__ import annotations
 from rich import box
 from rich.table import Table
 
-from .camera import INTRINSIC_NAMES
+from .camera import DISTORTION_NAMES, INTRINSIC_NAMES, intrinsic_names
 from .model import RigModel, observed_mask
 
 _PAPER_NAMES = {"fx": "alpha = fx", "fy": "beta = fy", "skew": "gamma = skew", "cx": "u0 = cx",
-                "cy": "v0 = cy", "k1": "k1", "k2": "k2"}
+                "cy": "v0 = cy", "k1": "k1", "k2": "k2", "p1": "p1", "p2": "p2", "k3": "k3"}
 
 
 def _pm(value: float, sigma: float, digits: int) -> tuple[str, str]:
@@ -30,14 +30,16 @@ def _model_label(rig: RigModel) -> str:
 
 def camera_table(name: str, models: list[RigModel]) -> Table:
     """Intrinsics of camera ``name`` in each model (the paper's Tables 2 and 3)."""
-    t = Table(title=f"Camera {name!r}: intrinsics (px) and radial distortion, 1 sigma", box=box.SIMPLE_HEAD,
+    lens = {m.model for m in models}
+    kind = "radial" if lens <= {"k1k2", "k1k2k3"} else "lens"
+    t = Table(title=f"Camera {name!r}: intrinsics (px) and {kind} distortion, 1 sigma", box=box.SIMPLE_HEAD,
               caption=_SIGMA_CAPTION)
     t.add_column("parameter")
     for m in models:
         t.add_column(f"{_model_label(m)}", justify="right")
         t.add_column("sigma", justify="right")
-    for p in INTRINSIC_NAMES:
-        digits = 5 if p in ("k1", "k2") else 3
+    for p in [p for p in INTRINSIC_NAMES if any(p in intrinsic_names(model) for model in lens)]:
+        digits = 5 if p in DISTORTION_NAMES else 3
         row = [_PAPER_NAMES[p]]
         for m in models:
             row += _pm(getattr(m.cameras[name], p), m.camera_sigma[name][p], digits)

@@ -6,7 +6,8 @@
   to 0 (the paper's Model 1) the unknown ``b2`` is removed, which imposes ``b2 = 0`` exactly.
 * :func:`extrinsics_from_homography`: lambda, r1, r2, t, r3 = r1 x r2, then the nearest rotation
   (section 1.5, eq. 11).
-* :func:`radial_distortion_linear`: linear least squares for k1, k2 (section 1.6, eqs. 13-15).
+* :func:`radial_distortion_linear`: linear least squares for k1, k2 (section 1.6, eqs. 13-15), and
+  for the other coefficients of a lens model (eq. 15 extended).
 
 Board points are the board's ``(X, Y)`` in mm (Z = 0); image points are pixels ``(u, v)``. A
 view may have corners that were not measured (NaN rows, :func:`dualcal.model.observed_mask`):
@@ -15,10 +16,12 @@ each view uses the corners it has, at least :data:`MIN_HOMOGRAPHY_CORNERS` not o
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.optimize import least_squares
 
-from .camera import CameraModel, max_distorted_radius, normalized_from_pixel
+from .camera import DEFAULT_LENS_MODEL, LENS_MODELS, CameraModel, max_distorted_radius, normalized_from_pixel
 from .errors import EstimationError
 from .model import Pose, observed_mask
 from .resection import planar_pose
@@ -188,14 +191,26 @@ def extrinsics_from_homography(K: np.ndarray, H: np.ndarray) -> Pose:
     return Pose(R, t)
 
 
-def radial_distortion_linear(cam: CameraModel, poses, xy_board: np.ndarray, observed) -> tuple[float, float]:
-    """k1, k2 by linear least squares (paper eqs. 13-15).
+_RADIAL_POWER = {"k1": 1, "k2": 2, "k3": 3}     # coefficient of r^(2 n)
 
-    For each point, ``(u - u0, v - v0) (k1 r^2 + k2 r^4) = (u~ - u, v~ - v)`` where ``(u, v)``
-    is the ideal (distortion-free) projection, ``r`` its normalised radius and ``(u~, v~)`` the
-    observed pixel. ``u - u0`` includes the skew term: ``fx x + gamma y``. Rows of ``observed``
-    that are NaN (corners not measured) are left out.
+
+def radial_distortion_linear(cam: CameraModel, poses, xy_board: np.ndarray, observed,
+                             model: str = DEFAULT_LENS_MODEL) -> tuple[float, ...]:
+    """The lens coefficients of ``model`` by linear least squares (paper eqs. 13-15, extended).
+
+    For each point, ``(u~ - u, v~ - v) = A' (xd - x, yd - y)`` where ``(u, v)`` is the ideal
+    (distortion-free) projection of normalised ``(x, y)``, ``(u~, v~)`` the observed pixel and
+    ``A' = [[fx, skew], [0, fy]]``. In the paper's model (eq. 14) that is
+    ``(u - u0, v - v0) (k1 r^2 + k2 r^4)``, ``u - u0`` including the skew term ``fx x + gamma y``.
+    This extends eq. 15 to the other coefficients of :mod:`dualcal.camera`'s model, which are
+    linear too given the ideal projections: ``k3`` adds the column of ``r^6``, ``p1`` the column
+    ``A' (2 x y, r^2 + 2 y^2)`` and ``p2`` the column ``A' (r^2 + 2 x^2, 2 x y)``. Rows of
+    ``observed`` that are NaN (corners not measured) are left out.
+
+    Returns the coefficients in the order of :data:`dualcal.camera.LENS_MODELS` ``[model]``
+    (``k1, k2`` for the paper's model).
     """
+    names = LENS_MODELS[model]
     X = np.column_stack([xy_board, np.zeros(len(xy_board))])
     D_rows, d_rows = [], []
     for pose, uv_obs in zip(poses, observed):
@@ -207,28 +222,43 @@ def radial_distortion_linear(cam: CameraModel, poses, xy_board: np.ndarray, obse
         du = cam.fx * x + cam.skew * y
         dv = cam.fy * y
         u, v = du + cam.cx, dv + cam.cy
-        D_rows += [np.column_stack([du * r2, du * r2 * r2]), np.column_stack([dv * r2, dv * r2 * r2])]
+        tangential = {"p1": (2 * x * y, r2 + 2 * y * y), "p2": (r2 + 2 * x * x, 2 * x * y)}   # d(xd, yd) / dp
+        cols_u, cols_v = [], []
+        for n in names:
+            if n in tangential:
+                sx, sy = tangential[n]
+                cols_u.append(cam.fx * sx + cam.skew * sy)
+                cols_v.append(cam.fy * sy)
+            else:                                # k1, k2, k3: (u - u0, v - v0) r^2, r^4, r^6
+                cu, cv = du, dv
+                for _ in range(_RADIAL_POWER[n]):
+                    cu, cv = cu * r2, cv * r2
+                cols_u.append(cu)
+                cols_v.append(cv)
+        D_rows += [np.column_stack(cols_u), np.column_stack(cols_v)]
         d_rows += [uv_obs[:, 0] - u, uv_obs[:, 1] - v]
     D = np.vstack(D_rows)
     d = np.concatenate(d_rows)
     k, *_ = np.linalg.lstsq(D, d, rcond=None)                     # eq. 15
-    return float(k[0]), float(k[1])
+    return tuple(float(c) for c in k)
 
 
-def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False):
-    """Zhang's full initialisation of one camera: intrinsics, k1 k2 and one pose per view.
+def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False,
+                   model: str = DEFAULT_LENS_MODEL):
+    """Zhang's full initialisation of one camera: intrinsics, the lens (k1 k2, or the coefficients
+    of lens ``model``) and one pose per view.
 
     ``views[k]`` is (N, 2), NaN rows for corners not measured; every view needs at least
     :data:`MIN_HOMOGRAPHY_CORNERS` corners not on one line (``dualcal.calibrate`` skips the others).
     Returns ``(CameraModel, {view: Pose})``: homographies (section 1.3), closed-form intrinsics
-    (1.4), one pose per view (1.5), then k1 k2 by linear least squares (1.6). The closed form
+    (1.4), one pose per view (1.5), then the lens by linear least squares (1.6). The closed form
     weighs each view by its homography's redundancy (``sqrt(2 n - 8)`` for n corners: one of 4
     corners has none, and no say; unweighted, a single such view of a narrow lens that sees
     small parts of the board was seen to make fx 790 px for a true 6059). A start the
-    adjustment could not move from is avoided: linear k1 k2
-    that fold over where the corners are become 0, and a pose with a corner behind the camera is
-    replaced by space resection (IPPE). These are the starting values of the joint adjustment,
-    which refines all of them together.
+    adjustment could not move from is avoided: linear coefficients whose radial part folds over
+    where the corners are become 0, and a pose with a corner behind the camera is replaced by
+    space resection (IPPE). These are the starting values of the joint adjustment, which refines
+    all of them together.
     """
     keys = sorted(views)
     seen = [observed_mask(views[k]) for k in keys]
@@ -242,14 +272,15 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
     poses = [extrinsics_from_homography(cam.K, H) for H in Hs]
     poses = [pose if np.all(pose.apply(X[m])[:, 2] > 0) else planar_pose(X, cam, views[k])
              for k, m, pose in zip(keys, seen, poses)]
-    cam = _admissible_distortion(cam.with_distortion(*radial_distortion_linear(
-        cam, poses, xy_board, [views[k] for k in keys])), [views[k][m] for k, m in zip(keys, seen)])
+    coefficients = radial_distortion_linear(cam, poses, xy_board, [views[k] for k in keys], model)
+    cam = replace(cam, model=model, **dict(zip(LENS_MODELS[model], coefficients)))
+    cam = _admissible_distortion(cam, [views[k][m] for k, m in zip(keys, seen)])
     return cam, dict(zip(keys, poses))
 
 
 def _admissible_distortion(cam: CameraModel, observed: list[np.ndarray]) -> CameraModel:
-    """``cam``, or ``cam`` without distortion if its k1 k2 fold over inside the radius that the
-    measured corners reach (a linear estimate from a poor closed form; the adjustment cannot
+    """``cam``, or ``cam`` without distortion if its radial part folds over inside the radius that
+    the measured corners reach (a linear estimate from a poor closed form; the adjustment cannot
     start from a lens that is not invertible where the corners are)."""
     rd = max(np.max(np.linalg.norm(normalized_from_pixel(cam, uv), axis=1)) for uv in observed)
-    return cam if rd < max_distorted_radius(cam.k1, cam.k2) else cam.with_distortion(0.0, 0.0)
+    return cam if rd < max_distorted_radius(*cam.radial) else cam.with_distortion(0.0, 0.0)

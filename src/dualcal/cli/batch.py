@@ -16,7 +16,7 @@ import click
 from ..errors import InputError
 from . import cli
 from .calibrate import calibrate_command
-from .common import board_from_flags, default_jobs
+from .common import BOARD_OPTION_NAMES, board_from_flags, default_jobs
 
 # calibrate's options that do not apply per device: its input and output, and what only the
 # terminal shows or only a single dataset's detection uses. Every other option of calibrate is
@@ -69,7 +69,7 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
 
     calibrate_kwargs = set(inspect.signature(calibrate_rig).parameters) - {"corners"}
     dataset_kwargs = set(inspect.signature(open_dataset).parameters) - {"path"}
-    unknown = set(per_device) - calibrate_kwargs - dataset_kwargs - {"board_spec", "square_mm"}
+    unknown = set(per_device) - calibrate_kwargs - dataset_kwargs - set(BOARD_OPTION_NAMES)
     assert not unknown, f"calibrate options {sorted(unknown)} are neither calibrate_rig's nor open_dataset's"
 
     if scheduler is not None and workers is not None:
@@ -82,7 +82,7 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     devices = find_devices(root, exclude=[out_dir])
     out_dir = make_output_folder(out_dir)
     options = BatchOptions(
-        board=board_from_flags(per_device.pop("board_spec"), per_device.pop("square_mm")),
+        board=board_from_flags(*(per_device.pop(name) for name in BOARD_OPTION_NAMES)),
         calibrate={k: v for k, v in per_device.items() if k in calibrate_kwargs},
         dataset={k: v for k, v in per_device.items() if k in dataset_kwargs},
         evaluate=run_evaluate, holdout=holdout)

@@ -36,13 +36,25 @@ class LazyChoice(click.Choice):
         pass
 
 
-def board_options(required: bool):
-    """``--board COLSxROWS`` and ``--square MM``; optional where the input file names the board."""
+#: The keyword names of :func:`board_options` (what a command hands to :func:`board_from_flags`).
+BOARD_OPTION_NAMES = ("board_spec", "square_mm", "marker_mm", "dictionary")
+
+
+def board_options(required: bool, dictionary_default: str = "found from the photos"):
+    """``--board``, ``--square MM`` and, for a ChArUco board, ``--marker MM`` and ``--dictionary NAME``;
+    ``--board`` and ``--square`` optional where the input file names the board. ``dictionary_default``
+    says in the help what a ChArUco board without ``--dictionary`` gets."""
     def decorate(f):
+        f = click.option("--dictionary", "dictionary", metavar="NAME", default=None,
+                         help="ChArUco boards: OpenCV's name of the markers' dictionary, e.g. DICT_5X5_100 "
+                              f"(default: {dictionary_default}).")(f)
+        f = click.option("--marker", "marker_mm", type=float, metavar="MM", default=None,
+                         help="ChArUco boards: side of one marker in millimetres.")(f)
         f = click.option("--square", "square_mm", type=float, metavar="MM", required=required,
                          help="Side of one square in millimetres.")(f)
-        return click.option("--board", "board_spec", metavar="COLSxROWS", required=required,
-                            help="Inner corners of the chessboard, e.g. 8x5 for a board of 9 x 6 squares.")(f)
+        return click.option("--board", "board_spec", metavar="COLSxROWS|charuco:SXxSY", required=required,
+                            help="Inner corners of the chessboard, e.g. 8x5 for a board of 9 x 6 squares; or the "
+                                 "squares of a ChArUco board, e.g. charuco:11x8 (with --marker).")(f)
     return decorate
 
 
@@ -55,27 +67,38 @@ def exclude_option(f):
                              "only).")(f)
 
 
-def board_from_flags(board_spec: str | None, square_mm: float | None):
-    """A :class:`~dualcal.board.Board` from the flags, or None when neither is given."""
+def board_from_flags(board_spec: str | None, square_mm: float | None, marker_mm: float | None = None,
+                     dictionary: str | None = None):
+    """A :class:`~dualcal.board.Board` from the flags (:func:`dualcal.board.board_from_spec`), or None
+    when none is given."""
     if board_spec is None and square_mm is None:
+        if marker_mm is not None or dictionary is not None:
+            raise InputError("--marker and --dictionary describe a ChArUco board: give --board charuco:SXxSY "
+                             "and --square MM too")
         return None
     if board_spec is None or square_mm is None:
-        raise InputError("give both --board COLSxROWS and --square MM")
-    if not square_mm > 0:
-        raise InputError(f"--square {square_mm}: must be a positive length in millimetres")
-    from ..board import Board, parse_board_spec
-    cols, rows = parse_board_spec(board_spec)
-    return Board(cols, rows, float(square_mm))
+        raise InputError("give both --board (COLSxROWS, or charuco:SXxSY) and --square MM")
+    from ..board import board_from_spec
+    return board_from_spec(board_spec, square_mm, marker_mm, dictionary)
 
 
 def check_board_agrees(flags, from_file, source: str):
-    """The file's board, after checking that the flags (if any) say the same."""
-    if flags is not None and (flags.cols, flags.rows) != (from_file.cols, from_file.rows):
+    """The file's board, after checking that the flags (if any) say the same (a ChArUco board's
+    dictionary and layout only where the flags give them)."""
+    if flags is None:
+        return from_file
+    if (flags.spec(), flags.cols, flags.rows) != (from_file.spec(), from_file.cols, from_file.rows):
         raise InputError(f"--board {flags.spec()} disagrees with {source}, which has "
                          f"{from_file.spec()}: drop --board or use the matching file")
-    if flags is not None and abs(flags.square_mm - from_file.square_mm) > 1e-9 * from_file.square_mm:
+    if abs(flags.square_mm - from_file.square_mm) > 1e-9 * from_file.square_mm:
         raise InputError(f"--square {flags.square_mm:g} disagrees with {source}, which has "
                          f"{from_file.square_mm:g} mm")
+    if flags.charuco is not None:
+        mine, theirs = flags.charuco, from_file.charuco
+        if abs(mine.marker_mm - theirs.marker_mm) > 1e-9 * theirs.marker_mm:
+            raise InputError(f"--marker {mine.marker_mm:g} disagrees with {source}, which has {theirs.marker_mm:g} mm")
+        if mine.dictionary is not None and mine.dictionary != theirs.dictionary:
+            raise InputError(f"--dictionary {mine.dictionary} disagrees with {source}, which has {theirs.dictionary}")
     return from_file
 
 

@@ -86,17 +86,19 @@ def corners_from_dataset(dataset_path, board, cameras=(), pair_by: str = "stem",
 @board_options(required=True)
 @dataset_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="corners.json to write.")
-def detect_command(dataset, board_spec, square_mm, output, **opts):
-    """Find the chessboard corners in every photo of DATASET and write corners.json.
+def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, output, **opts):
+    """Find the board's corners in every photo of DATASET and write corners.json.
 
     DATASET is a folder with one subfolder of photos per camera (or a folder of photos: one
     camera); or give the cameras one by one with --camera NAME=GLOB. A --reference given here
     is written into corners.json (top-level "reference"), so 'dualcal calibrate' uses it too.
+    A ChArUco board (--board charuco:SXxSY --marker MM) may be seen in part: the corners a photo
+    does not show are null; without --dictionary, the dictionary is found from the photos.
     """
     from ..io import check_output_file, save_corners
 
     check_output_file(output)
-    board = board_from_flags(board_spec, square_mm)
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
     corners = corners_from_dataset(dataset, board, **opts)
     save_corners(output, corners)
     found = {c: sum(v is not None for v in cc.views.values()) for c, cc in corners.cameras.items()}
@@ -124,7 +126,7 @@ def pick_hints(todo):
 @dataset_selection_options
 @click.option("--all", "all_photos", is_flag=True, help="Ask for every photo, not only where detection fails.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="hints.json to write.")
-def pick_command(dataset, board_spec, square_mm, all_photos, output, **selection):
+def pick_command(dataset, board_spec, square_mm, marker_mm, dictionary, all_photos, output, **selection):
     """Click the four outer inner-corners of the board in photos where automatic detection fails.
 
     For each photo click corner 0, corner cols-1 (end of the first row), corner N-1 and corner
@@ -137,11 +139,14 @@ def pick_command(dataset, board_spec, square_mm, all_photos, output, **selection
     from ..io import check_output_file
     from ..progress import track
 
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
+    if board.charuco is not None:
+        raise InputError(f"pick is for chessboards: {board.describe()} numbers its corners by its markers, "
+                         "so a photo that shows part of it needs no clicks")
     problem = display_problem()
     if problem:
         raise InputError(problem)
     check_output_file(output)
-    board = board_from_flags(board_spec, square_mm)
     ds = open_dataset(dataset, **selection)
     photos = [(cam, view, photo.path) for cam, views in ds.cameras.items() for view, photo in views.items()]
     todo: dict[str, dict] = {}

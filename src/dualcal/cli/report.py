@@ -53,18 +53,20 @@ def export_command(calib: Path, fmt: str, output: str) -> None:
     """Write a calibration in OpenCV, Kalibr, COLMAP or mrcal format.
 
     \b
-    opencv  cv2.FileStorage YAML: per camera K, D = (k1, k2, 0, 0, 0), image size,
+    opencv  cv2.FileStorage YAML: per camera K, D = (k1, k2, p1, p2, k3), image size,
             and R, T with X_cam = R X_ref + T (T in millimetres); per other camera
             the stereo rectification with the reference, R1 R2 P1 P2 Q (as 'dualcal
             rectify' computes it)
-    kalibr  camchain YAML: cam0 (reference), cam1, ...; pinhole + radtan,
-            T_cn_cnm1 in metres
-    colmap  cameras.txt, one OPENCV camera per rig camera (principal point + 0.5 px,
-            COLMAP's pixel convention)
-    mrcal   LENSMODEL_OPENCV4 .cameramodel files, extrinsics rt_cam_ref
-            (reference camera frame, metres)
+    kalibr  camchain YAML: cam0 (reference), cam1, ...; pinhole + radtan
+            (k1 k2 p1 p2: a lens model with k3 is refused), T_cn_cnm1 in metres
+    colmap  cameras.txt, one OPENCV camera per rig camera (FULL_OPENCV for a lens
+            model with k3; principal point + 0.5 px, COLMAP's pixel convention)
+    mrcal   LENSMODEL_OPENCV4 .cameramodel files (OPENCV5 for a lens model with k3),
+            extrinsics rt_cam_ref (reference camera frame, metres)
 
-    None of these formats has a skew term: a non-zero skew is dropped with a warning.
+    Each format gets the lens model of the calibration (--model of 'dualcal calibrate'),
+    with zeros for the coefficients it lacks. None of these formats has a skew term: a
+    non-zero skew is dropped with a warning.
     """
     from ..export import write_export
     from ..io import load_rig

@@ -150,7 +150,8 @@ def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int]):
         Qt = np.swapaxes(Q, 1, 2)
         Qinv = np.linalg.solve(Qt @ Q + 1e-9 * np.eye(6), Qt)               # (N, 6, M)
         coef = Qinv @ left                                                   # (N, 6, 2)
-    pred = (at_zero + coef[:, 0, :]) * spread[:, None] + mean
+    with np.errstate(invalid="ignore"):      # corners with too few neighbours: NaN below
+        pred = (at_zero + coef[:, 0, :]) * spread[:, None] + mean
     pred[~enough | ~np.all(np.isfinite(pred), axis=1)] = np.nan
     return pred, np.sqrt(np.sum(Qinv[:, 0, :] ** 2, axis=1))
 
@@ -173,7 +174,7 @@ def outlier_limit_px(spacing_px: np.ndarray, typical_px: float, gain=INNER_GAIN)
 
 
 def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray | None = None,
-                  candidates: int = 4):
+                  candidates: int = 4, judged: np.ndarray | None = None):
     """The corner to reject first, or None when every corner that can be judged is within its limit.
 
     Parameters
@@ -182,6 +183,8 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
     shape : ``(rows, cols)``.
     spacing_px : (N,) spacing that sets each corner's limit; default :func:`local_spacing_px` of ``uv``.
     candidates : how many of the corners over their limit are tried (see below).
+    judged : (N,) bool, the corners that may be judged (default: all); the others still predict
+        their neighbours.
 
     Returns
     -------
@@ -200,6 +203,8 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
     uv = np.asarray(uv, float)
     pred, gain = predict_from_neighbours(uv, shape)
     res = np.linalg.norm(uv - pred, axis=1)
+    if judged is not None:
+        res[~np.asarray(judged, bool)] = np.nan
     finite = np.isfinite(res)
     if not finite.any():
         return None
@@ -218,35 +223,46 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
         without = uv.copy()
         without[k] = np.nan
         r = np.linalg.norm(without - neighbour_predictions(without, shape), axis=1) / limit
-        return float(np.sum(np.where(np.isfinite(r), r * r, 0.0)))
+        return float(np.sum(np.where(np.isfinite(r) & finite, r * r, 0.0)))
 
     k = int(min(tried, key=left_over))
     return k, float(res[k])
 
 
-def min_corners(board: Board) -> int:
-    """Fewest measured corners for a photo to be kept: more than half of the board, and at least 6.
+#: Fewest corners of a ChArUco photo (:func:`min_corners`).
+MIN_CHARUCO_CORNERS = 6
 
-    More than half, so that the photo still shows most of the board (a photo that lost more
-    than half its corners has a problem a corner-by-corner check should not paper over: heavy
-    blur, a wrong board, a detection on the wrong pattern), and the board's extent still
-    constrains the pose; at least 6, so that the photo's homography (8 unknowns) has redundancy.
+
+def min_corners(board: Board) -> int:
+    """Fewest measured corners for a photo to be kept: more than half of a chessboard, and at least 6.
+
+    More than half of a chessboard, so that the photo still shows most of the board (a photo
+    that lost more than half its corners has a problem a corner-by-corner check should not paper
+    over: heavy blur, a wrong board, a detection on the wrong pattern), and the board's extent
+    still constrains the pose; at least 6, so that the photo's homography (8 unknowns) has
+    redundancy: 12 equations, 4 more than the unknowns, enough for a wrong corner to show in the
+    fit and to be told from the others. A ChArUco photo may show any part of its board (the
+    markers number the corners, and every corner was checked against them), so it needs only
+    those :data:`MIN_CHARUCO_CORNERS`, not on one line.
     """
+    if board.charuco is not None:
+        return MIN_CHARUCO_CORNERS
     return max(6, board.n_corners // 2 + 1)
 
 
-def validate_grid(uv: np.ndarray, board: Board) -> str | None:
+def validate_grid(uv: np.ndarray, board: Board, judged: np.ndarray | None = None) -> str | None:
     """Why a detected grid is not a ``board`` seen by a camera, or None when it is.
 
     Parameters
     ----------
     uv : (N, 2) corners in the contract's order, NaN rows where a corner was rejected.
     board : the board.
+    judged : (N,) bool, the corners to check against their neighbours (default: all).
 
     Returns
     -------
     A one-line reason, or None. Checked: the number of measured corners
-    (:func:`min_corners`); every grid cell with four measured corners is a convex quadrilateral
+    (:func:`min_corners`), not all on one line; every grid cell with four measured corners is a convex quadrilateral
     turning the same way as the others (no fold, no crossed rows); every measured corner that
     can be judged sits within :func:`outlier_limit_px` of its neighbours' prediction
     (:func:`worst_outlier`).
@@ -258,8 +274,12 @@ def validate_grid(uv: np.ndarray, board: Board) -> str | None:
     seen = observed_mask(uv)
     need = min_corners(board)
     if seen.sum() < need:
+        why = "for a homography with redundancy" if board.charuco is not None else "more than half of the board"
         return (f"only {int(seen.sum())} of {board.n_corners} corners passed their checks "
-                f"(at least {need} needed: more than half of the board)")
+                f"(at least {need} needed: {why})")
+    r, c = np.divmod(np.flatnonzero(seen), board.cols)
+    if min(np.linalg.matrix_rank(np.column_stack([r - r.mean(), c - c.mean()])), 2) < 2:
+        return f"its {int(seen.sum())} corners lie on one line of the board (a homography needs them to span it)"
     g = _grid(uv, shape)
     quad = np.stack([g[:-1, :-1], g[:-1, 1:], g[1:, 1:], g[1:, :-1]], axis=2)     # (R-1, C-1, 4, 2)
     edge = np.roll(quad, -1, axis=2) - quad
@@ -271,7 +291,7 @@ def validate_grid(uv: np.ndarray, board: Board) -> str | None:
         if majority == 0 or np.any(signs != majority):
             r, c = np.argwhere(full)[np.flatnonzero(np.any(signs != majority, axis=1))[0]]
             return f"the grid folds over itself at the cell of corner {r * board.cols + c}"
-    worst = worst_outlier(uv, shape)
+    worst = worst_outlier(uv, shape, judged=judged)
     if worst is not None:
         return f"corner {worst[0]} is {worst[1]:.2f} px from where its neighbours put it"
     return None

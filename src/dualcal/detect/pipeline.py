@@ -1,6 +1,7 @@
 """Detection of one photo and of a whole dataset (paper section 1.2).
 
-Per photo (:func:`detect_photo`), one photo in memory at a time:
+Per photo (:func:`detect_photo`), one photo in memory at a time (a ChArUco board goes through
+:func:`.charuco.detect_charuco` instead: its markers number the corners):
 
 1. decode the photo once, reduce it to 1/2-1/8 size and find the grid there (:mod:`.coarse`),
    or, where that fails and the user clicked four corners, predict the grid from them
@@ -17,7 +18,9 @@ Per photo (:func:`detect_photo`), one photo in memory at a time:
    corner off its neighbours' prediction. A grid that fails is reported as not found.
 
 :func:`detect_dataset` runs that over every photo of a :class:`~dualcal.dataset.Dataset` in
-parallel threads and gathers a :class:`~dualcal.model.CornerSet`.
+parallel threads and gathers a :class:`~dualcal.model.CornerSet`; for a ChArUco board whose
+dictionary (or layout) is not given it first finds them from the photos
+(:func:`.charuco.resolve_board`).
 """
 
 from __future__ import annotations
@@ -29,13 +32,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..board import Board
+from ..board import DICTIONARIES, Board, dictionary_family
 from ..dataset import Dataset, read_gray
 from ..errors import DetectionError, InputError
 from ..io import atomic_output, make_output_folder
 from ..model import CameraCorners, CornerSet
 from ..parallel import interruptible_map
 from ..progress import progress_bar, warn
+from .charuco import detect_charuco, resolve_board
 from .coarse import find_grid, find_partial_grid, reduce_image, reduction_factor, to_full_resolution
 from .grid import validate_grid
 from .manual import grid_from_hints
@@ -76,9 +80,10 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
     Parameters
     ----------
     path : photo file (JPEG, PNG, TIFF, HEIC).
-    board : the expected board; a board of another size is not accepted.
+    board : the expected board; a board of another size is not accepted. A ChArUco board whose
+        dictionary or layout is not given gets them from this photo.
     hint_uv : (4, 2) clicked corners 0, cols-1, N-1, N-cols (manual mode), used when the
-        automatic search fails.
+        automatic search fails (chessboards only).
     overlay_path : where to write a small JPEG with the corners and their numbers drawn.
 
     Returns
@@ -92,6 +97,13 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
     try:
         full = read_gray(path)
         size = (full.shape[1], full.shape[0])
+        if board.charuco is not None:
+            # a dataset settles the dictionary and layout first (detect_dataset); one photo alone tells its own
+            uv = detect_charuco(full, board if board.charuco.resolved else resolve_board(board, [full]))
+            if overlay_path is not None:
+                f = reduction_factor(size)
+                write_overlay(overlay_path, reduce_image(full, f), uv, f)
+            return PhotoResult(uv, size)
         small, f, grid = _coarse(full, board)
         manual = grid is None and hint_uv is not None
         if manual:
@@ -160,6 +172,8 @@ def warn_unpaired_cameras(dataset: Dataset) -> None:
 def likely_boards(board: Board) -> list[Board]:
     """The ``--board`` a user most likely meant when ``board`` is not found: squares counted
     instead of inner corners (``cols-1 x rows-1``), the counts swapped, or both."""
+    if board.charuco is not None:
+        return []                     # its markers say which board it is: none is mistaken for another
     c, r, s = board.cols, board.rows, board.square_mm
     sizes = [(c - 1, r - 1), (r, c), (r - 1, c - 1)]
     return [Board(a, b, s) for a, b in dict.fromkeys(sizes) if min(a, b) >= 2 and (a, b) != (c, r)]
@@ -178,6 +192,35 @@ def suggest_board(paths, board: Board, tries: int = 3) -> str:
         return ""
     return (f"the board is found as --board {best.spec()} in {best_found} of {len(paths)} photo(s) tried "
             f"(--board counts inner corners, COLSxROWS)")
+
+
+def find_board_markers(dataset: Dataset, board: Board) -> Board:
+    """A ChArUco board with the dictionary and layout its photos show (:func:`.charuco.resolve_board`),
+    from the first photos of the reference camera, then of the others; says in a warning what it found."""
+    order = [dataset.reference] + [c for c in dataset.cameras if c != dataset.reference]
+    paths = [photo.path for cam in order for photo in dataset.cameras[cam].values()]
+
+    def images():
+        for path in paths:
+            try:
+                yield read_gray(path)
+            except InputError:
+                continue
+
+    try:
+        found = resolve_board(board, images())
+    except DetectionError as exc:
+        raise InputError(f"{dataset.source}: {exc}: check --board, --square, --marker (or give --dictionary)") from None
+    ch = found.charuco
+    same = [d for d in dictionary_family(ch.dictionary) if DICTIONARIES[d][1] > DICTIONARIES[ch.dictionary][1]]
+    notes = []
+    if board.charuco.dictionary is None:
+        notes.append(f"dictionary {ch.dictionary}" + (f" (a board made with {', '.join(same)} is the same board)"
+                                                      if same else ""))
+    if board.charuco.legacy is None and ch.squares[1] % 2 == 0:
+        notes.append("OpenCV's legacy layout (OpenCV < 4.6)" if ch.legacy else "OpenCV's current layout")
+    warn(f"{found.spec()}: found from the photos: {'; '.join(notes)}")
+    return found
 
 
 def _work(task) -> PhotoResult:
@@ -216,7 +259,12 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
                if c not in dataset.cameras or v not in dataset.cameras[c]]
     if unknown:
         warn(f"hints for photos not in the dataset are ignored: {', '.join(sorted(unknown))}")
+    if hints and board.charuco is not None:
+        warn(f"hints are for chessboards; {board.describe()} numbers its corners by its markers: hints ignored")
+        hints = {}
     warn_unpaired_cameras(dataset)
+    if board.charuco is not None and not board.charuco.resolved:
+        board = find_board_markers(dataset, board)
     overlay_dirs = {} if overlays_dir is None else prepare_overlay_folders(overlays_dir, dataset.cameras)
     tasks, keys = [], []
     for cam, photos in dataset.cameras.items():
@@ -249,8 +297,10 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         missed = [path for (path, *_), res in zip(tasks, results) if res.uv is None]
         hint = suggest_board(missed, board)
         if found == 0:
-            raise InputError(f"no {board.spec()} chessboard found in any photo of {dataset.source} "
-                             f"({len(tasks)} photos): " + (hint or "check --board (inner corners, COLSxROWS)"))
+            check = ("check --board (inner corners, COLSxROWS)" if board.charuco is None
+                     else "check --board (squares, charuco:SXxSY), --square, --marker and --dictionary")
+            raise InputError(f"no {board.describe()} found in any photo of {dataset.source} "
+                             f"({len(tasks)} photos): " + (hint or check))
         if hint:
             warn(f"{board.spec()} found in only {found} of {len(tasks)} photos: {hint}")
     cameras = {}

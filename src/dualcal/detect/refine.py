@@ -258,16 +258,17 @@ def _grid_direction(g: np.ndarray, axis: int) -> np.ndarray:
     return np.where(n > 0, d / np.where(n > 0, n, 1.0), fallback)
 
 
-def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.ndarray) -> np.ndarray:
+def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.ndarray,
+                  judged: np.ndarray | None = None) -> np.ndarray:
     """``uv`` with the corners that disagree with their neighbours set to NaN, worst first.
 
     The worst corner (:func:`~dualcal.detect.grid.worst_outlier`) goes first and the residuals
     are computed again, so that one bad corner does not take with it its neighbours, whose
     predictions it spoiled. What is left passes :func:`~dualcal.detect.grid.validate_grid`'s
-    residual check.
+    residual check. ``judged``: only these corners may be dropped (default: all).
     """
     uv = np.array(uv, float)
-    while (worst := worst_outlier(uv, grid_shape, spacing_px)) is not None:
+    while (worst := worst_outlier(uv, grid_shape, spacing_px, judged=judged)) is not None:
         uv[worst[0]] = np.nan
     return uv
 

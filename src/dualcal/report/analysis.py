@@ -10,7 +10,8 @@ in every view, the detected corners), never stored twice:
 * :func:`coverage_counts`, :func:`coverage_hints`: where on each sensor the board was seen,
   and plain-words warnings where it was not;
 * :func:`distortion_curve`, :func:`displacement_map`: the size of the radial distortion of
-  the model (paper eq. 13), over the radius and over the image;
+  the model (paper eq. 13; with ``k3`` where the lens model has it) over the radius, and of the
+  whole lens distortion (tangential terms included) over the image;
 * :func:`rig_camera_frames`: where the cameras of the rig sit in the reference camera frame;
 * :func:`format_value_sigma`: a value and its 1-sigma, rounded to the sigma's precision;
 * :func:`camera_findings`: all of the above for each camera of a rig, with plain-words hints.
@@ -30,7 +31,7 @@ import numpy as np
 from matplotlib.path import Path as MplPath
 
 from ..calibrate import outlier_limit_px
-from ..camera import (CameraModel, image_corner_radius, max_distorted_radius, max_monotonic_radius,
+from ..camera import (LENS_MODELS, CameraModel, image_corner_radius, max_distorted_radius, max_monotonic_radius,
                       normalized_from_pixel, project_points, radial_factor, undistort_normalized,
                       undistort_points)
 from ..errors import NotInvertibleError
@@ -230,17 +231,22 @@ def _mean_focal_px(camera: CameraModel) -> float:
 
 
 def distortion_curve(camera: CameraModel, samples: int = 200) -> DistortionCurve:
-    """Radial displacement ``rd - r`` (paper eq. 13) from the centre out to the image corner."""
+    """Radial displacement ``rd - r`` (paper eq. 13) from the centre out to the image corner.
+
+    Of the radial part of the lens (``k1, k2, k3``): tangential terms (``p1, p2``) move points
+    across the radius too, so they have no curve along it (:func:`displacement_map` shows them).
+    """
     f = _mean_focal_px(camera)
+    k1, k2, k3 = camera.radial
     rd_corner = image_corner_radius(camera)
-    rd_fold = max_distorted_radius(camera.k1, camera.k2)
+    rd_fold = max_distorted_radius(k1, k2, k3)
     fold = rd_fold < rd_corner
     if fold:
-        r_end = max_monotonic_radius(camera.k1, camera.k2)
+        r_end = max_monotonic_radius(k1, k2, k3)
     else:
-        r_end = float(undistort_normalized(np.array([[rd_corner, 0.0]]), camera.k1, camera.k2)[0, 0])
+        r_end = float(undistort_normalized(np.array([[rd_corner, 0.0]]), k1, k2, k3=k3)[0, 0])
     r = np.linspace(0.0, r_end, samples)
-    rd = r * radial_factor(r * r, camera.k1, camera.k2)
+    rd = r * radial_factor(r * r, k1, k2, k3)
     return DistortionCurve(rd * f, (rd - r) * f, rd_corner * f, rd_fold * f if fold else None)
 
 
@@ -248,11 +254,12 @@ def displacement_px(camera: CameraModel, uv_px: np.ndarray) -> np.ndarray:
     """Length in pixels of the distortion at observed pixels (N, 2): ``|uv - ideal(uv)|``.
 
     NaN where undistortion is not unique (beyond the model's fold, :func:`max_distorted_radius`).
+    The full lens model, tangential terms included.
     """
     uv_px = np.asarray(uv_px, float)
     out = np.full(len(uv_px), np.nan)
     rd = np.linalg.norm(normalized_from_pixel(camera, uv_px), axis=-1)
-    ok = rd < max_distorted_radius(camera.k1, camera.k2)
+    ok = rd < max_distorted_radius(*camera.radial)
     with contextlib.suppress(NotInvertibleError):   # Newton failed right at the fold: leave the map blank
         out[ok] = np.linalg.norm(uv_px[ok] - undistort_points(camera, uv_px[ok]), axis=-1)
     return out
@@ -392,8 +399,8 @@ def camera_findings(rig: RigModel) -> dict[str, CameraFindings]:
                          "wrong detection")
         if curve.fold_radius_px is not None:
             hints.append(f"{name}: the distortion model folds over inside the image (beyond "
-                         f"{curve.fold_radius_px:.0f} px from the principal point): k1, k2 are "
-                         "not usable out there")
+                         f"{curve.fold_radius_px:.0f} px from the principal point): "
+                         f"{', '.join(LENS_MODELS[camera.model])} are not usable out there")
         all_uv = np.vstack(boards) if boards else np.empty((0, 2))
         all_res = np.vstack([r.residual_px for r in res.values()]) if res else np.empty((0, 2))
         out[name] = CameraFindings(res, view_rms, rms_px(all_res), limit, outliers, left_out[name], counts, cell,

@@ -19,8 +19,8 @@ from markupsafe import Markup
 from .. import __version__
 from ..board import SHAPE_TERMS, sag_mm
 from ..calibrate import OUTLIER_FLOOR_PX
+from ..camera import intrinsic_names
 from ..checks import verdict
-from ..camera import INTRINSIC_NAMES
 from ..model import RigModel
 from ..progress import track
 from ..tables import photo_status
@@ -29,7 +29,8 @@ from . import analysis, figures
 #: Intrinsic parameters: label with the paper's name (Tables 2 and 3) and unit.
 PARAMETER_LABELS = {"fx": "f<sub>x</sub> = α (px)", "fy": "f<sub>y</sub> = β (px)", "skew": "skew = γ (px)",
                     "cx": "c<sub>x</sub> = u<sub>0</sub> (px)", "cy": "c<sub>y</sub> = v<sub>0</sub> (px)",
-                    "k1": "k<sub>1</sub>", "k2": "k<sub>2</sub>"}
+                    "k1": "k<sub>1</sub>", "k2": "k<sub>2</sub>", "p1": "p<sub>1</sub>", "p2": "p<sub>2</sub>",
+                    "k3": "k<sub>3</sub>"}
 
 #: Plain labels of the adjustment's numbers (calib.json ``adjustment``), in the order shown.
 ADJUSTMENT_LABELS = {
@@ -103,7 +104,7 @@ def intrinsics_table(rig: RigModel, names: list[str]) -> list[dict]:
     return [{"label": Markup(PARAMETER_LABELS[p]),
              "cells": [_cell(getattr(rig.cameras[name], p), rig.camera_sigma.get(name, {}).get(p, math.nan),
                              rig.camera_sigma_formal.get(name, {}).get(p)) for name in names]}
-            for p in INTRINSIC_NAMES]
+            for p in intrinsic_names(rig.model)]
 
 
 def rig_table(rig: RigModel) -> tuple[list[str], list[dict]]:
@@ -260,7 +261,10 @@ def _figure_jobs(rig: RigModel, names: list[str], found: dict[str, analysis.Came
         (None, "fig-distortion-curve",
          "Radial distortion (paper eq. 13) against the distance from the principal point, out to "
          "the farthest image corner: solid where corners were observed, dashed beyond the last one "
-         "(dot and dotted line), where the model is extrapolated.",
+         "(dot and dotted line), where the model is extrapolated."
+         + (" This is the radial part of the lens only: its tangential terms (p1, p2) move points "
+            "across the radius, so they have no curve along it; each camera's distortion map shows the "
+            "whole lens." if any(cam.tangential for cam in cameras.values()) else ""),
          lambda: figures.distortion_curve_figure({n: found[n].curve for n in names},
                                                  {n: found[n].reach_px for n in names})),
         (None, "fig-rig-3d",

@@ -1,0 +1,45 @@
+"""``dualcal board``: the printable board that a command line describes (a shell over :mod:`dualcal.boardprint`)."""
+
+from __future__ import annotations
+
+import click
+
+from ..errors import InputError
+from . import cli
+from .common import board_from_flags, board_options
+
+
+@cli.command("board")
+@click.argument("spec", metavar="[COLSxROWS|charuco:SXxSY]", required=False)
+@board_options(required=False, dictionary_default="the smallest DICT_5X5 that holds the markers")
+@click.option("--paper", default="auto", show_default=True, metavar="NAME",
+              help="A4, A3, A2, A1, A0, letter, legal (either orientation), fit (the board and its margins) "
+                   "or auto (the smallest A size that holds the board).")
+@click.option("--dpi", type=float, default=None, metavar="DPI", help="Pixels per inch of a PNG (required for one).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="board.pdf or board.png to write.")
+def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi, output):
+    """Write the board to print: a PDF at true scale, or a PNG at --dpi.
+
+    \b
+    dualcal board charuco:11x8 --square 25 --marker 18 -o board.pdf
+    dualcal board --board 8x5 --square 30 -o chessboard.png --dpi 300
+
+    The board is given as the first argument or with --board, as for the other commands: a
+    chessboard's inner corners (8x5 prints 9 x 6 squares) or a ChArUco board's squares. A ChArUco
+    board without --dictionary uses the smallest DICT_5X5 dictionary that holds its markers, in
+    OpenCV's current layout. The margin names the options that read the board back, and a scale
+    bar checks the print: print at 100 % (actual size).
+    """
+    from ..boardprint import write_board
+    from ..io import check_output_file
+
+    if spec is not None and board_spec is not None and spec != board_spec:
+        raise InputError(f"the board is given twice ({spec} and --board {board_spec}): give it once")
+    if (spec or board_spec) is None:
+        raise click.UsageError("give the board: COLSxROWS or charuco:SXxSY (or --board), with --square MM")
+    check_output_file(output)
+    board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary)
+    layout = write_board(board, output, paper=paper, dpi=dpi)
+    w, h = layout.page_mm
+    click.echo(f"{layout.board.describe()}, squares of {layout.board.square_mm:g} mm, on a {w:.0f} x {h:.0f} mm page: "
+               f"wrote {output} (print at 100 %)", err=True)
