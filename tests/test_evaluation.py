@@ -283,7 +283,8 @@ def test_holdout_without_a_rig_resects_each_camera_alone():
 
 
 
-def test_evaluate_command(tmp_path, run_cli):
+def test_evaluate_command(tmp_path, run_cli, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")            # rich wraps nothing: one row per case
     truth = make_truth("note8", views=4, seed=0)
     save_rig(tmp_path / "calib.json", truth_rig_model(truth, noisy_corner_set(truth, 0.2, seed=0)))
     res = run_cli("evaluate", tmp_path / "calib.json", "-o", tmp_path / "eval.json")

@@ -40,8 +40,8 @@ def pose_free_table(doc: dict):
 
     if not doc.get("pose_free"):
         return None
-    table = Table(title="Pose-free length check: corner-to-corner distances intersected with the rig alone, "
-                        "error in mm", caption="no board pose: nothing absorbs an error of the calibration")
+    table = Table(title="Pose-free length check (length errors, mm)",
+                  caption="corner-to-corner distances intersected with the rig alone: no board pose absorbs an error")
     for col in ("Case", "RMS", "Largest", "Lengths", "Instants"):
         table.add_column(col, justify="left" if col == "Case" else "right")
     for name, case in doc["pose_free"].items():
