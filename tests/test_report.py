@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import re
-import shutil
 import subprocess
 from dataclasses import replace
 from html.parser import HTMLParser
@@ -506,9 +505,6 @@ def test_corners_not_measured_are_left_out_of_residuals_and_the_page_renders(rig
 
 # ---------------------------------------------------------------------------- in a browser
 
-CHROMIUM = next((p for p in (shutil.which("chromium"), shutil.which("chromium-browser"),
-                             "/usr/bin/chromium") if p and Path(p).exists()), None)
-
 _OVERFLOWS = """() => {
   const bad = [];
   const root = document.documentElement;
@@ -531,20 +527,6 @@ _OVERFLOWS = """() => {
   }
   return bad;
 }"""
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if CHROMIUM is None:
-        pytest.skip("no Chromium here to render the page (Debian: apt-get install chromium); "
-                    "the page checks above still ran")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (test extra) drives Chromium")
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=[
-            "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-            "--disable-component-update", "--disable-sync"])
-        yield browser
-        browser.close()
 
 
 @pytest.fixture(scope="module")

@@ -46,9 +46,12 @@ above :data:`MAX_RELATIVE_SIGMA` of it; an end point whose depth is uncertain by
 1 / parallax); or end points so uncertain across the line (mostly in depth) that the length comes
 out long on average by more than :data:`MAX_BIAS_SHARE` of its sigma (to second order a length
 errs by ``+tr(P Cov_ab) / 2L``, ``P = I - e e^T``, ``Cov_ab`` the covariance of ``X_a - X_b``).
-A point whose pixels disagree beyond their noise (a residual beyond the
-:data:`RESIDUAL_PROBABILITY` quantile of chi-square) is flagged too: not the same point in every
-photo, or photos not of one instant.
+A point whose pixels disagree beyond what their noise and the calibration's uncertainty allow is
+flagged too (``consistent``: its residuals' chi-square, against their covariance
+``(I - J A)(S + J_theta Cov_theta J_theta^T)(I - J A)^T``, beyond the :data:`RESIDUAL_PROBABILITY`
+quantile with ``2m - 3`` degrees of freedom): not the same point in every photo, or photos not of one
+instant. Near the rig, the calibration's part dominates: a relative pose uncertain by 0.1 mm moves a
+point at 0.4 m by a pixel in the tele.
 """
 
 from __future__ import annotations
@@ -121,7 +124,9 @@ class IntersectedPoint:
 
     ``xyz_mm`` (3,) in the reference camera's frame; ``cameras`` the m photos' cameras;
     ``A`` (3, 2m) its sensitivity to their pixels, ``B`` (3, k) to the calibration's parameters
-    (``dX = A duv + B dtheta``); ``residual_px`` (m, 2) of each photo.
+    (``dX = A duv + B dtheta``); ``residual_px`` (m, 2) of each photo; ``J_theta`` (2m, k) the
+    residuals' derivative with respect to the parameters and ``annihilator`` (2m, 2m) ``I - J A``, which
+    turns errors of pixels and parameters into residuals (``r = -(I - J A)(duv - J_theta dtheta)``).
     """
 
     xyz_mm: np.ndarray
@@ -129,6 +134,8 @@ class IntersectedPoint:
     A: np.ndarray
     B: np.ndarray
     residual_px: np.ndarray
+    J_theta: np.ndarray
+    annihilator: np.ndarray
 
 
 def _parameter_rows(rig: RigModel, name: str, X_cam: np.ndarray, J_X: np.ndarray, J_K: np.ndarray,
@@ -166,9 +173,23 @@ def intersect_point(rig: RigModel, uv_px: dict[str, np.ndarray], index: dict[str
         J.append(J_X[0] @ pose.R)
         J_theta.append(_parameter_rows(rig, name, X_cam[0], J_X[0], J_K[0], index))
         res.append(uv_hat[0] - uv_px[name])
-    J = np.vstack(J)
+    J, J_theta = np.vstack(J), np.vstack(J_theta)
     A = np.linalg.solve(J.T @ J, J.T)
-    return IntersectedPoint(X, names, A, -A @ np.vstack(J_theta), np.array(res))
+    return IntersectedPoint(X, names, A, -A @ J_theta, np.array(res), J_theta, np.eye(len(J)) - J @ A)
+
+
+def _residual_chi2(p: IntersectedPoint, var_px: np.ndarray, cov_theta: dict[str, np.ndarray]) -> float:
+    """The point's residuals against what its pixel noise ``var_px`` (2m,) and the calibration's uncertainty allow.
+
+    ``Cov(r) = (I - J A) (S + J_theta C J_theta^T) (I - J A)^T`` (rank ``2m - 3``), for each covariance
+    ``C`` of calib.json; the smaller chi-square of the two (the larger uncertainty) is returned.
+    """
+    r = p.residual_px.ravel()
+    chis = []
+    for C in cov_theta.values():
+        cov_r = p.annihilator @ (np.diag(var_px) + p.J_theta @ C @ p.J_theta.T) @ p.annihilator.T
+        chis.append(float(r @ np.linalg.pinv(cov_r, rcond=1e-10, hermitian=True) @ r))
+    return min(chis)
 
 
 def _length_note(rig, a, b, points, length, sigma, shares, depth, bias, pixel_sigma):
@@ -251,10 +272,9 @@ def measure(rig: RigModel, points: dict) -> dict:
     names = list(found)
     B = np.vstack([found[n].B for n in names])                                      # (3P, k)
     pixels = np.zeros((3 * len(names),) * 2)
+    var_px = [np.repeat([pixel_sigma[c] ** 2 for c in found[n].cameras], 2) for n in names]
     for i, n in enumerate(names):
-        p = found[n]
-        var_px = np.repeat([pixel_sigma[c] ** 2 for c in p.cameras], 2)
-        pixels[3 * i:3 * i + 3, 3 * i:3 * i + 3] = (p.A * var_px) @ p.A.T
+        pixels[3 * i:3 * i + 3, 3 * i:3 * i + 3] = (found[n].A * var_px[i]) @ found[n].A.T
     calibration = {kind: B @ C @ B.T for kind, C in cov_theta.items()}
     cov = {kind: pixels + calibration[kind] for kind in COVARIANCE_KINDS}
 
@@ -265,8 +285,8 @@ def measure(rig: RigModel, points: dict) -> dict:
         ray = p.xyz_mm / distance
         var = np.max([np.diag(cov[k][block, block]) for k in COVARIANCE_KINDS], axis=0)
         depth[n] = float(np.sqrt(max(ray @ cov[k][block, block] @ ray for k in COVARIANCE_KINDS)))
-        chi = float(sum(np.sum((r / pixel_sigma[c]) ** 2) for c, r in zip(p.cameras, p.residual_px)))
-        consistent = bool(chi <= chi2.ppf(RESIDUAL_PROBABILITY, 2 * len(p.cameras) - 3))
+        consistent = bool(_residual_chi2(p, var_px[i], cov_theta) <= chi2.ppf(RESIDUAL_PROBABILITY,
+                                                                             2 * len(p.cameras) - 3))
         doc_points[n] = {"xyz_mm": p.xyz_mm.tolist(), "sigma_mm": np.sqrt(var).tolist(), "cameras": list(p.cameras),
                          "distance_mm": distance, "depth_sigma_mm": depth[n],
                          "residual_px": {c: float(np.linalg.norm(r)) for c, r in zip(p.cameras, p.residual_px)},
@@ -274,7 +294,8 @@ def measure(rig: RigModel, points: dict) -> dict:
         if not consistent:
             warn(f"point {n}: its pixels disagree by "
                  f"{', '.join(f'{c} {np.linalg.norm(r):.2g} px' for c, r in zip(p.cameras, p.residual_px))}, "
-                 f"far beyond their noise (pixel_sigma): not the same point in every photo (a mis-click?), "
+                 f"far beyond their noise (pixel_sigma) and the calibration's uncertainty: not the same point in "
+                 "every photo (a mis-click?), "
                  "or photos not taken at one instant")
 
     lengths = []

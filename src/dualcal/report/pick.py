@@ -57,10 +57,11 @@ def pick_photos(rig: RigModel, photos: dict[str, Path], max_px: int = DISPLAY_MA
         A camera the calibration does not have, or a photo whose size is not its camera's
         (another camera's photo, or a resized one: its pixels would not be the calibration's).
     """
+    unknown = [name for name in photos if name not in rig.cameras]
+    if unknown:
+        raise InputError(f"camera {unknown[0]!r} is not in the calibration (cameras: {', '.join(rig.camera_order())})")
     out = []
     for name, path in photos.items():
-        if name not in rig.cameras:
-            raise InputError(f"camera {name!r} is not in the calibration (cameras: {', '.join(rig.camera_order())})")
         with open_image(path) as img:
             size = img.size
             if tuple(size) != tuple(rig.cameras[name].image_size):
