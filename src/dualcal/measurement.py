@@ -192,8 +192,9 @@ def _residual_chi2(p: IntersectedPoint, var_px: np.ndarray, cov_theta: dict[str,
     return min(chis)
 
 
-def _length_note(rig, a, b, points, length, sigma, shares, depth, bias, pixel_sigma):
-    """Why a length is not meaningful and what would help (None where it is)."""
+def _length_note(rig, a, b, points, length, sigma, pixel_share, depth, bias, pixel_sigma):
+    """Why a length is not meaningful and what would help (None where it is); ``pixel_share`` is the pixel
+    noise's share of its variance."""
     reasons = []
     if sigma > MAX_RELATIVE_SIGMA * length:
         reasons.append(f"its sigma is {100 * sigma / length:.0f} % of it")
@@ -209,16 +210,16 @@ def _length_note(rig, a, b, points, length, sigma, shares, depth, bias, pixel_si
         return None
     far = max((a, b), key=lambda p: np.linalg.norm(points[p].xyz_mm))
     used = sorted(set(points[a].cameras) | set(points[b].cameras), key=rig.camera_order().index)
-    base = max(rig.rig[c].baseline_mm for c in used if c != rig.reference and c in rig.rig) \
-        if any(c != rig.reference for c in used) else float("nan")
+    centres = [rig.pose_from_reference(c).center_mm() for c in used]
+    base = max(np.linalg.norm(p - q) for i, p in enumerate(centres) for q in centres[i + 1:])
     helps = [f"get closer ({far} is {np.linalg.norm(points[far].xyz_mm):.0f} mm away)",
              f"a pair of cameras with a longer baseline ({'+'.join(used)}: {base:.1f} mm)"]
-    if shares["pixels"] >= 0.5:
+    if pixel_share >= 0.5:
         px = ", ".join(f"{c} {pixel_sigma[c]:.2g}" for c in used)
-        helps.append(f"pixels placed more precisely (pixel_sigma {px} px: {100 * shares['pixels']:.0f} % of "
+        helps.append(f"pixels placed more precisely (pixel_sigma {px} px: {100 * pixel_share:.0f} % of "
                      "the variance)")
     else:
-        helps.append(f"more instants in the calibration ({100 * (1 - shares['pixels']):.0f} % of the variance "
+        helps.append(f"more instants in the calibration ({100 * (1 - pixel_share):.0f} % of the variance "
                      "is the calibration's)")
     return (f"length {a}-{b} = {length:.1f} +- {sigma:.2g} mm is not meaningful: {'; '.join(reasons)}. "
             f"What would help: {', '.join(helps)}")
@@ -312,8 +313,7 @@ def measure(rig: RigModel, points: dict) -> dict:
         diff[:, 3 * ia:3 * ia + 3], diff[:, 3 * ib:3 * ib + 3] = np.eye(3), -np.eye(3)
         across = np.eye(3) - np.outer(d, d) / length ** 2
         bias = float(np.trace(across @ diff @ cov[kind] @ diff.T) / (2.0 * length))
-        shares = {"pixels": var_pixels / sigma ** 2}
-        note = _length_note(rig, a, b, found, length, sigma, shares, depth, bias, pixel_sigma)
+        note = _length_note(rig, a, b, found, length, sigma, var_pixels / sigma ** 2, depth, bias, pixel_sigma)
         if note:
             warn(note)
         lengths.append({"from": a, "to": b, "length_mm": length, "sigma_mm": sigma,
