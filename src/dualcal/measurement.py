@@ -210,7 +210,7 @@ def _length_note(rig, a, b, points, length, sigma, pixel_share, depth, bias, pix
         return None
     far = max((a, b), key=lambda p: np.linalg.norm(points[p].xyz_mm))
     used = sorted(set(points[a].cameras) | set(points[b].cameras), key=rig.camera_order().index)
-    centres = [rig.pose_from_reference(c).center_mm() for c in used]
+    centres = [rig.pose_from_reference(c).center_mm for c in used]
     base = max(np.linalg.norm(p - q) for i, p in enumerate(centres) for q in centres[i + 1:])
     helps = [f"get closer ({far} is {np.linalg.norm(points[far].xyz_mm):.0f} mm away)",
              f"a pair of cameras with a longer baseline ({'+'.join(used)}: {base:.1f} mm)"]
