@@ -262,6 +262,8 @@ def test_a_calibration_without_its_covariance_and_rays_that_do_not_meet_are_refu
     doc = shot(truth, np.array([[0.0, 0.0, 500.0], [50.0, 0.0, 500.0]]))
     with pytest.raises(InputError, match="holds no joint covariance"):
         measure(truth_rig_model(truth), doc)
+    with pytest.raises(InputError, match="no relative pose of camera 'tele'"):
+        measure(replace(rig, rig={}), doc)
     same = {"points": {"A": {"wide": [100.0, 100.0], "tele": [100.0, 100.0]}}}   # rays that never meet in front
     with pytest.raises(EstimationError, match="point 'A'"):
         measure(rig, same)

@@ -262,6 +262,10 @@ def measure(rig: RigModel, points: dict) -> dict:
         if unknown:
             raise InputError(f"point {name!r}: camera {unknown[0]!r} is not in the calibration "
                              f"(cameras: {', '.join(rig.camera_order())})")
+        loose = [c for c in seen if c != rig.reference and c not in rig.rig]
+        if loose:
+            raise InputError(f"point {name!r}: the calibration has no relative pose of camera {loose[0]!r} to "
+                             f"{rig.reference!r} (calibrated alone, rig mode {rig.rig_mode!r}): it cannot measure with it")
     pixel_sigma, source = _pixel_sigmas(rig, spec["pixel_sigma"])
     index, cov_theta = _covariances(rig)
     found = {}
@@ -295,9 +299,8 @@ def measure(rig: RigModel, points: dict) -> dict:
         if not consistent:
             warn(f"point {n}: its pixels disagree by "
                  f"{', '.join(f'{c} {np.linalg.norm(r):.2g} px' for c, r in zip(p.cameras, p.residual_px))}, "
-                 f"far beyond their noise (pixel_sigma) and the calibration's uncertainty: not the same point in "
-                 "every photo (a mis-click?), "
-                 "or photos not taken at one instant")
+                 "far beyond their noise (pixel_sigma) and the calibration's uncertainty: not the same point in "
+                 "every photo (a mis-click?), or photos not taken at one instant")
 
     lengths = []
     for a, b in spec["lengths"]:
