@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+CHROMIUM = next((p for p in (shutil.which("chromium"), shutil.which("chromium-browser"),
+                             "/usr/bin/chromium") if p and Path(p).exists()), None)
 
 
 @pytest.fixture
@@ -27,6 +30,21 @@ class CliResult:
     @property
     def err_lines(self):
         return [line for line in self.err.splitlines() if line.strip()]
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Headless Chromium (the system's, driven by Playwright) for the pages' tests; they skip where it is absent."""
+    if CHROMIUM is None:
+        pytest.skip("no Chromium here to render the page (Debian: apt-get install chromium); "
+                    "the page's other checks still ran")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (test extra) drives Chromium")
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=[
+            "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync"])
+        yield browser
+        browser.close()
 
 
 @pytest.fixture

@@ -4,7 +4,7 @@ import pytest
 
 import dualcal.synth as synth_module
 
-COMMANDS = ["detect", "calibrate", "evaluate", "undistort", "rectify", "report", "export", "synth", "pick"]
+COMMANDS = ["detect", "calibrate", "evaluate", "undistort", "rectify", "report", "export", "synth", "pick", "measure"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)

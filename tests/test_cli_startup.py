@@ -26,7 +26,7 @@ def _loaded(*args):
     return res.stdout, set(line[len("loaded:"):].split())
 
 
-@pytest.mark.parametrize("args", [["--version"], ["--help"], ["detect", "--help"]])
+@pytest.mark.parametrize("args", [["--version"], ["--help"], ["detect", "--help"], ["measure", "--help"]])
 def test_start_up_imports_nothing_heavy(args):
     out, loaded = _loaded(*args)
     assert "dualcal" in out

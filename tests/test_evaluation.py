@@ -9,7 +9,7 @@ from scipy.optimize import least_squares
 
 from dualcal.camera import project_points
 from dualcal.errors import EstimationError, InputError
-from dualcal.evaluation import evaluate, resect_view
+from dualcal.evaluation import corner_length_errors, evaluate, pose_free_check, resect_view, stereo_cases
 from dualcal.io import load_evaluation, save_rig
 from dualcal.model import Pose, observed_mask
 from dualcal.resection import resect
@@ -283,16 +283,83 @@ def test_holdout_without_a_rig_resects_each_camera_alone():
 
 
 
-def test_evaluate_command(tmp_path, run_cli):
+# ---------------------------------------------------------------------------- the pose-free length check
+
+
+def test_pose_free_check_is_exact_on_exact_corners_and_counts_every_length():
+    truth = make_truth("triple", views=3, seed=0)
+    doc = pose_free_check(truth_rig_model(truth))
+    assert list(doc["pose_free"]) == ["dual", "dual:ultra"]
+    n = truth.board.n_corners
+    for case in doc["pose_free"].values():
+        assert case["rms_mm"] < 1e-6 and case["max_mm"] < 1e-6
+        assert case["lengths"] == 3 * n * (n - 1) // 2 and case["instants"] == 3
+    assert [(e["case"], e["cameras"], e["view"]) for e in doc["pose_free_per_instant"]][:2] == [
+        ("dual", ["wide", "tele"], "IMG_01"), ("dual", ["wide", "tele"], "IMG_02")]
+
+
+def test_pose_free_lengths_use_the_corners_both_photos_measured():
+    truth = make_truth("note8", views=1, seed=0)
+    rig = truth_rig_model(truth, noisy_corner_set(truth, 0.0))
+    uv = true_corners(truth)
+    wide, tele = uv["wide"]["IMG_01"].copy(), uv["tele"]["IMG_01"].copy()
+    wide[[0, 5]], tele[[7]] = np.nan, np.nan
+    err = corner_length_errors(rig, "tele", wide, tele, rig.board_points_mm())
+    assert len(err) == 37 * 36 // 2 and np.abs(err).max() < 1e-6
+    tele[2:] = np.nan
+    with pytest.raises(EstimationError, match="1 corner"):
+        corner_length_errors(rig, "tele", wide, tele, rig.board_points_mm())
+
+
+def _paper_tables(rig):
+    """The paper's Tables 5/6: every photo oriented alone on the corners it then checks (space resection)."""
+    alone, used = replace(rig, rig_mode="none"), rig.used_corners()
+    photos = {c: {} for c in rig.cameras}
+    for view in rig.reference_poses():
+        for cam, photo in resect_view(alone, view, used).items():
+            photos[cam][view] = photo
+    cases = stereo_cases(rig.board_points_mm(), photos, rig.reference)["cases"]
+    return {name: float(np.linalg.norm(case["rmse_mm"])) for name, case in cases.items()}
+
+
+def test_pose_free_check_catches_a_focal_length_1_percent_off_where_tables_5_6_barely_move(tmp_path):
+    """The tele's fx, fy scaled by 1.01 in calib.json: the paper's Tables 5/6 (each photo oriented on its own
+    corners) move by under 3 %, the pose-free check's RMS length error grows more than 4-fold."""
+    truth = make_truth("note8", views=8, seed=0)
+    rig = _calibrate(noisy_corner_set(truth, 0.3, seed=0))
+    save_rig(tmp_path / "calib.json", rig)
+    doc = json.loads((tmp_path / "calib.json").read_text())
+    for key in ("fx", "fy"):
+        doc["cameras"]["tele"][key] *= 1.01
+    (tmp_path / "off.json").write_text(json.dumps(doc))
+    from dualcal.io import load_rig
+    off = load_rig(tmp_path / "off.json")
+    before, after = _paper_tables(rig), _paper_tables(off)
+    assert list(before) == ["dual", "wide", "tele"]
+    for name in before:
+        assert after[name] == pytest.approx(before[name], rel=0.03), name
+    rms_before = pose_free_check(rig)["pose_free"]["dual"]["rms_mm"]
+    rms_after = pose_free_check(off)["pose_free"]["dual"]["rms_mm"]
+    assert rms_after > 4 * rms_before, (rms_before, rms_after)
+
+
+def test_evaluate_command(tmp_path, run_cli, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")            # rich wraps nothing: one row per case
     truth = make_truth("note8", views=4, seed=0)
     save_rig(tmp_path / "calib.json", truth_rig_model(truth, noisy_corner_set(truth, 0.2, seed=0)))
     res = run_cli("evaluate", tmp_path / "calib.json", "-o", tmp_path / "eval.json")
     assert res.code == 0, res.err
     doc = load_evaluation(tmp_path / "eval.json")
-    rows = [line for line in res.out.splitlines() if line.startswith("│")]
+    tables, pose_free = res.out.split("Pose-free length check")
+    rows = [line for line in tables.splitlines() if line.startswith("│")]
     assert [r.split("│")[1].strip() for r in rows] == ["dual", "wide", "tele"]
     for row, case in zip(rows, doc["cases"].values()):
         assert [float(x) for x in row.split("│")[3:6]] == pytest.approx(case["rmse_mm"], abs=6e-4)
+    rows = [line.split("│")[1:-1] for line in pose_free.splitlines() if line.startswith("│")]
+    assert [r[0].strip() for r in rows] == ["dual"]
+    case = doc["pose_free"]["dual"]
+    assert [float(x) for x in rows[0][1:3]] == pytest.approx([case["rms_mm"], case["max_mm"]], abs=6e-4)
+    assert int(rows[0][3]) == case["lengths"] == 4 * 40 * 39 // 2 and int(rows[0][4]) == case["instants"] == 4
 
 
 def test_evaluate_command_errors(tmp_path, run_cli):

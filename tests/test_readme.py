@@ -15,4 +15,5 @@ def test_the_python_examples_of_the_readme_run(tmp_path, monkeypatch, capsys):
         exec(compile(block, str(README), "exec"), namespace)
     out = capsys.readouterr().out
     assert "tele fx = " in out and "vertical rig: True" in out
+    assert "c0-c7: " in out and "(true 241.9)" in out        # the "Measuring" example ran to its end
     assert (tmp_path / "calib.json").is_file() and len(list((tmp_path / "photos" / "tele").glob("*.jpg"))) == 8

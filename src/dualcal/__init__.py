@@ -21,6 +21,7 @@ _API = {
     # the math
     "project_points": "camera", "undistort_points": "camera", "distort_points": "camera",
     "calibrate_rig": "calibrate", "triangulate": "intersect", "evaluate": "evaluation",
+    "measure": "measurement",
     "undistort_image": "rectify", "rectified_camera": "rectify",
     "stereo_rectify": "stereo", "rectify_points": "stereo", "StereoRectification": "stereo",
     # photos

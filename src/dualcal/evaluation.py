@@ -21,9 +21,21 @@ Orientation of the photos:
   each photo from its own fold. Each fold repeats the full calibration: its settings (skew,
   rig mode, reference, outlier options) and its photos, those it dropped left out.
 
+The pose-free length check (in the spirit of VDI/VDE 2634's length measurement error): in
+Tables 5/6 every photo is oriented on the very corners it then checks, so the poses absorb much of
+a calibration's error (a focal length 1 % off moves the board 1 % farther, and its corners stay
+where they were seen). :func:`pose_free_check` uses no board pose at all: every dual instant's
+corners are intersected with the rig alone (the reference camera and another one at the same
+instant, ``X_c = R_c X_ref + t_c``), and every corner-to-corner distance is compared with the
+board's (:meth:`RigModel.board_points_mm`). Nothing can absorb a wrong focal length, principal
+point or relative pose there; a scale error shows in full. With ``holdout`` each instant is
+intersected with the calibration that left it out.
+
 eval.json (contract): ``{"cases": {name: {"rmse_mm": [x, y, z], "pairs": N}}}``; added keys:
 ``points`` per case (corners intersected), ``per_pair`` (each pair's cameras, views and
-RMSE), ``holdout``.
+RMSE), ``holdout``, and the pose-free check: ``pose_free`` ``{case: {"rms_mm", "max_mm",
+"lengths", "instants"}}`` (the dual cases: errors of all corner-to-corner lengths, mm) and
+``pose_free_per_instant`` (``[{"case", "cameras", "view", "rms_mm", "max_mm", "lengths"}]``).
 """
 
 from __future__ import annotations
@@ -97,14 +109,15 @@ def resect_view(calib: RigModel, view: str, corners: CornerSet) -> dict[str, Ori
     return out
 
 
-def holdout_photos(rig: RigModel, progress: bool = True) -> dict[str, dict[str, OrientedPhoto]]:
+def holdout_photos(rig: RigModel, progress: bool = True,
+                   folds: dict[str, RigModel] | None = None) -> dict[str, dict[str, OrientedPhoto]]:
     """Every photo oriented by a calibration that did not see its view (leave one view out).
 
     Calls :func:`dualcal.calibrate.calibrate_rig` once per view, as the full calibration was
     run: with the photos and corners it used (:meth:`RigModel.used_corners`) of all other views and its
     settings (skew, rig mode, reference, :meth:`RigModel.calibration_options`: outliers, board shape, lens
-    model); then :func:`resect_view` orients
-    the view's used photos. Only views the full calibration kept are evaluated.
+    model); then :func:`resect_view` orients the view's used photos. Only views the full calibration
+    kept are evaluated. ``folds``, where given, receives each view's calibration (``folds[view]``).
     """
     from .calibrate import calibrate_rig   # the adjustment is only needed here
 
@@ -122,6 +135,8 @@ def holdout_photos(rig: RigModel, progress: bool = True) -> dict[str, dict[str, 
                                       rig_mode=rig.rig_mode, reference=rig.reference, **options)
             except EstimationError as exc:
                 raise EstimationError(f"hold-out calibration without view {view!r} failed: {exc}") from None
+            if folds is not None:
+                folds[view] = calib
             kept = {c for c, poses in rig.camera_poses.items() if view in poses}
             for cam, photo in resect_view(calib, view, corners).items():
                 if cam in kept:
@@ -190,6 +205,78 @@ def stereo_cases(X_board: np.ndarray, photos: dict[str, dict[str, OrientedPhoto]
     return {"cases": cases, "per_pair": per_pair}
 
 
+# ---------------------------------------------------------------------------- the pose-free length check
+
+
+def corner_length_errors(calib: RigModel, cam: str, uv_ref: np.ndarray, uv_cam: np.ndarray,
+                         X_board: np.ndarray) -> np.ndarray:
+    """Errors (mm) of every corner-to-corner length of one dual instant, intersected with the rig alone.
+
+    The corners both photos measured (the reference camera's ``uv_ref`` and camera ``cam``'s
+    ``uv_cam``, (N, 2) with NaN rows) are intersected in the reference camera's frame with
+    ``calib``'s intrinsics and relative pose, no board pose; each of the ``n (n - 1) / 2`` distances
+    between them minus the same distance of the board's corners ``X_board`` (N, 3).
+
+    Raises
+    ------
+    EstimationError
+        Fewer than two corners in common, or a degenerate intersection.
+    """
+    if cam not in calib.rig:
+        raise EstimationError(f"the calibration has no relative pose of camera {cam!r}")
+    both = observed_mask(uv_ref) & observed_mask(uv_cam)
+    if both.sum() < 2:
+        raise EstimationError(f"the two photos measured {int(both.sum())} corner(s) in common, a length needs two")
+    X = triangulate([calib.cameras[calib.reference], calib.cameras[cam]],
+                    [_IDENTITY, calib.pose_from_reference(cam)], [uv_ref[both], uv_cam[both]])
+    i, j = np.triu_indices(int(both.sum()), 1)
+    B = X_board[both]
+    return np.linalg.norm(X[i] - X[j], axis=1) - np.linalg.norm(B[i] - B[j], axis=1)
+
+
+def pose_free_check(rig: RigModel, folds: dict[str, RigModel] | None = None) -> dict:
+    """The pose-free length check of every dual instant (module docstring).
+
+    Parameters
+    ----------
+    rig : the calibration; its used corners (:meth:`RigModel.used_corners`) of the views it kept
+        in both cameras are intersected.
+    folds : ``{view: calibration}`` to intersect each view with (the hold-out calibrations that
+        left it out); default ``rig`` for every view.
+
+    Returns
+    -------
+    ``{"pose_free": {case: {"rms_mm", "max_mm", "lengths", "instants"}}, "pose_free_per_instant":
+    [{"case", "cameras", "view", "rms_mm", "max_mm", "lengths"}]}``; cases are named as in
+    :func:`case_pairs` (``dual``, ``dual:<camera>``). An instant that cannot be intersected is
+    left out with a warning.
+    """
+    X_board = rig.board_points_mm()
+    used = rig.used_corners().cameras
+    ref = rig.reference
+    views = {c: {v for v in rig.camera_poses.get(c, {}) if used[c].views.get(v) is not None} for c in rig.cameras}
+    cases, per_instant = {}, []
+    for i, cam in enumerate(c for c in rig.cameras if c != ref and c in rig.rig):
+        name = "dual" if i == 0 else f"dual:{cam}"
+        errors = []
+        for v in sorted(views[ref] & views[cam]):
+            calib = folds[v] if folds is not None else rig
+            try:
+                err = corner_length_errors(calib, cam, used[ref].views[v], used[cam].views[v], X_board)
+            except EstimationError as exc:
+                warn(f"pose-free check {name}: instant {v} left out: {exc}")
+                continue
+            errors.append(err)
+            per_instant.append({"case": name, "cameras": [ref, cam], "view": v, **_length_summary(err)})
+        if errors:
+            cases[name] = {**_length_summary(np.concatenate(errors)), "instants": len(errors)}
+    return {"pose_free": cases, "pose_free_per_instant": per_instant}
+
+
+def _length_summary(err: np.ndarray) -> dict:
+    return {"rms_mm": float(np.sqrt(np.mean(err**2))), "max_mm": float(np.max(np.abs(err))), "lengths": len(err)}
+
+
 def evaluate(rig: RigModel, holdout: bool = False, progress: bool = True) -> dict:
     """The paper's stereo-intersection check of a calibration (module docstring).
 
@@ -202,7 +289,8 @@ def evaluate(rig: RigModel, holdout: bool = False, progress: bool = True) -> dic
     Returns
     -------
     The eval.json document: ``{"cases": {name: {"rmse_mm": [x, y, z], "pairs": N,
-    "points": n}}, "per_pair": [...], "holdout": bool}``.
+    "points": n}}, "per_pair": [...], "holdout": bool}`` and the pose-free check
+    (:func:`pose_free_check`: ``pose_free``, ``pose_free_per_instant``).
 
     A pair whose intersection is degenerate (parallel rays: two photos from one spot) is left
     out with a warning.
@@ -220,9 +308,10 @@ def evaluate(rig: RigModel, holdout: bool = False, progress: bool = True) -> dic
         raise InputError(f"camera {clash[0]!r} takes the name of the evaluation case of two cameras "
                          "('dual', 'dual:<camera>'): give it another name when detecting the corners "
                          "(--camera NAME=GLOB) and calibrate again")
-    photos = holdout_photos(rig, progress) if holdout else fitted_photos(rig)
+    folds = {} if holdout else None
+    photos = holdout_photos(rig, progress, folds) if holdout else fitted_photos(rig)
     doc = stereo_cases(rig.board_points_mm(), photos, rig.reference)
     if not doc["cases"]:
         raise EstimationError("nothing to intersect: no camera has two oriented photos and no view has two cameras")
     doc["holdout"] = bool(holdout)
-    return doc
+    return {**doc, **pose_free_check(rig, folds)}

@@ -32,6 +32,7 @@ def cli(debug: bool) -> None:
     photos --detect--> corners.json --calibrate--> calib.json --evaluate--> eval.json
                                                               --report----> report.html
                                                               --rectify---> a stereo pair
+                                                              --measure---> measure.json
     """
 
 
@@ -41,6 +42,7 @@ from . import board as _board  # noqa: E402,F401
 from . import calibrate as _calibrate  # noqa: E402,F401
 from . import detect as _detect  # noqa: E402,F401
 from . import evaluate as _evaluate  # noqa: E402,F401
+from . import measure as _measure  # noqa: E402,F401
 from . import rectify as _rectify  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
 

@@ -34,6 +34,22 @@ def evaluation_table(doc: dict, n_corners: int):
     return table
 
 
+def pose_free_table(doc: dict):
+    """eval.json's pose-free length check as a rich table (None where it has none)."""
+    from rich.table import Table
+
+    if not doc.get("pose_free"):
+        return None
+    table = Table(title="Pose-free length check (length errors, mm)",
+                  caption="corner-to-corner distances intersected with the rig alone: no board pose absorbs an error")
+    for col in ("Case", "RMS", "Largest", "Lengths", "Instants"):
+        table.add_column(col, justify="left" if col == "Case" else "right")
+    for name, case in doc["pose_free"].items():
+        table.add_row(name, f"{case['rms_mm']:.3f}", f"{case['max_mm']:.3f}", str(case["lengths"]),
+                      str(case["instants"]))
+    return table
+
+
 @cli.command("evaluate")
 @click.argument("calib", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
@@ -47,7 +63,9 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
 
     Every corner is intersected from two photos and compared with the board: the reference
     and another camera at the same instant (case "dual"), and each camera at two instants
-    (one case per camera). Prints RMSE X, Y, Z in mm per case and writes eval.json, with the
+    (one case per camera). Then the pose-free length check: every dual instant's corners
+    intersected with the rig alone, no board pose, and all corner-to-corner distances compared
+    with the board's (RMS and largest error). Prints RMSE X, Y, Z in mm per case and writes eval.json, with the
     fingerprint of the calibration it checked ("calibration_fingerprint"), so that 'dualcal
     report' can refuse an eval.json of another calibration.
     """
@@ -59,7 +77,10 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
     check_corners_fit(rig, str(calib))
     doc = evaluate(rig, holdout=holdout)
     write_json_atomic(output, {**doc, "calibration_fingerprint": calibration_fingerprint(rig)})
-    stdout_console().print(evaluation_table(doc, rig.board.n_corners))
+    console = stdout_console()
+    console.print(evaluation_table(doc, rig.board.n_corners))
+    if doc.get("pose_free"):
+        console.print(pose_free_table(doc))
 
 
 @cli.command("undistort")

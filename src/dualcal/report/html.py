@@ -147,6 +147,16 @@ def evaluation_table(evaluation: dict | None) -> list[dict]:
     return rows
 
 
+def pose_free_table(evaluation: dict | None) -> list[dict]:
+    """Rows of the pose-free length check (eval.json ``pose_free``): case, RMS and largest length error (mm),
+    lengths and instants; empty for an eval.json without it."""
+    rows = []
+    for case, entry in (evaluation or {}).get("pose_free", {}).items():
+        rows.append({"case": case, "rms": f"{entry['rms_mm']:.3f}", "max": f"{entry['max_mm']:.3f}",
+                     "lengths": entry["lengths"], "instants": entry["instants"]})
+    return rows
+
+
 def photos_table(rig: RigModel, names: list[str]) -> list[dict]:
     """Every photo: RMS per camera (px) and, for a photo not kept, why (:func:`dualcal.tables.photo_status`)."""
     rows = []
@@ -307,6 +317,7 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
         rig_table=rig_table(rig),
         photos=photos_table(rig, names),
         evaluation=evaluation_table(evaluation),
+        pose_free=pose_free_table(evaluation),
         evaluation_kind=("hold-out: each view oriented by a calibration that left it out"
                          if evaluation and evaluation.get("holdout")
                          else "photos oriented by the calibration's own poses"),

@@ -1,0 +1,121 @@
+"""``dualcal measure``: points and lengths from one instant's photos, each with its 1-sigma; ``--pick``
+writes the page on which to click the points."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..errors import InputError
+from . import cli
+from .common import stdout_console
+
+
+def _photos(specs: tuple[str, ...]) -> dict[str, Path]:
+    """``("wide=a.jpg", "tele=b.jpg")`` -> ``{"wide": Path("a.jpg"), "tele": Path("b.jpg")}``."""
+    from ..dataset import parse_camera_spec
+
+    photos = {}
+    for spec in specs:
+        if "=" not in spec:
+            raise InputError(f"{spec!r}: give each photo as NAME=IMAGE, the camera's name in calib.json, "
+                             "e.g. wide=IMG_01.jpg")
+        name, image = parse_camera_spec(spec)
+        if name in photos:
+            raise InputError(f"--pick names camera {name!r} twice: give one photo of each camera, taken at one instant")
+        photos[name] = Path(image)
+    return photos
+
+
+def lengths_table(doc: dict):
+    """measure.json's lengths as a rich table: length +- sigma, sigma in % of the length."""
+    from rich.table import Table
+
+    table = Table(title="Lengths (mm, +- one standard deviation)",
+                  caption="sigma from the calibration's uncertainty and the pixel noise together")
+    for col in ("Length", "mm", "+- sigma", "sigma %", "Note"):
+        table.add_column(col, justify="left" if col in ("Length", "Note") else "right")
+    for L in doc["lengths"]:
+        table.add_row(f"{L['from']}-{L['to']}", f"{L['length_mm']:.2f}", f"{L['sigma_mm']:.2f}",
+                      f"{L['sigma_percent']:.2f}", "not meaningful (see the warning)" if L["meaningless"] else "")
+    return table
+
+
+def points_table(doc: dict):
+    """measure.json's points as a rich table: X, Y, Z and their sigmas in the reference camera's frame."""
+    from rich.table import Table
+
+    table = Table(title=f"Points (mm, in the {doc['frame']} camera's frame: x right, y down, z forward)")
+    for col in ("Point", "X", "Y", "Z", "+- X", "+- Y", "+- Z", "Distance", "Cameras"):
+        table.add_column(col, justify="left" if col in ("Point", "Cameras") else "right")
+    for name, p in doc["points"].items():
+        table.add_row(name, *(f"{x:.2f}" for x in p["xyz_mm"]), *(f"{s:.2f}" for s in p["sigma_mm"]),
+                      f"{p['distance_mm']:.1f}", "+".join(p["cameras"]))
+    return table
+
+
+@cli.command("measure")
+@click.argument("calib", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("photo_specs", nargs=-1, metavar="[NAME=IMAGE]...")
+@click.option("--points", "points_path", type=click.Path(dir_okay=False, path_type=Path), metavar="points.json",
+              help="The points' pixels in two or more cameras of one instant, and the lengths to measure.")
+@click.option("--pick", is_flag=True,
+              help="Write the page on which to click the points in the photos NAME=IMAGE (one per camera, "
+                   "taken at one instant); it exports points.json.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="measure.json to write (with --pick: the HTML page).")
+@click.option("--open", "open_page", is_flag=True, help="With --pick: open the page in the web browser.")
+def measure_command(calib: Path, photo_specs: tuple[str, ...], points_path: Path | None, pick: bool, output: Path,
+                    open_page: bool) -> None:
+    """Measure points and lengths with the calibrated rig, each with its 1-sigma.
+
+    \b
+    dualcal measure calib.json --pick wide=IMG_01.jpg tele=IMG_01.jpg -o pick.html
+    dualcal measure calib.json --points points.json -o measure.json
+
+    Each point is intersected from its pixels in two or more photos of one instant, in the
+    reference camera's frame (mm). Its sigma, and each length's, comes from the calibration's
+    uncertainty (every parameter of the cameras involved and of the rig, correlations kept) and
+    the pixel noise (points.json's pixel_sigma, px per coordinate; default each camera's noise in
+    the calibration). A length whose sigma is large, or whose end points' depth is too uncertain
+    for a linear sigma to hold, gets a warning saying what would help.
+    """
+    from ..io import check_output_file, load_rig
+
+    if pick == (points_path is not None):
+        raise InputError("give either --points points.json (to measure) or --pick NAME=IMAGE NAME2=IMAGE2 "
+                         "(to write the page on which to click the points)")
+    if photo_specs and not pick:
+        raise InputError(f"photos ({photo_specs[0]} ...) are for --pick; with --points the pixels are in points.json")
+    check_output_file(output)
+    rig = load_rig(calib)
+    if pick:
+        _write_pick_page(rig, _photos(photo_specs), output, open_page)
+        return
+    from ..io import load_points, write_json_atomic
+    from ..measurement import measure
+
+    doc = measure(rig, load_points(points_path))
+    write_json_atomic(output, doc)
+    console = stdout_console()
+    console.print(points_table(doc))
+    if doc["lengths"]:
+        console.print(lengths_table(doc))
+    noise = ", ".join(f"{c} {s:.3g} px" for c, s in doc["pixel_sigma"].items())
+    source = "points.json" if doc["pixel_sigma_source"] == "points.json" else "each camera's own in the calibration"
+    console.print(f"pixel noise per coordinate: {noise} ({source}); wrote {output}")
+
+
+def _write_pick_page(rig, photos: dict[str, Path], output: Path, open_page: bool) -> None:
+    from ..io import write_text_atomic
+    from ..report.pick import render_pick_page
+
+    if len(photos) < 2:
+        raise InputError("--pick needs the photos of two or more cameras of one instant: NAME=IMAGE NAME2=IMAGE2")
+    write_text_atomic(output, render_pick_page(rig, photos))
+    click.echo(f"wrote {output}: open it in a browser, click each point in every photo (the same name in each), "
+               f"export points.json, then: dualcal measure CALIB --points points.json -o measure.json")
+    if open_page:
+        import webbrowser
+        webbrowser.open(output.resolve().as_uri())
