@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from dualcal.calibrate import calibrate_rig
 from dualcal.camera import project_points
 from dualcal.errors import EstimationError, InputError
 from dualcal.evaluation import corner_length_errors, evaluate, pose_free_check, resect_view, stereo_cases
@@ -18,11 +19,6 @@ from dualcal.synth import make_truth, noisy_corner_set, true_corners, truth_rig_
 
 IDENTITY = Pose(np.eye(3), np.zeros(3))
 FLOOR_FACTOR = 1.25
-
-
-def _calibrate(corners, **kwargs):
-    calibrate = pytest.importorskip("dualcal.calibrate", reason="the calibration (dualcal.calibrate) is missing")
-    return calibrate.calibrate_rig(corners, **kwargs)
 
 
 # ---------------------------------------------------------------------------- resection
@@ -161,7 +157,7 @@ def test_partial_views_through_calibration_and_hold_out():
         for uv in cam.views.values():
             uv[rng.random(len(uv)) < 0.25] = np.nan
     floor = evaluate(truth_rig_model(truth, noisy))
-    rig = _calibrate(noisy)
+    rig = calibrate_rig(noisy)
     _assert_within_floor(evaluate(rig), floor)
     _assert_within_floor(evaluate(rig, holdout=True, progress=False), floor)
 
@@ -251,20 +247,20 @@ def _assert_within_floor(doc, floor, factor=FLOOR_FACTOR):
 @pytest.mark.parametrize("preset,noise_px", [("note8", 0.3), ("stereo", 0.15)])
 def test_calibrated_rig_is_within_the_floor(preset, noise_px):
     floor, noisy = _floor_and_calibration(preset, 13, noise_px)
-    _assert_within_floor(evaluate(_calibrate(noisy)), floor)
+    _assert_within_floor(evaluate(calibrate_rig(noisy)), floor)
 
 
 @pytest.mark.parametrize("preset,noise_px", [("note8", 0.3), ("stereo", 0.15)])
 def test_holdout_is_within_the_floor(preset, noise_px):
     floor, noisy = _floor_and_calibration(preset, 8, noise_px)
-    doc = evaluate(_calibrate(noisy), holdout=True, progress=False)
+    doc = evaluate(calibrate_rig(noisy), holdout=True, progress=False)
     assert doc["holdout"] is True
     _assert_within_floor(doc, floor)
 
 
 def test_holdout_names_the_fold_that_cannot_be_calibrated():
     truth = make_truth("stereo", views=3, seed=0)
-    rig = _calibrate(noisy_corner_set(truth, 0.1, seed=1))
+    rig = calibrate_rig(noisy_corner_set(truth, 0.1, seed=1))
     with pytest.raises(EstimationError, match="without view 'IMG_01' failed: .*at least 3"):
         evaluate(rig, holdout=True, progress=False)
 
@@ -273,7 +269,7 @@ def test_holdout_without_a_rig_resects_each_camera_alone():
     """Rig mode ``none``: each camera is calibrated and resected on its own, so only the
     single-camera cases can reach the floor; the dual case still has all its pairs."""
     floor, noisy = _floor_and_calibration("note8", 8, 0.3)
-    doc = evaluate(_calibrate(noisy, rig_mode="none"), holdout=True, progress=False)
+    doc = evaluate(calibrate_rig(noisy, rig_mode="none"), holdout=True, progress=False)
     assert doc["cases"]["dual"]["pairs"] == 8
     del doc["cases"]["dual"], floor["cases"]["dual"]
     _assert_within_floor(doc, floor)
@@ -326,7 +322,7 @@ def test_pose_free_check_catches_a_focal_length_1_percent_off_where_tables_5_6_b
     """The tele's fx, fy scaled by 1.01 in calib.json: the paper's Tables 5/6 (each photo oriented on its own
     corners) move by under 3 %, the pose-free check's RMS length error grows more than 4-fold."""
     truth = make_truth("note8", views=8, seed=0)
-    rig = _calibrate(noisy_corner_set(truth, 0.3, seed=0))
+    rig = calibrate_rig(noisy_corner_set(truth, 0.3, seed=0))
     save_rig(tmp_path / "calib.json", rig)
     doc = json.loads((tmp_path / "calib.json").read_text())
     for key in ("fx", "fy"):
