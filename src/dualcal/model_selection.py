@@ -51,11 +51,6 @@ class LensModelScore:
     worse_se: float
     recommended: bool
 
-    def to_dict(self) -> dict:
-        return {"model": self.model, "coefficients": self.coefficients, "fit_rms_px": self.fit_rms_px,
-                "held_out_rms_px": self.held_out_rms_px, "worse_se": self.worse_se,
-                "recommended": self.recommended}
-
 
 def _squares(rig: RigModel, views: list[str]) -> np.ndarray:
     per = rig.adjustment["held_out_per_instant"]

@@ -72,8 +72,11 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     INPUT is a corners.json (from 'dualcal detect', also one edited by hand: views removed,
     corners set to null) or a dataset folder, in which case the corners are detected first (same
     options as 'dualcal detect'). Prints a table of every photo (RMS per camera, kept, dropped
-    or left out and why), then the parameters with their 1-sigma (the paper's Tables 2-4).
+    or left out and why), then the parameters with their 1-sigma (the paper's Tables 2-4), the
+    lens models compared by their error on instants left out, and the checks' verdict.
     """
+    from dataclasses import asdict
+
     from ..board import SHAPE_TERMS, sag_mm
     from ..calibrate import calibrate_rig
     from ..checks import failed_checks, verdict
@@ -96,7 +99,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     if compare_lens:
         try:
             lens_scores = compare_lens_models(rig)
-            rig.adjustment["lens_models"] = [s.to_dict() for s in lens_scores]
+            rig.adjustment["lens_models"] = [asdict(s) for s in lens_scores]
         except EstimationError as exc:
             warn(f"the lens models could not be compared: {exc}")
     save_rig(output, rig)
