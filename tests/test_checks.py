@@ -51,9 +51,26 @@ def test_unsynchronised_shots_fail_rig_rigid():
     truth = make_truth("stereo", 13, seed=21)
     rig = calibrate_rig(_jittered(truth, 0.5, 0.02, seed=3))
     check = rig.checks["rig_rigid"]
-    assert not check["ok"] and check["ratio"] > 10 * check["limit_ratio"]
+    assert not check["ok"] and check["ratio"] > 2 * check["limit_ratio"]
     assert "not fit" in check["message"]
     assert "rig_rigid" in verdict(rig.checks)
+
+
+def test_photos_with_smooth_errors_of_their_own_still_fit_a_rigid_rig():
+    """Every photo's corners moved by its own smooth warp of about 0.02 px (shift, scale, shear and
+    bend; independent between the cameras, as blur or rolling shutter make them) over 0.05 px of
+    white noise: a rigid rig fits 2-3 x worse than white noise allows, and passes."""
+    truth = make_truth("note8", 13, seed=21)
+    corners = noisy_corner_set(truth, 0.05, seed=0)
+    rng = np.random.default_rng(100)
+    for cc in corners.cameras.values():
+        W, H = cc.image_size
+        for uv in cc.views.values():
+            q = (uv - [W / 2, H / 2]) / max(W, H)
+            basis = np.stack([np.ones(len(q)), q[:, 0], q[:, 1], q[:, 0] ** 2, q[:, 1] ** 2, q[:, 0] * q[:, 1]], 1)
+            uv += basis @ rng.normal(0, 0.02, (2, 6)).T
+    check = calibrate_rig(corners).checks["rig_rigid"]
+    assert check["ok"] and 1.5 < check["ratio"] < check["limit_ratio"], check
 
 
 def test_a_lens_that_moved_in_one_instant_is_named():
