@@ -234,7 +234,8 @@ def test_fleet_parquet_reads_back_with_the_documented_columns(first_run, tmp_pat
 
 
 def test_fleet_row_takes_whatever_calib_json_holds():
-    """Keys that later lens models and checks add become columns without knowing them here."""
+    """Keys that later lens models and checks add become columns without knowing them here; what
+    is per instant (held-out errors, a check's statistic per instant) or a matrix is not."""
     calib = {"dualcal_version": "9", "board": {**BOARD, "sag_mm": 0.2}, "reference": "wide", "model": "k1k2p1p2k3",
              "cameras": {"wide": {"image_size": [400, 300], "fx": 1.0, "p1": 0.001, "k3": 0.3,
                                   "sigma": {"fx": 0.1, "p1": 1e-4}, "sigma_formal": {"fx": 0.05}}},
@@ -242,8 +243,11 @@ def test_fleet_row_takes_whatever_calib_json_holds():
                               "opk_arcmin": [1.0, 2.0, 3.0], "sigma": {"opk_arcmin": [0.1, 0.2, 0.3]}}},
              "views": {"IMG_01": {"R": [], "t_mm": [0, 0, 1]}}, "corners": {"board": BOARD},
              "camera_poses": {"wide": {"IMG_01": {}, "IMG_02": {}}}, "dropped_views": [{"view": "IMG_03"}],
-             "adjustment": {"converged": True, "termination": "gradient", "options": {"drop_outliers": True}},
-             "checks": {"rig_rigid": {"ok": False, "message": "moved", "chi2": 40.0}, "flat": {"ok": True}}}
+             "adjustment": {"converged": True, "termination": "gradient", "options": {"drop_outliers": True},
+                            "held_out_rms_px": 0.2, "held_out_per_instant": {"IMG_01": {"rms_px": 0.2, "corners": 40}}},
+             "covariance": {"parameters": ["wide.fx"], "clustered": [[0.01]], "formal": [[0.0025]]},
+             "checks": {"rig_rigid": {"ok": False, "message": "moved", "chi2": 40.0, "instants": {"IMG_01": 40.0}},
+                        "photos": {"ok": True, "instants": 1}, "flat": {"ok": True}}}
     row = batch.fleet_row(calib, {"cases": {"dual": {"rmse_mm": [1, 2, 3], "pairs": 4}}, "per_pair": [{}]})
     assert row == {
         "dualcal_version": "9", "board.cols": 8, "board.rows": 5, "board.square_mm": 30.0, "board.sag_mm": 0.2,
@@ -255,7 +259,9 @@ def test_fleet_row_takes_whatever_calib_json_holds():
         "rig.tele.sigma.opk_arcmin.omega": 0.1, "rig.tele.sigma.opk_arcmin.phi": 0.2,
         "rig.tele.sigma.opk_arcmin.kappa": 0.3,
         "adjustment.converged": True, "adjustment.termination": "gradient", "adjustment.options.drop_outliers": True,
+        "adjustment.held_out_rms_px": 0.2,
         "checks.rig_rigid.ok": False, "checks.rig_rigid.message": "moved", "checks.rig_rigid.chi2": 40.0,
+        "checks.photos.ok": True, "checks.photos.instants": 1,
         "checks.flat.ok": True, "dropped_views": 1, "checks.ok": False,
         "eval.dual.rmse_mm.x": 1, "eval.dual.rmse_mm.y": 2, "eval.dual.rmse_mm.z": 3, "eval.dual.pairs": 4,
         "eval.holdout": False}
@@ -374,6 +380,18 @@ def test_cli_batch_on_a_cluster(run_cli, client, small_fleet, tmp_path):
     assert res.err_lines[-1].startswith("2 devices: 2 ok, 0 failed; wrote ")
     assert {p.name for p in out.iterdir()} == {"unit-001", "unit-002", "fleet.csv", "fleet.parquet", "fleet.html"}
     assert not (out / "unit-001" / "eval.json").exists() and (out / "unit-001" / "calib.json").is_file()
+
+    # nothing changed: the tables and the page are not written again; another --flag-sigmas rewrites the page
+    outputs = [out / name for name in ("fleet.csv", "fleet.parquet", "fleet.html")]
+    before = [p.stat().st_mtime_ns for p in outputs]
+    res = run_cli("batch", small_fleet, "-o", out, "--scheduler", client.scheduler.address, "--no-evaluate")
+    assert res.code == 0 and res.err_lines[-1].startswith("2 devices: 2 ok, 0 failed (2 up to date from an earlier "
+                                                          "run); up to date ")
+    assert [p.stat().st_mtime_ns for p in outputs] == before
+    res = run_cli("batch", small_fleet, "-o", out, "--scheduler", client.scheduler.address, "--no-evaluate",
+                  "--flag-sigmas", "3")
+    assert res.code == 0 and "; wrote " in res.err_lines[-1]
+    assert (out / "fleet.html").stat().st_mtime_ns != before[2]
 
     (small_fleet / "unit-003").mkdir()
     (small_fleet / "unit-003" / "corners.json").write_text("[]")

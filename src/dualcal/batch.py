@@ -27,8 +27,11 @@ columns are in the README, section "Fleets".
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import inspect
 import io
+import json
+import re
 import logging
 import signal
 import time
@@ -170,7 +173,10 @@ _LIST_LABELS = {"t_mm": ("x", "y", "z"), "rmse_mm": ("x", "y", "z"), "opk_arcmin
                 "image_size": ("w", "h")}
 #: Parts of calib.json that are per view or per corner, not per device (and rotation matrices,
 #: whose angles are in ``opk_arcmin``).
-_NOT_IN_ROW = {"views", "corners", "camera_poses", "dropped_views", "R", "per_pair"}
+_NOT_IN_ROW = {"views", "corners", "camera_poses", "dropped_views", "R", "per_pair", "held_out_per_instant",
+               "covariance", "dropped_corners"}
+#: Objects keyed by view under these names (a check's statistic per instant) are left out too.
+_PER_VIEW_OBJECTS = {"instants"}
 
 
 def _flatten(value, name: str, out: dict) -> None:
@@ -178,7 +184,7 @@ def _flatten(value, name: str, out: dict) -> None:
     key = name.rpartition(".")[2]
     if isinstance(value, dict):
         for k, v in value.items():
-            if k not in _NOT_IN_ROW:
+            if k not in _NOT_IN_ROW and not (k in _PER_VIEW_OBJECTS and isinstance(v, dict)):
                 _flatten(v, f"{name}.{k}", out)
     elif isinstance(value, list):
         if value and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
@@ -474,6 +480,31 @@ def write_fleet_tables(out_dir, table) -> list[Path]:
     with atomic_output(parquet_path) as tmp:
         table.to_parquet(tmp, index=False)
     return [csv_path, parquet_path]
+
+
+def fleet_inputs_digest(results: Iterable[DeviceResult], baseline=None, flag_sigmas: float = 5.0) -> str:
+    """A sha256 of everything the fleet tables and page are made from: every device's row, the
+    bytes of the ``baseline`` fleet.parquet (a path, or None), ``flag_sigmas`` and dualcal's version."""
+    rows = sorted((r.row for r in results), key=lambda row: row["device"])
+    h = hashlib.sha256(json.dumps(rows, sort_keys=True, default=repr).encode())
+    h.update(b"" if baseline is None else Path(baseline).read_bytes())
+    h.update(f"{flag_sigmas!r} {__version__}".encode())
+    return h.hexdigest()
+
+
+_INPUTS_META = re.compile(rb'<meta name="dualcal-fleet-inputs" content="([0-9a-f]{64})">')
+
+
+def fleet_outputs_current(out_dir, digest: str) -> bool:
+    """True when ``out_dir`` holds fleet.csv, fleet.parquet and a fleet.html made from ``digest``
+    (:func:`fleet_inputs_digest`, recorded in the page's head), so that nothing need be written again."""
+    out_dir = Path(out_dir)
+    page = out_dir / "fleet.html"
+    if not (page.is_file() and all((out_dir / name).is_file() for name in TABLE_NAMES)):
+        return False
+    with page.open("rb") as f:
+        found = _INPUTS_META.search(f.read(4096))
+    return found is not None and found.group(1).decode() == digest
 
 
 def read_fleet_table(path):

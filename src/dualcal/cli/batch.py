@@ -60,12 +60,12 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     were made with the same options. Exit code 0 when every device was calibrated, 1 when
     some failed (their rows say why), 2 on bad usage.
     """
-    from ..batch import BatchOptions, calibrate_fleet, find_devices, fleet_table, read_fleet_table, write_fleet_tables
+    from ..batch import (BatchOptions, calibrate_fleet, find_devices, fleet_inputs_digest, fleet_outputs_current,
+                         fleet_table, read_fleet_table, write_fleet_tables)
     from ..calibrate import calibrate_rig
     from ..dataset import open_dataset
     from ..io import make_output_folder, write_text_atomic
     from ..progress import warn
-    from ..report.fleet import render_fleet
 
     calibrate_kwargs = set(inspect.signature(calibrate_rig).parameters) - {"corners"}
     dataset_kwargs = set(inspect.signature(open_dataset).parameters) - {"path"}
@@ -93,16 +93,23 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
         if not result.skipped:
             for line in result.warnings:
                 warn(f"{result.device}: {line}")
-    table = fleet_table(results)
-    written = write_fleet_tables(out_dir, table)
-    write_text_atomic(out_dir / "fleet.html", render_fleet(table, earlier, flag_sigmas))
+    written = [out_dir / "fleet.csv", out_dir / "fleet.parquet"]
+    digest = fleet_inputs_digest(results, baseline, flag_sigmas)
+    current = fleet_outputs_current(out_dir, digest)
+    if not current:      # else the tables and the page are those of these very rows: nothing to write
+        from ..report.fleet import render_fleet
+
+        table = fleet_table(results)
+        written = write_fleet_tables(out_dir, table)
+        write_text_atomic(out_dir / "fleet.html", render_fleet(table, earlier, flag_sigmas, inputs_digest=digest))
     failed = sorted((r for r in results if not r.ok), key=lambda r: r.device)
     for r in failed:
         click.echo(f"dualcal: {r.device}: {r.row['status']}", err=True)
     skipped = sum(r.skipped for r in results)
     click.echo(f"{len(results)} device{'s' if len(results) != 1 else ''}: {len(results) - len(failed)} ok, {len(failed)} failed"
-               f"{f' ({skipped} up to date from an earlier run)' if skipped else ''}; wrote "
-               f"{', '.join(str(p) for p in written)}, {out_dir / 'fleet.html'}", err=True)
+               f"{f' ({skipped} up to date from an earlier run)' if skipped else ''}; "
+               f"{'up to date' if current else 'wrote'} {', '.join(str(p) for p in written)}, {out_dir / 'fleet.html'}",
+               err=True)
     if failed:
         raise SystemExit(1)
 

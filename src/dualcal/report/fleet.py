@@ -246,7 +246,8 @@ def _report_css(env: jinja2.Environment) -> Markup:
     return Markup(re.search(r"<style>(.*?)</style>", source, re.S).group(1))
 
 
-def render_fleet(table, baseline=None, flag_sigmas: float = 5.0, title: str | None = None) -> str:
+def render_fleet(table, baseline=None, flag_sigmas: float = 5.0, title: str | None = None,
+                 inputs_digest: str | None = None) -> str:
     """The fleet page as one self-contained HTML string.
 
     Parameters
@@ -257,6 +258,8 @@ def render_fleet(table, baseline=None, flag_sigmas: float = 5.0, title: str | No
     flag_sigmas : a device is listed where it differs from the fleet median (or, with a
         baseline, from its earlier self) by more than this many sigmas.
     title : page title.
+    inputs_digest : recorded in the page's head (:func:`dualcal.batch.fleet_inputs_digest`), so that
+        a re-run with the same inputs need not write it again.
     """
     ok = succeeded(table)
     estimated = estimated_parameters(ok)
@@ -279,7 +282,7 @@ def render_fleet(table, baseline=None, flag_sigmas: float = 5.0, title: str | No
     env = _environment()
     return env.get_template("fleet.html").render(
         title=title or f"dualcal fleet: {len(table)} devices",
-        version=__version__, css=_report_css(env), k=f"{flag_sigmas:g}",
+        version=__version__, inputs_digest=inputs_digest, css=_report_css(env), k=f"{flag_sigmas:g}",
         n_devices=len(table), n_ok=len(ok),
         failed=[{"device": d, "reason": s.removeprefix("failed: ")} for d, s in zip(failed["device"], failed["status"])],
         checks=_failing_checks(ok),
