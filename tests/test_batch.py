@@ -491,3 +491,22 @@ def test_ctrl_c_leaves_finished_devices_intact(fleet_root, tmp_path):
         assert (result is not None) == (device.name in done)
         if result is not None and result.ok:
             assert load_rig(out / device.name / "calib.json").cameras
+
+
+def test_the_traceback_distributed_logs_on_an_early_ctrl_c_is_dropped():
+    """distributed's sync() cancels a call not yet started by reading an unset variable, and tornado
+    logs the NameError with a traceback (seen once in 25 Ctrl-C runs); only that record is dropped."""
+    def cancel():
+        if future is not None:       # noqa: F821 - distributed's bug, reproduced
+            pass
+        future = None                # noqa: F841
+
+    try:
+        cancel()
+    except NameError:
+        record = logging.LogRecord("tornado.application", logging.ERROR, "ioloop.py", 1, "Exception in callback",
+                                   None, sys.exc_info())
+    other = logging.LogRecord("tornado.application", logging.ERROR, "ioloop.py", 1, "Exception in callback",
+                              None, (ValueError, ValueError("x"), None))
+    noise = batch._InterruptNoise()
+    assert not noise.filter(record) and noise.filter(other)

@@ -340,10 +340,32 @@ def recorded_result(device: Device, out_folder, options: BatchOptions, snapshot:
 # ---------------------------------------------------------------------------- the fleet
 
 
+class _InterruptNoise(logging.Filter):
+    """Drops the traceback distributed can log on Ctrl-C: when the interrupt comes before a call
+    of the client has started in its event loop, the callback that cancels it reads a variable
+    not yet set (a ``NameError`` in ``distributed.utils.sync``, logged by tornado); the interrupt
+    itself is handled as any other."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not (isinstance(exc, NameError) and "'future'" in str(exc))
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None):
     """A ``dask.distributed.Client``: of the cluster at ``scheduler``, or of a new ``LocalCluster``
     of ``workers`` processes with one thread each (closed on exit)."""
+    log, noise = logging.getLogger("tornado.application"), _InterruptNoise()
+    log.addFilter(noise)
+    try:
+        with _dask_client(workers, scheduler) as client:
+            yield client
+    finally:
+        log.removeFilter(noise)
+
+
+@contextlib.contextmanager
+def _dask_client(workers: int | None, scheduler: str | None):
     from dask.distributed import Client, LocalCluster
 
     if scheduler is not None:
