@@ -24,6 +24,7 @@ from dualcal.calibrate import calibrate_rig
 from dualcal.dataset import open_dataset
 from dualcal.detect import detect_dataset, predict_from_neighbours
 from dualcal.detect.grid import INNER_GAIN, local_spacing_px
+from dualcal.io import save_corners
 from dualcal.model import observed_mask
 from dualcal.model_selection import compare_lens_models
 
@@ -176,6 +177,15 @@ def test_the_lens_model_recommended_by_held_out_instants(name, kwargs, recommend
     assert [m for m, s in scores.items() if s.recommended] == [recommended]
     if recommended != "k1k2":
         assert scores["k1k2"].worse_se > 2.5
+
+
+def test_calibrate_tells_the_user_of_the_stereo_rig_which_lens_model_to_use(stereo_corners, run_cli, tmp_path):
+    save_corners(tmp_path / "corners.json", stereo_corners)
+    res = run_cli("calibrate", tmp_path / "corners.json", "-o", tmp_path / "calib.json", "--no-compare-models",
+                  "--reference", "left")
+    assert res.code == 0, res.err
+    advice = next(line for line in res.out.splitlines() if line.startswith("lens model "))
+    assert advice.startswith("lens model k1k2p1p2 recommended") and advice.endswith("--model k1k2p1p2")
 
 
 def test_huawei_calibration_agrees_with_matlab(huawei_corners):

@@ -153,7 +153,7 @@ def lens_model_advice(scores, used: str) -> str:
     if best.model == used:
         return (f"lens model {used}: no richer model predicts the instants left out better by more than "
                 f"its noise (held-out RMS {best.held_out_rms_px:.4f} px)")
-    mine = next((s for s in scores if s.model == used), None)
-    versus = f" vs {mine.held_out_rms_px:.4f} px for {used}, {mine.worse_se:.1f} SE worse" if mine else ""
-    return (f"lens model {best.model} recommended (held-out RMS {best.held_out_rms_px:.4f} px{versus}): "
-            f"calibrate again with --model {best.model}")
+    mine = next(s for s in scores if s.model == used)
+    return (f"lens model {best.model} recommended (held-out RMS {best.held_out_rms_px:.4f} px vs "
+            f"{mine.held_out_rms_px:.4f} px for {used}, {mine.worse_se:.1f} SE worse): calibrate again with "
+            f"--model {best.model}")
