@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from .camera import DEFAULT_LENS_MODEL, LENS_MODELS, CameraModel, max_distorted_radius, normalized_from_pixel
 from .errors import EstimationError
@@ -72,33 +71,47 @@ def _homography_dlt(xy_board: np.ndarray, uv: np.ndarray) -> np.ndarray:
 def estimate_homography(xy_board: np.ndarray, uv: np.ndarray, refine: bool = True) -> np.ndarray:
     """Homography ``H`` with ``[u, v, 1] ~ H [X, Y, 1]`` (paper eq. 3), ``H[2, 2] = 1``.
 
-    Normalised DLT, then (``refine``) Levenberg-Marquardt on the pixel reprojection error.
+    Normalised DLT, then (``refine``) Gauss-Newton on the pixel reprojection error.
     """
     xy_board = np.asarray(xy_board, float)
     uv = np.asarray(uv, float)
     if len(xy_board) < MIN_HOMOGRAPHY_CORNERS:
         raise EstimationError(f"a homography needs at least {MIN_HOMOGRAPHY_CORNERS} points")
     H = _homography_dlt(xy_board, uv)
-    if not refine:
-        return H
+    return _refine_homography(H, xy_board, uv) if refine else H
+
+
+def _refine_homography(H: np.ndarray, xy_board: np.ndarray, uv: np.ndarray, max_iter: int = 20) -> np.ndarray:
+    """Gauss-Newton on the pixel reprojection error from the DLT's ``H`` (its start is close, so
+    no damping is needed: a step that does not lower the error ends the iteration)."""
+    X, Y = xy_board[:, 0], xy_board[:, 1]
+    ones = np.ones_like(X)
 
     def residuals(h):
         return (apply_homography(np.append(h, 1.0).reshape(3, 3), xy_board) - uv).ravel()
 
-    def jacobian(h):
+    h = H.ravel()[:8] / H[2, 2]
+    r = residuals(h)
+    cost = r @ r
+    for _ in range(max_iter):
         Hm = np.append(h, 1.0).reshape(3, 3)
-        X, Y = xy_board[:, 0], xy_board[:, 1]
         w = Hm[2, 0] * X + Hm[2, 1] * Y + 1.0
         p = apply_homography(Hm, xy_board)
         J = np.zeros((len(X), 2, 8))
-        J[:, 0, 0:3] = np.column_stack([X, Y, np.ones_like(X)]) / w[:, None]
+        J[:, 0, 0:3] = np.column_stack([X, Y, ones]) / w[:, None]
         J[:, 1, 3:6] = J[:, 0, 0:3]
         J[:, :, 6] = -p * (X / w)[:, None]
         J[:, :, 7] = -p * (Y / w)[:, None]
-        return J.reshape(-1, 8)
-
-    sol = least_squares(residuals, H.ravel()[:8], jac=jacobian, method="lm", xtol=1e-12, ftol=1e-12)
-    return np.append(sol.x, 1.0).reshape(3, 3)
+        step = np.linalg.lstsq(J.reshape(-1, 8), -r, rcond=None)[0]
+        trial = h + step
+        r_trial = residuals(trial)
+        cost_trial = r_trial @ r_trial
+        if not cost_trial < cost:
+            break
+        h, r, cost = trial, r_trial, cost_trial
+        if np.max(np.abs(step) / (np.abs(h) + 1e-12)) < 1e-12:
+            break
+    return np.append(h, 1.0).reshape(3, 3)
 
 
 def _v_row(H: np.ndarray, i: int, j: int) -> np.ndarray:
