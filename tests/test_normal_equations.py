@@ -53,23 +53,6 @@ def test_inverse_blocks_are_those_of_the_dense_inverse(problem):
     np.testing.assert_allclose(ne.factor().inverse_block(pick), Q[np.ix_(where, where)], rtol=1e-9, atol=1e-12)
 
 
-def test_per_instant_pieces_add_up_to_the_reduced_system(problem):
-    ne, J, r, keep = problem
-    N, g = (J.T @ J)[np.ix_(keep, keep)], (J.T @ r)[keep]
-    S_v, b_v = ne.factor().per_instant_reduced()
-    S_dense = N[:G, :G] - N[:G, G:] @ np.linalg.solve(N[G:, G:], N[G:, :G])
-    b_dense = g[:G] - N[:G, G:] @ np.linalg.solve(N[G:, G:], g[G:])
-    np.testing.assert_allclose(S_v.sum(axis=0), S_dense, rtol=1e-10, atol=1e-10)
-    np.testing.assert_allclose(b_v.sum(axis=0), b_dense, rtol=1e-10, atol=1e-10)
-    # one instant's piece is what the reduced system loses without its rows and its locals
-    keep_without = keep.copy()
-    keep_without[G + L:G + 2 * L] = False
-    J1 = np.delete(J, np.arange(12, 24), axis=0)[:, keep_without]
-    N1 = J1.T @ J1
-    S_without = N1[:G, :G] - N1[:G, G:] @ np.linalg.solve(N1[G:, G:], N1[G:, :G])
-    np.testing.assert_allclose(S_dense - S_v[1], S_without, rtol=1e-9, atol=1e-10)
-
-
 def test_second_order_terms_enter_the_steps_only_when_asked(problem):
     ne, J, r, keep = problem
     rng = np.random.default_rng(2)

@@ -550,12 +550,6 @@ class Solution:
             sig[str(name)] = float(s)
         return sig
 
-    def per_instant_reduced(self) -> tuple[np.ndarray, np.ndarray]:
-        """Each instant's ``S_v`` (V, G, G) and ``b_v`` (V, G), in the order of ``problem.views``
-        (:meth:`dualcal.normal_equations.Factorization.per_instant_reduced`); the globals are the
-        first ``G`` flat parameters (:class:`Layout`)."""
-        return self.factorization.per_instant_reduced()
-
     def instant_rows(self) -> list[InstantRows]:
         """:func:`instant_rows` at the solution (for a covariance clustered by instant; ``N^-1``
         on any columns from :meth:`covariance` over ``s0^2``)."""

@@ -10,8 +10,7 @@ so ``N = J^T J`` is an arrow matrix::
          [ Nlg_1,        Nll_1,  0,     ...],
          [ Nlg_2,        0,      Nll_2, ...], ...]
 
-and :class:`NormalEquations` keeps exactly those pieces, instant by instant (``Ngg_v`` too, so that
-the contribution of one instant can be taken out again, e.g. for a jackknife over instants).
+and :class:`NormalEquations` keeps exactly those pieces, instant by instant.
 The damped system ``(N + mu D) h = -g`` (``D = diag N``, Marquardt's scaling) is solved by
 eliminating the locals first (:class:`Factorization`): with ``W_v = A_ll,v^-1 A_lg,v`` the reduced
 matrix ``S = A_gg - sum_v A_gl,v W_v`` has only ``G`` rows, so the cost grows linearly with the
@@ -145,20 +144,6 @@ class Factorization:
         same = v[loc][:, None] == v[loc][None, :]
         out[np.ix_(loc, loc)] += np.where(same, self.ll_inv[v[loc][:, None], j[loc][:, None], j[loc][None, :]], 0.0)
         return out
-
-    def per_instant_reduced(self) -> tuple[np.ndarray, np.ndarray]:
-        """Each instant's contribution to the reduced system of the globals.
-
-        Returns ``S_v`` (V, G, G) and ``b_v`` (V, G) with ``S_v = Ngg_v - Ngl_v Nll_v^-1 Nlg_v`` and
-        ``b_v = g_g,v - Ngl_v Nll_v^-1 g_l,v``: at ``mu = 0``, ``sum_v S_v`` is the reduced normal
-        matrix (the inverse of the globals' covariance over ``s0^2``) and ``sum_v b_v`` the reduced
-        gradient (zero at the solution). Leaving instant ``v`` out moves the globals, to first
-        order, by ``(S - S_v)^-1 b_v`` (a linearised jackknife over instants).
-        """
-        ne = self.ne
-        S_v = ne.gg - ne.gl @ self.W
-        b_v = ne.grad_g - np.einsum("vgl,vl->vg", ne.gl, np.einsum("vij,vj->vi", self.ll_inv, ne.grad_l))
-        return S_v, b_v
 
 
 def _diag_embed(d: np.ndarray) -> np.ndarray:
