@@ -18,14 +18,14 @@ result. A final adjustment that did not converge is said so, on stderr and in ca
 
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import dataclass, replace
+
+import numpy as np
 
 from .adjust import (COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state, parameter_covariance,
                      rig_relation, shared_views)
 from .board import SHAPE_TERMS
-from .camera import DEFAULT_LENS_MODEL, LENS_MODELS
+from .camera import DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS
 from .checks import run_checks
 from .errors import EstimationError, InputError
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
@@ -176,16 +176,19 @@ def corner_outliers(sol: Solution, factor: float) -> tuple[np.ndarray, np.ndarra
         return length > limit[:, None], limit
 
 
-def find_outlier(sol: Solution, factor: float):
-    """The photo with the largest share of outlier corners, if more than :data:`MOST_CORNERS` of
-    them are, as ``(block, share, limit_px)``; else None."""
+def outlier_shares(sol: Solution, factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each photo's share of outlier corners (B,) and its limit (B,) px (:func:`corner_outliers`)."""
     out, limit = corner_outliers(sol, factor)
-    measured = np.isfinite(sol.residuals[..., 0]).sum(axis=1)
-    share = out.sum(axis=1) / np.maximum(measured, 1)
-    worst = int(np.argmax(share))
-    if share[worst] <= MOST_CORNERS:
+    return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1), limit
+
+
+def find_outlier(shares: np.ndarray, limits: np.ndarray):
+    """The photo with the largest share of outlier corners (:func:`outlier_shares`), if more than
+    :data:`MOST_CORNERS` of them are, as ``(block, share, limit_px)``; else None."""
+    worst = int(np.argmax(shares))
+    if shares[worst] <= MOST_CORNERS:
         return None
-    return worst, float(share[worst]), float(limit[worst])
+    return worst, float(shares[worst]), float(limits[worst])
 
 
 def _views_left(blocks, c: int) -> int:
@@ -209,14 +212,14 @@ def _adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_cor
     sol = s.solve(blocks, start)
     rounds = 0
     while factor:
-        out = find_outlier(sol, factor)
+        shares, limits = outlier_shares(sol, factor)
+        out = find_outlier(shares, limits)
         if out is not None:
             b, share, limit = out
             view = blocks[b][1]
             candidates = [b] if s.mode == "none" else [i for i, blk in enumerate(blocks) if blk[1] == view]
             candidates = [i for i in candidates if _views_left(blocks, blocks[i][0]) > MIN_VIEWS]
             if s.mode != "none":
-                shares = _outlier_shares(sol, factor)
                 candidates = [i for i in candidates if shares[i] > MOST_CORNERS]
             if not candidates:
                 warn(f"{names[blocks[b][0]]}/{view}: {share:.0%} of its corners are outliers (limit {limit:.3g} px) "
@@ -245,11 +248,6 @@ def _adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_cor
         blocks = _without_corners(setup, sol, blocks, bad, limit, dropped, dropped_corners)
         sol = s.solve(blocks, sol)
     return sol, blocks
-
-
-def _outlier_shares(sol: Solution, factor: float) -> np.ndarray:
-    out, _ = corner_outliers(sol, factor)
-    return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1)
 
 
 def _without_corners(setup: Setup, sol: Solution, blocks, bad, limit, dropped, dropped_corners):
@@ -369,10 +367,6 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     return rig
 
 
-def _larger(a: dict[str, float], b: dict[str, float]) -> dict[str, float]:
-    return {k: max(a[k], b[k]) for k in a}
-
-
 def held_out_error(sol: Solution) -> dict:
     """The error on instants the calibration did not see (:meth:`Solution.held_out_residuals`):
     ``held_out_rms_px``, the RMS length of the 2-D held-out residual per corner over the instants
@@ -394,8 +388,11 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
     names = p.cameras
     sq = np.sum(sol.residuals ** 2, axis=2)                 # (B, N) squared px, NaN where not measured
     cams = {name: st.camera(p, c) for c, name in enumerate(names)}
-    sigma_formal = {name: sol.intrinsic_sigma(c, "formal") for c, name in enumerate(names)}
-    sigma = {name: _larger(sol.intrinsic_sigma(c, "clustered"), sigma_formal[name]) for c, name in enumerate(names)}
+    names_cov, covs = parameter_covariance(sol, COVARIANCE_KINDS)
+    sd = {kind: dict(zip(names_cov, np.sqrt(np.maximum(np.diag(cov), 0.0)))) for kind, cov in covs.items()}
+    sigma_formal = {name: {n: sd["formal"].get(f"{name}.{n}", 0.0) for n in INTRINSIC_NAMES} for name in names}
+    sigma = {name: {n: max(sd["clustered"].get(f"{name}.{n}", 0.0), s) for n, s in sigma_formal[name].items()}
+             for name in names}
     cam_rms = {}
     for c, name in enumerate(names):
         mask = [cc == c for cc, _, _ in p.blocks]
@@ -423,10 +420,7 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
     shape = shape_sigma = None
     if p.board_shape:
         shape = st.board_shape_mm.copy()
-        cols = p.layout.board_shape
-        shape_sigma = np.sqrt(np.maximum(np.maximum(np.diag(sol.covariance(cols, "clustered")),
-                                                    np.diag(sol.covariance(cols, "formal"))), 0.0))
-    names_cov, covs = parameter_covariance(sol, COVARIANCE_KINDS)
+        shape_sigma = np.array([max(sd[kind][f"board.shape_mm.{t}"] for kind in COVARIANCE_KINDS) for t in SHAPE_TERMS])
     covariance = {"parameters": names_cov, **{k: covs[k].tolist() for k in COVARIANCE_KINDS}}
     return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, cam_rms, rig, poses,
                     dict(sorted(view_rms.items())), float(np.sqrt(np.nanmean(sq))), corners, adjustment, dropped,

@@ -60,12 +60,10 @@ EDGE_RATIO = 2.0
 
 def design_effect(sol: Solution) -> dict[int, float]:
     """Per camera index: median over its free intrinsics of clustered / formal variance, at least 1."""
-    lay = sol.problem.layout
     out = {}
     for c in range(len(sol.problem.cameras)):
-        cols = lay.intrinsics[c]
-        ratio = np.diag(sol.covariance(cols, "clustered")) / np.diag(sol.covariance(cols, "formal"))
-        out[c] = max(1.0, float(np.median(ratio)))
+        clustered, formal = sol.intrinsic_sigma(c, "clustered"), sol.intrinsic_sigma(c, "formal")
+        out[c] = max(1.0, float(np.median([(clustered[n] / s) ** 2 for n, s in formal.items() if s > 0])))
     return out
 
 
