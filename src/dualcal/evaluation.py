@@ -41,7 +41,6 @@ RMSE), ``holdout``, and the pose-free check: ``pose_free`` ``{case: {"rms_mm", "
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,7 +49,7 @@ from .adjust import RIG_MODES
 from .camera import CameraModel
 from .errors import EstimationError, InputError
 from .intersect import triangulate
-from .model import CameraCorners, CornerSet, Pose, RigModel, observed_mask
+from .model import CornerSet, Pose, RigModel, observed_mask
 from .progress import progress_bar, warn
 from .resection import resect
 
@@ -78,14 +77,6 @@ def fitted_photos(rig: RigModel) -> dict[str, dict[str, OrientedPhoto]]:
         out[cam] = {v: OrientedPhoto(model, pose, corners[v])
                     for v, pose in rig.camera_poses.get(cam, {}).items() if v in corners}
     return out
-
-
-def _without(corners: CornerSet, left_out: Callable[[str, str], bool]) -> CornerSet:
-    """``corners`` without the photos for which ``left_out(camera, view)`` is true."""
-    cams = {name: CameraCorners(c.image_size, {v: uv for v, uv in c.views.items() if not left_out(name, v)},
-                                c.meta)
-            for name, c in corners.cameras.items()}
-    return CornerSet(corners.board, cams)
 
 
 def resect_view(calib: RigModel, view: str, corners: CornerSet) -> dict[str, OrientedPhoto]:
@@ -131,7 +122,7 @@ def holdout_photos(rig: RigModel, progress: bool = True,
     with progress_bar("hold-out folds", len(views), enabled=progress) as advance:
         for view in views:
             try:
-                calib = calibrate_rig(_without(corners, lambda _, v: v == view), skew=rig.skew,
+                calib = calibrate_rig(corners.with_views(lambda _, v: v != view), skew=rig.skew,
                                       rig_mode=rig.rig_mode, reference=rig.reference, **options)
             except EstimationError as exc:
                 raise EstimationError(f"hold-out calibration without view {view!r} failed: {exc}") from None

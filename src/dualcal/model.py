@@ -7,6 +7,7 @@ arrays; the classes only group them and never hide state.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -84,6 +85,12 @@ class CornerSet:
     board: Board
     cameras: dict[str, CameraCorners]
     reference: str | None = None     # the reference camera chosen at detection, if one was given
+
+    def with_views(self, keep: Callable[[str, str], bool]) -> "CornerSet":
+        """The same corners with only the photos for which ``keep(camera, view)`` is true."""
+        cams = {name: CameraCorners(c.image_size, {v: uv for v, uv in c.views.items() if keep(name, v)}, c.meta)
+                for name, c in self.cameras.items()}
+        return CornerSet(self.board, cams, self.reference)
 
 
 def choose_reference(names, override: str | None = None) -> str:

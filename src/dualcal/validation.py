@@ -17,11 +17,9 @@ for ``sigma`` (calib.json's, the one that holds on real photos) and ``sigma_form
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
-from .model import CameraCorners, CornerSet, RigModel
+from .model import CornerSet, RigModel
 
 __all__ = ["GROUPS", "split_half_z", "pooled_spread", "instants_of"]
 
@@ -31,12 +29,6 @@ GROUPS = {"f": ("fx", "fy"), "c": ("cx", "cy"), "k": ("k1", "k2")}
 def instants_of(corners: CornerSet) -> list[str]:
     """The view keys where at least one camera found the board."""
     return sorted({v for cc in corners.cameras.values() for v in cc.found()})
-
-
-def _subset(corners: CornerSet, keys: set[str]) -> CornerSet:
-    cams = {n: CameraCorners(c.image_size, {k: v for k, v in c.views.items() if k in keys}, c.meta)
-            for n, c in corners.cameras.items()}
-    return replace(corners, cameras=cams)
 
 
 def _values(rig: RigModel) -> dict[tuple[str, str], tuple[float, float, float]]:
@@ -78,7 +70,8 @@ def split_half_z(corners: CornerSet, splits: int = 20, seed: int = 0, calibrate=
     for _ in range(splits):
         order = rng.permutation(keys)
         half = len(keys) // 2
-        a, b = (_values(calibrate(_subset(corners, set(part)), **kwargs)) for part in (order[:half], order[half:]))
+        a, b = (_values(calibrate(corners.with_views(lambda _, v, part=set(part): v in part), **kwargs))
+                for part in (order[:half], order[half:]))
         for key in a.keys() & b.keys():
             (va, sa, fa), (vb, sb, fb) = a[key], b[key]
             diff = va - vb
