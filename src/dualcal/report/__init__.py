@@ -5,6 +5,12 @@
 * :mod:`.html`: the page itself, from ``templates/report.html`` (jinja2).
 """
 
-from .html import render_report
-
 __all__ = ["render_report"]
+
+
+def __getattr__(name: str):
+    # the page's modules import matplotlib: only when the report is made, not for the pick page
+    if name == "render_report":
+        from .html import render_report
+        return render_report
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -34,6 +34,7 @@ from .. import __version__
 from .analysis import format_value_sigma
 from .figures import camera_colour, figure_svg, style
 from .html import slug
+from .templating import environment
 
 _FLAG_COLOUR = "#d62728"
 _PIXEL_PARAMETERS = {"fx", "fy", "cx", "cy", "skew"}
@@ -234,12 +235,6 @@ def _groups(parameters: list[Parameter]) -> dict[str, list[Parameter]]:
     return out
 
 
-def _environment() -> jinja2.Environment:
-    return jinja2.Environment(loader=jinja2.PackageLoader("dualcal.report", "templates"),
-                              autoescape=jinja2.select_autoescape(["html"]),
-                              undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
-
-
 def _report_css(env: jinja2.Environment) -> Markup:
     """The calibration report's style sheet (its template's ``<style>``), so both pages look alike."""
     source = env.loader.get_source(env, "report.html")[0]
@@ -279,7 +274,7 @@ def render_fleet(table, baseline=None, flag_sigmas: float = 5.0, title: str | No
             if len(dz) and len(dz.columns):
                 drift["svg"] = Markup(figure_svg(drift_figure(dz, flag_sigmas), "fig-drift"))
     failed = table[table["status"] != "ok"]
-    env = _environment()
+    env = environment()
     return env.get_template("fleet.html").render(
         title=title or f"dualcal fleet: {len(table)} devices",
         version=__version__, inputs_digest=inputs_digest, css=_report_css(env), k=f"{flag_sigmas:g}",

@@ -12,7 +12,6 @@ import math
 import re
 from dataclasses import dataclass, field
 
-import jinja2
 import numpy as np
 from markupsafe import Markup
 
@@ -25,6 +24,7 @@ from ..model import RigModel
 from ..progress import track
 from ..tables import photo_status
 from . import analysis, figures
+from .templating import environment
 
 #: Intrinsic parameters: label with the paper's name (Tables 2 and 3) and unit.
 PARAMETER_LABELS = {"fx": "f<sub>x</sub> = α (px)", "fy": "f<sub>y</sub> = β (px)", "skew": "skew = γ (px)",
@@ -304,9 +304,7 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
             else:
                 sections[key].figures.append(block)
 
-    env = jinja2.Environment(loader=jinja2.PackageLoader("dualcal.report", "templates"),
-                             autoescape=jinja2.select_autoescape(["html"]),
-                             undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    env = environment()
     return env.get_template("report.html").render(
         title=title or f"dualcal calibration: {' + '.join(names)}",
         version=__version__,

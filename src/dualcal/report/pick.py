@@ -18,7 +18,6 @@ import io
 import json
 from pathlib import Path
 
-import jinja2
 from markupsafe import Markup
 from PIL import Image
 
@@ -26,6 +25,7 @@ from .. import __version__
 from ..dataset import open_image
 from ..errors import InputError
 from ..model import RigModel
+from .templating import environment
 
 #: Long side of a photo as embedded in the page, px (clicks are mapped back to full resolution).
 DISPLAY_MAX_PX = 2048
@@ -76,9 +76,7 @@ def pick_photos(rig: RigModel, photos: dict[str, Path], max_px: int = DISPLAY_MA
 
 def render_pick_page(rig: RigModel, photos: dict[str, Path], max_px: int = DISPLAY_MAX_PX) -> str:
     """The pick page (module docstring) for ``photos`` ``{camera: path}`` of one instant, as one HTML string."""
-    env = jinja2.Environment(loader=jinja2.PackageLoader("dualcal.report", "templates"),
-                             autoescape=jinja2.select_autoescape(["html"]),
-                             undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    env = environment()
     shown = pick_photos(rig, photos, max_px)
     data = json.dumps([{k: p[k] for k in ("camera", "file", "size")} for p in shown])
     return env.get_template("pick.html").render(
