@@ -17,6 +17,7 @@ from dualcal.calibrate import outlier_limit_px
 from dualcal.camera import CameraModel, distort_normalized, max_distorted_radius, project_points, undistort_points
 from dualcal.model import CameraCorners, CornerSet, Pose
 from dualcal.report import analysis, figures, html as report_html, render_report
+from dualcal.tables import photo_status
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 NOISE_PX = 0.3
@@ -394,8 +395,9 @@ def test_outliers_use_the_factor_the_calibration_was_run_with(rig):
 
 def test_hints_and_left_out_views_are_on_the_page(html, rig):
     found = analysis.camera_findings(rig)
-    assert found["wide"].left_out == {"IMG_07": "board not detected"}
-    assert found["tele"].left_out == {"IMG_08": "reprojection RMS 3.2 px"}
+    status = photo_status(rig)                       # what the page's photo table and per-view figure show
+    assert status["IMG_07"]["wide"] == (None, "board not found")
+    assert status["IMG_08"]["tele"] == (3.2, "dropped: reprojection RMS 3.2 px")
     hints = [h for f in found.values() for h in f.hints]
     assert hints and any("outer 20% of the wide image" in h for h in hints)
     for h in hints:

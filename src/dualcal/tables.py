@@ -112,6 +112,17 @@ def photo_status(rig: RigModel) -> dict[str, dict[str, tuple[float | None, str]]
     return dict(sorted(out.items()))
 
 
+def photo_rows(status: dict, names: list[str], missing: str = "-") -> list[tuple[str, list[str], str]]:
+    """The rows of the per-photo table from :func:`photo_status`: ``(view, RMS per camera in
+    ``names`` order, status)``, ``missing`` where a camera has no RMS for the view."""
+    rows = []
+    for view, per in status.items():
+        cells = [f"{per[n][0]:.3f}" if n in per and per[n][0] is not None else missing for n in names]
+        notes = [f"{n}: {per[n][1]}" for n in names if n in per and per[n][1] != "kept"]
+        rows.append((view, cells, "; ".join(notes) or "kept"))
+    return rows
+
+
 def photo_table(rig: RigModel) -> Table:
     """Every photo: its RMS (px) per camera and, where a photo was not kept, which and why."""
     names = rig.camera_order()
@@ -124,10 +135,8 @@ def photo_table(rig: RigModel) -> Table:
     for name in names:
         t.add_column(name, justify="right", no_wrap=True)
     t.add_column("status")
-    for view, per in status.items():
-        cells = [f"{per[n][0]:.3f}" if n in per and per[n][0] is not None else "-" for n in names]
-        notes = [f"{n}: {per[n][1]}" for n in names if n in per and per[n][1] != "kept"]
-        t.add_row(view, *cells, "; ".join(notes) or "kept")
+    for view, cells, note in photo_rows(status, names):
+        t.add_row(view, *cells, note)
     return t
 
 

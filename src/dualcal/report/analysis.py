@@ -97,28 +97,6 @@ def rig_residuals(rig: RigModel) -> dict[str, dict[str, ViewResiduals]]:
     return out
 
 
-def left_out_views(rig: RigModel) -> dict[str, dict[str, str]]:
-    """Views of each camera that have no residuals, with the reason: ``[camera][view] -> reason``.
-
-    A board not detected in the photo (``null`` in the corners), a view the calibration dropped
-    (``rig.dropped_views``, its own reason), or corners without a pose for any other reason.
-    """
-    dropped = {(d.get("camera"), d.get("view")): d.get("reason", "dropped by the calibration")
-               for d in rig.dropped_views if isinstance(d, dict)}
-    out: dict[str, dict[str, str]] = {}
-    for name in rig.cameras:
-        corners = rig.corners.cameras.get(name)
-        poses = rig.camera_poses.get(name, {})
-        views = {}
-        for view, uv in sorted(corners.views.items()) if corners else ():
-            if uv is None:
-                views[view] = "board not detected"
-            elif view not in poses:
-                views[view] = dropped.get((name, view), dropped.get((None, view), "no pose in the calibration"))
-        out[name] = views
-    return out
-
-
 def view_outlier_limit_px(residuals: dict[str, ViewResiduals], factor: float) -> float:
     """RMS above which a view of one camera is out of line (px): the calibration's limit for one
     corner, :func:`dualcal.calibrate.outlier_limit_px` of the median length of the camera's corner
@@ -348,7 +326,7 @@ class CameraFindings:
 
     ``residuals[view]`` and ``view_rms_px[view]`` for every view with corners and a pose;
     ``rms_px`` over all of them; ``outliers``, the views above ``outlier_limit_px``
-    (:func:`view_outlier_limit_px`); ``left_out[view] -> reason``; ``coverage`` counts
+    (:func:`view_outlier_limit_px`); ``coverage`` counts
     (:func:`coverage_counts`) on cells of ``coverage_cell_px``; the distortion ``curve`` and
     ``reach_px``, the farthest observed corner on it; ``hints``: plain-words warnings.
     """
@@ -358,7 +336,6 @@ class CameraFindings:
     rms_px: float
     outlier_limit_px: float
     outliers: list[str]
-    left_out: dict[str, str]
     coverage: np.ndarray
     coverage_cell_px: float
     curve: DistortionCurve
@@ -378,7 +355,6 @@ def camera_findings(rig: RigModel) -> dict[str, CameraFindings]:
     (:meth:`dualcal.model.RigModel.calibration_options`).
     """
     residuals = rig_residuals(rig)
-    left_out = left_out_views(rig)
     factor = float(rig.calibration_options()["outlier_factor"])
     out = {}
     for name, camera in rig.cameras.items():
@@ -403,6 +379,6 @@ def camera_findings(rig: RigModel) -> dict[str, CameraFindings]:
                          f"{', '.join(LENS_MODELS[camera.model])} are not usable out there")
         all_uv = np.vstack(boards) if boards else np.empty((0, 2))
         all_res = np.vstack([r.residual_px for r in res.values()]) if res else np.empty((0, 2))
-        out[name] = CameraFindings(res, view_rms, rms_px(all_res), limit, outliers, left_out[name], counts, cell,
+        out[name] = CameraFindings(res, view_rms, rms_px(all_res), limit, outliers, counts, cell,
                                    curve, corner_reach_px(camera, all_uv), hints)
     return out

@@ -22,7 +22,7 @@ from ..camera import intrinsic_names
 from ..checks import verdict
 from ..model import RigModel
 from ..progress import track
-from ..tables import photo_status
+from ..tables import photo_rows, photo_status
 from . import analysis, figures
 from .templating import environment
 
@@ -159,12 +159,8 @@ def pose_free_table(evaluation: dict | None) -> list[dict]:
 
 def photos_table(rig: RigModel, names: list[str]) -> list[dict]:
     """Every photo: RMS per camera (px) and, for a photo not kept, why (:func:`dualcal.tables.photo_status`)."""
-    rows = []
-    for view, per in photo_status(rig).items():
-        cells = [f"{per[n][0]:.3f}" if n in per and per[n][0] is not None else "–" for n in names]
-        notes = [f"{n}: {per[n][1]}" for n in names if n in per and per[n][1] != "kept"]
-        rows.append({"view": view, "cells": cells, "status": "; ".join(notes) or "kept"})
-    return rows
+    return [{"view": view, "cells": cells, "status": note}
+            for view, cells, note in photo_rows(photo_status(rig), names, missing="–")]
 
 
 def checks_table(rig: RigModel) -> list[dict]:
