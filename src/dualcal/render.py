@@ -32,7 +32,6 @@ background.
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -43,6 +42,7 @@ from .board import Board
 from .camera import CameraModel, check_invertible_in_image, project_points, undistort_normalized
 from .io import atomic_output
 from .model import Pose
+from .parallel import interruptible_map
 from .progress import progress_bar
 from .render_charuco import MarkerTexture, marker_darkness, marker_texture
 
@@ -336,7 +336,6 @@ def write_photo_set(truth, photo_dir, seed: int = 0, jobs: int | None = None, qu
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(tasks)))
     with progress_bar("rendering photos", len(tasks), enabled=progress) as advance:
         # threads: numpy's array loops, OpenCV's blur and JPEG encoding release the GIL
-        with ThreadPoolExecutor(max_workers=jobs) as pool:
-            for _ in pool.map(_write_one, tasks):
-                advance()
+        for _ in interruptible_map(_write_one, tasks, jobs):
+            advance()
     return paths
