@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .board import SHAPE_TERMS, Board, sag_mm
+from .board import SHAPE_TERMS, Board
 from .camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names, project_points
 from .errors import InputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
@@ -289,7 +289,7 @@ def rig_to_dict(rig: RigModel) -> dict:
         views[view] = {**pose.to_dict(), "rms_px": rig.view_rms_px.get(view, {})}
     board = rig.board.to_dict()
     if rig.board_shape_mm is not None:
-        board["sag_mm"] = sag_mm(rig.board.object_points_mm(), rig.board_shape_mm)
+        board["sag_mm"] = rig.board_sag_mm()
         board["shape_mm"] = dict(zip(SHAPE_TERMS, map(float, rig.board_shape_mm)))
         board["shape_sigma_mm"] = dict(zip(SHAPE_TERMS, map(float, rig.board_shape_sigma_mm)))
     doc = {

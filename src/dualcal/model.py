@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .board import Board, shaped_points_mm
+from .board import Board, sag_mm, shaped_points_mm
 from .camera import CameraModel
 from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
 
@@ -188,6 +188,13 @@ class RigModel:
     def board_points_mm(self) -> np.ndarray:
         """(N, 3) the board's corners as calibrated: flat, or shaped by ``board_shape_mm``."""
         return shaped_points_mm(self.board.object_points_mm(), self.board_shape_mm)
+
+    def board_sag_mm(self) -> float | None:
+        """How far the calibrated board's corners are off a plane (:func:`dualcal.board.sag_mm`); None
+        where its shape was not estimated."""
+        if self.board_shape_mm is None:
+            return None
+        return sag_mm(self.board.object_points_mm(), self.board_shape_mm)
 
     def used_corners(self) -> CornerSet:
         """The corners the calibration used: ``corners`` without the photos it dropped

@@ -60,7 +60,7 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     were made with the same options. Exit code 0 when every device was calibrated, 1 when
     some failed (their rows say why), 2 on bad usage.
     """
-    from ..batch import (BatchOptions, calibrate_fleet, find_devices, fleet_inputs_digest, fleet_outputs_current,
+    from ..batch import (TABLE_NAMES, BatchOptions, calibrate_fleet, find_devices, fleet_inputs_digest, fleet_outputs_current,
                          fleet_table, read_fleet_table, write_fleet_tables)
     from ..calibrate import calibrate_rig
     from ..dataset import open_dataset
@@ -69,8 +69,6 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
 
     calibrate_kwargs = set(inspect.signature(calibrate_rig).parameters) - {"corners"}
     dataset_kwargs = set(inspect.signature(open_dataset).parameters) - {"path"}
-    unknown = set(per_device) - calibrate_kwargs - dataset_kwargs - set(BOARD_OPTION_NAMES)
-    assert not unknown, f"calibrate options {sorted(unknown)} are neither calibrate_rig's nor open_dataset's"
 
     if scheduler is not None and workers is not None:
         raise InputError("--workers sets up a local cluster; with --scheduler the cluster's own workers run")
@@ -93,7 +91,7 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
         if not result.skipped:
             for line in result.warnings:
                 warn(f"{result.device}: {line}")
-    written = [out_dir / "fleet.csv", out_dir / "fleet.parquet"]
+    written = [out_dir / name for name in TABLE_NAMES]
     digest = fleet_inputs_digest(results, baseline, flag_sigmas)
     current = fleet_outputs_current(out_dir, digest)
     if not current:      # else the tables and the page are those of these very rows: nothing to write

@@ -77,7 +77,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     """
     from dataclasses import asdict
 
-    from ..board import SHAPE_TERMS, sag_mm
+    from ..board import SHAPE_TERMS
     from ..calibrate import calibrate_rig
     from ..checks import failed_checks, verdict
     from ..errors import EstimationError
@@ -115,7 +115,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     for table in result_tables(models):
         console.print(table)
     if rig.board_shape_mm is not None:
-        console.print(f"board shape estimated: sag {sag_mm(rig.board.object_points_mm(), rig.board_shape_mm):.2f} mm "
+        console.print(f"board shape estimated: sag {rig.board_sag_mm():.2f} mm "
                       f"({', '.join(f'{t} {w:+.2f} mm' for t, w in zip(SHAPE_TERMS, rig.board_shape_mm))})")
     console.print(f"RMS reprojection error (2-D, per corner) {rig.rms_px:.3f} px, s0 (per coordinate) "
                   f"{rig.adjustment['s0_px']:.3f} px, rig mode {rig.rig_mode}, lens model {rig.model}; written {output}")

@@ -79,8 +79,9 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
     write_json_atomic(output, {**doc, "calibration_fingerprint": calibration_fingerprint(rig)})
     console = stdout_console()
     console.print(evaluation_table(doc, rig.board.n_corners))
-    if doc.get("pose_free"):
-        console.print(pose_free_table(doc))
+    pose_free = pose_free_table(doc)
+    if pose_free is not None:
+        console.print(pose_free)
 
 
 @cli.command("undistort")

@@ -16,7 +16,7 @@ import numpy as np
 from markupsafe import Markup
 
 from .. import __version__
-from ..board import SHAPE_TERMS, sag_mm
+from ..board import SHAPE_TERMS
 from ..calibrate import OUTLIER_FLOOR_PX
 from ..camera import intrinsic_names
 from ..checks import verdict
@@ -173,7 +173,7 @@ def board_shape_text(rig: RigModel) -> dict | None:
     """The board's shape, where the calibration estimated it: ``{"sag_mm", "text"}``."""
     if rig.board_shape_mm is None:
         return None
-    sag = sag_mm(rig.board.object_points_mm(), rig.board_shape_mm)
+    sag = rig.board_sag_mm()
     terms = ", ".join(f"{t} {w:+.2f} ± {s:.2f} mm" for t, w, s in
                       zip(SHAPE_TERMS, rig.board_shape_mm, rig.board_shape_sigma_mm))
     return {"sag_mm": sag, "text": f"its corners are up to {sag:.2f} mm off a plane (the heights reached at "
