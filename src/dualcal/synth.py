@@ -149,7 +149,7 @@ def in_frame(cam: CameraModel, X_cam: np.ndarray) -> np.ndarray:
     uv = project_points(cam, np.where(front[:, None], X_cam, 1.0))
     w, h = cam.image_size
     inside = np.all((uv >= 0) & (uv <= [w - 1, h - 1]), axis=1)
-    return front & (np.hypot(xy[:, 0], xy[:, 1]) < max_monotonic_radius(cam.k1, cam.k2)) & inside
+    return front & (np.hypot(xy[:, 0], xy[:, 1]) < max_monotonic_radius(*cam.radial)) & inside
 
 
 def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
