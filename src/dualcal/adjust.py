@@ -523,7 +523,6 @@ class Solution:
     iterations: int
     converged: bool
     termination: str
-    normal: NormalEquations
     factorization: Factorization
     block_rms_px: list[float] = field(default_factory=list)
 
@@ -538,7 +537,7 @@ class Solution:
 
     @cached_property
     def _cluster_scores(self):
-        return cluster_scores(self.instant_rows(), self.factorization.inverse_block)
+        return cluster_scores(self.instant_rows, self.factorization.inverse_block)
 
     def intrinsic_sigma(self, c: int, kind: str = "formal") -> dict[str, float]:
         """1-sigma of every intrinsic of camera ``c`` (0 for a fixed one), of covariance ``kind``."""
@@ -550,13 +549,10 @@ class Solution:
             sig[str(name)] = float(s)
         return sig
 
+    @cached_property
     def instant_rows(self) -> list[InstantRows]:
         """:func:`instant_rows` at the solution (for a covariance clustered by instant; ``N^-1``
         on any columns from :meth:`covariance` over ``s0^2``)."""
-        return self._instant_rows
-
-    @cached_property
-    def _instant_rows(self) -> list[InstantRows]:
         return instant_rows(self.problem, self.state)
 
     def held_out_residuals(self) -> dict[str, np.ndarray | None]:
@@ -566,7 +562,7 @@ class Solution:
         do without (the only one to show some parameter)."""
         G, inverse = self.problem.layout.n_global, self.factorization.inverse_block
         return {ir.view: held_out_residuals(ir.J, ir.r, inverse(ir.columns), int(np.sum(ir.columns >= G)))
-                for ir in self.instant_rows()}
+                for ir in self.instant_rows}
 
 
 def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> Solution:
@@ -591,7 +587,7 @@ def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> 
     r = residuals(problem, res.x)
     block_rms = np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1))
     return Solution(problem, res.x, r, float(np.sqrt(res.cost / redundancy)), redundancy, res.iterations,
-                    res.converged, res.termination, res.normal, res.factorization, block_rms.tolist())
+                    res.converged, res.termination, res.factorization, block_rms.tolist())
 
 
 # ----------------------------------------------------------------------------- the rig's relative poses

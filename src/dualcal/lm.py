@@ -66,7 +66,6 @@ class LMResult:
 
     x: Any
     cost: float
-    normal: NormalEquations
     factorization: Factorization
     iterations: int
     converged: bool
@@ -149,7 +148,7 @@ def levenberg_marquardt(x: Any, linearise: Callable[[Any], tuple[float, NormalEq
     converged = bool(distance <= o.verify_sigma)
     if not converged:
         stop += f"; the estimate is still {distance:.2g} sigma from the minimum"
-    return LMResult(x, float(F), ne, factorization, it, converged, stop, float(distance))
+    return LMResult(x, float(F), factorization, it, converged, stop, float(distance))
 
 
 def _gradient_test(ne: NormalEquations, F: float, o: LMOptions) -> str | None:
