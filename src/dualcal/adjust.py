@@ -644,9 +644,10 @@ def rig_linearisation(sol: Solution, c: int) -> RigLinearisation:
                               *(D * (np.eye(3) - np.outer(m_hat, m_hat)) / np.linalg.norm(m) @ B)], axis=1)
     else:
         R, t, J_rot, J_t, cols = _mean_relative_pose(sol, c, views)
-    J_D = (t / np.linalg.norm(t)) @ J_t
     if p.mode == "paper":
         J_D = np.sign(D) * np.eye(1, len(cols), 3)[0]
+    else:
+        J_D = (t / np.linalg.norm(t)) @ J_t
     return RigLinearisation(np.array(R, float), np.array(t, float), J_t, J_D, J_rot, cols)
 
 
