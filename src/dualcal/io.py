@@ -20,9 +20,9 @@ import numpy as np
 
 from . import __version__
 from .board import SHAPE_TERMS, Board
-from .camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names, project_points
+from .camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names
 from .errors import InputError
-from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
+from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation, rig_residuals, rms_px
 from .parallel import raise_if_cancelled
 
 # ---------------------------------------------------------------------------- atomic writes
@@ -483,16 +483,11 @@ def check_corners_fit(rig: RigModel, source: str, slack_px: float = 1.0) -> None
     parts of two calibrations (or whose corners were replaced) fails by many pixels. Cameras
     without a stated ``rms_px`` are not checked.
     """
-    X = rig.board_points_mm()
-    used = rig.used_corners()
-    for name, cam in rig.cameras.items():
+    for name, views in rig_residuals(rig).items():
         stated = rig.camera_rms_px.get(name, np.nan)
-        views = used.cameras[name].views
-        poses = {v: p for v, p in rig.camera_poses.get(name, {}).items() if views.get(v) is not None}
-        if not np.isfinite(stated) or not poses:
+        if not np.isfinite(stated) or not views:
             continue
-        res = np.vstack([views[v] - project_points(cam, p.apply(X)) for v, p in poses.items()])
-        rms = float(np.sqrt(np.nanmean(np.sum(res**2, axis=1))))
+        rms = rms_px(np.vstack([r.residual_px for r in views.values()]))
         if not rms <= 3 * stated + slack_px:
             raise InputError(f"{source}: the corners it carries do not fit its calibration (camera {name!r}: "
                              f"RMS {rms:.3g} px, the file says {stated:.3g} px): it was edited or assembled from "

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .board import Board, sag_mm, shaped_points_mm
-from .camera import CameraModel
+from .camera import CameraModel, project_points
 from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
 
 
@@ -235,3 +235,52 @@ class RigModel:
                 if view not in out:
                     out[view] = rel.pose.inverse().compose(pose)
         return dict(sorted(out.items()))
+
+
+# ---------------------------------------------------------------------------- residuals of a calibration
+
+
+@dataclass(frozen=True)
+class ViewResiduals:
+    """Measured corners of one camera in one view: ``uv_px`` observed (M, 2), ``residual_px`` (M, 2).
+
+    Corners that were not measured (NaN rows, :func:`dualcal.model.observed_mask`) are not in them.
+    """
+
+    uv_px: np.ndarray
+    residual_px: np.ndarray
+
+    @property
+    def rms_px(self) -> float:
+        return rms_px(self.residual_px)
+
+
+def rms_px(residual_px: np.ndarray) -> float:
+    """Root mean square length of (N, 2) residual vectors, ``sqrt(mean(du^2 + dv^2))``."""
+    residual_px = np.asarray(residual_px, float).reshape(-1, 2)
+    if len(residual_px) == 0:
+        return float("nan")
+    return float(np.sqrt(np.mean(np.sum(residual_px**2, axis=1))))
+
+
+def rig_residuals(rig: RigModel) -> dict[str, dict[str, ViewResiduals]]:
+    """Residuals ``[camera][view]`` of every view that has both detected corners and a pose.
+
+    Views without a pose (not found, or dropped by the calibration) are left out; views are
+    in sorted key order; corners not measured (NaN rows) or dropped by the calibration are left
+    out of each view; the board is the one calibrated (:meth:`RigModel.board_points_mm`).
+    """
+    X_board = rig.board_points_mm()
+    used = rig.used_corners()
+    out: dict[str, dict[str, ViewResiduals]] = {}
+    for name, camera in rig.cameras.items():
+        found = used.cameras[name].found() if name in used.cameras else {}
+        poses = rig.camera_poses.get(name, {})
+        views = {}
+        for view in sorted(set(found) & set(poses)):
+            measured = observed_mask(found[view])
+            uv = np.asarray(found[view], float)[measured]
+            uv_model = project_points(camera, poses[view].apply(X_board[measured]))
+            views[view] = ViewResiduals(uv, uv - uv_model)
+        out[name] = views
+    return out

@@ -35,7 +35,7 @@ from ..camera import (LENS_MODELS, CameraModel, image_corner_radius, max_distort
                       normalized_from_pixel, project_points, radial_factor, undistort_normalized,
                       undistort_points)
 from ..errors import NotInvertibleError
-from ..model import Pose, RigModel, observed_mask
+from ..model import Pose, RigModel, ViewResiduals, observed_mask, rig_residuals, rms_px  # noqa: F401 (re-exported)
 
 #: Coverage hints: the outer ring of the image, as a share of the half-diagonal.
 OUTER_RING = 0.2
@@ -49,52 +49,6 @@ COVERAGE_CELL_SHARE = 1 / 48
 _REGION_NAMES = {(0, 0): "top-left", (0, 1): "top", (0, 2): "top-right",
                  (1, 0): "left", (1, 1): "centre", (1, 2): "right",
                  (2, 0): "bottom-left", (2, 1): "bottom", (2, 2): "bottom-right"}
-
-
-@dataclass(frozen=True)
-class ViewResiduals:
-    """Measured corners of one camera in one view: ``uv_px`` observed (M, 2), ``residual_px`` (M, 2).
-
-    Corners that were not measured (NaN rows, :func:`dualcal.model.observed_mask`) are not in them.
-    """
-
-    uv_px: np.ndarray
-    residual_px: np.ndarray
-
-    @property
-    def rms_px(self) -> float:
-        return rms_px(self.residual_px)
-
-
-def rms_px(residual_px: np.ndarray) -> float:
-    """Root mean square length of (N, 2) residual vectors, ``sqrt(mean(du^2 + dv^2))``."""
-    residual_px = np.asarray(residual_px, float).reshape(-1, 2)
-    if len(residual_px) == 0:
-        return float("nan")
-    return float(np.sqrt(np.mean(np.sum(residual_px**2, axis=1))))
-
-
-def rig_residuals(rig: RigModel) -> dict[str, dict[str, ViewResiduals]]:
-    """Residuals ``[camera][view]`` of every view that has both detected corners and a pose.
-
-    Views without a pose (not found, or dropped by the calibration) are left out; views are
-    in sorted key order; corners not measured (NaN rows) or dropped by the calibration are left
-    out of each view; the board is the one calibrated (:meth:`RigModel.board_points_mm`).
-    """
-    X_board = rig.board_points_mm()
-    used = rig.used_corners()
-    out: dict[str, dict[str, ViewResiduals]] = {}
-    for name, camera in rig.cameras.items():
-        found = used.cameras[name].found() if name in used.cameras else {}
-        poses = rig.camera_poses.get(name, {})
-        views = {}
-        for view in sorted(set(found) & set(poses)):
-            measured = observed_mask(found[view])
-            uv = np.asarray(found[view], float)[measured]
-            uv_model = project_points(camera, poses[view].apply(X_board[measured]))
-            views[view] = ViewResiduals(uv, uv - uv_model)
-        out[name] = views
-    return out
 
 
 def view_outlier_limit_px(residuals: dict[str, ViewResiduals], factor: float) -> float:
