@@ -416,6 +416,13 @@ def exclude_views(corners: CornerSet, patterns) -> CornerSet:
     return CornerSet(corners.board, cameras, corners.reference)
 
 
+def unpaired_cameras(dataset: Dataset) -> list[str]:
+    """The cameras none of whose photos pairs with one of the reference camera's (no view key in common)."""
+    ref_keys = set(dataset.cameras[dataset.reference])
+    return [name for name, photos in dataset.cameras.items()
+            if name != dataset.reference and not ref_keys & set(photos)]
+
+
 def check_pairs(dataset: Dataset, pair_by: str = "stem") -> None:
     """Raise :class:`InputError` when some camera's photos pair with none of the reference camera's.
 
@@ -423,9 +430,8 @@ def check_pairs(dataset: Dataset, pair_by: str = "stem") -> None:
     library's :func:`open_dataset` accepts it, for cameras to be used alone).
     """
     ref_keys = set(dataset.cameras[dataset.reference])
-    for name, photos in dataset.cameras.items():
-        if name == dataset.reference or ref_keys & set(photos):
-            continue
+    for name in unpaired_cameras(dataset):
+        photos = dataset.cameras[name]
         how = ("none was taken within --time-tolerance of one of the reference camera's" if pair_by == "time"
                else f"e.g. {min(photos)!r} vs {min(ref_keys)!r}")
         raise InputError(f"{dataset.source}: no photo of camera {name!r} pairs with one of the reference camera "

@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from ..board import DICTIONARIES, Board, dictionary_family
-from ..dataset import Dataset, read_gray
+from ..dataset import Dataset, read_gray, unpaired_cameras
 from ..errors import DetectionError, InputError
 from ..io import atomic_output, make_output_folder
 from ..model import CameraCorners, CornerSet
@@ -162,11 +162,11 @@ def prepare_overlay_folders(overlays_dir, cameras) -> dict[str, Path]:
 def warn_unpaired_cameras(dataset: Dataset) -> None:
     """One warning per camera that shares no view key with the reference: nothing pairs it."""
     ref_keys = set(dataset.cameras[dataset.reference])
-    for cam, photos in dataset.cameras.items():
-        if cam != dataset.reference and not ref_keys & set(photos):
-            warn(f"camera {cam!r} shares no view with the reference {dataset.reference!r} (e.g. "
-                 f"{next(iter(photos))!r} vs {next(iter(ref_keys))!r}): name photos of one instant alike "
-                 "(same stem, or what the --camera globs' wildcards match) or use --pair-by time")
+    for cam in unpaired_cameras(dataset):
+        photos = dataset.cameras[cam]
+        warn(f"camera {cam!r} shares no view with the reference {dataset.reference!r} (e.g. "
+             f"{next(iter(photos))!r} vs {next(iter(ref_keys))!r}): name photos of one instant alike "
+             "(same stem, or what the --camera globs' wildcards match) or use --pair-by time")
 
 
 def likely_boards(board: Board) -> list[Board]:
