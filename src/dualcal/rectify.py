@@ -34,7 +34,7 @@ from PIL import Image, JpegImagePlugin
 
 from .camera import (CameraModel, check_invertible_in_image, intrinsic_names, max_monotonic_radius,
                      normalized_from_pixel, radial_factor, tangential_shift, undistort_points)
-from .dataset import open_image, read_exif
+from .photos import open_image, read_exif
 from .errors import InputError
 from .io import atomic_output, make_output_folder, read_json
 from .parallel import interruptible_map, raise_if_cancelled

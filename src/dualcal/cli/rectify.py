@@ -52,7 +52,7 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
     import cv2
     import numpy as np
 
-    from ..dataset import open_image
+    from ..photos import open_image
     from ..io import (atomic_output, calibration_fingerprint, check_output_file, load_rig, make_output_folder,
                       write_json_atomic)
     from ..stereo import epipolar_check_image, rectify_pair_files, stereo_rectify

@@ -212,7 +212,7 @@ def pick_hints(photos: dict[str, dict[str, Path]], max_side: int = 1400) -> dict
         raise InputError(problem)
     import matplotlib.pyplot as plt
 
-    from ..dataset import read_gray
+    from ..photos import read_gray
 
     out: dict[str, dict[str, np.ndarray]] = {}
     # q and Backspace are matplotlib's shortcuts for closing and going back a view; here they are ours

@@ -33,7 +33,8 @@ import cv2
 import numpy as np
 
 from ..board import DICTIONARIES, Board, dictionary_family
-from ..dataset import Dataset, read_gray, unpaired_cameras
+from ..dataset import Dataset, unpaired_cameras
+from ..photos import read_gray
 from ..errors import DetectionError, InputError
 from ..io import atomic_output, make_output_folder
 from ..model import CameraCorners, CornerSet

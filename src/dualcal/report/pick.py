@@ -22,7 +22,7 @@ from markupsafe import Markup
 from PIL import Image
 
 from .. import __version__
-from ..dataset import open_image
+from ..photos import open_image
 from ..errors import InputError
 from ..model import RigModel
 from .templating import environment
