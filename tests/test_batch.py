@@ -513,14 +513,15 @@ def test_the_traceback_distributed_logs_on_an_early_ctrl_c_is_dropped():
 
 
 def test_every_option_batch_takes_from_calibrate_reaches_the_library():
-    """Each of calibrate's options that batch applies per device is a keyword of calibrate_rig or
-    open_dataset, or a board flag: the command sorts them by those names."""
+    """Each of calibrate's options that batch applies per device is a keyword of calibrate_rig (or
+    calibrate_corners' compare_lens) or read_corners, or a board flag: the command sorts them by those names."""
     import inspect
 
     from dualcal.calibrate import calibrate_rig
     from dualcal.cli.batch import _PER_DEVICE
     from dualcal.cli.common import BOARD_OPTION_NAMES
-    from dualcal.dataset import open_dataset
+    from dualcal.workflow import read_corners
 
-    known = set(inspect.signature(calibrate_rig).parameters) | set(inspect.signature(open_dataset).parameters)
+    known = (set(inspect.signature(calibrate_rig).parameters) | set(inspect.signature(read_corners).parameters)
+             | {"compare_lens"})
     assert {p.name for p in _PER_DEVICE} - known - set(BOARD_OPTION_NAMES) == set()

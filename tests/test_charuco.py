@@ -176,7 +176,7 @@ def test_rendered_partial_views_detect_calibrate_evaluate_report_and_export(rend
     # the board flags must agree with the file's board: the marker size is checked too
     code, _, err = run_cli("calibrate", corners_json, "--board", "charuco:11x8", "--square", "25", "--marker", "17",
                            "-o", tmp_path / "x.json")
-    assert code == 2 and "--marker 17 disagrees" in err
+    assert code == 2 and "marker 17 mm disagrees" in err
     evaluation = tmp_path / "eval.json"
     assert run_cli("evaluate", calib, "-o", evaluation).code == 0
     cases = json.loads(evaluation.read_text())["cases"]

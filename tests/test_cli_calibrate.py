@@ -101,7 +101,7 @@ def test_an_unknown_lens_model_is_refused_by_the_flag(synth_dir, run_cli):
 
 def test_board_flag_that_disagrees_with_the_file(synth_dir, run_cli):
     res = run_cli("calibrate", synth_dir / "corners.json", "--board", "9x6", "--square", "30", "-o", synth_dir / "c.json")
-    _assert_one_line_error(res, "--board 9x6 disagrees")
+    _assert_one_line_error(res, "board 9x6 disagrees")
 
 
 @pytest.mark.parametrize("content,pattern", [("{\"board\": {\"cols\": 8,", "truncated"), ("not json", "malformed"),

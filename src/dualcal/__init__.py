@@ -24,6 +24,9 @@ _API = {
     "measure": "measurement",
     "undistort_image": "rectify", "rectified_camera": "rectify",
     "stereo_rectify": "stereo", "rectify_points": "stereo", "StereoRectification": "stereo",
+    # the workflow every command runs
+    "read_corners": "workflow", "calibrate_corners": "workflow", "evaluate_calibration": "workflow",
+    "read_calibration": "workflow",
     # photos
     "open_dataset": "dataset", "detect_dataset": "detect", "detect_photo": "detect",
     # files

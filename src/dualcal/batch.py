@@ -29,7 +29,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import inspect
-import io
 import json
 import re
 import logging
@@ -42,12 +41,10 @@ from pathlib import Path
 from . import __version__
 from .board import Board
 from .calibrate import calibrate_rig
-from .dataset import open_dataset
-from .detect import detect_dataset
 from .errors import DualcalError, InputError
-from .evaluation import evaluate
-from .io import atomic_output, load_corners, make_output_folder, read_json, rig_to_dict, write_json_atomic
-from .progress import progress_bar
+from .io import atomic_output, make_output_folder, read_json, rig_to_dict, write_json_atomic
+from .progress import collect_warnings, progress_bar
+from .workflow import DETECTION_OPTIONS, calibrate_corners, evaluate_calibration, read_corners
 
 CALIB_NAME, EVAL_NAME, RECORD_NAME = "calib.json", "eval.json", "batch.json"
 TABLE_NAMES = ("fleet.csv", "fleet.parquet")
@@ -107,6 +104,10 @@ def input_snapshot(device: Device) -> dict[str, list[int]]:
     return out
 
 
+#: Keyword arguments of the workflow that are the device's own (its input) or only show progress.
+_NOT_RECORDED = {"source", "board", "corners", "progress", *DETECTION_OPTIONS}
+
+
 def _with_defaults(function, kwargs: dict) -> dict:
     """``kwargs`` with the defaults of ``function``'s other keyword arguments."""
     defaults = {name: p.default for name, p in inspect.signature(function).parameters.items()
@@ -127,12 +128,13 @@ def _plain(value):
 class BatchOptions:
     """What applies to every device of a batch.
 
-    ``calibrate`` holds keyword arguments of :func:`dualcal.calibrate.calibrate_rig` (``skew``,
-    ``rig_mode``, ``reference``, ``drop_outliers``, ``outlier_factor``, ...), ``dataset`` those of
-    :func:`dualcal.dataset.open_dataset` for devices of photos (``cameras`` with globs relative to
-    each device folder, ``pair_by``, ...). ``board`` is needed for photos and, where given, must
-    agree with every corners.json. ``evaluate`` writes eval.json (:func:`dualcal.evaluation.evaluate`,
-    with ``holdout``).
+    ``calibrate`` holds keyword arguments of :func:`dualcal.workflow.calibrate_corners` (those of
+    :func:`dualcal.calibrate.calibrate_rig`: ``skew``, ``rig_mode``, ``reference``, ``drop_outliers``,
+    ``outlier_factor``, ...; and ``compare_lens``), ``dataset`` those of :func:`dualcal.workflow.read_corners`
+    (``cameras`` with globs relative to each device folder, ``pair_by``, ``square_sigma_mm``, ...).
+    ``board`` is needed for photos and, where given, must agree with every corners.json. ``evaluate``
+    writes eval.json (:func:`dualcal.workflow.evaluate_calibration`, with ``holdout``). Every device
+    goes through the workflow a single ``calibrate`` and ``evaluate`` take, so it gets the same files.
     """
 
     board: Board | None = None
@@ -145,11 +147,12 @@ class BatchOptions:
         """The options a device of ``kind`` depends on, as they take effect (defaults filled in), as
         batch.json records them."""
         doc = {"dualcal_version": __version__, "board": self.board.to_dict() if self.board else None,
-               "calibrate": _with_defaults(calibrate_rig, self.calibrate), "evaluate": self.evaluate,
-               "holdout": self.holdout}
-        if kind == "photos":
-            doc["dataset"] = _with_defaults(open_dataset, self.dataset)
-        return _plain(doc)
+               "calibrate": {"compare_lens": True, **_with_defaults(calibrate_rig, self.calibrate)},
+               "evaluate": self.evaluate, "holdout": self.holdout}
+        dataset = _with_defaults(read_corners, self.dataset)
+        doc["dataset"] = dataset if kind == "photos" else {"square_sigma_mm": dataset["square_sigma_mm"]}
+        return _plain({key: {k: v for k, v in value.items() if k not in _NOT_RECORDED} if isinstance(value, dict)
+                       and key in ("calibrate", "dataset") else value for key, value in doc.items()})
 
     def check(self, devices: list[Device]) -> None:
         """Raise :class:`InputError` for options that cannot apply to these devices."""
@@ -253,30 +256,16 @@ def _failed(device: Device, reason: str, seconds: float | None = None) -> dict:
 
 
 def _device_corners(device: Device, options: BatchOptions):
-    if device.kind == "corners":
-        corners = load_corners(device.folder / "corners.json")
-        if options.board is not None and not options.board.matches(corners.board):
-            raise InputError(f"--board {options.board.spec()} --square {options.board.square_mm:g} disagrees with "
-                             f"its corners.json (board {corners.board.spec()}, {corners.board.square_mm:g} mm)"
-                             if options.board.charuco is None else
-                             f"the options' {options.board.describe(sizes=True)} disagrees with its corners.json "
-                             f"({corners.board.describe(sizes=True)})")
-        return corners
-    dataset = open_dataset(device.folder, **options.dataset)
-    return detect_dataset(dataset, options.board, jobs=1, progress=False)
-
-
-def _warning_lines(text: str) -> list[str]:
-    prefix = "dualcal: warning: "
-    return [line.removeprefix(prefix) for line in text.splitlines() if line.strip()]
+    source = device.folder / "corners.json" if device.kind == "corners" else device.folder
+    return read_corners(source, options.board, jobs=1, progress=False, **options.dataset)
 
 
 def calibrate_device(device: Device, out_folder, options: BatchOptions, snapshot: dict) -> DeviceResult:
     """Calibrate one device and write its outputs to ``out_folder`` (the task of one device).
 
     ``snapshot`` is :func:`input_snapshot` of the device, taken before the task started; it is
-    recorded in batch.json. Warnings printed by the calibration are captured from stderr and
-    returned (exact with one thread per worker process, as :func:`dask_client` starts them; on a
+    recorded in batch.json. The library's warnings are collected (:func:`dualcal.progress.collect_warnings`)
+    and returned (exact with one thread per worker process, as :func:`dask_client` starts them; on a
     cluster whose workers run several threads, a warning may land with another device). A
     :class:`~dualcal.errors.DualcalError` becomes a recorded ``failed: <reason>`` row; any other
     exception is a row too, not recorded.
@@ -285,27 +274,25 @@ def calibrate_device(device: Device, out_folder, options: BatchOptions, snapshot
     # An earlier record goes first: until the new one is written, the outputs are not up to date.
     (out_folder / RECORD_NAME).unlink(missing_ok=True)
     start = time.perf_counter()
-    stderr = io.StringIO()
     record = True
-    try:
-        with contextlib.redirect_stderr(stderr):
-            rig = calibrate_rig(_device_corners(device, options), **options.calibrate)
+    with collect_warnings() as warnings:
+        try:
+            rig = calibrate_corners(_device_corners(device, options), **options.calibrate)
             calib = rig_to_dict(rig)
             write_json_atomic(out_folder / CALIB_NAME, calib)
             evaluation = None
             if options.evaluate:
-                evaluation = evaluate(rig, holdout=options.holdout, progress=False)
+                evaluation = evaluate_calibration(rig, holdout=options.holdout, progress=False)
                 write_json_atomic(out_folder / EVAL_NAME, evaluation)
             else:       # an eval.json of an earlier calibration would not be of this one
                 (out_folder / EVAL_NAME).unlink(missing_ok=True)
-        row = {"device": device.name, "status": "ok", "input": device.kind,
-               "seconds": time.perf_counter() - start, **fleet_row(calib, evaluation)}
-    except DualcalError as exc:
-        row = _failed(device, str(exc), time.perf_counter() - start)
-    except Exception as exc:  # a bug, not the device's input: one row, and tried again next run
-        row = _failed(device, f"internal error: {type(exc).__name__}: {exc}", time.perf_counter() - start)
-        record = False
-    warnings = _warning_lines(stderr.getvalue())
+            row = {"device": device.name, "status": "ok", "input": device.kind,
+                   "seconds": time.perf_counter() - start, **fleet_row(calib, evaluation)}
+        except DualcalError as exc:
+            row = _failed(device, str(exc), time.perf_counter() - start)
+        except Exception as exc:  # a bug, not the device's input: one row, and tried again next run
+            row = _failed(device, f"internal error: {type(exc).__name__}: {exc}", time.perf_counter() - start)
+            record = False
     row["warnings"] = len(warnings)
     if record:
         write_json_atomic(out_folder / RECORD_NAME, {

@@ -112,18 +112,30 @@ class Charuco:
 @dataclass(frozen=True)
 class Board:
     """A planar target with ``cols x rows`` inner corners of pitch ``square_mm``: a chessboard,
-    or a ChArUco board when ``charuco`` is given (:meth:`charuco_board` builds one from its squares)."""
+    or a ChArUco board when ``charuco`` is given (:meth:`charuco_board` builds one from its squares).
+
+    ``square_sigma_mm`` is the 1-sigma of the printed square's size (a board printed at home is true
+    to a few tenths of a percent): every length dualcal derives scales with the square, so it enters
+    their sigmas fully correlated (:mod:`dualcal.scale`). It is a tolerance, not a property of the
+    pattern: :meth:`matches` ignores it.
+    """
 
     cols: int
     rows: int
     square_mm: float
     charuco: Charuco | None = None
+    square_sigma_mm: float = 0.0
 
     def __post_init__(self):
         if self.cols < 2 or self.rows < 2:
             raise InputError(f"board {self.cols}x{self.rows}: needs at least 2x2 inner corners")
         if not (self.square_mm > 0 and np.isfinite(self.square_mm)):
             raise InputError(f"square size {self.square_mm} mm: must be a positive number")
+        if not (self.square_sigma_mm >= 0 and np.isfinite(self.square_sigma_mm)):
+            raise InputError(f"square size sigma {self.square_sigma_mm} mm: must be a length >= 0")
+        if self.square_sigma_mm > 0.1 * self.square_mm:
+            raise InputError(f"square size sigma {self.square_sigma_mm:g} mm is more than a tenth of the square "
+                             f"({self.square_mm:g} mm): measure the printed board (e.g. 10 squares with a ruler)")
         ch = self.charuco
         if ch is None:
             return
@@ -214,17 +226,20 @@ class Board:
 
     def matches(self, other: "Board") -> bool:
         """True when ``other`` is this board; a ChArUco board's dictionary and layout are compared
-        only where this one gives them (a board from the command line may leave them to the photos)."""
+        only where this one gives them (a board from the command line may leave them to the photos);
+        ``square_sigma_mm`` is not compared."""
         if self.charuco is None or other.charuco is None:
-            return self == other
+            return replace(self, square_sigma_mm=0.0) == replace(other, square_sigma_mm=0.0)
         mine, theirs = self.charuco, other.charuco
-        return (replace(self, charuco=None) == replace(other, charuco=None)
+        return (replace(self, charuco=None, square_sigma_mm=0.0) == replace(other, charuco=None, square_sigma_mm=0.0)
                 and (mine.squares, mine.marker_mm) == (theirs.squares, theirs.marker_mm)
                 and mine.dictionary in (None, theirs.dictionary) and mine.legacy in (None, theirs.legacy))
 
     def to_dict(self) -> dict:
         """The board entry of corners.json and calib.json (the contract's keys)."""
         doc = {"cols": self.cols, "rows": self.rows, "square_mm": float(self.square_mm)}
+        if self.square_sigma_mm:
+            doc["square_sigma_mm"] = float(self.square_sigma_mm)
         ch = self.charuco
         if ch is not None:
             doc["charuco"] = {"squares": list(ch.squares), "marker_mm": float(ch.marker_mm),
@@ -240,7 +255,10 @@ class Board:
             cols, rows = d["cols"], d["rows"]
             if not all(_whole(n) for n in (cols, rows)):
                 raise TypeError("cols and rows must be whole numbers")
-            board = cls(cols, rows, float(d["square_mm"]))
+            sigma = d.get("square_sigma_mm", 0.0)
+            if isinstance(sigma, bool) or not isinstance(sigma, (int, float)):
+                raise TypeError("square_sigma_mm must be a number")
+            board = cls(cols, rows, float(d["square_mm"]), square_sigma_mm=float(sigma))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"board entry {d!r} is malformed: needs cols, rows, square_mm") from exc
         if "charuco" not in d:
@@ -295,8 +313,8 @@ def parse_board_spec(spec: str) -> tuple[int, int]:
 
 
 def board_from_spec(spec: str, square_mm: float, marker_mm: float | None = None,
-                    dictionary: str | None = None) -> Board:
-    """The board of ``--board SPEC --square MM [--marker MM] [--dictionary NAME]``.
+                    dictionary: str | None = None, square_sigma_mm: float = 0.0) -> Board:
+    """The board of ``--board SPEC --square MM [--marker MM] [--dictionary NAME] [--square-sigma MM]``.
 
     ``SPEC`` is ``COLSxROWS`` (a chessboard's inner corners) or ``charuco:SXxSY`` (a ChArUco
     board's squares, which needs ``marker_mm``; without ``dictionary`` it is found from the
@@ -312,13 +330,13 @@ def board_from_spec(spec: str, square_mm: float, marker_mm: float | None = None,
         if marker_mm is not None or dictionary is not None:
             raise InputError("--marker and --dictionary describe a ChArUco board: give --board charuco:SXxSY")
         cols, rows = parse_board_spec(spec)
-        return Board(cols, rows, float(square_mm))
+        return Board(cols, rows, float(square_mm), square_sigma_mm=float(square_sigma_mm))
     if marker_mm is None:
         raise InputError(f"--board {spec} is a ChArUco board: give the side of its markers with --marker MM")
     if not marker_mm > 0:
         raise InputError(f"--marker {marker_mm}: must be a positive length in millimetres")
-    return Board.charuco_board((int(m.group(1)), int(m.group(2))), square_mm, marker_mm, dictionary,
-                               legacy=None)
+    board = Board.charuco_board((int(m.group(1)), int(m.group(2))), square_mm, marker_mm, dictionary, legacy=None)
+    return replace(board, square_sigma_mm=float(square_sigma_mm))
 
 
 def is_black_square(a, b):

@@ -305,7 +305,7 @@ def _pair_by_time(cams: dict[str, dict[str, Photo]], reference: str, tolerance_s
 
 
 def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | None = None,
-                 time_tolerance_s: float = 2.0, exclude=()) -> Dataset:
+                 time_tolerance_s: float = 2.0, exclude=(), instant_gap_s: float | None = None) -> Dataset:
     """Find the cameras and photos of a dataset and key them by view.
 
     Parameters

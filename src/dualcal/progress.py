@@ -1,11 +1,20 @@
-"""Progress bars on stderr (stdout stays free for data)."""
+"""Progress bars and warnings on stderr (stdout stays free for data).
+
+Warnings of the library go through the ``logging`` logger ``"dualcal"`` (:func:`warn`). Its one
+handler, :data:`STDERR_HANDLER`, prints each as one line ``dualcal: warning: ...`` on stderr, for the
+command line and for a user of the API alike; the logger does not propagate, so a program that
+configures logging for itself does not see each warning twice (remove the handler to route them
+elsewhere). :func:`collect_warnings` gathers them instead, as ``batch`` does for each device.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import logging
 from collections.abc import Iterable, Iterator
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 _stderr = Console(stderr=True)
@@ -32,6 +41,46 @@ def track(items: Iterable, description: str, total: int | None = None, enabled: 
             advance()
 
 
+LOGGER = logging.getLogger("dualcal")
+
+
+class _StderrHandler(logging.Handler):
+    """A warning as one line on stderr, ``dualcal: warning: MESSAGE``."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        _stderr.print(f"[yellow]dualcal: warning:[/] {escape(record.getMessage())}", highlight=False,
+                      soft_wrap=True)
+
+
+class _Collector(logging.Handler):
+    def __init__(self, messages: list[str]):
+        super().__init__(logging.WARNING)
+        self.messages = messages
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+
+STDERR_HANDLER = _StderrHandler(logging.WARNING)
+LOGGER.addHandler(STDERR_HANDLER)
+LOGGER.setLevel(logging.WARNING)
+LOGGER.propagate = False
+
+
 def warn(message: str) -> None:
-    """One warning line on stderr."""
-    _stderr.print(f"[yellow]dualcal: warning:[/] {message}", highlight=False, soft_wrap=True)
+    """A warning of the library: one line on stderr (or into :func:`collect_warnings`)."""
+    LOGGER.warning(message)
+
+
+@contextlib.contextmanager
+def collect_warnings() -> Iterator[list[str]]:
+    """Collect the library's warnings into the list yielded, instead of printing them."""
+    messages: list[str] = []
+    collector = _Collector(messages)
+    LOGGER.removeHandler(STDERR_HANDLER)
+    LOGGER.addHandler(collector)
+    try:
+        yield messages
+    finally:
+        LOGGER.removeHandler(collector)
+        LOGGER.addHandler(STDERR_HANDLER)

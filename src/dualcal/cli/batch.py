@@ -1,8 +1,8 @@
 """``dualcal batch``: calibrate a fleet of devices on a Dask cluster (a shell over :mod:`dualcal.batch`).
 
 The options of ``calibrate`` that apply to every device are ``calibrate``'s own option objects:
-those whose names are keyword arguments of :func:`~dualcal.calibrate.calibrate_rig` or
-:func:`~dualcal.dataset.open_dataset`, and the board. Dask and pandas are imported only when
+those whose names are keyword arguments of :func:`~dualcal.workflow.calibrate_corners` (those of
+:func:`~dualcal.calibrate.calibrate_rig`) or :func:`~dualcal.workflow.read_corners`, and the board. Dask and pandas are imported only when
 the command runs.
 """
 
@@ -20,10 +20,10 @@ from .common import BOARD_OPTION_NAMES, board_from_flags, default_jobs
 
 # calibrate's options that do not apply per device: its input and output, and what only the
 # terminal shows or only a single dataset's detection uses. Every other option of calibrate is
-# one of calibrate_rig's or open_dataset's (the command sorts them when it runs), so a new
+# one of calibrate_corners' or read_corners' (the command sorts them when it runs), so a new
 # calibration option reaches batch without a change here. The library is imported only then,
 # to keep the CLI's start-up light.
-_NOT_PER_DEVICE = {"input_path", "output", "compare_models", "compare_lens", "jobs", "hints_path", "overlays_dir"}
+_NOT_PER_DEVICE = {"input_path", "output", "compare_models", "jobs", "hints_path", "overlays_dir"}
 _PER_DEVICE = [p for p in calibrate_command.params if p.name not in _NOT_PER_DEVICE]
 
 
@@ -63,12 +63,13 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     from ..batch import (TABLE_NAMES, BatchOptions, calibrate_fleet, find_devices, fleet_inputs_digest, fleet_outputs_current,
                          fleet_table, read_fleet_table, write_fleet_tables)
     from ..calibrate import calibrate_rig
-    from ..dataset import open_dataset
     from ..io import make_output_folder, write_text_atomic
     from ..progress import warn
+    from ..workflow import DETECTION_OPTIONS, read_corners
 
-    calibrate_kwargs = set(inspect.signature(calibrate_rig).parameters) - {"corners"}
-    dataset_kwargs = set(inspect.signature(open_dataset).parameters) - {"path"}
+    calibrate_kwargs = (set(inspect.signature(calibrate_rig).parameters) - {"corners"}) | {"compare_lens"}
+    dataset_kwargs = set(inspect.signature(read_corners).parameters) - {"source", "board", "progress",
+                                                                        *DETECTION_OPTIONS}
 
     if scheduler is not None and workers is not None:
         raise InputError("--workers sets up a local cluster; with --scheduler the cluster's own workers run")

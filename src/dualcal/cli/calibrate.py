@@ -2,44 +2,18 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
 from ..errors import InputError
 from . import cli
-from .common import LazyChoice, board_from_flags, board_options, check_board_agrees, default_jobs, stdout_console
-from .detect import corners_from_dataset, dataset_options
-
-
-def _load_input(path: str, flags, dataset_opts):
-    """corners.json as it is (less the views ``--exclude`` leaves out), or a dataset through detection
-    with the board ``flags`` (:func:`~dualcal.cli.common.board_from_flags`)."""
-    from ..dataset import exclude_views
-    from ..io import load_corners
-    from ..progress import warn
-
-    if path is not None and Path(path).is_file() and dataset_opts.get("cameras"):
-        raise InputError(f"{path} is a file, but --camera takes photos from globs: give a dataset folder "
-                         "(or no INPUT) with --camera, or the corners.json alone")
-    if path is None or Path(path).is_dir() or dataset_opts.get("cameras"):
-        if flags is None:
-            raise InputError("a dataset needs --board (COLSxROWS, or charuco:SXxSY with --marker MM) and --square MM")
-        return corners_from_dataset(path, flags, **dataset_opts)
-    if not Path(path).exists():
-        raise InputError(f"{path}: no such file or folder (give a corners.json or a dataset folder)")
-    ignored = [flag for key, flag in (("jobs", "--jobs"), ("hints_path", "--hints"), ("overlays_dir", "--overlays"))
-               if dataset_opts.get(key)]
-    if ignored:
-        warn(f"{', '.join(ignored)} only apply to a dataset; {path} is a corners.json, so they are ignored")
-    corners = load_corners(path)
-    check_board_agrees(flags, corners.board, str(path))
-    return exclude_views(corners, dataset_opts.get("exclude", ()))
+from .common import LazyChoice, board_from_flags, board_options, default_jobs, square_sigma_option, stdout_console
+from .detect import dataset_options, read_corners_from_flags
 
 
 @cli.command("calibrate")
 @click.argument("input_path", metavar="INPUT", type=click.Path(), required=False)
 @board_options(required=False)
+@square_sigma_option
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="calib.json to write.")
 @click.option("--skew", is_flag=True, help="Estimate skew (the paper's Model 2); default skew = 0 (Model 1).")
 @click.option("--rig", "rig_mode", type=LazyChoice("dualcal.adjust:RIG_MODES"), default="rigid", show_default=True,
@@ -64,7 +38,7 @@ def _load_input(path: str, flags, dataset_opts):
               help="Also calibrate with every other lens model, compare them by their error on instants left "
                    "out of the calibration, and recommend one (recorded in calib.json).")
 @dataset_options
-def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, output, skew, rig_mode,
+def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, square_sigma_mm, output, skew, rig_mode,
                       drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens,
                       **dataset_opts):
     """Calibrate every camera and the rig from INPUT and write calib.json.
@@ -75,33 +49,26 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     or left out and why), then the parameters with their 1-sigma (the paper's Tables 2-4), the
     lens models compared by their error on instants left out, and the checks' verdict.
     """
-    from dataclasses import asdict
-
     from ..board import SHAPE_TERMS
     from ..calibrate import calibrate_rig
     from ..checks import failed_checks, verdict
     from ..errors import EstimationError
     from ..io import check_output_file, save_rig
-    from ..model_selection import compare_lens_models
     from ..progress import warn
     from ..tables import lens_model_advice, lens_model_table, photo_table, result_tables
+    from ..workflow import calibrate_corners, lens_scores
 
     if input_path is None and not dataset_opts.get("cameras"):
         raise click.UsageError("give INPUT (a corners.json or a dataset folder) or --camera NAME=GLOB")
     if not outlier_factor > 1:
         raise InputError(f"--outlier-factor {outlier_factor}: must be greater than 1")
     check_output_file(output)
-    corners = _load_input(input_path, board_from_flags(board_spec, square_mm, marker_mm, dictionary), dataset_opts)
+    corners = read_corners_from_flags(input_path, board_from_flags(board_spec, square_mm, marker_mm, dictionary),
+                                      square_sigma_mm, dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
                   outlier_factor=outlier_factor, board_shape=board_shape, model=model)
-    rig = calibrate_rig(corners, skew=skew, **kwargs)
-    lens_scores = None
-    if compare_lens:
-        try:
-            lens_scores = compare_lens_models(rig)
-            rig.adjustment["lens_models"] = [asdict(s) for s in lens_scores]
-        except EstimationError as exc:
-            warn(f"the lens models could not be compared: {exc}")
+    rig = calibrate_corners(corners, skew=skew, compare_lens=compare_lens, **kwargs)
+    scores = lens_scores(rig)
     save_rig(output, rig)
     models = [rig]
     if compare_models:
@@ -119,9 +86,9 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
                       f"({', '.join(f'{t} {w:+.2f} mm' for t, w in zip(SHAPE_TERMS, rig.board_shape_mm))})")
     console.print(f"RMS reprojection error (2-D, per corner) {rig.rms_px:.3f} px, s0 (per coordinate) "
                   f"{rig.adjustment['s0_px']:.3f} px, rig mode {rig.rig_mode}, lens model {rig.model}; written {output}")
-    if lens_scores:
-        console.print(lens_model_table(lens_scores, rig.model))
-        console.print(lens_model_advice(lens_scores, rig.model))
+    if scores:
+        console.print(lens_model_table(scores, rig.model))
+        console.print(lens_model_advice(scores, rig.model))
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
         console.print(f"  {name}: {rig.checks[name]['message']}")

@@ -40,6 +40,15 @@ class LazyChoice(click.Choice):
 BOARD_OPTION_NAMES = ("board_spec", "square_mm", "marker_mm", "dictionary")
 
 
+def square_sigma_option(f):
+    """``--square-sigma MM``: the tolerance of the printed squares (keyword ``square_sigma_mm``, None when
+    not given: then a corners.json keeps the tolerance it records)."""
+    return click.option("--square-sigma", "square_sigma_mm", type=float, metavar="MM", default=None,
+                        help="1-sigma of the printed square's size (e.g. 0.05 for a board printed at home and "
+                             "measured with a ruler); it enters the sigma of every length: the baseline, t_mm, "
+                             "measured points and lengths (default: 0, the squares are exact).")(f)
+
+
 def board_options(required: bool, dictionary_default: str = "found from the photos"):
     """``--board``, ``--square MM`` and, for a ChArUco board, ``--marker MM`` and ``--dictionary NAME``;
     ``--board`` and ``--square`` optional where the input file names the board. ``dictionary_default``
@@ -80,26 +89,6 @@ def board_from_flags(board_spec: str | None, square_mm: float | None, marker_mm:
         raise InputError("give both --board (COLSxROWS, or charuco:SXxSY) and --square MM")
     from ..board import board_from_spec
     return board_from_spec(board_spec, square_mm, marker_mm, dictionary)
-
-
-def check_board_agrees(flags, from_file, source: str):
-    """The file's board, after checking that the flags (if any) say the same (a ChArUco board's
-    dictionary and layout only where the flags give them)."""
-    if flags is None:
-        return from_file
-    if (flags.spec(), flags.cols, flags.rows) != (from_file.spec(), from_file.cols, from_file.rows):
-        raise InputError(f"--board {flags.spec()} disagrees with {source}, which has "
-                         f"{from_file.spec()}: drop --board or use the matching file")
-    if abs(flags.square_mm - from_file.square_mm) > 1e-9 * from_file.square_mm:
-        raise InputError(f"--square {flags.square_mm:g} disagrees with {source}, which has "
-                         f"{from_file.square_mm:g} mm")
-    if flags.charuco is not None:
-        mine, theirs = flags.charuco, from_file.charuco
-        if abs(mine.marker_mm - theirs.marker_mm) > 1e-9 * theirs.marker_mm:
-            raise InputError(f"--marker {mine.marker_mm:g} disagrees with {source}, which has {theirs.marker_mm:g} mm")
-        if mine.dictionary is not None and mine.dictionary != theirs.dictionary:
-            raise InputError(f"--dictionary {mine.dictionary} disagrees with {source}, which has {theirs.dictionary}")
-    return from_file
 
 
 def default_jobs() -> int:

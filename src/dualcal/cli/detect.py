@@ -1,21 +1,23 @@
 """``dualcal detect`` (photos to corners.json) and ``dualcal pick`` (the paper's manual mode).
 
 :func:`dataset_options` adds the options that read a dataset; ``calibrate`` takes the same ones
-and passes them to :func:`corners_from_dataset` as keyword arguments.
+and passes them to :func:`dualcal.workflow.read_corners` (:func:`read_corners_from_flags`).
 ``pick`` takes the same :func:`dataset_selection_options`, so its hints have the view keys
 ``detect`` and ``calibrate`` use.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from ..errors import InputError
 from . import cli
-from .common import board_from_flags, board_options, default_jobs, exclude_option
+from .common import board_from_flags, board_options, exclude_option, square_sigma_option
 
-DATASET_OPTION_NAMES = ("cameras", "pair_by", "time_tolerance_s", "reference", "exclude", "jobs", "hints_path",
-                        "overlays_dir")
+DATASET_OPTION_NAMES = ("cameras", "pair_by", "time_tolerance_s", "instant_gap_s", "reference", "exclude", "jobs",
+                        "hints_path", "overlays_dir")
 
 _SELECTION_OPTIONS = [
     click.option("--camera", "cameras", multiple=True, metavar="NAME=GLOB",
@@ -25,6 +27,9 @@ _SELECTION_OPTIONS = [
                  show_default=True, help="Pair photos of the same instant by file stem or EXIF capture time."),
     click.option("--time-tolerance", "time_tolerance_s", type=float, default=2.0, show_default=True,
                  metavar="SECONDS", help="Largest capture-time difference within a pair (--pair-by time)."),
+    click.option("--instant-gap", "instant_gap_s", type=float, default=None, metavar="SECONDS",
+                 help="A camera roll (one folder, every lens mixed): photos taken less than this apart are one "
+                      "board position (default: found from the capture times)."),
     click.option("--reference", "reference", metavar="NAME", default=None,
                  help="Reference camera (default: 'wide' if present, else the first name)."),
     exclude_option,
@@ -59,34 +64,20 @@ def dataset_options(f):
     return f
 
 
-def corners_from_dataset(dataset_path, board, cameras=(), pair_by: str = "stem",
-                         time_tolerance_s: float = 2.0, reference: str | None = None, exclude=(),
-                         jobs: int | None = None, hints_path=None, overlays_dir=None):
-    """Open a dataset and detect its corners (what ``detect`` does before writing corners.json).
+def read_corners_from_flags(input_path, board, square_sigma_mm, dataset_opts: dict):
+    """:func:`dualcal.workflow.read_corners` of a command's INPUT, board flags and :func:`dataset_options`."""
+    from ..workflow import read_corners
 
-    A dataset in which some camera pairs with none of the reference camera's photos is refused
-    (:func:`~dualcal.dataset.check_pairs`). A ``reference`` given is kept in the corner set (corners.json's top-level ``reference``); the
-    photos ``exclude`` left out are listed in each camera's ``excluded`` (corners.json).
-    """
-    from dataclasses import replace
-
-    from ..dataset import check_pairs, open_dataset
-    from ..detect import detect_dataset, load_hints
-
-    dataset = open_dataset(dataset_path, cameras, pair_by=pair_by, reference=reference,
-                           time_tolerance_s=time_tolerance_s, exclude=exclude)
-    check_pairs(dataset, pair_by)
-    hints = load_hints(hints_path) if hints_path else None
-    corners = detect_dataset(dataset, board, jobs=jobs or default_jobs(), hints=hints, overlays_dir=overlays_dir)
-    return replace(corners, reference=reference)
+    return read_corners(input_path, board, square_sigma_mm=square_sigma_mm, **dataset_opts)
 
 
 @cli.command("detect")
 @click.argument("dataset", type=click.Path(), required=False)
 @board_options(required=True)
+@square_sigma_option
 @dataset_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="corners.json to write.")
-def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, output, **opts):
+def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square_sigma_mm, output, **opts):
     """Find the board's corners in every photo of DATASET and write corners.json.
 
     DATASET is a folder with one subfolder of photos per camera (or a folder of photos: one
@@ -98,8 +89,10 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, output
     from ..io import check_output_file, save_corners
 
     check_output_file(output)
+    if dataset is not None and Path(dataset).is_file():
+        raise InputError(f"{dataset} is a file: detect reads photos (a dataset folder, or --camera NAME=GLOB)")
     board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
-    corners = corners_from_dataset(dataset, board, **opts)
+    corners = read_corners_from_flags(dataset, board, square_sigma_mm, opts)
     save_corners(output, corners)
     found = {c: sum(v is not None for v in cc.views.values()) for c, cc in corners.cameras.items()}
     summary = ", ".join(f"{c} {n}/{len(corners.cameras[c].views)}" for c, n in found.items())

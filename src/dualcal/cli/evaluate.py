@@ -69,14 +69,13 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
     fingerprint of the calibration it checked ("calibration_fingerprint"), so that 'dualcal
     report' can refuse an eval.json of another calibration.
     """
-    from ..evaluation import evaluate
-    from ..io import calibration_fingerprint, check_corners_fit, check_output_file, load_rig, write_json_atomic
+    from ..io import check_output_file, write_json_atomic
+    from ..workflow import evaluate_calibration, read_calibration
 
     check_output_file(output)
-    rig = load_rig(calib)
-    check_corners_fit(rig, str(calib))
-    doc = evaluate(rig, holdout=holdout)
-    write_json_atomic(output, {**doc, "calibration_fingerprint": calibration_fingerprint(rig)})
+    rig = read_calibration(calib)
+    doc = evaluate_calibration(rig, holdout=holdout)
+    write_json_atomic(output, doc)
     console = stdout_console()
     console.print(evaluation_table(doc, rig.board.n_corners))
     pose_free = pose_free_table(doc)

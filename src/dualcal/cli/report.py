@@ -25,13 +25,12 @@ def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
     distortion curve and map, a 3-D view of the board poses and the rig, and the evaluation
     (paper Tables 5, 6) when --eval is given.
     """
-    from ..io import (check_corners_fit, check_evaluation_belongs, check_output_file, load_evaluation, load_rig,
-                      write_text_atomic)
+    from ..io import check_evaluation_belongs, check_output_file, load_evaluation, write_text_atomic
     from ..report import render_report
+    from ..workflow import read_calibration
 
     check_output_file(output)  # fail before rendering, not after
-    rig = load_rig(calib)
-    check_corners_fit(rig, str(calib))
+    rig = read_calibration(calib)
     evaluation = None
     if eval_path is not None:
         evaluation = load_evaluation(eval_path)

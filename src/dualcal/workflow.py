@@ -1,0 +1,186 @@
+"""The one workflow under every command: input -> corners -> calibration -> evaluation.
+
+Each step here is what a command, :mod:`dualcal.batch` and a user of the Python API call, so that
+the same input gives the same files whichever way it came in:
+
+* :func:`read_corners`: a ``corners.json`` as it is (less the views ``exclude`` leaves out) or a
+  dataset of photos through detection: one loader, one board check (:func:`check_board`), the
+  dataset's pair check (:func:`dualcal.dataset.check_pairs`).
+* :func:`calibrate_corners`: :func:`dualcal.calibrate.calibrate_rig` and the comparison of lens
+  models by held-out instants, recorded in the calibration (calib.json ``adjustment.lens_models``).
+* :func:`evaluate_calibration`: the paper's stereo-intersection check as eval.json's content,
+  stamped with the fingerprint of the calibration it checked (``calibration_fingerprint``).
+* :func:`read_calibration`: a calib.json, refused when its corners do not fit its parameters.
+
+Errors a user can cause are :class:`~dualcal.errors.InputError` (bad input) or
+:class:`~dualcal.errors.EstimationError` (input that cannot be calibrated); their messages name
+the input, never a command-line flag. Warnings go through :func:`dualcal.progress.warn`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, replace
+from pathlib import Path
+
+from .board import Board
+from .errors import EstimationError, InputError
+from .model import CornerSet, RigModel
+from .progress import warn
+
+__all__ = ["DETECTION_OPTIONS", "calibrate_corners", "check_board", "evaluate_calibration", "lens_scores",
+           "read_calibration", "read_corners"]
+
+#: Options of :func:`read_corners` that only apply to a dataset of photos (detection).
+DETECTION_OPTIONS = ("jobs", "hints_path", "overlays_dir")
+
+
+def check_board(given: Board | None, found: Board, source: str) -> Board:
+    """The board ``source`` (a corners.json) names, after checking that ``given`` (if any) is it.
+
+    :meth:`Board.matches` decides (a ChArUco board's dictionary and layout are compared only where
+    ``given`` has them); the message names what differs.
+
+    Raises
+    ------
+    InputError
+        ``given`` is another board than ``found``.
+    """
+    if given is None:
+        return found
+    if not given.matches(found):
+        if (given.spec(), given.cols, given.rows) != (found.spec(), found.cols, found.rows):
+            what = f"board {given.spec()} disagrees with {source}, which has {found.spec()}"
+        elif abs(given.square_mm - found.square_mm) > 1e-9 * found.square_mm:
+            what = f"square {given.square_mm:g} mm disagrees with {source}, which has {found.square_mm:g} mm"
+        elif given.charuco.marker_mm != found.charuco.marker_mm:
+            what = (f"marker {given.charuco.marker_mm:g} mm disagrees with {source}, which has "
+                    f"{found.charuco.marker_mm:g} mm")
+        else:
+            what = f"{given.describe(sizes=True)} disagrees with {source}, which has {found.describe(sizes=True)}"
+        raise InputError(f"{what}: give the board of that file, or none")
+    return found
+
+
+def _is_corners_file(source) -> bool:
+    return source is not None and Path(source).is_file()
+
+
+def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: float | None = None,
+                 cameras=(), pair_by: str = "stem",
+                 time_tolerance_s: float = 2.0, instant_gap_s: float | None = None, reference: str | None = None,
+                 exclude=(), jobs: int | None = None, hints_path=None, overlays_dir=None,
+                 progress: bool = True) -> CornerSet:
+    """The corners of an input: a corners.json, a dataset folder, or cameras given as ``NAME=GLOB``.
+
+    Parameters
+    ----------
+    source : a corners.json, a dataset folder (:func:`dualcal.dataset.open_dataset`; a camera roll too),
+        or None when ``cameras`` are given.
+    board : the board; needed for photos, checked against a corners.json's (:func:`check_board`).
+    square_sigma_mm : the 1-sigma of the printed square's size (:attr:`Board.square_sigma_mm`), recorded
+        with the board; None keeps what the board or the corners.json says.
+    cameras, pair_by, time_tolerance_s, instant_gap_s, reference : how a dataset's photos are found and
+        grouped into instants (:func:`dualcal.dataset.open_dataset`).
+    exclude : glob patterns of photos to leave out (:func:`dualcal.dataset.is_excluded`), for a
+        dataset and a corners.json alike; they are listed in each camera's ``excluded``.
+    jobs, hints_path, overlays_dir, progress : detection (:func:`dualcal.detect.detect_dataset`); for a
+        corners.json they do not apply (a warning says so).
+
+    Raises
+    ------
+    InputError
+        A missing input, a file given with cameras from globs, photos without a board, a board that
+        disagrees with the corners.json, and every refusal of :func:`~dualcal.dataset.open_dataset`,
+        :func:`~dualcal.dataset.check_pairs` and :func:`~dualcal.io.load_corners`.
+    """
+    from .dataset import exclude_views
+
+    if _is_corners_file(source) and cameras:
+        raise InputError(f"{source} is a file, but cameras given by globs take photos: give a dataset folder "
+                         "(or nothing) with them, or the corners.json alone")
+    if source is not None and not cameras and not Path(source).exists():
+        raise InputError(f"{source} does not exist: give a dataset folder of photos, or a corners.json")
+    if source is None and not cameras:
+        raise InputError("no input: give a corners.json, a dataset folder, or cameras with their photos")
+    if not _is_corners_file(source):
+        if board is None:
+            raise InputError(f"{source or 'the photos'}: a dataset of photos needs the board (its corners "
+                             "COLSxROWS, or charuco:SXxSY with the marker size) and the square size")
+        corners = _detect(source, board, cameras=cameras, pair_by=pair_by, time_tolerance_s=time_tolerance_s,
+                          instant_gap_s=instant_gap_s, reference=reference, exclude=exclude, jobs=jobs,
+                          hints_path=hints_path, overlays_dir=overlays_dir, progress=progress)
+    else:
+        from .io import load_corners
+
+        ignored = [name for name, value in zip(DETECTION_OPTIONS, (jobs, hints_path, overlays_dir)) if value]
+        if ignored:
+            warn(f"{source} is a corners.json: the detection options ({', '.join(ignored)}) do not apply to it")
+        corners = load_corners(source)
+        corners = replace(corners, board=check_board(board, corners.board, str(source)))
+        if reference is not None:
+            corners = replace(corners, reference=reference)
+        corners = exclude_views(corners, exclude)
+    if square_sigma_mm is not None:
+        corners = replace(corners, board=replace(corners.board, square_sigma_mm=float(square_sigma_mm)))
+    return corners
+
+
+def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant_gap_s, reference, exclude,
+            jobs, hints_path, overlays_dir, progress) -> CornerSet:
+    """A dataset's corners: open it, refuse cameras that pair with nothing, detect."""
+    from .dataset import check_pairs, open_dataset
+    from .detect import detect_dataset, load_hints
+
+    dataset = open_dataset(source, cameras, pair_by=pair_by, reference=reference,
+                           time_tolerance_s=time_tolerance_s, instant_gap_s=instant_gap_s, exclude=exclude)
+    check_pairs(dataset, pair_by)
+    hints = load_hints(hints_path) if hints_path else None
+    corners = detect_dataset(dataset, board, jobs=jobs, hints=hints, overlays_dir=overlays_dir, progress=progress)
+    return replace(corners, reference=reference) if reference is not None else corners
+
+
+def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, **options) -> RigModel:
+    """Calibrate a rig from its corners, with the lens models compared by held-out instants.
+
+    ``options`` are those of :func:`dualcal.calibrate.calibrate_rig` (``skew``, ``rig_mode``,
+    ``reference``, ``drop_outliers``, ``outlier_factor``, ``board_shape``, ``model``). With
+    ``compare_lens`` every lens model is scored on instants left out of the calibration
+    (:func:`dualcal.model_selection.compare_lens_models`) and the scores are recorded in
+    ``rig.adjustment["lens_models"]`` (calib.json); a comparison that cannot be made is a warning.
+    """
+    from .calibrate import calibrate_rig
+    from .model_selection import compare_lens_models
+
+    rig = calibrate_rig(corners, **options)
+    if compare_lens:
+        try:
+            rig.adjustment["lens_models"] = [asdict(s) for s in compare_lens_models(rig)]
+        except EstimationError as exc:
+            warn(f"the lens models could not be compared: {exc}")
+    return rig
+
+
+def lens_scores(rig: RigModel) -> list:
+    """The lens-model comparison :func:`calibrate_corners` recorded in ``rig`` (empty without one)."""
+    from .model_selection import LensModelScore
+
+    return [LensModelScore(**s) for s in rig.adjustment.get("lens_models", [])]
+
+
+def evaluate_calibration(rig: RigModel, holdout: bool = False, progress: bool = True) -> dict:
+    """eval.json's content: the paper's stereo-intersection check (:func:`dualcal.evaluation.evaluate`)
+    with the fingerprint of the calibration it checked (``calibration_fingerprint``)."""
+    from .evaluation import evaluate
+    from .io import calibration_fingerprint
+
+    return {**evaluate(rig, holdout=holdout, progress=progress), "calibration_fingerprint": calibration_fingerprint(rig)}
+
+
+def read_calibration(path) -> RigModel:
+    """A calib.json (:func:`dualcal.io.load_rig`), refused when its corners do not fit its parameters
+    (:func:`dualcal.io.check_corners_fit`: corners of another calibration pasted in)."""
+    from .io import check_corners_fit, load_rig
+
+    rig = load_rig(path)
+    check_corners_fit(rig, str(path))
+    return rig
