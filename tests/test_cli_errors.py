@@ -23,7 +23,7 @@ def files(tmp_path_factory):
 
 CASES = {
     "missing folder": (["detect", "{d}/nowhere", "--board", "9x6", "--square", "30", "-o", "{d}/c.json"],
-                       "does not exist"),
+                       "no such file or folder"),
     "empty folder": (["detect", "{d}/empty", "--board", "9x6", "--square", "30", "-o", "{d}/c.json"], "no photos"),
     "unknown camera": (["undistort", "{d}/calib.json", "--camera", "tele", "{d}/photo.png", "-o", "{d}/rect"],
                        "tele"),

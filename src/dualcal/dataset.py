@@ -3,7 +3,9 @@
 A dataset (CONTRACT.md, "Input") is either
 
 * a folder with one subfolder of photos per camera (``DATASET/wide/*.jpg``, ``DATASET/tele/*.jpg``;
-  any names), or a folder that holds only photos: one camera named after the folder; or
+  any names), or a folder that holds only photos: one camera named after the folder, or, when its
+  photos' EXIF shows several cameras, a phone's camera roll split into cameras and instants by
+  :mod:`dualcal.roll`; or
 * cameras given one by one as ``NAME=GLOB`` (``left=data/left*.jpg``).
 
 Photos of the same instant share a *view key*: the file stem, or for a glob the part(s) that
@@ -24,13 +26,14 @@ import fnmatch
 import glob as globmod
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .errors import InputError
 from .model import CameraCorners, CornerSet, choose_reference
 from .photos import PHOTO_SUFFIXES, Photo, open_image, read_exif, read_gray
 from .progress import warn
+from .roll import is_camera_roll, open_camera_roll
 
 __all__ = ["PHOTO_SUFFIXES", "Dataset", "Photo", "check_pairs", "exclude_views", "is_excluded", "open_dataset",
            "open_image", "parse_camera_spec", "read_exif", "read_gray"]
@@ -40,7 +43,8 @@ class Dataset:
     """Cameras and their photos, keyed by view: ``cameras[name][view] -> Photo``.
 
     ``skipped`` lists ``(path, reason)`` of files that looked like photos but could not be read;
-    ``excluded[name][view]`` the photos left out by ``exclude`` patterns.
+    ``excluded[name][view]`` the photos left out by ``exclude`` patterns; ``roll`` is the record of a
+    camera roll's split into cameras and instants (:mod:`dualcal.roll`; corners.json's ``roll``), or None.
     """
 
     cameras: dict[str, dict[str, Photo]]
@@ -48,6 +52,7 @@ class Dataset:
     source: str
     skipped: list[tuple[Path, str]] = field(default_factory=list)
     excluded: dict[str, dict[str, Path]] = field(default_factory=dict)
+    roll: dict | None = None
 
     def image_size(self, camera: str) -> tuple[int, int]:
         return next(iter(self.cameras[camera].values())).size
@@ -136,12 +141,23 @@ def _list_folder(folder: Path) -> list[Path]:
         raise InputError(f"folder {str(folder)!r} cannot be listed ({exc.strerror or exc})") from None
 
 
-def _camera_folders(root: Path) -> dict[str, list[Path]]:
-    """Photos per camera of a dataset folder: one subfolder per camera, or photos only (one camera).
+def _warn_not_photos(folder: Path, entries: list[Path]) -> None:
+    """One warning naming the files of a photo folder that are not photos (a camera roll's ``.AAE``
+    edits and ``.MOV`` Live Photos, notes): they are skipped."""
+    others = [p.name for p in entries if p.is_file() and not p.name.startswith(".") and not _is_photo(p)]
+    if others:
+        listing = ", ".join(others[:4]) + (f" and {len(others) - 4} more" if len(others) > 4 else "")
+        warn(f"{folder}: skipping {len(others)} file(s) that are not photos ({listing})")
+
+
+def _camera_folders(root: Path) -> tuple[dict[str, list[Path]], bool]:
+    """Photos per camera of a dataset folder: one subfolder per camera, or photos only (one camera,
+    or a camera roll: :mod:`dualcal.roll`), and whether the folder holds its photos itself.
 
     A folder holding photos and subfolders with photos, or (in a folder of camera subfolders) a
     subfolder without photos, is refused: either would silently leave photos or a camera out of
-    the calibration. Beside photos, a subfolder without photos (notes, a README) is ignored.
+    the calibration. Beside photos, a subfolder without photos (notes, a README) is ignored; files
+    that are not photos are named in a warning.
     """
     if not root.exists():
         raise InputError(f"dataset folder {str(root)!r} does not exist")
@@ -157,7 +173,8 @@ def _camera_folders(root: Path) -> dict[str, list[Path]]:
                          f"with photos ({', '.join(with_photos[:3])}): put each camera's photos in its own "
                          "subfolder, or move the subfolders out (or give the cameras with --camera NAME=GLOB)")
     if photos:
-        return {root.resolve().name: photos}
+        _warn_not_photos(root, entries)
+        return {root.resolve().name: photos}, True
     if not with_photos:
         raise InputError(f"dataset folder {str(root)!r} holds no photos "
                          f"({', '.join(PHOTO_SUFFIXES)}) nor camera subfolders with photos")
@@ -165,7 +182,9 @@ def _camera_folders(root: Path) -> dict[str, list[Path]]:
     if empty:
         raise InputError(f"camera folder {str(root / empty[0])!r} holds no photos ({', '.join(PHOTO_SUFFIXES)}): "
                          f"put that camera's photos in it, or move it out of {str(root)!r}")
-    return cams
+    for name in cams:
+        _warn_not_photos(root / name, _list_folder(root / name))
+    return cams, False
 
 
 def is_excluded(patterns, camera: str, view: str, file_name: str | None = None) -> bool:
@@ -217,7 +236,7 @@ def exclude_views(corners: CornerSet, patterns) -> CornerSet:
         out = {v: photos[name].get(v) for v in keys.get(name, ())}
         meta = {**cam.meta, "excluded": {**cam.meta.get("excluded", {}), **out}} if out else cam.meta
         cameras[name] = CameraCorners(cam.image_size, {v: uv for v, uv in cam.views.items() if v not in out}, meta)
-    return CornerSet(corners.board, cameras, corners.reference)
+    return replace(corners, cameras=cameras)
 
 
 def unpaired_cameras(dataset: Dataset) -> list[str]:
@@ -255,7 +274,9 @@ def _key_by_stem(name: str, paths: list[Path]) -> dict[str, Path]:
     return keys
 
 
-def _read_headers(name: str, files: dict[str, Path], skipped: list) -> dict[str, Photo]:
+def _read_photos(files: dict[str, Path], skipped: list) -> dict[str, Photo]:
+    """The headers of ``files`` (key -> path); an unreadable file is skipped with a warning and
+    listed in ``skipped``."""
     photos = {}
     for key, path in sorted(files.items()):
         try:
@@ -265,6 +286,12 @@ def _read_headers(name: str, files: dict[str, Path], skipped: list) -> dict[str,
             skipped.append((path, str(exc)))
             continue
         photos[key] = Photo(path, size, exif)
+    return photos
+
+
+def _read_headers(name: str, files: dict[str, Path], skipped: list) -> dict[str, Photo]:
+    """:func:`_read_photos` of one camera, whose photos must have one size."""
+    photos = _read_photos(files, skipped)
     sizes = {p.size for p in photos.values()}
     if len(sizes) > 1:
         listing = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))
@@ -304,6 +331,20 @@ def _pair_by_time(cams: dict[str, dict[str, Photo]], reference: str, tolerance_s
     return out
 
 
+def _open_roll(photos: list[Photo], source: str, reference, exclude, instant_gap_s, skipped) -> Dataset:
+    """The dataset of a camera-roll folder (:func:`dualcal.roll.open_camera_roll`), less what ``exclude``
+    leaves out (matched against the instants' view keys, the file names and CAMERA/KEY)."""
+    roll, notes = open_camera_roll(photos, source, instant_gap_s)
+    for note in notes:
+        warn(note)
+    cams = roll.cameras
+    excluded = {}
+    if exclude:
+        keys = _excluded_keys({n: {k: p.path.name for k, p in v.items()} for n, v in cams.items()}, exclude)
+        excluded = {n: {k: cams[n].pop(k).path for k in ks} for n, ks in keys.items()}
+    return Dataset(cams, choose_reference(cams, reference), source, skipped, excluded, roll.record)
+
+
 def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | None = None,
                  time_tolerance_s: float = 2.0, exclude=(), instant_gap_s: float | None = None) -> Dataset:
     """Find the cameras and photos of a dataset and key them by view.
@@ -317,6 +358,8 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
     reference : the reference camera (default: ``wide`` if present, else the first sorted name);
         with ``pair_by="time"`` its stems are the view keys.
     time_tolerance_s : largest capture-time difference of two photos of the same instant.
+    instant_gap_s : a camera roll (a folder of photos of several cameras, :mod:`dualcal.roll`): photos
+        taken less than this apart are one board position (default: found from the capture times).
     exclude : glob patterns of photos to leave out (:func:`is_excluded`; with ``pair_by="time"``
         the view key is the photo's own stem); they are listed in :attr:`Dataset.excluded`.
 
@@ -347,14 +390,21 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
     else:
         if path is None:
             raise InputError("give a dataset folder or cameras with --camera NAME=GLOB")
-        files = {n: _key_by_stem(n, ps) for n, ps in _camera_folders(Path(path)).items()}
+        folders, flat = _camera_folders(Path(path))
+        files = {n: _key_by_stem(n, ps) for n, ps in folders.items()}
         source = str(path)
+        if flat:
+            skipped: list = []
+            (name, keyed), = files.items()
+            photos = _read_photos(keyed, skipped)
+            if is_camera_roll(list(photos.values())):
+                return _open_roll(list(photos.values()), source, reference, exclude, instant_gap_s, skipped)
 
     excluded = {}
     if exclude:
         keys = _excluded_keys({n: {k: p.name for k, p in f.items()} for n, f in files.items()}, exclude)
         excluded = {n: {k: files[n].pop(k) for k in ks} for n, ks in keys.items()}
-    skipped: list = []
+    skipped = []
     cams = {n: _read_headers(n, f, skipped) for n, f in sorted(files.items())}
     empty = [n for n, ps in cams.items() if not ps]
     if empty:

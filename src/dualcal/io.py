@@ -218,7 +218,10 @@ def corners_from_dict(doc: dict, source: str = "corners.json") -> CornerSet:
     reference = doc.get("reference")
     if reference is not None and reference not in cameras:
         raise InputError(f"{source}: reference {reference!r} is not one of the cameras {sorted(cameras)}")
-    return CornerSet(board, cameras, reference)
+    roll = doc.get("roll")
+    if roll is not None and not isinstance(roll, dict):
+        raise InputError(f"{source}: 'roll' must be an object (the camera roll's record)")
+    return CornerSet(board, cameras, reference, roll)
 
 
 def _corner_list(uv: np.ndarray | None):
@@ -238,6 +241,8 @@ def corners_to_dict(cs: CornerSet) -> dict:
     doc = {"board": cs.board.to_dict(), "cameras": cams}
     if cs.reference is not None:
         doc["reference"] = cs.reference
+    if cs.roll is not None:
+        doc["roll"] = cs.roll
     return doc
 
 

@@ -8,7 +8,7 @@ arrays; the classes only group them and never hide state.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -80,17 +80,19 @@ class CameraCorners:
 
 @dataclass
 class CornerSet:
-    """The content of a corners.json: a board and each camera's corners per view key."""
+    """The content of a corners.json: a board and each camera's corners per view key; ``roll`` is the
+    record of a camera roll's split into cameras and instants (:mod:`dualcal.roll`), or None."""
 
     board: Board
     cameras: dict[str, CameraCorners]
     reference: str | None = None     # the reference camera chosen at detection, if one was given
+    roll: dict | None = None
 
     def with_views(self, keep: Callable[[str, str], bool]) -> "CornerSet":
         """The same corners with only the photos for which ``keep(camera, view)`` is true."""
         cams = {name: CameraCorners(c.image_size, {v: uv for v, uv in c.views.items() if keep(name, v)}, c.meta)
                 for name, c in self.cameras.items()}
-        return CornerSet(self.board, cams, self.reference)
+        return replace(self, cameras=cams)
 
 
 def choose_reference(names, override: str | None = None) -> str:
@@ -215,7 +217,7 @@ class RigModel:
                     uv[corners_out[(name, v)]] = np.nan
                 views[v] = uv
             cams[name] = CameraCorners(cc.image_size, views, cc.meta)
-        return CornerSet(self.corners.board, cams, self.corners.reference)
+        return replace(self.corners, cameras=cams)
 
     def camera_order(self) -> list[str]:
         """Camera names, the reference first, then the others in calib.json's order."""

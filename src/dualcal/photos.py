@@ -36,6 +36,9 @@ PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic", ".heif")
 _ORIENTATION, _MAKE, _MODEL, _EXIF_IFD = 0x0112, 0x010F, 0x0110, 0x8769
 _DATETIME, _DATETIME_ORIGINAL, _SUBSEC_ORIGINAL = 0x0132, 0x9003, 0x9291
 _FOCAL_LENGTH, _FOCAL_35MM, _LENS_MODEL = 0x920A, 0xA405, 0xA434
+_FOCAL_PLANE_X_RESOLUTION, _FOCAL_PLANE_UNIT = 0xA20E, 0xA210
+#: Millimetres per unit of EXIF ``FocalPlaneResolutionUnit`` (2 inch, 3 cm; 4 mm and 5 um as some writers use).
+_FOCAL_PLANE_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}
 
 
 @dataclass
@@ -70,6 +73,9 @@ def _exif_from_image(img: Image.Image) -> dict:
             taken = None
     make, model, lens = exif.get(_MAKE), exif.get(_MODEL), sub.get(_LENS_MODEL)
     f35 = sub.get(_FOCAL_35MM)
+    plane_res, plane_unit = _rational(sub.get(_FOCAL_PLANE_X_RESOLUTION)), sub.get(_FOCAL_PLANE_UNIT, 2)
+    px_per_mm = plane_res / _FOCAL_PLANE_UNIT_MM[plane_unit] if plane_res and plane_unit in _FOCAL_PLANE_UNIT_MM \
+        else None
     orientation = exif.get(_ORIENTATION)
     if img.format == "HEIF":   # pillow-heif set the tag to 1 and kept the file's value aside
         orientation = img.info.get("original_orientation") or orientation
@@ -79,6 +85,7 @@ def _exif_from_image(img: Image.Image) -> dict:
         "lens_model": lens.strip("\x00 ") or None if isinstance(lens, str) else None,
         "focal_length_mm": _rational(sub.get(_FOCAL_LENGTH)),
         "focal_length_35mm_mm": _rational(f35) if f35 else None,
+        "focal_plane_px_per_mm": px_per_mm,
         "orientation": int(orientation) if orientation is not None else None,
         "taken": taken,
     }
@@ -140,7 +147,8 @@ def read_exif(path) -> tuple[tuple[int, int], dict]:
     """Stored pixel size ``(W, H)`` and EXIF facts of a photo, from its header only.
 
     The facts are ``make``, ``model``, ``lens_model`` (EXIF ``LensModel``), ``focal_length_mm``,
-    ``focal_length_35mm_mm``, ``orientation`` (the EXIF tag, 1-8, or None; never applied) and
+    ``focal_length_35mm_mm``, ``focal_plane_px_per_mm`` (the sensor's pixels per mm, from EXIF
+    ``FocalPlaneXResolution``), ``orientation`` (the EXIF tag, 1-8, or None; never applied) and
     ``taken`` (capture time, a ``datetime`` or None). Raises :class:`InputError` for a file that is not a readable image.
     """
     with _reading(path), Image.open(path) as img:

@@ -166,3 +166,36 @@ def lens_model_advice(scores, used: str) -> str:
     return (f"lens model {best.model} recommended (held-out RMS {best.held_out_rms_px:.4f} px vs "
             f"{mine.held_out_rms_px:.4f} px for {used}, {mine.worse_se:.1f} SE worse): calibrate again with "
             f"--model {best.model}")
+
+
+def roll_tables(roll: dict) -> list[Table]:
+    """A camera roll's split (corners.json ``roll``, :mod:`dualcal.roll`) as two tables: the cameras found
+    (lens, focal length, image size, photos) and every instant with the photo of each camera, then the
+    photos left out and why."""
+    cams = roll["cameras"]
+    gap = roll.get("instant_gap_s")
+    how = "found from the capture times" if roll.get("instant_gap_found") else "given"
+    found = Table(title=f"Camera roll {roll['folder']}: {len(cams)} cameras", box=box.SIMPLE_HEAD)
+    for col in ("camera", "lens", "f (35 mm equiv.)", "image size", "photos"):
+        found.add_column(col, justify="left" if col in ("camera", "lens") else "right")
+    for name, c in cams.items():
+        f35 = c.get("focal_length_35mm_mm")
+        found.add_row(name, c.get("lens_model") or f"{c.get('focal_length_mm') or '?'} mm",
+                      f"{f35:.0f} mm" if f35 else "?", "x".join(map(str, c["image_size"])), str(c["photos"]))
+    gap_text = f"a new board position after a gap of more than {gap:.1f} s ({how})" if gap else "one board position"
+    instants = Table(title=f"Instants: {gap_text}", box=box.SIMPLE_HEAD)
+    instants.add_column("instant")
+    instants.add_column("taken")
+    for name in cams:
+        instants.add_column(name)
+    for key, inst in roll["instants"].items():
+        instants.add_row(key, inst["taken"].replace("T", " ")[:21], *(inst["photos"].get(n, "-") for n in cams))
+    tables = [found, instants]
+    if roll.get("left_out"):
+        out = Table(title="Left out", box=box.SIMPLE_HEAD)
+        out.add_column("photo")
+        out.add_column("why")
+        for file_name, why in roll["left_out"].items():
+            out.add_row(file_name, why)
+        tables.append(out)
+    return tables

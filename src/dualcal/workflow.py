@@ -99,7 +99,7 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
         raise InputError(f"{source} is a file, but cameras given by globs take photos: give a dataset folder "
                          "(or nothing) with them, or the corners.json alone")
     if source is not None and not cameras and not Path(source).exists():
-        raise InputError(f"{source} does not exist: give a dataset folder of photos, or a corners.json")
+        raise InputError(f"{source}: no such file or folder (give a dataset folder of photos, or a corners.json)")
     if source is None and not cameras:
         raise InputError("no input: give a corners.json, a dataset folder, or cameras with their photos")
     if not _is_corners_file(source):
@@ -136,6 +136,9 @@ def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant
     check_pairs(dataset, pair_by)
     hints = load_hints(hints_path) if hints_path else None
     corners = detect_dataset(dataset, board, jobs=jobs, hints=hints, overlays_dir=overlays_dir, progress=progress)
+    if dataset.roll is not None:
+        from .roll import with_detection
+        corners = replace(corners, roll=with_detection(dataset.roll, corners))
     return replace(corners, reference=reference) if reference is not None else corners
 
 

@@ -55,7 +55,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     from ..errors import EstimationError
     from ..io import check_output_file, save_rig
     from ..progress import warn
-    from ..tables import lens_model_advice, lens_model_table, photo_table, result_tables
+    from ..tables import lens_model_advice, lens_model_table, photo_table, result_tables, roll_tables
     from ..workflow import calibrate_corners, lens_scores
 
     if input_path is None and not dataset_opts.get("cameras"):
@@ -78,6 +78,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
         except EstimationError as exc:
             warn(f"the other skew model could not be solved for comparison: {exc}")
     console = stdout_console()
+    for table in roll_tables(corners.roll) if corners.roll else ():
+        console.print(table)
     console.print(photo_table(rig))
     for table in result_tables(models):
         console.print(table)
