@@ -30,6 +30,7 @@ from .checks import run_checks
 from .errors import EstimationError, InputError
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
+from .scale import relative_sigma, with_scale
 from .zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
 
 MIN_VIEWS = 3
@@ -412,7 +413,10 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
             continue
         pose, *clustered = rig_relation(sol, c, "clustered")
         _, *formal = rig_relation(sol, c, "formal", warn_gimbal=False)
-        rig[name] = RigRelation(pose, *(np.maximum(a, b) for a, b in zip(clustered, formal)),
+        sigma_t, sigma_d, sigma_opk = (np.maximum(a, b) for a, b in zip(clustered, formal))
+        rel = relative_sigma(corners.board)          # the printed squares' tolerance: every length scales
+        rig[name] = RigRelation(pose, with_scale(sigma_t, pose.t_mm, rel),
+                                float(with_scale(sigma_d, np.linalg.norm(pose.t_mm), rel)), sigma_opk,
                                 dict(zip(("t_mm", "baseline_mm", "opk_arcmin"), formal)))
     adjustment = {"s0_px": sol.s0_px, "redundancy": sol.redundancy, "iterations": sol.iterations,
                   "converged": sol.converged, "termination": sol.termination,

@@ -67,6 +67,7 @@ from .io import points_from_dict
 from .model import RigModel
 from .progress import warn
 from .rotation import cross_matrix
+from .scale import relative_sigma, with_scale_in_measurement
 
 #: A length is flagged when its sigma is above this share of it.
 MAX_RELATIVE_SIGMA = 0.10
@@ -243,8 +244,9 @@ def measure(rig: RigModel, points: dict) -> dict:
     "to", "length_mm", "sigma_mm", "sigma_percent", "sigma_pixels_mm", "sigma_calibration_mm",
     "bias_mm", "meaningless", "warning"}], "pixel_sigma": {camera: px}, "pixel_sigma_source"}``.
     ``depth_sigma_mm`` is the sigma along the line of sight from the reference camera, ``bias_mm``
-    a length's second-order bias, ``sigma_pixels_mm`` and ``sigma_calibration_mm`` the two parts
-    of its sigma.
+    a length's second-order bias, ``sigma_pixels_mm`` and ``sigma_calibration_mm`` the parts of its
+    sigma from the pixels and the calibration, ``sigma_scale_mm`` (points and lengths) the part from the
+    tolerance of the printed squares (:mod:`dualcal.scale`), which every sigma includes.
 
     Raises
     ------
@@ -323,5 +325,6 @@ def measure(rig: RigModel, points: dict) -> dict:
                         "sigma_percent": 100.0 * sigma / length, "sigma_pixels_mm": float(np.sqrt(var_pixels)),
                         "sigma_calibration_mm": float(np.sqrt(max(g @ calibration[kind] @ g, 0.0))),
                         "bias_mm": bias, "meaningless": note is not None, "warning": note})
-    return {"frame": rig.reference, "points": doc_points, "lengths": lengths,
-            "pixel_sigma": {c: pixel_sigma[c] for c in rig.camera_order()}, "pixel_sigma_source": source}
+    doc = {"frame": rig.reference, "points": doc_points, "lengths": lengths,
+           "pixel_sigma": {c: pixel_sigma[c] for c in rig.camera_order()}, "pixel_sigma_source": source}
+    return with_scale_in_measurement(doc, relative_sigma(rig.board))

@@ -15,6 +15,7 @@ from rich.table import Table
 
 from .camera import DISTORTION_NAMES, INTRINSIC_NAMES, intrinsic_names
 from .model import RigModel, observed_mask
+from .scale import relative_sigma, scale_share
 
 _PAPER_NAMES = {"fx": "alpha = fx", "fy": "beta = fy", "skew": "gamma = skew", "cx": "u0 = cx",
                 "cy": "v0 = cy", "k1": "k1", "k2": "k2", "p1": "p1", "p2": "p2", "k3": "k3"}
@@ -59,21 +60,29 @@ def rig_table(models: list[RigModel]) -> Table | None:
         return None
     t = Table(title=f"Rig relative to {first.reference!r}: D (mm) and angles (minutes of arc), 1 sigma",
               box=box.SIMPLE_HEAD, caption=_SIGMA_CAPTION)
+    rel = relative_sigma(first.board)
     t.add_column("camera")
     t.add_column("value")
     for m in models:
         t.add_column(_model_label(m), justify="right")
         t.add_column("sigma", justify="right")
+    if rel:
+        t.add_column("of it the squares' tolerance", justify="right")
+        t.caption += (f"; the printed squares are known to +-{first.board.square_sigma_mm:g} mm in "
+                      f"{first.board.square_mm:g} mm: that part of each length's variance")
     for cam in first.rig:
-        rows = [("D (mm)", lambda r: (r.baseline_mm, r.sigma_baseline_mm))]
+        rows = [("D (mm)", lambda r: (r.baseline_mm, r.sigma_baseline_mm), True)]
         for i, a in enumerate(("d_omega", "d_phi", "d_kappa")):
-            rows.append((f"{a} (')", lambda r, i=i: (r.pose.opk_arcmin[i], r.sigma_opk_arcmin[i])))
+            rows.append((f"{a} (')", lambda r, i=i: (r.pose.opk_arcmin[i], r.sigma_opk_arcmin[i]), False))
         for i, a in enumerate("xyz"):
-            rows.append((f"t_{a} (mm)", lambda r, i=i: (r.pose.t_mm[i], r.sigma_t_mm[i])))
-        for k, (label, get) in enumerate(rows):
+            rows.append((f"t_{a} (mm)", lambda r, i=i: (r.pose.t_mm[i], r.sigma_t_mm[i]), True))
+        for k, (label, get, length) in enumerate(rows):
             row = [cam if k == 0 else "", label]
             for m in models:
                 row += _pm(*get(m.rig[cam]), 3)
+            if rel:
+                value, sigma = get(first.rig[cam])
+                row.append(f"{100 * scale_share(sigma, value, rel):.0f} %" if length else "-")
             t.add_row(*row)
     return t
 

@@ -105,6 +105,13 @@ def measure_command(calib: Path, photo_specs: tuple[str, ...], points_path: Path
     noise = ", ".join(f"{c} {s:.3g} px" for c, s in doc["pixel_sigma"].items())
     source = "points.json" if doc["pixel_sigma_source"] == "points.json" else "each camera's own in the calibration"
     console.print(f"pixel noise per coordinate: {noise} ({source}); wrote {output}")
+    board = rig.board
+    if board.square_sigma_mm:
+        console.print(f"every sigma includes the printed squares' tolerance, +-{board.square_sigma_mm:g} mm in "
+                      f"{board.square_mm:g} mm ({100 * board.square_sigma_mm / board.square_mm:.2g} % of each length)")
+    else:
+        console.print(f"lengths assume the printed squares are exactly {board.square_mm:g} mm (calibrate with "
+                      "--square-sigma MM to include their tolerance)")
 
 
 def _write_pick_page(rig, photos: dict[str, Path], output: Path, open_page: bool) -> None:

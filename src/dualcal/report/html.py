@@ -22,6 +22,7 @@ from ..camera import intrinsic_names
 from ..checks import verdict
 from ..model import RigModel
 from ..progress import track
+from ..scale import relative_sigma, scale_share
 from ..tables import photo_rows, photo_status
 from . import analysis, figures
 from .templating import environment
@@ -128,6 +129,11 @@ def rig_table(rig: RigModel) -> tuple[list[str], list[dict]]:
                                                                    formal(r, "t_mm", i))))
     for i, a in enumerate("XYZ"):
         quantities.append((f"centre C<sub>{a}</sub> (mm)", lambda r, i=i: (r.pose.center_mm[i], math.nan)))
+    rel = relative_sigma(rig.board)
+    if rel:     # how much of a length's sigma the printed squares' tolerance is (dualcal.scale)
+        quantities.insert(1, (f"share of σ<sub>D</sub><sup>2</sup> from the squares' ±{rig.board.square_sigma_mm:g} mm "
+                              "(%)", lambda r: (100 * float(scale_share(r.sigma_baseline_mm, r.baseline_mm, rel)),
+                                                math.nan)))
     rows = [{"label": Markup(label), "cells": [_cell(*get(rig.rig[n])) for n in names]} for label, get in quantities]
     return names, rows
 
