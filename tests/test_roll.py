@@ -158,3 +158,14 @@ def test_equivalent_focal_length_of_the_render_matches_its_class():
     truth = synth.make_truth("triple", views=3, seed=0)
     assert {n: roll.camera_class(equivalent_focal_of(c)) for n, c in truth.cameras.items()} == \
         {"wide": "wide", "tele": "tele", "ultra": "ultra"}
+
+
+def test_synth_writes_a_roll_and_board_suggests_a_board_for_its_cameras(tmp_path, run_cli):
+    res = run_cli("synth", tmp_path / "s", "--preset", "triple", "--views", "3", "--scale", "0.2", "--roll")
+    assert res.code == 0, res.err
+    files = sorted(p.name for p in (tmp_path / "s" / "roll").iterdir())
+    assert len([f for f in files if f.endswith(".JPG")]) == 3 * 3 + 2          # a retake and a stray photo
+    assert any(f.endswith(".AAE") for f in files) and not (tmp_path / "s" / "photos").exists()
+    res = run_cli("board", "--for", tmp_path / "s" / "roll", "-o", tmp_path / "board.pdf")
+    assert res.code == 0, res.err
+    assert "the tele sees it whole" in res.err and (tmp_path / "board.pdf").stat().st_size > 1000

@@ -197,7 +197,7 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
                    + 0.1 * (np.outer(np.cos(w2), bg_u[1]) + np.outer(np.sin(w2), bg_u[2])))
         refl = shading * (scene[a0:a1] * (1.0 / 255.0))
         rows = slice(max(a0, b0) - a0, min(a1, b1) - a0)
-        if rows.stop > rows.start and c1 > c0:
+        if rows.stop - rows.start > 1 and c1 - c0 > 1:    # (a single row or column: the margin's edge)
             X, Y, front = board_coordinates(cam, pose, u[c0:c1], v[rows])
             X, Y = _plant_outliers(X, Y, board, outliers)
             # footprint of one pixel in board mm (axis-aligned, centred: symmetric)

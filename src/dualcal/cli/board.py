@@ -16,8 +16,11 @@ from .common import board_from_flags, board_options
               help="A4, A3, A2, A1, A0, letter, legal (either orientation), fit (the board and its margins) "
                    "or auto (the smallest A size that holds the board).")
 @click.option("--dpi", type=float, default=None, metavar="DPI", help="Pixels per inch of a PNG (required for one).")
+@click.option("--for", "for_photos", type=click.Path(exists=True), default=None, metavar="PHOTOS",
+              help="Suggest the board for the cameras of these photos (a camera roll or a dataset: their EXIF "
+                   "focal lengths): the tele must see it whole where the ultra-wide still resolves its squares.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="board.pdf or board.png to write.")
-def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi, output):
+def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi, for_photos, output):
     """Write the board to print: a PDF at true scale, or a PNG at --dpi.
 
     \b
@@ -29,17 +32,50 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
     board without --dictionary uses the smallest DICT_5X5 dictionary that holds its markers, in
     OpenCV's current layout. The margin names the options that read the board back, and a scale
     bar checks the print: print at 100 % (actual size).
+
+    With --for PHOTOS (a few test shots of every lens, or a camera roll) and no board, the board is
+    chosen for those cameras and the paper (default A4): how many squares, how large, and how far
+    from the phone to hold it.
     """
     from ..boardprint import write_board
     from ..io import check_output_file
 
     if spec is not None and board_spec is not None and spec != board_spec:
         raise InputError(f"the board is given twice ({spec} and --board {board_spec}): give it once")
-    if (spec or board_spec) is None:
-        raise click.UsageError("give the board: COLSxROWS or charuco:SXxSY (or --board), with --square MM")
-    check_output_file(output)
-    board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary)
+    if for_photos is not None:
+        if (spec or board_spec) is not None:
+            raise InputError("--for chooses the board for the photos' cameras: give it without a board")
+        check_output_file(output)
+        board, paper = _board_for(for_photos, paper)
+    elif (spec or board_spec) is None:
+        raise click.UsageError("give the board: COLSxROWS or charuco:SXxSY (or --board), with --square MM, "
+                               "or --for PHOTOS to have it chosen")
+    else:
+        check_output_file(output)
+        board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary)
     layout = write_board(board, output, paper=paper, dpi=dpi)
     w, h = layout.page_mm
     click.echo(f"{layout.board.describe()}, squares of {layout.board.square_mm:g} mm, on a {w:.0f} x {h:.0f} mm page: "
                f"wrote {output} (print at 100 %)", err=True)
+
+
+def _board_for(photos, paper: str):
+    """The board :func:`dualcal.board_choice.suggest_board` chooses for the cameras of ``photos``, printed
+    to stderr with where to hold it; and the paper it is for (``auto`` is A4)."""
+    from ..board_choice import fitting_choice
+    from ..dataset import open_dataset
+    from ..roll import equivalent_focal_mm
+
+    dataset = open_dataset(photos)
+    cameras = {}
+    for name, views in dataset.cameras.items():
+        photo = next(iter(views.values()))
+        f35 = equivalent_focal_mm(photo)
+        if f35 is None:
+            raise InputError(f"{photo.path}: its EXIF gives no 35 mm-equivalent focal length, so its field of view "
+                             "is unknown: choose the board yourself (COLSxROWS --square MM)")
+        cameras[name] = (photo.size, f35)
+    paper = "A4" if paper == "auto" else paper
+    choice = fitting_choice(cameras, paper)
+    click.echo(f"for {', '.join(cameras)}: {choice.describe()}", err=True)
+    return choice.board, paper

@@ -125,12 +125,15 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @click.option("--noise", "noise_px", type=float, default=0.1, show_default=True,
               help="Gaussian noise (px, per coordinate) added to the true corners in corners.json.")
 @click.option("--photos/--no-photos", default=True, show_default=True, help="Render photo-like JPEGs.")
+@click.option("--roll", is_flag=True,
+              help="Write the photos as a phone's camera roll instead: one folder OUTDIR/roll, every lens mixed in "
+                   "shooting order with EXIF, a retake, a photo without the board and sidecar files.")
 @click.option("--jobs", type=click.IntRange(min=1), default=None, help="Photos rendered in parallel (default: all cores).")
 @board_options(required=False, dictionary_default="the smallest DICT_5X5 that holds the markers")
 @click.option("--coverage", metavar="LO:HI", default=None,
               help="Share of the board's corners the narrowest camera sees, drawn per view from LO to HI "
                    "(ChArUco boards; default 0.3:1 for them, the whole board for a chessboard).")
-def synth_command(outdir, preset, views, seed, scale, noise_px, photos, jobs, board_spec, square_mm, marker_mm,
+def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jobs, board_spec, square_mm, marker_mm,
                   dictionary, coverage):
     """Write a synthetic rig with known truth to OUTDIR.
 
@@ -138,6 +141,7 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, jobs, bo
     OUTDIR/corners.json        true corners plus --noise (input of 'dualcal calibrate')
     OUTDIR/truth.json          the true calibration, in calib.json format
     OUTDIR/photos/<cam>/*.jpg  photo-like renders of the board (a dataset for 'dualcal detect')
+    OUTDIR/roll/IMG_*.JPG      with --roll: the same photos as a phone's camera roll
 
     --board replaces the preset's board. With a ChArUco board (--board charuco:11x8 --square 25
     --marker 18) the narrowest camera (the tele) sees only part of the board in most views
@@ -159,9 +163,13 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, jobs, bo
     corners = synth.noisy_corner_set(truth, noise_px, seed)
     save_corners(out / "corners.json", corners)
     write_json_atomic(out / "truth.json", rig_to_dict(synth.truth_rig_model(truth, corners)))
-    if photos:
+    if roll:
+        from ..synth_roll import write_camera_roll
+        write_camera_roll(truth, make_output_folder(out / "roll"), seed=seed, jobs=jobs or default_jobs())
+    elif photos:
         from ..render import write_photo_set
         write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs())
     n = len(truth.view_poses) * len(truth.cameras)
     click.echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
-               f"({n} {'photos' if photos else 'corner sets'}) written to {out}")
+               f"({n} {'photos' if photos or roll else 'corner sets'}{' in a camera roll' if roll else ''}) "
+               f"written to {out}")
