@@ -429,6 +429,9 @@ def calibrate_fleet(devices: list[Device], out_dir, options: BatchOptions, *, cl
     InputError
         Options that cannot apply (:meth:`BatchOptions.check`), an unreachable scheduler.
     """
+    from .extras import require
+
+    require("fleet")
     options.check(devices)
     out_dir = Path(out_dir).resolve()
     todo = []

@@ -196,6 +196,9 @@ def write_board(board: Board, path, paper: str = "auto", dpi: float | None = Non
     -------
     The :class:`PageLayout` drawn (where corner 0 is on the page).
     """
+    from .extras import require
+
+    require("report")
     path = Path(path)
     kind = path.suffix.lower()
     if kind not in (".pdf", ".png"):

@@ -60,6 +60,10 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     were made with the same options. Exit code 0 when every device was calibrated, 1 when
     some failed (their rows say why), 2 on bad usage.
     """
+    from ..extras import require
+
+    require("fleet")
+    require("report")
     from ..batch import (TABLE_NAMES, BatchOptions, calibrate_fleet, find_devices, fleet_inputs_digest, fleet_outputs_current,
                          fleet_table, read_fleet_table, write_fleet_tables)
     from ..calibrate import calibrate_rig

@@ -207,6 +207,9 @@ def pick_hints(photos: dict[str, dict[str, Path]], max_side: int = 1400) -> dict
     InputError
         No display or no interactive matplotlib backend (see :func:`display_problem`).
     """
+    from ..extras import require
+
+    require("report")
     problem = display_problem()
     if problem:
         raise InputError(problem)

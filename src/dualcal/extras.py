@@ -1,0 +1,33 @@
+"""The optional parts of dualcal and the packages they need (``pip install 'dualcal[NAME]'``).
+
+The core (detect, calibrate, evaluate, measure, rectify, undistort, export) needs numpy, scipy,
+OpenCV, Pillow, rich and click. Two parts need more and are extras of the package: ``report`` (the
+HTML report's figures, the printable board and the manual mode's window: matplotlib) and ``fleet``
+(``batch``: Dask, pandas, pyarrow). :func:`require` imports what a part needs, or says in one line
+which extra installs it.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from .errors import InputError
+
+__all__ = ["EXTRAS", "require"]
+
+#: extra -> (what it is for, the modules it needs)
+EXTRAS = {
+    "report": ("the report, the printable board and the manual mode", ("matplotlib",)),
+    "fleet": ("batch (a fleet of devices on a Dask cluster)", ("dask.distributed", "pandas", "pyarrow")),
+}
+
+
+def require(extra: str) -> None:
+    """Import the modules of ``extra`` (a key of :data:`EXTRAS`), or raise :class:`InputError` naming it."""
+    what, modules = EXTRAS[extra]
+    for name in modules:
+        try:
+            importlib.import_module(name)
+        except ImportError:
+            raise InputError(f"{what} needs {name.split('.')[0]}, which is not installed: "
+                             f"pip install 'dualcal[{extra}]'") from None
