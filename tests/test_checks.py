@@ -94,8 +94,8 @@ def test_a_refocused_photo_is_named():
     rig = calibrate_rig(corners, drop_outliers=False)
     check = rig.checks["focus"]
     assert not check["ok"] and "refocused" in check["message"]
-    # the worst is that photo; the wide's of the same instant comes next (one of the two changed)
-    assert [(f["camera"], f["view"]) for f in check["flagged"][:2]] == [("tele", "IMG_07"), ("wide", "IMG_07")]
+    # that photo alone: the wide's of the same instant, which its pull moved too, fits once it is out
+    assert [(f["camera"], f["view"]) for f in check["flagged"]] == [("tele", "IMG_07")]
     assert check["flagged"][0]["focal_change"] == pytest.approx(0.01, abs=0.003)
     assert check["flagged"][0]["sigmas"] > 20
 

@@ -19,6 +19,7 @@ result. A final adjustment that did not converge is said so, on stderr and in ca
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
@@ -26,7 +27,7 @@ from .adjust import (COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_
                      rig_relation, shared_views)
 from .board import SHAPE_TERMS
 from .camera import DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS
-from .checks import run_checks
+from .checks import REFOCUS_SHARE, focal_scale_fits, focus_drift, rig_rigid, run_checks, tie_costs
 from .errors import EstimationError, InputError
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
@@ -128,6 +129,8 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     shape = start.state.board_shape_mm if start is not None else None
     if start is not None:
         cams, poses = _starting_values(start)
+        views = {v for _, v, _ in blocks}
+        poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
         missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
         if missing:
             zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew)[1]
@@ -212,15 +215,28 @@ def _adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_cor
     names = s.names
     sol = s.solve(blocks, start)
     rounds = 0
+    alone_share = {}
+    if factor and s.mode != "none" and start is not None:
+        alone_share = dict(zip([(c, v) for c, v, _ in start.problem.blocks], outlier_shares(start, factor)[0]))
     while factor:
         shares, limits = outlier_shares(sol, factor)
         out = find_outlier(shares, limits)
         if out is not None:
             b, share, limit = out
             view = blocks[b][1]
-            candidates = [b] if s.mode == "none" else [i for i, blk in enumerate(blocks) if blk[1] == view]
+            instant = _instant_misfit(s, sol, start, blocks, view, alone_share)
+            if instant is not None:
+                if instant == "instant":
+                    kept = _without_instant(s, sol, start, blocks, view, dropped)
+                    if kept is None:
+                        return sol, blocks
+                    sol, blocks = kept
+                    continue
+                candidates = instant                      # the refocused photo(s) of the instant
+            else:
+                candidates = [b] if s.mode == "none" else [i for i, blk in enumerate(blocks) if blk[1] == view]
             candidates = [i for i in candidates if _views_left(blocks, blocks[i][0]) > MIN_VIEWS]
-            if s.mode != "none":
+            if s.mode != "none" and instant is None:
                 candidates = [i for i in candidates if shares[i] > MOST_CORNERS]
             if not candidates:
                 warn(f"{names[blocks[b][0]]}/{view}: {share:.0%} of its corners are outliers (limit {limit:.3g} px) "
@@ -234,10 +250,15 @@ def _adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_cor
                      "but dropping the photo does not improve the fit: kept")
                 return sol, blocks
             c, rms_i = blocks[i][0], sol.block_rms_px[i]
-            reason = (f"{share:.0%} of its corners are outliers (residual above {limit:.3g} px, {factor:g} x the "
-                      f"median of {names[c]!r}; photo RMS {rms_i:.3g} px) in rig mode {s.mode}; without it s0 falls "
-                      f"from {sol.s0_px:.3g} to {best.s0_px:.3g} px (moved board, wrong corner order, blur, or "
-                      "another zoom/focus setting?)")
+            if instant is not None:
+                reason = (f"it fits {names[c]!r} alone, but tied to the rig only with a focal length of its own: the "
+                          f"phone refocused or zoomed between the shots of {view} (photo RMS {rms_i:.3g} px in rig mode "
+                          f"{s.mode}; without it s0 falls from {sol.s0_px:.3g} to {best.s0_px:.3g} px); lock focus")
+            else:
+                reason = (f"{share:.0%} of its corners are outliers (residual above {limit:.3g} px, {factor:g} x the "
+                          f"median of {names[c]!r}; photo RMS {rms_i:.3g} px) in rig mode {s.mode}; without it s0 "
+                          f"falls from {sol.s0_px:.3g} to {best.s0_px:.3g} px (moved board, wrong corner order, blur, "
+                          "or another zoom/focus setting?)")
             warn(f"dropping {names[c]}/{view}: {reason}")
             dropped.append({"camera": names[c], "view": view, "rms_px": rms_i, "reason": reason})
             sol, blocks = best, blocks[:i] + blocks[i + 1:]
@@ -249,6 +270,56 @@ def _adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_cor
         blocks = _without_corners(setup, sol, blocks, bad, limit, dropped, dropped_corners)
         sol = s.solve(blocks, sol)
     return sol, blocks
+
+
+def _instant_misfit(setup: Setup, sol: Solution, alone: Solution | None, blocks, view: str, alone_share: dict):
+    """Why the photos of ``view`` do not fit the rig when every one of them fits its camera alone
+    (``alone_share``: each photo's share of outlier corners with every camera alone): ``"instant"``
+    when the cameras' shots disagree, or the blocks of the photo(s) whose own focal length explains
+    the misfit (a refocus, :data:`dualcal.checks.REFOCUS_SHARE`); None when a photo is an outlier
+    alone (a bad photo, judged photo by photo) or the instant has one camera."""
+    instant = [i for i, blk in enumerate(blocks) if blk[1] == view]
+    if alone is None or len({blocks[i][0] for i in instant}) < 2:
+        return None
+    if any(alone_share.get((blocks[i][0], view), 1.0) > MOST_CORNERS for i in instant):
+        return None
+    alone_cost = {(c, v): float(np.nansum(r ** 2)) for (c, v, _), r in zip(alone.problem.blocks, alone.residuals)}
+    tie = sum(float(np.nansum(sol.residuals[i] ** 2)) - alone_cost.get((blocks[i][0], view), 0.0) for i in instant)
+    if not any(tie > 0 and f["explained_px2"] >= REFOCUS_SHARE * tie for f in focal_scale_fits(sol, {view})):
+        return "instant"
+    from .checks import design_effect
+    c = _refocused_camera(alone, view, design_effect(alone))
+    return [i for i in instant if blocks[i][0] == c] or "instant"
+
+
+def _without_instant(setup: Setup, sol: Solution, alone: Solution, blocks, view: str, dropped):
+    """``(solution, blocks)`` without every photo of ``view`` (an instant whose photos fit their cameras
+    alone but not the rig), each recorded in ``dropped`` with the reason; None where that leaves a camera
+    too few views or does not improve the fit (a warning says so)."""
+    names = setup.names
+    instant = [i for i, blk in enumerate(blocks) if blk[1] == view]
+    rest = [blk for i, blk in enumerate(blocks) if i not in instant]
+    short = [names[blocks[i][0]] for i in instant if _views_left(rest, blocks[i][0]) < MIN_VIEWS]
+    if short:
+        warn(f"instant {view} does not fit the rig, but it cannot be dropped: only {MIN_VIEWS} views left for "
+             f"{short[0]!r}")
+        return None
+    best = setup.solve(rest)
+    if best.s0_px >= sol.s0_px:
+        return None
+    alone_rms = {(c, v): r for (c, v, _), r in zip(alone.problem.blocks, alone.block_rms_px)}
+    cams = [names[blocks[i][0]] for i in instant]
+    fits = ", ".join(f"{names[blocks[i][0]]} {alone_rms.get((blocks[i][0], view), float('nan')):.3g} px" for i in instant)
+    tied = ", ".join(f"{names[blocks[i][0]]} {sol.block_rms_px[i]:.3g} px" for i in instant)
+    reason = (f"instant {view}: its photos fit their cameras alone (RMS {fits}) but not one relative pose of the rig "
+              f"(RMS {tied} in rig mode {setup.mode}; without the instant s0 falls from {sol.s0_px:.3g} to "
+              f"{best.s0_px:.3g} px): the cameras' shots disagree (not taken at the same instant, or a lens or the "
+              "board moved between them)")
+    warn(f"dropping {' and '.join(f'{c}/{view}' for c in cams)}: {reason}")
+    for i in instant:
+        dropped.append({"camera": names[blocks[i][0]], "view": view, "rms_px": sol.block_rms_px[i], "reason": reason,
+                        "instant": True})
+    return best, rest
 
 
 def _without_corners(setup: Setup, sol: Solution, blocks, bad, limit, dropped, dropped_corners):
@@ -364,8 +435,64 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
                                  "board_shape": board_shape, "model": model}
     if shape_test is not None:
         rig.adjustment["board_shape_test"] = shape_test
-    rig.checks = run_checks(rig, sol, flat, alone)
+    rig.checks = run_checks(rig, sol, flat, alone,
+                            attribution=partial(attribution_checks, setup) if rig_mode != "none" else None)
     return rig
+
+
+def attribution_checks(setup: Setup, tied: Solution, alone: Solution, kappa2) -> tuple[dict, dict | None]:
+    """The ``focus`` and ``rig_rigid`` checks (:mod:`dualcal.checks`) with every bad photo or instant named alone.
+
+    A refocused photo or a desynchronised instant pulls the intrinsics and the shared relative pose, so
+    the others fit worse too, and the statistics of one fit flag good photos beside the bad one. So the
+    worst is named, taken out, and the others are judged by a fit without it (tied and alone solved
+    again), until none is flagged, or a quarter of the instants are named (then the rig itself is not
+    rigid or the focus drifts, and the last statistics say so). Refocused photos come first: a focal
+    change that explains most of its instant's misfit (:func:`dualcal.checks.focus_drift`), the photo of
+    the instant whose own focal scale is furthest off with its own pose (the alone fit; the tied fit
+    cannot tell which camera of an instant refocused). Then the instants (:func:`dualcal.checks.rig_rigid`).
+    """
+    limit = max(1, len(tied.problem.views) // 4)
+    blocks = list(tied.problem.blocks)
+    named_photos: list[dict] = []
+    while True:
+        focus = focus_drift(tied, kappa2, tie_costs(tied, alone), named_photos)
+        new = [f for f in focus["flagged"][len(named_photos):] if f["cause"] == "refocus"]
+        if not new or len(named_photos) >= limit:
+            break
+        view = new[0]["view"]
+        c = _refocused_camera(alone, view, kappa2)
+        name = setup.names[c] if c is not None else new[0]["camera"]
+        named_photos.append(next((f for f in focus["flagged"] if (f["camera"], f["view"]) == (name, view)),
+                                 {**new[0], "camera": name}) | {"cause": "refocus"})
+        c = setup.names.index(name)
+        blocks = [b for b in blocks if (b[0], b[1]) != (c, view)]
+        try:
+            tied, alone = setup.solve(blocks, tied), setup.solve(blocks, alone, mode="none")
+        except EstimationError:
+            break
+    doc = rig_rigid(tied, alone, kappa2)
+    named: dict[str, float] = {}
+    while doc is not None and doc["flagged"][len(named):] and len(named) < limit:
+        worst = doc["flagged"][len(named)]
+        named[worst] = doc["instants"][worst]
+        blocks = [b for b in blocks if b[1] != worst]
+        try:
+            tied, alone = setup.solve(blocks, tied), setup.solve(blocks, alone, mode="none")
+        except EstimationError:
+            break
+        doc = rig_rigid(tied, alone, kappa2, named=named)
+    return focus, doc
+
+
+def _refocused_camera(alone: Solution, view: str, kappa2) -> int | None:
+    """Of the photos of ``view``, the camera whose own focal scale is furthest off with its own pose
+    (:func:`dualcal.checks.focal_scale_fits` on the cameras-alone solution), in photo-level sigmas."""
+    fits = focal_scale_fits(alone, {view})
+    if not fits:
+        return None
+    z = [abs(f["s"]) / np.sqrt(max(kappa2[f["camera"]] * alone.s0_px ** 2, 1e-12) * f["var_s"]) for f in fits]
+    return fits[int(np.argmax(z))]["camera"]
 
 
 def held_out_error(sol: Solution) -> dict:

@@ -27,24 +27,26 @@ import numpy as np
 from .adjust import Solution, photo_rows
 from .model import RigModel
 
-__all__ = ["design_effect", "rig_rigid", "focus_drift", "determination", "fit_quality", "photo_count",
-           "lens_model_fit", "convergence", "run_checks", "verdict", "failed_checks"]
+__all__ = ["design_effect", "rig_rigid", "rigidity_statistics", "focus_drift", "focal_scale_fits", "tie_costs",
+           "determination", "fit_quality", "photo_count", "lens_model_fit", "convergence", "run_checks", "verdict",
+           "failed_checks"]
 
 #: Fewer instants than this give unreliable sigmas (they come from the instants' scatter).
 MIN_INSTANTS = 8
 #: A camera's RMS (2-D, per corner) above this is far beyond what corner detection achieves.
 FIT_RMS_LIMIT_PX = 1.0
-#: False-alarm rate of the rigidity test, for all instants together and (Bonferroni) per instant.
-RIGID_FALSE_ALARM = 1e-3
-#: The instants together, or one instant, fail only where they also fit this many times worse than
-#: the photo-level noise allows per degree of freedom. That noise is estimated from the intrinsics'
+#: The instants together, or one instant, fail where they fit this many times worse than the
+#: photo-level noise allows per degree of freedom. That noise is estimated from the intrinsics'
 #: scatter, and the poses see more of an error that is smooth across one photo than the intrinsics do
 #: (a shift of 0.02 px common to one photo's corners, independent between the cameras, already fits a
 #: rigid rig 2-3 x worse than white noise of 0.05 px allows; the renders of ``make demo`` 1.6 x), while
 #: a shot out of sync or a lens that moved fits tens to hundreds of times worse.
 RIGID_RATIO = 10.0
-#: A photo's own focal length this many sigma from the others' is a refocus.
+#: A photo's own focal length this many sigma from the others' is a refocus ...
 FOCUS_SIGMAS = 5.0
+#: ... where that focal change takes away at least this share of its instant's extra cost of being tied
+#: to the rig (a desynchronised shot also pulls the focal lengths, but explains little of its misfit so).
+REFOCUS_SHARE = 0.6
 #: Noise below this (px) is numerical: exact synthetic corners are judged against it instead.
 NOISE_FLOOR_PX = 1e-6
 #: Thresholds of ``determination``.
@@ -71,59 +73,71 @@ def _block_costs(sol: Solution) -> np.ndarray:
     return np.nansum(sol.residuals ** 2, axis=(1, 2))
 
 
-def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None = None) -> dict | None:
-    """Whether every instant's photos fit one rigid relative pose (None for a rig of one camera or
-    mode ``none``).
-
-    Both solutions must be over the same photos: ``tied`` in rig mode ``rigid`` or ``paper``,
-    ``alone`` with every camera alone. The extra cost of tying instant ``v``, in units of the
-    photo-level noise ``kappa^2 s0^2`` of the cameras alone, is ``T_v``; for a rigid rig it is
-    chi-square with ``6`` (rigid; ``4`` for the paper's model, whose baseline direction is free) degrees
-    of freedom per tied camera of the instant, ``T = sum T_v`` with as many less one instant's worth
-    per tied camera. The check fails where ``T`` or any ``T_v`` is beyond its chi-square quantile at
-    :data:`RIGID_FALSE_ALARM` (per instant, divided by the number of instants), and it or that
-    instant also fits :data:`RIGID_RATIO` times worse than the noise per degree of freedom.
-    """
-    from scipy.stats import chi2
-
+def rigidity_statistics(tied: Solution, alone: Solution, kappa2: dict[int, float] | None = None):
+    """Per instant, the extra cost of tying its photos to one relative pose, in units of the photo-level
+    noise, and its degrees of freedom; and the noise ``kappa^2 s0^2`` (px^2). None for a rig of one
+    camera or mode ``none``. See :func:`rig_rigid`."""
     p = tied.problem
     if p.mode == "none" or len(p.cameras) < 2:
         return None
     kappa2 = max((design_effect(alone) if kappa2 is None else kappa2).values())
     noise = max(kappa2 * alone.s0_px ** 2, NOISE_FLOOR_PX ** 2)
-    extra = _block_costs(tied) - _block_costs(alone)
     per = 6 if p.mode == "rigid" else 4
     stats, dofs = {}, {}
-    for v, view in enumerate(p.views):
-        blocks = [b for b, (c, vv, _) in enumerate(p.blocks) if vv == view]
-        cams = {p.blocks[b][0] for b in blocks}
+    for view, extra in tie_costs(tied, alone).items():
+        cams = {c for c, v, _ in p.blocks if v == view}
         k = per * len(cams - {p.reference}) if p.reference in cams else 0
         if k:
-            stats[view] = float(extra[blocks].sum() / noise)
-            dofs[view] = k
-    tied_cams = [c for c in range(len(p.cameras)) if c != p.reference and any(
-        p.blocks[b][0] == c for b in range(len(p.blocks)))]
+            stats[view], dofs[view] = float(extra / noise), k
+    tied_cams = {c for c, _, _ in p.blocks if c != p.reference}
     dof = sum(dofs.values()) - per * len(tied_cams)
     if dof <= 0 or not stats:
         return None
-    total = float(sum(stats.values()))
-    limit_total = float(chi2.ppf(1.0 - RIGID_FALSE_ALARM, dof))
-    limits = {v: float(chi2.ppf(1.0 - RIGID_FALSE_ALARM / len(stats), k)) for v, k in dofs.items()}
-    flagged = sorted((v for v in stats if stats[v] > max(limits[v], RIGID_RATIO * dofs[v])),
-                     key=lambda v: -stats[v])
-    ratio = total / dof
-    ok = total <= max(limit_total, RIGID_RATIO * dof) and not flagged
-    doc = {"ok": ok, "ratio": ratio, "limit_ratio": max(limit_total / dof, RIGID_RATIO), "design_effect": kappa2,
-           "instants": {v: round(t, 3) for v, t in stats.items()}, "flagged": flagged}
+    return {"stats": stats, "dofs": dofs, "dof": dof, "design_effect": kappa2}
+
+
+def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None = None,
+              explained=(), named: dict[str, float] | None = None) -> dict | None:
+    """Whether every instant's photos fit one rigid relative pose (None for a rig of one camera or
+    mode ``none``).
+
+    Both solutions must be over the same photos: ``tied`` in rig mode ``rigid`` or ``paper``,
+    ``alone`` with every camera alone. The extra cost of tying instant ``v`` in units of the photo-level
+    noise ``kappa^2 s0^2`` of the cameras alone is ``T_v`` (:func:`rigidity_statistics`), with ``k_v``
+    degrees of freedom (6 per tied camera of the instant; 4 for the paper's model, whose baseline
+    direction is free). An instant fails where ``T_v > RIGID_RATIO k_v``, and the instants together
+    where ``sum T_v`` exceeds :data:`RIGID_RATIO` times their degrees of freedom (less one instant's worth
+    per tied camera): a synchronised rig fits about 1-3 x its photo-level noise per degree of freedom,
+    a desynchronised shot or a lens that moved tens to hundreds of times (the constant's comment).
+    ``explained`` are instants whose misfit a refocused photo explains (``focus``): they are not
+    flagged here. ``named`` are instants already found not to fit (:func:`dualcal.calibrate.rigidity_check`
+    takes the worst out and judges the others without it, so that a bad instant, which pulls the
+    shared pose, does not make the good ones look bad): their statistic as it was, flagged first.
+    """
+    found = rigidity_statistics(tied, alone, kappa2)
+    if found is None:
+        return None
+    stats, dofs, dof, kappa2 = found["stats"], found["dofs"], found["dof"], found["design_effect"]
+    named = named or {}
+    flagged = list(named) + sorted((v for v in stats if v not in explained and stats[v] > RIGID_RATIO * dofs[v]),
+                                   key=lambda v: -stats[v])
+    kept = {v: t for v, t in stats.items() if v not in explained}
+    ratio = float(sum(kept.values())) / dof if kept else 0.0
+    ok = ratio <= RIGID_RATIO and not flagged
+    doc = {"ok": ok, "ratio": ratio, "limit_ratio": RIGID_RATIO, "design_effect": kappa2,
+           "instants": {v: round(t, 3) for v, t in {**stats, **named}.items()}, "flagged": flagged,
+           "explained_by_refocus": sorted(v for v in explained if v in stats)}
     if ok:
         doc["message"] = (f"the photos of every instant fit one rigid relative pose ({ratio:.2f} x the photo-level "
-                          f"noise on average, limit {max(limit_total / dof, RIGID_RATIO):.3g})")
+                          f"noise on average, limit {RIGID_RATIO:.3g})")
     elif flagged:
-        worst = ", ".join(f"{v} ({stats[v] / dofs[v]:.0f} x)" for v in flagged[:5])
+        all_stats = {**stats, **named}
+        worst = ", ".join(f"{v} ({all_stats[v] / dofs.get(v, 6):.0f} x)" for v in flagged[:5])
         doc["message"] = (f"the photos of {len(flagged)} instant(s) do not fit the rig's relative pose: {worst} the "
-                          "photo-level noise: shots not taken at the same instant, a lens that moved (stabiliser, "
-                          "focus) or a board that moved between the cameras' shots; drop them with --exclude or "
-                          "shoot them again")
+                          "photo-level noise, the others fit: the cameras' shots of "
+                          f"{'that instant' if len(flagged) == 1 else 'those instants'} disagree (not taken at the same "
+                          "instant, a lens that moved, or a board that moved between the shots); drop them with "
+                          "--exclude or shoot them again")
     else:
         doc["message"] = (f"the instants fit one rigid relative pose {ratio:.1f} x worse than the photo-level noise "
                           f"allows (limit {RIGID_RATIO:.3g}): the cameras' shots are not synchronised, or the "
@@ -131,20 +145,23 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
     return doc
 
 
-def focus_drift(sol: Solution, kappa2: dict[int, float]) -> dict:
-    """Photos whose own focal length is off.
+def focal_scale_fits(sol: Solution, views=None) -> list[dict]:
+    """Each photo's own focal scale, fitted with its instant's own unknowns, linearised at ``sol``.
 
-    Each photo's focal scale (``fx``, ``fy`` times ``1 + s``) is fitted with its instant's own
-    unknowns (the board pose; in a rig it is held by the instant's other photos too, so a tele that
-    refocused shows against the wide) and every other parameter held, linearised at the solution
-    ``sol``; ``s`` against its sigma in photo-level noise (``kappa2[c]`` for camera ``c``) is flagged
-    beyond :data:`FOCUS_SIGMAS`.
+    For every photo of the instants ``views`` (default: all), ``fx`` and ``fy`` times ``1 + s`` are
+    fitted together with the instant's own unknowns (the board pose; in a rig it is held by the
+    instant's other photos too, so a tele that refocused shows against the wide) and every other
+    parameter held. Returns ``{"block", "camera" (index), "view", "s", "var_s" (per unit residual
+    variance), "explained_px2"}`` per photo: ``explained_px2`` is how much of the instant's squared
+    residuals the focal scale takes away.
     """
     p, lay = sol.problem, sol.problem.layout
     by_instant: dict[str, list] = {}
     for pr in photo_rows(p, sol.state):
-        by_instant.setdefault(p.blocks[pr.block][1], []).append(pr)
-    flagged = []
+        view = p.blocks[pr.block][1]
+        if views is None or view in views:
+            by_instant.setdefault(view, []).append(pr)
+    fits = []
     for view, rows in by_instant.items():
         local = np.unique(np.concatenate([pr.columns[pr.columns >= lay.n_global] for pr in rows]))
         m = sum(len(pr.r) for pr in rows)
@@ -168,18 +185,57 @@ def focus_drift(sol: Solution, kappa2: dict[int, float]) -> dict:
                 inv = np.linalg.inv(A.T @ A)
             except np.linalg.LinAlgError:
                 continue
-            s = -(inv @ (A.T @ r))[-1]
-            z = s / np.sqrt(max(kappa2[c] * sol.s0_px ** 2, NOISE_FLOOR_PX ** 2) * inv[-1, -1])
-            if abs(z) > FOCUS_SIGMAS:
-                flagged.append({"camera": p.cameras[c], "view": view, "focal_change": float(s), "sigmas": float(z)})
-    flagged.sort(key=lambda f: -abs(f["sigmas"]))
-    if not flagged:
-        return {"ok": True, "flagged": [], "message": f"no photo's own focal length is off by more than "
-                                                      f"{FOCUS_SIGMAS:g} sigma"}
+            step = inv @ (A.T @ r)
+            fits.append({"block": pr.block, "camera": c, "view": view, "s": float(-step[-1]),
+                         "var_s": float(inv[-1, -1]), "explained_px2": float(step[-1] ** 2 / inv[-1, -1])})
+    return fits
+
+
+def tie_costs(tied: Solution, alone: Solution) -> dict[str, float]:
+    """Per instant, how much more its photos cost (px^2) tied to the rig than with every camera alone."""
+    extra = _block_costs(tied) - _block_costs(alone)
+    out: dict[str, float] = {}
+    for b, (_, view, _) in enumerate(tied.problem.blocks):
+        out[view] = out.get(view, 0.0) + float(extra[b])
+    return out
+
+
+def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str, float] | None = None,
+                named: list[dict] = ()) -> dict:
+    """Photos whose own focal length is off: the phone refocused or zoomed between shots.
+
+    A photo's own focal scale ``s`` (:func:`focal_scale_fits`) against its sigma in photo-level noise
+    (``kappa2[c]`` for camera ``c``) beyond :data:`FOCUS_SIGMAS` is a candidate. In a rig, an instant
+    whose cameras' shots disagree (a desynchronised shot, a lens that moved) also pulls the focal
+    lengths of its photos, but a focal change explains only a small part of its misfit, where a refocus
+    explains most of it: with ``tie_cost_px2`` (:func:`tie_costs`), a candidate is a refocus only where
+    its focal scale takes away at least :data:`REFOCUS_SHARE` of its instant's extra cost of being tied
+    to the rig; the others are left to ``rig_rigid`` (``flagged`` lists them with ``"cause": "rig"``).
+    ``named`` are refocused photos already found (:func:`dualcal.calibrate.attribution_checks` takes each
+    out and judges the others without it): they are flagged first, as they were found.
+    """
+    flagged = list(named)
+    for fit in focal_scale_fits(sol):
+        c, view = fit["camera"], fit["view"]
+        z = fit["s"] / np.sqrt(max(kappa2[c] * sol.s0_px ** 2, NOISE_FLOOR_PX ** 2) * fit["var_s"])
+        if abs(z) <= FOCUS_SIGMAS:
+            continue
+        tie = (tie_cost_px2 or {}).get(view)
+        share = fit["explained_px2"] / tie if tie and tie > 0 else None
+        cause = "refocus" if share is None or share >= REFOCUS_SHARE else "rig"
+        flagged.append({"camera": sol.problem.cameras[c], "view": view, "focal_change": fit["s"], "sigmas": float(z),
+                        "explained_share": share, "cause": cause})
+    flagged[len(named):] = sorted(flagged[len(named):], key=lambda f: -abs(f["sigmas"]))
+    refocused = [f for f in flagged if f["cause"] == "refocus"]
+    if not refocused:
+        rest = (f" (the focal lengths of {len(flagged)} photo(s) of instants that do not fit the rig move too, as a "
+                "pose error pulls them: see rig_rigid)") if flagged else ""
+        return {"ok": True, "flagged": flagged, "message": f"no photo's own focal length is off by more than "
+                                                            f"{FOCUS_SIGMAS:g} sigma{rest}"}
     worst = ", ".join(f"{f['camera']}/{f['view']} ({100 * f['focal_change']:+.2f} %, {abs(f['sigmas']):.0f} sigma)"
-                      for f in flagged[:4])
+                      for f in refocused[:4])
     return {"ok": False, "flagged": flagged,
-            "message": f"{len(flagged)} photo(s) have a focal length of their own: {worst}: the phone refocused or "
+            "message": f"{len(refocused)} photo(s) have a focal length of their own: {worst}: the phone refocused or "
                        "zoomed between shots; lock focus (AF/AE lock) and shoot again, or leave them out with --exclude"}
 
 
@@ -304,16 +360,25 @@ def convergence(sol: Solution) -> dict:
                                     "are not those of the best fit"}
 
 
-def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solution) -> dict:
+def _attribution(tied: Solution, alone: Solution, kappa2) -> tuple[dict, dict | None]:
+    """``focus`` and ``rig_rigid`` from one pair of solutions (no photo or instant taken out)."""
+    focus = focus_drift(tied, kappa2, tie_costs(tied, alone) if tied.problem.mode != "none" else None)
+    explained = {f["view"] for f in focus["flagged"] if f["cause"] == "refocus"}
+    return focus, rig_rigid(tied, alone, kappa2, explained)
+
+
+def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solution, attribution=None) -> dict:
     """Every check of a calibration: ``rig`` and its final solution ``sol``; ``tied_flat`` the same
     rig mode with a flat board and ``alone`` every camera alone, over the same photos (for
-    ``rig_rigid`` and ``focus``)."""
+    ``rig_rigid`` and ``focus``). ``attribution(tied, alone, kappa2) -> (focus, rig_rigid)`` makes those
+    two (default: from these solutions alone; :func:`dualcal.calibrate.attribution_checks` names each
+    refocused photo and each instant that does not fit the rig alone)."""
     checks = {"converged": convergence(sol), "photos": photo_count(rig), "fit": fit_quality(rig)}
     kappa2 = design_effect(alone)
-    rigid = rig_rigid(tied_flat, alone, kappa2)
+    focus, rigid = (attribution or _attribution)(tied_flat, alone, kappa2)
     if rigid is not None:
         checks["rig_rigid"] = rigid
-    checks["focus"] = focus_drift(tied_flat, kappa2)
+    checks["focus"] = focus
     checks["determination"] = determination(rig)
     checks["lens_model"] = lens_model_fit(sol)
     return checks
