@@ -1,0 +1,552 @@
+"""Which photo next: board poses that shrink a calibration's honest uncertainty the most.
+
+The calibration's covariance ``C`` of its global parameters (every camera's intrinsics, the rig's
+relative rotations and translations, the board's shape; calib.json ``covariance``) says how well
+each is known. A new instant (one photo per camera that sees the board) at board pose ``P`` adds
+the information of its corners,
+
+    I(P) = A_g^T (I - A_l (A_l^T A_l)^-1 A_l^T) A_g / sigma^2,
+
+with ``A_g``, ``A_l`` the exact Jacobians (:func:`dualcal.camera.project_with_jacobians`) of its
+predicted corners with respect to the global parameters and to the instant's own pose, a nuisance
+eliminated by the Schur complement (the projection), in the normal equations' units. The covariance
+once it is taken is ``(C^-1 + I(P))^-1`` in closed form (no re-solve), and the next pose is chosen
+assuming this one was taken (greedy).
+
+Honest noise. ``sigma`` of a new corner is ``s0`` (the calibration's a-posteriori sigma of a corner)
+times the photo-level inflation it measured, ``kappa_c``: the geometric mean over camera ``c``'s
+intrinsics of the ratio of the honest sigma (the larger of the clustered-by-instant and the
+textbook one, :mod:`dualcal.uncertainty`) to the textbook one. The current covariance is the
+textbook one's correlations scaled to the honest sigmas, so ``current_sigma`` is calib.json's.
+
+Targets are linear functions ``g^T theta`` of the parameters, their sigma ``sqrt(g^T C g)``:
+every intrinsic, ``<camera>.distortion_edge_px`` (the lens's displacement at the image corner
+farthest from the principal point, along the radius: what the distortion terms together do where
+the image needs them most), ``<camera>.baseline_mm`` and ``<camera>.omega_arcmin`` /
+``phi_arcmin`` / ``kappa_arcmin`` of the rig. The default objective is the geometric mean of the
+key targets' sigmas relative to their current values (focal lengths, principal points, edge
+distortion, baseline, angles), first within each camera, then over the cameras, so a camera with
+few targets is not forgotten; with goals (``--target NAME=SIGMA``) it is how far the sigmas are
+above their goals (geometric mean of ``max(sigma / goal, 1)``).
+
+Candidates are poses a person can hold (:func:`holdable`): the board in front of the reference
+camera, its centre within 0.67-1.5 times the distance range the calibration's photos span, at most
+60 degrees from facing that camera; each is aimed at one camera, which must see the whole board
+(a ChArUco board: :data:`CHARUCO_SHARE` of its corners), and lists every camera that does.
+
+Lens-model agnostic: the cameras are projected only through ``project_with_jacobians`` and their
+coefficients are those calib.json's covariance names.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .board import Board, shape_basis
+from .camera import INTRINSIC_NAMES, CameraModel, normalized_from_pixel, project_with_jacobians
+from .errors import InputError
+from .model import Pose, RigModel
+from .poses import opk_jacobian, tangent_basis
+from .rotation import ARCMIN_PER_RAD, opk_from_rotation, rotation_from_rotvec
+from .synth import in_frame
+
+#: The distance range of holdable poses, as factors of the range the calibration's photos span.
+DISTANCE_FACTORS = (0.67, 1.5)
+#: The largest angle between the board's normal and its line of sight to the reference camera.
+MAX_TILT_DEG = 60.0
+#: A camera sees a ChArUco board when it sees at least this share of its corners (and 6 of them).
+CHARUCO_SHARE = 0.5
+MIN_CHARUCO_CORNERS = 6
+#: ``done`` without goals: the best next photo shrinks the objective by less than this share.
+STOP_GAIN = 0.02
+#: Candidate poses drawn per camera.
+CANDIDATES_PER_CAMERA = 250
+#: The key targets of the default objective, per camera.
+KEY_INTRINSICS = ("fx", "fy", "cx", "cy")
+RIG_TARGETS = ("baseline_mm", "omega_arcmin", "phi_arcmin", "kappa_arcmin")
+
+
+@dataclass(frozen=True)
+class Prior:
+    """What the advice starts from: a rig's nominal values and the covariance of its parameters.
+
+    ``parameters`` (k,) are named as calib.json's ``covariance.parameters``; ``covariance`` (k, k) is
+    the honest one; ``noise_px[camera]`` the sigma of a new corner coordinate (photo-level noise
+    included); ``distance_mm`` the (lo, hi) range of the distances of holdable poses.
+    """
+
+    board: Board
+    reference: str
+    cameras: dict[str, CameraModel]
+    rig: dict[str, Pose]
+    board_shape_mm: np.ndarray | None
+    parameters: list[str]
+    covariance: np.ndarray
+    noise_px: dict[str, float]
+    distance_mm: tuple[float, float]
+    rig_mode: str = "rigid"
+
+    def board_points_mm(self) -> np.ndarray:
+        X = self.board.object_points_mm()
+        if self.board_shape_mm is not None:
+            X = X.copy()
+            X[:, 2] += shape_basis(X) @ self.board_shape_mm
+        return X
+
+    def camera_pose(self, name: str, board_pose: Pose) -> Pose:
+        """Board-to-camera pose of ``name`` for the board at ``board_pose`` (reference frame)."""
+        return board_pose if name == self.reference else self.rig[name].compose(board_pose)
+
+
+@dataclass
+class AdvisedPose:
+    """One advised pose: ``pose`` (board to reference camera), the ``cameras`` that see it, the sigmas
+    once it (and every pose before it) is taken, the share by which it shrinks the objective, and
+    for each camera seeing it the board's outline in its frame (``outline_px[camera]``, (M, 2))."""
+
+    pose: Pose
+    cameras: list[str]
+    predicted_sigma: dict[str, float]
+    gain: float
+    distance_mm: float
+    tilt_deg: float
+    outline_px: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class Advice:
+    """The result of :func:`advise`: the sigmas now, the poses best first, ``done`` and the goals."""
+
+    frame: str
+    current_sigma: dict[str, float]
+    poses: list[AdvisedPose]
+    done: bool
+    goals: dict[str, float]
+    next_gain: float
+
+
+# ---------------------------------------------------------------------------- the starting point
+
+
+def honest_covariance(covariance: dict) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """calib.json's ``covariance`` -> names, the honest covariance and the textbook one.
+
+    The honest sigma of each parameter is the larger of the clustered and the textbook one (as
+    calib.json reports it); the matrix keeps the textbook correlations.
+    """
+    names = list(covariance["parameters"])
+    formal = np.asarray(covariance["formal"], float)
+    clustered = np.asarray(covariance["clustered"], float)
+    var_f = np.maximum(np.diag(formal), 1e-300)
+    sd_h = np.sqrt(np.maximum(np.diag(clustered), var_f))
+    sd_f = np.sqrt(var_f)
+    corr = formal / np.outer(sd_f, sd_f)
+    return names, corr * np.outer(sd_h, sd_h), formal
+
+
+def photo_distance_range(rig: RigModel) -> tuple[float, float]:
+    """(lo, hi) distances of the board's centre from the reference camera over the calibration's photos, mm."""
+    centre = rig.board.object_points_mm().mean(axis=0)
+    d = [float(np.linalg.norm(p.apply(centre[None])[0])) for p in rig.reference_poses().values()]
+    if not d:
+        raise InputError("the calibration has no photo with a board pose: nothing to advise from")
+    return min(d), max(d)
+
+
+def prior_from_rig(rig: RigModel, honest: bool = True) -> Prior:
+    """The :class:`Prior` of a calibration (``honest=False``: the textbook covariance and noise ``s0``).
+
+    Raises
+    ------
+    InputError
+        The calibration holds no covariance (written before dualcal stored it) or no ``s0``.
+    """
+    if not rig.covariance:
+        raise InputError("this calib.json holds no covariance of its parameters: calibrate again with "
+                         "this version of dualcal")
+    s0 = rig.adjustment.get("s0_px")
+    if not s0 or not np.isfinite(s0):
+        raise InputError("this calib.json has no a-posteriori sigma (adjustment.s0_px): calibrate again")
+    names, cov_h, cov_f = honest_covariance(rig.covariance)
+    noise = {}
+    for cam in rig.cameras:
+        idx = [i for i, n in enumerate(names) if n.split(".")[0] == cam and n.count(".") == 1]
+        ratio = np.diag(cov_h)[idx] / np.maximum(np.diag(cov_f)[idx], 1e-300)
+        kappa = float(np.exp(0.5 * np.mean(np.log(ratio)))) if honest and idx else 1.0
+        noise[cam] = float(s0) * kappa
+    lo, hi = photo_distance_range(rig)
+    return Prior(rig.board, rig.reference, dict(rig.cameras), {n: r.pose for n, r in rig.rig.items()},
+                 None if rig.board_shape_mm is None else np.asarray(rig.board_shape_mm, float),
+                 names, cov_h if honest else cov_f, noise,
+                 (DISTANCE_FACTORS[0] * lo, DISTANCE_FACTORS[1] * hi), rig.rig_mode)
+
+
+# ---------------------------------------------------------------------------- targets
+
+
+def _camera_of(parameter: str) -> str:
+    return parameter.split(".")[0]
+
+
+def edge_point(cam: CameraModel) -> np.ndarray:
+    """The camera-frame ray (3,) through the image corner farthest from the principal point, as a
+    pinhole sees it (the lens's displacement is measured there; no undistortion, which a poorly
+    determined lens may not allow)."""
+    w, h = cam.image_size
+    corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
+    far = corners[np.argmax(np.linalg.norm(corners - [cam.cx, cam.cy], axis=1))]
+    xy = normalized_from_pixel(cam, far[None])[0]
+    return np.array([xy[0], xy[1], 1.0])
+
+
+def target_gradients(prior: Prior) -> dict[str, np.ndarray]:
+    """Every target as a gradient ``g`` (k,) over the prior's parameters: ``sigma = sqrt(g^T C g)``.
+
+    Keys: every parameter that is an intrinsic (``wide.fx``, ...), ``<camera>.distortion_edge_px``,
+    and for every rig camera ``baseline_mm`` and ``omega_arcmin``, ``phi_arcmin``, ``kappa_arcmin``.
+    """
+    index = {n: i for i, n in enumerate(prior.parameters)}
+    k = len(prior.parameters)
+    out = {}
+    for n in prior.parameters:
+        if n.count(".") == 1 and not n.startswith("board."):
+            g = np.zeros(k)
+            g[index[n]] = 1.0
+            out[n] = g
+    for name, cam in prior.cameras.items():
+        lens = [n for n in INTRINSIC_NAMES[5:] if f"{name}.{n}" in index]
+        if lens:
+            uv, _, J_K = project_with_jacobians(cam, edge_point(cam)[None])
+            radial = uv[0] - [cam.cx, cam.cy]
+            radial /= np.linalg.norm(radial)
+            g = np.zeros(k)
+            for n in lens:
+                g[index[f"{name}.{n}"]] = radial @ J_K[0, :, INTRINSIC_NAMES.index(n)]
+            out[f"{name}.distortion_edge_px"] = g
+    for name, pose in prior.rig.items():
+        rot = [index.get(f"{name}.rig.rotation_rad.{a}") for a in "xyz"]
+        tr = [index.get(f"{name}.rig.t_mm.{a}") for a in "xyz"]
+        if None in rot or None in tr:
+            continue
+        g = np.zeros(k)
+        g[tr] = pose.t_mm / np.linalg.norm(pose.t_mm)
+        out[f"{name}.baseline_mm"] = g
+        J_opk = opk_jacobian(opk_from_rotation(pose.R)) * ARCMIN_PER_RAD
+        for row, angle in zip(J_opk, ("omega", "phi", "kappa")):
+            g = np.zeros(k)
+            g[rot] = row
+            out[f"{name}.{angle}_arcmin"] = g
+    return out
+
+
+def key_targets(gradients: dict[str, np.ndarray]) -> dict[str, list[str]]:
+    """The default objective's targets grouped by camera (module docstring)."""
+    groups: dict[str, list[str]] = {}
+    for name in gradients:
+        cam, what = name.split(".", 1)
+        if what in KEY_INTRINSICS or what in RIG_TARGETS or what == "distortion_edge_px":
+            groups.setdefault(cam, []).append(name)
+    return groups
+
+
+def sigmas(covariance: np.ndarray, gradients: dict[str, np.ndarray]) -> dict[str, float]:
+    """``{target: sqrt(g^T C g)}`` for one covariance (k, k)."""
+    return {n: float(np.sqrt(max(g @ covariance @ g, 0.0))) for n, g in gradients.items()}
+
+
+# ---------------------------------------------------------------------------- candidates
+
+
+def tilt_deg(pose: Pose) -> float:
+    """Angle between the board's normal and its line of sight to the camera of ``pose``, degrees."""
+    centre = pose.t_mm
+    cos = abs(pose.R[:, 2] @ centre) / np.linalg.norm(centre)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def holdable(prior: Prior, pose: Pose, board_centre_mm: np.ndarray | None = None) -> bool:
+    """Whether a person can hold the board at ``pose`` (board to reference camera): every corner in
+    front of the camera and the board's front towards it, its centre's distance within
+    ``prior.distance_mm``, at most :data:`MAX_TILT_DEG` from facing the camera."""
+    X = pose.apply(prior.board.object_points_mm())
+    centre = pose.apply((board_centre_mm if board_centre_mm is not None
+                         else prior.board.object_points_mm().mean(axis=0))[None])[0]
+    lo, hi = prior.distance_mm
+    d = float(np.linalg.norm(centre))
+    facing = pose.R[:, 2] @ centre / d
+    tilt = np.degrees(np.arccos(np.clip(facing, -1.0, 1.0)))
+    return bool(np.all(X[:, 2] > 0) and lo * (1 - 1e-9) <= d <= hi * (1 + 1e-9) and tilt <= MAX_TILT_DEG + 1e-9)
+
+
+def seen_corners(prior: Prior, name: str, board_pose: Pose) -> np.ndarray | None:
+    """(N,) bool, the corners camera ``name`` measures at ``board_pose``, or None where it does not
+    see the board (a chessboard: every corner and the outer squares' corners; ChArUco: enough)."""
+    board, cam = prior.board, prior.cameras[name]
+    pose = prior.camera_pose(name, board_pose)
+    seen = in_frame(cam, pose.apply(prior.board_points_mm()))
+    if board.charuco is not None:
+        enough = seen.sum() >= max(MIN_CHARUCO_CORNERS, CHARUCO_SHARE * len(seen))
+        return seen if enough else None
+    return seen if seen.all() and in_frame(cam, pose.apply(board_outline_mm(board))).all() else None
+
+
+def board_outline_mm(board: Board, samples: int = 8) -> np.ndarray:
+    """(4 samples, 3) points around the board's outer squares (one square beyond the corner grid)."""
+    s = board.square_mm
+    x0, y0, x1, y1 = -s, -s, board.cols * s, board.rows * s
+    t = np.linspace(0.0, 1.0, samples, endpoint=False)[:, None]
+    edges = [np.hstack([x0 + (x1 - x0) * t, np.full_like(t, y0)]), np.hstack([np.full_like(t, x1), y0 + (y1 - y0) * t]),
+             np.hstack([x1 - (x1 - x0) * t, np.full_like(t, y1)]), np.hstack([np.full_like(t, x0), y1 - (y1 - y0) * t])]
+    xy = np.vstack(edges)
+    return np.column_stack([xy, np.zeros(len(xy))])
+
+
+def _facing_rotation(view_dir: np.ndarray, tilt_rad: float, azimuth_rad: float, roll_rad: float) -> np.ndarray:
+    """Board-to-camera rotation whose board normal (+Z, away from the camera) is ``view_dir`` tilted by
+    ``tilt_rad`` about an axis at ``azimuth_rad`` around it, with the board turned by ``roll_rad``."""
+    z = view_dir / np.linalg.norm(view_dir)
+    B = tangent_basis(z[None])[0]                       # (3, 2) two axes perpendicular to z
+    axis = B @ [np.cos(azimuth_rad), np.sin(azimuth_rad)]
+    normal = rotation_from_rotvec(tilt_rad * axis) @ z
+    x = B[:, 0] - normal * (normal @ B[:, 0])
+    x /= np.linalg.norm(x)
+    y = np.cross(normal, x)
+    c, s = np.cos(roll_rad), np.sin(roll_rad)
+    return np.column_stack([c * x + s * y, -s * x + c * y, normal])
+
+
+def candidate_poses(prior: Prior, per_camera: int = CANDIDATES_PER_CAMERA, seed: int = 0):
+    """Holdable board poses, ``[(pose, {camera: seen corners (N,) bool})]``, aimed at each camera in turn.
+
+    Each is drawn at a distance (log-uniform in ``prior.distance_mm``) along the ray of a random
+    pixel of the aimed camera, tilted up to :data:`MAX_TILT_DEG` in a random direction, turned at
+    random; kept when the aimed camera sees the board (:func:`seen_corners`).
+    """
+    rng = np.random.default_rng(seed)
+    centre_b = prior.board.object_points_mm().mean(axis=0)
+    lo, hi = prior.distance_mm
+    out = []
+    for aimed, cam in prior.cameras.items():
+        to_ref = prior.camera_pose(aimed, Pose(np.eye(3), np.zeros(3))).inverse()
+        w, h = cam.image_size
+        for _ in range(per_camera):
+            d = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+            px = rng.uniform([0.1 * w, 0.1 * h], [0.9 * w, 0.9 * h])
+            xy = normalized_from_pixel(cam, px[None])[0]         # the pinhole ray: near enough to aim
+            ray = to_ref.R @ np.array([xy[0], xy[1], 1.0])
+            ray /= np.linalg.norm(ray)
+            # the board's centre on the aimed camera's ray, at distance d from the reference camera
+            o = to_ref.t_mm
+            s = -(o @ ray) + np.sqrt(max((o @ ray) ** 2 - o @ o + d * d, 0.0))
+            centre = o + s * ray
+            R = _facing_rotation(centre, np.radians(rng.uniform(0.0, MAX_TILT_DEG)), rng.uniform(0, 2 * np.pi),
+                                 rng.uniform(-np.pi, np.pi))
+            pose = Pose(R, centre - R @ centre_b)
+            if not holdable(prior, pose):
+                continue
+            seen = {n: m for n in prior.cameras if (m := seen_corners(prior, n, pose)) is not None}
+            if aimed in seen:
+                out.append((pose, seen))
+    return out
+
+
+# ---------------------------------------------------------------------------- information of an instant
+
+
+def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray]) -> np.ndarray:
+    """(k, k) information a new instant at ``pose`` adds on the prior's parameters (module docstring).
+
+    ``seen[camera]`` (N,) bool: the corners each camera measures. The instant's board pose (left
+    rotation increment and translation of the reference camera's pose) is eliminated; so are, in
+    rig mode ``paper``, each camera's baseline direction in this instant and, in mode ``none``,
+    each camera's own pose (the rig's parameters then get no information from it).
+    """
+    index = {n: i for i, n in enumerate(prior.parameters)}
+    k = len(prior.parameters)
+    X_b = prior.board_points_mm()
+    basis = shape_basis(prior.board.object_points_mm())
+    blocks_g, blocks_l = [], []
+    own_poses = prior.rig_mode == "none"
+    names = list(seen)
+    n_local = 6 * (len(names) if own_poses else 1) + (2 * len(names) if prior.rig_mode == "paper" else 0)
+    for c, name in enumerate(names):
+        m = seen[name]
+        X_ref = pose.apply(X_b[m])
+        rel = prior.camera_pose(name, Pose(np.eye(3), np.zeros(3)))     # reference to this camera
+        X_c = rel.apply(X_ref)
+        _, J_X, J_K = project_with_jacobians(prior.cameras[name], X_c)
+        n = len(X_c)
+        Ag = np.zeros((n, 2, k))
+        Al = np.zeros((n, 2, n_local))
+        for j, par in enumerate(INTRINSIC_NAMES):
+            if f"{name}.{par}" in index:
+                Ag[:, :, index[f"{name}.{par}"]] = J_K[:, :, j]
+        J_ref = J_X @ rel.R                                          # d uv / d X_ref, (n, 2, 3)
+        if name in prior.rig and not own_poses and f"{name}.rig.t_mm.x" in index:
+            rot = [index[f"{name}.rig.rotation_rad.{a}"] for a in "xyz"]
+            tr = [index[f"{name}.rig.t_mm.{a}"] for a in "xyz"]
+            Ag[:, :, rot] = J_X @ -cross_matrix_batch(X_c - rel.t_mm)    # R <- exp([d]x) R
+            Ag[:, :, tr] = J_X
+        for j, term in enumerate(("xx", "yy", "xy")):
+            if f"board.shape_mm.{term}" in index:
+                Ag[:, :, index[f"board.shape_mm.{term}"]] = (J_ref @ pose.R[:, 2])[:, :] * basis[m, j][:, None]
+        p0 = 6 * c if own_poses else 0
+        Al[:, :, p0:p0 + 3] = J_ref @ -cross_matrix_batch(X_ref - pose.t_mm)   # board pose, left increment
+        Al[:, :, p0 + 3:p0 + 6] = J_ref
+        if prior.rig_mode == "paper" and name in prior.rig:
+            q = n_local - 2 * len(names) + 2 * c
+            Al[:, :, q:q + 2] = J_X @ tangent_basis(rel.t_mm[None] / np.linalg.norm(rel.t_mm))[0]   # this instant's baseline direction
+        w = 1.0 / prior.noise_px[name]
+        blocks_g.append(w * Ag.reshape(-1, k))
+        blocks_l.append(w * Al.reshape(-1, n_local))
+    A_g, A_l = np.vstack(blocks_g), np.vstack(blocks_l)
+    A_l = A_l[:, np.any(A_l != 0, axis=0)]
+    Q, _ = np.linalg.qr(A_l)
+    A_perp = A_g - Q @ (Q.T @ A_g)                                   # the Schur complement's factor
+    return A_perp.T @ A_perp
+
+
+def cross_matrix_batch(v: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3, 3) matrices ``[v]x`` (:func:`dualcal.rotation.cross_matrix` for many)."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return out
+
+
+def updated_covariance(covariance: np.ndarray, information: np.ndarray) -> np.ndarray:
+    """``(C^-1 + I)^-1``, computed in the scale of ``C``'s sigmas (for conditioning);
+    ``information`` may be (k, k) or a stack (m, k, k)."""
+    sd = np.sqrt(np.diag(covariance))
+    corr = covariance / np.outer(sd, sd)
+    scaled = information * np.outer(sd, sd)
+    out = np.linalg.inv(np.linalg.inv(corr) + scaled)
+    return out * np.outer(sd, sd)
+
+
+# ---------------------------------------------------------------------------- the advice
+
+
+def parse_goals(goals: dict[str, float], gradients: dict[str, np.ndarray]) -> dict[str, float]:
+    """Check ``goals`` (``{target: sigma}``) against the targets there are; InputError names the unknown."""
+    unknown = [n for n in goals if n not in gradients]
+    if unknown:
+        raise InputError(f"target {unknown[0]!r} is not one this calibration has (it has e.g. "
+                         f"{', '.join(list(gradients)[:6])}, ...)")
+    bad = [n for n, s in goals.items() if not (np.isfinite(s) and s > 0)]
+    if bad:
+        raise InputError(f"target {bad[0]}={goals[bad[0]]!r}: a goal sigma must be a positive number")
+    return dict(goals)
+
+
+def _objective(sig: np.ndarray, reference: np.ndarray, groups: list[np.ndarray], hinge: bool) -> np.ndarray:
+    """Mean log of ``sig / reference`` (m, t) over targets, per group then over groups: (m,)."""
+    ratio = np.log(sig / reference)
+    if hinge:
+        ratio = np.maximum(ratio, 0.0)
+    return np.mean([ratio[:, g].mean(axis=1) for g in groups], axis=0)
+
+
+def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
+           candidates=None, seed: int = 0) -> Advice:
+    """The ``count`` poses that shrink the objective the most, chosen greedily (module docstring).
+
+    Parameters
+    ----------
+    prior : where the calibration stands (:func:`prior_from_rig`, or a nominal one for a plan)
+    count : how many poses
+    goals : ``{target: sigma}``; default: the key targets relative to their current sigmas
+    candidates : ``[(pose, seen)]`` to choose from (default :func:`candidate_poses`)
+
+    Raises
+    ------
+    InputError
+        A goal names no target; no candidate pose is holdable.
+    """
+    if count < 1:
+        raise InputError("count must be at least 1")
+    gradients = target_gradients(prior)
+    goals = parse_goals(goals or {}, gradients)
+    current = sigmas(prior.covariance, gradients)
+    if goals:
+        names = list(goals)
+        groups = [np.arange(len(names))]
+        reference = np.array([goals[n] for n in names])
+    else:
+        by_camera = key_targets(gradients)
+        names = [n for g in by_camera.values() for n in g]
+        pos = {n: i for i, n in enumerate(names)}
+        groups = [np.array([pos[n] for n in g]) for g in by_camera.values()]
+        reference = np.array([max(current[n], 1e-300) for n in names])
+    G = np.array([gradients[n] for n in names])                    # (t, k)
+    candidates = candidate_poses(prior, seed=seed) if candidates is None else candidates
+    if not candidates:
+        raise InputError("no holdable board pose is seen whole by any camera (is the board larger than "
+                         "every camera's view at the distances of the photos?)")
+    info = np.array([instant_information(prior, pose, seen) for pose, seen in candidates])
+    centre_b = prior.board.object_points_mm().mean(axis=0)
+    C = prior.covariance
+    score_now = _objective(np.sqrt(np.einsum("tk,kl,tl->t", G, C, G))[None], reference, groups, bool(goals))[0]
+    chosen, first_gain = [], None
+    for _ in range(count):
+        Cs = updated_covariance(C, info)                             # (m, k, k)
+        sig = np.sqrt(np.maximum(np.einsum("tk,mkl,tl->mt", G, Cs, G), 0.0))
+        score = _objective(sig, reference, groups, bool(goals))
+        best = int(np.argmin(score))
+        gain = float(1.0 - np.exp(score[best] - score_now))
+        if first_gain is None:
+            first_gain = gain
+        if goals and score_now <= 0.0:
+            break
+        C, score_now = Cs[best], float(score[best])
+        pose, seen = candidates[best]
+        centre = pose.apply(centre_b[None])[0]
+        outline = {n: project_with_jacobians(prior.cameras[n],
+                                             prior.camera_pose(n, pose).apply(board_outline_mm(prior.board)))[0]
+                   for n in seen}
+        chosen.append(AdvisedPose(pose, [n for n in prior.cameras if n in seen], sigmas(C, gradients), gain,
+                                  float(np.linalg.norm(centre)), tilt_deg(Pose(pose.R, centre)), outline))
+    done = (all(current[n] <= s for n, s in goals.items()) if goals else first_gain < STOP_GAIN)
+    return Advice(prior.reference, current, chosen, bool(done), goals, float(first_gain))
+
+
+# ---------------------------------------------------------------------------- words and JSON
+
+
+def describe(pose: AdvisedPose) -> str:
+    """The pose in words: distance, and which way the board's top and sides turn away."""
+    R = pose.pose.R
+    normal = R[:, 2]
+    centre = pose.pose.apply(np.zeros((1, 3)))[0]
+    view = centre / np.linalg.norm(centre)
+    tilt = pose.tilt_deg
+    # the normal's component across the line of sight: where the board's far side is
+    across = normal - view * (normal @ view)
+    parts = [f"{pose.distance_mm / 10:.0f} cm from the camera"]
+    if tilt < 8:
+        parts.append("facing the camera")
+    else:
+        horiz = "right" if across[0] > 0 else "left"
+        vert = "bottom" if across[1] > 0 else "top"
+        side = horiz if abs(across[0]) >= abs(across[1]) else vert
+        parts.append(f"tilted {tilt:.0f} degrees, its {side} side farther away")
+    return ", ".join(parts)
+
+
+def advice_to_dict(advice: Advice) -> dict:
+    """advise.json (contract, "advise"; the keys beyond it are added ones)."""
+    return {
+        "frame": advice.frame,
+        "current_sigma": advice.current_sigma,
+        "poses": [{**p.pose.to_dict(), "cameras": p.cameras, "predicted_sigma": p.predicted_sigma,
+                   "gain": p.gain, "distance_mm": p.distance_mm, "tilt_deg": p.tilt_deg,
+                   "description": describe(p),
+                   "outline_px": {n: np.asarray(o, float).tolist() for n, o in p.outline_px.items()}}
+                  for p in advice.poses],
+        "done": advice.done,
+        "goals": advice.goals,
+        "next_gain": advice.next_gain,
+        "stop_gain": STOP_GAIN,
+    }
