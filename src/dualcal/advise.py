@@ -104,7 +104,8 @@ class Prior:
 class AdvisedPose:
     """One advised pose: ``pose`` (board to reference camera), the ``cameras`` that see it, the sigmas
     once it (and every pose before it) is taken, the share by which it shrinks the objective, and
-    for each camera seeing it the board's outline in its frame (``outline_px[camera]``, (M, 2))."""
+    for every camera the board's outline in its frame (``outline_px[camera]``, (M, 2) px, or None
+    where the board is partly behind it)."""
 
     pose: Pose
     cameras: list[str]
@@ -183,6 +184,48 @@ def prior_from_rig(rig: RigModel, honest: bool = True) -> Prior:
                  (DISTANCE_FACTORS[0] * lo, DISTANCE_FACTORS[1] * hi), rig.rig_mode)
 
 
+#: A 35 mm frame's diagonal, mm: ``fx = focal_35mm / 43.27 * image diagonal`` in pixels.
+FULL_FRAME_DIAGONAL_MM = 43.27
+#: A plan's prior: 1-sigma of what is known before any photo (relative focal length, principal point
+#: as a share of the image, lens coefficients, rig angles in radians and translation in mm).
+PLAN_PRIOR = {"focal": 0.05, "centre": 0.03, "lens": 0.1, "rotation_rad": 0.02, "t_mm": 3.0}
+#: A plan's noise of a corner coordinate, px (a detector on real photos, with the photo-level part).
+PLAN_NOISE_PX = 0.3
+#: A plan's distances: where the board spans these shares of a camera's shorter side.
+PLAN_FILL = (0.85, 0.3)
+
+
+def nominal_camera(image_size: tuple[int, int], focal_35mm: float) -> CameraModel:
+    """A camera from its image size and 35 mm-equivalent focal length (square pixels, centred, no lens)."""
+    w, h = image_size
+    f = focal_35mm / FULL_FRAME_DIAGONAL_MM * float(np.hypot(w, h))
+    return CameraModel((int(w), int(h)), f, f, 0.0, (w - 1) / 2, (h - 1) / 2, 0.0, 0.0)
+
+
+def nominal_prior(cameras: dict[str, CameraModel], board: Board, reference: str,
+                  rig: dict[str, Pose], noise_px: float = PLAN_NOISE_PX) -> Prior:
+    """A :class:`Prior` before any photo: nominal ``cameras`` and ``rig`` (reference to camera),
+    independent sigmas from :data:`PLAN_PRIOR`, distances where the board spans :data:`PLAN_FILL`
+    of the cameras' frames (the nearest of the widest camera to the farthest of the narrowest)."""
+    names, sd = [], []
+    for name, cam in cameras.items():
+        w, h = cam.image_size
+        for n in ("fx", "fy", "cx", "cy", "k1", "k2"):
+            names.append(f"{name}.{n}")
+            sd.append({"fx": PLAN_PRIOR["focal"] * cam.fx, "fy": PLAN_PRIOR["focal"] * cam.fy,
+                       "cx": PLAN_PRIOR["centre"] * w, "cy": PLAN_PRIOR["centre"] * h}.get(n, PLAN_PRIOR["lens"]))
+    for name in rig:
+        for what in ("rotation_rad", "t_mm"):
+            for a in "xyz":
+                names.append(f"{name}.rig.{what}.{a}")
+                sd.append(PLAN_PRIOR[what])
+    s = board.square_mm
+    extent = float(np.hypot((board.cols + 1) * s, (board.rows + 1) * s))
+    dist = [[cam.fx * extent / (fill * min(cam.image_size)) for fill in PLAN_FILL] for cam in cameras.values()]
+    return Prior(board, reference, dict(cameras), dict(rig), None, names, np.diag(np.square(sd)),
+                 dict.fromkeys(cameras, float(noise_px)), (min(d[0] for d in dist), max(d[1] for d in dist)))
+
+
 # ---------------------------------------------------------------------------- targets
 
 
@@ -241,10 +284,10 @@ def target_gradients(prior: Prior) -> dict[str, np.ndarray]:
     return out
 
 
-def key_targets(gradients: dict[str, np.ndarray]) -> dict[str, list[str]]:
-    """The default objective's targets grouped by camera (module docstring)."""
+def key_targets(names) -> dict[str, list[str]]:
+    """The default objective's targets among target ``names``, grouped by camera (module docstring)."""
     groups: dict[str, list[str]] = {}
-    for name in gradients:
+    for name in names:
         cam, what = name.split(".", 1)
         if what in KEY_INTRINSICS or what in RIG_TARGETS or what == "distortion_edge_px":
             groups.setdefault(cam, []).append(name)
@@ -301,6 +344,15 @@ def board_outline_mm(board: Board, samples: int = 8) -> np.ndarray:
              np.hstack([x1 - (x1 - x0) * t, np.full_like(t, y1)]), np.hstack([np.full_like(t, x0), y1 - (y1 - y0) * t])]
     xy = np.vstack(edges)
     return np.column_stack([xy, np.zeros(len(xy))])
+
+
+def outline_px(prior: Prior, name: str, board_pose: Pose) -> np.ndarray | None:
+    """(M, 2) the board's outline (:func:`board_outline_mm`) in camera ``name``'s frame, pixels
+    (through its lens); None where part of it is behind the camera."""
+    X = prior.camera_pose(name, board_pose).apply(board_outline_mm(prior.board))
+    if np.any(X[:, 2] <= 0):
+        return None
+    return project_with_jacobians(prior.cameras[name], X)[0]
 
 
 def _facing_rotation(view_dir: np.ndarray, tilt_rad: float, azimuth_rad: float, roll_rad: float) -> np.ndarray:
@@ -503,9 +555,7 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
         C, score_now = Cs[best], float(score[best])
         pose, seen = candidates[best]
         centre = pose.apply(centre_b[None])[0]
-        outline = {n: project_with_jacobians(prior.cameras[n],
-                                             prior.camera_pose(n, pose).apply(board_outline_mm(prior.board)))[0]
-                   for n in seen}
+        outline = {n: outline_px(prior, n, pose) for n in prior.cameras}
         chosen.append(AdvisedPose(pose, [n for n in prior.cameras if n in seen], sigmas(C, gradients), gain,
                                   float(np.linalg.norm(centre)), tilt_deg(Pose(pose.R, centre)), outline))
     done = (all(current[n] <= s for n, s in goals.items()) if goals else first_gain < STOP_GAIN)
@@ -543,7 +593,8 @@ def advice_to_dict(advice: Advice) -> dict:
         "poses": [{**p.pose.to_dict(), "cameras": p.cameras, "predicted_sigma": p.predicted_sigma,
                    "gain": p.gain, "distance_mm": p.distance_mm, "tilt_deg": p.tilt_deg,
                    "description": describe(p),
-                   "outline_px": {n: np.asarray(o, float).tolist() for n, o in p.outline_px.items()}}
+                   "outline_px": {n: None if o is None else np.asarray(o, float).tolist()
+                                  for n, o in p.outline_px.items()}}
                   for p in advice.poses],
         "done": advice.done,
         "goals": advice.goals,
