@@ -38,7 +38,7 @@ def test_the_calibrations_own_instants_give_back_its_normal_matrix(note8):
     """Exact Jacobians and the Schur complement: the information of the calibration's own instants, at
     their adjusted poses, with the noise s0, adds up to the inverse of its textbook covariance."""
     _, corners, rig = note8
-    prior = A.prior_from_rig(rig, honest=False)
+    prior = A.prior_from_rig(rig)
     used = rig.used_corners()
     total = np.zeros_like(prior.covariance)
     for view, pose in rig.reference_poses().items():
@@ -67,7 +67,7 @@ def test_the_second_pose_assumes_the_first_was_taken(note8):
     infos = [A.instant_information(prior, p.pose, {n: A.seen_corners(prior, n, p.pose) for n in p.cameras})
              for p in advice.poses]
     C = A.updated_covariance(prior.covariance, infos[0] + infos[1])
-    expected = A.sigmas(C, A.target_gradients(prior))
+    expected = A.honest_sigmas(prior, C)
     for name, s in expected.items():
         assert advice.poses[1].predicted_sigma[name] == pytest.approx(s, rel=1e-6)
     # every advised photo shrinks every sigma, the first the most
@@ -78,17 +78,45 @@ def test_the_second_pose_assumes_the_first_was_taken(note8):
 # ---------------------------------------------------------------------------- prediction against the truth
 
 
+def test_the_current_sigmas_are_those_calib_json_reports(note8):
+    _, _, rig = note8
+    now = A.honest_sigmas(A.prior_from_rig(rig))
+    for name, sig in rig.camera_sigma.items():
+        for p in ("fx", "fy", "cx", "cy", "k1", "k2"):
+            assert now[f"{name}.{p}"] == pytest.approx(sig[p], rel=1e-9)
+    rel = rig.rig["tele"]
+    assert now["tele.baseline_mm"] == pytest.approx(rel.sigma_baseline_mm, rel=1e-6)
+    assert [now[f"tele.{a}_arcmin"] for a in ("omega", "phi", "kappa")] == pytest.approx(rel.sigma_opk_arcmin, rel=1e-6)
+
+
+def _predicted_and_actual(truth, corners, rig, seed):
+    """The first advised photo taken (exact corners at the advised pose plus the same noise) and the rig
+    calibrated again: (textbook and honest key sigmas predicted, those of the new calibration)."""
+    prior = A.prior_from_rig(rig)
+    pose = A.advise(prior, count=1).poses[0]
+    gradients = A.target_gradients(prior)
+    info = A.instant_information(prior, pose.pose, {n: A.seen_corners(prior, n, pose.pose) for n in pose.cameras})
+    formal = A.sigmas(A.updated_covariance(prior.covariance, info), gradients)
+    taken = synth.photographed(truth, corners, "NEXT", pose.pose, pose.cameras, 0.2, np.random.default_rng(seed))
+    again = A.prior_from_rig(calibrate_rig(taken, board_shape="flat"))
+    return formal, pose.predicted_sigma, A.sigmas(again.covariance, gradients), A.honest_sigmas(again)
+
+
 def test_prediction_matches_actually_adding_the_photo(note8):
-    """Synthetic: the advised photo taken (exact corners at the advised pose plus the same noise) and the
-    rig calibrated again: its key sigmas are those predicted, to within 10 % (geometric mean)."""
-    truth, corners, rig = note8
-    for honest in (False, True):
-        prior = A.prior_from_rig(rig, honest=honest)
-        pose = A.advise(prior, count=1).poses[0]
-        taken = synth.photographed(truth, corners, "NEXT", pose.pose, pose.cameras, 0.2, np.random.default_rng(7))
-        again = A.prior_from_rig(calibrate_rig(taken, board_shape="flat"), honest=honest)
-        actual = A.sigmas(again.covariance, A.target_gradients(again))
-        assert _key_geomean(actual, pose.predicted_sigma) == pytest.approx(1.0, abs=0.10)
+    """Synthetic: the textbook sigmas predicted for the advised photo are those of the calibration that
+    includes it, to within 10 % (geometric mean of the key sigmas)."""
+    formal, _, actual, _ = _predicted_and_actual(*note8, seed=7)
+    assert _key_geomean(actual, formal) == pytest.approx(1.0, abs=0.10)
+
+
+def test_honest_prediction_matches_on_average():
+    """The honest sigmas (clustered by instant, never below the textbook ones) scatter from one noise
+    draw to the next with 6-7 instants; their prediction holds to within 10 % on average over draws."""
+    ratios = []
+    for seed in range(4):
+        _, honest, _, actual = _predicted_and_actual(*_calibration(views=5, seed=seed), seed=seed)
+        ratios.append(_key_geomean(actual, honest))
+    assert np.mean(ratios) == pytest.approx(1.0, abs=0.10)
 
 
 # ---------------------------------------------------------------------------- holdable poses

@@ -13,11 +13,16 @@ eliminated by the Schur complement (the projection), in the normal equations' un
 once it is taken is ``(C^-1 + I(P))^-1`` in closed form (no re-solve), and the next pose is chosen
 assuming this one was taken (greedy).
 
-Honest noise. ``sigma`` of a new corner is ``s0`` (the calibration's a-posteriori sigma of a corner)
-times the photo-level inflation it measured, ``kappa_c``: the geometric mean over camera ``c``'s
-intrinsics of the ratio of the honest sigma (the larger of the clustered-by-instant and the
-textbook one, :mod:`dualcal.uncertainty`) to the textbook one. The current covariance is the
-textbook one's correlations scaled to the honest sigmas, so ``current_sigma`` is calib.json's.
+Honest noise. A new corner's noise is ``s0``, the calibration's a-posteriori sigma of a corner, as
+in the textbook covariance ``C = s0^2 N^-1`` that the update works on. On real photos the errors of
+one photo's corners are correlated, and the calibration measured by how much: for each target the
+ratio ``kappa`` of its honest sigma (the larger of the clustered-by-instant and the textbook one,
+:mod:`dualcal.uncertainty`, as calib.json reports it) to its textbook one. A new photo brings the
+same photo-level noise, so its information enters with noise ``kappa s0`` for that target: the
+honest sigma after is ``kappa`` times the textbook one after. (On synthetic sets of 5-6 photos this
+predicts the honest sigmas of the calibration that includes the photo to 3-7 % in geometric mean,
+where weighting the whole update by one camera-wide factor was 18-30 % off: the clustered part is
+a per-parameter quantity.)
 
 Targets are linear functions ``g^T theta`` of the parameters, their sigma ``sqrt(g^T C g)``:
 every intrinsic, ``<camera>.distortion_edge_px`` (the lens's displacement at the image corner
@@ -73,8 +78,9 @@ class Prior:
     """What the advice starts from: a rig's nominal values and the covariance of its parameters.
 
     ``parameters`` (k,) are named as calib.json's ``covariance.parameters``; ``covariance`` (k, k) is
-    the honest one; ``noise_px[camera]`` the sigma of a new corner coordinate (photo-level noise
-    included); ``distance_mm`` the (lo, hi) range of the distances of holdable poses.
+    the textbook one, ``clustered`` the one clustered by instant (None: none measured, as for a
+    plan); ``noise_px[camera]`` the sigma of a new corner coordinate in the textbook covariance's
+    terms; ``distance_mm`` the (lo, hi) range of the distances of holdable poses.
     """
 
     board: Board
@@ -84,6 +90,7 @@ class Prior:
     board_shape_mm: np.ndarray | None
     parameters: list[str]
     covariance: np.ndarray
+    clustered: np.ndarray | None
     noise_px: dict[str, float]
     distance_mm: tuple[float, float]
     rig_mode: str = "rigid"
@@ -131,22 +138,6 @@ class Advice:
 # ---------------------------------------------------------------------------- the starting point
 
 
-def honest_covariance(covariance: dict) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """calib.json's ``covariance`` -> names, the honest covariance and the textbook one.
-
-    The honest sigma of each parameter is the larger of the clustered and the textbook one (as
-    calib.json reports it); the matrix keeps the textbook correlations.
-    """
-    names = list(covariance["parameters"])
-    formal = np.asarray(covariance["formal"], float)
-    clustered = np.asarray(covariance["clustered"], float)
-    var_f = np.maximum(np.diag(formal), 1e-300)
-    sd_h = np.sqrt(np.maximum(np.diag(clustered), var_f))
-    sd_f = np.sqrt(var_f)
-    corr = formal / np.outer(sd_f, sd_f)
-    return names, corr * np.outer(sd_h, sd_h), formal
-
-
 def photo_distance_range(rig: RigModel) -> tuple[float, float]:
     """(lo, hi) distances of the board's centre from the reference camera over the calibration's photos, mm."""
     centre = rig.board.object_points_mm().mean(axis=0)
@@ -156,8 +147,8 @@ def photo_distance_range(rig: RigModel) -> tuple[float, float]:
     return min(d), max(d)
 
 
-def prior_from_rig(rig: RigModel, honest: bool = True) -> Prior:
-    """The :class:`Prior` of a calibration (``honest=False``: the textbook covariance and noise ``s0``).
+def prior_from_rig(rig: RigModel) -> Prior:
+    """The :class:`Prior` of a calibration: its values, both covariances and its ``s0``.
 
     Raises
     ------
@@ -170,17 +161,11 @@ def prior_from_rig(rig: RigModel, honest: bool = True) -> Prior:
     s0 = rig.adjustment.get("s0_px")
     if not s0 or not np.isfinite(s0):
         raise InputError("this calib.json has no a-posteriori sigma (adjustment.s0_px): calibrate again")
-    names, cov_h, cov_f = honest_covariance(rig.covariance)
-    noise = {}
-    for cam in rig.cameras:
-        idx = [i for i, n in enumerate(names) if n.split(".")[0] == cam and n.count(".") == 1]
-        ratio = np.diag(cov_h)[idx] / np.maximum(np.diag(cov_f)[idx], 1e-300)
-        kappa = float(np.exp(0.5 * np.mean(np.log(ratio)))) if honest and idx else 1.0
-        noise[cam] = float(s0) * kappa
     lo, hi = photo_distance_range(rig)
     return Prior(rig.board, rig.reference, dict(rig.cameras), {n: r.pose for n, r in rig.rig.items()},
                  None if rig.board_shape_mm is None else np.asarray(rig.board_shape_mm, float),
-                 names, cov_h if honest else cov_f, noise,
+                 list(rig.covariance["parameters"]), np.asarray(rig.covariance["formal"], float),
+                 np.asarray(rig.covariance["clustered"], float), dict.fromkeys(rig.cameras, float(s0)),
                  (DISTANCE_FACTORS[0] * lo, DISTANCE_FACTORS[1] * hi), rig.rig_mode)
 
 
@@ -222,7 +207,7 @@ def nominal_prior(cameras: dict[str, CameraModel], board: Board, reference: str,
     s = board.square_mm
     extent = float(np.hypot((board.cols + 1) * s, (board.rows + 1) * s))
     dist = [[cam.fx * extent / (fill * min(cam.image_size)) for fill in PLAN_FILL] for cam in cameras.values()]
-    return Prior(board, reference, dict(cameras), dict(rig), None, names, np.diag(np.square(sd)),
+    return Prior(board, reference, dict(cameras), dict(rig), None, names, np.diag(np.square(sd)), None,
                  dict.fromkeys(cameras, float(noise_px)), (min(d[0] for d in dist), max(d[1] for d in dist)))
 
 
@@ -297,6 +282,24 @@ def key_targets(names) -> dict[str, list[str]]:
 def sigmas(covariance: np.ndarray, gradients: dict[str, np.ndarray]) -> dict[str, float]:
     """``{target: sqrt(g^T C g)}`` for one covariance (k, k)."""
     return {n: float(np.sqrt(max(g @ covariance @ g, 0.0))) for n, g in gradients.items()}
+
+
+def photo_factors(prior: Prior, gradients: dict[str, np.ndarray]) -> dict[str, float]:
+    """Each target's ``kappa``: its honest sigma over its textbook one (at least 1; module docstring)."""
+    formal = sigmas(prior.covariance, gradients)
+    if prior.clustered is None:
+        return dict.fromkeys(gradients, 1.0)
+    clustered = sigmas(prior.clustered, gradients)
+    return {n: max(1.0, clustered[n] / formal[n]) if formal[n] > 0 else 1.0 for n in gradients}
+
+
+def honest_sigmas(prior: Prior, covariance: np.ndarray | None = None) -> dict[str, float]:
+    """Every target's honest sigma for a textbook ``covariance`` (default: the prior's own, which gives
+    the sigmas calib.json reports)."""
+    gradients = target_gradients(prior)
+    kappa = photo_factors(prior, gradients)
+    formal = sigmas(prior.covariance if covariance is None else covariance, gradients)
+    return {n: kappa[n] * s for n, s in formal.items()}
 
 
 # ---------------------------------------------------------------------------- candidates
@@ -521,7 +524,8 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
         raise InputError("count must be at least 1")
     gradients = target_gradients(prior)
     goals = parse_goals(goals or {}, gradients)
-    current = sigmas(prior.covariance, gradients)
+    kappa = photo_factors(prior, gradients)
+    current = honest_sigmas(prior)
     if goals:
         names = list(goals)
         groups = [np.arange(len(names))]
@@ -532,7 +536,7 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
         pos = {n: i for i, n in enumerate(names)}
         groups = [np.array([pos[n] for n in g]) for g in by_camera.values()]
         reference = np.array([max(current[n], 1e-300) for n in names])
-    G = np.array([gradients[n] for n in names])                    # (t, k)
+    G = np.array([kappa[n] * gradients[n] for n in names])         # (t, k): honest sigma = sqrt(g^T C g)
     candidates = candidate_poses(prior, seed=seed) if candidates is None else candidates
     if not candidates:
         raise InputError("no holdable board pose is seen whole by any camera (is the board larger than "
@@ -556,7 +560,7 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
         pose, seen = candidates[best]
         centre = pose.apply(centre_b[None])[0]
         outline = {n: outline_px(prior, n, pose) for n in prior.cameras}
-        chosen.append(AdvisedPose(pose, [n for n in prior.cameras if n in seen], sigmas(C, gradients), gain,
+        chosen.append(AdvisedPose(pose, [n for n in prior.cameras if n in seen], honest_sigmas(prior, C), gain,
                                   float(np.linalg.norm(centre)), tilt_deg(Pose(pose.R, centre)), outline))
     done = (all(current[n] <= s for n, s in goals.items()) if goals else first_gain < STOP_GAIN)
     return Advice(prior.reference, current, chosen, bool(done), goals, float(first_gain))
