@@ -70,15 +70,19 @@ def follow_advice(truth, corners, rig, rng, count, goals=None, predicted=None):
     """Take ``count`` advised photos one after another (or until ``goals`` are met); returns the last
     calibration, the photos taken and, in ``predicted``, (predicted key sigmas, actual) of the first."""
     for i in range(count):
-        advice = A.advise(A.prior_from_rig(rig), count=1, goals=goals, seed=i)
+        prior = A.prior_from_rig(rig)
+        advice = A.advise(prior, count=1, goals=goals, seed=i)
         if goals and advice.done:
             return rig, i
         pose = advice.poses[0]
         corners = synth.photographed(truth, corners, f"ADV_{i:02d}", pose.pose, pose.cameras, NOISE_PX, rng)
         rig = calibrate_rig(corners)
         if predicted is not None and i == 0:
+            seen = {n: A.seen_corners(prior, n, pose.pose) for n in pose.cameras}
+            G = A.target_gradients(prior)
+            formal = A.sigmas(A.updated_covariance(prior.covariance, A.instant_information(prior, pose.pose, seen)), G)
             actual = A.prior_from_rig(rig)
-            predicted.append((pose.predicted_sigma, A.sigmas(actual.covariance, A.target_gradients(actual))))
+            predicted.append(((pose.predicted_sigma, A.honest_sigmas(actual)), (formal, A.sigmas(actual.covariance, G))))
     return rig, count
 
 
@@ -105,9 +109,8 @@ def run(preset: str, seed: int, goal: float):
     random = calibrate_rig(first_views(all_corners, START + MORE))
     a, r = key_values(advised, truth), key_values(random, truth)
     worst_z = max(abs(e - t) / s for e, s, t in a.values())
-    pred, act = predicted[0]
-    names = [n for n in a if n in pred]
-    pred_ratio = float(np.exp(np.mean([np.log(act[n] / pred[n]) for n in names])))
+    names = [n for n in a if n in predicted[0][0][0]]
+    pred_ratio = [float(np.exp(np.mean([np.log(act[n] / pred[n]) for n in names]))) for pred, act in predicted[0]]
     # photos to the goal
     goals = goals_of(rig5, goal)
     _, n_adv = follow_advice(truth, start, rig5, np.random.default_rng(seed + 2000), MAX_PHOTOS - START, goals)
@@ -126,7 +129,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--goal", type=float, default=0.4, help="goal: sigma at most this x its value at 5 photos")
     args = ap.parse_args()
-    print(f"{'rig':8} {'seed':>4} {'advised/random':>14} {'max |err|/sigma':>15} {'actual/predicted':>16} "
+    print(f"{'rig':8} {'seed':>4} {'advised/random':>14} {'max |err|/sigma':>15} {'actual/predicted':>16} {'textbook':>8} "
           f"{'photos to goal: advised':>23} {'random':>7} {'ratio':>6}")
     for preset in args.presets:
         rows = []
@@ -135,12 +138,13 @@ def main() -> None:
             ratio, z, pred, n_adv, n_rand = run(preset, seed, args.goal)
             rows.append((ratio, z, pred, n_adv, n_rand))
             rr = f"{n_adv / n_rand:.2f}" if n_rand else "-"
-            print(f"{preset:8} {seed:>4} {ratio:>14.3f} {z:>15.2f} {pred:>16.3f} {n_adv:>23} "
+            print(f"{preset:8} {seed:>4} {ratio:>14.3f} {z:>15.2f} {pred[0]:>16.3f} {pred[1]:>8.3f} {n_adv:>23} "
                   f"{n_rand if n_rand else f'>{MAX_PHOTOS - START}':>7} {rr:>6}")
         ratios = np.array([r[0] for r in rows])
         counts = [(r[3], r[4] if r[4] else MAX_PHOTOS - START) for r in rows]
         print(f"{preset:8} {'mean':>4} {ratios.mean():>14.3f} {max(r[1] for r in rows):>15.2f} "
-              f"{np.mean([r[2] for r in rows]):>16.3f} {sum(c[0] for c in counts):>23} "
+              f"{np.mean([r[2][0] for r in rows]):>16.3f} {np.mean([r[2][1] for r in rows]):>8.3f} "
+              f"{sum(c[0] for c in counts):>23} "
               f"{sum(c[1] for c in counts):>7} {sum(c[0] for c in counts) / sum(c[1] for c in counts):>6.2f}"
               f"   ({time.perf_counter() - t0:.0f} s)")
     print("targets: advised/random <= 0.7, max |err|/sigma <= 4, actual/predicted within 0.9-1.1, photos ratio <= 0.6")

@@ -163,6 +163,18 @@ def test_a_charuco_board_may_be_seen_in_part():
             assert seen is not None and seen.mean() >= A.CHARUCO_SHARE
 
 
+def test_the_pose_in_words_says_which_side_is_farther():
+    from dualcal.rotation import rotation_from_rotvec
+    centre = np.array([0.0, 0.0, 600.0])
+    for axis, angle in ((0, 0.5), (0, -0.5), (1, 0.5), (1, -0.5)):
+        R = rotation_from_rotvec(np.eye(3)[axis] * angle)
+        top_z = (R @ [0.0, -100.0, 0.0])[2]          # the board's point towards the image's top (-y)
+        right_z = (R @ [100.0, 0.0, 0.0])[2]         # and towards its right (+x): depth relative to the centre
+        side = ("top" if top_z > 0 else "bottom") if axis == 0 else ("right" if right_z > 0 else "left")
+        words = A.describe(A.AdvisedPose(Pose(R, centre), ["wide"], {}, 0.1, 600.0, np.degrees(0.5)))
+        assert words == f"60 cm from the camera, tilted 29 degrees, its {side} side farther away"
+
+
 # ---------------------------------------------------------------------------- goals and done
 
 

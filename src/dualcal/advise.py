@@ -570,7 +570,8 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
 
 
 def describe(pose: AdvisedPose) -> str:
-    """The pose in words: distance, and which way the board's top and sides turn away."""
+    """The pose in words: distance, and which side of the board (as the reference camera's image shows
+    it: top, bottom, left, right) is farther away."""
     R = pose.pose.R
     normal = R[:, 2]
     centre = pose.pose.apply(np.zeros((1, 3)))[0]
@@ -582,8 +583,9 @@ def describe(pose: AdvisedPose) -> str:
     if tilt < 8:
         parts.append("facing the camera")
     else:
-        horiz = "right" if across[0] > 0 else "left"
-        vert = "bottom" if across[1] > 0 else "top"
+        # a normal (away from the camera) that leans to +y belongs to a board whose -y (top) side is farther
+        horiz = "left" if across[0] > 0 else "right"
+        vert = "top" if across[1] > 0 else "bottom"
         side = horiz if abs(across[0]) >= abs(across[1]) else vert
         parts.append(f"tilted {tilt:.0f} degrees, its {side} side farther away")
     return ", ".join(parts)
