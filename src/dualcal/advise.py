@@ -49,12 +49,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .board import Board, shape_basis
-from .camera import INTRINSIC_NAMES, CameraModel, normalized_from_pixel, project_with_jacobians
-from .errors import InputError
+from .board import Board, shape_basis, shaped_points_mm
+from .camera import (INTRINSIC_NAMES, CameraModel, ideal_normalized_from_pixel, normalized_from_pixel,
+                     project_with_jacobians)
+from .errors import InputError, NotInvertibleError
 from .model import Pose, RigModel
 from .poses import opk_jacobian, tangent_basis
-from .rotation import ARCMIN_PER_RAD, opk_from_rotation, rotation_from_rotvec
+from .rotation import ARCMIN_PER_RAD, cross_matrix, opk_from_rotation, rotation_from_rotvec
 from .synth import in_frame
 
 #: The distance range of holdable poses, as factors of the range the calibration's photos span.
@@ -96,11 +97,8 @@ class Prior:
     rig_mode: str = "rigid"
 
     def board_points_mm(self) -> np.ndarray:
-        X = self.board.object_points_mm()
-        if self.board_shape_mm is not None:
-            X = X.copy()
-            X[:, 2] += shape_basis(X) @ self.board_shape_mm
-        return X
+        """(N, 3) the board's corners as calibrated (flat, or shaped by ``board_shape_mm``)."""
+        return shaped_points_mm(self.board.object_points_mm(), self.board_shape_mm)
 
     def camera_pose(self, name: str, board_pose: Pose) -> Pose:
         """Board-to-camera pose of ``name`` for the board at ``board_pose`` (reference frame)."""
@@ -218,15 +216,23 @@ def _camera_of(parameter: str) -> str:
     return parameter.split(".")[0]
 
 
+def pixel_ray(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
+    """The camera-frame ray ``(x, y, 1)`` of pixel ``uv`` (2,), through the lens; where the lens cannot
+    be undone there (a poorly determined one may fold inside the image), the pinhole ray instead."""
+    try:
+        xy = ideal_normalized_from_pixel(cam, np.asarray(uv, float)[None])[0]
+    except NotInvertibleError:
+        xy = None
+    if xy is None or not np.all(np.isfinite(xy)):
+        xy = normalized_from_pixel(cam, np.asarray(uv, float)[None])[0]
+    return np.array([xy[0], xy[1], 1.0])
+
+
 def edge_point(cam: CameraModel) -> np.ndarray:
-    """The camera-frame ray (3,) through the image corner farthest from the principal point, as a
-    pinhole sees it (the lens's displacement is measured there; no undistortion, which a poorly
-    determined lens may not allow)."""
+    """The camera-frame ray (3,) of the image corner farthest from the principal point."""
     w, h = cam.image_size
     corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
-    far = corners[np.argmax(np.linalg.norm(corners - [cam.cx, cam.cy], axis=1))]
-    xy = normalized_from_pixel(cam, far[None])[0]
-    return np.array([xy[0], xy[1], 1.0])
+    return pixel_ray(cam, corners[np.argmax(np.linalg.norm(corners - [cam.cx, cam.cy], axis=1))])
 
 
 def target_gradients(prior: Prior) -> dict[str, np.ndarray]:
@@ -389,8 +395,7 @@ def candidate_poses(prior: Prior, per_camera: int = CANDIDATES_PER_CAMERA, seed:
         for _ in range(per_camera):
             d = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
             px = rng.uniform([0.1 * w, 0.1 * h], [0.9 * w, 0.9 * h])
-            xy = normalized_from_pixel(cam, px[None])[0]         # the pinhole ray: near enough to aim
-            ray = to_ref.R @ np.array([xy[0], xy[1], 1.0])
+            ray = to_ref.R @ pixel_ray(cam, px)
             ray /= np.linalg.norm(ray)
             # the board's centre on the aimed camera's ray, at distance d from the reference camera
             o = to_ref.t_mm
@@ -442,13 +447,13 @@ def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray]) -
         if name in prior.rig and not own_poses and f"{name}.rig.t_mm.x" in index:
             rot = [index[f"{name}.rig.rotation_rad.{a}"] for a in "xyz"]
             tr = [index[f"{name}.rig.t_mm.{a}"] for a in "xyz"]
-            Ag[:, :, rot] = J_X @ -cross_matrix_batch(X_c - rel.t_mm)    # R <- exp([d]x) R
+            Ag[:, :, rot] = J_X @ -cross_matrix(X_c - rel.t_mm)    # R <- exp([d]x) R
             Ag[:, :, tr] = J_X
         for j, term in enumerate(("xx", "yy", "xy")):
             if f"board.shape_mm.{term}" in index:
-                Ag[:, :, index[f"board.shape_mm.{term}"]] = (J_ref @ pose.R[:, 2])[:, :] * basis[m, j][:, None]
+                Ag[:, :, index[f"board.shape_mm.{term}"]] = (J_ref @ pose.R[:, 2]) * basis[m, j][:, None]
         p0 = 6 * c if own_poses else 0
-        Al[:, :, p0:p0 + 3] = J_ref @ -cross_matrix_batch(X_ref - pose.t_mm)   # board pose, left increment
+        Al[:, :, p0:p0 + 3] = J_ref @ -cross_matrix(X_ref - pose.t_mm)   # board pose, left increment
         Al[:, :, p0 + 3:p0 + 6] = J_ref
         if prior.rig_mode == "paper" and name in prior.rig:
             q = n_local - 2 * len(names) + 2 * c
@@ -461,14 +466,6 @@ def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray]) -
     Q, _ = np.linalg.qr(A_l)
     A_perp = A_g - Q @ (Q.T @ A_g)                                   # the Schur complement's factor
     return A_perp.T @ A_perp
-
-
-def cross_matrix_batch(v: np.ndarray) -> np.ndarray:
-    """(n, 3) -> (n, 3, 3) matrices ``[v]x`` (:func:`dualcal.rotation.cross_matrix` for many)."""
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return out
 
 
 def updated_covariance(covariance: np.ndarray, information: np.ndarray) -> np.ndarray:
