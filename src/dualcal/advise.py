@@ -65,6 +65,11 @@ MAX_TILT_DEG = 60.0
 #: A camera sees a ChArUco board when it sees at least this share of its corners (and 6 of them).
 CHARUCO_SHARE = 0.5
 MIN_CHARUCO_CORNERS = 6
+#: A chessboard's outer squares stay this share of the frame's shorter side inside it, or twice the
+#: sigma of where they fall as far as the lens is known, up to MAX_FRAME_MARGIN: a board held a little
+#: off, or a lens a little different from the calibration's estimate, still shows it whole.
+FRAME_MARGIN = 0.03
+MAX_FRAME_MARGIN = 0.10
 #: ``done`` without goals: the best next photo shrinks the objective by less than this share.
 STOP_GAIN = 0.02
 #: Candidate poses drawn per camera.
@@ -212,10 +217,6 @@ def nominal_prior(cameras: dict[str, CameraModel], board: Board, reference: str,
 # ---------------------------------------------------------------------------- targets
 
 
-def _camera_of(parameter: str) -> str:
-    return parameter.split(".")[0]
-
-
 def pixel_ray(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
     """The camera-frame ray ``(x, y, 1)`` of pixel ``uv`` (2,), through the lens; where the lens cannot
     be undone there (a poorly determined one may fold inside the image), the pinhole ray instead."""
@@ -311,37 +312,60 @@ def honest_sigmas(prior: Prior, covariance: np.ndarray | None = None) -> dict[st
 # ---------------------------------------------------------------------------- candidates
 
 
-def tilt_deg(pose: Pose) -> float:
-    """Angle between the board's normal and its line of sight to the camera of ``pose``, degrees."""
-    centre = pose.t_mm
-    cos = abs(pose.R[:, 2] @ centre) / np.linalg.norm(centre)
+def tilt_deg(R: np.ndarray, centre_mm: np.ndarray) -> float:
+    """Angle between the board's normal (its +Z, into the board: away from a camera that sees its
+    front) and the line of sight from the camera to its centre ``centre_mm`` (camera frame), degrees;
+    above 90 the camera sees the board's back."""
+    cos = R[:, 2] @ centre_mm / np.linalg.norm(centre_mm)
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
-def holdable(prior: Prior, pose: Pose, board_centre_mm: np.ndarray | None = None) -> bool:
+def holdable(prior: Prior, pose: Pose) -> bool:
     """Whether a person can hold the board at ``pose`` (board to reference camera): every corner in
-    front of the camera and the board's front towards it, its centre's distance within
-    ``prior.distance_mm``, at most :data:`MAX_TILT_DEG` from facing the camera."""
+    front of the camera, its centre's distance within ``prior.distance_mm``, its front at most
+    :data:`MAX_TILT_DEG` from facing the camera."""
     X = pose.apply(prior.board.object_points_mm())
-    centre = pose.apply((board_centre_mm if board_centre_mm is not None
-                         else prior.board.object_points_mm().mean(axis=0))[None])[0]
+    centre = X.mean(axis=0)
     lo, hi = prior.distance_mm
     d = float(np.linalg.norm(centre))
-    facing = pose.R[:, 2] @ centre / d
-    tilt = np.degrees(np.arccos(np.clip(facing, -1.0, 1.0)))
-    return bool(np.all(X[:, 2] > 0) and lo * (1 - 1e-9) <= d <= hi * (1 + 1e-9) and tilt <= MAX_TILT_DEG + 1e-9)
+    return bool(np.all(X[:, 2] > 0) and lo * (1 - 1e-9) <= d <= hi * (1 + 1e-9)
+                and tilt_deg(pose.R, centre) <= MAX_TILT_DEG + 1e-9)
 
 
 def seen_corners(prior: Prior, name: str, board_pose: Pose) -> np.ndarray | None:
     """(N,) bool, the corners camera ``name`` measures at ``board_pose``, or None where it does not
-    see the board (a chessboard: every corner and the outer squares' corners; ChArUco: enough)."""
+    see the board (a chessboard: every corner, and the outer squares :func:`frame_margin_px` inside the
+    frame; ChArUco: enough corners)."""
     board, cam = prior.board, prior.cameras[name]
     pose = prior.camera_pose(name, board_pose)
     seen = in_frame(cam, pose.apply(prior.board_points_mm()))
     if board.charuco is not None:
         enough = seen.sum() >= max(MIN_CHARUCO_CORNERS, CHARUCO_SHARE * len(seen))
         return seen if enough else None
-    return seen if seen.all() and in_frame(cam, pose.apply(board_outline_mm(board))).all() else None
+    outline = pose.apply(board_outline_mm(board))
+    if not (seen.all() and in_frame(cam, outline).all()):
+        return None
+    uv, _, J_K = project_with_jacobians(cam, outline)
+    m = frame_margin_px(prior, name, J_K)
+    inside = np.all((uv >= m) & (uv <= np.array(cam.image_size) - 1 - m))
+    return seen if inside else None
+
+
+def frame_margin_px(prior: Prior, name: str, J_K: np.ndarray) -> float:
+    """How far inside camera ``name``'s frame the board's outline must stay, px: twice the largest
+    sigma of where its points (Jacobians ``J_K`` (M, 2, 10) on the intrinsics) fall, as far as the
+    calibration knows the lens, within :data:`FRAME_MARGIN` and :data:`MAX_FRAME_MARGIN` of the
+    frame's shorter side."""
+    index = {n: i for i, n in enumerate(prior.parameters)}
+    used = [(j, index[f"{name}.{n}"]) for j, n in enumerate(INTRINSIC_NAMES) if f"{name}.{n}" in index]
+    J = J_K[:, :, [j for j, _ in used]]
+    cols = [i for _, i in used]
+    var = 0.0
+    for C in (prior.covariance, prior.clustered):
+        if C is not None:
+            var = max(var, float(np.max(np.einsum("mai,ij,maj->ma", J, C[np.ix_(cols, cols)], J))))
+    short = min(prior.cameras[name].image_size)
+    return float(np.clip(2.0 * np.sqrt(var), FRAME_MARGIN * short, MAX_FRAME_MARGIN * short))
 
 
 def board_outline_mm(board: Board, samples: int = 8) -> np.ndarray:
@@ -558,7 +582,7 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
         centre = pose.apply(centre_b[None])[0]
         outline = {n: outline_px(prior, n, pose) for n in prior.cameras}
         chosen.append(AdvisedPose(pose, [n for n in prior.cameras if n in seen], honest_sigmas(prior, C), gain,
-                                  float(np.linalg.norm(centre)), tilt_deg(Pose(pose.R, centre)), outline))
+                                  float(np.linalg.norm(centre)), tilt_deg(pose.R, centre), outline))
     done = (all(current[n] <= s for n, s in goals.items()) if goals else first_gain < STOP_GAIN)
     return Advice(prior.reference, current, chosen, bool(done), goals, float(first_gain))
 
