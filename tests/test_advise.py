@@ -318,3 +318,19 @@ def test_the_report_has_the_advice_section(note8):
     parser = _Outlines()
     parser.feed(html)
     assert 'id="advice"' in html and len(parser.found) == 3 * 2
+
+
+def test_cli_plan_reads_a_cameras_focal_length_from_a_photo(tmp_path, run_cli):
+    from PIL import Image
+    photo = tmp_path / "wide.jpg"
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[0xA405] = 26                       # FocalLengthIn35mmFilm
+    Image.new("L", (400, 300), 128).save(photo, exif=exif)
+    out = tmp_path / "plan.json"
+    code, _, err = run_cli("advise", "--plan", "--camera", f"wide={photo}", "--board", "8x5", "--square", "30",
+                           "-o", out, "--count", "2")
+    assert code == 0, err
+    assert len(json.loads(out.read_text())["poses"]) == 2
+    Image.new("L", (400, 300), 128).save(photo)            # no EXIF: one line saying what to give instead
+    result = run_cli("advise", "--plan", "--camera", f"wide={photo}", "--board", "8x5", "--square", "30", "-o", out)
+    assert result.code == 2 and len(result.err_lines) == 1 and "WxH:FOCAL35MM" in result.err

@@ -47,7 +47,7 @@ def _fmt(x: float) -> str:
 
 def advice_context(advice: Advice, image_sizes: dict[str, tuple[int, int]]) -> dict:
     """What the advice's templates show: one card per pose and the sigma table."""
-    cameras = list(image_sizes)
+    cameras = sorted(image_sizes, key=lambda n: n != advice.frame)       # the reference camera first
     cards = []
     for i, pose in enumerate(advice.poses, start=1):
         frames = [{"camera": n, "sees": n in pose.cameras,
