@@ -334,3 +334,15 @@ def test_cli_plan_reads_a_cameras_focal_length_from_a_photo(tmp_path, run_cli):
     Image.new("L", (400, 300), 128).save(photo)            # no EXIF: one line saying what to give instead
     result = run_cli("advise", "--plan", "--camera", f"wide={photo}", "--board", "8x5", "--square", "30", "-o", out)
     assert result.code == 2 and len(result.err_lines) == 1 and "WxH:FOCAL35MM" in result.err
+
+
+def test_cli_says_after_which_photo_the_goals_are_met(note8, tmp_path, run_cli):
+    _, _, rig = note8
+    calib = tmp_path / "calib.json"
+    io.save_rig(calib, rig)
+    goal = 0.9 * rig.camera_sigma["tele"]["fx"]
+    code, stdout, err = run_cli("advise", calib, "-o", tmp_path / "a.json", "--target", f"tele.fx={goal}")
+    assert code == 0, err
+    assert "every target is met after photo 1 (predicted)" in stdout
+    result = run_cli("advise", calib, "-o", tmp_path / "a.json", "--board", "9x5", "--square", "30")
+    assert result.code == 2 and "disagrees" in result.err

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from . import cli
-from .common import board_from_flags, board_options
+from .common import board_from_flags, board_options, check_board_agrees
 
 
 def _goals(values) -> dict[str, float]:
@@ -102,7 +102,7 @@ def advise_command(calib, output, count, targets, plan, cameras, baseline_mm, bo
     dualcal advise --plan --camera wide=4032x3024:26 --camera tele=4032x3024:52 \\
         --board 8x5 --square 30 -o plan.json
     """
-    from ..advise import advice_to_dict, advise, prior_from_rig
+    from ..advise import advice_to_dict, advise, describe, prior_from_rig
     from ..errors import InputError
     from ..io import check_output_file, load_rig, write_json_atomic, write_text_atomic
     from ..report.advice import render_advice_page
@@ -121,17 +121,21 @@ def advise_command(calib, output, count, targets, plan, cameras, baseline_mm, bo
             raise InputError("give a calib.json to advise from (or --plan with --camera for a first set)")
         if cameras:
             raise InputError("--camera is for --plan: a calib.json names its own cameras")
-        prior = prior_from_rig(load_rig(calib))
+        rig = load_rig(calib)
+        check_board_agrees(board, rig.board, str(calib))
+        prior = prior_from_rig(rig)
     advice = advise(prior, count or (8 if plan else 5), _goals(targets), seed=seed)
     write_json_atomic(output, advice_to_dict(advice))
     write_text_atomic(page, render_advice_page(advice, {n: c.image_size for n, c in prior.cameras.items()}))
     for i, p in enumerate(advice.poses, start=1):
-        from ..advise import describe
         click.echo(f"{i}. {describe(p)}; seen by {', '.join(p.cameras)}; shrinks the uncertainty by {100 * p.gain:.0f} %")
-    if advice.goals:
-        met = advice.done
-        click.echo("done: every target is met" if met else
-                   f"targets not met yet: {', '.join(n for n, s in advice.goals.items() if advice.current_sigma[n] > s)}")
+    if advice.goals and advice.done:
+        click.echo("done: every target is met")
+    elif advice.goals:
+        met = [i for i, p in enumerate(advice.poses, start=1)
+               if all(p.predicted_sigma[n] <= s for n, s in advice.goals.items())]
+        click.echo(f"every target is met after photo {met[0]} (predicted)" if met else
+                   f"the targets are not met after {len(advice.poses)} photos (predicted): ask for more with --count")
     elif advice.done:
         click.echo(f"stop: more photos will not help more than {100 * advice.next_gain:.1f} %")
     click.echo(f"advice written to {output} and {page}")
