@@ -19,10 +19,10 @@ one photo's corners are correlated, and the calibration measured by how much: fo
 ratio ``kappa`` of its honest sigma (the larger of the clustered-by-instant and the textbook one,
 :mod:`dualcal.uncertainty`, as calib.json reports it) to its textbook one. A new photo brings the
 same photo-level noise, so its information enters with noise ``kappa s0`` for that target: the
-honest sigma after is ``kappa`` times the textbook one after. (On synthetic sets of 5-6 photos this
-predicts the honest sigmas of the calibration that includes the photo to 3-7 % in geometric mean,
-where weighting the whole update by one camera-wide factor was 18-30 % off: the clustered part is
-a per-parameter quantity.)
+honest sigma after is ``kappa`` times the textbook one after. (On synthetic sets of 5 photos this
+predicts the honest key sigmas of the calibration that includes the photo to 3-11 % on average over
+draws, where weighting the whole update by one camera-wide factor was 18-30 % off: the clustered part
+is a per-parameter quantity.)
 
 Targets are linear functions ``g^T theta`` of the parameters, their sigma ``sqrt(g^T C g)``:
 every intrinsic, ``<camera>.distortion_edge_px`` (the lens's displacement at the image corner

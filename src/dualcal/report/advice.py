@@ -56,6 +56,7 @@ def advice_context(advice: Advice, image_sizes: dict[str, tuple[int, int]]) -> d
         cards.append({"index": i, "words": describe(pose), "cameras": ", ".join(pose.cameras),
                       "gain": f"{100 * pose.gain:.0f} %", "frames": frames})
     shown = list(advice.goals) or [n for group in key_targets(advice.current_sigma).values() for n in group]
+    shown.sort(key=lambda n: n.split(".")[0] != advice.frame)              # stable: the reference camera first
     rows = [{"name": n, "now": _fmt(advice.current_sigma[n]), "goal": _fmt(advice.goals[n]) if n in advice.goals else "",
              "after": [_fmt(p.predicted_sigma[n]) for p in advice.poses]} for n in shown]
     return {"cards": cards, "rows": rows, "done": advice.done, "next_gain": f"{100 * advice.next_gain:.1f} %",
