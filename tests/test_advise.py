@@ -171,7 +171,7 @@ def test_the_pose_in_words_says_which_side_is_farther():
         top_z = (R @ [0.0, -100.0, 0.0])[2]          # the board's point towards the image's top (-y)
         right_z = (R @ [100.0, 0.0, 0.0])[2]         # and towards its right (+x): depth relative to the centre
         side = ("top" if top_z > 0 else "bottom") if axis == 0 else ("right" if right_z > 0 else "left")
-        words = A.describe(A.AdvisedPose(Pose(R, centre), ["wide"], {}, 0.1, 600.0, np.degrees(0.5)))
+        words = A.describe(A.AdvisedPose(Pose(R, centre), ["wide"], {}, 0.1, centre))
         assert words == f"60 cm from the camera, tilted 29 degrees, its {side} side farther away"
 
 

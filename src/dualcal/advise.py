@@ -113,7 +113,8 @@ class Prior:
 @dataclass
 class AdvisedPose:
     """One advised pose: ``pose`` (board to reference camera), the ``cameras`` that see it, the sigmas
-    once it (and every pose before it) is taken, the share by which it shrinks the objective, and
+    once it (and every pose before it) is taken, the share by which it shrinks the objective, the
+    board's centre in the reference camera's frame, and
     for every camera the board's outline in its frame (``outline_px[camera]``, (M, 2) px, or None
     where the board is partly behind it)."""
 
@@ -121,9 +122,18 @@ class AdvisedPose:
     cameras: list[str]
     predicted_sigma: dict[str, float]
     gain: float
-    distance_mm: float
-    tilt_deg: float
+    centre_mm: np.ndarray
     outline_px: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def distance_mm(self) -> float:
+        """Distance of the board's centre from the reference camera."""
+        return float(np.linalg.norm(self.centre_mm))
+
+    @property
+    def tilt_deg(self) -> float:
+        """How far the board's front turns away from facing the reference camera (:func:`tilt_deg`)."""
+        return tilt_deg(self.pose.R, self.centre_mm)
 
 
 @dataclass
@@ -481,7 +491,8 @@ def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray]) -
         Al[:, :, p0 + 3:p0 + 6] = J_ref
         if prior.rig_mode == "paper" and name in prior.rig:
             q = n_local - 2 * len(names) + 2 * c
-            Al[:, :, q:q + 2] = J_X @ tangent_basis(rel.t_mm[None] / np.linalg.norm(rel.t_mm))[0]   # this instant's baseline direction
+            # this instant's own baseline direction (t = D u_v): two tangent increments of u_v
+            Al[:, :, q:q + 2] = J_X @ tangent_basis(rel.t_mm[None] / np.linalg.norm(rel.t_mm))[0]
         w = 1.0 / prior.noise_px[name]
         blocks_g.append(w * Ag.reshape(-1, k))
         blocks_l.append(w * Al.reshape(-1, n_local))
@@ -568,21 +579,20 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
     score_now = _objective(np.sqrt(np.einsum("tk,kl,tl->t", G, C, G))[None], reference, groups, bool(goals))[0]
     chosen, first_gain = [], None
     for _ in range(count):
+        if goals and score_now <= 0.0:                               # every goal met: no more photos
+            first_gain = 0.0 if first_gain is None else first_gain
+            break
         Cs = updated_covariance(C, info)                             # (m, k, k)
         sig = np.sqrt(np.maximum(np.einsum("tk,mkl,tl->mt", G, Cs, G), 0.0))
         score = _objective(sig, reference, groups, bool(goals))
         best = int(np.argmin(score))
         gain = float(1.0 - np.exp(score[best] - score_now))
-        if first_gain is None:
-            first_gain = gain
-        if goals and score_now <= 0.0:
-            break
+        first_gain = gain if first_gain is None else first_gain
         C, score_now = Cs[best], float(score[best])
         pose, seen = candidates[best]
-        centre = pose.apply(centre_b[None])[0]
         outline = {n: outline_px(prior, n, pose) for n in prior.cameras}
         chosen.append(AdvisedPose(pose, [n for n in prior.cameras if n in seen], honest_sigmas(prior, C), gain,
-                                  float(np.linalg.norm(centre)), tilt_deg(pose.R, centre), outline))
+                                  pose.apply(centre_b[None])[0], outline))
     done = (all(current[n] <= s for n, s in goals.items()) if goals else first_gain < STOP_GAIN)
     return Advice(prior.reference, current, chosen, bool(done), goals, float(first_gain))
 
@@ -593,10 +603,8 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
 def describe(pose: AdvisedPose) -> str:
     """The pose in words: distance, and which side of the board (as the reference camera's image shows
     it: top, bottom, left, right) is farther away."""
-    R = pose.pose.R
-    normal = R[:, 2]
-    centre = pose.pose.apply(np.zeros((1, 3)))[0]
-    view = centre / np.linalg.norm(centre)
+    normal = pose.pose.R[:, 2]
+    view = pose.centre_mm / pose.distance_mm
     tilt = pose.tilt_deg
     # the normal's component across the line of sight: where the board's far side is
     across = normal - view * (normal @ view)
