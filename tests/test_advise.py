@@ -34,11 +34,15 @@ def _key_geomean(sig: dict, ref: dict) -> float:
 # ---------------------------------------------------------------------------- the information of an instant
 
 
-def test_the_calibrations_own_instants_give_back_its_normal_matrix(note8):
+@pytest.mark.parametrize("preset, board_shape", [("note8", "flat"), ("triple", "fit")])
+def test_the_calibrations_own_instants_give_back_its_normal_matrix(preset, board_shape):
     """Exact Jacobians and the Schur complement: the information of the calibration's own instants, at
-    their adjusted poses, with the noise s0, adds up to the inverse of its textbook covariance."""
-    _, corners, rig = note8
+    their adjusted poses, with the noise s0, adds up to the inverse of its textbook covariance (with
+    the board's shape estimated too)."""
+    truth = synth.make_truth(preset, views=6, seed=1)
+    rig = calibrate_rig(synth.noisy_corner_set(truth, 0.2, seed=1), board_shape=board_shape)
     prior = A.prior_from_rig(rig)
+    assert (board_shape == "fit") == any(n.startswith("board.shape_mm") for n in prior.parameters)
     used = rig.used_corners()
     total = np.zeros_like(prior.covariance)
     for view, pose in rig.reference_poses().items():
