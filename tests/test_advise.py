@@ -145,10 +145,11 @@ def _check_holdable(rig, advice, prior):
 
 @pytest.mark.parametrize("preset, seeds, mode", [("note8", (2, 3, 4), "rigid"), ("stereo", (0, 1, 2), "rigid"),
                                                  ("triple", (0, 1), "rigid"), ("note8", (5,), "paper"),
-                                                 ("stereo", (3,), "none")])
+                                                 ("stereo", (3,), "none"), ("stereo5", (0,), "rigid")])
 def test_every_advised_pose_is_holdable(preset, seeds, mode):
     for seed in seeds:
-        _, _, rig = _calibration(preset, views=5 + seed % 3, seed=seed, rig_mode=mode)
+        model = synth.PRESETS[preset]["cameras"][next(iter(synth.PRESETS[preset]["cameras"]))].model
+        _, _, rig = _calibration(preset, views=5 + seed % 3, seed=seed, rig_mode=mode, model=model)
         prior = A.prior_from_rig(rig)
         advice = A.advise(prior, count=4, seed=seed)
         assert len(advice.poses) == 4

@@ -270,7 +270,8 @@ def photographed(truth: SynthTruth, corners: CornerSet, view: str, board_pose: P
                  noise_px: float, rng: np.random.Generator) -> CornerSet:
     """``corners`` with one more instant ``view``: the board at ``board_pose`` (board to reference
     camera) as ``cameras`` photograph it, exact corners plus isotropic noise of ``noise_px``;
-    a corner a camera does not see (:func:`in_frame`) is NaN. (Following advice in a simulator.)"""
+    a corner a camera does not see (:func:`in_frame`) is NaN, a photo that shows none None.
+    (Following advice in a simulator.)"""
     X = truth.board.object_points_mm()
     cams = {}
     for name, cc in corners.cameras.items():
@@ -282,6 +283,6 @@ def photographed(truth: SynthTruth, corners: CornerSet, view: str, board_pose: P
             uv = project_points(truth.cameras[name], np.where(seen[:, None], Xc, 1.0))
             uv = uv + rng.normal(0.0, noise_px, uv.shape)
             uv[~seen] = np.nan
-            views[view] = uv
+            views[view] = uv if seen.any() else None
         cams[name] = CameraCorners(cc.image_size, views, cc.meta)
     return CornerSet(corners.board, cams, corners.reference)
