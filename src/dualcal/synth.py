@@ -264,3 +264,25 @@ def truth_rig_model(truth: SynthTruth, corners: CornerSet | None = None) -> RigM
                     {c: dict.fromkeys(INTRINSIC_NAMES, 0.0) for c in truth.cameras},
                     {c: 0.0 for c in truth.cameras}, rig, poses,
                     {v: {c: 0.0 for c in truth.cameras} for v in truth.view_poses}, 0.0, corners)
+
+
+def photographed(truth: SynthTruth, corners: CornerSet, view: str, board_pose: Pose, cameras,
+                 noise_px: float, rng: np.random.Generator) -> CornerSet:
+    """``corners`` with one more instant ``view``: the board at ``board_pose`` (board to reference
+    camera) as ``cameras`` photograph it, exact corners plus isotropic noise of ``noise_px``;
+    a corner a camera does not see (:func:`in_frame`) is NaN, a photo that shows none None.
+    (Following advice in a simulator.)"""
+    X = truth.board.object_points_mm()
+    cams = {}
+    for name, cc in corners.cameras.items():
+        views = dict(cc.views)
+        if name in cameras:
+            pose = board_pose if name == truth.reference else truth.rig[name].compose(board_pose)
+            Xc = pose.apply(X)
+            seen = in_frame(truth.cameras[name], Xc)
+            uv = project_points(truth.cameras[name], np.where(seen[:, None], Xc, 1.0))
+            uv = uv + rng.normal(0.0, noise_px, uv.shape)
+            uv[~seen] = np.nan
+            views[view] = uv if seen.any() else None
+        cams[name] = CameraCorners(cc.image_size, views, cc.meta)
+    return CornerSet(corners.board, cams, corners.reference)

@@ -280,6 +280,19 @@ def _figure_jobs(rig: RigModel, names: list[str], found: dict[str, analysis.Came
     return jobs
 
 
+def advice_section(rig: RigModel, count: int = 3) -> dict | None:
+    """The next photos to take (:mod:`dualcal.advise`), as the page shows them; None where the
+    calibration holds no covariance to advise from."""
+    from ..advise import advise, prior_from_rig
+    from ..errors import InputError
+    from .advice import advice_context
+    try:
+        advice = advise(prior_from_rig(rig), count)
+    except InputError:
+        return None
+    return advice_context(advice, {n: c.image_size for n, c in rig.cameras.items()})
+
+
 def render_report(rig: RigModel, evaluation: dict | None = None, title: str | None = None,
                   progress: bool = False) -> str:
     """The HTML report of a calibrated rig, as one self-contained string.
@@ -332,4 +345,5 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
         shared=shared,
         skew_model="Model 2: skew free" if rig.skew else "Model 1: skew fixed to 0",
         rig_mode=RIG_MODE_LABELS.get(rig.rig_mode, rig.rig_mode),
+        advice=advice_section(rig),
     )
