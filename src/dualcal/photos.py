@@ -2,21 +2,32 @@
 
 Every photo dualcal reads is opened here, by :func:`read_exif` (header only), :func:`read_gray`
 (detection) and :func:`open_image` (rectification, undistortion), so all formats and their errors
-are handled in one place: JPEG, PNG and TIFF through OpenCV or Pillow, HEIC through pillow-heif.
+are handled in one place: JPEG, PNG and TIFF through OpenCV or Pillow, HEIC through pillow-heif,
+RAW (DNG) through rawpy (LibRaw).
 
 Pixels are used as stored: the EXIF orientation tag is reported, never applied (the sensor does
-not turn when the phone does), so every coordinate is in the stored frame.
+not turn when the phone does), so every coordinate is in the stored frame. A DNG is read as the
+sensor recorded it: the active area of the raw frame (DNG ``ActiveArea``) pixel for pixel, its
+orientation tag reported like EXIF's, and no lens correction (LibRaw applies none of the DNG's
+opcode lists, where a phone keeps its warp). Its pixel ``(i, j)`` is LibRaw's visible pixel
+``(i, j)``: the active area's, except that LibRaw moves an odd origin of it to the next even row or
+column (it keeps the frame on the colour filter's period), which then drops that first row or
+column. Every photo of a camera has the same area, so this only shifts the frame's origin.
+A phone's JPEG of the same shot is another frame (its DNG ``DefaultCrop``, resampled, the lens
+corrected): calibrate the DNGs or the JPEGs of a camera, not a mix.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
 
 import cv2
 import numpy as np
+import rawpy
 from PIL import Image
 
 from .errors import InputError
@@ -28,9 +39,13 @@ try:  # HEIC/HEIF through pillow-heif
 except ImportError:  # pragma: no cover - pillow-heif is a dependency; HEIC is then unreadable
     pillow_heif = None
 
-__all__ = ["PHOTO_SUFFIXES", "Photo", "open_image", "read_exif", "read_gray"]
+__all__ = ["PHOTO_SUFFIXES", "RAW_SUFFIXES", "Photo", "decode_bytes_per_pixel", "open_image", "output_suffix",
+           "read_exif", "read_gray", "source_format"]
 
-PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic", ".heif")
+RAW_SUFFIXES = (".dng",)
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic", ".heif", *RAW_SUFFIXES)
+_FORMATS = {".jpg": "jpeg", ".jpeg": "jpeg", ".png": "png", ".tif": "tiff", ".tiff": "tiff", ".heic": "heic",
+            ".heif": "heic", ".dng": "dng"}
 
 # EXIF tags (TIFF/EXIF 2.3)
 _ORIENTATION, _MAKE, _MODEL, _EXIF_IFD = 0x0112, 0x010F, 0x0110, 0x8769
@@ -56,7 +71,13 @@ def _rational(x) -> float | None:
 
 
 def _exif_from_image(img: Image.Image) -> dict:
-    exif = img.getexif()
+    orientation = img.info.get("original_orientation") if img.format == "HEIF" else None
+    # pillow-heif set the tag to 1 and kept the file's value aside
+    return _exif_facts(img.getexif(), orientation)
+
+
+def _exif_facts(exif: Image.Exif, orientation: int | None = None) -> dict:
+    """The facts of :func:`read_exif` from an EXIF header; ``orientation`` overrides its tag."""
     sub = exif.get_ifd(_EXIF_IFD) if exif else {}
     stamp = sub.get(_DATETIME_ORIGINAL) or exif.get(_DATETIME)
     taken = None
@@ -70,9 +91,7 @@ def _exif_from_image(img: Image.Image) -> dict:
             taken = None
     make, model, lens = exif.get(_MAKE), exif.get(_MODEL), sub.get(_LENS_MODEL)
     f35 = sub.get(_FOCAL_35MM)
-    orientation = exif.get(_ORIENTATION)
-    if img.format == "HEIF":   # pillow-heif set the tag to 1 and kept the file's value aside
-        orientation = img.info.get("original_orientation") or orientation
+    orientation = orientation or exif.get(_ORIENTATION)
     return {
         "make": make.strip("\x00 ") if isinstance(make, str) else None,
         "model": model.strip("\x00 ") if isinstance(model, str) else None,
@@ -87,7 +106,9 @@ def _exif_from_image(img: Image.Image) -> dict:
 # What Pillow and pillow-heif raise for a file that is not a readable image (pillow-heif
 # documents ValueError, EOFError, SyntaxError, RuntimeError and OSError; Pillow refuses
 # absurdly large images with DecompressionBombError).
-_UNREADABLE = (OSError, SyntaxError, ValueError, EOFError, RuntimeError, Image.DecompressionBombError)
+# rawpy raises LibRawError (and its subclasses) for a file LibRaw cannot open or unpack.
+_UNREADABLE = (OSError, SyntaxError, ValueError, EOFError, RuntimeError, Image.DecompressionBombError,
+               rawpy.LibRawError)
 
 
 @contextlib.contextmanager
@@ -141,8 +162,11 @@ def read_exif(path) -> tuple[tuple[int, int], dict]:
 
     The facts are ``make``, ``model``, ``lens_model`` (EXIF ``LensModel``), ``focal_length_mm``,
     ``focal_length_35mm_mm``, ``orientation`` (the EXIF tag, 1-8, or None; never applied) and
-    ``taken`` (capture time, a ``datetime`` or None). Raises :class:`InputError` for a file that is not a readable image.
+    ``taken`` (capture time, a ``datetime`` or None). For a DNG the size is its raw frame's active
+    area (what :func:`read_gray` returns). Raises :class:`InputError` for a file that is not a readable image.
     """
+    if _is_raw(path):
+        return _raw_exif(path)
     with _reading(path), Image.open(path) as img:
         return _stored_size(img, _heif_undo(img)), _exif_from_image(img)
 
@@ -151,9 +175,12 @@ def open_image(path) -> Image.Image:
     """Decode a photo with Pillow in its stored pixel frame (HEIC too, see :func:`_heif_undo`).
 
     The image keeps its ``format`` and ``info`` (EXIF with the file's orientation tag, ICC
-    profile), so it can be written back in kind. Raises :class:`InputError` for a file that is
-    not a readable image.
+    profile), so it can be written back in kind. A DNG is developed (:func:`_developed_image`) to
+    an 8-bit sRGB image of format TIFF (written with :func:`output_suffix`'s ``.tif``). Raises
+    :class:`InputError` for a file that is not a readable image.
     """
+    if _is_raw(path):
+        return _developed_image(path)
     with _reading(path):
         img = Image.open(path)
         try:
@@ -192,9 +219,11 @@ def read_gray(path) -> np.ndarray:
     """Decode a photo at full resolution as 8-bit grey, in its stored pixel frame.
 
     The EXIF orientation is not applied. JPEG, PNG and TIFF go through OpenCV, HEIC through
-    :func:`open_image`. A truncated or corrupt file raises :class:`InputError`.
+    :func:`open_image`, DNG through :func:`_raw_gray`. A truncated or corrupt file raises :class:`InputError`.
     """
     path = Path(path)
+    if _is_raw(path):
+        return _raw_gray(path)
     if path.suffix.lower() in (".heic", ".heif"):
         with open_image(path) as img:
             return np.asarray(img.convert("L"))
@@ -207,4 +236,146 @@ def read_gray(path) -> np.ndarray:
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
     if img is None:
         raise InputError(f"{path}: cannot be decoded as an image")
+    return img
+
+
+# ---------------------------------------------------------------------------- formats
+
+def _is_raw(path) -> bool:
+    return Path(path).suffix.lower() in RAW_SUFFIXES
+
+
+def source_format(path) -> str:
+    """``"jpeg"``, ``"png"``, ``"tiff"``, ``"heic"`` or ``"dng"``: the kind of photo file ``path`` is."""
+    suffix = Path(path).suffix.lower()
+    return _FORMATS.get(suffix, suffix.lstrip("."))
+
+
+def output_suffix(path) -> str:
+    """The file suffix of a photo written from ``path`` by :func:`open_image` (a DNG's is ``.tif``)."""
+    return ".tif" if _is_raw(path) else Path(path).suffix
+
+
+def decode_bytes_per_pixel(path) -> float:
+    """Peak memory of :func:`read_gray` and of detecting the board in its image, bytes per pixel.
+
+    Measured (48 MP, 2 photos at once): a JPEG about 2 (its file, the grey image, the reduced
+    copies), a DNG about 4 (LibRaw's raw frame, 2 bytes a pixel, and a strip at a time, see
+    :func:`_raw_gray`), a HEIC about 5 (pillow-heif decodes to RGB first).
+    """
+    return {"dng": 4.0, "heic": 5.0}.get(source_format(path), 2.5)
+
+
+# ---------------------------------------------------------------------------- RAW (DNG)
+
+# LibRaw's development for open_image: full size (half_size off), no turn (user_flip=0: the
+# stored frame), the camera's white balance, no auto-brightening (a fixed exposure: a photo's
+# tone does not depend on its content), BT.709 gamma; none of these moves a pixel.
+_DEVELOP = {"half_size": False, "user_flip": 0, "use_camera_wb": True, "no_auto_bright": True,
+            "output_bps": 8, "demosaic_algorithm": rawpy.DemosaicAlgorithm.AHD}
+_STRIP_ROWS = 512          # rows of the raw frame made grey at once by _bayer_gray (even)
+
+
+def _raw_exif(path) -> tuple[tuple[int, int], dict]:
+    """Active-area size and EXIF facts of a DNG: LibRaw's sizes, and the tags of the DNG (a TIFF)
+    read by Pillow from IFD 0 and its EXIF IFD (header only; no pixel is decoded)."""
+    with _reading(path):
+        with rawpy.imread(str(path)) as raw:
+            size = (int(raw.sizes.width), int(raw.sizes.height))
+        with open(path, "rb") as fp:
+            exif = Image.Exif()
+            exif.load_from_fp(fp)          # Pillow's TIFF reader does the same for a TIFF it can decode
+            return size, _exif_facts(exif)
+
+
+def _check_visible(path, image: np.ndarray, raw) -> np.ndarray:
+    visible = (int(raw.sizes.height), int(raw.sizes.width))
+    if image.shape[:2] != visible:
+        raise InputError(f"{path}: LibRaw develops this raw frame to {image.shape[1]}x{image.shape[0]}, not its "
+                         f"{visible[1]}x{visible[0]} sensor pixels (a sensor of non-square pixels?): it cannot "
+                         "be read pixel for pixel")
+    return image
+
+
+def _is_bayer(raw) -> bool:
+    """A raw frame of one sample a pixel under a 2 x 2 red, green, blue colour filter array."""
+    pattern = raw.raw_pattern
+    return (raw.raw_type == rawpy.RawType.Flat and pattern is not None and pattern.shape == (2, 2)
+            and sorted(raw.color_desc.decode()[c] for c in pattern.flat) == ["B", "G", "G", "R"])
+
+
+@functools.cache
+def _tone_lut() -> np.ndarray:
+    """Linear 16-bit -> 8-bit through a 1/2.2 power, as a photo is encoded (monotonic: it moves no corner)."""
+    return np.rint(255.0 * (np.arange(65536) / 65535.0) ** (1 / 2.2)).astype(np.uint8)
+
+
+def _bayer_gray(raw) -> np.ndarray:
+    """Grey of a Bayer raw frame: black level off, the camera's white balance, OpenCV's bilinear
+    demosaicing straight to grey (``COLOR_Bayer....2GRAY``), :func:`_tone_lut`.
+
+    Output pixel ``(i, j)`` is sensor pixel ``(i, j)`` of the active area. Done in strips of
+    :data:`_STRIP_ROWS` rows (with 2 rows of context each side, an even number, so each strip
+    keeps the pattern's phase): besides LibRaw's frame (2 bytes a pixel) it needs 1 byte a
+    pixel for the result and a strip's worth more, where LibRaw's own development needs 16.
+    """
+    cfa = raw.raw_image_visible                          # (H, W) uint16, a view of LibRaw's frame
+    pattern = raw.raw_pattern                            # colour index at (row % 2, col % 2)
+    desc = raw.color_desc.decode()
+    wb = np.asarray(raw.camera_whitebalance, float)
+    if not np.all(wb[pattern] > 0):
+        wb = np.ones(4)
+    wb = wb / wb[pattern].min()
+    black = np.asarray(raw.black_level_per_channel, float)[pattern]
+    scale = (wb[pattern] * 65535.0 / np.maximum(float(raw.white_level) - black, 1.0)).astype(np.float32)
+    black = black.astype(np.float32)
+    code = getattr(cv2, f"COLOR_Bayer{''.join(desc[c] for c in pattern.flat)}2GRAY")
+    H, W = cfa.shape
+    out = np.empty((H, W), np.uint8)
+    lut = _tone_lut()
+    for r0 in range(0, H, _STRIP_ROWS):
+        r1 = min(H, r0 + _STRIP_ROWS)
+        a0, a1 = max(0, r0 - 2), min(H, r1 + 2)
+        strip = cfa[a0:a1].astype(np.float32)
+        rows = np.arange(a0, a1) % 2
+        cols = np.arange(W) % 2
+        strip -= black[rows[:, None], cols[None, :]]
+        strip *= scale[rows[:, None], cols[None, :]]
+        linear = np.clip(strip, 0.0, 65535.0, out=strip).astype(np.uint16)
+        gray = cv2.cvtColor(linear, code)
+        out[r0:r1] = lut[gray[r0 - a0: r1 - a0]]
+    return out
+
+
+def _raw_gray(path) -> np.ndarray:
+    """A DNG as 8-bit grey, pixel for pixel of its active area: :func:`_bayer_gray` for a Bayer
+    frame, else (a linear DNG, already demosaiced, or another filter array) LibRaw's development."""
+    with _reading(path), rawpy.imread(str(path)) as raw:
+        if _is_bayer(raw):
+            gray = _bayer_gray(raw)
+        else:
+            gray = cv2.cvtColor(raw.postprocess(**_DEVELOP), cv2.COLOR_RGB2GRAY)
+        return _check_visible(path, gray, raw)
+
+
+def _developed_image(path) -> Image.Image:
+    """A DNG developed by LibRaw (:data:`_DEVELOP`: 8-bit sRGB, the camera's white balance, no
+    auto-brightening, AHD demosaicing) as a Pillow image of format TIFF in the raw frame's own
+    orientation, with the DNG's EXIF (its make, model, orientation tag, and EXIF IFD) in ``info``."""
+    with _reading(path):
+        with rawpy.imread(str(path)) as raw:
+            rgb = _check_visible(path, raw.postprocess(**_DEVELOP), raw)
+        with open(path, "rb") as fp:
+            dng = Image.Exif()
+            dng.load_from_fp(fp)
+            exif = Image.Exif()
+            for tag in (_MAKE, _MODEL, _ORIENTATION, _DATETIME):
+                if dng.get(tag) is not None:
+                    exif[tag] = dng[tag]
+            sub = dict(dng.get_ifd(_EXIF_IFD))
+    if sub:
+        exif[_EXIF_IFD] = sub
+    img = Image.fromarray(rgb)
+    img.format = "TIFF"
+    img.info["exif"] = exif.tobytes()
     return img
