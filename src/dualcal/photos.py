@@ -20,7 +20,7 @@ corrected): calibrate the DNGs or the JPEGs of a camera, not a mix.
 from __future__ import annotations
 
 import contextlib
-import functools
+import os
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -39,11 +39,15 @@ try:  # HEIC/HEIF through pillow-heif
 except ImportError:  # pragma: no cover - pillow-heif is a dependency; HEIC is then unreadable
     pillow_heif = None
 
-__all__ = ["PHOTO_SUFFIXES", "RAW_SUFFIXES", "Photo", "decode_bytes_per_pixel", "open_image", "output_suffix",
-           "read_exif", "read_gray", "source_format"]
+__all__ = ["PHOTO_MEMORY_BYTES", "PHOTO_SUFFIXES", "RAW_SUFFIXES", "Photo", "decode_bytes_per_pixel",
+           "jobs_within_memory", "open_image", "output_suffix", "read_exif", "read_gray", "source_format"]
 
 RAW_SUFFIXES = (".dng",)
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic", ".heif", *RAW_SUFFIXES)
+# What the photos being read and detected at once may hold together (the interpreter and the
+# libraries take about 0.1 GB more): the default jobs of detection keep a folder of 48-200 MP
+# photos under 1.5 GB (:func:`jobs_within_memory`).
+PHOTO_MEMORY_BYTES = 1.2e9
 _FORMATS = {".jpg": "jpeg", ".jpeg": "jpeg", ".png": "png", ".tif": "tiff", ".tiff": "tiff", ".heic": "heic",
             ".heif": "heic", ".dng": "dng"}
 
@@ -259,11 +263,21 @@ def output_suffix(path) -> str:
 def decode_bytes_per_pixel(path) -> float:
     """Peak memory of :func:`read_gray` and of detecting the board in its image, bytes per pixel.
 
-    Measured (48 MP, 2 photos at once): a JPEG about 2 (its file, the grey image, the reduced
-    copies), a DNG about 4 (LibRaw's raw frame, 2 bytes a pixel, and a strip at a time, see
-    :func:`_raw_gray`), a HEIC about 5 (pillow-heif decodes to RGB first).
+    Measured (48 MP, 2 photos at once): a JPEG about 2.5 (its file, the grey image, the reduced
+    copies), a DNG about 4.5 (LibRaw's raw frame, 2 bytes a pixel, and :func:`_bayer_gray`'s 2),
+    a HEIC about 5 (pillow-heif decodes to RGB first).
     """
-    return {"dng": 4.0, "heic": 5.0}.get(source_format(path), 2.5)
+    return {"dng": 4.5, "heic": 5.0}.get(source_format(path), 2.5)
+
+
+def jobs_within_memory(photos, memory_bytes: float = PHOTO_MEMORY_BYTES, cores: int | None = None) -> int:
+    """How many of ``photos`` (:class:`Photo`) to read and detect at once: all cores (``cores``,
+    default ``os.cpu_count()``), but no more than keep the largest of them, that many at a time,
+    within ``memory_bytes`` (:func:`decode_bytes_per_pixel`); at least 1. A 48 MP JPEG takes
+    about 0.12 GB, so 8 cores run 8 of them; a 200 MP DNG 0.9 GB, so one runs at a time."""
+    cores = max(1, cores or os.cpu_count() or 1)
+    largest = max((p.size[0] * p.size[1] * decode_bytes_per_pixel(p.path) for p in photos), default=0.0)
+    return max(1, min(cores, int(memory_bytes // largest) if largest else cores))
 
 
 # ---------------------------------------------------------------------------- RAW (DNG)
@@ -273,7 +287,6 @@ def decode_bytes_per_pixel(path) -> float:
 # tone does not depend on its content), BT.709 gamma; none of these moves a pixel.
 _DEVELOP = {"half_size": False, "user_flip": 0, "use_camera_wb": True, "no_auto_bright": True,
             "output_bps": 8, "demosaic_algorithm": rawpy.DemosaicAlgorithm.AHD}
-_STRIP_ROWS = 512          # rows of the raw frame made grey at once by _bayer_gray (even)
 
 
 def _raw_exif(path) -> tuple[tuple[int, int], dict]:
@@ -304,20 +317,14 @@ def _is_bayer(raw) -> bool:
             and sorted(raw.color_desc.decode()[c] for c in pattern.flat) == ["B", "G", "G", "R"])
 
 
-@functools.cache
-def _tone_lut() -> np.ndarray:
-    """Linear 16-bit -> 8-bit through a 1/2.2 power, as a photo is encoded (monotonic: it moves no corner)."""
-    return np.rint(255.0 * (np.arange(65536) / 65535.0) ** (1 / 2.2)).astype(np.uint8)
-
-
 def _bayer_gray(raw) -> np.ndarray:
-    """Grey of a Bayer raw frame: black level off, the camera's white balance, OpenCV's bilinear
-    demosaicing straight to grey (``COLOR_Bayer....2GRAY``), :func:`_tone_lut`.
+    """Grey of a Bayer raw frame: each site's black level off, the camera's white balance and a
+    1/2.2 power (as a photo is encoded) in one table per site of the 2 x 2 pattern, to 8 bits; then
+    OpenCV's bilinear demosaicing straight to grey (``COLOR_Bayer....2GRAY``).
 
-    Output pixel ``(i, j)`` is sensor pixel ``(i, j)`` of the active area. Done in strips of
-    :data:`_STRIP_ROWS` rows (with 2 rows of context each side, an even number, so each strip
-    keeps the pattern's phase): besides LibRaw's frame (2 bytes a pixel) it needs 1 byte a
-    pixel for the result and a strip's worth more, where LibRaw's own development needs 16.
+    Output pixel ``(i, j)`` is sensor pixel ``(i, j)`` of LibRaw's visible area. The tone curve is
+    monotonic and the demosaicing symmetric, so neither moves a corner. Besides LibRaw's frame
+    (2 bytes a pixel) it needs 2 bytes a pixel, where LibRaw's own development needs 16.
     """
     cfa = raw.raw_image_visible                          # (H, W) uint16, a view of LibRaw's frame
     pattern = raw.raw_pattern                            # colour index at (row % 2, col % 2)
@@ -326,25 +333,17 @@ def _bayer_gray(raw) -> np.ndarray:
     if not np.all(wb[pattern] > 0):
         wb = np.ones(4)
     wb = wb / wb[pattern].min()
-    black = np.asarray(raw.black_level_per_channel, float)[pattern]
-    scale = (wb[pattern] * 65535.0 / np.maximum(float(raw.white_level) - black, 1.0)).astype(np.float32)
-    black = black.astype(np.float32)
+    black = np.asarray(raw.black_level_per_channel, float)
+    level = np.arange(65536, dtype=float)
+    mosaic = np.empty(cfa.shape, np.uint8)
+    for y in range(2):
+        for x in range(2):
+            c = pattern[y, x]
+            linear = np.clip((level - black[c]) * wb[c] / max(float(raw.white_level) - black[c], 1.0), 0.0, 1.0)
+            table = np.rint(255.0 * linear ** (1 / 2.2)).astype(np.uint8)
+            mosaic[y::2, x::2] = table[cfa[y::2, x::2]]
     code = getattr(cv2, f"COLOR_Bayer{''.join(desc[c] for c in pattern.flat)}2GRAY")
-    H, W = cfa.shape
-    out = np.empty((H, W), np.uint8)
-    lut = _tone_lut()
-    for r0 in range(0, H, _STRIP_ROWS):
-        r1 = min(H, r0 + _STRIP_ROWS)
-        a0, a1 = max(0, r0 - 2), min(H, r1 + 2)
-        strip = cfa[a0:a1].astype(np.float32)
-        rows = np.arange(a0, a1) % 2
-        cols = np.arange(W) % 2
-        strip -= black[rows[:, None], cols[None, :]]
-        strip *= scale[rows[:, None], cols[None, :]]
-        linear = np.clip(strip, 0.0, 65535.0, out=strip).astype(np.uint16)
-        gray = cv2.cvtColor(linear, code)
-        out[r0:r1] = lut[gray[r0 - a0: r1 - a0]]
-    return out
+    return cv2.cvtColor(mosaic, code)
 
 
 def _raw_gray(path) -> np.ndarray:
