@@ -41,18 +41,16 @@ def write_dng(path, gray: np.ndarray, *, pattern: str = "RGGB", black: int = 64,
               focal_length_35mm_mm: int | None = None, lens_model: str | None = None) -> Path:
     """Write ``gray`` (a render, (H, W) uint8) as a Bayer DNG whose active area is ``gray``'s pixels.
 
-    The pattern's phase is the active area's: its top-left pixel is ``pattern[0]`` (margins are
-    then a multiple of 2, or the whole frame's pattern is shifted to keep it so)."""
+    ``pattern`` is the active area's: its top-left pixel is ``pattern[0]`` (the DNG specification
+    puts the origin of ``CFAPattern`` at the ``ActiveArea``'s)."""
     top, left, bottom, right = margin
     frame = mosaic(gray, pattern, black, white, margin)
-    # the CFAPattern tag is of the whole frame: shift the active area's pattern by its origin
-    frame_pattern = [[pattern[2 * ((r + top) % 2) + (c + left) % 2] for c in range(2)] for r in range(2)]
     tags = DNGTags()
     for tag, value in ((Tag.ImageWidth, frame.shape[1]), (Tag.ImageLength, frame.shape[0]),
                        (Tag.TileWidth, frame.shape[1]), (Tag.TileLength, frame.shape[0]),
                        (Tag.Orientation, orientation), (Tag.PhotometricInterpretation, 32803),
                        (Tag.SamplesPerPixel, 1), (Tag.BitsPerSample, 16), (Tag.CFARepeatPatternDim, [2, 2]),
-                       (Tag.CFAPattern, [CHANNEL[frame_pattern[r][c]] for r in range(2) for c in range(2)]),
+                       (Tag.CFAPattern, [CHANNEL[c] for c in pattern]),
                        (Tag.BlackLevel, black), (Tag.WhiteLevel, white),
                        (Tag.ActiveArea, [top, left, top + gray.shape[0], left + gray.shape[1]]),
                        (Tag.ColorMatrix1, [[1, 1], [0, 1], [0, 1], [0, 1], [1, 1], [0, 1], [0, 1], [0, 1], [1, 1]]),

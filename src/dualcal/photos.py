@@ -289,11 +289,17 @@ _DEVELOP = {"half_size": False, "user_flip": 0, "use_camera_wb": True, "no_auto_
             "output_bps": 8, "demosaic_algorithm": rawpy.DemosaicAlgorithm.AHD}
 
 
+def _open_raw(path) -> rawpy.RawPy:
+    """LibRaw's handle of a raw file (metadata read; pixels unpacked on first use)."""
+    Path(path).stat()                        # a missing file: FileNotFoundError, which LibRaw calls an I/O error
+    return rawpy.imread(str(path))
+
+
 def _raw_exif(path) -> tuple[tuple[int, int], dict]:
     """Active-area size and EXIF facts of a DNG: LibRaw's sizes, and the tags of the DNG (a TIFF)
     read by Pillow from IFD 0 and its EXIF IFD (header only; no pixel is decoded)."""
     with _reading(path):
-        with rawpy.imread(str(path)) as raw:
+        with _open_raw(path) as raw:
             size = (int(raw.sizes.width), int(raw.sizes.height))
         with open(path, "rb") as fp:
             exif = Image.Exif()
@@ -330,7 +336,9 @@ def _bayer_gray(raw) -> np.ndarray:
     pattern = raw.raw_pattern                            # colour index at (row % 2, col % 2)
     desc = raw.color_desc.decode()
     wb = np.asarray(raw.camera_whitebalance, float)
-    if not np.all(wb[pattern] > 0):
+    if wb[3] == 0 and desc[3] == "G":                    # LibRaw: 0 for the second green is the first's
+        wb[3] = wb[1]
+    if not np.all(wb[pattern] > 0):                      # no white balance recorded
         wb = np.ones(4)
     wb = wb / wb[pattern].min()
     black = np.asarray(raw.black_level_per_channel, float)
@@ -349,7 +357,7 @@ def _bayer_gray(raw) -> np.ndarray:
 def _raw_gray(path) -> np.ndarray:
     """A DNG as 8-bit grey, pixel for pixel of its active area: :func:`_bayer_gray` for a Bayer
     frame, else (a linear DNG, already demosaiced, or another filter array) LibRaw's development."""
-    with _reading(path), rawpy.imread(str(path)) as raw:
+    with _reading(path), _open_raw(path) as raw:
         if _is_bayer(raw):
             gray = _bayer_gray(raw)
         else:
@@ -362,7 +370,7 @@ def _developed_image(path) -> Image.Image:
     auto-brightening, AHD demosaicing) as a Pillow image of format TIFF in the raw frame's own
     orientation, with the DNG's EXIF (its make, model, orientation tag, and EXIF IFD) in ``info``."""
     with _reading(path):
-        with rawpy.imread(str(path)) as raw:
+        with _open_raw(path) as raw:
             rgb = _check_visible(path, raw.postprocess(**_DEVELOP), raw)
         with open(path, "rb") as fp:
             dng = Image.Exif()
