@@ -115,6 +115,12 @@ _UNREADABLE = (OSError, SyntaxError, ValueError, EOFError, RuntimeError, Image.D
                rawpy.LibRawError)
 
 
+def _detail(exc: Exception) -> str:
+    """An exception's message; LibRaw's come as bytes (``b'Input/output error'``)."""
+    arg = exc.args[0] if len(exc.args) == 1 else None
+    return arg.decode(errors="replace") if isinstance(arg, bytes) else str(exc)
+
+
 @contextlib.contextmanager
 def _reading(path):
     """Turn the errors of opening or decoding ``path`` into one clear :class:`InputError`."""
@@ -123,7 +129,7 @@ def _reading(path):
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
     except _UNREADABLE as exc:
-        raise InputError(f"{path}: not a readable image ({exc})") from None
+        raise InputError(f"{path}: not a readable image ({_detail(exc)})") from None
 
 
 def _heif_undo(img: Image.Image) -> list[Image.Transpose]:
