@@ -39,6 +39,12 @@ try:  # HEIC/HEIF through pillow-heif
 except ImportError:  # pragma: no cover - pillow-heif is a dependency; HEIC is then unreadable
     pillow_heif = None
 
+# Pillow refuses an image of more than 2 * MAX_IMAGE_PIXELS as a decompression bomb (179 MP by
+# default), but phones make 200 MP photos: allow up to 512 MP (detection bounds the memory they
+# take, jobs_within_memory).
+if Image.MAX_IMAGE_PIXELS is not None:
+    Image.MAX_IMAGE_PIXELS = max(Image.MAX_IMAGE_PIXELS, 256_000_000)
+
 __all__ = ["PHOTO_MEMORY_BYTES", "PHOTO_SUFFIXES", "RAW_SUFFIXES", "Photo", "decode_bytes_per_pixel",
            "jobs_within_memory", "open_image", "output_suffix", "read_exif", "read_gray", "source_format"]
 
