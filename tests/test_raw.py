@@ -24,8 +24,11 @@ from dualcal.photos import (PHOTO_SUFFIXES, Photo, jobs_within_memory, open_imag
                             source_format)
 from dualcal.rectify import undistort_files
 from dualcal.render import photo_seed, render_view, write_photo_set
+from dualcal.io import load_rig, save_rig
 from dualcal.report import render_report
-from dualcal.synth import make_truth, true_corners
+from dualcal.report.html import source_formats
+from dualcal.stereo import rectify_pair_files, stereo_rectify
+from dualcal.synth import make_truth, true_corners, truth_rig_model
 
 
 def _smooth_image(shape=(48, 64), seed=0) -> np.ndarray:
@@ -150,8 +153,15 @@ def test_a_dng_set_and_its_jpeg_set_calibrate_to_the_same_camera_within_their_si
             assert abs(b - true) < 4 * dng.camera_sigma[name][p], (name, p, b, true)
     sigma_d = max(jpeg.rig["tele"].sigma_baseline_mm, dng.rig["tele"].sigma_baseline_mm)
     assert abs(jpeg.rig["tele"].baseline_mm - dng.rig["tele"].baseline_mm) < sigma_d
-    page = render_report(dng)
+    save_rig(tmp_path / "calib.json", dng)                # what the photos were is kept in calib.json's corners
+    page = render_report(load_rig(tmp_path / "calib.json"))
     assert "RAW (DNG): the sensor" in page and "JPEG: the phone" not in page
+    assert source_formats(jpeg, ["wide", "tele"]) == {"wide": "JPEG: the phone's processed photo",
+                                                      "tele": "JPEG: the phone's processed photo"}
+    pair = {name: tmp_path / "dng" / name / "IMG_02.dng" for name in ("wide", "tele")}
+    exact = truth_rig_model(truth)                        # (this set's estimate folds over at the wide's corner)
+    written = rectify_pair_files(exact, stereo_rectify(exact, "wide", "tele"), pair, tmp_path)
+    assert sorted(p.name for p in written.values()) == ["tele-IMG_02.tif", "wide-IMG_02.tif"]
     # a DNG undistorted is developed to an 8-bit sRGB TIFF of the same size, named .tif
     src = tmp_path / "dng" / "tele" / "IMG_01.dng"
     [out] = undistort_files([src], tmp_path / "undistorted", dng.cameras["tele"], progress=False)
