@@ -81,13 +81,7 @@ def _rational(x) -> float | None:
 
 
 def _exif_from_image(img: Image.Image) -> dict:
-    orientation = img.info.get("original_orientation") if img.format == "HEIF" else None
-    # pillow-heif set the tag to 1 and kept the file's value aside
-    return _exif_facts(img.getexif(), orientation)
-
-
-def _exif_facts(exif: Image.Exif, orientation: int | None = None) -> dict:
-    """The facts of :func:`read_exif` from an EXIF header; ``orientation`` overrides its tag."""
+    exif = img.getexif()
     sub = exif.get_ifd(_EXIF_IFD) if exif else {}
     stamp = sub.get(_DATETIME_ORIGINAL) or exif.get(_DATETIME)
     taken = None
@@ -101,7 +95,9 @@ def _exif_facts(exif: Image.Exif, orientation: int | None = None) -> dict:
             taken = None
     make, model, lens = exif.get(_MAKE), exif.get(_MODEL), sub.get(_LENS_MODEL)
     f35 = sub.get(_FOCAL_35MM)
-    orientation = orientation or exif.get(_ORIENTATION)
+    orientation = exif.get(_ORIENTATION)
+    if img.format == "HEIF":   # pillow-heif set the tag to 1 and kept the file's value aside
+        orientation = img.info.get("original_orientation") or orientation
     return {
         "make": make.strip("\x00 ") if isinstance(make, str) else None,
         "model": model.strip("\x00 ") if isinstance(model, str) else None,
@@ -178,8 +174,9 @@ def read_exif(path) -> tuple[tuple[int, int], dict]:
 
     The facts are ``make``, ``model``, ``lens_model`` (EXIF ``LensModel``), ``focal_length_mm``,
     ``focal_length_35mm_mm``, ``orientation`` (the EXIF tag, 1-8, or None; never applied) and
-    ``taken`` (capture time, a ``datetime`` or None). For a DNG the size is its raw frame's active
-    area (what :func:`read_gray` returns). Raises :class:`InputError` for a file that is not a readable image.
+    ``taken`` (capture time, a ``datetime`` or None). Raises :class:`InputError` for a file that is not a readable image.
+
+    For a DNG the size is its raw frame's active area (what :func:`read_gray` returns).
     """
     if _is_raw(path):
         return _raw_exif(path)
@@ -307,16 +304,28 @@ def _open_raw(path) -> rawpy.RawPy:
     return rawpy.imread(str(path))
 
 
+class _TiffTags:
+    """The tags of a TIFF that Pillow cannot decode (a DNG: IFD 0 and its EXIF IFD, read from
+    ``fp`` as Pillow's TIFF reader does), as :func:`_exif_from_image` reads an image."""
+
+    format, info = "DNG", {}
+
+    def __init__(self, fp):
+        self._exif = Image.Exif()
+        self._exif.load_from_fp(fp)
+
+    def getexif(self) -> Image.Exif:
+        return self._exif
+
+
 def _raw_exif(path) -> tuple[tuple[int, int], dict]:
-    """Active-area size and EXIF facts of a DNG: LibRaw's sizes, and the tags of the DNG (a TIFF)
-    read by Pillow from IFD 0 and its EXIF IFD (header only; no pixel is decoded)."""
+    """Active-area size and EXIF facts of a DNG: LibRaw's sizes and the DNG's tags (header only;
+    no pixel is decoded)."""
     with _reading(path):
         with _open_raw(path) as raw:
             size = (int(raw.sizes.width), int(raw.sizes.height))
         with open(path, "rb") as fp:
-            exif = Image.Exif()
-            exif.load_from_fp(fp)          # Pillow's TIFF reader does the same for a TIFF it can decode
-            return size, _exif_facts(exif)
+            return size, _exif_from_image(_TiffTags(fp))
 
 
 def _check_visible(path, image: np.ndarray, raw) -> np.ndarray:
@@ -385,8 +394,7 @@ def _developed_image(path) -> Image.Image:
         with _open_raw(path) as raw:
             rgb = _check_visible(path, raw.postprocess(**_DEVELOP), raw)
         with open(path, "rb") as fp:
-            dng = Image.Exif()
-            dng.load_from_fp(fp)
+            dng = _TiffTags(fp).getexif()
             exif = Image.Exif()
             for tag in (_MAKE, _MODEL, _ORIENTATION, _DATETIME):
                 if dng.get(tag) is not None:

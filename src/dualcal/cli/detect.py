@@ -12,7 +12,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import board_from_flags, board_options, exclude_option
+from .common import board_from_flags, board_options, default_jobs, exclude_option
 
 DATASET_OPTION_NAMES = ("cameras", "pair_by", "time_tolerance_s", "reference", "exclude", "jobs", "hints_path",
                         "overlays_dir")
@@ -78,7 +78,7 @@ def corners_from_dataset(dataset_path, board, cameras=(), pair_by: str = "stem",
                            time_tolerance_s=time_tolerance_s, exclude=exclude)
     check_pairs(dataset, pair_by)
     hints = load_hints(hints_path) if hints_path else None
-    corners = detect_dataset(dataset, board, jobs=jobs, hints=hints, overlays_dir=overlays_dir)
+    corners = detect_dataset(dataset, board, jobs=jobs or default_jobs(), hints=hints, overlays_dir=overlays_dir)
     return replace(corners, reference=reference)
 
 
