@@ -274,7 +274,7 @@ def decode_bytes_per_pixel(path) -> float:
 
     Measured (48 MP, 2 photos at once): a JPEG about 2.5 (its file, the grey image, the reduced
     copies), a DNG about 4.5 (LibRaw's raw frame, 2 bytes a pixel, and :func:`_bayer_gray`'s 2),
-    a HEIC about 5 (pillow-heif decodes to RGB first).
+    a HEIC about 5 (estimated, not measured: pillow-heif decodes to RGB first).
     """
     return {"dng": 4.5, "heic": 5.0}.get(source_format(path), 2.5)
 

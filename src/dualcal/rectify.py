@@ -246,9 +246,10 @@ def undistort_file(src, dst, cam: CameraModel, new_cam: CameraModel | None = Non
 
     The output format is the input's (JPEG at quality 95 with the source's chroma
     subsampling; HEIC at quality 95, in its stored frame with its EXIF orientation; 16-bit
-    grey stays 16-bit; a DNG is developed to an 8-bit sRGB TIFF, :func:`~dualcal.photos.open_image`). ``R`` turns the output camera (:func:`undistort_image`);
-    ``blur_sigma_px`` > 0 smooths the source first (a Gaussian of that sigma), against aliasing
-    where the output has fewer pixels per ray than the source. Returns ``dst``. Raises
+    grey stays 16-bit; a DNG is developed to an 8-bit sRGB TIFF, :func:`~dualcal.photos.open_image`).
+    ``R`` turns the output camera (:func:`undistort_image`); ``blur_sigma_px`` > 0 smooths the
+    source first (a Gaussian of that sigma), against aliasing where the output has fewer pixels
+    per ray than the source. Returns ``dst``. Raises
     :class:`InputError` for an unreadable file or a wrong image size.
     """
     src, dst = Path(src), Path(dst)
