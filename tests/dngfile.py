@@ -1,4 +1,4 @@
-"""Writing DNG files for the tests: a rendered board mosaicked to a Bayer raw frame (pidng).
+"""Writing DNG files for the tests: a rendered board mosaicked to a Bayer raw frame, or linear (pidng).
 
 A render (:func:`dualcal.render.render_view`) is an 8-bit grey photo of a grey board: its value
 ``g`` is taken back to linear light ``(g / 255) ** 2.2`` and each pixel of the colour filter
@@ -77,4 +77,24 @@ def write_dng(path, gray: np.ndarray, *, pattern: str = "RGGB", black: int = 64,
     writer.options(tags, path="", compress=False)
     path = Path(path)
     path.write_bytes(bytes(writer.convert(frame)))
+    return path
+
+
+def write_linear_dng(path, gray: np.ndarray, white: int = 4095) -> Path:
+    """Write ``gray`` as a linear DNG (``LinearRaw``: three samples a pixel, already demosaiced, as
+    Apple's ProRAW is), its linear light on a 12-bit scale."""
+    linear = np.rint((np.asarray(gray, float) / 255.0) ** 2.2 * white).astype(np.uint16)
+    h, w = linear.shape
+    tags = DNGTags()
+    for tag, value in ((Tag.ImageWidth, w), (Tag.ImageLength, h), (Tag.TileWidth, w), (Tag.TileLength, h),
+                       (Tag.PhotometricInterpretation, 34892), (Tag.SamplesPerPixel, 3),
+                       (Tag.BitsPerSample, [16, 16, 16]), (Tag.BlackLevel, 0), (Tag.WhiteLevel, white),
+                       (Tag.ColorMatrix1, [[1, 1], [0, 1], [0, 1], [0, 1], [1, 1], [0, 1], [0, 1], [0, 1], [1, 1]]),
+                       (Tag.CalibrationIlluminant1, 21), (Tag.AsShotNeutral, [[1, 1], [1, 1], [1, 1]]),
+                       (Tag.Make, "dualcal"), (Tag.Model, "linear phone"), (Tag.UniqueCameraModel, "dualcal linear")):
+        tags.set(tag, value)
+    writer = RAW2DNG()
+    writer.options(tags, path="", compress=False)
+    path = Path(path)
+    path.write_bytes(bytes(writer.convert(np.repeat(linear, 3, axis=1))))
     return path

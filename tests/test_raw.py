@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import rawpy
-from dngfile import write_dng
+from dngfile import write_dng, write_linear_dng
 
 from dualcal.board import Board
 from dualcal.calibrate import calibrate_rig
@@ -65,6 +65,15 @@ def test_dng_pixel_ij_is_sensor_pixel_ij_of_the_active_area(tmp_path, pattern):
         developed = np.asarray(img.convert("L"))
     assert _shift_error(cv2.equalizeHist(developed), cv2.equalizeHist(out), 0, 0) < 8
     assert read_exif(path)[0] == (gray.shape[1], gray.shape[0])
+
+
+def test_a_linear_dng_is_read_through_libraws_development_pixel_for_pixel(tmp_path):
+    gray = _smooth_image(seed=2)
+    out = read_gray(write_linear_dng(tmp_path / "linear.dng", gray))
+    assert out.shape == gray.shape
+    # another tone curve (LibRaw's BT.709 and colour matrix), the same pixels
+    a, b = cv2.equalizeHist(gray), cv2.equalizeHist(out)
+    assert _shift_error(a, b, 0, 0) < 4 < min(_shift_error(a, b, dy, dx) for dy, dx in ((0, 1), (1, 0), (1, 1)))
 
 
 def test_an_odd_active_area_origin_is_moved_to_the_filters_period(tmp_path):
