@@ -94,8 +94,8 @@ def test_read_exif_of_a_dng_gives_its_size_and_exif_facts(tmp_path):
                      lens_model="iPhone 15 Pro back triple camera 6.86mm f/1.78")
     size, exif = read_exif(path)
     assert size == (64, 48)
-    expected = {"make": "Apple", "model": "iPhone 15 Pro", "lens_model": "iPhone 15 Pro back triple camera 6.86mm f/1.78",
-                "focal_length_mm": 6.86, "focal_length_35mm_mm": 24.0, "orientation": 8, "taken": taken}
+    expected = {"make": "Apple", "model": "iPhone 15 Pro",
+                "lens_model": "iPhone 15 Pro back triple camera 6.86mm f/1.78", "focal_length_mm": 6.86, "focal_length_35mm_mm": 24.0, "orientation": 8, "taken": taken}
     assert {k: exif.get(k) for k in expected} == expected
     assert ".dng" in PHOTO_SUFFIXES and source_format(path) == "dng" and source_format("a.JPG") == "jpeg"
 
