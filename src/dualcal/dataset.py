@@ -31,7 +31,7 @@ from pathlib import Path
 
 from .errors import InputError
 from .model import CameraCorners, CornerSet, choose_reference
-from .photos import PHOTO_SUFFIXES, Photo, open_image, read_exif, read_gray
+from .photos import PHOTO_SUFFIXES, Photo, open_image, read_exif, read_gray, source_format
 from .progress import warn
 from .roll import is_camera_roll, open_camera_roll
 
@@ -58,15 +58,17 @@ class Dataset:
         return next(iter(self.cameras[camera].values())).size
 
     def meta(self, camera: str) -> dict:
-        """corners.json ``meta`` of a camera: photo paths, EXIF make/model/focal, orientation, and
-        the photos left out by ``exclude`` (``excluded``: view -> path)."""
+        """corners.json ``meta`` of a camera: photo paths, EXIF make/model/focal, orientation, the
+        kind of its photo files (``source_format``: ``"jpeg"``, ``"dng"``, ..., comma-separated if
+        mixed), and the photos left out by ``exclude`` (``excluded``: view -> path)."""
         photos = self.cameras[camera]
         first = next(iter(photos.values())).exif
         exif = {k: first[k] for k in ("make", "model", "focal_length_mm", "focal_length_35mm_mm")
                 if first.get(k) is not None}
         orientation = {v: p.exif.get("orientation") for v, p in photos.items()
                        if p.exif.get("orientation") not in (None, 1)}
-        meta = {"photos": {v: str(p.path) for v, p in photos.items()}, "exif": exif}
+        meta = {"photos": {v: str(p.path) for v, p in photos.items()}, "exif": exif,
+                "source_format": ",".join(sorted({source_format(p.path) for p in photos.values()}))}
         if orientation:
             # Reported, never applied: coordinates are in the stored pixel frame.
             meta["exif_orientation"] = orientation

@@ -34,7 +34,7 @@ from PIL import Image, JpegImagePlugin
 
 from .camera import (CameraModel, check_invertible_in_image, intrinsic_names, max_monotonic_radius,
                      normalized_from_pixel, radial_factor, tangential_shift, undistort_points)
-from .photos import open_image, read_exif
+from .photos import open_image, output_suffix, read_exif
 from .errors import InputError
 from .io import atomic_output, make_output_folder, read_json
 from .parallel import interruptible_map, raise_if_cancelled
@@ -246,9 +246,10 @@ def undistort_file(src, dst, cam: CameraModel, new_cam: CameraModel | None = Non
 
     The output format is the input's (JPEG at quality 95 with the source's chroma
     subsampling; HEIC at quality 95, in its stored frame with its EXIF orientation; 16-bit
-    grey stays 16-bit). ``R`` turns the output camera (:func:`undistort_image`);
-    ``blur_sigma_px`` > 0 smooths the source first (a Gaussian of that sigma), against aliasing
-    where the output has fewer pixels per ray than the source. Returns ``dst``. Raises
+    grey stays 16-bit; a DNG is developed to an 8-bit sRGB TIFF, :func:`~dualcal.photos.open_image`).
+    ``R`` turns the output camera (:func:`undistort_image`); ``blur_sigma_px`` > 0 smooths the
+    source first (a Gaussian of that sigma), against aliasing where the output has fewer pixels
+    per ray than the source. Returns ``dst``. Raises
     :class:`InputError` for an unreadable file or a wrong image size.
     """
     src, dst = Path(src), Path(dst)
@@ -290,11 +291,12 @@ def _undistort_task(task) -> str | None:
 
 
 def output_paths(sources, out_dir) -> list[Path]:
-    """``out_dir/<file name>`` for each source; :class:`InputError` on clashes or overwriting a source."""
+    """``out_dir/<file name>`` for each source (a DNG's as ``.tif``, :func:`~dualcal.photos.output_suffix`);
+    :class:`InputError` on clashes or overwriting a source."""
     out_dir = make_output_folder(out_dir)
     dests, seen = [], {}
     for src in map(Path, sources):
-        dst = out_dir / src.name
+        dst = out_dir / (src.stem + output_suffix(src))
         if dst.name in seen:
             raise InputError(f"{src} and {seen[dst.name]} would both be written to {dst}: "
                              "rectify them into different folders")

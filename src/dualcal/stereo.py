@@ -36,6 +36,7 @@ import numpy as np
 from .camera import CameraModel, check_invertible_in_image, ideal_normalized_from_pixel
 from .errors import EstimationError, InputError
 from .model import RigModel
+from .photos import output_suffix
 from .rectify import DEFAULT_BAND_ROWS, _border_pixels, undistort_file
 from .rotation import rotation_from_rotvec, rotvec_from_rotation
 
@@ -212,7 +213,7 @@ def _blur_sigma_px(cam: CameraModel, rect: StereoRectification) -> float:
 
 def rectify_pair_files(rig: RigModel, rect: StereoRectification, photos: dict[str, Path], out_dir: Path,
                        jobs: int = 2, band_rows: int = DEFAULT_BAND_ROWS) -> dict[str, Path]:
-    """Rectify one photo of each camera of ``rect`` into ``out_dir/<NAME>-<stem><suffix>``.
+    """Rectify one photo of each camera of ``rect`` into ``out_dir/<NAME>-<stem><suffix>`` (a DNG's: ``.tif``).
 
     ``photos[name]`` is the photo of camera ``name`` (of its calibrated size; read and written
     as :func:`dualcal.rectify.undistort_file` does, EXIF kept). Both are done at once (threads,
@@ -220,7 +221,7 @@ def rectify_pair_files(rig: RigModel, rect: StereoRectification, photos: dict[st
     """
     from .parallel import interruptible_map
 
-    dests = {name: Path(out_dir) / f"{name}-{Path(photos[name]).stem}{Path(photos[name]).suffix}"
+    dests = {name: Path(out_dir) / f"{name}-{Path(photos[name]).stem}{output_suffix(photos[name])}"
              for name in rect.names}
 
     def work(name):

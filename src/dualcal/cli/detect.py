@@ -37,7 +37,8 @@ _SELECTION_OPTIONS = [
 
 _DETECTION_OPTIONS = [
     click.option("--jobs", "jobs", type=click.IntRange(min=1), default=None, metavar="N",
-                 help="Photos processed in parallel (default: all cores)."),
+                 help="Photos processed in parallel (default: all cores, fewer for photos so large that they would "
+                      "take more than 1.2 GB together)."),
     click.option("--hints", "hints_path", type=click.Path(dir_okay=False), default=None,
                  help="Four clicked corners per photo (from 'dualcal pick') for photos where "
                       "automatic detection fails."),

@@ -52,7 +52,7 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
     import cv2
     import numpy as np
 
-    from ..photos import open_image
+    from ..photos import open_image, output_suffix
     from ..io import (atomic_output, calibration_fingerprint, check_output_file, load_rig, make_output_folder,
                       write_json_atomic)
     from ..stereo import epipolar_check_image, rectify_pair_files, stereo_rectify
@@ -66,7 +66,7 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
     for path in (doc_path, check_path):
         check_output_file(path)
     for name, photo in photos.items():
-        if (out / f"{name}-{photo.stem}{photo.suffix}").resolve() == photo.resolve():
+        if (out / f"{name}-{photo.stem}{output_suffix(photo)}").resolve() == photo.resolve():
             raise InputError(f"{photo}: the output would overwrite the original photo; choose another -o")
     written = rectify_pair_files(rig, rect, photos, out)
     images = []

@@ -25,7 +25,6 @@ dictionary (or layout) is not given it first finds them from the photos
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +33,7 @@ import numpy as np
 
 from ..board import DICTIONARIES, Board, dictionary_family
 from ..dataset import Dataset, unpaired_cameras
-from ..photos import read_gray
+from ..photos import jobs_within_memory, read_gray
 from ..errors import DetectionError, InputError
 from ..io import atomic_output, make_output_folder
 from ..model import CameraCorners, CornerSet
@@ -238,7 +237,9 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
     ----------
     dataset : from :func:`dualcal.dataset.open_dataset`.
     board : the chessboard (``--board``, ``--square``).
-    jobs : photos processed at once, in threads (default: all cores); each holds one photo.
+    jobs : photos processed at once, in threads; each holds one photo (default: all cores, fewer
+        where the photos are so large that the memory they take would pass 1.2 GB,
+        :func:`dualcal.photos.jobs_within_memory`).
     hints : ``{camera: {view: (4, 2)}}`` clicked corners (manual mode) for photos where the
         automatic search fails (see :mod:`dualcal.detect.manual`).
     overlays_dir : write ``overlays_dir/<camera>/<view>.jpg`` with the detected corners drawn
@@ -273,7 +274,8 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
             overlay = overlay_dirs[cam] / f"{view}.jpg" if overlay_dirs else None
             tasks.append((photo.path, board, hints.get(cam, {}).get(view), overlay))
             keys.append((cam, view))
-    jobs = max(1, min(jobs or os.cpu_count() or 1, len(tasks)))
+    every_photo = [photo for cam in dataset.cameras.values() for photo in cam.values()]
+    jobs = max(1, min(jobs or jobs_within_memory(every_photo), len(tasks)))
     results: list[PhotoResult] = []
     with progress_bar("detecting corners", len(tasks), enabled=progress) as advance:
         # threads, not processes: decoding, OpenCV's detectors and numpy's array loops release

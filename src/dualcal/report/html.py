@@ -169,6 +169,19 @@ def photos_table(rig: RigModel, names: list[str]) -> list[dict]:
             for view, cells, note in photo_rows(photo_status(rig), names, missing="–")]
 
 
+SOURCE_FORMAT_LABELS = {"dng": "RAW (DNG): the sensor's pixels", "jpeg": "JPEG: the phone's processed photo",
+                        "heic": "HEIC: the phone's processed photo", "png": "PNG", "tiff": "TIFF"}
+
+
+def source_formats(rig: RigModel, names: list[str]) -> dict[str, str] | None:
+    """``{camera: what its photos were}`` (corners.json ``meta.source_format``), or None where
+    the corners do not say (written before dualcal recorded it, or synthetic)."""
+    kinds = {n: rig.corners.cameras[n].meta.get("source_format") for n in names}
+    if not any(kinds.values()):
+        return None
+    return {n: ", ".join(SOURCE_FORMAT_LABELS.get(k, k) for k in (kinds[n] or "?").split(",")) for n in names}
+
+
 def checks_table(rig: RigModel) -> list[dict]:
     """The calibration's checks (calib.json ``checks``): name, passed or not, the message."""
     return [{"name": name, "ok": bool(check.get("ok", True)), "message": check.get("message", "")}
@@ -329,6 +342,7 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
         intrinsics=intrinsics_table(rig, names),
         rig_table=rig_table(rig),
         photos=photos_table(rig, names),
+        source_formats=source_formats(rig, names),
         evaluation=evaluation_table(evaluation),
         pose_free=pose_free_table(evaluation),
         evaluation_kind=("hold-out: each view oriented by a calibration that left it out"

@@ -1,0 +1,152 @@
+"""Full-resolution photos (48 MP and 50 MP): dualcal detect against OpenCV's classic detector.
+
+The ``note8`` wide + tele rig rendered at full size, with known truth: 48 MP (8064 x 6048, scale 2
+of the 12 MP preset) and 50 MP (8160 x 6120), ``--views`` instants each (two photos an instant),
+an 8x5 board, blur ``--blur`` px (a phone's 48 MP photo is soft at the pixel level). In one run,
+for each size:
+
+* ``dualcal detect FOLDER`` as a process, start-up included, with its default jobs;
+* OpenCV classic as a process: ``findChessboardCorners`` (adaptive threshold, normalise) on the
+  full image and ``cornerSubPix`` (11 x 11), one photo after another.
+
+Printed side by side: boards found, corner RMS error vs the truth (OpenCV's corners matched to
+the truth by nearest neighbour), wall time and its ratio (target <= 0.5), and the peak memory
+of each process tree (the sum of the RSS of the process and its children, polled every 20 ms;
+target for dualcal <= 1.5 GB). Exit code 1 if a target is missed: dualcal finds every board,
+its RMS is at most OpenCV's, the time ratio <= 0.5 and its peak <= 1.5 GB.
+
+    .venv/bin/python benchmarks/bench_fullres.py [--views 2] [--seed 2000] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+
+from dualcal.io import load_corners
+from dualcal.model import observed_mask
+from dualcal.render import write_photo_set
+from dualcal.synth import make_truth, true_corners
+
+PEAK_LIMIT_BYTES = 1.5e9
+
+_OPENCV_CLASSIC_SCRIPT = """
+import sys, cv2
+cols, rows, paths = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3:]
+crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
+for p in paths:
+    img = cv2.imread(p, cv2.IMREAD_GRAYSCALE)
+    found, c = cv2.findChessboardCorners(img, (cols, rows), cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+    if found:
+        c = cv2.cornerSubPix(img, c, (11, 11), (-1, -1), crit)
+    print(p, *(["-"] if not found else [f"{u:.4f},{v:.4f}" for u, v in c.reshape(-1, 2)]))
+"""
+
+SIZES = {"48 MP": 2.0, "50 MP": 8160 / 4032}
+
+
+def run_measured(cmd: list[str]) -> tuple[float, int, str]:
+    """Wall time, peak RSS of the process tree (bytes) and stdout of ``cmd``."""
+    t = time.perf_counter()
+    proc = psutil.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    peak = 0
+    out = []
+    reader = threading.Thread(target=lambda: out.append(proc.stdout.read()))
+    reader.start()
+    while proc.poll() is None:
+        try:
+            tree = [proc, *proc.children(recursive=True)]
+            peak = max(peak, sum(p.memory_info().rss for p in tree))
+        except psutil.Error:
+            pass
+        time.sleep(0.02)
+    reader.join()
+    wall = time.perf_counter() - t
+    if proc.returncode:
+        raise SystemExit(f"{cmd[0]} failed with exit code {proc.returncode}")
+    return wall, peak, "".join(out)
+
+
+def _rms(err: list[np.ndarray]) -> float:
+    err = np.concatenate(err) if err else np.zeros((0, 2))
+    return float(np.sqrt(np.mean(np.sum(err**2, axis=1)))) if len(err) else float("nan")
+
+
+def _matched(uv, truth):
+    d = np.linalg.norm(uv[:, None, :] - truth[None, :, :], axis=2)
+    return uv - truth[np.argmin(d, axis=1)]
+
+
+def one_size(root: Path, label: str, scale: float, views: int, seed: int, blur_px: float) -> bool:
+    truth = make_truth("note8", views=views, seed=seed, scale=scale)
+    tc = true_corners(truth)
+    t0 = time.perf_counter()
+    paths = write_photo_set(truth, root / "photos", seed=seed, progress=False, blur_px=blur_px)
+    photos = [str(p) for cam in paths.values() for p in cam.values()]
+    size = next(iter(truth.cameras.values())).image_size
+    print(f"\n{label}: rendered {len(photos)} photos of {size[0]} x {size[1]} in {time.perf_counter() - t0:.0f} s",
+          file=sys.stderr)
+    dualcal = Path(sys.executable).with_name("dualcal")
+    out = root / "corners.json"
+    t_d, peak_d, _ = run_measured([str(dualcal), "detect", str(root / "photos"), "--board", "8x5", "--square", "30",
+                                   "-o", str(out)])
+    t_o, peak_o, listing = run_measured([sys.executable, "-c", _OPENCV_CLASSIC_SCRIPT, "8", "5", *photos])
+
+    err_d, found_d = [], 0
+    for cam, cc in load_corners(out).cameras.items():
+        for view, uv in cc.views.items():
+            if uv is not None:
+                found_d += 1
+                seen = observed_mask(uv)
+                err_d.append(uv[seen] - tc[cam][view][seen])
+    err_o, found_o = [], 0
+    for line in listing.splitlines():
+        path, *rest = line.split()
+        if rest != ["-"]:
+            found_o += 1
+            uv = np.array([[float(x) for x in r.split(",")] for r in rest])
+            err_o.append(_matched(uv, tc[Path(path).parent.name][Path(path).stem]))
+    n = len(photos)
+    print(f"{label + f', {n} photos':20} {'found':>6} {'RMS px':>8} {'wall s':>7} {'peak MB':>8}")
+    print(f"{'dualcal detect':20} {found_d:>3}/{n:<2} {_rms(err_d):8.4f} {t_d:7.2f} {peak_d / 1e6:8.0f}   "
+          f"(process, default jobs, {psutil.cpu_count()} cores)")
+    print(f"{'OpenCV classic':20} {found_o:>3}/{n:<2} {_rms(err_o):8.4f} {t_o:7.2f} {peak_o / 1e6:8.0f}   "
+          "(process, one photo after another, cornerSubPix 11x11)")
+    ratio = t_d / t_o
+    print(f"time ratio dualcal / OpenCV: {ratio:.2f} (target <= 0.5); dualcal's peak "
+          f"{peak_d / 1e9:.2f} GB (target <= {PEAK_LIMIT_BYTES / 1e9:.1f} GB)")
+    return (found_d == n and _rms(err_d) <= _rms(err_o) and ratio <= 0.5 and peak_d <= PEAK_LIMIT_BYTES)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--views", type=int, default=2, help="instants per size, two photos each")
+    ap.add_argument("--seed", type=int, default=2000)
+    ap.add_argument("--blur", type=float, default=2.0, help="optical blur of the renders, px")
+    ap.add_argument("--keep", type=Path, default=None, help="render into this folder and keep it")
+    args = ap.parse_args(argv)
+    root = args.keep or Path(tempfile.mkdtemp(prefix="dualcal-fullres-"))
+    ok = True
+    try:
+        for i, (label, scale) in enumerate(SIZES.items()):
+            sub = root / label.replace(" ", "")
+            sub.mkdir(parents=True, exist_ok=True)
+            ok &= one_size(sub, label, scale, args.views, args.seed + i, args.blur)
+    finally:
+        if args.keep is None:
+            shutil.rmtree(root, ignore_errors=True)
+    print("targets:", "met" if ok else "MISSED")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
