@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from . import cli
-from .common import board_from_flags, board_options, check_board_agrees
+from .common import board_from_flags, board_options
 
 
 def _goals(values) -> dict[str, float]:
@@ -121,8 +121,10 @@ def advise_command(calib, output, count, targets, plan, cameras, baseline_mm, bo
             raise InputError("give a calib.json to advise from (or --plan with --camera for a first set)")
         if cameras:
             raise InputError("--camera is for --plan: a calib.json names its own cameras")
+        from ..workflow import check_board
+
         rig = load_rig(calib)
-        check_board_agrees(board, rig.board, str(calib))
+        check_board(board, rig.board, str(calib))
         prior = prior_from_rig(rig)
     advice = advise(prior, count or (8 if plan else 5), _goals(targets), seed=seed)
     write_json_atomic(output, advice_to_dict(advice))
