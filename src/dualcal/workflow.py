@@ -93,8 +93,6 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
         disagrees with the corners.json, and every refusal of :func:`~dualcal.dataset.open_dataset`,
         :func:`~dualcal.dataset.check_pairs` and :func:`~dualcal.io.load_corners`.
     """
-    from .dataset import exclude_views
-
     if _is_corners_file(source) and cameras:
         raise InputError(f"{source} is a file, but cameras given by globs take photos: give a dataset folder "
                          "(or nothing) with them, or the corners.json alone")
@@ -119,7 +117,9 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
         corners = replace(corners, board=check_board(board, corners.board, str(source)))
         if reference is not None:
             corners = replace(corners, reference=reference)
-        corners = exclude_views(corners, exclude)
+        if exclude:
+            from .dataset import exclude_views      # (it reads photos: not imported for a corners.json alone)
+            corners = exclude_views(corners, exclude)
     if square_sigma_mm is not None:
         corners = replace(corners, board=replace(corners.board, square_sigma_mm=float(square_sigma_mm)))
     return corners
