@@ -142,3 +142,23 @@ def test_true_corners_of_every_instant_make_the_check_quiet():
                                     for n, v in true_corners(truth).items()})
     rig = calibrate_rig(exact)
     assert rig.checks["rig_rigid"]["ok"] and rig.checks["focus"]["ok"]
+
+
+def test_the_edge_distortion_sigma_is_the_lens_jacobians_with_the_larger_covariance():
+    """determination's distortion sigma at the outermost corner: for the paper's radial lens it is
+    ``f r (r^2, r^4)`` against the covariance of k1, k2 (with fx = fy), the larger of the two kinds."""
+    from dualcal.checks import _edge_distortion_sigma
+    from dualcal.camera import ideal_normalized_from_pixel
+    from dualcal.covariance import JointCovariance
+
+    truth = make_truth("stereo", 10, seed=3)
+    rig = calibrate_rig(noisy_corner_set(truth, 0.1, seed=3), rig_mode="none")
+    cam = rig.cameras["left"]
+    uv = np.vstack(list(rig.used_corners().cameras["left"].found().values()))
+    uv = uv[np.all(np.isfinite(uv), axis=1)]
+    xy = ideal_normalized_from_pixel(cam, uv)
+    r = np.max(np.hypot(xy[:, 0], xy[:, 1]))
+    g = 0.5 * (cam.fx + cam.fy) * r * np.array([r ** 2, r ** 4])
+    cov = JointCovariance.from_dict(rig.covariance)
+    expected = max(np.sqrt(g @ cov.block(["left.k1", "left.k2"], k) @ g) for k in ("clustered", "formal"))
+    assert _edge_distortion_sigma(rig, "left", uv) == pytest.approx(expected, rel=0.02)

@@ -239,14 +239,29 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
                        "zoomed between shots; lock focus (AF/AE lock) and shoot again, or leave them out with --exclude"}
 
 
-def _covariance(rig: RigModel, names: list[str]) -> np.ndarray | None:
-    if not rig.covariance:
+def _edge_distortion_sigma(rig: RigModel, name: str, uv: np.ndarray) -> float | None:
+    """The sigma (px, radial, the larger of the covariance kinds) of camera ``name``'s lens distortion at
+    the measured corner ``uv`` (N, 2) farthest from the principal point; None without a covariance of its
+    lens coefficients. The derivative of the pixel by the lens coefficients comes from the camera model
+    (:func:`dualcal.camera.project_with_jacobians`), so it holds for every lens model."""
+    from .camera import INTRINSIC_NAMES, LENS_MODELS, ideal_normalized_from_pixel, project_with_jacobians
+    from .covariance import JointCovariance, intrinsic
+
+    cam = rig.cameras[name]
+    terms = [k for k in LENS_MODELS[cam.model] if rig.camera_sigma[name].get(k, 0.0) > 0]
+    names = [intrinsic(name, k) for k in terms]
+    if not terms or not len(uv) or not rig.covariance:
         return None
-    index = {n: i for i, n in enumerate(rig.covariance["parameters"])}
-    if not all(n in index for n in names):
+    cov = JointCovariance.from_dict(rig.covariance)
+    if not cov.has(names):
         return None
-    idx = [index[n] for n in names]
-    return np.asarray(rig.covariance["clustered"])[np.ix_(idx, idx)]
+    xy = ideal_normalized_from_pixel(cam, uv)
+    far = int(np.argmax(np.hypot(xy[:, 0], xy[:, 1])))
+    uv_far, _, J_K = project_with_jacobians(cam, np.array([[xy[far, 0], xy[far, 1], 1.0]]))
+    outward = uv_far[0] - [cam.cx, cam.cy]
+    outward = outward / max(np.linalg.norm(outward), 1e-12)
+    g = outward @ J_K[0][:, [INTRINSIC_NAMES.index(k) for k in terms]]
+    return cov.derived_sigma(names, g)
 
 
 def determination(rig: RigModel) -> dict:
@@ -265,15 +280,11 @@ def determination(rig: RigModel) -> dict:
             if sig.get(key, 0.0) > MAX_CENTRE_REL * size:
                 problems.append(f"{name} {key} known only to +-{sig[key]:.0f} px: add photos with the board tilted "
                                 "and in every part of the frame")
-        # the radial distortion where the data reach: beyond the outermost corner it is extrapolated
+        # the distortion where the data reach: beyond the outermost corner it is extrapolated
         uv = np.vstack([uv for uv in used.cameras[name].found().values()] or [np.zeros((0, 2))])
         uv = uv[np.all(np.isfinite(uv), axis=1)]
-        terms = [k for k in ("k1", "k2", "k3") if sig.get(k, 0.0) > 0]
-        cov = _covariance(rig, [f"{name}.{k}" for k in terms])
-        if cov is not None and terms and len(uv):
-            r = float(np.max(np.hypot((uv[:, 0] - cam.cx) / cam.fx, (uv[:, 1] - cam.cy) / cam.fy)))
-            g = 0.5 * (cam.fx + cam.fy) * r * np.array([r ** (2 * (i + 1)) for i in range(len(terms))])
-            s = float(np.sqrt(max(g @ cov @ g, 0.0)))
+        s = _edge_distortion_sigma(rig, name, uv)
+        if s is not None:
             if s > MAX_DISTORTION_PX:
                 problems.append(f"{name} distortion known only to +-{s:.1f} px at the outermost corner measured: "
                                 "add photos with the board near the corners and edges of the frame")
