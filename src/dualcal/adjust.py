@@ -49,6 +49,7 @@ import numpy as np
 from .board import SHAPE_TERMS, shape_basis, shaped_points_mm
 from .camera import (DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS, CameraModel, intrinsic_names, project_points,
                      project_with_jacobians)
+from .covariance import intrinsic_name, rig_name
 from .errors import EstimationError
 from .lm import LMOptions, levenberg_marquardt
 from .model import Pose, mean_pose, observed_mask
@@ -678,7 +679,8 @@ def rig_relation(sol: Solution, c: int, kind: str = "formal", warn_gimbal: bool 
 def parameter_covariance(sol: Solution, kinds=COVARIANCE_KINDS) -> tuple[list[str], dict[str, np.ndarray]]:
     """The joint covariance of what a calibration reports, for each covariance kind.
 
-    Parameters, in order: every camera's free intrinsics (``"<camera>.<name>"``); for every camera
+    Parameters (named as :mod:`dualcal.covariance` says), in order: every camera's free intrinsics
+    (``"<camera>.<name>"``); for every camera
     with a rig relation its rotation's left increment (``"<camera>.rig.rotation_rad.x"``, ``.y``,
     ``.z``: ``R <- exp([d]x) R``) and its translation (``"<camera>.rig.t_mm.x"``, ...), as
     :func:`rig_linearisation` reports them; the board's shape coefficients
@@ -689,7 +691,7 @@ def parameter_covariance(sol: Solution, kinds=COVARIANCE_KINDS) -> tuple[list[st
     names, rows = [], []                 # each reported parameter as a combination of flat columns
     for c, name in enumerate(p.cameras):
         for col, n in zip(lay.intrinsics[c], np.array(INTRINSIC_NAMES)[lay.free_intrinsics[c]]):
-            names.append(f"{name}.{n}")
+            names.append(intrinsic_name(name, n))
             rows.append({col: 1.0})
     for c, name in enumerate(p.cameras):
         if c == p.reference or (p.mode == "none" and not (p.seen(c) & p.seen(p.reference)).any()):
@@ -697,7 +699,7 @@ def parameter_covariance(sol: Solution, kinds=COVARIANCE_KINDS) -> tuple[list[st
         lin = rig_linearisation(sol, c)
         for what, J in (("rotation_rad", lin.J_rot), ("t_mm", lin.J_t)):
             for axis, row in zip("xyz", J):
-                names.append(f"{name}.rig.{what}.{axis}")
+                names.append(rig_name(name, what, axis))
                 rows.append(dict(zip(lin.columns.tolist(), row)))
     for col, term in zip(lay.board_shape, SHAPE_TERMS):
         names.append(f"board.shape_mm.{term}")

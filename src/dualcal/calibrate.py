@@ -28,6 +28,7 @@ from .adjust import (COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_
 from .board import SHAPE_TERMS
 from .camera import DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS
 from .checks import REFOCUS_SHARE, focal_scale_fits, focus_drift, rig_rigid, run_checks, tie_costs
+from .covariance import JointCovariance, intrinsic_name
 from .errors import EstimationError, InputError
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
@@ -518,9 +519,10 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
     cams = {name: st.camera(p, c) for c, name in enumerate(names)}
     names_cov, covs = parameter_covariance(sol, COVARIANCE_KINDS)
     sd = {kind: dict(zip(names_cov, np.sqrt(np.maximum(np.diag(cov), 0.0)))) for kind, cov in covs.items()}
-    sigma_formal = {name: {n: sd["formal"].get(f"{name}.{n}", 0.0) for n in INTRINSIC_NAMES} for name in names}
-    sigma = {name: {n: max(sd["clustered"].get(f"{name}.{n}", 0.0), s) for n, s in sigma_formal[name].items()}
-             for name in names}
+    sigma_formal = {name: {n: sd["formal"].get(intrinsic_name(name, n), 0.0) for n in INTRINSIC_NAMES}
+                    for name in names}
+    sigma = {name: {n: max(sd["clustered"].get(intrinsic_name(name, n), 0.0), s)
+                    for n, s in sigma_formal[name].items()} for name in names}
     cam_rms = {}
     for c, name in enumerate(names):
         mask = [cc == c for cc, _, _ in p.blocks]
@@ -552,7 +554,7 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
     if p.board_shape:
         shape = st.board_shape_mm.copy()
         shape_sigma = np.array([max(sd[kind][f"board.shape_mm.{t}"] for kind in COVARIANCE_KINDS) for t in SHAPE_TERMS])
-    covariance = {"parameters": names_cov, **{k: covs[k].tolist() for k in COVARIANCE_KINDS}}
+    covariance = JointCovariance(tuple(names_cov), covs).to_dict()
     return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, cam_rms, rig, poses,
                     dict(sorted(view_rms.items())), float(np.sqrt(np.nanmean(sq))), corners, adjustment, dropped,
                     sigma_formal, shape, shape_sigma, list(dropped_corners), {}, covariance)

@@ -245,11 +245,11 @@ def _edge_distortion_sigma(rig: RigModel, name: str, uv: np.ndarray) -> float | 
     lens coefficients. The derivative of the pixel by the lens coefficients comes from the camera model
     (:func:`dualcal.camera.project_with_jacobians`), so it holds for every lens model."""
     from .camera import INTRINSIC_NAMES, LENS_MODELS, ideal_normalized_from_pixel, project_with_jacobians
-    from .covariance import JointCovariance, intrinsic
+    from .covariance import JointCovariance, intrinsic_name
 
     cam = rig.cameras[name]
     terms = [k for k in LENS_MODELS[cam.model] if rig.camera_sigma[name].get(k, 0.0) > 0]
-    names = [intrinsic(name, k) for k in terms]
+    names = [intrinsic_name(name, k) for k in terms]
     if not terms or not len(uv) or not rig.covariance:
         return None
     cov = JointCovariance.from_dict(rig.covariance)

@@ -6,7 +6,7 @@ as ``{"parameters": [names], "clustered": (k, k), "formal": (k, k)}``, the two k
 
 * ``"<camera>.<intrinsic>"`` for every free intrinsic (``wide.fx``, ``tele.k1``, ...; :func:`intrinsic`),
 * ``"<camera>.rig.rotation_rad.<x|y|z>"`` (the relative rotation's left increment, ``R <- exp([d]x) R``)
-  and ``"<camera>.rig.t_mm.<x|y|z>"`` for every camera with a rig relation (:func:`rig`),
+  and ``"<camera>.rig.t_mm.<x|y|z>"`` for every camera with a rig relation (:func:`rig_name`),
 * ``"board.shape_mm.<term>"`` where the board's shape was estimated.
 
 The sigma dualcal reports for any value is the larger of the two kinds' (the rule of
@@ -23,18 +23,18 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["KINDS", "JointCovariance", "intrinsic", "rig"]
+__all__ = ["KINDS", "JointCovariance", "intrinsic_name", "rig_name"]
 
 #: The covariance kinds calib.json keeps (:data:`dualcal.adjust.COVARIANCE_KINDS`).
 KINDS = ("clustered", "formal")
 
 
-def intrinsic(camera: str, name: str) -> str:
+def intrinsic_name(camera: str, name: str) -> str:
     """The covariance's name of a camera's intrinsic, ``"<camera>.<name>"``."""
     return f"{camera}.{name}"
 
 
-def rig(camera: str, what: str, axis: str) -> str:
+def rig_name(camera: str, what: str, axis: str) -> str:
     """The covariance's name of a rig relation's component: ``what`` is ``rotation_rad`` or ``t_mm``."""
     return f"{camera}.rig.{what}.{axis}"
 
