@@ -46,7 +46,8 @@ from .dataset import open_dataset
 from .detect import detect_dataset
 from .errors import DualcalError, InputError
 from .evaluation import evaluate
-from .io import atomic_output, load_corners, make_output_folder, read_json, rig_to_dict, write_json_atomic
+from .io import (load_corners, make_output_folder, read_json, rig_to_dict, write_bytes_atomic, write_json_atomic,
+                 write_text_atomic)
 from .progress import progress_bar
 
 CALIB_NAME, EVAL_NAME, RECORD_NAME = "calib.json", "eval.json", "batch.json"
@@ -497,10 +498,8 @@ def fleet_table(results: Iterable[DeviceResult]):
 def write_fleet_tables(out_dir, table) -> list[Path]:
     """Write ``out_dir/fleet.csv`` and ``out_dir/fleet.parquet`` atomically; returns their paths."""
     csv_path, parquet_path = (Path(out_dir) / name for name in TABLE_NAMES)
-    with atomic_output(csv_path) as tmp:
-        table.to_csv(tmp, index=False)
-    with atomic_output(parquet_path) as tmp:
-        table.to_parquet(tmp, index=False)
+    write_text_atomic(csv_path, csv_safe(table).to_csv(index=False))
+    write_bytes_atomic(parquet_path, table.to_parquet(index=False))
     return [csv_path, parquet_path]
 
 

@@ -1,18 +1,21 @@
 """All JSON in and out of dualcal, and atomic writes (formats: the contract, README).
 
 Loaders validate and raise :class:`~dualcal.errors.InputError` with a message that names the
-file and the fix; nothing here ever returns half-read data. Writers go through a temporary file
-in the destination folder and ``os.replace``, so an interrupted run never leaves half a file and
-never destroys an earlier result.
+file and the fix; nothing here ever returns half-read data. Every output goes through
+:func:`write_bytes_atomic`: a temporary file in the destination folder, checked to the last byte
+on the disk, then ``os.replace``, so an interrupted run or a full disk never leaves half a file
+and never destroys an earlier result (a full disk is an :class:`~dualcal.errors.OutputError`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import math
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -21,40 +24,121 @@ import numpy as np
 from . import __version__
 from .board import SHAPE_TERMS, Board
 from .camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names
-from .errors import InputError
+from .errors import InputError, OutputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation, rig_residuals, rms_px
 from .parallel import raise_if_cancelled
 
 # ---------------------------------------------------------------------------- atomic writes
 
 
-def check_output_file(path) -> Path:
-    """Raise :class:`InputError` unless ``path`` can be written as a file: its folder exists and
-    it is not itself a folder. Commands call this first, before any long work."""
+#: Marks the temporary files of dualcal's writes: ``.<name>.dualcal-tmp-<pid>-<random><suffix>``.
+#: One that a killed run left behind (its process gone) is removed by the next write into that folder.
+TEMP_MARK = ".dualcal-tmp-"
+_TEMP_NAME = re.compile(r"^\..*\.dualcal-tmp-(\d+)-[^/]*$")
+#: errno values that mean "the disk (or the quota) is full".
+_FULL = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
+
+
+def _write_failure(exc: OSError, where) -> OutputError:
+    """The one-line error of a failed write: a full disk said as such, else the system's reason."""
+    if exc.errno in _FULL:
+        return OutputError(f"{where}: the disk is full ({exc.strerror}): free some space; nothing was replaced")
+    if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+        return OutputError(f"{where}: cannot write there ({exc.strerror}): choose another output")
+    return OutputError(f"{where}: cannot be written ({exc.strerror or exc})")
+
+
+def _process_gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:         # it exists (another user's): not ours to judge
+        return False
+    return False
+
+
+def clean_stale_temporaries(folder) -> list[Path]:
+    """Remove the temporary files (:data:`TEMP_MARK`) that runs killed meanwhile left in ``folder``.
+
+    Only files whose writing process is gone are removed, so a concurrent writer's file stays.
+    Returns the paths removed."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _TEMP_NAME.match(entry.name)
+        if match and entry.is_file(follow_symlinks=False) and _process_gone(int(match.group(1))):
+            with contextlib.suppress(OSError):
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+    return removed
+
+
+_cleaned: set[str] = set()
+
+
+def _clean_once(folder) -> None:
+    """:func:`clean_stale_temporaries` the first time this process writes into ``folder``."""
+    key = os.path.abspath(folder)
+    if key not in _cleaned:
+        _cleaned.add(key)
+        clean_stale_temporaries(folder)
+
+
+def _probe_writable(folder: Path) -> None:
+    """Raise :class:`OutputError` unless a file can really be created in ``folder`` (a read-only
+    mount or folder is found here, before any long work); stale temporaries are cleaned on the way."""
+    _clean_once(folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".probe{TEMP_MARK}{os.getpid()}-", dir=folder)
+    except OSError as exc:
+        raise _write_failure(exc, f"output folder {str(folder)!r}") from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
+def _output_path(path) -> tuple[Path, Path]:
+    """``path`` and its folder, after checking that the folder exists and ``path`` is no folder."""
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise InputError(f"output folder {str(parent)!r} does not exist: create it first or choose another -o")
     if path.is_dir():
         raise InputError(f"output {str(path)!r} is a folder: give a file name")
+    return path, parent
+
+
+def check_output_file(path) -> Path:
+    """Raise :class:`InputError` unless ``path`` can be written as a file: its folder exists, is
+    writable (else :class:`OutputError`), and ``path`` is not itself a folder. Commands call this
+    first, before any long work."""
+    path, parent = _output_path(path)
+    _probe_writable(parent)
     return path
 
 
 def make_output_folder(path) -> Path:
-    """Create the output folder ``path`` unless it exists; its parent must exist already.
+    """Create the output folder ``path`` unless it exists (its parent must exist already), and
+    check that it is writable (:class:`OutputError` otherwise).
 
     The rule of every dualcal output: dualcal creates at most the last folder of a path, so a
     mistyped path fails at once with :class:`InputError` instead of growing a tree of folders.
     """
     path = Path(path)
-    if path.is_dir():
-        return path
-    if not path.parent.is_dir():
-        raise InputError(f"output folder {str(path)!r}: its parent does not exist (create it first)")
-    try:
-        path.mkdir()
-    except OSError as exc:
-        raise InputError(f"output folder {str(path)!r} cannot be created ({exc.strerror or exc})") from None
+    if not path.is_dir():
+        if not path.parent.is_dir():
+            raise InputError(f"output folder {str(path)!r}: its parent does not exist (create it first)")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            if not path.is_dir():
+                raise InputError(f"output folder {str(path)!r} is a file: choose another") from None
+        except OSError as exc:
+            raise _write_failure(exc, f"output folder {str(path)!r}") from None
+    _probe_writable(path)
     return path
 
 
@@ -67,23 +151,44 @@ def _read_umask() -> int:
 _UMASK = _read_umask()    # read once: setting it later, even briefly, would race with other threads
 
 
-@contextlib.contextmanager
-def atomic_output(path, suffix: str | None = None):
-    """Yield a temporary path beside ``path``; on success it replaces ``path`` atomically.
+def _write_all(fd: int, data: bytes) -> None:
+    """``os.write`` until every byte is written; a write that writes nothing is a full disk."""
+    view = memoryview(data)
+    while view:
+        n = os.write(fd, view)
+        if n <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        view = view[n:]
 
-    On any exception the temporary file is removed and ``path`` is left as it was.
+
+def write_bytes_atomic(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically, checked to the last byte.
+
+    Every dualcal output goes through here: a temporary file beside ``path`` (named with
+    :data:`TEMP_MARK`, so a later run cleans it if this one is killed), written, flushed to the
+    disk (``fsync``), its size on the disk compared with ``len(data)``, then renamed over
+    ``path``. On any failure the temporary file is removed and ``path`` is left as it was; a
+    failed write (a full disk, a short write) raises :class:`OutputError`, a Ctrl-C meanwhile
+    commits nothing (:func:`dualcal.parallel.raise_if_cancelled`).
     """
-    path = check_output_file(path)
+    path, folder = _output_path(path)
+    _clean_once(folder)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp",
-                                   dir=path.parent if str(path.parent) else ".")
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:100]}{TEMP_MARK}{os.getpid()}-",
+                                   suffix=path.suffix or ".tmp", dir=folder)
     except OSError as exc:
-        raise InputError(f"cannot write in {str(path.parent)!r}: {exc.strerror}") from None
-    os.close(fd)
+        raise _write_failure(exc, f"output folder {str(folder)!r}") from None
     try:
-        yield Path(tmp)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
+        try:
+            _write_all(fd, data)
+            os.fsync(fd)
+            size = os.fstat(fd).st_size
+        except OSError as exc:
+            raise _write_failure(exc, path) from None
+        finally:
+            os.close(fd)
+        if size != len(data):
+            raise OutputError(f"{path}: {size} of {len(data)} bytes written (a full disk?); nothing was replaced")
         raise_if_cancelled()               # interrupted meanwhile: commit nothing
         os.chmod(tmp, 0o666 & ~_UMASK)     # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, path)
@@ -94,12 +199,26 @@ def atomic_output(path, suffix: str | None = None):
 
 
 def write_text_atomic(path, text: str) -> None:
-    with atomic_output(path) as tmp:
-        Path(tmp).write_text(text, encoding="utf-8")
+    write_bytes_atomic(path, text.encode("utf-8"))
 
 
 def write_json_atomic(path, doc: dict) -> None:
     write_text_atomic(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+
+
+def encode_jpeg(bgr: np.ndarray, quality: int) -> bytes:
+    """An 8-bit BGR (or grey) image as JPEG bytes (OpenCV's encoder)."""
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise OutputError(f"JPEG encoding of a {bgr.shape} image failed")
+    return buf.tobytes()
+
+
+def write_jpeg_atomic(path, bgr: np.ndarray, quality: int = 90) -> None:
+    """Encode an 8-bit BGR image as JPEG and write it atomically, checked to the last byte."""
+    write_bytes_atomic(path, encode_jpeg(bgr, quality))
 
 
 # ---------------------------------------------------------------------------- reading
