@@ -147,10 +147,10 @@ def test_file_kinds_are_told_apart(tmp_path, rig):
 @pytest.mark.parametrize("text,message", [
     ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {"wide": {"image_size": [10', "truncated"),
     ("[1, 2]", "top level"),
-    ('{"board": {"cols": 8}, "cameras": {}}', "board entry"),
+    ('{"board": {"cols": 8}, "cameras": {}}', "cameras: {} should be non-empty"),
     ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {}}', "non-empty"),
     ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {"w": {"image_size": [0, 5], "views": {}}}}',
-     "positive integers"),
+     r"cameras.w.image_size\[0\]: 0 is less than the minimum of 1"),
     ('{"board": {"cols": 2, "rows": 2, "square_mm": 30}, "cameras": {"w": {"image_size": [9, 9], '
      '"views": {"a": [[1, 2], [3, 4], [5, 6]]}}}}', "4 corners"),
 ])

@@ -23,10 +23,13 @@ import numpy as np
 
 from . import __version__
 from .board import SHAPE_TERMS, Board
-from .camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names
+from .camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names,
+                     max_distorted_radius, normalized_from_pixel)
 from .errors import InputError, OutputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation, rig_residuals, rms_px
 from .parallel import raise_if_cancelled
+from .progress import warn
+from .schemas import validate
 
 # ---------------------------------------------------------------------------- atomic writes
 
@@ -243,6 +246,8 @@ def read_json(path) -> dict:
         raise InputError(f"{path}: not a text file (expected JSON)") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: malformed or truncated JSON ({exc.msg} at line {exc.lineno})") from None
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply to be a dualcal file") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a JSON object at the top level")
     return doc
@@ -361,8 +366,10 @@ def corners_to_dict(cs: CornerSet) -> dict:
 
 
 def _load(path, kind: str) -> dict:
+    """Read a JSON file that must be of ``kind`` and valid against its schema (:mod:`dualcal.schemas`)."""
     doc = read_json(path)
     _expect_kind(path, doc, kind)
+    validate(doc, kind, str(path))
     return doc
 
 
@@ -429,10 +436,34 @@ def rig_to_dict(rig: RigModel) -> dict:
         "dropped_views": rig.dropped_views,
         "dropped_corners": rig.dropped_corners,
         "checks": rig.checks,
+        "checks_sha256": checks_digest(rig.checks),
     }
     if rig.covariance is not None:
         doc["covariance"] = rig.covariance
     return doc
+
+
+def checks_digest(checks: dict) -> str:
+    """sha256 of calib.json's ``checks`` as canonical JSON: stored beside them as ``checks_sha256``, so
+    that checks edited by hand are found and refused (:func:`rig_from_dict`), never trusted."""
+    text = json.dumps(checks, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _trusted_checks(doc: dict, source: str) -> dict:
+    """calib.json's ``checks`` if they are as the calibration wrote them (``checks_sha256``); checks
+    without their digest (a file written by hand or by an older dualcal) are dropped with a warning."""
+    checks = doc.get("checks") or {}
+    stored = doc.get("checks_sha256")
+    if stored is None:
+        if checks:
+            warn(f"{source}: its checks carry no checks_sha256 (written by hand or by an older dualcal): "
+                 "they are not used; calibrate again to have them")
+        return {}
+    if stored != checks_digest(checks):
+        raise InputError(f"{source}: its checks were edited after the calibration computed them "
+                         "(checks_sha256 does not match): calibrate again rather than edit them")
+    return dict(checks)
 
 
 def _rig_sigma_doc(t_mm, baseline_mm, opk_arcmin) -> dict:
@@ -487,7 +518,7 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
                          corners, doc.get("adjustment", {}), doc.get("dropped_views", []), sigma_formal,
                          None if shape is None else np.array([float(shape[t]) for t in SHAPE_TERMS]),
                          None if shape is None else np.array([float(shape_sigma.get(t, np.nan)) for t in SHAPE_TERMS]),
-                         list(doc.get("dropped_corners", [])), dict(doc.get("checks", {})), doc.get("covariance"))
+                         list(doc.get("dropped_corners", [])), _trusted_checks(doc, source), doc.get("covariance"))
     except (KeyError, TypeError, AttributeError, ValueError) as exc:
         raise InputError(f"{source}: malformed calib.json ({type(exc).__name__}: {exc})") from None
     _check_consistent(model, source)
@@ -513,6 +544,21 @@ def _check_lens_keys(entry: dict, model: str, what: str) -> None:
                          "(calib.json 'model'; a file without one is k1k2)")
 
 
+def _lens_fold_problem(cam: CameraModel, corners: CameraCorners | None) -> str | None:
+    """Why the lens cannot be what was calibrated, or None: its radial distortion folds over (stops
+    growing with the radius) inside the region its own corners span, where the calibration measured it.
+    (A fitted polynomial may fold beyond its data, in the image's corners: undistort refuses that itself.)"""
+    rd_max = max_distorted_radius(*cam.radial)
+    seen = [uv[np.isfinite(uv).all(axis=1)] for uv in (corners.views.values() if corners else ()) if uv is not None]
+    if not seen or not np.isfinite(rd_max):
+        return None
+    rd_seen = float(np.max(np.linalg.norm(normalized_from_pixel(cam, np.vstack(seen)), axis=1)))
+    if rd_seen > rd_max:
+        return (f"its lens distortion {tuple(round(float(k), 4) for k in cam.radial)} folds over at normalised "
+                f"radius {rd_max:.3g}, inside the {rd_seen:.3g} its own corners reach: not a lens")
+    return None
+
+
 def _is_rotation(R: np.ndarray) -> bool:
     return np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
 
@@ -532,6 +578,8 @@ def _check_consistent(rig: RigModel, source: str) -> None:
     bad_f = [n for n, cam in rig.cameras.items() if not (cam.fx > 0 and cam.fy > 0)]
     if bad_f:
         problems.append(f"focal lengths must be positive (cameras {bad_f})")
+    problems += [f"camera {name!r}: {p}" for name, cam in rig.cameras.items() if name not in bad_f
+                 for p in [_lens_fold_problem(cam, rig.corners.cameras.get(name))] if p]
     poses = [rel.pose for rel in rig.rig.values()] + [p for d in rig.camera_poses.values() for p in d.values()]
     if not all(_is_rotation(p.R) for p in poses):
         problems.append("a rotation matrix R is not orthonormal with determinant +1")
