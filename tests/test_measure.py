@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from schema_check import assert_valid
 from dualcal.calibrate import calibrate_rig
 from dualcal.camera import project_points
 from dualcal.errors import EstimationError, InputError
@@ -287,7 +288,7 @@ def test_measure_command_writes_measure_json_and_prints_the_tables(note8, calib_
     (tmp_path / "points.json").write_text(json.dumps(points))
     res = run_cli("measure", calib_file, "--points", tmp_path / "points.json", "-o", tmp_path / "measure.json")
     assert res.code == 0, res.err
-    doc = json.loads((tmp_path / "measure.json").read_text())
+    doc = assert_valid(tmp_path / "measure.json")
     assert doc["frame"] == "wide" and list(doc["points"]) == ["P0", "P1", "P2", "P3"]
     rows = {r.split("│")[1].strip(): [c.strip() for c in r.split("│")[2:-1]]
             for r in res.out.split("Lengths")[1].splitlines() if r.startswith("│")}

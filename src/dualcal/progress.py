@@ -6,9 +6,21 @@ import contextlib
 from collections.abc import Iterable, Iterator
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-_stderr = Console(stderr=True)
+from .terminal import printable
+
+
+class SafeConsole(Console):
+    """A rich console that strips control characters from every string it renders (table cells too):
+    :func:`dualcal.terminal.printable`."""
+
+    def render_str(self, text: str, *args, **kwargs):
+        return super().render_str(printable(text), *args, **kwargs)
+
+
+_stderr = SafeConsole(stderr=True)
 
 
 @contextlib.contextmanager
@@ -34,4 +46,4 @@ def track(items: Iterable, description: str, total: int | None = None, enabled: 
 
 def warn(message: str) -> None:
     """One warning line on stderr."""
-    _stderr.print(f"[yellow]dualcal: warning:[/] {message}", highlight=False, soft_wrap=True)
+    _stderr.print(f"[yellow]dualcal: warning:[/] {escape(printable(message))}", highlight=False, soft_wrap=True)

@@ -8,7 +8,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import LazyChoice, board_from_flags, board_options, check_board_agrees, default_jobs, stdout_console
+from .common import LazyChoice, board_from_flags, board_options, check_board_agrees, default_jobs, echo, stdout_console
 from .detect import corners_from_dataset, dataset_options
 
 
@@ -194,5 +194,5 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, jobs, bo
         from ..render import write_photo_set
         write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs())
     n = len(truth.view_poses) * len(truth.cameras)
-    click.echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
+    echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
                f"({n} {'photos' if photos else 'corner sets'}) written to {out}")
