@@ -136,11 +136,10 @@ def make_output_folder(path) -> Path:
             raise InputError(f"output folder {str(path)!r}: its parent does not exist (create it first)")
         try:
             path.mkdir()
-        except FileExistsError:
-            if not path.is_dir():
-                raise InputError(f"output folder {str(path)!r} is a file: choose another") from None
         except OSError as exc:
-            raise _write_failure(exc, f"output folder {str(path)!r}") from None
+            if exc.errno in _FULL | {errno.EROFS}:
+                raise _write_failure(exc, f"output folder {str(path)!r}") from None
+            raise InputError(f"output folder {str(path)!r} cannot be created ({exc.strerror or exc})") from None
     _probe_writable(path)
     return path
 
