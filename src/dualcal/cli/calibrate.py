@@ -79,7 +79,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
 
     from ..board import SHAPE_TERMS
     from ..calibrate import calibrate_rig
-    from ..checks import failed_checks, verdict
+    from ..checks import failed_checks, scale_note, verdict
     from ..errors import EstimationError
     from ..io import check_output_file, save_rig
     from ..model_selection import compare_lens_models
@@ -125,6 +125,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
         console.print(f"  {name}: {rig.checks[name]['message']}")
+    if "scale" not in rig.checks:
+        console.print(f"  note: {scale_note(rig)} (--square)")
 
 
 def _coverage(text: str | None, board) -> tuple[float, float] | None:
