@@ -167,12 +167,12 @@ def test_a_wrong_square_is_found_where_exif_shows_a_phone():
     truth = make_truth("note8", views=8, seed=1, scale=0.25)
     corners = noisy_corner_set(truth, 0.2, seed=0)
     right = calibrate_rig(_with_phone_exif(corners, truth.board.square_mm), board_shape="flat")
-    assert right.checks["scale"]["ok"], right.checks["scale"]["message"]
-    assert right.checks["scale"]["sensor_diagonal_mm"]["wide"] == pytest.approx(43.27 * 4.3 / 26.0)
+    assert right.checks["scale_plausible"]["ok"], right.checks["scale_plausible"]["message"]
+    assert right.checks["scale_plausible"]["sensor_diagonal_mm"]["wide"] == pytest.approx(43.27 * 4.3 / 26.0)
     wrong = calibrate_rig(_with_phone_exif(corners, truth.board.square_mm / 10), board_shape="flat")
-    check = wrong.checks["scale"]
+    check = wrong.checks["scale_plausible"]
     assert not check["ok"] and "lenses are tele 1.1 mm apart" in check["message"]
     assert f"square really {truth.board.square_mm / 10:g} mm" in check["message"]
-    assert "scale" in failed_checks(wrong.checks)
+    assert "scale_plausible" in failed_checks(wrong.checks)
     plain = calibrate_rig(corners, board_shape="flat")             # no EXIF: nothing to judge by, and said so
-    assert "scale" not in plain.checks and "rests on the board's square" in scale_note(plain)
+    assert "scale_plausible" not in plain.checks and "rests on the board's square" in scale_note(plain)

@@ -166,3 +166,26 @@ def test_a_failed_undistort_leaves_no_new_folder(tmp_path, stereo_calib, run_cli
     out = tmp_path / "new"
     res = run_cli("undistort", stereo_calib, "--camera", "left", broken, "-o", out)
     assert res.code == 2 and not out.exists()
+
+
+@pytest.mark.parametrize("command", ["evaluate", "rectify", "undistort"])
+def test_a_full_disk_is_said_as_such_by_every_command_and_keeps_earlier_outputs(tmp_path, stereo_calib, run_cli,
+                                                                              monkeypatch, command):
+    """Finding 1: rectify blamed its own output, the JSON writers exited 1 "internal error"."""
+    left, right = _noise_jpeg(tmp_path / "left01.jpg"), _noise_jpeg(tmp_path / "right01.jpg", seed=1)
+    out = tmp_path / "out"
+    args = {"evaluate": ("evaluate", stereo_calib, "-o", out / "eval.json"),
+            "rectify": ("rectify", stereo_calib, "--pair", f"left={left}", f"right={right}", "-o", out),
+            "undistort": ("undistort", stereo_calib, "--camera", "left", left, "-o", out)}[command]
+    out.mkdir()
+    first = run_cli(*args)
+    assert first.code == 0, first.err
+    earlier = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def full(fd, data):
+        os.write(fd, bytes(data[:len(data) // 3]))
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(io_module, "_write_all", full)
+    res = run_cli(*args)
+    assert res.code == 2 and len(res.err_lines) == 1 and "the disk is full" in res.err, res.err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == earlier

@@ -12,7 +12,7 @@ a message in plain words that says what is wrong and what would help:
 ``determination``  every parameter determined well enough (focal length, principal point,
                    distortion as far out as corners were measured, baseline, angles).
 ``lens_model``     residuals that do not grow towards the image's edge (the lens model lacks terms).
-``scale``          where EXIF shows a phone's small sensor (focal length in mm and its 35 mm equivalent):
+``scale_plausible`` where EXIF shows a phone's small sensor (focal length in mm and its 35 mm equivalent):
                    the board's distance and the lenses' spacing are a phone's (:func:`scale_plausibility`).
                    Every length scales with the board's square size, which only the user knows; a wrong
                    one passes every other check. Without those EXIF facts there is nothing to judge it by,
@@ -60,8 +60,9 @@ MAX_CENTRE_REL = 0.01              # sigma of cx, cy relative to the image width
 MAX_DISTORTION_PX = 0.5            # sigma of the radial distortion at the outermost corner measured
 MAX_BASELINE_REL = 0.02            # sigma of the baseline relative to it
 MAX_ANGLE_ARCMIN = 30.0            # sigma of omega, phi, kappa
-#: ``scale``: a sensor whose diagonal (from EXIF: 43.27 mm x focal length / its 35 mm equivalent) is below this
-#: is a phone's (1/1.3" is 12 mm, a 1" type 16 mm), whose lenses sit this far apart (mm) ...
+#: ``scale_plausible``: a sensor whose diagonal (from EXIF: 43.27 mm x focal length / its 35 mm
+#: equivalent) is below this is a phone's (1/1.3" is 12 mm, a 1" type 16 mm), whose lenses sit this
+#: far apart (mm) ...
 PHONE_SENSOR_DIAGONAL_MM = 20.0
 PHONE_BASELINE_MM = (5.0, 40.0)
 #: ... and whose board is held this far away (mm; the median over the instants, from the reference camera).
@@ -332,7 +333,7 @@ def _sensor_diagonals_mm(rig: RigModel) -> dict[str, float]:
 
 
 def scale_plausibility(rig: RigModel) -> dict | None:
-    """The ``scale`` check (module docstring), or None where no camera's EXIF shows a phone's sensor.
+    """The ``scale_plausible`` check (module docstring), or None where no camera's EXIF shows a phone's sensor.
 
     Returns ``{"ok", "message", "sensor_diagonal_mm": {camera: mm}, "board_distance_mm": median over the
     instants, "baseline_mm": {camera: mm}}``.
@@ -365,7 +366,7 @@ def scale_plausibility(rig: RigModel) -> dict | None:
 
 
 def scale_note(rig: RigModel) -> str:
-    """One line for a calibration without the ``scale`` check: what its lengths rest on."""
+    """One line for a calibration without the ``scale_plausible`` check: what its lengths rest on."""
     return (f"the scale (every length in mm) rests on the board's square of {rig.board.square_mm:g} mm alone: "
             "the photos' EXIF has no focal length and 35 mm equivalent of a phone's lens to judge it by")
 
@@ -384,7 +385,7 @@ def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solutio
     checks["lens_model"] = lens_model_fit(sol)
     scale = scale_plausibility(rig)
     if scale is not None:
-        checks["scale"] = scale
+        checks["scale_plausible"] = scale
     return checks
 
 

@@ -125,7 +125,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
         console.print(f"  {name}: {rig.checks[name]['message']}")
-    if "scale" not in rig.checks:
+    if "scale_plausible" not in rig.checks:
         console.print(f"  note: {scale_note(rig)} (--square)")
 
 
