@@ -109,3 +109,15 @@ def test_duplicate_files_by_content(tmp_path):
         files.append(tmp_path / name)
     assert duplicate_files(files) == [[files[0], files[2]], [files[1], files[4]]]
     assert duplicate_files(files[:2]) == []
+
+
+def test_a_copied_partial_view_is_a_duplicate(stereo):
+    """A ChArUco board's partial view (a third of its corners) and its copy share every corner they have."""
+    _, cs = stereo
+    twice = repeated(cs, 2)
+    for cam in twice.cameras.values():
+        for key in ("IMG_02_0", "IMG_02_1"):
+            uv = cam.views[key].copy()
+            uv[len(uv) // 3:] = np.nan
+            cam.views[key] = uv
+    assert len(find_duplicate_instants(twice)) == 8

@@ -31,7 +31,8 @@ DUPLICATE_SIGMAS = 4.0
 #: Corner noise assumed at least this (px per coordinate), so that noise-free synthetic corners still
 #: merge only what is the same to well below a pixel.
 MIN_NOISE_PX = 0.02
-#: A camera's corners of two instants are compared only where both measured at least this share of them.
+#: A camera's corners of two instants are compared only where both measured this share of those the fuller
+#: view measured.
 MIN_COMMON_SHARE = 0.5
 
 
@@ -57,13 +58,16 @@ def _found(cam: CameraCorners) -> dict[str, np.ndarray]:
 
 def _rms_differences(stack: np.ndarray, a: int) -> tuple[np.ndarray, np.ndarray]:
     """RMS 2-D difference per corner between view ``a`` and every view of ``stack`` (V, N, 2), over the
-    corners both measured, and the share of corners both measured."""
+    corners both measured, and their share of the corners the fuller of the two views measured (a
+    partial view of a ChArUco board and its copy share all of theirs)."""
     d2 = np.sum((stack - stack[a]) ** 2, axis=2)                       # (V, N), NaN where either is missing
     common = np.isfinite(d2)
     n = common.sum(axis=1)
+    measured = np.isfinite(stack[..., 0]).sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.where(common, d2, 0.0).sum(axis=1) / n)
-    return np.where(n > 0, rms, np.inf), n / stack.shape[1]
+        share = n / np.maximum(np.maximum(measured, measured[a]), 1)
+    return np.where(n > 0, rms, np.inf), share
 
 
 def find_duplicate_instants(corners: CornerSet, sigmas: float = DUPLICATE_SIGMAS) -> list[dict]:
