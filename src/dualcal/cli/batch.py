@@ -105,9 +105,9 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
         echo(f"dualcal: {r.device}: {r.row['status']}", err=True)
     skipped = sum(r.skipped for r in results)
     echo(f"{len(results)} device{'s' if len(results) != 1 else ''}: {len(results) - len(failed)} ok, {len(failed)} failed"
-               f"{f' ({skipped} up to date from an earlier run)' if skipped else ''}; "
-               f"{'up to date' if current else 'wrote'} {', '.join(str(p) for p in written)}, {out_dir / 'fleet.html'}",
-               err=True)
+         f"{f' ({skipped} up to date from an earlier run)' if skipped else ''}; "
+         f"{'up to date' if current else 'wrote'} {', '.join(str(p) for p in written)}, {out_dir / PAGE_NAME}",
+         err=True)
     if failed:
         raise SystemExit(1)
 

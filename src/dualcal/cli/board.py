@@ -42,4 +42,4 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
     layout = write_board(board, output, paper=paper, dpi=dpi)
     w, h = layout.page_mm
     echo(f"{layout.board.describe()}, squares of {layout.board.square_mm:g} mm, on a {w:.0f} x {h:.0f} mm page: "
-               f"wrote {output} (print at 100 %)", err=True)
+         f"wrote {output} (print at 100 %)", err=True)

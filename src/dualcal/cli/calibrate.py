@@ -126,7 +126,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     for name in failed_checks(rig.checks):
         console.print(f"  {name}: {rig.checks[name]['message']}")
     if "scale_plausible" not in rig.checks:
-        console.print(f"  note: {scale_note(rig)} (--square)")
+        console.print(f"  note: {scale_note(rig)}; check --square")
 
 
 def _coverage(text: str | None, board) -> tuple[float, float] | None:
@@ -197,4 +197,4 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, jobs, bo
         write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs())
     n = len(truth.view_poses) * len(truth.cameras)
     echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
-               f"({n} {'photos' if photos else 'corner sets'}) written to {out}")
+         f"({n} {'photos' if photos else 'corner sets'}) written to {out}")

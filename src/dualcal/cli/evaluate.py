@@ -122,5 +122,5 @@ def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, o
         raise InputError(f"none of the {len(images)} photos could be rectified (see the warnings above)")
     write_json_atomic(doc_path, rectified_camera_doc(camera_name, keep, calib, new_cam))
     echo(f"{len(written)} of {len(images)} photos undistorted into {out_dir} "
-               f"(fx={new_cam.fx:.2f} fy={new_cam.fy:.2f} cx={new_cam.cx:.2f} cy={new_cam.cy:.2f}, "
-               f"k1=k2=0: {camera_name}.rectified.json)")
+         f"(fx={new_cam.fx:.2f} fy={new_cam.fy:.2f} cx={new_cam.cx:.2f} cy={new_cam.cy:.2f}, "
+         f"k1=k2=0: {camera_name}.rectified.json)")

@@ -115,7 +115,7 @@ def _write_pick_page(rig, photos: dict[str, Path], output: Path, open_page: bool
         raise InputError("--pick needs the photos of two or more cameras of one instant: NAME=IMAGE NAME2=IMAGE2")
     write_text_atomic(output, render_pick_page(rig, photos))
     echo(f"wrote {output}: open it in a browser, click each point in every photo (the same name in each), "
-               f"export points.json, then: dualcal measure CALIB --points points.json -o measure.json")
+         f"export points.json, then: dualcal measure CALIB --points points.json -o measure.json")
     if open_page:
         import webbrowser
         webbrowser.open(output.resolve().as_uri())

@@ -82,5 +82,5 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
     w, h = rect.image_size
     layout = "same column (vertical rig)" if rect.vertical else "same row (horizontal rig)"
     echo(f"rectified {first} + {second} to {w}x{h} px, f = {rect.camera.fx:.2f} px, baseline "
-               f"{abs(rect.baseline_mm):.3f} mm, corresponding points on the {layout}: wrote "
-               f"{', '.join(written[n].name for n in rect.names)}, rectify.json and {EPIPOLAR_IMAGE} in {out}")
+         f"{abs(rect.baseline_mm):.3f} mm, corresponding points on the {layout}: wrote "
+         f"{', '.join(written[n].name for n in rect.names)}, rectify.json and {EPIPOLAR_IMAGE} in {out}")
