@@ -132,3 +132,26 @@ def test_a_corners_json_with_nan_or_a_wrong_type_is_refused(stereo, tmp_path):
     path.write_text(json.dumps(doc))
     with pytest.raises(InputError, match="board.square_mm: True is not of type 'number'"):
         load_corners(path)
+
+
+@pytest.mark.parametrize("bad", [True, "1.5", [1.0, 2.0, 3.0], 5, {"u": 1}], ids=["bool", "str", "3", "int", "obj"])
+def test_the_one_pass_corner_check_agrees_with_the_schema(stereo, tmp_path, bad):
+    """validate() checks the corner lists in one pass of its own (the bulk of a file): it refuses what the
+    full schema refuses, naming the corner."""
+    from dualcal.schemas import _validator
+
+    save_rig(tmp_path / "calib.json", stereo[1])
+    doc = json.loads((tmp_path / "calib.json").read_text())
+    views = doc["corners"]["cameras"]["right"]["views"]
+    if isinstance(bad, int) and not isinstance(bad, bool):
+        views["IMG_02"] = bad
+        where = "corners.cameras.right.views.IMG_02"
+    elif isinstance(bad, list) or isinstance(bad, dict):
+        views["IMG_02"][7] = bad
+        where = r"corners.cameras.right.views.IMG_02\[7\]"
+    else:
+        views["IMG_02"][7] = [1.0, bad]
+        where = r"corners.cameras.right.views.IMG_02\[7\]\[1\]"
+    assert not _validator("calib").is_valid(doc)
+    with pytest.raises(InputError, match=where):
+        validate(doc, "calib", "calib.json")
