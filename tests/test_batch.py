@@ -23,6 +23,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
+from schema_check import assert_valid
 from dualcal import batch
 from dualcal.io import load_rig, rig_to_dict, save_corners
 from dualcal.report import fleet
@@ -139,7 +140,7 @@ def test_outputs_of_a_device_are_its_calibration(first_run, fleet_root):
     out = first_run["out"]
     rig = load_rig(out / "photos-unit" / "calib.json")
     assert rig.dropped_views == [] and set(rig.cameras) == {"wide", "tele"}
-    assert set(json.loads((out / "photos-unit" / "eval.json").read_text())["cases"]) == {"dual", "wide", "tele"}
+    assert set(assert_valid(out / "photos-unit" / "eval.json")["cases"]) == {"dual", "wide", "tele"}
     row = next(r.row for r in first_run["results"] if r.device == "photos-unit")
     assert row["input"] == "photos" and row["wide.fx"] == rig.cameras["wide"].fx
     assert row["wide.views"] == 5 and row["board.cols"] == 8
@@ -223,7 +224,7 @@ def test_fleet_parquet_reads_back_with_the_documented_columns(first_run, tmp_pat
     assert not any(c.endswith(".R") or ".R." in c for c in back.columns)
     assert list(back["device"]) == sorted(back["device"])
     by_device = back.set_index("device")
-    calib = json.loads((first_run["out"] / "unit-005" / "calib.json").read_text())
+    calib = assert_valid(first_run["out"] / "unit-005" / "calib.json")
     assert by_device.loc["unit-005", "tele.sigma.fx"] == calib["cameras"]["tele"]["sigma"]["fx"]
     assert by_device.loc["unit-005", "rig.tele.opk_arcmin.phi"] == calib["rig"]["tele"]["opk_arcmin"][1]
     assert by_device.loc["broken", "status"].startswith("failed: ") and pd.isna(by_device.loc["broken", "wide.fx"])

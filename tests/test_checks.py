@@ -162,3 +162,37 @@ def test_the_edge_distortion_sigma_is_the_lens_jacobians_with_the_larger_covaria
     cov = JointCovariance.from_dict(rig.covariance)
     expected = max(np.sqrt(g @ cov.block(["left.k1", "left.k2"], k) @ g) for k in ("clustered", "formal"))
     assert _edge_distortion_sigma(rig, "left", uv) == pytest.approx(expected, rel=0.02)
+
+
+# ---------------------------------------------------------------------------- scale (issue 24, finding 4)
+
+
+def _with_phone_exif(corners, square_mm: float):
+    """The corners of a phone (EXIF: wide 4.3 mm = 26 mm equivalent, tele 6.0 mm = 52 mm), on a board whose
+    square is said to be ``square_mm`` (the pixels are the same whatever the user says)."""
+    from dualcal.board import Board
+    from dualcal.model import CameraCorners, CornerSet
+
+    exif = {"wide": {"focal_length_mm": 4.3, "focal_length_35mm_mm": 26.0},
+            "tele": {"focal_length_mm": 6.0, "focal_length_35mm_mm": 52.0}}
+    board = Board(corners.board.cols, corners.board.rows, square_mm)
+    return CornerSet(board, {n: CameraCorners(c.image_size, c.views, {"exif": exif[n]})
+                             for n, c in corners.cameras.items()}, corners.reference)
+
+
+def test_a_wrong_square_is_found_where_exif_shows_a_phone():
+    """The finding: --square 3 instead of 30 gave a 1.1 mm baseline and a board 8-14 cm away, every check passing."""
+    from dualcal.checks import scale_note
+
+    truth = make_truth("note8", views=8, seed=1, scale=0.25)
+    corners = noisy_corner_set(truth, 0.2, seed=0)
+    right = calibrate_rig(_with_phone_exif(corners, truth.board.square_mm), board_shape="flat")
+    assert right.checks["scale_plausible"]["ok"], right.checks["scale_plausible"]["message"]
+    assert right.checks["scale_plausible"]["sensor_diagonal_mm"]["wide"] == pytest.approx(43.27 * 4.3 / 26.0)
+    wrong = calibrate_rig(_with_phone_exif(corners, truth.board.square_mm / 10), board_shape="flat")
+    check = wrong.checks["scale_plausible"]
+    assert not check["ok"] and "lenses are tele 1.1 mm apart" in check["message"]
+    assert f"square really {truth.board.square_mm / 10:g} mm" in check["message"]
+    assert "scale_plausible" in failed_checks(wrong.checks)
+    plain = calibrate_rig(corners, board_shape="flat")             # no EXIF: nothing to judge by, and said so
+    assert "scale_plausible" not in plain.checks and "rests on the board's square" in scale_note(plain)

@@ -10,6 +10,7 @@ import textwrap
 import numpy as np
 import pytest
 
+from schema_check import assert_valid
 from dualcal.io import load_rig, save_corners
 from dualcal.synth import make_truth, noisy_corner_set
 
@@ -46,7 +47,7 @@ def test_synth_then_calibrate_recovers_the_truth(synth_dir, run_cli):
 def test_calibrate_modes_are_recorded(synth_dir, run_cli, flags, mode, skew):
     res = run_cli("calibrate", synth_dir / "corners.json", "-o", synth_dir / "c.json", "--no-compare-models", *flags)
     assert res.code == 0, res.err
-    doc = json.loads((synth_dir / "c.json").read_text())
+    doc = assert_valid(synth_dir / "c.json")
     assert doc["rig_mode"] == mode and doc["skew"] is skew
 
 
@@ -60,7 +61,7 @@ def test_calibrate_model_flag_fits_opencvs_lens_and_records_it(tmp_path, run_cli
                   "--no-compare-models")
     assert res.code == 0, res.err
     assert "lens model k1k2p1p2k3" in res.out and "lens distortion" in res.out
-    doc = json.loads((out / "calib.json").read_text())
+    doc = assert_valid(out / "calib.json")
     assert doc["model"] == "k1k2p1p2k3" and doc["adjustment"]["options"]["model"] == "k1k2p1p2k3"
     truth = load_rig(out / "truth.json")
     assert truth.model == "k1k2p1p2k3"
@@ -78,7 +79,7 @@ def test_calibrate_compares_the_lens_models_and_records_the_comparison(tmp_path,
                    "--no-photos").code == 0
     res = run_cli("calibrate", out / "corners.json", "-o", out / "calib.json", "--no-compare-models")
     assert res.code == 0, res.err
-    scores = json.loads((out / "calib.json").read_text())["adjustment"]["lens_models"]
+    scores = assert_valid(out / "calib.json")["adjustment"]["lens_models"]
     assert [s["model"] for s in scores] == ["k1k2", "k1k2k3", "k1k2p1p2", "k1k2p1p2k3"]
     (best,) = [s for s in scores if s["recommended"]]
     assert min(s["worse_se"] for s in scores) == 0 and best["worse_se"] <= 2
@@ -179,7 +180,7 @@ def test_killed_mid_write_leaves_the_old_output_intact(synth_dir):
 
 
 def test_synth_writes_truth_and_noisy_corners(synth_dir):
-    corners = json.loads((synth_dir / "corners.json").read_text())
+    corners = assert_valid(synth_dir / "corners.json")
     truth = load_rig(synth_dir / "truth.json")
     assert set(corners["cameras"]) == {"wide", "tele"}
     assert corners["cameras"]["wide"]["image_size"] == [3024, 4032]

@@ -9,6 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
+from schema_check import assert_valid
 from dualcal.io import calibration_fingerprint, load_corners, load_rig, save_corners, save_rig
 from dualcal.synth import make_truth, noisy_corner_set, truth_rig_model
 
@@ -135,6 +136,7 @@ def test_a_corners_json_edited_by_hand_keeps_working(corners_json, tmp_path, run
     (tmp_path / "corners.json").write_text(json.dumps(doc))
     res = run_cli("calibrate", tmp_path / "corners.json", "-o", tmp_path / "calib.json", "--no-compare-models")
     assert res.code == 0, res.err
+    assert_valid(tmp_path / "calib.json")
     rig = load_rig(tmp_path / "calib.json")
     assert sorted(rig.camera_poses["tele"]) == [f"IMG_0{i}" for i in (1, 3, 4, 5, 6, 7, 8)]
     assert "IMG_06" not in rig.camera_poses["wide"]
@@ -210,3 +212,5 @@ def test_truth_with_noisy_corners_is_not_refused(tmp_path, run_cli):
     truth = make_truth("note8", 5, seed=1)
     save_rig(tmp_path / "truth.json", truth_rig_model(truth, noisy_corner_set(truth, 0.3, seed=1)))
     assert run_cli("evaluate", tmp_path / "truth.json", "-o", tmp_path / "eval.json").code == 0
+    assert_valid(tmp_path / "truth.json")
+    assert_valid(tmp_path / "eval.json")

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from dualcal.calibrate import calibrate_rig
 from dualcal.errors import InputError
-from dualcal.io import (atomic_output, corners_from_dict, corners_to_dict, json_kind, load_corners, load_rig,
+from dualcal.io import (corners_from_dict, corners_to_dict, json_kind, load_corners, load_rig,
                         rig_from_dict, rig_to_dict, save_corners, save_rig, write_text_atomic)
 from dualcal.synth import make_truth, noisy_corner_set
 
@@ -147,10 +147,10 @@ def test_file_kinds_are_told_apart(tmp_path, rig):
 @pytest.mark.parametrize("text,message", [
     ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {"wide": {"image_size": [10', "truncated"),
     ("[1, 2]", "top level"),
-    ('{"board": {"cols": 8}, "cameras": {}}', "board entry"),
+    ('{"board": {"cols": 8}, "cameras": {}}', "cameras: {} should be non-empty"),
     ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {}}', "non-empty"),
     ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {"w": {"image_size": [0, 5], "views": {}}}}',
-     "positive integers"),
+     r"cameras.w.image_size\[0\]: 0 is less than the minimum of 1"),
     ('{"board": {"cols": 2, "rows": 2, "square_mm": 30}, "cameras": {"w": {"image_size": [9, 9], '
      '"views": {"a": [[1, 2], [3, 4], [5, 6]]}}}}', "4 corners"),
 ])
@@ -195,13 +195,17 @@ def test_valid_corner_documents_round_trip(cols, rows, data):
     assert back["cameras"]["c"]["views"]["v2"] is None
 
 
-def test_atomic_output_keeps_the_old_file_on_failure(tmp_path):
+def test_a_failed_write_keeps_the_old_file(tmp_path, monkeypatch):
+    import dualcal.io as io_module
     target = tmp_path / "out.json"
     target.write_text("old")
+
+    def crash(fd, data):
+        raise RuntimeError("crash while writing")
+    monkeypatch.setattr(io_module, "_write_all", crash)
     with pytest.raises(RuntimeError):
-        with atomic_output(target) as tmp:
-            tmp.write_text("half")
-            raise RuntimeError("crash while writing")
+        write_text_atomic(target, "half")
+    monkeypatch.undo()
     assert target.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["out.json"]
     write_text_atomic(target, "new")

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from schema_check import assert_valid
 from dualcal.calibrate import calibrate_rig
 from dualcal.camera import project_points
 from dualcal.errors import EstimationError, InputError
@@ -287,7 +288,7 @@ def test_measure_command_writes_measure_json_and_prints_the_tables(note8, calib_
     (tmp_path / "points.json").write_text(json.dumps(points))
     res = run_cli("measure", calib_file, "--points", tmp_path / "points.json", "-o", tmp_path / "measure.json")
     assert res.code == 0, res.err
-    doc = json.loads((tmp_path / "measure.json").read_text())
+    doc = assert_valid(tmp_path / "measure.json")
     assert doc["frame"] == "wide" and list(doc["points"]) == ["P0", "P1", "P2", "P3"]
     rows = {r.split("│")[1].strip(): [c.strip() for c in r.split("│")[2:-1]]
             for r in res.out.split("Lengths")[1].splitlines() if r.startswith("│")}
@@ -395,3 +396,51 @@ def test_the_pick_page_exports_the_clicked_full_resolution_pixels(browser, note8
     assert fit > 1.4 and expected["tip", "wide"][1] == pytest.approx(fit / 4, rel=0.01)   # reduced, then zoomed 4x
     (tmp_path / "points.json").write_text(json.dumps(got))
     assert load_points(tmp_path / "points.json")["points"]["tip"]["tele"].shape == (2,)
+
+
+def _dense_reference(rig, points: dict) -> tuple[dict, dict]:
+    """The points' and lengths' sigmas from the full 3P x 3P covariance (the computation measure made before it
+    went to fixed-size blocks): ``({point: sigma_mm (3,)}, {(a, b): (sigma_mm, bias_mm)})``."""
+    from dualcal.measurement import COVARIANCE_KINDS, _covariances, _pixel_sigmas, intersect_point
+
+    index, cov_theta = _covariances(rig)
+    sigma_px, _ = _pixel_sigmas(rig, points.get("pixel_sigma"))
+    found = {n: intersect_point(rig, {c: np.asarray(uv) for c, uv in seen.items()}, index)
+             for n, seen in points["points"].items()}
+    names = list(found)
+    B = np.vstack([found[n].B for n in names])
+    pixels = np.zeros((3 * len(names),) * 2)
+    for i, n in enumerate(names):
+        var = np.repeat([sigma_px[c] ** 2 for c in found[n].cameras], 2)
+        pixels[3 * i:3 * i + 3, 3 * i:3 * i + 3] = (found[n].A * var) @ found[n].A.T
+    cov = {k: pixels + B @ cov_theta[k] @ B.T for k in COVARIANCE_KINDS}
+    point_sigma = {n: np.sqrt(np.max([np.diag(cov[k])[3 * i:3 * i + 3] for k in COVARIANCE_KINDS], axis=0))
+                   for i, n in enumerate(names)}
+    lengths = {}
+    for a, b in points["lengths"]:
+        ia, ib = names.index(a), names.index(b)
+        d = found[a].xyz_mm - found[b].xyz_mm
+        g = np.zeros(3 * len(names))
+        g[3 * ia:3 * ia + 3], g[3 * ib:3 * ib + 3] = d / np.linalg.norm(d), -d / np.linalg.norm(d)
+        kind = max(COVARIANCE_KINDS, key=lambda k: g @ cov[k] @ g)
+        diff = np.zeros((3, 3 * len(names)))
+        diff[:, 3 * ia:3 * ia + 3], diff[:, 3 * ib:3 * ib + 3] = np.eye(3), -np.eye(3)
+        across = np.eye(3) - np.outer(d, d) / (d @ d)
+        lengths[(a, b)] = (np.sqrt(g @ cov[kind] @ g),
+                           np.trace(across @ diff @ cov[kind] @ diff.T) / (2 * np.linalg.norm(d)))
+    return point_sigma, lengths
+
+
+def test_the_fixed_size_blocks_give_the_dense_covariances_result(note8):
+    """Issue 24, finding 6: measure is linear in the points; on a small case its sigmas are those of the full
+    joint covariance of every point."""
+    truth, rig = note8
+    X = np.array([[-60.0, -40.0, 450.0], [70.0, 30.0, 420.0], [0.0, 50.0, 900.0], [80.0, 60.0, 700.0]])
+    points = shot(truth, X, np.random.default_rng(4))
+    doc = measure(rig, points)
+    point_sigma, lengths = _dense_reference(rig, points)
+    for n, s in point_sigma.items():
+        np.testing.assert_allclose(doc["points"][n]["sigma_mm"], s, rtol=1e-9)
+    for row in doc["lengths"]:
+        sigma, bias = lengths[(row["from"], row["to"])]
+        assert row["sigma_mm"] == pytest.approx(sigma, rel=1e-9) and row["bias_mm"] == pytest.approx(bias, rel=1e-9)

@@ -24,6 +24,7 @@ from dualcal.calibrate import calibrate_rig
 from dualcal.dataset import open_dataset
 from dualcal.detect import detect_dataset, predict_from_neighbours
 from dualcal.detect.grid import INNER_GAIN, local_spacing_px
+from dualcal.duplicates import find_duplicate_instants
 from dualcal.io import save_corners
 from dualcal.model import observed_mask
 from dualcal.model_selection import compare_lens_models
@@ -199,3 +200,17 @@ def test_huawei_calibration_agrees_with_matlab(huawei_corners):
     # the home-made board (printed sheets glued on card) is found bent by about a millimetre
     assert rig.board_shape_mm is not None and 0.3 < sag_mm(rig.board.object_points_mm(), rig.board_shape_mm) < 2.0
     assert not rig.checks["fit"]["ok"]          # RMS ~1 px at 8 MP: far above a good board's
+
+
+@pytest.mark.parametrize("fixture", ["stereo_corners", "bouguet_corners", "huawei_corners"])
+def test_distinct_real_instants_are_never_merged_as_duplicates(fixture, request):
+    """Issue 24: different board positions of real photos never agree within the noise (their closest pair
+    differs by 15-86 px RMS, the limit is 0.3-2 px), while a copied photo does."""
+    corners = request.getfixturevalue(fixture)
+    assert find_duplicate_instants(corners) == []
+    name, cam = next(iter(corners.cameras.items()))
+    key, uv = next(iter(cam.found().items()))
+    copied = corners.with_views(lambda c, v: True)
+    for c in copied.cameras.values():
+        c.views[f"{key}-copy"] = c.views.get(key)
+    assert [(r["kept"], r["merged"]) for r in find_duplicate_instants(copied)] == [(key, [f"{key}-copy"])]

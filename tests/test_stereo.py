@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from schema_check import assert_valid
 from dualcal.detect import detect_photo
 from dualcal.errors import EstimationError, InputError
 from dualcal.io import save_rig
@@ -162,7 +163,7 @@ def test_rectify_command_lines_up_detected_corners_of_rendered_photos(rendered_n
     res = run_cli("rectify", d / "calib.json", "--pair", f"wide={d / 'wide.png'}", f"tele={d / 'tele.png'}",
                   "-o", tmp_path, "--keep", "all")
     assert res.code == 0, res.err
-    doc = json.loads((tmp_path / "rectify.json").read_text())
+    doc = assert_valid(tmp_path / "rectify.json")
     assert doc["cameras"] == ["wide", "tele"] and doc["layout"] == "vertical"
     assert set(doc) >= {"R1", "R2", "P1", "P2", "Q", "image_size", "calibration_fingerprint"}
     w, h = doc["image_size"]

@@ -41,13 +41,16 @@ from pathlib import Path
 from . import __version__
 from .board import Board
 from .calibrate import calibrate_rig
-from .errors import DualcalError, InputError
-from .io import atomic_output, make_output_folder, read_json, rig_to_dict, write_json_atomic
+from .errors import DualcalError, InputError, OutputError
+from .io import make_output_folder, read_json, rig_to_dict, write_bytes_atomic, write_json_atomic, write_text_atomic
 from .progress import collect_warnings, progress_bar
 from .workflow import DETECTION_OPTIONS, calibrate_corners, evaluate_calibration, read_corners
 
 CALIB_NAME, EVAL_NAME, RECORD_NAME = "calib.json", "eval.json", "batch.json"
 TABLE_NAMES = ("fleet.csv", "fleet.parquet")
+PAGE_NAME = "fleet.html"
+#: The names in OUTDIR that are the fleet's own: no device may be named so.
+FLEET_FILE_NAMES = (*TABLE_NAMES, PAGE_NAME)
 #: Leading columns of the fleet table; the others follow in calib.json's order.
 LEADING_COLUMNS = ("device", "status", "input", "seconds", "warnings")
 
@@ -89,6 +92,10 @@ def find_devices(root, exclude: Iterable = ()) -> list[Device]:
     left_out = {Path(p).resolve() for p in exclude}
     devices = [Device(p.name, p.resolve()) for p in sorted(root.iterdir())
                if p.is_dir() and not p.name.startswith(".") and p.resolve() not in left_out]
+    clashing = [d.name for d in devices if d.name.lower() in FLEET_FILE_NAMES]
+    if clashing:
+        raise InputError(f"{root / clashing[0]}: a device may not be named like the fleet's own files "
+                         f"({', '.join(FLEET_FILE_NAMES)}): rename the folder or leave it out")
     if not devices:
         raise InputError(f"{root}: holds no device folder (one sub-folder per device, each with a "
                          "corners.json or the photos of a dataset)")
@@ -270,7 +277,7 @@ def calibrate_device(device: Device, out_folder, options: BatchOptions, snapshot
     :class:`~dualcal.errors.DualcalError` becomes a recorded ``failed: <reason>`` row; any other
     exception is a row too, not recorded.
     """
-    out_folder = make_output_folder(out_folder)
+    out_folder = Path(out_folder)       # made once there is something to write: no empty folder if interrupted
     # An earlier record goes first: until the new one is written, the outputs are not up to date.
     (out_folder / RECORD_NAME).unlink(missing_ok=True)
     start = time.perf_counter()
@@ -279,7 +286,7 @@ def calibrate_device(device: Device, out_folder, options: BatchOptions, snapshot
         try:
             rig = calibrate_corners(_device_corners(device, options), **options.calibrate)
             calib = rig_to_dict(rig)
-            write_json_atomic(out_folder / CALIB_NAME, calib)
+            write_json_atomic(make_output_folder(out_folder) / CALIB_NAME, calib)
             evaluation = None
             if options.evaluate:
                 evaluation = evaluate_calibration(rig, holdout=options.holdout, progress=False)
@@ -288,6 +295,9 @@ def calibrate_device(device: Device, out_folder, options: BatchOptions, snapshot
                 (out_folder / EVAL_NAME).unlink(missing_ok=True)
             row = {"device": device.name, "status": "ok", "input": device.kind,
                    "seconds": time.perf_counter() - start, **fleet_row(calib, evaluation)}
+        except OutputError as exc:   # a full disk is not the device's fault: tried again next run
+            row = _failed(device, str(exc), time.perf_counter() - start)
+            record = False
         except DualcalError as exc:
             row = _failed(device, str(exc), time.perf_counter() - start)
         except Exception as exc:  # a bug, not the device's input: one row, and tried again next run
@@ -295,7 +305,7 @@ def calibrate_device(device: Device, out_folder, options: BatchOptions, snapshot
             record = False
     row["warnings"] = len(warnings)
     if record:
-        write_json_atomic(out_folder / RECORD_NAME, {
+        write_json_atomic(make_output_folder(out_folder) / RECORD_NAME, {
             "device": device.name, "options": options.record(device.kind), "inputs": snapshot,
             "row": row, "warnings": warnings})
     return DeviceResult(device.name, row, warnings)
@@ -484,13 +494,34 @@ def fleet_table(results: Iterable[DeviceResult]):
     return pd.DataFrame.from_records(rows, columns=columns)
 
 
+#: What a spreadsheet takes for the start of a formula (OWASP, "CSV Injection").
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_safe_cell(value):
+    """A text cell made inert as OWASP says: one that begins with ``= + - @``, a tab or a CR is prefixed
+    with ``'`` (a spreadsheet shows it as text, never runs it). Numbers, and text that is a number
+    (``-0.145``), stay as they are."""
+    if not isinstance(value, str) or not value.startswith(FORMULA_STARTS):
+        return value
+    try:
+        float(value)
+        return value
+    except ValueError:
+        return "'" + value
+
+
+def csv_safe(table):
+    """The fleet table with every text cell made inert (:func:`csv_safe_cell`), for ``fleet.csv``."""
+    text = table.select_dtypes(include=["object", "string"]).columns
+    return table.assign(**{c: table[c].map(csv_safe_cell) for c in text})
+
+
 def write_fleet_tables(out_dir, table) -> list[Path]:
     """Write ``out_dir/fleet.csv`` and ``out_dir/fleet.parquet`` atomically; returns their paths."""
     csv_path, parquet_path = (Path(out_dir) / name for name in TABLE_NAMES)
-    with atomic_output(csv_path) as tmp:
-        table.to_csv(tmp, index=False)
-    with atomic_output(parquet_path) as tmp:
-        table.to_parquet(tmp, index=False)
+    write_text_atomic(csv_path, csv_safe(table).to_csv(index=False))
+    write_bytes_atomic(parquet_path, table.to_parquet(index=False))
     return [csv_path, parquet_path]
 
 
@@ -511,7 +542,7 @@ def fleet_outputs_current(out_dir, digest: str) -> bool:
     """True when ``out_dir`` holds fleet.csv, fleet.parquet and a fleet.html made from ``digest``
     (:func:`fleet_inputs_digest`, recorded in the page's head), so that nothing need be written again."""
     out_dir = Path(out_dir)
-    page = out_dir / "fleet.html"
+    page = out_dir / PAGE_NAME
     if not (page.is_file() and all((out_dir / name).is_file() for name in TABLE_NAMES)):
         return False
     with page.open("rb") as f:

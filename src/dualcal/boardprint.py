@@ -14,6 +14,7 @@ Page coordinates are millimetres from the page's top-left corner, y down. Print 
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from .board import Board, with_default_markers
 from .errors import InputError
-from .io import atomic_output
+from .io import write_bytes_atomic
 
 __all__ = ["PAPERS", "PageLayout", "page_layout", "write_board"]
 
@@ -208,7 +209,8 @@ def write_board(board: Board, path, paper: str = "auto", dpi: float | None = Non
     board = with_default_markers(board)
     layout = page_layout(board, paper, dpi if kind == ".png" else None)
     fig = _figure(layout, dpi or 72.0)
-    with atomic_output(path) as tmp:
-        meta = {"Title": f"dualcal board {_spec_lines(board)[0]}"} if kind == ".pdf" else {}
-        fig.savefig(tmp, format=kind[1:], dpi=dpi or 72.0, metadata=meta)
+    meta = {"Title": f"dualcal board {_spec_lines(board)[0]}"} if kind == ".pdf" else {}
+    encoded = io.BytesIO()       # in memory, so the write is checked to the last byte
+    fig.savefig(encoded, format=kind[1:], dpi=dpi or 72.0, metadata=meta)
+    write_bytes_atomic(path, encoded.getvalue())
     return layout

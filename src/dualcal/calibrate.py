@@ -29,6 +29,7 @@ from .board import SHAPE_TERMS
 from .camera import DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS
 from .checks import REFOCUS_SHARE, focal_scale_fits, focus_drift, rig_rigid, run_checks, tie_costs
 from .covariance import JointCovariance, intrinsic_name
+from .duplicates import describe_duplicates, merge_duplicate_instants
 from .errors import EstimationError, InputError
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
@@ -379,7 +380,9 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
 
     Parameters
     ----------
-    corners : the detected corners (corners.json content)
+    corners : the detected corners (corners.json content). Instants that repeat another's view (a copied
+        photo, a burst: :mod:`dualcal.duplicates`) count once, with a warning; calib.json records them
+        (``adjustment.duplicates``, and ``duplicates`` in each camera's entry of its corners).
     skew : False fixes skew = 0 (the paper's Model 1), True estimates it (Model 2)
     rig_mode : ``rigid``, ``paper`` or ``none`` (see :mod:`dualcal.adjust`)
     reference : name of the reference camera (default: the one recorded in ``corners``, else ``wide``,
@@ -406,6 +409,9 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         raise InputError(f"--board-shape {board_shape!r} is unknown (choose from {', '.join(BOARD_SHAPES)})")
     if model not in LENS_MODELS:
         raise InputError(f"--model {model!r} is unknown (choose from {', '.join(LENS_MODELS)})")
+    corners, duplicates = merge_duplicate_instants(corners)
+    if duplicates:
+        warn(describe_duplicates(duplicates))
     names = sorted(corners.cameras)
     ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
     sizes = [corners.cameras[n].image_size for n in names]
@@ -436,6 +442,8 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
                                  "board_shape": board_shape, "model": model}
     if shape_test is not None:
         rig.adjustment["board_shape_test"] = shape_test
+    if duplicates:
+        rig.adjustment["duplicates"] = duplicates
     rig.checks = run_checks(rig, sol, flat, alone,
                             attribution=partial(attribution_checks, setup) if rig_mode != "none" else None)
     return rig

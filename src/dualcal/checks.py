@@ -12,6 +12,12 @@ a message in plain words that says what is wrong and what would help:
 ``determination``  every parameter determined well enough (focal length, principal point,
                    distortion as far out as corners were measured, baseline, angles).
 ``lens_model``     residuals that do not grow towards the image's edge (the lens model lacks terms).
+``scale_plausible`` where EXIF shows a phone's small sensor (focal length in mm and its 35 mm equivalent):
+                   the board's distance and the lenses' spacing are a phone's (:func:`scale_plausibility`).
+                   Every length scales with the board's square size, which only the user knows; a wrong
+                   one passes every other check. Without those EXIF facts there is nothing to judge it by,
+                   so there is no such check and :func:`scale_note` says that the scale rests on the square
+                   (a check that always passes would only add to "all checks pass").
 
 *Photo-level noise.* Corner errors within one photo are correlated on real photos, so a test
 against white corner noise (``s0``) would fail every real rig. The checks measure noise in units of
@@ -28,7 +34,8 @@ from .adjust import Solution, photo_rows
 from .model import RigModel
 
 __all__ = ["design_effect", "rig_rigid", "rigidity_statistics", "focus_drift", "focal_scale_fits", "tie_costs",
-           "determination", "fit_quality", "photo_count", "lens_model_fit", "convergence", "run_checks", "verdict",
+           "determination", "fit_quality", "photo_count", "lens_model_fit", "convergence", "scale_plausibility",
+           "scale_note", "run_checks", "verdict",
            "failed_checks"]
 
 #: Fewer instants than this give unreliable sigmas (they come from the instants' scatter).
@@ -55,6 +62,16 @@ MAX_CENTRE_REL = 0.01              # sigma of cx, cy relative to the image width
 MAX_DISTORTION_PX = 0.5            # sigma of the radial distortion at the outermost corner measured
 MAX_BASELINE_REL = 0.02            # sigma of the baseline relative to it
 MAX_ANGLE_ARCMIN = 30.0            # sigma of omega, phi, kappa
+#: ``scale_plausible``: a sensor whose diagonal (from EXIF: 43.27 mm x focal length / its 35 mm
+#: equivalent) is below this is a phone's (1/1.3" is 12 mm, a 1" type 16 mm), whose lenses sit this
+#: far apart (mm) ...
+PHONE_SENSOR_DIAGONAL_MM = 20.0
+PHONE_BASELINE_MM = (5.0, 40.0)
+#: ... and whose board is held this far away (mm; the median over the instants, from the reference camera).
+PHONE_BOARD_DISTANCE_MM = (150.0, 5000.0)
+#: The diagonal of the 35 mm film frame, mm (what a "35 mm equivalent" focal length refers to).
+FILM_DIAGONAL_MM = 43.27
+
 #: ``lens_model``: RMS of the outermost third of a camera's corners (by their distance from the
 #: principal point) over that of the innermost third, beyond which the model misses terms.
 EDGE_RATIO = 2.0
@@ -371,6 +388,56 @@ def convergence(sol: Solution) -> dict:
                                     "are not those of the best fit"}
 
 
+def _sensor_diagonals_mm(rig: RigModel) -> dict[str, float]:
+    """Each camera's sensor diagonal from its corners' EXIF facts (``meta["exif"]``), where they are given."""
+    out = {}
+    for name, cam in rig.corners.cameras.items():
+        exif = cam.meta.get("exif") or {}
+        f_mm, f35_mm = exif.get("focal_length_mm"), exif.get("focal_length_35mm_mm")
+        if isinstance(f_mm, (int, float)) and isinstance(f35_mm, (int, float)) and f_mm > 0 and f35_mm > 0:
+            out[name] = FILM_DIAGONAL_MM * f_mm / f35_mm
+    return out
+
+
+def scale_plausibility(rig: RigModel) -> dict | None:
+    """The ``scale_plausible`` check (module docstring), or None where no camera's EXIF shows a phone's sensor.
+
+    Returns ``{"ok", "message", "sensor_diagonal_mm": {camera: mm}, "board_distance_mm": median over the
+    instants, "baseline_mm": {camera: mm}}``.
+    """
+    diagonals = _sensor_diagonals_mm(rig)
+    if not diagonals or max(diagonals.values()) >= PHONE_SENSOR_DIAGONAL_MM:
+        return None
+    centre = rig.board.object_points_mm().mean(axis=0)
+    distance = float(np.median([np.linalg.norm(p.R @ centre + p.t_mm) for p in rig.reference_poses().values()]))
+    baselines = {name: float(rel.baseline_mm) for name, rel in rig.rig.items()}
+    problems = []
+    lo, hi = PHONE_BOARD_DISTANCE_MM
+    if not lo <= distance <= hi:
+        problems.append(f"the board is {distance:.0f} mm from the {rig.reference} camera, where a phone's board is "
+                        f"held {lo / 1000:g}-{hi / 1000:g} m away")
+    lo, hi = PHONE_BASELINE_MM
+    odd = {n: b for n, b in baselines.items() if not lo <= b <= hi}
+    if odd:
+        problems.append(f"the lenses are {', '.join(f'{n} {b:.1f} mm' for n, b in odd.items())} apart, where a "
+                        f"phone's are {lo:g}-{hi:g} mm")
+    doc = {"sensor_diagonal_mm": diagonals, "board_distance_mm": distance, "baseline_mm": baselines}
+    sensors = ", ".join(f"{n} {d:.1f} mm" for n, d in diagonals.items())
+    if problems:
+        return {"ok": False, **doc,
+                "message": f"{'; '.join(problems)} (a phone's sensor by EXIF: diagonal {sensors}): is the board's "
+                           f"square really {rig.board.square_mm:g} mm? Every length scales with it"}
+    return {"ok": True, **doc,
+            "message": f"the board's distance ({distance:.0f} mm) and the lenses' spacing are a phone's (sensor "
+                       f"diagonal by EXIF {sensors}), as a square of {rig.board.square_mm:g} mm makes them"}
+
+
+def scale_note(rig: RigModel) -> str:
+    """One line for a calibration without the ``scale_plausible`` check: what its lengths rest on."""
+    return (f"the scale (every length in mm) rests on the board's square of {rig.board.square_mm:g} mm alone: "
+            "the photos' EXIF has no focal length and 35 mm equivalent of a phone's lens to judge it by")
+
+
 def _attribution(tied: Solution, alone: Solution, kappa2) -> tuple[dict, dict | None]:
     """``focus`` and ``rig_rigid`` from one pair of solutions (no photo or instant taken out)."""
     focus = focus_drift(tied, kappa2, tie_costs(tied, alone) if tied.problem.mode != "none" else None)
@@ -392,6 +459,9 @@ def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solutio
     checks["focus"] = focus
     checks["determination"] = determination(rig)
     checks["lens_model"] = lens_model_fit(sol)
+    scale = scale_plausibility(rig)
+    if scale is not None:
+        checks["scale_plausible"] = scale
     return checks
 
 

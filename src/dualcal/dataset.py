@@ -83,7 +83,13 @@ class Dataset:
 # ---------------------------------------------------------------------------- finding photos
 
 def _is_photo(p: Path) -> bool:
-    return p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES and not p.name.startswith(".")
+    """A photo file by its name; a broken symbolic link with a photo's name is skipped with a warning naming it."""
+    if p.suffix.lower() not in PHOTO_SUFFIXES or p.name.startswith("."):
+        return False
+    if p.is_symlink() and not p.exists():
+        warn(f"skipped: {p} is a broken symbolic link (to {os.readlink(p)})")
+        return False
+    return p.is_file()
 
 
 def parse_camera_spec(spec: str) -> tuple[str, str]:

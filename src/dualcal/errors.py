@@ -23,3 +23,7 @@ class NotInvertibleError(EstimationError):
 
 class DetectionError(DualcalError):
     """No chessboard could be found, or the grid found failed its own checks."""
+
+
+class OutputError(DualcalError):
+    """An output cannot be written: a full disk, a read-only or missing folder. Nothing was replaced."""

@@ -1,18 +1,21 @@
 """All JSON in and out of dualcal, and atomic writes (formats: the contract, README).
 
 Loaders validate and raise :class:`~dualcal.errors.InputError` with a message that names the
-file and the fix; nothing here ever returns half-read data. Writers go through a temporary file
-in the destination folder and ``os.replace``, so an interrupted run never leaves half a file and
-never destroys an earlier result.
+file and the fix; nothing here ever returns half-read data. Every output goes through
+:func:`write_bytes_atomic`: a temporary file in the destination folder, checked to the last byte
+on the disk, then ``os.replace``, so an interrupted run or a full disk never leaves half a file
+and never destroys an earlier result (a full disk is an :class:`~dualcal.errors.OutputError`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import math
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -20,41 +23,124 @@ import numpy as np
 
 from . import __version__
 from .board import SHAPE_TERMS, Board
-from .camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names
-from .errors import InputError
+from .camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names,
+                     max_distorted_radius, normalized_from_pixel)
+from .errors import InputError, OutputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation, rig_residuals, rms_px
 from .parallel import raise_if_cancelled
+from .progress import warn
+from .schemas import validate
 
 # ---------------------------------------------------------------------------- atomic writes
 
 
-def check_output_file(path) -> Path:
-    """Raise :class:`InputError` unless ``path`` can be written as a file: its folder exists and
-    it is not itself a folder. Commands call this first, before any long work."""
+#: Marks the temporary files of dualcal's writes: ``.<name>.dualcal-tmp-<pid>-<random><suffix>``.
+#: One that a killed run left behind (its process gone) is removed by the next write into that folder.
+TEMP_MARK = ".dualcal-tmp-"
+_TEMP_NAME = re.compile(r"^\..*\.dualcal-tmp-(\d+)-[^/]*$")
+#: errno values that mean "the disk (or the quota) is full".
+_FULL = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
+
+
+def _write_failure(exc: OSError, where) -> OutputError:
+    """The one-line error of a failed write: a full disk said as such, else the system's reason."""
+    if exc.errno in _FULL:
+        return OutputError(f"{where}: the disk is full ({exc.strerror}): free some space; nothing was replaced")
+    if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+        return OutputError(f"{where}: cannot write there ({exc.strerror}): choose another output")
+    return OutputError(f"{where}: cannot be written ({exc.strerror or exc})")
+
+
+def _process_gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:         # it exists (another user's): not ours to judge
+        return False
+    return False
+
+
+def clean_stale_temporaries(folder) -> list[Path]:
+    """Remove the temporary files (:data:`TEMP_MARK`) that runs killed meanwhile left in ``folder``.
+
+    Only files whose writing process is gone are removed, so a concurrent writer's file stays.
+    Returns the paths removed."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _TEMP_NAME.match(entry.name)
+        if match and entry.is_file(follow_symlinks=False) and _process_gone(int(match.group(1))):
+            with contextlib.suppress(OSError):
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+    return removed
+
+
+_cleaned: set[str] = set()
+
+
+def _clean_once(folder) -> None:
+    """:func:`clean_stale_temporaries` the first time this process writes into ``folder``."""
+    key = os.path.abspath(folder)
+    if key not in _cleaned:
+        _cleaned.add(key)
+        clean_stale_temporaries(folder)
+
+
+def _probe_writable(folder: Path) -> None:
+    """Raise :class:`OutputError` unless a file can really be created in ``folder`` (a read-only
+    mount or folder is found here, before any long work); stale temporaries are cleaned on the way."""
+    _clean_once(folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".probe{TEMP_MARK}{os.getpid()}-", dir=folder)
+    except OSError as exc:
+        raise _write_failure(exc, f"output folder {str(folder)!r}") from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
+def _output_path(path) -> tuple[Path, Path]:
+    """``path`` and its folder, after checking that the folder exists and ``path`` is no folder."""
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise InputError(f"output folder {str(parent)!r} does not exist: create it first or choose another -o")
     if path.is_dir():
         raise InputError(f"output {str(path)!r} is a folder: give a file name")
+    return path, parent
+
+
+def check_output_file(path) -> Path:
+    """Raise :class:`InputError` unless ``path`` can be written as a file: its folder exists, is
+    writable (else :class:`OutputError`), and ``path`` is not itself a folder. Commands call this
+    first, before any long work."""
+    path, parent = _output_path(path)
+    _probe_writable(parent)
     return path
 
 
 def make_output_folder(path) -> Path:
-    """Create the output folder ``path`` unless it exists; its parent must exist already.
+    """Create the output folder ``path`` unless it exists (its parent must exist already), and
+    check that it is writable (:class:`OutputError` otherwise).
 
     The rule of every dualcal output: dualcal creates at most the last folder of a path, so a
     mistyped path fails at once with :class:`InputError` instead of growing a tree of folders.
     """
     path = Path(path)
-    if path.is_dir():
-        return path
-    if not path.parent.is_dir():
-        raise InputError(f"output folder {str(path)!r}: its parent does not exist (create it first)")
-    try:
-        path.mkdir()
-    except OSError as exc:
-        raise InputError(f"output folder {str(path)!r} cannot be created ({exc.strerror or exc})") from None
+    if not path.is_dir():
+        if not path.parent.is_dir():
+            raise InputError(f"output folder {str(path)!r}: its parent does not exist (create it first)")
+        try:
+            path.mkdir()
+        except OSError as exc:
+            if exc.errno in _FULL | {errno.EROFS}:
+                raise _write_failure(exc, f"output folder {str(path)!r}") from None
+            raise InputError(f"output folder {str(path)!r} cannot be created ({exc.strerror or exc})") from None
+    _probe_writable(path)
     return path
 
 
@@ -67,23 +153,44 @@ def _read_umask() -> int:
 _UMASK = _read_umask()    # read once: setting it later, even briefly, would race with other threads
 
 
-@contextlib.contextmanager
-def atomic_output(path, suffix: str | None = None):
-    """Yield a temporary path beside ``path``; on success it replaces ``path`` atomically.
+def _write_all(fd: int, data: bytes) -> None:
+    """``os.write`` until every byte is written; a write that writes nothing is a full disk."""
+    view = memoryview(data)
+    while view:
+        n = os.write(fd, view)
+        if n <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        view = view[n:]
 
-    On any exception the temporary file is removed and ``path`` is left as it was.
+
+def write_bytes_atomic(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically, checked to the last byte.
+
+    Every dualcal output goes through here: a temporary file beside ``path`` (named with
+    :data:`TEMP_MARK`, so a later run cleans it if this one is killed), written, flushed to the
+    disk (``fsync``), its size on the disk compared with ``len(data)``, then renamed over
+    ``path``. On any failure the temporary file is removed and ``path`` is left as it was; a
+    failed write (a full disk, a short write) raises :class:`OutputError`, a Ctrl-C meanwhile
+    commits nothing (:func:`dualcal.parallel.raise_if_cancelled`).
     """
-    path = check_output_file(path)
+    path, folder = _output_path(path)
+    _clean_once(folder)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp",
-                                   dir=path.parent if str(path.parent) else ".")
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:100]}{TEMP_MARK}{os.getpid()}-",
+                                   suffix=path.suffix or ".tmp", dir=folder)
     except OSError as exc:
-        raise InputError(f"cannot write in {str(path.parent)!r}: {exc.strerror}") from None
-    os.close(fd)
+        raise _write_failure(exc, f"output folder {str(folder)!r}") from None
     try:
-        yield Path(tmp)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
+        try:
+            _write_all(fd, data)
+            os.fsync(fd)
+            size = os.fstat(fd).st_size
+        except OSError as exc:
+            raise _write_failure(exc, path) from None
+        finally:
+            os.close(fd)
+        if size != len(data):
+            raise OutputError(f"{path}: {size} of {len(data)} bytes written (a full disk?); nothing was replaced")
         raise_if_cancelled()               # interrupted meanwhile: commit nothing
         os.chmod(tmp, 0o666 & ~_UMASK)     # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, path)
@@ -94,12 +201,26 @@ def atomic_output(path, suffix: str | None = None):
 
 
 def write_text_atomic(path, text: str) -> None:
-    with atomic_output(path) as tmp:
-        Path(tmp).write_text(text, encoding="utf-8")
+    write_bytes_atomic(path, text.encode("utf-8"))
 
 
 def write_json_atomic(path, doc: dict) -> None:
     write_text_atomic(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+
+
+def encode_jpeg(bgr: np.ndarray, quality: int) -> bytes:
+    """An 8-bit BGR (or grey) image as JPEG bytes (OpenCV's encoder)."""
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise OutputError(f"JPEG encoding of a {bgr.shape} image failed")
+    return buf.tobytes()
+
+
+def write_jpeg_atomic(path, bgr: np.ndarray, quality: int = 90) -> None:
+    """Encode an 8-bit BGR image as JPEG and write it atomically, checked to the last byte."""
+    write_bytes_atomic(path, encode_jpeg(bgr, quality))
 
 
 # ---------------------------------------------------------------------------- reading
@@ -124,6 +245,8 @@ def read_json(path) -> dict:
         raise InputError(f"{path}: not a text file (expected JSON)") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: malformed or truncated JSON ({exc.msg} at line {exc.lineno})") from None
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply to be a dualcal file") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a JSON object at the top level")
     return doc
@@ -247,8 +370,10 @@ def corners_to_dict(cs: CornerSet) -> dict:
 
 
 def _load(path, kind: str) -> dict:
+    """Read a JSON file that must be of ``kind`` and valid against its schema (:mod:`dualcal.schemas`)."""
     doc = read_json(path)
     _expect_kind(path, doc, kind)
+    validate(doc, kind, str(path))
     return doc
 
 
@@ -315,10 +440,34 @@ def rig_to_dict(rig: RigModel) -> dict:
         "dropped_views": rig.dropped_views,
         "dropped_corners": rig.dropped_corners,
         "checks": rig.checks,
+        "checks_sha256": checks_digest(rig.checks),
     }
     if rig.covariance is not None:
         doc["covariance"] = rig.covariance
     return doc
+
+
+def checks_digest(checks: dict) -> str:
+    """sha256 of calib.json's ``checks`` as canonical JSON: stored beside them as ``checks_sha256``, so
+    that checks edited by hand are found and refused (:func:`rig_from_dict`), never trusted."""
+    text = json.dumps(checks, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _trusted_checks(doc: dict, source: str) -> dict:
+    """calib.json's ``checks`` if they are as the calibration wrote them (``checks_sha256``); checks
+    without their digest (a file written by hand or by an older dualcal) are dropped with a warning."""
+    checks = doc.get("checks") or {}
+    stored = doc.get("checks_sha256")
+    if stored is None:
+        if checks:
+            warn(f"{source}: its checks carry no checks_sha256 (written by hand or by an older dualcal): "
+                 "they are not used; calibrate again to have them")
+        return {}
+    if stored != checks_digest(checks):
+        raise InputError(f"{source}: its checks were edited after the calibration computed them "
+                         "(checks_sha256 does not match): calibrate again rather than edit them")
+    return dict(checks)
 
 
 def _rig_sigma_doc(t_mm, baseline_mm, opk_arcmin) -> dict:
@@ -373,7 +522,7 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
                          corners, doc.get("adjustment", {}), doc.get("dropped_views", []), sigma_formal,
                          None if shape is None else np.array([float(shape[t]) for t in SHAPE_TERMS]),
                          None if shape is None else np.array([float(shape_sigma.get(t, np.nan)) for t in SHAPE_TERMS]),
-                         list(doc.get("dropped_corners", [])), dict(doc.get("checks", {})), doc.get("covariance"))
+                         list(doc.get("dropped_corners", [])), _trusted_checks(doc, source), doc.get("covariance"))
     except (KeyError, TypeError, AttributeError, ValueError) as exc:
         raise InputError(f"{source}: malformed calib.json ({type(exc).__name__}: {exc})") from None
     _check_consistent(model, source)
@@ -399,6 +548,21 @@ def _check_lens_keys(entry: dict, model: str, what: str) -> None:
                          "(calib.json 'model'; a file without one is k1k2)")
 
 
+def _lens_fold_problem(cam: CameraModel, corners: CameraCorners | None) -> str | None:
+    """Why the lens cannot be what was calibrated, or None: its radial distortion folds over (stops
+    growing with the radius) inside the region its own corners span, where the calibration measured it.
+    (A fitted polynomial may fold beyond its data, in the image's corners: undistort refuses that itself.)"""
+    rd_max = max_distorted_radius(*cam.radial)
+    seen = [uv[np.isfinite(uv).all(axis=1)] for uv in (corners.views.values() if corners else ()) if uv is not None]
+    if not seen or not np.isfinite(rd_max):
+        return None
+    rd_seen = float(np.max(np.linalg.norm(normalized_from_pixel(cam, np.vstack(seen)), axis=1)))
+    if rd_seen > rd_max:
+        return (f"its lens distortion {tuple(round(float(k), 4) for k in cam.radial)} folds over at normalised "
+                f"radius {rd_max:.3g}, inside the {rd_seen:.3g} its own corners reach: not a lens")
+    return None
+
+
 def _is_rotation(R: np.ndarray) -> bool:
     return np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
 
@@ -418,6 +582,8 @@ def _check_consistent(rig: RigModel, source: str) -> None:
     bad_f = [n for n, cam in rig.cameras.items() if not (cam.fx > 0 and cam.fy > 0)]
     if bad_f:
         problems.append(f"focal lengths must be positive (cameras {bad_f})")
+    problems += [f"camera {name!r}: {p}" for name, cam in rig.cameras.items() if name not in bad_f
+                 for p in [_lens_fold_problem(cam, rig.corners.cameras.get(name))] if p]
     poses = [rel.pose for rel in rig.rig.values()] + [p for d in rig.camera_poses.values() for p in d.values()]
     if not all(_is_rotation(p.R) for p in poses):
         problems.append("a rotation matrix R is not orthonormal with determinant +1")

@@ -141,42 +141,68 @@ class IntersectedPoint:
 
 def _parameter_rows(rig: RigModel, name: str, X_cam: np.ndarray, J_X: np.ndarray, J_K: np.ndarray,
                     index: dict[str, int]) -> np.ndarray:
-    """(2, k) derivative of one photo's residual with respect to the covariance's parameters."""
-    rows = np.zeros((2, len(index)))
+    """(P, 2, k) derivative of P photos' residuals in camera ``name`` (points ``X_cam`` (P, 3), their
+    Jacobians ``J_X`` (P, 2, 3) and ``J_K`` (P, 2, 10)) with respect to the covariance's parameters."""
+    rows = np.zeros((len(X_cam), 2, len(index)))
     for i, n in enumerate(INTRINSIC_NAMES):
         key = f"{name}.{n}"
         if key in index:
-            rows[:, index[key]] = J_K[:, i]
+            rows[:, :, index[key]] = J_K[:, :, i]
     if name == rig.reference:
         return rows
     keys = [f"{name}.rig.{what}.{axis}" for what in ("rotation_rad", "t_mm") for axis in "xyz"]
     if not all(k in index for k in keys):
         raise InputError(f"calib.json's covariance has no rig relation of camera {name!r}: it cannot measure")
     R_X = X_cam - rig.pose_from_reference(name).t_mm              # R_c X
-    for k, column in zip(keys, np.hstack([-J_X @ cross_matrix(R_X), J_X]).T):
-        rows[:, index[k]] = column
+    d_rotation = -np.einsum("pkj,pji->pki", J_X, cross_matrix(R_X))
+    for k, column in zip(keys, np.concatenate([d_rotation, J_X], axis=2).transpose(2, 0, 1)):
+        rows[:, :, index[k]] = column
     return rows
 
 
-def intersect_point(rig: RigModel, uv_px: dict[str, np.ndarray], index: dict[str, int]) -> IntersectedPoint:
-    """Intersect one point from its pixels ``{camera: (2,) uv}`` and linearise it (module docstring).
+def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]],
+                     index: dict[str, int]) -> dict[str, IntersectedPoint]:
+    """Intersect and linearise points ``{name: {camera: (2,) uv}}`` (module docstring), those seen by the
+    same cameras together (one triangulation and one projection per camera for all of them).
 
     ``index`` maps the names of calib.json's covariance parameters to their positions.
     """
-    names = tuple(uv_px)
-    cams = [rig.cameras[c] for c in names]
-    poses = [rig.pose_from_reference(c) for c in names]
-    X = triangulate(cams, poses, [np.asarray(uv_px[c], float)[None] for c in names])[0]
-    J, J_theta, res = [], [], []
-    for name, cam, pose in zip(names, cams, poses):
-        X_cam = pose.apply(X[None])
-        uv_hat, J_X, J_K = project_with_jacobians(cam, X_cam)
-        J.append(J_X[0] @ pose.R)
-        J_theta.append(_parameter_rows(rig, name, X_cam[0], J_X[0], J_K[0], index))
-        res.append(uv_hat[0] - uv_px[name])
-    J, J_theta = np.vstack(J), np.vstack(J_theta)
-    A = np.linalg.solve(J.T @ J, J.T)
-    return IntersectedPoint(X, names, A, -A @ J_theta, np.array(res), J_theta, np.eye(len(J)) - J @ A)
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for name, seen in uv_px.items():
+        groups.setdefault(tuple(seen), []).append(name)
+    out = {}
+    for names, members in groups.items():
+        cams = [rig.cameras[c] for c in names]
+        poses = [rig.pose_from_reference(c) for c in names]
+        uv = [np.array([np.asarray(uv_px[m][c], float) for m in members]) for c in names]    # per camera (P, 2)
+        try:
+            X = triangulate(cams, poses, uv)
+        except EstimationError as exc:
+            if len(members) == 1:
+                raise EstimationError(f"point {members[0]!r}: {exc}") from None
+            for m in members:                      # name the point whose rays fail
+                out.update(intersect_points(rig, {m: uv_px[m]}, index))
+            continue
+        J, J_theta, res = [], [], []
+        for name, cam, pose, uv_c in zip(names, cams, poses, uv):
+            X_cam = pose.apply(X)
+            uv_hat, J_X, J_K = project_with_jacobians(cam, X_cam)
+            J.append(J_X @ pose.R)
+            J_theta.append(_parameter_rows(rig, name, X_cam, J_X, J_K, index))
+            res.append(uv_hat - uv_c)
+        J, J_theta = np.concatenate(J, axis=1), np.concatenate(J_theta, axis=1)     # (P, 2m, 3), (P, 2m, k)
+        A = np.linalg.solve(np.einsum("pki,pkj->pij", J, J), J.transpose(0, 2, 1))  # (P, 3, 2m)
+        B = -A @ J_theta
+        annihilator = np.eye(J.shape[1]) - J @ A
+        res = np.stack(res, axis=1)                                                 # (P, m, 2)
+        for i, m in enumerate(members):
+            out[m] = IntersectedPoint(X[i], names, A[i], B[i], res[i], J_theta[i], annihilator[i])
+    return {name: out[name] for name in uv_px}
+
+
+def intersect_point(rig: RigModel, uv_px: dict[str, np.ndarray], index: dict[str, int]) -> IntersectedPoint:
+    """Intersect one point from its pixels ``{camera: (2,) uv}`` and linearise it (:func:`intersect_points`)."""
+    return intersect_points(rig, {"point": uv_px}, index)["point"]
 
 
 def _residual_chi2(p: IntersectedPoint, var_px: np.ndarray, cov_theta: dict[str, np.ndarray]) -> float:
@@ -270,30 +296,25 @@ def measure(rig: RigModel, points: dict) -> dict:
                              f"{rig.reference!r} (calibrated alone, rig mode {rig.rig_mode!r}): it cannot measure with it")
     pixel_sigma, source = _pixel_sigmas(rig, spec["pixel_sigma"])
     index, cov_theta = _covariances(rig)
-    found = {}
-    for name, seen in spec["points"].items():
-        try:
-            found[name] = intersect_point(rig, seen, index)
-        except EstimationError as exc:
-            raise EstimationError(f"point {name!r}: {exc}") from None
+    found = intersect_points(rig, spec["points"], index)
     names = list(found)
-    B = np.vstack([found[n].B for n in names])                                      # (3P, k)
-    pixels = np.zeros((3 * len(names),) * 2)
-    var_px = [np.repeat([pixel_sigma[c] ** 2 for c in found[n].cameras], 2) for n in names]
-    for i, n in enumerate(names):
-        pixels[3 * i:3 * i + 3, 3 * i:3 * i + 3] = (found[n].A * var_px[i]) @ found[n].A.T
-    calibration = {kind: B @ C @ B.T for kind, C in cov_theta.items()}
-    cov = {kind: pixels + calibration[kind] for kind in COVARIANCE_KINDS}
+    var_px = {n: np.repeat([pixel_sigma[c] ** 2 for c in found[n].cameras], 2) for n in names}
+    # Every part is a fixed-size block (module docstring): a point's 3 x 3 pixel part A S A^T, and the
+    # calibration's part through B (3 x k), so the cost grows linearly with the points and the lengths.
+    pixels = {n: (found[n].A * var_px[n]) @ found[n].A.T for n in names}
 
-    doc_points, depth = {}, {}
-    for i, n in enumerate(names):
-        p, block = found[n], slice(3 * i, 3 * i + 3)
+    doc_points, depth, chi2_limit = {}, {}, {}
+    for n in names:
+        p = found[n]
+        blocks = [pixels[n] + p.B @ C @ p.B.T for C in cov_theta.values()]
         distance = float(np.linalg.norm(p.xyz_mm))
         ray = p.xyz_mm / distance
-        var = np.max([np.diag(cov[k][block, block]) for k in COVARIANCE_KINDS], axis=0)
-        depth[n] = float(np.sqrt(max(ray @ cov[k][block, block] @ ray for k in COVARIANCE_KINDS)))
-        consistent = bool(_residual_chi2(p, var_px[i], cov_theta) <= chi2.ppf(RESIDUAL_PROBABILITY,
-                                                                             2 * len(p.cameras) - 3))
+        var = np.max([np.diag(block) for block in blocks], axis=0)
+        depth[n] = float(np.sqrt(max(ray @ block @ ray for block in blocks)))
+        dof = 2 * len(p.cameras) - 3
+        if dof not in chi2_limit:
+            chi2_limit[dof] = chi2.ppf(RESIDUAL_PROBABILITY, dof)
+        consistent = bool(_residual_chi2(p, var_px[n], cov_theta) <= chi2_limit[dof])
         doc_points[n] = {"xyz_mm": p.xyz_mm.tolist(), "sigma_mm": np.sqrt(var).tolist(), "cameras": list(p.cameras),
                          "distance_mm": distance, "depth_sigma_mm": depth[n],
                          "residual_px": {c: float(np.linalg.norm(r)) for c, r in zip(p.cameras, p.residual_px)},
@@ -306,24 +327,23 @@ def measure(rig: RigModel, points: dict) -> dict:
 
     lengths = []
     for a, b in spec["lengths"]:
-        ia, ib = names.index(a), names.index(b)
         d = found[a].xyz_mm - found[b].xyz_mm
         length = float(np.linalg.norm(d))
-        g = np.zeros(3 * len(names))
-        g[3 * ia:3 * ia + 3], g[3 * ib:3 * ib + 3] = d / length, -d / length
-        kind = max(COVARIANCE_KINDS, key=lambda k: g @ cov[k] @ g)
-        sigma = float(np.sqrt(g @ cov[kind] @ g))
-        var_pixels = float(g @ pixels @ g)
-        diff = np.zeros((3, 3 * len(names)))
-        diff[:, 3 * ia:3 * ia + 3], diff[:, 3 * ib:3 * ib + 3] = np.eye(3), -np.eye(3)
-        across = np.eye(3) - np.outer(d, d) / length ** 2
-        bias = float(np.trace(across @ diff @ cov[kind] @ diff.T) / (2.0 * length))
+        e = d / length
+        # X_a - X_b moves by A_a duv_a - A_b duv_b + (B_a - B_b) dtheta: its covariance, per kind
+        pixel_part, dB = pixels[a] + pixels[b], found[a].B - found[b].B
+        diff_cov = {kind: pixel_part + dB @ C @ dB.T for kind, C in cov_theta.items()}
+        kind = max(COVARIANCE_KINDS, key=lambda k: e @ diff_cov[k] @ e)
+        sigma = float(np.sqrt(e @ diff_cov[kind] @ e))
+        var_pixels = float(e @ pixel_part @ e)
+        across = np.eye(3) - np.outer(e, e)
+        bias = float(np.trace(across @ diff_cov[kind]) / (2.0 * length))
         note = _length_note(rig, a, b, found, length, sigma, var_pixels / sigma ** 2, depth, bias, pixel_sigma)
         if note:
             warn(note)
         lengths.append({"from": a, "to": b, "length_mm": length, "sigma_mm": sigma,
                         "sigma_percent": 100.0 * sigma / length, "sigma_pixels_mm": float(np.sqrt(var_pixels)),
-                        "sigma_calibration_mm": float(np.sqrt(max(g @ calibration[kind] @ g, 0.0))),
+                        "sigma_calibration_mm": float(np.sqrt(max(e @ dB @ cov_theta[kind] @ dB.T @ e, 0.0))),
                         "bias_mm": bias, "meaningless": note is not None, "warning": note})
     doc = {"frame": rig.reference, "points": doc_points, "lengths": lengths,
            "pixel_sigma": {c: pixel_sigma[c] for c in rig.camera_order()}, "pixel_sigma_source": source}

@@ -20,6 +20,7 @@ corrected): calibrate the DNGs or the JPEGs of a camera, not a mix.
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 from dataclasses import dataclass
 from datetime import datetime, timedelta
@@ -205,6 +206,7 @@ def open_image(path) -> Image.Image:
     with _reading(path):
         img = Image.open(path)
         try:
+            check_plausible_photo(path, img.size, os.path.getsize(path))
             undo = _heif_undo(img)
             img.load()
         except BaseException:
@@ -224,6 +226,25 @@ def open_image(path) -> Image.Image:
     if stored is not img:
         img.close()
     return stored
+
+
+#: Largest image read, pixels: five times a 200 MP phone photo.
+MAX_PIXELS = 1_000_000_000
+#: Beyond :data:`PLAUSIBLE_PIXELS`, a photo (sensor noise, texture) needs at least one byte per this many
+#: pixels: JPEG keeps 0.5-4 bits a pixel, a PNG of a photo about 8. Only a drawing compresses further.
+MAX_PIXELS_PER_BYTE = 200
+PLAUSIBLE_PIXELS = 16_000_000
+
+
+def check_plausible_photo(path, size: tuple[int, int], file_bytes: int) -> None:
+    """Raise :class:`InputError` when a header's size ``(W, H)`` cannot be a photo's, before it is decoded:
+    beyond :data:`MAX_PIXELS`, or beyond :data:`PLAUSIBLE_PIXELS` with more than :data:`MAX_PIXELS_PER_BYTE`
+    pixels per byte of the file (a 190 KB PNG of 13000 x 13000). A large photo is not refused for its size."""
+    w, h = size
+    pixels = w * h
+    if pixels > MAX_PIXELS or (pixels > PLAUSIBLE_PIXELS and pixels > MAX_PIXELS_PER_BYTE * max(file_bytes, 1)):
+        raise InputError(f"{path}: its header says {w} x {h} px ({pixels / 1e6:.0f} MP) in {file_bytes / 1e3:.0f} KB, "
+                         "which no photo is: not decoded")
 
 
 def _jpeg_complete(data: bytes) -> bool:
@@ -252,7 +273,15 @@ def read_gray(path) -> np.ndarray:
         data = path.read_bytes()
     except OSError as exc:
         raise InputError(f"{path}: cannot be read ({exc.strerror})") from None
-    if path.suffix.lower() in (".jpg", ".jpeg") and not _jpeg_complete(data):
+    try:
+        with Image.open(io.BytesIO(data)) as header:
+            size = header.size
+    except Image.DecompressionBombError as exc:
+        raise InputError(f"{path}: {exc}: not decoded") from None
+    except _UNREADABLE:         # OpenCV has the last word on what it can decode
+        size = (0, 0)
+    check_plausible_photo(path, size, len(data))
+    if data.startswith(b"\xff\xd8") and not _jpeg_complete(data):     # a JPEG by its content, whatever its name
         raise InputError(f"{path}: truncated or corrupt JPEG (no end-of-image marker after its last scan)")
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
     if img is None:

@@ -17,7 +17,18 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-_stderr = Console(stderr=True)
+from .terminal import printable
+
+
+class SafeConsole(Console):
+    """A rich console that strips control characters from every string it renders (table cells too):
+    :func:`dualcal.terminal.printable`."""
+
+    def render_str(self, text: str, *args, **kwargs):
+        return super().render_str(printable(text), *args, **kwargs)
+
+
+_stderr = SafeConsole(stderr=True)
 
 
 @contextlib.contextmanager
@@ -48,7 +59,7 @@ class _StderrHandler(logging.Handler):
     """A warning as one line on stderr, ``dualcal: warning: MESSAGE``."""
 
     def emit(self, record: logging.LogRecord) -> None:
-        _stderr.print(f"[yellow]dualcal: warning:[/] {escape(record.getMessage())}", highlight=False,
+        _stderr.print(f"[yellow]dualcal: warning:[/] {escape(printable(record.getMessage()))}", highlight=False,
                       soft_wrap=True)
 
 

@@ -24,6 +24,7 @@ orientation tag stays true.
 
 from __future__ import annotations
 
+import io
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -36,7 +37,7 @@ from .camera import (CameraModel, check_invertible_in_image, intrinsic_names, ma
                      normalized_from_pixel, radial_factor, tangential_shift, undistort_points)
 from .photos import open_image, output_suffix, read_exif
 from .errors import InputError
-from .io import atomic_output, make_output_folder, read_json
+from .io import make_output_folder, read_json, write_bytes_atomic
 from .parallel import interruptible_map, raise_if_cancelled
 from .progress import progress_bar, warn
 
@@ -268,8 +269,9 @@ def undistort_file(src, dst, cam: CameraModel, new_cam: CameraModel | None = Non
     if blur_sigma_px > 0:
         pixels = cv2.GaussianBlur(pixels, (0, 0), blur_sigma_px)
     out = _image_from(undistort_image(pixels, cam, new_cam, band_rows, R=R), mode)
-    with atomic_output(dst) as tmp:
-        out.save(tmp, format=fmt, **options)
+    encoded = io.BytesIO()       # encoded in memory, so the write is checked to the last byte
+    out.save(encoded, format=fmt, **options)
+    write_bytes_atomic(dst, encoded.getvalue())
     return dst
 
 
@@ -389,7 +391,17 @@ def undistort_files(sources, out_dir, cam: CameraModel, new_cam: CameraModel | N
     """
     new_cam = new_cam if new_cam is not None else rectified_camera(cam, "same")
     sources = readable_photos(sources, cam)
+    created = not Path(out_dir).exists()
     dests = output_paths(sources, out_dir)
+    try:
+        written = _undistort_all(sources, dests, cam, new_cam, jobs, band_rows, progress)
+    finally:
+        if created and not any(Path(out_dir).iterdir()):     # nothing came of it: no new empty folder
+            Path(out_dir).rmdir()
+    return written
+
+
+def _undistort_all(sources, dests, cam, new_cam, jobs, band_rows, progress) -> list[Path]:
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(dests)))
     tasks = [(s, d, cam, new_cam, band_rows) for s, d in zip(sources, dests, strict=True)]
     written = []

@@ -40,7 +40,7 @@ import numpy as np
 
 from .board import Board
 from .camera import CameraModel, check_invertible_in_image, project_points, undistort_normalized
-from .io import atomic_output
+from .io import write_jpeg_atomic
 from .model import Pose
 from .parallel import interruptible_map
 from .progress import progress_bar
@@ -296,11 +296,7 @@ def photo_seed(seed: int, cam_index: int, view_index: int) -> np.random.Generato
 def _write_one(task) -> str:
     cam, pose, board, seed_key, path, quality, render_kwargs = task
     img = render_view(cam, pose, board, photo_seed(*seed_key), **render_kwargs)
-    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:
-        raise RuntimeError(f"JPEG encoding of {path} failed")
-    with atomic_output(path) as tmp:
-        Path(tmp).write_bytes(buf.tobytes())
+    write_jpeg_atomic(path, img, quality)
     return str(path)
 
 

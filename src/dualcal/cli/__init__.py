@@ -20,6 +20,7 @@ import click
 
 from .. import __version__
 from ..errors import DualcalError
+from ..terminal import printable
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -46,6 +47,7 @@ from . import evaluate as _evaluate  # noqa: E402,F401
 from . import measure as _measure  # noqa: E402,F401
 from . import rectify as _rectify  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
+from . import schema as _schema  # noqa: E402,F401
 
 
 def _debug_requested(argv) -> bool:
@@ -71,7 +73,7 @@ def main(argv=None) -> None:
         exc.show()
         sys.exit(2)
     except DualcalError as exc:
-        click.echo(f"dualcal: error: {exc}", err=True)
+        click.echo(f"dualcal: error: {printable(exc)}", err=True)
         sys.exit(2)
     except BrokenPipeError:                 # e.g. `dualcal calibrate ... | head`: the reader left
         sys.stderr.close()
@@ -79,7 +81,7 @@ def main(argv=None) -> None:
     except Exception as exc:  # a bug in dualcal, not in the input
         if _debug_requested(argv):
             raise
-        click.echo(f"dualcal: internal error: {type(exc).__name__}: {exc} "
+        click.echo(f"dualcal: internal error: {type(exc).__name__}: {printable(exc)} "
                    "(run again with --debug for the traceback)", err=True)
         sys.exit(1)
     sys.exit(0)

@@ -16,7 +16,7 @@ import click
 from ..errors import InputError
 from . import cli
 from .calibrate import calibrate_command
-from .common import BOARD_OPTION_NAMES, board_from_flags, default_jobs
+from .common import BOARD_OPTION_NAMES, board_from_flags, default_jobs, echo
 
 # calibrate's options that do not apply per device: its input and output, and what only the
 # terminal shows or only a single dataset's detection uses. Every other option of calibrate is
@@ -64,8 +64,8 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
 
     require("fleet")
     require("report")
-    from ..batch import (TABLE_NAMES, BatchOptions, calibrate_fleet, find_devices, fleet_inputs_digest, fleet_outputs_current,
-                         fleet_table, read_fleet_table, write_fleet_tables)
+    from ..batch import (PAGE_NAME, TABLE_NAMES, BatchOptions, calibrate_fleet, find_devices, fleet_inputs_digest,
+                         fleet_outputs_current, fleet_table, read_fleet_table, write_fleet_tables)
     from ..calibrate import calibrate_rig
     from ..io import make_output_folder, write_text_atomic
     from ..progress import warn
@@ -104,15 +104,15 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
 
         table = fleet_table(results)
         written = write_fleet_tables(out_dir, table)
-        write_text_atomic(out_dir / "fleet.html", render_fleet(table, earlier, flag_sigmas, inputs_digest=digest))
+        write_text_atomic(out_dir / PAGE_NAME, render_fleet(table, earlier, flag_sigmas, inputs_digest=digest))
     failed = sorted((r for r in results if not r.ok), key=lambda r: r.device)
     for r in failed:
-        click.echo(f"dualcal: {r.device}: {r.row['status']}", err=True)
+        echo(f"dualcal: {r.device}: {r.row['status']}", err=True)
     skipped = sum(r.skipped for r in results)
-    click.echo(f"{len(results)} device{'s' if len(results) != 1 else ''}: {len(results) - len(failed)} ok, {len(failed)} failed"
-               f"{f' ({skipped} up to date from an earlier run)' if skipped else ''}; "
-               f"{'up to date' if current else 'wrote'} {', '.join(str(p) for p in written)}, {out_dir / 'fleet.html'}",
-               err=True)
+    echo(f"{len(results)} device{'s' if len(results) != 1 else ''}: {len(results) - len(failed)} ok, {len(failed)} failed"
+         f"{f' ({skipped} up to date from an earlier run)' if skipped else ''}; "
+         f"{'up to date' if current else 'wrote'} {', '.join(str(p) for p in written)}, {out_dir / PAGE_NAME}",
+         err=True)
     if failed:
         raise SystemExit(1)
 

@@ -6,7 +6,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import board_from_flags, board_options
+from .common import board_from_flags, board_options, echo
 
 
 @cli.command("board")
@@ -55,8 +55,8 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
         board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary)
     layout = write_board(board, output, paper=paper, dpi=dpi)
     w, h = layout.page_mm
-    click.echo(f"{layout.board.describe()}, squares of {layout.board.square_mm:g} mm, on a {w:.0f} x {h:.0f} mm page: "
-               f"wrote {output} (print at 100 %)", err=True)
+    echo(f"{layout.board.describe()}, squares of {layout.board.square_mm:g} mm, on a {w:.0f} x {h:.0f} mm page: "
+         f"wrote {output} (print at 100 %)", err=True)
 
 
 def _board_for(photos, paper: str):
@@ -77,5 +77,5 @@ def _board_for(photos, paper: str):
         cameras[name] = (photo.size, f35)
     paper = "A4" if paper == "auto" else paper
     choice = fitting_choice(cameras, paper)
-    click.echo(f"for {', '.join(cameras)}: {choice.describe()}", err=True)
+    echo(f"for {', '.join(cameras)}: {choice.describe()}", err=True)
     return choice.board, paper

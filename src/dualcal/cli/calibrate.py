@@ -6,7 +6,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import LazyChoice, board_from_flags, board_options, default_jobs, square_sigma_option, stdout_console
+from .common import LazyChoice, board_from_flags, board_options, default_jobs, echo, square_sigma_option, stdout_console
 from .detect import dataset_options, read_corners_from_flags
 
 
@@ -51,7 +51,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     """
     from ..board import SHAPE_TERMS
     from ..calibrate import calibrate_rig
-    from ..checks import failed_checks, verdict
+    from ..checks import failed_checks, scale_note, verdict
     from ..errors import EstimationError
     from ..io import check_output_file, save_rig
     from ..progress import warn
@@ -94,6 +94,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
         console.print(f"  {name}: {rig.checks[name]['message']}")
+    if "scale_plausible" not in rig.checks:
+        console.print(f"  note: {scale_note(rig)}; check --square")
 
 
 def _coverage(text: str | None, board) -> tuple[float, float] | None:
@@ -170,6 +172,5 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jo
         from ..render import write_photo_set
         write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs())
     n = len(truth.view_poses) * len(truth.cameras)
-    click.echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
-               f"({n} {'photos' if photos or roll else 'corner sets'}{' in a camera roll' if roll else ''}) "
-               f"written to {out}")
+    echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
+         f"({n} {'photos' if photos or roll else 'corner sets'}{' in a camera roll' if roll else ''}) written to {out}")

@@ -13,6 +13,7 @@ import os
 import click
 
 from ..errors import InputError
+from ..terminal import printable
 
 
 class LazyChoice(click.Choice):
@@ -96,6 +97,12 @@ def default_jobs() -> int:
 
 
 def stdout_console():
-    """A rich console on stdout that never wraps a plain line (paths stay whole for copying)."""
-    from rich.console import Console
-    return Console(soft_wrap=True, highlight=False)
+    """A rich console on stdout that never wraps a plain line (paths stay whole for copying) and prints no
+    control character (:class:`dualcal.progress.SafeConsole`)."""
+    from ..progress import SafeConsole
+    return SafeConsole(soft_wrap=True, highlight=False)
+
+
+def echo(text: str = "", err: bool = False, nl: bool = True) -> None:
+    """``click.echo`` of a line that may hold names: control characters stripped (:func:`dualcal.terminal.printable`)."""
+    click.echo(printable(text), err=err, nl=nl)

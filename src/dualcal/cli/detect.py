@@ -14,7 +14,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import board_from_flags, board_options, exclude_option, square_sigma_option
+from .common import board_from_flags, board_options, echo, exclude_option, square_sigma_option
 
 DATASET_OPTION_NAMES = ("cameras", "pair_by", "time_tolerance_s", "instant_gap_s", "reference", "exclude", "jobs",
                         "hints_path", "overlays_dir")
@@ -105,7 +105,7 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square
     summary = ", ".join(f"{c} {n}/{len(corners.cameras[c].views)}" for c, n in found.items())
     excluded = sum(len(cc.meta.get("excluded", {})) for cc in corners.cameras.values())
     left_out = f"; {excluded} left out by --exclude" if excluded else ""
-    click.echo(f"board found in: {summary} photos{left_out}; wrote {output}", err=True)
+    echo(f"board found in: {summary} photos{left_out}; wrote {output}", err=True)
 
 
 def display_problem():
@@ -154,11 +154,11 @@ def pick_command(dataset, board_spec, square_mm, marker_mm, dictionary, all_phot
         if all_photos or detect_photo(path, board).uv is None:
             todo.setdefault(cam, {})[view] = path
     if not todo:
-        click.echo("the board was found automatically in every photo: no hints needed", err=True)
+        echo("the board was found automatically in every photo: no hints needed", err=True)
         return
     hints = pick_hints(todo)
     if not hints:
-        click.echo("no photo was clicked: nothing written", err=True)
+        echo("no photo was clicked: nothing written", err=True)
         return
     save_hints(output, hints)
-    click.echo(f"hints for {sum(len(v) for v in hints.values())} photo(s): wrote {output}", err=True)
+    echo(f"hints for {sum(len(v) for v in hints.values())} photo(s): wrote {output}", err=True)

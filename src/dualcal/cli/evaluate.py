@@ -8,7 +8,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import LazyChoice, default_jobs, stdout_console
+from .common import LazyChoice, default_jobs, echo, stdout_console
 
 
 def _case_photos(name: str, doc: dict) -> str:
@@ -120,6 +120,6 @@ def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, o
     if not written:
         raise InputError(f"none of the {len(images)} photos could be rectified (see the warnings above)")
     write_json_atomic(doc_path, rectified_camera_doc(camera_name, keep, calib, new_cam))
-    click.echo(f"{len(written)} of {len(images)} photos undistorted into {out_dir} "
-               f"(fx={new_cam.fx:.2f} fy={new_cam.fy:.2f} cx={new_cam.cx:.2f} cy={new_cam.cy:.2f}, "
-               f"k1=k2=0: {camera_name}.rectified.json)")
+    echo(f"{len(written)} of {len(images)} photos undistorted into {out_dir} "
+         f"(fx={new_cam.fx:.2f} fy={new_cam.fy:.2f} cx={new_cam.cx:.2f} cy={new_cam.cy:.2f}, "
+         f"k1=k2=0: {camera_name}.rectified.json)")

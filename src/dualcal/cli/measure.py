@@ -9,7 +9,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import stdout_console
+from .common import echo, stdout_console
 
 
 def _photos(specs: tuple[str, ...]) -> dict[str, Path]:
@@ -121,8 +121,8 @@ def _write_pick_page(rig, photos: dict[str, Path], output: Path, open_page: bool
     if len(photos) < 2:
         raise InputError("--pick needs the photos of two or more cameras of one instant: NAME=IMAGE NAME2=IMAGE2")
     write_text_atomic(output, render_pick_page(rig, photos))
-    click.echo(f"wrote {output}: open it in a browser, click each point in every photo (the same name in each), "
-               f"export points.json, then: dualcal measure CALIB --points points.json -o measure.json")
+    echo(f"wrote {output}: open it in a browser, click each point in every photo (the same name in each), "
+         f"export points.json, then: dualcal measure CALIB --points points.json -o measure.json")
     if open_page:
         import webbrowser
         webbrowser.open(output.resolve().as_uri())

@@ -8,7 +8,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import LazyChoice
+from .common import LazyChoice, echo
 
 EPIPOLAR_IMAGE = "epipolar.jpg"
 
@@ -49,11 +49,10 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
     OUTDIR/epipolar.jpg         both photos side by side (stacked for a vertical rig) with lines
                                 along which corresponding points must lie
     """
-    import cv2
     import numpy as np
 
     from ..photos import open_image, output_suffix
-    from ..io import (atomic_output, calibration_fingerprint, check_output_file, load_rig, make_output_folder,
+    from ..io import (calibration_fingerprint, check_output_file, load_rig, make_output_folder, write_jpeg_atomic,
                       write_json_atomic)
     from ..stereo import epipolar_check_image, rectify_pair_files, stereo_rectify
 
@@ -74,9 +73,7 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
         with open_image(written[name]) as img:
             images.append(np.asarray(img.convert("RGB")))
     check = epipolar_check_image(images, rect.vertical)
-    _, buf = cv2.imencode(".jpg", cv2.cvtColor(check, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
-    with atomic_output(check_path) as tmp:
-        Path(tmp).write_bytes(buf.tobytes())
+    write_jpeg_atomic(check_path, np.ascontiguousarray(check[..., ::-1]), 90)
     write_json_atomic(doc_path, {**rect.to_dict(), "calibration": str(calib),
                                  "calibration_fingerprint": calibration_fingerprint(rig),
                                  "photos": {n: {"source": str(photos[n]), "rectified": written[n].name}
@@ -84,6 +81,6 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
                                  "epipolar_check": EPIPOLAR_IMAGE})
     w, h = rect.image_size
     layout = "same column (vertical rig)" if rect.vertical else "same row (horizontal rig)"
-    click.echo(f"rectified {first} + {second} to {w}x{h} px, f = {rect.camera.fx:.2f} px, baseline "
-               f"{abs(rect.baseline_mm):.3f} mm, corresponding points on the {layout}: wrote "
-               f"{', '.join(written[n].name for n in rect.names)}, rectify.json and {EPIPOLAR_IMAGE} in {out}")
+    echo(f"rectified {first} + {second} to {w}x{h} px, f = {rect.camera.fx:.2f} px, baseline "
+         f"{abs(rect.baseline_mm):.3f} mm, corresponding points on the {layout}: wrote "
+         f"{', '.join(written[n].name for n in rect.names)}, rectify.json and {EPIPOLAR_IMAGE} in {out}")

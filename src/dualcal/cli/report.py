@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from . import cli
-from .common import LazyChoice
+from .common import LazyChoice, echo
 
 
 @cli.command("report")
@@ -37,7 +37,7 @@ def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
         check_evaluation_belongs(rig, evaluation, str(calib), str(eval_path))
     html = render_report(rig, evaluation, progress=True)
     write_text_atomic(output, html)
-    click.echo(f"report written to {output} ({len(html.encode()) / 1e6:.1f} MB)")
+    echo(f"report written to {output} ({len(html.encode()) / 1e6:.1f} MB)")
 
 
 @cli.command("export")
@@ -72,4 +72,4 @@ def export_command(calib: Path, fmt: str, output: str) -> None:
 
     rig = load_rig(calib)
     for path in write_export(rig, fmt, output):
-        click.echo(f"wrote {path}")
+        echo(f"wrote {path}")

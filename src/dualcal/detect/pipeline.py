@@ -35,7 +35,7 @@ from ..board import DICTIONARIES, Board, dictionary_family
 from ..dataset import Dataset, unpaired_cameras
 from ..photos import jobs_within_memory, read_gray
 from ..errors import DetectionError, InputError
-from ..io import atomic_output, make_output_folder
+from ..io import make_output_folder, write_jpeg_atomic
 from ..model import CameraCorners, CornerSet
 from ..parallel import interruptible_map
 from ..progress import progress_bar, warn
@@ -148,9 +148,7 @@ def write_overlay(path: Path, small: np.ndarray, uv: np.ndarray, factor: int, ma
         p = (int(round(u)), int(round(v)))
         cv2.circle(img, p, 4 if k else 7, colour, 2)
         cv2.putText(img, str(k), (p[0] + 5, p[1] - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.4, colour, 1)
-    _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
-    with atomic_output(path) as tmp:
-        Path(tmp).write_bytes(buf.tobytes())
+    write_jpeg_atomic(path, img, 85)
 
 
 def prepare_overlay_folders(overlays_dir, cameras) -> dict[str, Path]:

@@ -78,8 +78,15 @@ def render_pick_page(rig: RigModel, photos: dict[str, Path], max_px: int = DISPL
     """The pick page (module docstring) for ``photos`` ``{camera: path}`` of one instant, as one HTML string."""
     env = environment()
     shown = pick_photos(rig, photos, max_px)
-    data = json.dumps([{k: p[k] for k in ("camera", "file", "size")} for p in shown])
+    data = [{k: p[k] for k in ("camera", "file", "size")} for p in shown]
     return env.get_template("pick.html").render(
         title=f"dualcal measure: pick points in {' + '.join(p['camera'] for p in shown)}",
-        version=__version__, photos=shown, reference=rig.reference,
-        photos_json=Markup(data.replace("</", "<\\/")))
+        version=__version__, photos=shown, reference=rig.reference, photos_json=script_json(data))
+
+
+def script_json(value) -> Markup:
+    """``value`` as JSON to embed in a ``<script type="application/json">``: every ``<`` (and ``>``, ``&``)
+    written as its ``\\u`` escape, so that no name (``</script>``, ``<!--<script``) can end or change the
+    script element; ``JSON.parse`` reads the same value back."""
+    text = json.dumps(value, ensure_ascii=False)
+    return Markup(text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))

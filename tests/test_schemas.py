@@ -1,0 +1,157 @@
+"""The JSON Schemas (issue 23) and the validation of every JSON input (issue 24, finding 3): a calib.json with
+NaN, Inf, wrongly typed or absurd values, or edited checks, is refused by every command that reads it, in one
+line naming the key, exit 2."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import jsonschema
+import pytest
+from schema_check import assert_valid
+
+from dualcal import synth
+from dualcal.errors import InputError
+from dualcal.io import load_corners, load_rig, save_corners, save_rig
+from dualcal.schemas import SCHEMA_NAMES, schema, validate
+
+
+@pytest.mark.parametrize("name", SCHEMA_NAMES)
+def test_every_schema_is_a_valid_draft_2020_12_schema(name):
+    jsonschema.Draft202012Validator.check_schema(schema(name))
+
+
+def test_the_schema_command_prints_each_schema(run_cli):
+    for name in SCHEMA_NAMES:
+        res = run_cli("schema", name)
+        assert res.code == 0 and json.loads(res.out) == schema(name)
+    res = run_cli("schema", "nope")
+    assert res.code == 2 and "corners, calib" in res.err
+
+
+@pytest.fixture(scope="module")
+def stereo():
+    truth = synth.make_truth("stereo", views=4, seed=2)
+    return truth, synth.truth_rig_model(truth, synth.noisy_corner_set(truth, 0.1, seed=1))
+
+
+@pytest.fixture
+def calib_path(stereo, tmp_path):
+    path = tmp_path / "calib.json"
+    save_rig(path, stereo[1])
+    return path
+
+
+def test_what_dualcal_writes_is_valid_and_what_others_add_is_admitted(stereo, tmp_path):
+    truth, rig = stereo
+    save_rig(tmp_path / "calib.json", rig)
+    save_corners(tmp_path / "corners.json", rig.corners)
+    assert_valid(tmp_path / "calib.json")
+    doc = assert_valid(tmp_path / "corners.json")
+    # the keys other work adds: per-camera lens models, a fisheye k4, the square's sigma, the camera roll's keys
+    doc["board"]["square_sigma_mm"] = 0.02
+    doc["roll"] = {"instants": []}
+    doc["cameras"]["left"]["meta"] = {"lens_model": "back camera 4.2mm"}
+    validate(doc, "corners", "corners.json")
+    calib = json.loads((tmp_path / "calib.json").read_text())
+    calib["model"] = "mixed"
+    calib["cameras"]["left"].update(model="kb4", k3=0.0, k4=0.001)
+    validate(calib, "calib", "calib.json")
+
+
+BAD_CALIBS = [
+    # (what is edited, how, the key the message names)
+    ("k1 NaN", lambda d: d["cameras"]["left"].update(k1=float("nan")), "cameras.left.k1 is NaN"),
+    ("fx Infinity", lambda d: d["cameras"]["right"].update(fx=float("inf")), "cameras.right.fx is NaN or infinite"),
+    ("fx true", lambda d: d["cameras"]["left"].update(fx=True), "cameras.left.fx: True is not of type 'number'"),
+    ("fx negative", lambda d: d["cameras"]["left"].update(fx=-900.0), "cameras.left.fx: -900.0 is less than"),
+    ("sigma NaN", lambda d: d["cameras"]["left"]["sigma"].update(fx=float("nan")), "cameras.left.sigma.fx is NaN"),
+    ("sigma a string", lambda d: d["rig"]["right"]["sigma"].update(baseline_mm="0.1"), "rig.right.sigma.baseline_mm"),
+    ("checks ok maybe", lambda d: d["checks"].setdefault("fit", {"message": "x"}).update(ok="maybe"), "checks.fit.ok"),
+    ("checks edited", lambda d: d["checks"].update(fit={"ok": True, "message": "all fine, trust me"}),
+     "checks were edited"),
+    ("a folding lens", lambda d: d["cameras"]["left"].update(k1=-3.0, k2=0.0), "folds over"),
+    ("R not a rotation", lambda d: d["rig"]["right"].update(R=[[2, 0, 0], [0, 1, 0], [0, 0, 1]]), "rotation"),
+]
+
+
+def _write_bad(calib_path, edit) -> None:
+    doc = json.loads(calib_path.read_text())
+    doc.setdefault("checks", {})
+    edit(doc)
+    calib_path.write_text(json.dumps(doc))       # Python writes NaN and Infinity as JSON allows it to
+
+
+@pytest.mark.parametrize("what,edit,key", BAD_CALIBS, ids=[b[0] for b in BAD_CALIBS])
+def test_a_bad_calib_json_is_refused_by_the_loader(calib_path, what, edit, key):
+    _write_bad(calib_path, edit)
+    with pytest.raises(InputError, match=key):
+        load_rig(calib_path)
+
+
+COMMANDS = {
+    "export": lambda c, t: ("export", c, "--format", "opencv", "-o", t / "rig.yml"),
+    "undistort": lambda c, t: ("undistort", c, "--camera", "left", t / "x.jpg", "-o", t / "u"),
+    "rectify": lambda c, t: ("rectify", c, "--pair", f"left={t / 'x.jpg'}", f"right={t / 'x.jpg'}", "-o", t / "r"),
+    "measure": lambda c, t: ("measure", c, "--points", t / "points.json", "-o", t / "m.json"),
+    "evaluate": lambda c, t: ("evaluate", c, "-o", t / "e.json"),
+    "report": lambda c, t: ("report", c, "-o", t / "r.html"),
+}
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("what,edit,key", [BAD_CALIBS[i] for i in (0, 1, 2, 7)], ids=["nan", "inf", "bool", "checks"])
+def test_every_command_that_reads_calib_json_refuses_a_bad_one(calib_path, tmp_path, run_cli, command, what, edit,
+                                                                key):
+    _write_bad(calib_path, edit)
+    (tmp_path / "points.json").write_text(json.dumps({"points": {"A": {"left": [1, 2], "right": [3, 4]}}}))
+    res = run_cli(*COMMANDS[command](calib_path, tmp_path))
+    assert res.code == 2 and key in res.err and len(res.err_lines) == 1, res.err
+    assert not any(p.name in ("rig.yml", "u", "r", "m.json", "e.json", "r.html") for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("text,message", [
+    ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+    ('{"points": {"A": {"left": [1, NaN], "right": [3, 4]}}}', r"points.A.left\[1\] is NaN"),
+    ('{"points": {"A": {"left": [1, 2], "right": [3, 4]}}, "pixel_sigma": NaN}', "pixel_sigma is NaN"),
+    ('{"points": {"A": {"left": [1, 2], "right": [3, "4"]}}}', r"points.A.right\[1\]: '4' is not of type"),
+])
+def test_json_input_errors_exit_2_not_1(calib_path, tmp_path, run_cli, text, message):
+    """Finding 7: deep nesting, NaN sigmas and wrong types were internal errors (exit 1)."""
+    (tmp_path / "points.json").write_text(text)
+    res = run_cli("measure", calib_path, "--points", tmp_path / "points.json", "-o", tmp_path / "m.json")
+    assert res.code == 2 and len(res.err_lines) == 1 and re.search(message, res.err), res.err
+
+
+def test_a_corners_json_with_nan_or_a_wrong_type_is_refused(stereo, tmp_path):
+    path = tmp_path / "corners.json"
+    save_corners(path, stereo[1].corners)
+    doc = json.loads(path.read_text())
+    doc["board"]["square_mm"] = True
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="board.square_mm: True is not of type 'number'"):
+        load_corners(path)
+
+
+@pytest.mark.parametrize("bad", [True, "1.5", [1.0, 2.0, 3.0], 5, {"u": 1}], ids=["bool", "str", "3", "int", "obj"])
+def test_the_one_pass_corner_check_agrees_with_the_schema(stereo, tmp_path, bad):
+    """validate() checks the corner lists in one pass of its own (the bulk of a file): it refuses what the
+    full schema refuses, naming the corner."""
+    from dualcal.schemas import _validator
+
+    save_rig(tmp_path / "calib.json", stereo[1])
+    doc = json.loads((tmp_path / "calib.json").read_text())
+    views = doc["corners"]["cameras"]["right"]["views"]
+    if isinstance(bad, int) and not isinstance(bad, bool):
+        views["IMG_02"] = bad
+        where = "corners.cameras.right.views.IMG_02"
+    elif isinstance(bad, list) or isinstance(bad, dict):
+        views["IMG_02"][7] = bad
+        where = r"corners.cameras.right.views.IMG_02\[7\]"
+    else:
+        views["IMG_02"][7] = [1.0, bad]
+        where = r"corners.cameras.right.views.IMG_02\[7\]\[1\]"
+    assert not _validator("calib").is_valid(doc)
+    with pytest.raises(InputError, match=where):
+        validate(doc, "calib", "calib.json")
