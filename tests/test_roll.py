@@ -169,3 +169,27 @@ def test_synth_writes_a_roll_and_board_suggests_a_board_for_its_cameras(tmp_path
     res = run_cli("board", "--for", tmp_path / "s" / "roll", "-o", tmp_path / "board.pdf")
     assert res.code == 0, res.err
     assert "the tele sees it whole" in res.err and (tmp_path / "board.pdf").stat().st_size > 1000
+
+
+def test_a_copied_photo_counts_once_in_a_roll_and_in_a_camera_folder(rendered_roll, tmp_path, capsys):
+    import shutil
+
+    from dualcal.dataset import open_dataset
+
+    truth, folder, shot = rendered_roll
+    roll = tmp_path / "roll"
+    shutil.copytree(folder, roll)
+    first = sorted(f for f, (cam, _) in shot["photos"].items() if cam == "tele")[0]
+    shutil.copy(roll / first, roll / "IMG_0999.JPG")            # exported twice (a later number, the same bytes)
+    ds = open_dataset(roll)
+    assert "IMG_0999.JPG: the same file as" in capsys.readouterr().err
+    assert all(p.path.name != "IMG_0999.JPG" for v in ds.cameras.values() for p in v.values())
+    assert ds.roll["left_out"]["IMG_0999.JPG"] == f"the same file as {first}"
+    assert ds.meta("tele")["identical_files"] == {str(roll / "IMG_0999.JPG"): str(roll / first)}
+    # a camera folder of a dataset alike
+    cam = tmp_path / "set" / "tele"
+    cam.mkdir(parents=True)
+    for f in sorted(f for f, (c, _) in shot["photos"].items() if c == "tele")[:4]:
+        shutil.copy(folder / f, cam / f)
+    shutil.copy(cam / first, cam / "copy.JPG")
+    assert len(open_dataset(tmp_path / "set").cameras["tele"]) == 4

@@ -44,7 +44,8 @@ class Dataset:
 
     ``skipped`` lists ``(path, reason)`` of files that looked like photos but could not be read;
     ``excluded[name][view]`` the photos left out by ``exclude`` patterns; ``roll`` is the record of a
-    camera roll's split into cameras and instants (:mod:`dualcal.roll`; corners.json's ``roll``), or None.
+    camera roll's split into cameras and instants (:mod:`dualcal.roll`; corners.json's ``roll``), or None;
+    ``identical[name][path]`` the files left out as copies of another (the kept one).
     """
 
     cameras: dict[str, dict[str, Photo]]
@@ -53,6 +54,7 @@ class Dataset:
     skipped: list[tuple[Path, str]] = field(default_factory=list)
     excluded: dict[str, dict[str, Path]] = field(default_factory=dict)
     roll: dict | None = None
+    identical: dict[str, dict[str, Path]] = field(default_factory=dict)
 
     def image_size(self, camera: str) -> tuple[int, int]:
         return next(iter(self.cameras[camera].values())).size
@@ -74,6 +76,8 @@ class Dataset:
             meta["exif_orientation"] = orientation
         if self.excluded.get(camera):
             meta["excluded"] = {v: str(p) for v, p in self.excluded[camera].items()}
+        if self.identical.get(camera):
+            meta["identical_files"] = {str(p): str(kept) for p, kept in self.identical[camera].items()}
         return meta
 
     def photo_count(self) -> int:
@@ -339,10 +343,29 @@ def _pair_by_time(cams: dict[str, dict[str, Photo]], reference: str, tolerance_s
     return out
 
 
-def _open_roll(photos: list[Photo], source: str, reference, exclude, instant_gap_s, skipped) -> Dataset:
+def _without_copies(files: dict[str, Path]) -> dict[Path, Path]:
+    """Remove from ``files`` (key -> path) every file whose content is that of an earlier one (a photo
+    copied, exported twice): it would count as an instant of its own, and the sigmas, which come from
+    how the instants disagree, would shrink. Returns ``{removed path: kept path}``, each said in a warning."""
+    from .duplicates import duplicate_files
+
+    removed = {}
+    for kept, *copies in duplicate_files(sorted(files.values())):
+        for copy in copies:
+            removed[copy] = kept
+        warn(f"{', '.join(p.name for p in copies)}: the same file as {kept.name}: counted once")
+    for key in [k for k, p in files.items() if p in removed]:
+        del files[key]
+    return removed
+
+
+def _open_roll(photos: list[Photo], source: str, reference, exclude, instant_gap_s, skipped,
+               identical: dict[Path, Path]) -> Dataset:
     """The dataset of a camera-roll folder (:func:`dualcal.roll.open_camera_roll`), less what ``exclude``
-    leaves out (matched against the instants' view keys, the file names and CAMERA/KEY)."""
+    leaves out (matched against the instants' view keys, the file names and CAMERA/KEY); ``identical``
+    are the files left out as copies (their reason joins the roll's record)."""
     roll, notes = open_camera_roll(photos, source, instant_gap_s)
+    roll.record["left_out"].update({p.name: f"the same file as {kept.name}" for p, kept in identical.items()})
     for note in notes:
         warn(note)
     cams = roll.cameras
@@ -350,7 +373,12 @@ def _open_roll(photos: list[Photo], source: str, reference, exclude, instant_gap
     if exclude:
         keys = _excluded_keys({n: {k: p.path.name for k, p in v.items()} for n, v in cams.items()}, exclude)
         excluded = {n: {k: cams[n].pop(k).path for k in ks} for n, ks in keys.items()}
-    return Dataset(cams, choose_reference(cams, reference), source, skipped, excluded, roll.record)
+    names = {p.path: n for n, views in cams.items() for p in views.values()}
+    copies = {}
+    for p, kept in identical.items():
+        copies.setdefault(names.get(kept), {})[p] = kept
+    return Dataset(cams, choose_reference(cams, reference), source, skipped, excluded, roll.record,
+                   {n: d for n, d in copies.items() if n is not None})
 
 
 def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | None = None,
@@ -404,10 +432,14 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
         if flat:
             skipped: list = []
             (name, keyed), = files.items()
+            identical = _without_copies(keyed)
             photos = _read_photos(keyed, skipped)
             if is_camera_roll(list(photos.values())):
-                return _open_roll(list(photos.values()), source, reference, exclude, instant_gap_s, skipped)
+                return _open_roll(list(photos.values()), source, reference, exclude, instant_gap_s, skipped,
+                                  identical)
+            files = {name: keyed}
 
+    identical = {n: _without_copies(f) for n, f in files.items()}
     excluded = {}
     if exclude:
         keys = _excluded_keys({n: {k: p.name for k, p in f.items()} for n, f in files.items()}, exclude)
@@ -420,4 +452,4 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
     ref = choose_reference(cams, reference)
     if pair_by == "time":
         cams = _pair_by_time(cams, ref, time_tolerance_s)
-    return Dataset(cams, ref, source, skipped, excluded)
+    return Dataset(cams, ref, source, skipped, excluded, identical={n: d for n, d in identical.items() if d})

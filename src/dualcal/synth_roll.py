@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, TiffImagePlugin
 
+from .io import write_bytes_atomic
 from .roll import FULL_FRAME_DIAGONAL_MM, camera_class
 
 __all__ = ["CROP_FACTOR", "equivalent_focal_of", "write_camera_roll"]
@@ -87,7 +88,7 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
         def put(data: bytes, cam, what) -> str:
             nonlocal number
             name = f"IMG_{number:04d}.JPG"
-            (folder / name).write_bytes(_with_exif(data, _exif_bytes(cam, taken, device)))
+            write_bytes_atomic(folder / name, _with_exif(data, _exif_bytes(cam, taken, device)))
             shot["photos"][name] = what
             number += 1
             return name
@@ -113,8 +114,9 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
         if sidecars:
             names = sorted(shot["photos"])
             aae, mov = Path(names[0]).with_suffix(".AAE").name, Path(names[1]).with_suffix(".MOV").name
-            (folder / aae).write_text('<?xml version="1.0" encoding="UTF-8"?>\n<plist version="1.0"><dict/></plist>\n')
-            (folder / mov).write_bytes(b"\x00\x00\x00\x14ftypqt  \x00\x00\x00\x00qt  ")
+            write_bytes_atomic(folder / aae,
+                               b'<?xml version="1.0" encoding="UTF-8"?>\n<plist version="1.0"><dict/></plist>\n')
+            write_bytes_atomic(folder / mov, b"\x00\x00\x00\x14ftypqt  \x00\x00\x00\x00qt  ")
             shot["sidecars"] = [aae, mov]
     shutil.rmtree(Path(tmp), ignore_errors=True)
     return shot
