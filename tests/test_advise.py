@@ -351,3 +351,12 @@ def test_cli_says_after_which_photo_the_goals_are_met(note8, tmp_path, run_cli):
     assert "every target is met after photo 1 (predicted)" in stdout
     result = run_cli("advise", calib, "-o", tmp_path / "a.json", "--board", "9x5", "--square", "30")
     assert result.code == 2 and "disagrees" in result.err
+
+
+def test_a_calibration_without_a_usable_covariance_is_refused(note8):
+    _, _, rig = note8
+    with pytest.raises(A.InputError, match="holds no covariance"):
+        A.prior_from_rig(replace(rig, covariance=None))
+    cov = dict(rig.covariance, formal=np.zeros_like(np.asarray(rig.covariance["formal"])).tolist())
+    with pytest.raises(A.InputError, match="not positive definite"):
+        A.prior_from_rig(replace(rig, covariance=cov))

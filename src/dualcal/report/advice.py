@@ -7,6 +7,8 @@ and after. No script, no link outside the page.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 from markupsafe import Markup, escape
 
@@ -23,18 +25,19 @@ def frame_svg(image_size: tuple[int, int], outline_px: np.ndarray | None, camera
     """One camera's frame with the board's outline (a polygon of class ``board-outline``)."""
     w, h = image_size
     height = FRAME_WIDTH * h / w
+    clip = f"clip-{pose_index}-{re.sub(r'[^A-Za-z0-9_-]', '-', camera)}"      # an id: no spaces or quotes
     stroke = max(w, h) / 150
     parts = [f'<svg viewBox="0 0 {w} {h}" width="{FRAME_WIDTH}" height="{height:.0f}" role="img" '
              f'aria-label="board in {escape(camera)}, pose {pose_index}" xmlns="http://www.w3.org/2000/svg">',
              f'<rect x="0" y="0" width="{w}" height="{h}" fill="#f4f6f9" stroke="#5b6473" stroke-width="{stroke:.1f}"/>',
-             f'<clipPath id="clip-{pose_index}-{escape(camera)}"><rect width="{w}" height="{h}"/></clipPath>']
+             f'<clipPath id="{clip}"><rect width="{w}" height="{h}"/></clipPath>']
     if outline_px is not None:
         pts = " ".join(f"{u:.1f},{v:.1f}" for u, v in np.asarray(outline_px))
         colour = "#1f5fa8" if sees else "#c0392b"
         dash = "" if sees else f' stroke-dasharray="{3 * stroke:.0f}"'
         parts.append(f'<polygon class="board-outline" data-camera="{escape(camera)}" data-pose="{pose_index}" '
                      f'points="{pts}" fill="{colour}" fill-opacity="0.18" stroke="{colour}" '
-                     f'stroke-width="{stroke:.1f}"{dash} clip-path="url(#clip-{pose_index}-{escape(camera)})"/>')
+                     f'stroke-width="{stroke:.1f}"{dash} clip-path="url(#{clip})"/>')
         corner0 = np.asarray(outline_px)[0]
         parts.append(f'<circle cx="{corner0[0]:.1f}" cy="{corner0[1]:.1f}" r="{3 * stroke:.1f}" fill="{colour}"/>')
     parts.append("</svg>")
