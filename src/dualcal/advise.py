@@ -56,6 +56,7 @@ from .errors import InputError, NotInvertibleError
 from .model import Pose, RigModel
 from .poses import opk_jacobian, tangent_basis
 from .rotation import ARCMIN_PER_RAD, cross_matrix, opk_from_rotation, rotation_from_rotvec
+from .scale import relative_sigma, with_scale
 from .synth import in_frame
 
 #: The distance range of holdable poses, as factors of the range the calibration's photos span.
@@ -320,11 +321,18 @@ def photo_factors(prior: Prior, gradients: dict[str, np.ndarray]) -> dict[str, f
 
 def honest_sigmas(prior: Prior, covariance: np.ndarray | None = None) -> dict[str, float]:
     """Every target's honest sigma for a textbook ``covariance`` (default: the prior's own, which gives
-    the sigmas calib.json reports)."""
+    the sigmas calib.json reports). A baseline's includes the printed squares' tolerance
+    (:mod:`dualcal.scale`), which no photo shrinks."""
     gradients = target_gradients(prior)
     kappa = photo_factors(prior, gradients)
     formal = sigmas(prior.covariance if covariance is None else covariance, gradients)
-    return {n: kappa[n] * s for n, s in formal.items()}
+    out = {n: kappa[n] * s for n, s in formal.items()}
+    rel = relative_sigma(prior.board)
+    for name, pose in prior.rig.items():
+        key = f"{name}.baseline_mm"
+        if rel and key in out:
+            out[key] = float(with_scale(out[key], np.linalg.norm(pose.t_mm), rel))
+    return out
 
 
 # ---------------------------------------------------------------------------- candidates

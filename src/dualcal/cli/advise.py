@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from . import cli
-from .common import board_from_flags, board_options
+from .common import board_from_flags, board_options, echo
 
 
 def _goals(values) -> dict[str, float]:
@@ -130,14 +130,14 @@ def advise_command(calib, output, count, targets, plan, cameras, baseline_mm, bo
     write_json_atomic(output, advice_to_dict(advice))
     write_text_atomic(page, render_advice_page(advice, {n: c.image_size for n, c in prior.cameras.items()}))
     for i, p in enumerate(advice.poses, start=1):
-        click.echo(f"{i}. {describe(p)}; seen by {', '.join(p.cameras)}; shrinks the uncertainty by {100 * p.gain:.0f} %")
+        echo(f"{i}. {describe(p)}; seen by {', '.join(p.cameras)}; shrinks the uncertainty by {100 * p.gain:.0f} %")
     if advice.goals and advice.done:
-        click.echo("done: every target is met")
+        echo("done: every target is met")
     elif advice.goals:
         met = [i for i, p in enumerate(advice.poses, start=1)
                if all(p.predicted_sigma[n] <= s for n, s in advice.goals.items())]
-        click.echo(f"every target is met after photo {met[0]} (predicted)" if met else
+        echo(f"every target is met after photo {met[0]} (predicted)" if met else
                    f"the targets are not met after {len(advice.poses)} photos (predicted): ask for more with --count")
     elif advice.done:
-        click.echo(f"stop: more photos will not help more than {100 * advice.next_gain:.1f} %")
-    click.echo(f"advice written to {output} and {page}")
+        echo(f"stop: more photos will not help more than {100 * advice.next_gain:.1f} %")
+    echo(f"advice written to {output} and {page}")
