@@ -102,7 +102,7 @@ def test_an_interrupted_device_leaves_no_empty_folder(tmp_path, monkeypatch):
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
-    monkeypatch.setattr("dualcal.batch.calibrate_rig", interrupted)
+    monkeypatch.setattr("dualcal.batch.calibrate_corners", interrupted)
     dev = Device("unit-1", device)
     with pytest.raises(KeyboardInterrupt):
         calibrate_device(dev, tmp_path / "out" / "unit-1", BatchOptions(evaluate=False), input_snapshot(dev))
