@@ -8,6 +8,9 @@
   (section 1.5, eq. 11).
 * :func:`radial_distortion_linear`: linear least squares for k1, k2 (section 1.6, eqs. 13-15), and
   for the other coefficients of a lens model (eq. 15 extended).
+* A fisheye (lens model ``kb4``) is beyond a homography of its pixels: :func:`initial_fisheye_camera`
+  first un-projects them with an equidistant guess, then runs the steps above on the pinhole pixels
+  of the same rays.
 
 Board points are the board's ``(X, Y)`` in mm (Z = 0); image points are pixels ``(u, v)``. A
 view may have corners that were not measured (NaN rows, :func:`dualcal.model.observed_mask`):
@@ -20,7 +23,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from .camera import DEFAULT_LENS_MODEL, LENS_MODELS, CameraModel, max_distorted_radius, normalized_from_pixel
+from .camera import (DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraModel, fold_distorted_radius,
+                     normalized_from_pixel, pixel_from_normalized, undistort)
+from .errors import NotInvertibleError
 from .errors import EstimationError
 from .model import Pose, observed_mask
 from .resection import planar_pose
@@ -273,9 +278,20 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
     space resection (IPPE). These are the starting values of the joint adjustment, which refines
     all of them together.
     """
+    if model in FISHEYE_MODELS:
+        return initial_fisheye_camera(xy_board, views, image_size, skew, model)
     keys = sorted(views)
     seen = [observed_mask(views[k]) for k in keys]
-    Hs = [estimate_homography(xy_board[m], views[k][m]) for k, m in zip(keys, seen)]
+    cam, poses = _closed_form(xy_board, [views[k] for k in keys], seen, image_size, skew)
+    coefficients = radial_distortion_linear(cam, poses, xy_board, [views[k] for k in keys], model)
+    cam = replace(cam, model=model, **dict(zip(LENS_MODELS[model], coefficients)))
+    cam = _admissible_distortion(cam, [views[k][m] for k, m in zip(keys, seen)])
+    return cam, dict(zip(keys, poses))
+
+
+def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool):
+    """Homographies, Zhang's closed form and one pose per view, no lens (sections 1.3-1.5)."""
+    Hs = [estimate_homography(xy_board[m], uv[m]) for uv, m in zip(uvs, seen)]
     # A homography of n corners has 2n - 8 redundant equations; one of 4 corners fits them
     # exactly, noise and all, and would pull the closed form as hard as one of 40.
     weights = [np.sqrt(2.0 * m.sum() - 2 * MIN_HOMOGRAPHY_CORNERS) for m in seen]
@@ -283,12 +299,98 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
     # a pose that puts a corner behind the camera (from a poor closed form) is replaced by IPPE's
     X = np.column_stack([xy_board, np.zeros(len(xy_board))])
     poses = [extrinsics_from_homography(cam.K, H) for H in Hs]
-    poses = [pose if np.all(pose.apply(X[m])[:, 2] > 0) else planar_pose(X, cam, views[k])
-             for k, m, pose in zip(keys, seen, poses)]
-    coefficients = radial_distortion_linear(cam, poses, xy_board, [views[k] for k in keys], model)
-    cam = replace(cam, model=model, **dict(zip(LENS_MODELS[model], coefficients)))
-    cam = _admissible_distortion(cam, [views[k][m] for k, m in zip(keys, seen)])
-    return cam, dict(zip(keys, poses))
+    poses = [pose if np.all(pose.apply(X[m])[:, 2] > 0) else planar_pose(X, cam, uv)
+             for uv, m, pose in zip(uvs, seen, poses)]
+    return cam, poses
+
+
+#: Focal lengths tried for a fisheye's start, as multiples of the image's half diagonal, and its k1
+#: (0: equidistant; 1/3 is a pinhole's ``tan`` to third order).
+_FISHEYE_FOCAL_GRID = np.geomspace(0.3, 3.0, 25)
+_FISHEYE_K1_GRID = (0.0, 0.1, 0.2, 0.3)
+_FISHEYE_ROUNDS = 3
+
+
+def _pinhole_pixels(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
+    """The pixels a pinhole camera of ``cam``'s matrix A would record of the rays ``cam`` saw at ``uv``."""
+    return pixel_from_normalized(cam.pinhole(), undistort(cam, normalized_from_pixel(cam, uv)))
+
+
+def _fisheye_guess(image_size, f: float, k1: float, cx: float, cy: float) -> CameraModel:
+    return CameraModel(tuple(image_size), f, f, 0.0, cx, cy, k1, model="kb4")
+
+
+def _homography_misfit(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], cam: CameraModel) -> float:
+    """How far the rays ``cam`` assigns to the corners are from a plane's perspective image: the RMS
+    of the homographies' residuals in the pinhole pixels, over ``f`` (an angle); ``inf`` where a corner
+    lies at 90 degrees or more."""
+    try:
+        pins = [_pinhole_pixels(cam, uv[m]) for uv, m in zip(uvs, seen)]
+    except NotInvertibleError:
+        return np.inf
+    squares = [np.sum((apply_homography(estimate_homography(xy_board[m], p, refine=False), xy_board[m]) - p) ** 2)
+               for p, m in zip(pins, seen)]
+    return float(np.sqrt(np.sum(squares) / sum(int(m.sum()) for m in seen)) / cam.fx)
+
+
+def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False, model: str = "kb4"):
+    """Zhang's initialisation for a fisheye (``kb4``), which may see 120 degrees and more.
+
+    A plane's fisheye image is not a homography of it, but the rays' pinhole image is. So the
+    corners are un-projected with a guess about the image centre, ``rho / f = theta (1 + k1
+    theta^2)`` (``k1 = 0``: equidistant), ``f`` and ``k1`` those of a grid (0.3-3 half diagonals,
+    :data:`_FISHEYE_K1_GRID`) whose rays the homographies fit best (their residual as an angle;
+    rays at 90 degrees or more rule a guess out); Zhang's closed form on those pinhole pixels
+    then gives A and the poses, and the corners are un-projected again with that A and ``k1``,
+    :data:`_FISHEYE_ROUNDS` times (while every ray stays below 90 degrees). Last, the linear least
+    squares of section 1.6 for ``k1 .. k4``: given the poses, ``(u~, v~) - (u, v) = A' (x theta / r)
+    sum_j k_j theta^(2 j)`` with ``(u, v)`` the equidistant projection. Returns ``(CameraModel,
+    {view: Pose})``.
+    """
+    keys = sorted(views)
+    uvs = [np.asarray(views[k], float) for k in keys]
+    seen = [observed_mask(uv) for uv in uvs]
+    w, h = image_size
+    half_diagonal = 0.5 * np.hypot(w, h)
+    cx, cy = 0.5 * (w - 1), 0.5 * (h - 1)
+    guesses = [_fisheye_guess(image_size, f, k1, cx, cy)
+               for f in _FISHEYE_FOCAL_GRID * half_diagonal for k1 in _FISHEYE_K1_GRID]
+    misfit = [_homography_misfit(xy_board, uvs, seen, g) for g in guesses]
+    if not np.isfinite(min(misfit)):
+        raise EstimationError("no fisheye guess puts every corner within 90 degrees of the axis")
+    guess = guesses[int(np.argmin(misfit))]
+    poses = None
+    for _ in range(_FISHEYE_ROUNDS):
+        try:
+            pins = [_pinhole_pixels(guess, uv) for uv in uvs]
+        except NotInvertibleError:
+            break
+        cam, poses = _closed_form(xy_board, pins, seen, image_size, skew)
+        guess = replace(cam, model=model, k1=guess.k1)
+    if poses is None:
+        raise EstimationError("the fisheye's start puts a corner at 90 degrees from the axis")
+    coefficients = _fisheye_linear(guess, poses, xy_board, uvs)
+    cam = guess.with_distortion(coefficients[0], coefficients[1], k3=coefficients[2], k4=coefficients[3])
+    reach = max(np.max(np.linalg.norm(normalized_from_pixel(cam, uv[m]), axis=1)) for uv, m in zip(uvs, seen))
+    return (cam if reach < fold_distorted_radius(cam) else guess), dict(zip(keys, poses))
+
+
+def _fisheye_linear(cam: CameraModel, poses, xy_board: np.ndarray, observed) -> np.ndarray:
+    """``k1 .. k4`` of a fisheye by linear least squares given A and the poses (eq. 15's idea)."""
+    X = np.column_stack([xy_board, np.zeros(len(xy_board))])
+    D_rows, d_rows = [], []
+    for pose, uv_obs in zip(poses, observed):
+        m = observed_mask(uv_obs)
+        Xc = pose.apply(X[m])
+        rho = np.hypot(Xc[:, 0], Xc[:, 1])
+        theta = np.arctan2(rho, Xc[:, 2])
+        ex, ey = (np.divide(Xc[:, i], rho, out=np.zeros_like(rho), where=rho > 0) * theta for i in (0, 1))
+        du, dv = cam.fx * ex + cam.skew * ey, cam.fy * ey
+        powers = np.column_stack([theta ** (2 * j) for j in range(1, 5)])
+        D_rows += [du[:, None] * powers, dv[:, None] * powers]
+        d_rows += [uv_obs[m, 0] - (du + cam.cx), uv_obs[m, 1] - (dv + cam.cy)]
+    k, *_ = np.linalg.lstsq(np.vstack(D_rows), np.concatenate(d_rows), rcond=None)
+    return k
 
 
 def _admissible_distortion(cam: CameraModel, observed: list[np.ndarray]) -> CameraModel:
@@ -296,4 +398,4 @@ def _admissible_distortion(cam: CameraModel, observed: list[np.ndarray]) -> Came
     the measured corners reach (a linear estimate from a poor closed form; the adjustment cannot
     start from a lens that is not invertible where the corners are)."""
     rd = max(np.max(np.linalg.norm(normalized_from_pixel(cam, uv), axis=1)) for uv in observed)
-    return cam if rd < max_distorted_radius(*cam.radial) else cam.with_distortion(0.0, 0.0)
+    return cam if rd < fold_distorted_radius(cam) else cam.with_distortion(0.0, 0.0)
