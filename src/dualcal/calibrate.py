@@ -311,7 +311,8 @@ AUTO_MODEL = "auto"
 
 def lens_models_for(model: str | Mapping[str, str], names: list[str]) -> tuple[str, ...]:
     """One lens model per camera of ``names`` from a model name (every camera) or a mapping
-    ``{camera: model}`` (cameras not named get :data:`dualcal.camera.DEFAULT_LENS_MODEL`).
+    ``{camera: model}`` (cameras not named get the mapping's ``"*"``, else
+    :data:`dualcal.camera.DEFAULT_LENS_MODEL`).
 
     Raises
     ------
@@ -320,14 +321,16 @@ def lens_models_for(model: str | Mapping[str, str], names: list[str]) -> tuple[s
     """
     if isinstance(model, str):
         model = dict.fromkeys(names, model)
+    model = dict(model)
+    default = model.pop("*", DEFAULT_LENS_MODEL)
     unknown_cameras = sorted(set(model) - set(names))
     if unknown_cameras:
         raise InputError(f"lens model given for camera {unknown_cameras[0]!r}, which is not one of the rig's "
                          f"({', '.join(names)})")
-    for m in model.values():
+    for m in [default, *model.values()]:
         if m not in LENS_MODELS:
             raise InputError(f"lens model {m!r} is unknown (choose from {', '.join(LENS_MODELS)}, or {AUTO_MODEL})")
-    return tuple(model.get(n, DEFAULT_LENS_MODEL) for n in names)
+    return tuple(model.get(n, default) for n in names)
 
 
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
@@ -398,7 +401,8 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
              f"{sol.termination}; the results and their sigmas are not those of the best fit")
     rig = rig_model_from_solution(sol, corners, dropped, dropped_corners)
     rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor),
-                                 "board_shape": board_shape, "model": dict(zip(names, models))}
+                                 "board_shape": board_shape,
+                                 "model": models[0] if len(set(models)) == 1 else dict(zip(names, models))}
     if shape_test is not None:
         rig.adjustment["board_shape_test"] = shape_test
     rig.checks = run_checks(rig, sol, flat, alone)

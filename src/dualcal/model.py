@@ -182,7 +182,8 @@ class RigModel:
         """The options the calibration ran with (``adjustment["options"]``: ``drop_outliers``,
         ``outlier_factor``, ``board_shape``, ``model``: :func:`dualcal.calibrate.calibrate_rig`'s keyword
         arguments); files written before one was recorded get its default."""
-        return {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto", "model": self.models,
+        return {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto",
+                "model": self.model if self.model != MIXED_LENS_MODELS else self.models,
                 **self.adjustment.get("options", {})}
 
     def board_points_mm(self) -> np.ndarray:

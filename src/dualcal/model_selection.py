@@ -24,12 +24,16 @@ its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera
 candidates of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the
 camera's field of view makes one plausible: Zhang's closed form (no lens) puts the image's corner
 more than :data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis (a phone's main camera: about 40, its
-ultra-wide: 55-60 and more). A first calibration gives each camera its provisional model (``kb4``
-where it is a candidate, else ``k1k2``) and finds the outliers; then one calibration per lens
-model, on the corners the first used, gives that model to every camera it is a candidate of (the
-others keep their provisional model), so one solve per model scores every camera. Each camera
-then gets the model of the rule above among its candidates (the paper's ``k1k2`` where nothing
-predicts clearly better), and the rig is calibrated once more with them.
+ultra-wide: 55-60 and more). For such a camera ``kb4`` is also the preferred model, as ``k1k2`` is
+for the others: a polynomial in the pinhole radius must then predict clearly better to be chosen
+(the paired test over instants is weak when, as here, the difference lies in the few instants
+that put the board near the image's edge). A first calibration gives each camera its preferred
+model and finds the outliers; then one calibration per lens model, on the corners the first used,
+with every camera alone (rig mode ``none``, so that no camera's lens changes another's held-out
+error through the shared poses), gives that model to every camera it is a candidate of (the
+others keep their preferred model): one solve per model scores every camera. Each camera then
+gets the model of the rule above among its candidates, and the rig is calibrated once more with
+them.
 """
 
 from __future__ import annotations
@@ -76,7 +80,8 @@ def _held_out(rig: RigModel, camera: str | None) -> dict:
     return rig.adjustment["held_out_per_camera"][camera]
 
 
-def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None) -> list[LensModelScore]:
+def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None,
+                      first: str | None = None) -> list[LensModelScore]:
     """Score calibrations of the same corners by different lens models (module docstring).
 
     Parameters
@@ -84,10 +89,12 @@ def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None) -> l
     rigs : ``{model: calibration}``, each with ``adjustment["held_out_per_instant"]`` (and
         ``"held_out_per_camera"`` for a ``camera``).
     camera : score one camera's corners only (its fit RMS, its held-out errors), else the whole rig's.
+    first : a model preferred to all others (a fisheye's ``kb4``): it comes first in the order in which
+        the first model within :data:`RECOMMEND_WITHIN_SE` of the best is recommended.
 
     Returns
     -------
-    One score per model, fewest coefficients first; exactly one is ``recommended``.
+    One score per model, ``first`` first, then fewest coefficients first; exactly one is ``recommended``.
 
     Raises
     ------
@@ -106,7 +113,7 @@ def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None) -> l
     n_corners = sum(next(iter(corners.values())).values())
     squares = {m: np.array([h[v]["rms_px"] ** 2 * h[v]["corners"] for v in views]) for m, h in held.items()}
     best = min(squares, key=lambda m: squares[m].sum())
-    order = sorted(rigs, key=lambda m: (len(LENS_MODELS[m]), m))
+    order = sorted(rigs, key=lambda m: (m != first, len(LENS_MODELS[m]), m))
     worse = {}
     for m in order:
         d = squares[m] - squares[best]
@@ -118,7 +125,7 @@ def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None) -> l
                            worse[m], m == chosen) for m in order]
 
 
-def compare_lens_models(rig: RigModel, models=tuple(LENS_MODELS),
+def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m not in FISHEYE_MODELS),
                         calibrate: Callable[..., RigModel] | None = None) -> list[LensModelScore]:
     """Calibrate the corners ``rig`` used with every lens model of ``models`` and score them.
 
@@ -171,8 +178,8 @@ def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None
 
     ``options`` are :func:`dualcal.calibrate.calibrate_rig`'s (not ``model``). The result is the
     calibration with the chosen models; ``adjustment["lens_models"]`` holds the comparison: one entry
-    per model (the whole rig's scores, as :func:`compare_lens_models`; for a model that is not every
-    camera's candidate, the others keep their provisional model), each with ``per_camera``
+    per model (the whole rig's scores, every camera alone; for a model that is not every camera's
+    candidate, the others keep their preferred model), each with ``per_camera``
     ``{camera: {"candidate", "fit_rms_px", "held_out_rms_px", "worse_se", "recommended"}}``; and
     ``adjustment["lens_models_chosen"]`` ``{camera: model}``.
     """
@@ -180,24 +187,22 @@ def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None
         from .calibrate import calibrate_rig as calibrate
     names = sorted(corners.cameras)
     candidates = {n: lens_model_candidates(cam) for n, cam in _closed_form_cameras(corners, options.get("skew", False)).items()}
-    provisional = {n: next((m for m in candidates[n] if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n in names}
-    base = calibrate(corners, model=provisional, **options)
+    preferred = {n: next((m for m in candidates[n] if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n in names}
+    base = calibrate(corners, model=preferred, **options)
     used = base.used_corners()
     rigs: dict[str, RigModel] = {}
     for model in LENS_MODELS:
-        mapping = {n: model if model in candidates[n] else provisional[n] for n in names}
-        if mapping == provisional:
-            rigs[model] = base
-            continue
+        mapping = {n: model if model in candidates[n] else preferred[n] for n in names}
         try:
             rigs[model] = calibrate(used, **{**options, "drop_outliers": False, "reference": base.reference,
-                                             "model": mapping})
+                                             "rig_mode": "none", "model": mapping})
         except EstimationError as exc:
             warn(f"lens model {model} could not be calibrated for the comparison: {exc}")
-    per_camera = {n: {s.model: s for s in score_lens_models({m: r for m, r in rigs.items() if m in candidates[n]}, n)}
+    per_camera = {n: {s.model: s for s in score_lens_models({m: r for m, r in rigs.items() if m in candidates[n]}, n,
+                                                            first=preferred[n])}
                   for n in names}
     chosen = {n: next(m for m, s in per_camera[n].items() if s.recommended) for n in names}
-    final = base if chosen == provisional else calibrate(corners, **{**options, "model": chosen})
+    final = base if chosen == preferred else calibrate(corners, **{**options, "model": chosen})
     overall = {s.model: s for s in score_lens_models(rigs)}
     final.adjustment["lens_models"] = [
         {**asdict(overall[m]), "per_camera": {n: {"candidate": True, **{k: v for k, v in asdict(per_camera[n][m]).items()

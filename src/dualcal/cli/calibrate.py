@@ -55,9 +55,11 @@ def _load_input(path: str, flags, dataset_opts):
               show_default=True,
               help="auto: estimate the board's sag, bend and twist and keep them where the photos show them "
                    "beyond their noise; fit: always keep them; flat: take the board as flat.")
-@click.option("--model", "model", type=LazyChoice("dualcal.camera:LENS_MODELS"), default="k1k2", show_default=True,
+@click.option("--model", "model", multiple=True, metavar="[CAMERA=]NAME", default=("auto",), show_default=True,
               help="Lens model: k1k2 (the paper's, two radial terms), k1k2k3 (three), k1k2p1p2 (two radial and "
-                   "two tangential), k1k2p1p2k3 (OpenCV's five coefficients).")
+                   "two tangential), k1k2p1p2k3 (OpenCV's five coefficients), kb4 (OpenCV's fisheye), or auto "
+                   "(each camera's chosen by its error on instants left out). NAME for every camera, CAMERA=NAME "
+                   "(repeatable) for one; cameras not named get the NAME given alone, else k1k2.")
 @click.option("--compare-models/--no-compare-models", default=True, show_default=True,
               help="Also solve the other skew model and print both side by side, as the paper's tables do.")
 @click.option("--compare-lens/--no-compare-lens", "compare_lens", default=True, show_default=True,
@@ -84,19 +86,21 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     from ..io import check_output_file, save_rig
     from ..model_selection import compare_lens_models
     from ..progress import warn
-    from ..tables import lens_model_advice, lens_model_table, photo_table, result_tables
+    from ..tables import lens_model_advice, lens_model_choice_table, lens_model_table, photo_table, result_tables
 
     if input_path is None and not dataset_opts.get("cameras"):
         raise click.UsageError("give INPUT (a corners.json or a dataset folder) or --camera NAME=GLOB")
     if not outlier_factor > 1:
         raise InputError(f"--outlier-factor {outlier_factor}: must be greater than 1")
     check_output_file(output)
+    model = _model_flags(model)
     corners = _load_input(input_path, board_from_flags(board_spec, square_mm, marker_mm, dictionary), dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
                   outlier_factor=outlier_factor, board_shape=board_shape, model=model)
     rig = calibrate_rig(corners, skew=skew, **kwargs)
+    kwargs["model"] = rig.models                  # the other skew model with the same lenses
     lens_scores = None
-    if compare_lens:
+    if compare_lens and model != "auto" and rig.model != "mixed":
         try:
             lens_scores = compare_lens_models(rig)
             rig.adjustment["lens_models"] = [asdict(s) for s in lens_scores]
@@ -122,9 +126,33 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     if lens_scores:
         console.print(lens_model_table(lens_scores, rig.model))
         console.print(lens_model_advice(lens_scores, rig.model))
+    if "lens_models_chosen" in rig.adjustment:
+        console.print(lens_model_choice_table(rig.adjustment))
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
         console.print(f"  {name}: {rig.checks[name]['message']}")
+
+
+def _model_flags(values: tuple[str, ...]):
+    """``--model`` values as ``calibrate_rig``'s ``model``: ``"auto"``, one name, or ``{camera: name}``
+    (with the name given alone, if any, under the key ``"*"`` for the cameras not named)."""
+    from ..camera import LENS_MODELS
+
+    if not values:
+        return "auto"
+    alone = [v for v in values if "=" not in v]
+    named = dict(v.split("=", 1) for v in values if "=" in v)
+    for name in alone + list(named.values()):
+        if name not in (*LENS_MODELS, "auto"):
+            raise click.BadParameter(f"{name!r} is not one of {', '.join((*LENS_MODELS, 'auto'))}",
+                                     param_hint="'--model'")
+    if len(alone) > 1:
+        raise InputError(f"--model {' '.join(alone)}: give one NAME for every camera, and CAMERA=NAME for others")
+    if "auto" in alone + list(named.values()) and (named or len(alone) != 1):
+        raise InputError("--model auto chooses every camera's model: it cannot be combined with CAMERA=NAME")
+    if not named:
+        return alone[0]
+    return {**({"*": alone[0]} if alone else {}), **named}
 
 
 def _coverage(text: str | None, board) -> tuple[float, float] | None:
