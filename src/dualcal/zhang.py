@@ -289,9 +289,11 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
     return cam, dict(zip(keys, poses))
 
 
-def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool):
-    """Homographies, Zhang's closed form and one pose per view, no lens (sections 1.3-1.5)."""
-    Hs = [estimate_homography(xy_board[m], uv[m]) for uv, m in zip(uvs, seen)]
+def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool,
+                 refine: bool = True):
+    """Homographies (``refine``: on the pixel error), Zhang's closed form and one pose per view, no
+    lens (sections 1.3-1.5)."""
+    Hs = [estimate_homography(xy_board[m], uv[m], refine) for uv, m in zip(uvs, seen)]
     # A homography of n corners has 2n - 8 redundant equations; one of 4 corners fits them
     # exactly, noise and all, and would pull the closed form as hard as one of 40.
     weights = [np.sqrt(2.0 * m.sum() - 2 * MIN_HOMOGRAPHY_CORNERS) for m in seen]
@@ -304,11 +306,11 @@ def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndar
     return cam, poses
 
 
-#: Focal lengths tried for a fisheye's start, as multiples of the image's half diagonal, and its k1
-#: (0: equidistant; 1/3 is a pinhole's ``tan`` to third order).
-_FISHEYE_FOCAL_GRID = np.geomspace(0.3, 3.0, 25)
-_FISHEYE_K1_GRID = (0.0, 0.1, 0.2, 0.3)
-_FISHEYE_ROUNDS = 3
+#: The fisheye start's ``k1`` values tried (0: equidistant; 1/3 is a pinhole's ``tan`` to third order)
+#: and its rounds of the closed form on the rays' pinhole image.
+_FISHEYE_K1_GRID = np.arange(0.0, 0.41, 0.05)
+_FISHEYE_ROUNDS = 12
+_FISHEYE_SETTLED = 1e-3        # relative change of fx at which the rounds stop
 
 
 def _pinhole_pixels(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
@@ -336,39 +338,43 @@ def _homography_misfit(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[n
 def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False, model: str = "kb4"):
     """Zhang's initialisation for a fisheye (``kb4``), which may see 120 degrees and more.
 
-    A plane's fisheye image is not a homography of it, but the rays' pinhole image is. So the
-    corners are un-projected with a guess about the image centre, ``rho / f = theta (1 + k1
-    theta^2)`` (``k1 = 0``: equidistant), ``f`` and ``k1`` those of a grid (0.3-3 half diagonals,
-    :data:`_FISHEYE_K1_GRID`) whose rays the homographies fit best (their residual as an angle;
-    rays at 90 degrees or more rule a guess out); Zhang's closed form on those pinhole pixels
-    then gives A and the poses, and the corners are un-projected again with that A and ``k1``,
-    :data:`_FISHEYE_ROUNDS` times (while every ray stays below 90 degrees). Last, the linear least
-    squares of section 1.6 for ``k1 .. k4``: given the poses, ``(u~, v~) - (u, v) = A' (x theta / r)
-    sum_j k_j theta^(2 j)`` with ``(u, v)`` the equidistant projection. Returns ``(CameraModel,
-    {view: Pose})``.
+    A plane's fisheye image is not a homography of it, but the pinhole image of its rays is. So the
+    corners are un-projected with a guess ``theta (1 + k1 theta^2) = rho / f`` (``rho`` the
+    distance from the principal point, ``k1 = 0``: equidistant), and Zhang's closed form on the rays'
+    pinhole pixels gives A (and the poses); un-projected again with that A, the corners give the
+    next A, until ``fx`` settles: with the right ``k1``, the true A is that round's fixed point (the
+    rays of a plane are then exactly a homography of it). It starts from ``f`` = the image's
+    diagonal, where every ray is well inside 90 degrees. Each ``k1`` of :data:`_FISHEYE_K1_GRID`
+    has its fixed point (``f`` and ``k1`` trade off); the one kept is where the homographies fit
+    the rays best (residual over ``f``, an angle). Last, the linear least squares of section 1.6 for
+    ``k1 .. k4``: given the poses, ``(u~, v~) - (u, v) = A' (x theta / r) sum_j k_j theta^(2 j)`` with
+    ``(u, v)`` the equidistant projection. Returns ``(CameraModel, {view: Pose})``. On phone3's
+    ultra-wide (145 degrees on the diagonal) A starts within 3 % of the truth.
     """
     keys = sorted(views)
     uvs = [np.asarray(views[k], float) for k in keys]
     seen = [observed_mask(uv) for uv in uvs]
     w, h = image_size
-    half_diagonal = 0.5 * np.hypot(w, h)
-    cx, cy = 0.5 * (w - 1), 0.5 * (h - 1)
-    guesses = [_fisheye_guess(image_size, f, k1, cx, cy)
-               for f in _FISHEYE_FOCAL_GRID * half_diagonal for k1 in _FISHEYE_K1_GRID]
-    misfit = [_homography_misfit(xy_board, uvs, seen, g) for g in guesses]
-    if not np.isfinite(min(misfit)):
-        raise EstimationError("no fisheye guess puts every corner within 90 degrees of the axis")
-    guess = guesses[int(np.argmin(misfit))]
-    poses = None
-    for _ in range(_FISHEYE_ROUNDS):
-        try:
-            pins = [_pinhole_pixels(guess, uv) for uv in uvs]
-        except NotInvertibleError:
-            break
-        cam, poses = _closed_form(xy_board, pins, seen, image_size, skew)
-        guess = replace(cam, model=model, k1=guess.k1)
-    if poses is None:
-        raise EstimationError("the fisheye's start puts a corner at 90 degrees from the axis")
+    starts = []
+    for k1 in _FISHEYE_K1_GRID:
+        guess = _fisheye_guess(image_size, float(np.hypot(w, h)), float(k1), 0.5 * (w - 1), 0.5 * (h - 1))
+        found = None
+        for _ in range(_FISHEYE_ROUNDS):
+            try:
+                pins = [_pinhole_pixels(guess, uv) for uv in uvs]
+            except NotInvertibleError:
+                break
+            cam, poses = _closed_form(xy_board, pins, seen, image_size, skew, refine=False)
+            settled = abs(cam.fx / guess.fx - 1.0) < _FISHEYE_SETTLED
+            guess, found = replace(cam, model=model, k1=float(k1)), guess
+            if settled:
+                break
+        if found is not None:
+            starts.append((_homography_misfit(xy_board, uvs, seen, found), found))
+    if not starts or not np.isfinite(min(m for m, _ in starts)):
+        raise EstimationError("the fisheye's start puts a corner at 90 degrees or more from the axis")
+    guess = min(starts, key=lambda s: s[0])[1]
+    _, poses = _closed_form(xy_board, [_pinhole_pixels(guess, uv) for uv in uvs], seen, image_size, skew)
     coefficients = _fisheye_linear(guess, poses, xy_board, uvs)
     cam = guess.with_distortion(coefficients[0], coefficients[1], k3=coefficients[2], k4=coefficients[3])
     reach = max(np.max(np.linalg.norm(normalized_from_pixel(cam, uv[m]), axis=1)) for uv, m in zip(uvs, seen))
