@@ -92,7 +92,7 @@ PRESETS["phone3"] = dict(
     rig={"ultra": Pose(_opk([-20.0, 15.0, -30.0]), np.array([0.4, 12.0, -0.3])),
          "tele": Pose(_opk([10.0, -25.0, 40.0]), np.array([-0.3, -22.0, 0.5]))},
     fill=(0.45, 0.85),
-    edge=dict(camera="ultra", share=0.4, fill=(0.25, 0.45), angle_deg=(30.0, 55.0)),
+    edge=dict(camera="ultra", share=0.4, fill=(0.25, 0.45), angle_deg=(35.0, 62.0)),
 )
 PRESETS["stereo5"] = dict(
     PRESETS["stereo"],
