@@ -191,7 +191,7 @@ def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None
     base = calibrate(corners, model=preferred, **options)
     used = base.used_corners()
     rigs: dict[str, RigModel] = {}
-    for model in LENS_MODELS:
+    for model in [m for m in LENS_MODELS if any(m in c for c in candidates.values())]:
         mapping = {n: model if model in candidates[n] else preferred[n] for n in names}
         try:
             rigs[model] = calibrate(used, **{**options, "drop_outliers": False, "reference": base.reference,
