@@ -93,7 +93,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     if not outlier_factor > 1:
         raise InputError(f"--outlier-factor {outlier_factor}: must be greater than 1")
     check_output_file(output)
-    model = _model_flags(model)
+    model = model_flags(model)
     corners = _load_input(input_path, board_from_flags(board_spec, square_mm, marker_mm, dictionary), dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
                   outlier_factor=outlier_factor, board_shape=board_shape, model=model)
@@ -133,7 +133,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
         console.print(f"  {name}: {rig.checks[name]['message']}")
 
 
-def _model_flags(values: tuple[str, ...]):
+def model_flags(values: tuple[str, ...]):
     """``--model`` values as ``calibrate_rig``'s ``model``: ``"auto"``, one name, or ``{camera: name}``
     (with the name given alone, if any, under the key ``"*"`` for the cameras not named)."""
     from ..camera import LENS_MODELS
