@@ -18,6 +18,7 @@ result. A final adjustment that did not converge is said so, on stderr and in ca
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -25,8 +26,6 @@ import numpy as np
 from .adjust import (COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state, parameter_covariance,
                      rig_relation, shared_views)
 from .board import SHAPE_TERMS
-from collections.abc import Mapping
-
 from .camera import DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS
 from .checks import run_checks
 from .errors import EstimationError, InputError

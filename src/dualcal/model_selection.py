@@ -150,6 +150,13 @@ def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m 
     return score_lens_models(rigs)
 
 
+def _camera_entry(score: LensModelScore | None) -> dict:
+    """calib.json's ``per_camera`` entry of one model for one camera (``candidate`` False: not scored)."""
+    if score is None:
+        return {"candidate": False}
+    return {"candidate": True, **{k: v for k, v in asdict(score).items() if k not in ("model", "coefficients")}}
+
+
 def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
     """The lens models :func:`calibrate_auto` tries for a camera whose closed-form intrinsics are
     ``cam`` (its matrix A): the radial-tangential ones, and the fisheyes where the image's corner lies
@@ -198,16 +205,22 @@ def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None
                                              "rig_mode": "none", "model": mapping})
         except EstimationError as exc:
             warn(f"lens model {model} could not be calibrated for the comparison: {exc}")
-    per_camera = {n: {s.model: s for s in score_lens_models({m: r for m, r in rigs.items() if m in candidates[n]}, n,
-                                                            first=preferred[n])}
-                  for n in names}
-    chosen = {n: next(m for m, s in per_camera[n].items() if s.recommended) for n in names}
+    per_camera, chosen = {}, dict(preferred)
+    for n in names:
+        try:
+            scores = score_lens_models({m: r for m, r in rigs.items() if m in candidates[n]}, n, first=preferred[n])
+        except EstimationError as exc:
+            warn(f"the lens models of {n!r} could not be compared ({exc}): it keeps {preferred[n]}")
+            continue
+        per_camera[n] = {s.model: s for s in scores}
+        chosen[n] = next(s.model for s in scores if s.recommended)
     final = base if chosen == preferred else calibrate(corners, **{**options, "model": chosen})
-    overall = {s.model: s for s in score_lens_models(rigs)}
+    try:
+        overall = {s.model: asdict(s) for s in score_lens_models(rigs)}
+    except EstimationError:         # no model, or too few instants: the per-camera entries say it
+        overall = {}
     final.adjustment["lens_models"] = [
-        {**asdict(overall[m]), "per_camera": {n: {"candidate": True, **{k: v for k, v in asdict(per_camera[n][m]).items()
-                                                                       if k not in ("model", "coefficients")}}
-                                              if m in per_camera[n] else {"candidate": False} for n in names}}
-        for m in overall]
+        {**overall.get(m, {"model": m, "coefficients": len(LENS_MODELS[m])}),
+         "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in rigs]
     final.adjustment["lens_models_chosen"] = chosen
     return final

@@ -340,7 +340,7 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
                          if evaluation and evaluation.get("holdout")
                          else "photos oriented by the calibration's own poses"),
         adjustment=adjustment_rows(rig),
-        lens_models=rig.adjustment.get("lens_models"),
+        lens_models=None if "lens_models_chosen" in rig.adjustment else rig.adjustment.get("lens_models"),
         lens_model_choice=lens_model_choice(rig),
         model=rig.model,
         checks=checks_table(rig),
