@@ -4,7 +4,7 @@ Synthetic corners (``noisy_corner_set``, white noise of NOISE px), rigid rig, fl
 spread of error / sigma (calib.json's sigma, and the textbook sigma_formal) per parameter over the
 draws, and pooled over the intrinsics and over the rig. An honest sigma spreads by 1 (0.8-1.25
 with 40 draws). Usage: ``python benchmarks/bench_fisheye_sigma.py [DRAWS [NOISE]]`` (default 40
-draws of 0.05 px, about a minute and a half).
+draws of 0.05 px; 3-4 minutes on a busy 2-core machine).
 """
 
 import sys
