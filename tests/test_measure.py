@@ -395,3 +395,20 @@ def test_the_pick_page_exports_the_clicked_full_resolution_pixels(browser, note8
     assert fit > 1.4 and expected["tip", "wide"][1] == pytest.approx(fit / 4, rel=0.01)   # reduced, then zoomed 4x
     (tmp_path / "points.json").write_text(json.dumps(got))
     assert load_points(tmp_path / "points.json")["points"]["tip"]["tele"].shape == (2,)
+
+
+def test_a_fisheye_measures_with_the_wide():
+    """phone3's wide + kb4 ultra-wide (0.05 px corners): lengths across the board of an instant both
+    saw come out within 4 sigma, through the fisheye's rays and its Jacobians (k1 .. k4 in the
+    covariance)."""
+    full = make_truth("phone3", 12, seed=5)
+    truth = replace(full, cameras={n: full.cameras[n] for n in ("wide", "ultra")}, rig={"ultra": full.rig["ultra"]})
+    corners = noisy_corner_set(truth, 0.05, seed=1)
+    rig = calibrate_rig(corners, model={"wide": "k1k2k3", "ultra": "kb4"}, board_shape="flat")
+    assert "ultra.k4" in rig.covariance["parameters"]
+    view = next(v for v, uv in corners.cameras["wide"].views.items() if uv is not None)
+    uv = {c: corners.cameras[c].views[view] for c in ("wide", "ultra")}
+    points = {"points": {f"c{k}": {c: uv[c][k].tolist() for c in uv} for k in (0, 7, 32, 39)},
+              "lengths": [["c0", "c7"], ["c0", "c32"], ["c0", "c39"]]}
+    for L, true_mm in zip(measure(rig, points)["lengths"], [210.0, 120.0, np.hypot(210.0, 120.0)]):
+        assert abs(L["length_mm"] - true_mm) < 4 * L["sigma_mm"] and L["sigma_mm"] < 0.05 * true_mm
