@@ -709,3 +709,19 @@ def test_a_fisheye_curve_is_against_the_pinhole_image_of_the_same_ray():
     row = _row(cells, "k4", 4)[1:]                               # a cell per camera: only the ultra-wide has k4
     assert row.count("–") == 2
     assert next(c for c in row if c != "–").startswith(analysis.format_value_sigma(cam.k4, 0.01)[0])
+
+
+def test_the_lens_models_auto_chose_are_on_the_page_camera_by_camera():
+    rig = synth.truth_rig_model(synth.make_truth("phone3", views=4, seed=0, scale=0.25))
+    rig.camera_sigma = {name: dict(SIGMA, p1=1e-4, p2=2e-4, k3=0.05, k4=0.01) for name in rig.cameras}
+    score = {"candidate": True, "fit_rms_px": 0.03, "held_out_rms_px": 0.031, "worse_se": 0.0, "recommended": True}
+    rig.adjustment["lens_models"] = [
+        {"model": "k1k2", "per_camera": {n: {**score, "held_out_rms_px": 0.3 if n == "ultra" else 0.031} for n in rig.cameras}},
+        {"model": "kb4", "per_camera": {n: score if n == "ultra" else {"candidate": False} for n in rig.cameras}}]
+    rig.adjustment["lens_models_chosen"] = {"tele": "k1k2", "ultra": "kb4", "wide": "k1k2"}
+    p = _Page()
+    p.feed(render_report(rig))
+    cells = p.cells["table-lens-model-choice"]
+    assert _row(cells, "ultra", 3) == ["ultra", "0.3000 (0.0)", "0.0310 (0.0) chosen"]
+    assert _row(cells, "tele", 3) == ["tele", "0.0310 (0.0) chosen", "–"]
+    assert "table-lens-models" not in p.cells
