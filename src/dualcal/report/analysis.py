@@ -32,8 +32,8 @@ from matplotlib.path import Path as MplPath
 
 from ..calibrate import outlier_limit_px
 from ..camera import (LENS_MODELS, CameraModel, distorted_radius, fold_distorted_radius, image_corner_radius,
-                      normalized_from_pixel, project_points, undistorted_radius,
-                      undistort_points)
+                      max_monotonic_radius, normalized_from_pixel, project_points, undistort_normalized,
+                      undistort_points, undistorted_radius)
 from ..errors import NotInvertibleError
 from ..model import Pose, RigModel, ViewResiduals, observed_mask, rig_residuals, rms_px  # noqa: F401 (re-exported)
 
@@ -174,8 +174,12 @@ def distortion_curve(camera: CameraModel, samples: int = 200) -> DistortionCurve
     rd_corner = image_corner_radius(camera)
     rd_fold = fold_distorted_radius(camera)
     fold = rd_fold < rd_corner
-    # the fold of a fisheye may be 90 degrees from the axis, where tan(theta) is infinite: stop short of it
-    r_end = float(undistorted_radius(camera, np.array([min(rd_corner, rd_fold * (1 - 1e-9))]))[0])
+    if camera.fisheye:          # its "fold" may be 90 degrees from the axis, where tan(theta) is infinite
+        r_end = float(undistorted_radius(camera, np.array([min(rd_corner, rd_fold * (1 - 1e-9))]))[0])
+    elif fold:
+        r_end = max_monotonic_radius(*camera.radial)
+    else:
+        r_end = float(undistort_normalized(np.array([[rd_corner, 0.0]]), *camera.radial[:2], k3=camera.k3)[0, 0])
     r = np.linspace(0.0, r_end, samples)
     rd = distorted_radius(camera, r)
     return DistortionCurve(rd * f, (rd - r) * f, rd_corner * f, rd_fold * f if fold else None)
