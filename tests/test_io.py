@@ -237,3 +237,16 @@ def test_inconsistent_calib_json_is_a_clear_error(rig, edit, message):
     edit(doc)
     with pytest.raises(InputError, match=message):
         rig_from_dict(doc)
+
+
+def test_a_rig_of_mixed_lens_models_round_trips_with_each_cameras_model(tmp_path):
+    """phone3: a kb4 ultra-wide (with k4) beside k1k2p1p2k3 and k1k2 cameras; top-level model "mixed"."""
+    rig = calibrate_rig(noisy_corner_set(make_truth("phone3", 8, seed=2), 0.05, seed=2),
+                        model={"wide": "k1k2", "ultra": "kb4", "tele": "k1k2"}, board_shape="flat")
+    doc = rig_to_dict(rig)
+    assert doc["model"] == "mixed" and doc["cameras"]["ultra"]["model"] == "kb4" and "k4" in doc["cameras"]["ultra"]
+    assert "k4" not in doc["cameras"]["wide"] and "k4" in doc["cameras"]["ultra"]["sigma"]
+    save_rig(tmp_path / "calib.json", rig)
+    back = load_rig(tmp_path / "calib.json")
+    assert back.cameras == rig.cameras and back.models == rig.models
+    assert back.calibration_options()["model"] == {"tele": "k1k2", "ultra": "kb4", "wide": "k1k2"}

@@ -63,8 +63,9 @@ def _load_input(path: str, flags, dataset_opts):
 @click.option("--compare-models/--no-compare-models", default=True, show_default=True,
               help="Also solve the other skew model and print both side by side, as the paper's tables do.")
 @click.option("--compare-lens/--no-compare-lens", "compare_lens", default=True, show_default=True,
-              help="Also calibrate with every other lens model, compare them by their error on instants left "
-                   "out of the calibration, and recommend one (recorded in calib.json).")
+              help="With a --model NAME: also calibrate with every other lens model, compare them by their error "
+                   "on instants left out of the calibration, and recommend one (recorded in calib.json). --model "
+                   "auto always compares them, camera by camera.")
 @dataset_options
 def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, output, skew, rig_mode,
                       drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens,
