@@ -177,7 +177,8 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--preset", type=LazyChoice("dualcal.synth:PRESETS"), default="note8", show_default=True,
               help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra), "
-                   "stereo5 (the 640x480 pair with OpenCV's five-coefficient lenses, k1 k2 p1 p2 k3).")
+                   "stereo5 (the 640x480 pair with OpenCV's five-coefficient lenses, k1 k2 p1 p2 k3), phone3 "
+                   "(wide + 3x tele + a 145-degree fisheye ultra-wide, kb4).")
 @click.option("--views", type=int, default=13, show_default=True, help="Number of board poses.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed of poses, noise and photos.")
 @click.option("--scale", type=float, default=1.0, show_default=True,
