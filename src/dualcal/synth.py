@@ -20,9 +20,10 @@ Presets
             ``k1k2p1p2k3``, modest), ``ultra`` a fisheye (``kb4``, about 125 x 105 degrees, 145
             on the diagonal; 12 mm from the wide) and ``tele`` (3x, ``k1k2``; 22 mm from the wide
             on the other side). Most views are seen whole by every camera (the tele the
-            narrowest); in ``edge_share`` of them the board is near the ultra-wide, off its axis by
-            ``edge_angle_deg`` (so that its corners reach the image's edges), and the cameras that
-            do not see all of it miss that instant (their corners are NaN, the view None).
+            narrowest); in the others (``edge``: 30 % for the ultra-wide, 20 % for the wide) the
+            board is near one camera, off its axis (35-62 degrees for the ultra-wide, 20-32 for the
+            wide) so that its corners reach that image's edges, and the cameras that do not see all
+            of it miss that instant (their corners are NaN, the view None).
 """
 
 from __future__ import annotations
@@ -92,7 +93,8 @@ PRESETS["phone3"] = dict(
     rig={"ultra": Pose(_opk([-20.0, 15.0, -30.0]), np.array([0.4, 12.0, -0.3])),
          "tele": Pose(_opk([10.0, -25.0, 40.0]), np.array([-0.3, -22.0, 0.5]))},
     fill=(0.45, 0.85),
-    edge=dict(camera="ultra", share=0.4, fill=(0.25, 0.45), angle_deg=(35.0, 62.0)),
+    edge=[dict(camera="ultra", share=0.3, fill=(0.25, 0.45), angle_deg=(35.0, 62.0)),
+          dict(camera="wide", share=0.2, fill=(0.3, 0.5), angle_deg=(20.0, 32.0))],
 )
 PRESETS["stereo5"] = dict(
     PRESETS["stereo"],
@@ -216,7 +218,9 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
             raise InputError(f"coverage {lo:g}-{hi:g}: needs 0 < lo <= hi <= 1")
         fmax = max(fmax, 1.1 / np.sqrt(lo))
     reach = 0.15 if coverage is None else 0.45
-    edge = p.get("edge") if coverage is None else None
+    # the last views of each kind of edge view (a preset's "edge"), in the order given
+    edge_of_view = [] if coverage is not None else [e for e in p.get("edge", []) for _ in range(round(views * e["share"]))]
+    edge_of_view = [None] * (views - len(edge_of_view)) + edge_of_view
 
     view_poses = {}
     attempts = 0
@@ -236,7 +240,8 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
         target = centre + np.array([rng.uniform(-reach, reach) * board.cols * s,
                                     rng.uniform(-reach, reach) * board.rows * s, 0.0])
         roll = rng.uniform(-np.pi, np.pi)
-        if edge is not None and len(view_poses) >= round(views * (1.0 - edge["share"])):
+        edge = edge_of_view[len(view_poses)]
+        if edge is not None:
             poses = _edge_view_poses(cameras, rig, reference, edge, extent, target, direction, roll, rng)
             if _all_visible({edge["camera"]: cameras[edge["camera"]]}, poses, X, margin=0.01):
                 view_poses[f"IMG_{len(view_poses) + 1:02d}"] = poses[reference]
