@@ -84,7 +84,7 @@ PRESETS = {
 PRESETS["phone3"] = dict(
     board=Board(8, 5, 30.0),
     cameras={
-        "wide": CameraModel((_W, _H), 2905.0, 2903.0, 0.0, 1515.0, 2008.0, 0.065, -0.12, 0.0, 0.0, 0.05,
+        "wide": CameraModel((_W, _H), 2905.0, 2903.0, 0.0, 1515.0, 2008.0, 0.065, -0.2, 0.0, 0.0, 0.2,
                             model="k1k2p1p2k3"),
         "ultra": CameraModel((_W, _H), 1450.0, 1449.0, 0.0, 1508.0, 2022.0, 0.2, 0.02, k3=-0.005, k4=0.001,
                              model="kb4"),
