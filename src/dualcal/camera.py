@@ -40,7 +40,7 @@ import numpy as np
 
 from .errors import NotInvertibleError
 
-#: Lens coefficients in OpenCV's order (its ``distCoeffs``).
+#: Lens coefficients in OpenCV's order (its ``distCoeffs``), then the fisheye's k4 (``cv2.fisheye``: k1 k2 k3 k4).
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4")
 INTRINSIC_NAMES = ("fx", "fy", "skew", "cx", "cy") + DISTORTION_NAMES
 
@@ -429,17 +429,17 @@ def fisheye_max_angle(k1: float, k2: float, k3: float = 0.0, k4: float = 0.0) ->
     return float(min(np.sqrt(min(s)), np.pi)) if s else float(np.pi)
 
 
+def _theta_over_r(theta: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``theta / r`` (1 on the axis)."""
+    return np.divide(theta, r, out=np.ones_like(r), where=r > 0)
+
+
 def fisheye_distort(xy: np.ndarray, k1: float, k2: float, k3: float = 0.0, k4: float = 0.0) -> np.ndarray:
     """Ideal normalised coordinates (N, 2) -> distorted ones of the ``kb4`` fisheye (module docstring)."""
     xy = np.asarray(xy, dtype=float)
     r = np.hypot(xy[..., 0], xy[..., 1])[..., None]
     theta = np.arctan(r)
     return xy * _theta_over_r(theta, r) * _theta_factor(theta * theta, k1, k2, k3, k4)
-
-
-def _theta_over_r(theta: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """``theta / r`` (1 on the axis)."""
-    return np.divide(theta, r, out=np.ones_like(r), where=r > 0)
 
 
 def _fisheye_with_jacobian(x: np.ndarray, y: np.ndarray, k1: float, k2: float, k3: float, k4: float):
