@@ -20,6 +20,7 @@ from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
 #: calib.json's top-level ``model`` when the cameras' lens models differ.
 MIXED_LENS_MODELS = "mixed"
 
+
 @dataclass
 class Pose:
     """A rigid transform ``X_to = R @ X_from + t_mm``."""
