@@ -474,7 +474,7 @@ def test_ctrl_c_leaves_finished_devices_intact(fleet_root, tmp_path):
     root, _ = fleet_root
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "dualcal", "batch", str(root), "-o", str(out), "--workers", "2", "--holdout",
-           "--board", "8x5", "--square", "30"]
+           "--board", "8x5", "--square", "30", "--model", "k1k2"]        # OPTIONS: calibrate_rig's default model
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
     while len(list(out.glob("*/batch.json"))) < 2 and time.monotonic() < deadline and proc.poll() is None:

@@ -7,9 +7,12 @@ from hypothesis import strategies as st
 
 import cv2
 
+from dataclasses import replace
+
 from dualcal.camera import (INTRINSIC_NAMES, LENS_MODELS, CameraModel, check_invertible_in_image, distort_normalized,
-                            distort_points, intrinsic_names, max_distorted_radius, max_monotonic_radius,
-                            normalized_from_pixel, pixel_from_normalized, project_points, project_with_jacobians,
+                            distort_points, fisheye_max_angle, fold_radius, ideal_normalized_from_pixel,
+                            intrinsic_names, max_distorted_radius, max_monotonic_radius, normalized_from_pixel,
+                            pixel_from_normalized, project_points, project_with_jacobians, ray_directions, undistort,
                             undistort_normalized, undistort_points, undistort_radius)
 from dualcal.errors import NotInvertibleError
 from dualcal.synth import PRESETS
@@ -42,7 +45,10 @@ def test_jacobians_match_central_differences(cam):
         num = (project_points(cam, X + d) - project_points(cam, X - d)) / (2 * h)
         np.testing.assert_allclose(J_X[:, :, i], num, rtol=1e-6, atol=1e-7)
     vec = cam.as_vector()
-    for i in range(len(INTRINSIC_NAMES)):         # every coefficient, also those the model lacks
+    for i, name in enumerate(INTRINSIC_NAMES):    # every coefficient, also those the model lacks
+        if name == "k4":                          # the fisheye's alone: no column in a radial-tangential lens
+            assert not J_K[:, :, i].any()
+            continue
         step = 1e-6 * max(1.0, abs(vec[i]))
         plus, minus = vec.copy(), vec.copy()
         plus[i] += step
@@ -177,7 +183,7 @@ def test_a_tangential_lens_that_folds_is_a_named_error():
     check_invertible_in_image(inside)
     check_invertible_in_image(CAM5)
     # and a radial fold inside the image is still found first, with the coefficients named
-    radial = CameraModel((640, 480), 300.0, 300.0, 0.0, 320.0, 240.0, -0.6, 0.0, 0.001, 0.0, 0.0, "k1k2p1p2k3")
+    radial = CameraModel((640, 480), 300.0, 300.0, 0.0, 320.0, 240.0, -0.6, 0.0, 0.001, 0.0, 0.0, model="k1k2p1p2k3")
     with pytest.raises(NotInvertibleError, match="k1=-0.6, k2=0 folds over inside the image: radius not monotonic"):
         check_invertible_in_image(radial)
 
@@ -244,3 +250,101 @@ def test_projection_of_random_poses_back_projects_onto_the_ray(rotvec, t, X):
         return
     uv = project_points(CAM, Xc)
     np.testing.assert_allclose(ideal_normalized_from_pixel(CAM, uv), xy, atol=1e-10)
+
+
+# ----------------------------------------------------------------------------- the fisheye kb4
+
+#: A 145-degree (diagonal) fisheye on a 12 MP sensor, OpenCV's cv2.fisheye coefficients.
+FISH = CameraModel((3024, 4032), 1450.0, 1449.0, 0.0, 1508.0, 2022.0, 0.2, 0.02, k3=-0.005, k4=0.001, model="kb4")
+
+
+def _rays(rng, n, max_deg):
+    """``n`` camera-frame points (N, 3) in random directions up to ``max_deg`` from the axis."""
+    theta, phi = np.radians(rng.uniform(0, max_deg, n)), rng.uniform(0, 2 * np.pi, n)
+    return np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)]) \
+        * rng.uniform(100, 5000, n)[:, None]
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_kb4_projects_like_cv2_fisheye(seed):
+    """cv2.fisheye.projectPoints of random fisheyes (skew as OpenCV's alpha = skew / fx), 500 points up
+    to 60 degrees from the axis: the same pixels to 1e-9 px."""
+    rng = np.random.default_rng(seed)
+    fx = rng.uniform(300, 3000)
+    cam = CameraModel((4000, 3000), fx, fx * rng.uniform(0.98, 1.02), rng.uniform(-2, 2), rng.uniform(1900, 2100),
+                      rng.uniform(1400, 1600), *rng.uniform(-0.05, 0.05, 2), k3=rng.uniform(-0.01, 0.01),
+                      k4=rng.uniform(-0.002, 0.002), model="kb4")
+    X = _rays(rng, 500, 60.0)
+    ours = project_points(cam, X)
+    theirs, _ = cv2.fisheye.projectPoints(X.reshape(1, -1, 3), np.zeros(3), np.zeros(3), cam.K * [[1, 0, 1], [0, 1, 1],
+                                          [0, 0, 1]], np.array(cam.distortion).reshape(4, 1), alpha=cam.skew / cam.fx)
+    np.testing.assert_allclose(ours, theirs.reshape(-1, 2), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(project_with_jacobians(cam, X)[0], ours, rtol=0, atol=1e-9)
+
+
+def test_kb4_jacobians_match_central_differences():
+    rng = np.random.default_rng(1)
+    cam = replace(FISH, skew=1.5)
+    X = np.vstack([_rays(rng, 30, 70.0), [[0.0, 0.0, 800.0], [1e-9, 0.0, 800.0]]])     # the axis too
+    _, J_X, J_K = project_with_jacobians(cam, X)
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = 1e-3
+        num = (project_points(cam, X + d) - project_points(cam, X - d)) / 2e-3
+        np.testing.assert_allclose(J_X[:, :, i], num, rtol=1e-6, atol=1e-6)
+    vec = cam.as_vector()
+    for i, name in enumerate(INTRINSIC_NAMES):
+        if name in ("p1", "p2"):                  # the radial-tangential lens's alone: no column in a fisheye
+            assert not J_K[:, :, i].any()
+            continue
+        step = 1e-6 * max(1.0, abs(vec[i]))
+        plus, minus = vec.copy(), vec.copy()
+        plus[i] += step
+        minus[i] -= step
+        num = (project_points(CameraModel.from_vector(cam.image_size, plus, "kb4"), X)
+               - project_points(CameraModel.from_vector(cam.image_size, minus, "kb4"), X)) / (2 * step)
+        np.testing.assert_allclose(J_K[:, :, i], num, rtol=1e-5, atol=1e-5)
+
+
+def test_kb4_undistorts_like_cv2_fisheye_and_round_trips():
+    """Over the whole image; OpenCV's undistortPoints clamps theta_d at pi / 2 (the image's corners
+    here reach 1.74), so it is compared inside that radius."""
+    w, h = FISH.image_size
+    uv = np.stack(np.meshgrid(np.linspace(0, w - 1, 40), np.linspace(0, h - 1, 50)), axis=-1).reshape(-1, 2)
+    ours = ideal_normalized_from_pixel(FISH, uv)
+    theirs = cv2.fisheye.undistortPoints(uv.reshape(1, -1, 2), FISH.K, np.array(FISH.distortion).reshape(4, 1))
+    inside = np.hypot(*normalized_from_pixel(FISH, uv).T) < np.pi / 2
+    assert inside.mean() > 0.9
+    np.testing.assert_allclose(ours[inside], theirs.reshape(-1, 2)[inside], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(distort_points(FISH, undistort_points(FISH, uv)), uv, rtol=0, atol=1e-8)
+
+
+def test_kb4_sees_at_and_beyond_90_degrees_but_does_not_undistort_there():
+    """Rays at 90 and 100 degrees project (on the atan2 angle) and come back as rays; they have no
+    point on the normalised plane, so undistortion refuses them, and an image that reaches them
+    is not invertible."""
+    X = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, -np.tan(np.radians(10))], [0.3, 0.4, 0.0]])
+    uv = project_points(FISH, X)
+    theta = np.radians([90.0, 100.0, 90.0])
+    rd = theta * (1 + FISH.k1 * theta**2 + FISH.k2 * theta**4 + FISH.k3 * theta**6 + FISH.k4 * theta**8)
+    np.testing.assert_allclose(np.hypot(*(normalized_from_pixel(FISH, uv)).T), rd, rtol=1e-12)
+    rays = ray_directions(FISH, normalized_from_pixel(FISH, uv))
+    np.testing.assert_allclose(rays, X / np.linalg.norm(X, axis=1)[:, None], atol=1e-12)
+    with pytest.raises(NotInvertibleError, match="90 degrees"):
+        undistort(FISH, normalized_from_pixel(FISH, uv[:1]))
+    check_invertible_in_image(FISH)                               # 73 degrees at the image's corners
+    with pytest.raises(NotInvertibleError, match="90 degrees from its axis, inside the image"):
+        check_invertible_in_image(replace(FISH, fx=1000.0, fy=1000.0))
+
+
+def test_kb4_fold_is_the_first_root_of_the_slope():
+    k = (-0.3, 0.02, 0.0, 0.0)
+    t = fisheye_max_angle(*k)
+    slope = lambda s: 1 + 3 * k[0] * s**2 + 5 * k[1] * s**4  # noqa: E731
+    assert abs(slope(t)) < 1e-12 and slope(0.99 * t) > 0
+    cam = replace(FISH, k1=k[0], k2=k[1], k3=0.0, k4=0.0)
+    assert fold_radius(cam) == pytest.approx(np.tan(t))
+    with pytest.raises(NotInvertibleError):
+        check_invertible_in_image(cam)
+    assert fisheye_max_angle(0.0, 0.0) == np.pi                   # equidistant: no fold before 180 degrees

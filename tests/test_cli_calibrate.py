@@ -77,7 +77,7 @@ def test_calibrate_compares_the_lens_models_and_records_the_comparison(tmp_path,
     out = tmp_path / "set"
     assert run_cli("synth", out, "--preset", "stereo5", "--views", "8", "--seed", "2", "--noise", "0.1",
                    "--no-photos").code == 0
-    res = run_cli("calibrate", out / "corners.json", "-o", out / "calib.json", "--no-compare-models")
+    res = run_cli("calibrate", out / "corners.json", "-o", out / "calib.json", "--no-compare-models", "--model", "k1k2")
     assert res.code == 0, res.err
     scores = assert_valid(out / "calib.json")["adjustment"]["lens_models"]
     assert [s["model"] for s in scores] == ["k1k2", "k1k2k3", "k1k2p1p2", "k1k2p1p2k3"]
@@ -90,7 +90,8 @@ def test_calibrate_compares_the_lens_models_and_records_the_comparison(tmp_path,
         assert advice.startswith("lens model k1k2: no richer model")
     else:
         assert f"--model {best['model']}" in advice
-    res = run_cli("calibrate", out / "corners.json", "-o", out / "c2.json", "--no-compare-models", "--no-compare-lens")
+    res = run_cli("calibrate", out / "corners.json", "-o", out / "c2.json", "--no-compare-models", "--no-compare-lens",
+                  "--model", "k1k2")
     assert res.code == 0 and "lens_models" not in json.loads((out / "c2.json").read_text())["adjustment"]
     assert "Lens models" not in res.out
 
@@ -194,3 +195,36 @@ def test_synth_writes_truth_and_noisy_corners(synth_dir):
 def test_synth_bad_values(tmp_path, run_cli):
     _assert_one_line_error(run_cli("synth", tmp_path / "x", "--scale", "0"), "--scale")
     _assert_one_line_error(run_cli("synth", tmp_path / "a" / "b"), "does not exist")
+
+
+def test_calibrate_chooses_each_cameras_lens_model_by_default_and_prints_the_choice(tmp_path, run_cli):
+    """``--model auto`` (the default): calib.json names every camera's model and records the
+    comparison per camera; the table shows each camera's held-out RMS per model, the chosen starred."""
+    out = tmp_path / "set"
+    assert run_cli("synth", out, "--preset", "stereo5", "--views", "8", "--seed", "2", "--noise", "0.1",
+                   "--no-photos").code == 0
+    res = run_cli("calibrate", out / "corners.json", "-o", out / "calib.json", "--no-compare-models")
+    assert res.code == 0, res.err
+    doc = json.loads((out / "calib.json").read_text())
+    chosen = doc["adjustment"]["lens_models_chosen"]
+    assert set(chosen) == {"left", "right"} and all(doc["cameras"][n]["model"] == m for n, m in chosen.items())
+    assert doc["model"] == (chosen["left"] if len(set(chosen.values())) == 1 else "mixed")
+    assert [e["model"] for e in doc["adjustment"]["lens_models"]] == ["k1k2", "k1k2k3", "k1k2p1p2", "k1k2p1p2k3"]
+    assert "Lens model of each camera (--model auto)" in res.out
+    row = next(line for line in res.out.splitlines() if line.strip().startswith("left"))
+    assert row.count("*") == 1
+
+
+def test_model_flags_name_one_camera_or_every_camera(tmp_path, run_cli):
+    out = tmp_path / "set"
+    assert run_cli("synth", out, "--preset", "stereo5", "--views", "6", "--seed", "2", "--no-photos").code == 0
+    res = run_cli("calibrate", out / "corners.json", "-o", out / "c.json", "--no-compare-models",
+                  "--model", "k1k2p1p2", "--model", "right=k1k2")
+    assert res.code == 0, res.err
+    doc = json.loads((out / "c.json").read_text())
+    assert (doc["model"], doc["cameras"]["left"]["model"], doc["cameras"]["right"]["model"]) == \
+        ("mixed", "k1k2p1p2", "k1k2")
+    res = run_cli("calibrate", out / "corners.json", "-o", out / "c.json", "--model", "middle=k1k2")
+    _assert_one_line_error(res, "lens model given for camera 'middle', which is not one of the rig's (left, right)")
+    res = run_cli("calibrate", out / "corners.json", "-o", out / "c.json", "--model", "auto", "--model", "left=kb4")
+    _assert_one_line_error(res, "--model auto chooses every camera's model: it cannot be combined with CAMERA=NAME")

@@ -430,3 +430,59 @@ def test_cli_kalibr_export_of_a_k3_model_is_one_line(rig5, tmp_path, run_cli):
     res = run_cli("export", tmp_path / "calib.json", "--format", "kalibr", "-o", tmp_path / "camchain.yaml")
     assert res.code == 2 and len(res.err_lines) == 1 and "radtan model has no k3" in res.err
     assert not (tmp_path / "camchain.yaml").exists()
+
+
+# ----------------------------------------------------------------------------- the fisheye kb4
+
+
+@pytest.fixture(scope="module")
+def rig3():
+    """phone3's exact truth: a kb4 ultra-wide beside radial-tangential wide and tele."""
+    return synth.truth_rig_model(synth.make_truth("phone3", views=3, seed=2, scale=0.25))
+
+
+def test_opencv_export_of_a_fisheye_reprojects_with_cv2_fisheye(rig3, tmp_path):
+    """Read back with cv2.FileStorage: D is cv2.fisheye's 1x4 for the kb4 camera (1x5 for the others),
+    and cv2.fisheye.projectPoints with K and D puts the board's corners where dualcal does."""
+    write_export(rig3, "opencv", tmp_path / "rig.yml")
+    fs = cv2.FileStorage(str(tmp_path / "rig.yml"), cv2.FILE_STORAGE_READ)
+    for name, cam in rig3.cameras.items():
+        node = fs.getNode(name)
+        D = node.getNode("D").mat()
+        assert node.getNode("lens_model").string() == cam.model and D.shape == ((1, 4) if cam.fisheye else (1, 5))
+        X, uv = _camera_frame_points(rig3, name, "IMG_01")
+        project = cv2.fisheye.projectPoints if cam.fisheye else cv2.projectPoints
+        uv_cv, _ = project(X.reshape(1, -1, 3), np.zeros(3), np.zeros(3), node.getNode("K").mat(), D)
+        np.testing.assert_allclose(uv_cv.reshape(-1, 2), uv, atol=1e-6)
+    assert rig3.cameras["ultra"].fisheye
+
+
+def test_kalibr_and_colmap_hold_the_fisheye_as_their_equidistant_models(rig3):
+    """Kalibr's pinhole-equi (``distortion_model: equidistant``) and COLMAP's OPENCV_FISHEYE, by their
+    own formulas (COLMAP's principal point half a pixel off), project like dualcal."""
+    order = rig3.camera_order()
+    radtan = replace(rig3, cameras={**rig3.cameras, "wide": replace(rig3.cameras["wide"], k3=0.0, model="k1k2p1p2")})
+    doc = yaml.safe_load(kalibr_yaml(radtan))
+    cam = rig3.cameras["ultra"]
+    entry = doc[f"cam{order.index('ultra')}"]
+    assert (entry["camera_model"], entry["distortion_model"]) == ("pinhole", "equidistant")
+    assert entry["distortion_coeffs"] == [cam.k1, cam.k2, cam.k3, cam.k4]
+    assert doc[f"cam{order.index('wide')}"]["distortion_model"] == "radtan"
+    row = _colmap_rows(rig3)["ultra"]
+    assert row[1] == "OPENCV_FISHEYE" and len(row) == 12
+    fx, fy, cx, cy, k1, k2, k3, k4 = (float(v) for v in row[4:])
+    X, uv = _camera_frame_points(rig3, "ultra", "IMG_01")
+    r = np.hypot(X[:, 0], X[:, 1]) / X[:, 2]
+    theta = np.arctan(r)
+    scale = theta * (1 + k1 * theta**2 + k2 * theta**4 + k3 * theta**6 + k4 * theta**8) / r
+    xd, yd = X[:, 0] / X[:, 2] * scale, X[:, 1] / X[:, 2] * scale
+    np.testing.assert_allclose(np.column_stack([fx * xd + cx, fy * yd + cy]), uv + 0.5, atol=1e-6)
+
+
+def test_mrcal_refuses_a_fisheye_naming_the_formats_that_hold_it(rig3, tmp_path, run_cli):
+    with pytest.raises(InputError, match="mrcal has no Kannala-Brandt fisheye, the lens model of ultra: export to "
+                                         "opencv \\(cv2.fisheye\\), kalibr \\(pinhole-equi\\) or colmap"):
+        export_files(rig3, "mrcal", tmp_path)
+    io.save_rig(tmp_path / "calib.json", rig3)
+    res = run_cli("export", tmp_path / "calib.json", "--format", "mrcal", "-o", tmp_path / "m")
+    assert res.code == 2 and len(res.err.strip().splitlines()) == 1 and "OPENCV_FISHEYE" in res.err

@@ -88,7 +88,7 @@ def test_calib_json_of_the_paper_model_keeps_the_keys_of_before(rig):
     assert doc["model"] == "k1k2"
     for entry in doc["cameras"].values():
         names = {"fx", "fy", "skew", "cx", "cy", "k1", "k2"}
-        assert set(entry) == names | {"image_size", "sigma", "sigma_formal", "rms_px"}
+        assert set(entry) == names | {"image_size", "model", "sigma", "sigma_formal", "rms_px"}
         assert set(entry["sigma"]) == set(entry["sigma_formal"]) == names
 
 
@@ -115,7 +115,10 @@ def test_a_calib_json_written_before_lens_models_reads_as_k1k2(rig):
 
 @pytest.mark.parametrize("edit, message", [
     (lambda d: d["cameras"]["left"].update(p1=0.001), "camera 'left' has p1, which its lens model k1k2 does not"),
-    (lambda d: d.update(model="k1k2p1p2"), "camera 'left' lacks p1, p2 of its lens model k1k2p1p2"),
+    (lambda d: [d.update(model="k1k2p1p2")] + [c.pop("model") for c in d["cameras"].values()],
+     "camera 'left' lacks p1, p2 of its lens model k1k2p1p2"),      # a file of before cameras had a model
+    (lambda d: d.update(model="k1k2p1p2"), "camera 'left' has lens model k1k2, the file's 'model' says k1k2p1p2"),
+    (lambda d: d["cameras"]["left"].update(model="kb4"), "camera 'left' has lens model kb4, the file's 'model' says k1k2"),
     (lambda d: d.update(model="fisheye"), "lens model 'fisheye' is unknown"),
 ])
 def test_camera_keys_must_fit_the_lens_model(edit, message):
@@ -238,3 +241,16 @@ def test_inconsistent_calib_json_is_a_clear_error(rig, edit, message):
     edit(doc)
     with pytest.raises(InputError, match=message):
         rig_from_dict(doc)
+
+
+def test_a_rig_of_mixed_lens_models_round_trips_with_each_cameras_model(tmp_path):
+    """phone3: a kb4 ultra-wide (with k4) beside k1k2p1p2k3 and k1k2 cameras; top-level model "mixed"."""
+    rig = calibrate_rig(noisy_corner_set(make_truth("phone3", 8, seed=2), 0.05, seed=2),
+                        model={"wide": "k1k2", "ultra": "kb4", "tele": "k1k2"}, board_shape="flat")
+    doc = rig_to_dict(rig)
+    assert doc["model"] == "mixed" and doc["cameras"]["ultra"]["model"] == "kb4" and "k4" in doc["cameras"]["ultra"]
+    assert "k4" not in doc["cameras"]["wide"] and "k4" in doc["cameras"]["ultra"]["sigma"]
+    save_rig(tmp_path / "calib.json", rig)
+    back = load_rig(tmp_path / "calib.json")
+    assert back.cameras == rig.cameras and back.models == rig.models
+    assert back.calibration_options()["model"] == {"tele": "k1k2", "ultra": "kb4", "wide": "k1k2"}

@@ -444,3 +444,20 @@ def test_the_fixed_size_blocks_give_the_dense_covariances_result(note8):
     for row in doc["lengths"]:
         sigma, bias = lengths[(row["from"], row["to"])]
         assert row["sigma_mm"] == pytest.approx(sigma, rel=1e-9) and row["bias_mm"] == pytest.approx(bias, rel=1e-9)
+
+
+def test_a_fisheye_measures_with_the_wide():
+    """phone3's wide + kb4 ultra-wide (0.05 px corners): lengths across the board of an instant both
+    saw come out within 4 sigma, through the fisheye's rays and its Jacobians (k1 .. k4 in the
+    covariance)."""
+    full = make_truth("phone3", 12, seed=5)
+    truth = replace(full, cameras={n: full.cameras[n] for n in ("wide", "ultra")}, rig={"ultra": full.rig["ultra"]})
+    corners = noisy_corner_set(truth, 0.05, seed=1)
+    rig = calibrate_rig(corners, model={"wide": "k1k2k3", "ultra": "kb4"}, board_shape="flat")
+    assert "ultra.k4" in rig.covariance["parameters"]
+    view = next(v for v, uv in corners.cameras["wide"].views.items() if uv is not None)
+    uv = {c: corners.cameras[c].views[view] for c in ("wide", "ultra")}
+    points = {"points": {f"c{k}": {c: uv[c][k].tolist() for c in uv} for k in (0, 7, 32, 39)},
+              "lengths": [["c0", "c7"], ["c0", "c32"], ["c0", "c39"]]}
+    for L, true_mm in zip(measure(rig, points)["lengths"], [210.0, 120.0, np.hypot(210.0, 120.0)]):
+        assert abs(L["length_mm"] - true_mm) < 4 * L["sigma_mm"] and L["sigma_mm"] < 0.05 * true_mm

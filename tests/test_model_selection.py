@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dualcal.calibrate import calibrate_rig
-from dualcal.camera import project_points
+from dualcal.camera import intrinsic_names, project_points
 from dualcal.errors import EstimationError
 from dualcal.evaluation import resect_view
 from dualcal.model_selection import compare_lens_models, score_lens_models
@@ -85,3 +85,42 @@ def test_models_compared_must_share_their_corners_and_three_instants():
     two_instants = edited(b, lambda d: [d.pop(v) for v in sorted(d)[2:]])
     with pytest.raises(EstimationError, match="2 instant\\(s\\) can be left out by every model: a comparison needs 3"):
         score_lens_models({"k1k2": a, "k1k2p1p2": two_instants})
+
+
+@pytest.fixture(scope="module")
+def phone3_auto():
+    """phone3 (fisheye ultra-wide, wide, 3x tele; 20 instants, 8 of them near the ultra-wide's or the
+    wide's edges), 0.02 px corners, calibrated with ``model="auto"``."""
+    truth = make_truth("phone3", 20, seed=0)
+    return truth, calibrate_rig(noisy_corner_set(truth, 0.02, seed=1), model="auto")
+
+
+def test_auto_gives_the_fisheye_ultra_kb4_and_the_others_the_papers_model(phone3_auto):
+    """kb4 is a candidate of the ultra-wide alone (73 degrees at its corners; the wide's are at 40);
+    the wide's k3 (0.2) shows in the instants that put the board near its edges (4 of its 14)."""
+    truth, rig = phone3_auto
+    assert rig.models == {"tele": "k1k2", "ultra": "kb4", "wide": "k1k2k3"} == rig.adjustment["lens_models_chosen"]
+    assert rig.model == "mixed"
+    entries = {e["model"]: e for e in rig.adjustment["lens_models"]}
+    assert set(entries) == {"k1k2", "k1k2k3", "k1k2p1p2", "kb4", "k1k2p1p2k3"}
+    assert [n for n, d in entries["kb4"]["per_camera"].items() if d["candidate"]] == ["ultra"]
+    ultra = {m: e["per_camera"]["ultra"] for m, e in entries.items()}
+    assert ultra["kb4"]["held_out_rms_px"] < 0.1 * ultra["k1k2"]["held_out_rms_px"]   # k1k2 cannot follow 73 degrees
+    assert ultra["kb4"]["recommended"] and not ultra["k1k2"]["recommended"]
+    assert all(len(rig.adjustment["held_out_per_camera"][n]) >= 3 for n in rig.cameras)
+
+
+def test_auto_recovers_every_intrinsic_and_the_rig_within_4_sigma(phone3_auto):
+    truth, rig = phone3_auto
+    for name, cam in rig.cameras.items():
+        true = truth.cameras[name]
+        for p in intrinsic_names(cam.model):
+            if p != "skew":
+                assert abs(getattr(cam, p) - getattr(true, p)) < 4 * rig.camera_sigma[name][p], (name, p)
+    for name, rel in rig.rig.items():
+        true = truth.rig[name]
+        assert abs(rel.baseline_mm - np.linalg.norm(true.t_mm)) < 4 * rel.sigma_baseline_mm
+        assert np.all(np.abs(rel.pose.opk_arcmin - true.opk_arcmin) < 4 * rel.sigma_opk_arcmin)
+        assert np.all(np.abs(rel.pose.t_mm - true.t_mm) < 4 * rel.sigma_t_mm)
+    # the fisheye's residual is the corners' noise: 0.02 px per coordinate is 0.028 px of 2-D length
+    assert rig.camera_rms_px["ultra"] < 1.1 * 0.02 * np.sqrt(2)

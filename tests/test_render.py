@@ -146,3 +146,19 @@ def test_a_planted_corner_is_drawn_where_it_was_moved_and_the_others_stay(truth)
     assert ok[k] and np.linalg.norm(fit[k] - moved) < 0.05
     others = np.arange(b.n_corners) != k
     assert np.max(np.linalg.norm(fit[others] - uv_true[others], axis=1)) < 0.02
+
+
+def test_a_fisheye_renders_its_corners_where_the_model_projects_them():
+    """phone3's kb4 ultra-wide at half resolution, a view near its edge (the board 35-62 degrees off
+    the axis) and one in the middle: every pixel's ray is the fisheye's (beyond 90 degrees too)."""
+    truth = make_truth("phone3", views=10, seed=3, scale=0.5)
+    cam = truth.cameras["ultra"]
+    for view in ("IMG_01", "IMG_06"):                 # IMG_06: the first near the ultra-wide's edge
+        img = render_view(cam, truth.camera_pose("ultra", view), truth.board, np.random.default_rng(1), noise=0.0)
+        uv_true = true_corners(truth)["ultra"][view]
+        g = uv_true.reshape(truth.board.rows, truth.board.cols, 2)
+        dirs = np.stack([np.gradient(g, axis=1).reshape(-1, 2), np.gradient(g, axis=0).reshape(-1, 2)], 1)
+        dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+        fit, ok, _ = fit_saddles(img, uv_true + np.random.default_rng(2).normal(0, 0.3, uv_true.shape), dirs, half=6)
+        assert ok.all()
+        assert np.sqrt(np.mean(np.sum((fit - uv_true) ** 2, axis=1))) < 0.02

@@ -686,3 +686,42 @@ def test_the_verdict_the_checks_the_board_shape_and_both_sigmas_are_on_the_page(
     assert "bent by" in out and "sag, bend and twist" in out
     intrinsics = " ".join(page.cells["table-intrinsics"])
     assert intrinsics.count("(formal ") == 2 * 6 and "(formal " in " ".join(page.cells["table-rig"])
+
+
+def test_a_fisheye_curve_is_against_the_pinhole_image_of_the_same_ray():
+    """phone3's kb4 ultra-wide: the curve runs out to the image's corner (73 degrees off the axis),
+    its ideal radius ``tan(theta)``, and the page lists k1 .. k4 of that camera alone."""
+    truth = synth.make_truth("phone3", views=4, seed=0, scale=0.25)
+    cam = truth.cameras["ultra"]
+    curve = analysis.distortion_curve(cam)
+    f = math.sqrt(cam.fx * cam.fy)
+    assert curve.fold_radius_px is None
+    assert curve.radius_px[-1] == pytest.approx(curve.corner_radius_px, rel=1e-9)
+    theta = np.arctan((curve.radius_px - curve.shift_px) / f)
+    k = np.array(cam.distortion)
+    np.testing.assert_allclose(theta * (1 + sum(k[j] * theta ** (2 * j + 2) for j in range(4))) * f, curve.radius_px,
+                               atol=1e-6)
+    rig = synth.truth_rig_model(truth)
+    rig.camera_sigma = {name: dict(SIGMA, p1=1e-4, p2=2e-4, k3=0.05, k4=0.01) for name in rig.cameras}
+    p = _Page()
+    p.feed(render_report(rig))
+    cells = p.cells["table-intrinsics"]
+    row = _row(cells, "k4", 4)[1:]                               # a cell per camera: only the ultra-wide has k4
+    assert row.count("–") == 2
+    assert next(c for c in row if c != "–").startswith(analysis.format_value_sigma(cam.k4, 0.01)[0])
+
+
+def test_the_lens_models_auto_chose_are_on_the_page_camera_by_camera():
+    rig = synth.truth_rig_model(synth.make_truth("phone3", views=4, seed=0, scale=0.25))
+    rig.camera_sigma = {name: dict(SIGMA, p1=1e-4, p2=2e-4, k3=0.05, k4=0.01) for name in rig.cameras}
+    score = {"candidate": True, "fit_rms_px": 0.03, "held_out_rms_px": 0.031, "worse_se": 0.0, "recommended": True}
+    rig.adjustment["lens_models"] = [
+        {"model": "k1k2", "per_camera": {n: {**score, "held_out_rms_px": 0.3 if n == "ultra" else 0.031} for n in rig.cameras}},
+        {"model": "kb4", "per_camera": {n: score if n == "ultra" else {"candidate": False} for n in rig.cameras}}]
+    rig.adjustment["lens_models_chosen"] = {"tele": "k1k2", "ultra": "kb4", "wide": "k1k2"}
+    p = _Page()
+    p.feed(render_report(rig))
+    cells = p.cells["table-lens-model-choice"]
+    assert _row(cells, "ultra", 3) == ["ultra", "0.3000 (0.0)", "0.0310 (0.0) chosen"]
+    assert _row(cells, "tele", 3) == ["tele", "0.0310 (0.0) chosen", "–"]
+    assert "table-lens-models" not in p.cells

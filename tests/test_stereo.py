@@ -187,3 +187,25 @@ def test_rectify_command_errors_are_one_line(rendered_note8, run_cli, tmp_path):
         res = run_cli("rectify", d / "calib.json", "--pair", *pair, "-o", tmp_path / "out")
         assert res.code == 2 and len(res.err_lines) == 1, res.err
         assert message in res.err, res.err
+
+
+def test_a_fisheye_pair_rectifies_and_maps_like_cv2_fisheye():
+    """phone3's wide + kb4 ultra-wide (a vertical rig, 12 mm): true corners rectified share a column,
+    and the ultra-wide's remap table is cv2.fisheye.initUndistortRectifyMap's."""
+    truth = make_truth("phone3", views=6, seed=1)
+    rig = truth_rig_model(truth)
+    rect = stereo_rectify(rig, "wide", "ultra", "valid")
+    assert rect.vertical
+    corners = true_corners(truth)
+    for view in [v for v in truth.view_poses if not np.isnan(corners["wide"][v]).all()]:    # instants both saw
+        a = rectify_points(rect, "wide", rig.cameras["wide"], corners["wide"][view])
+        b = rectify_points(rect, "ultra", rig.cameras["ultra"], corners["ultra"][view])
+        assert np.nanmax(np.abs(a[:, 0] - b[:, 0])) < 1e-6
+    cam = rig.cameras["ultra"]
+    map_x, map_y = rectify_map(cam, rect.camera, 0, rect.image_size[1], rect.rotation("ultra"))
+    cv_x, cv_y = cv2.fisheye.initUndistortRectifyMap(cam.K, np.array(cam.distortion).reshape(4, 1),
+                                                     rect.rotation("ultra"), rect.P1[:, :3], rect.image_size,
+                                                     cv2.CV_32FC1)
+    inside = (map_x > 0) & (map_x < cam.image_size[0] - 1) & (map_y > 0) & (map_y < cam.image_size[1] - 1)
+    assert inside.mean() > 0.9
+    assert np.max(np.abs(cv_x - map_x)[inside]) < 0.05 and np.max(np.abs(cv_y - map_y)[inside]) < 0.05

@@ -192,3 +192,24 @@ def test_a_pose_with_corners_behind_the_camera_is_replaced_by_resection(monkeypa
     monkeypatch.setattr("dualcal.zhang.extrinsics_from_homography", mirrored_first)
     _, poses = initial_camera(xy, views, cam.image_size)
     np.testing.assert_allclose(poses["IMG_01"].t_mm, truth.camera_pose("wide", "IMG_01").t_mm, atol=1e-6)
+
+
+def test_a_fisheye_of_145_degrees_starts_near_its_truth():
+    """phone3's ultra-wide (kb4, 73 degrees from the axis at the image's corners; views that put the
+    board near its edges): the equidistant un-projection and Zhang's closed form on the rays' pinhole
+    image start within a few per cent of the truth, the poses in front, and ``k1 .. k4`` fold nowhere
+    the corners are; the radial-tangential start on the same corners is far off."""
+    truth = make_truth("phone3", 12, seed=4)
+    obs = {v: uv for v, uv in true_corners(truth)["ultra"].items() if not np.isnan(uv).all()}
+    true = truth.cameras["ultra"]
+    xy = truth.board.object_points_mm()[:, :2]
+    cam, poses = initial_camera(xy, obs, true.image_size, model="kb4")
+    assert cam.model == "kb4" and set(poses) == set(obs)
+    assert abs(cam.fx / true.fx - 1) < 0.03 and abs(cam.fy / true.fy - 1) < 0.03
+    assert np.hypot(cam.cx - true.cx, cam.cy - true.cy) < 0.03 * true.fx
+    X = np.column_stack([xy, np.zeros(len(xy))])
+    assert all(np.all(p.apply(X)[:, 2] > 0) for p in poses.values())
+    error_px = [np.max(np.linalg.norm(project_points(cam, poses[v].apply(X)) - uv, axis=1)) for v, uv in obs.items()]
+    assert np.median(error_px) < 0.02 * true.fx
+    pinhole, _ = initial_camera(xy, obs, true.image_size)
+    assert abs(pinhole.fx / true.fx - 1) > 0.05

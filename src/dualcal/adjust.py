@@ -50,7 +50,7 @@ from .board import SHAPE_TERMS, shape_basis, shaped_points_mm
 from .camera import (DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS, CameraModel, intrinsic_names, project_points,
                      project_with_jacobians)
 from .covariance import intrinsic_name, rig_name
-from .errors import EstimationError
+from .errors import EstimationError, InputError
 from .lm import LMOptions, levenberg_marquardt
 from .model import Pose, mean_pose, observed_mask
 from .normal_equations import Factorization, NormalEquations
@@ -115,8 +115,9 @@ class Problem:
     """What is observed: every camera's corners in every view it saw, and how the rig is tied.
 
     ``blocks`` is a list of ``(camera index, view key, (N, 2) pixels)``, one per photo; row k is
-    corner k of ``X_board`` (N, 3); unmeasured corners are NaN rows. ``model`` is every camera's
-    lens model (:data:`dualcal.camera.LENS_MODELS`): its coefficients are free, the others stay 0.
+    corner k of ``X_board`` (N, 3); unmeasured corners are NaN rows. ``model`` is the lens model
+    (:data:`dualcal.camera.LENS_MODELS`) of every camera, or a sequence of one per camera; its
+    coefficients are free, the others stay 0. ``models`` is the sequence, one per camera.
     """
 
     X_board: np.ndarray
@@ -127,13 +128,16 @@ class Problem:
     skew: bool = False
     reference: int = 0
     board_shape: bool = False
-    model: str = DEFAULT_LENS_MODEL
+    model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
 
     def __post_init__(self):
         if self.mode not in RIG_MODES:
-            raise EstimationError(f"--rig {self.mode!r} is unknown (choose from {', '.join(RIG_MODES)})")
-        if self.model not in LENS_MODELS:
-            raise EstimationError(f"--model {self.model!r} is unknown (choose from {', '.join(LENS_MODELS)})")
+            raise InputError(f"rig mode {self.mode!r} is unknown (choose from {', '.join(RIG_MODES)})")
+        self.models = (self.model,) * len(self.cameras) if isinstance(self.model, str) else tuple(self.model)
+        unknown = [m for m in self.models if m not in LENS_MODELS]
+        if unknown or len(self.models) != len(self.cameras):
+            raise InputError(f"lens model {unknown[0] if unknown else self.model!r} is unknown or not one per "
+                             f"camera (choose from {', '.join(LENS_MODELS)})")
         self.views = sorted({v for _, v, _ in self.blocks})
         self.view_index = {v: i for i, v in enumerate(self.views)}
         self.batches = []
@@ -180,7 +184,7 @@ def _take(counter: list[int], n: int) -> np.ndarray:
 def _build_layout(p: Problem) -> Layout:
     C, V = len(p.cameras), len(p.views)
     # skew per --skew; the lens coefficients of the model (the others stay at 0)
-    free = np.tile([n in intrinsic_names(p.model) for n in INTRINSIC_NAMES], (C, 1))
+    free = np.array([[n in intrinsic_names(m) for n in INTRINSIC_NAMES] for m in p.models]).reshape(C, -1)
     if not p.skew:
         free[:, INTRINSIC_NAMES.index("skew")] = False
     g = [0]
@@ -251,7 +255,7 @@ class State:
         return State(intr, pose_R, pose_t, rig_R, rig_t, D, direction, shape)
 
     def camera(self, problem: Problem, c: int) -> CameraModel:
-        return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c], problem.model)
+        return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c], problem.models[c])
 
     def relative_t(self, problem: Problem, c: int, views: np.ndarray) -> np.ndarray:
         """(B, 3) reference-to-camera ``c`` translation in the given instants (tied cameras)."""
@@ -478,12 +482,14 @@ def photo_rows(problem: Problem, state: State) -> list[PhotoRows]:
 @dataclass(frozen=True)
 class InstantRows:
     """The Jacobian rows of one instant's measured corners: ``J`` (m, k) over the flat parameter
-    indices ``columns`` (k,), residuals ``r`` (m,) (predicted - observed, px)."""
+    indices ``columns`` (k,), residuals ``r`` (m,) (predicted - observed, px); ``row_cameras`` (m,) the
+    camera index of each row."""
 
     view: str
     columns: np.ndarray
     J: np.ndarray
     r: np.ndarray
+    row_cameras: np.ndarray | None = None
 
 
 def instant_rows(problem: Problem, state: State) -> list[InstantRows]:
@@ -501,7 +507,8 @@ def instant_rows(problem: Problem, state: State) -> list[InstantRows]:
         for pr in pieces:
             J[row:row + len(pr.r), np.searchsorted(columns, pr.columns)] = pr.J
             row += len(pr.r)
-        out.append(InstantRows(problem.views[v], columns, J, np.concatenate([pr.r for pr in pieces])))
+        out.append(InstantRows(problem.views[v], columns, J, np.concatenate([pr.r for pr in pieces]),
+                               np.concatenate([np.full(len(pr.r), problem.blocks[pr.block][0]) for pr in pieces])))
     return out
 
 

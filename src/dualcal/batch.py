@@ -184,7 +184,7 @@ _LIST_LABELS = {"t_mm": ("x", "y", "z"), "rmse_mm": ("x", "y", "z"), "opk_arcmin
 #: Parts of calib.json that are per view or per corner, not per device (and rotation matrices,
 #: whose angles are in ``opk_arcmin``).
 _NOT_IN_ROW = {"views", "corners", "camera_poses", "dropped_views", "R", "per_pair", "held_out_per_instant",
-               "covariance", "dropped_corners"}
+               "held_out_per_camera", "covariance", "dropped_corners"}
 #: Objects keyed by view under these names (a check's statistic per instant) are left out too.
 _PER_VIEW_OBJECTS = {"instants"}
 

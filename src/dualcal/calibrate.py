@@ -18,6 +18,7 @@ result. A final adjustment that did not converge is said so, on stderr and in ca
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -95,7 +96,7 @@ def _starting_values(sol: Solution):
 class Setup:
     """What every adjustment of one calibration shares: the board's corners ``X_board`` (N, 3), the
     camera names and image sizes, the reference's index, the skew model, the rig mode and the lens
-    model."""
+    model of every camera (one name, or one per camera)."""
 
     X_board: np.ndarray
     names: list[str]
@@ -103,7 +104,7 @@ class Setup:
     reference: int
     skew: bool
     mode: str
-    model: str = DEFAULT_LENS_MODEL
+    model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
 
     def solve(self, blocks, start: "Solution | None" = None, mode: str | None = None,
               board_shape: bool = False) -> "Solution":
@@ -113,9 +114,10 @@ class Setup:
 
 
 def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
-          start: Solution | None = None, board_shape: bool = False, model: str = DEFAULT_LENS_MODEL) -> Solution:
+          start: Solution | None = None, board_shape: bool = False,
+          model: str | tuple[str, ...] = DEFAULT_LENS_MODEL) -> Solution:
     """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples;
-    ``model``: the lens model of every camera (:data:`dualcal.camera.LENS_MODELS`).
+    ``model``: the lens model (:data:`dualcal.camera.LENS_MODELS`) of every camera, or one per camera.
 
     Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
     solution over the same photos (or a superset of them: photos it did not see start from
@@ -126,6 +128,7 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     ``board_shape`` the board's out-of-plane shape is estimated too.
     """
     _check_enough_views(blocks, names)
+    models = (model,) * len(names) if isinstance(model, str) else tuple(model)
     if mode == "paper" and start is None:
         start = solve(X_board, names, sizes, blocks, reference, skew, "none", board_shape=board_shape, model=model)
     shape = start.state.board_shape_mm if start is not None else None
@@ -135,22 +138,24 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
         poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
         missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
         if missing:
-            zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew)[1]
+            zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew,
+                                       models[c])[1]
                      for c in {c for c, _ in missing}}
             for c, v in missing:
                 poses[c][v] = zhang[c][v]
     else:
         cams, poses = [], []
         for c, size in enumerate(sizes):
-            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew, model)
+            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew,
+                                    models[c])
             cams.append(cam)
             poses.append(p)
     first_mode = "rigid" if mode == "paper" else mode
-    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape, model)
+    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape, models)
     sol = adjust(problem, initial_state(problem, cams, poses, shape))
     if mode != "paper":
         return sol
-    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape, model)
+    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape, models)
     starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
     return adjust(problem, min(starts, key=lambda state: cost(problem, state)))
 
@@ -373,9 +378,38 @@ def board_shape_test(sol: Solution) -> dict:
     return {**doc, "t2": t2, "limit": limit, "significant": bool(t2 > limit)}
 
 
+#: ``model="auto"``: every camera's lens model chosen by its held-out instants (:mod:`dualcal.model_selection`).
+AUTO_MODEL = "auto"
+
+
+def lens_models_for(model: str | Mapping[str, str], names: list[str]) -> tuple[str, ...]:
+    """One lens model per camera of ``names`` from a model name (every camera) or a mapping
+    ``{camera: model}`` (cameras not named get the mapping's ``"*"``, else
+    :data:`dualcal.camera.DEFAULT_LENS_MODEL`).
+
+    Raises
+    ------
+    InputError
+        An unknown model name, or a mapping naming a camera that is not there.
+    """
+    if isinstance(model, str):
+        model = dict.fromkeys(names, model)
+    model = dict(model)
+    default = model.pop("*", DEFAULT_LENS_MODEL)
+    unknown_cameras = sorted(set(model) - set(names))
+    if unknown_cameras:
+        raise InputError(f"lens model given for camera {unknown_cameras[0]!r}, which is not one of the rig's "
+                         f"({', '.join(names)})")
+    for m in [default, *model.values()]:
+        if m not in LENS_MODELS:
+            raise InputError(f"lens model {m!r} is unknown (choose from {', '.join(LENS_MODELS)}, or {AUTO_MODEL})")
+    return tuple(model.get(n, default) for n in names)
+
+
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
                   reference: str | None = None, drop_outliers: bool = True,
-                  outlier_factor: float = 6.0, board_shape: str = "auto", model: str = DEFAULT_LENS_MODEL) -> RigModel:
+                  outlier_factor: float = 6.0, board_shape: str = "auto",
+                  model: str | Mapping[str, str] = DEFAULT_LENS_MODEL) -> RigModel:
     """Calibrate every camera of a rig and the rig itself from chessboard corners.
 
     Parameters
@@ -396,7 +430,10 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         show it beyond their noise (:func:`board_shape_test`), ``fit`` always keeps it, ``flat``
         takes the board as flat.
     model : the lens model of every camera, a key of :data:`dualcal.camera.LENS_MODELS`:
-        ``k1k2`` (the paper's), ``k1k2k3``, ``k1k2p1p2`` or ``k1k2p1p2k3`` (OpenCV's five coefficients)
+        ``k1k2`` (the paper's), ``k1k2k3``, ``k1k2p1p2``, ``k1k2p1p2k3`` (OpenCV's five coefficients) or
+        ``kb4`` (OpenCV's fisheye); or ``{camera: model}`` (cameras not named: ``k1k2``); or ``"auto"``:
+        each camera's chosen by its held-out instants (:func:`dualcal.model_selection.calibrate_auto`,
+        which records the comparison in ``adjustment["lens_models"]``)
 
     Raises
     ------
@@ -407,12 +444,18 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     """
     if board_shape not in BOARD_SHAPES:
         raise InputError(f"--board-shape {board_shape!r} is unknown (choose from {', '.join(BOARD_SHAPES)})")
-    if model not in LENS_MODELS:
-        raise InputError(f"--model {model!r} is unknown (choose from {', '.join(LENS_MODELS)})")
     corners, duplicates = merge_duplicate_instants(corners)
     if duplicates:
         warn(describe_duplicates(duplicates))
     names = sorted(corners.cameras)
+    if isinstance(model, str) and model == AUTO_MODEL:
+        from .model_selection import calibrate_auto
+        rig = calibrate_auto(corners, skew=skew, rig_mode=rig_mode, reference=reference, drop_outliers=drop_outliers,
+                             outlier_factor=outlier_factor, board_shape=board_shape)
+        if duplicates:
+            rig.adjustment["duplicates"] = duplicates
+        return rig
+    models = lens_models_for(model, names)
     ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
     sizes = [corners.cameras[n].image_size for n in names]
     X = corners.board.object_points_mm()
@@ -420,7 +463,7 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     dropped: list[dict] = []
     dropped_corners: list[dict] = []
     factor = outlier_factor if drop_outliers else None
-    setup = Setup(X, names, sizes, ref, skew, rig_mode, model)
+    setup = Setup(X, names, sizes, ref, skew, rig_mode, models)
     alone, blocks = _adjust_dropping_outliers(replace(setup, mode="none"), blocks, factor, dropped, dropped_corners)
     sol = alone
     if rig_mode != "none":
@@ -439,7 +482,8 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
              f"{sol.termination}; the results and their sigmas are not those of the best fit")
     rig = rig_model_from_solution(sol, corners, dropped, dropped_corners)
     rig.adjustment["options"] = {"drop_outliers": bool(drop_outliers), "outlier_factor": float(outlier_factor),
-                                 "board_shape": board_shape, "model": model}
+                                 "board_shape": board_shape,
+                                 "model": models[0] if len(set(models)) == 1 else dict(zip(names, models))}
     if shape_test is not None:
         rig.adjustment["board_shape_test"] = shape_test
     if duplicates:
@@ -507,15 +551,22 @@ def _refocused_camera(alone: Solution, view: str, kappa2) -> int | None:
 def held_out_error(sol: Solution) -> dict:
     """The error on instants the calibration did not see (:meth:`Solution.held_out_residuals`):
     ``held_out_rms_px``, the RMS length of the 2-D held-out residual per corner over the instants
-    that can be left out, and ``held_out_per_instant`` ``{view: {"rms_px", "corners"}}``."""
-    per_instant = {}
+    that can be left out, ``held_out_per_instant`` ``{view: {"rms_px", "corners"}}`` and the same of
+    each camera's own corners, ``held_out_per_camera`` ``{camera: {view: {"rms_px", "corners"}}}``."""
+    per_instant, per_camera = {}, {name: {} for name in sol.problem.cameras}
+    row_cameras = {ir.view: ir.row_cameras for ir in sol.instant_rows}
     for view, e in sol.held_out_residuals().items():
-        if e is not None:
-            per_instant[view] = {"rms_px": float(np.sqrt(2 * np.mean(e ** 2))), "corners": len(e) // 2}
+        if e is None:
+            continue
+        per_instant[view] = {"rms_px": float(np.sqrt(2 * np.mean(e ** 2))), "corners": len(e) // 2}
+        for c in np.unique(row_cameras[view]):
+            ec = e[row_cameras[view] == c]
+            per_camera[sol.problem.cameras[c]][view] = {"rms_px": float(np.sqrt(2 * np.mean(ec ** 2))),
+                                                        "corners": len(ec) // 2}
     squares = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
     corners = sum(d["corners"] for d in per_instant.values())
     return {"held_out_rms_px": float(np.sqrt(squares / corners)) if corners else None,
-            "held_out_per_instant": per_instant}
+            "held_out_per_instant": per_instant, "held_out_per_camera": per_camera}
 
 
 def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict],

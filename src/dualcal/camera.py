@@ -1,4 +1,4 @@
-"""The camera model: pinhole with skew and a lens model (paper eqs. 1, 13, 24-28).
+"""The camera model: pinhole with skew and a lens model (paper eqs. 1, 13, 24-28), or a fisheye.
 
 Conventions (README, "Conventions"):
 
@@ -13,6 +13,17 @@ Conventions (README, "Conventions"):
   and with those zero every function here computes exactly what it computed before the other
   coefficients existed. :data:`LENS_MODELS` names the models; a :class:`CameraModel` says which
   one it is, and its coefficients outside that model are zero.
+* The fisheye lens model ``kb4`` is OpenCV's ``cv2.fisheye`` (Kannala-Brandt, equidistant), with
+  ``r = sqrt(x^2 + y^2)``, ``theta = atan(r)`` (the ray's angle from the axis)::
+
+      theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)
+      xd = x theta_d / r,  yd = y theta_d / r
+
+  Its ``k1 .. k4`` have that meaning (not the radial polynomial's). A fisheye projects rays at and
+  beyond 90 degrees too (``theta = atan2(sqrt(X^2 + Y^2), Z)``); undistortion to the normalised
+  plane exists only below 90 degrees. The functions on a :class:`CameraModel` (:func:`distort`,
+  :func:`undistort`, :func:`lens_jacobian`, :func:`fold_radius`, ...) dispatch on the model's
+  family; those on bare coefficients are the family's own.
 * Pixels: ``u = fx xd + skew yd + cx``, ``v = fy yd + cy``; pixel ``(row i, col j)`` has its
   centre at ``(u=j, v=i)``. ``fx, fy, skew, cx, cy`` are the paper's alpha, beta, gamma, u0, v0.
 
@@ -29,19 +40,22 @@ import numpy as np
 
 from .errors import NotInvertibleError
 
-#: Lens coefficients in OpenCV's order (its ``distCoeffs``).
-DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3")
+#: Lens coefficients in OpenCV's order (its ``distCoeffs``), then the fisheye's k4 (``cv2.fisheye``: k1 k2 k3 k4).
+DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4")
 INTRINSIC_NAMES = ("fx", "fy", "skew", "cx", "cy") + DISTORTION_NAMES
 
 #: Lens models by name; each name lists its coefficients. ``k1k2`` is the paper's (the default),
-#: ``k1k2p1p2k3`` OpenCV's five-coefficient model.
+#: ``k1k2p1p2k3`` OpenCV's five-coefficient model, ``kb4`` OpenCV's fisheye (module docstring).
 LENS_MODELS = {
     "k1k2": ("k1", "k2"),
     "k1k2k3": ("k1", "k2", "k3"),
     "k1k2p1p2": ("k1", "k2", "p1", "p2"),
     "k1k2p1p2k3": ("k1", "k2", "p1", "p2", "k3"),
+    "kb4": ("k1", "k2", "k3", "k4"),
 }
 DEFAULT_LENS_MODEL = "k1k2"
+#: The lens models of the fisheye family (equidistant, ``theta_d`` a polynomial in the angle).
+FISHEYE_MODELS = frozenset({"kb4"})
 
 
 def intrinsic_names(model: str = DEFAULT_LENS_MODEL) -> tuple[str, ...]:
@@ -71,6 +85,7 @@ class CameraModel:
     p1: float = 0.0
     p2: float = 0.0
     k3: float = 0.0
+    k4: float = 0.0
     model: str = DEFAULT_LENS_MODEL
 
     def __post_init__(self):
@@ -86,13 +101,21 @@ class CameraModel:
         return np.array([[self.fx, self.skew, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
-    def distortion(self) -> tuple[float, float, float, float, float]:
-        """``(k1, k2, p1, p2, k3)``: OpenCV's ``distCoeffs`` of this lens."""
+    def fisheye(self) -> bool:
+        """Whether the lens model is a fisheye (:data:`FISHEYE_MODELS`)."""
+        return self.model in FISHEYE_MODELS
+
+    @property
+    def distortion(self) -> tuple[float, ...]:
+        """OpenCV's ``distCoeffs`` of this lens: ``(k1, k2, p1, p2, k3)``, or for a fisheye
+        ``cv2.fisheye``'s ``D``, ``(k1, k2, k3, k4)``."""
+        if self.fisheye:
+            return self.k1, self.k2, self.k3, self.k4
         return self.k1, self.k2, self.p1, self.p2, self.k3
 
     @property
     def radial(self) -> tuple[float, float, float]:
-        """``(k1, k2, k3)``: the radial part of the lens."""
+        """``(k1, k2, k3)``: the radial part of a radial-tangential lens."""
         return self.k1, self.k2, self.k3
 
     @property
@@ -101,7 +124,7 @@ class CameraModel:
         return self.p1 != 0.0 or self.p2 != 0.0
 
     def as_vector(self) -> np.ndarray:
-        """``[fx, fy, skew, cx, cy, k1, k2, p1, p2, k3]`` (order of :data:`INTRINSIC_NAMES`)."""
+        """``[fx, fy, skew, cx, cy, k1, k2, p1, p2, k3, k4]`` (order of :data:`INTRINSIC_NAMES`)."""
         return np.array([getattr(self, n) for n in INTRINSIC_NAMES], dtype=float)
 
     @classmethod
@@ -110,13 +133,13 @@ class CameraModel:
         return cls(tuple(int(s) for s in image_size), *(float(x) for x in vec), model=model)
 
     def with_distortion(self, k1: float, k2: float, p1: float = 0.0, p2: float = 0.0,
-                        k3: float = 0.0) -> "CameraModel":
+                        k3: float = 0.0, k4: float = 0.0) -> "CameraModel":
         """The same camera and lens model with other coefficients (those not given are 0)."""
-        return replace(self, k1=float(k1), k2=float(k2), p1=float(p1), p2=float(p2), k3=float(k3))
+        return replace(self, k1=float(k1), k2=float(k2), p1=float(p1), p2=float(p2), k3=float(k3), k4=float(k4))
 
     def pinhole(self) -> "CameraModel":
         """The same matrix A without lens distortion (lens model ``k1k2``, every coefficient 0)."""
-        return replace(self, k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0, model=DEFAULT_LENS_MODEL)
+        return replace(self, k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0, k4=0.0, model=DEFAULT_LENS_MODEL)
 
 
 def radial_factor(r2: np.ndarray, k1: float, k2: float, k3: float = 0.0) -> np.ndarray:
@@ -284,9 +307,10 @@ def undistort_radius(rd: np.ndarray, k1: float, k2: float, max_iter: int = 200, 
     return out, False
 
 
-def _coefficients_text(k1: float, k2: float, p1: float = 0.0, p2: float = 0.0, k3: float = 0.0) -> str:
+def _coefficients_text(k1: float, k2: float, p1: float = 0.0, p2: float = 0.0, k3: float = 0.0,
+                       k4: float = 0.0) -> str:
     """``k1=.., k2=..`` and the other coefficients where they are not zero, for messages."""
-    values = dict(zip(DISTORTION_NAMES, (k1, k2, p1, p2, k3)))
+    values = dict(zip(DISTORTION_NAMES, (k1, k2, p1, p2, k3, k4)))
     return ", ".join(f"{n}={v:.4g}" for n, v in values.items() if n in ("k1", "k2") or v != 0.0)
 
 
@@ -384,6 +408,196 @@ def undistort_normalized(xy_d: np.ndarray, k1: float, k2: float, p1: float = 0.0
     return _radial_inverse(xy_d, k1, k2, k3)
 
 
+# ----------------------------------------------------------------------------- the fisheye (kb4)
+
+
+def _theta_factor(t2: np.ndarray, k1: float, k2: float, k3: float, k4: float) -> np.ndarray:
+    """``1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8`` for squared angles ``t2``: ``theta_d / theta``."""
+    return 1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))
+
+
+def _theta_slope(t2: np.ndarray, k1: float, k2: float, k3: float, k4: float) -> np.ndarray:
+    """``d theta_d / d theta = 1 + 3 k1 t^2 + 5 k2 t^4 + 7 k3 t^6 + 9 k4 t^8``."""
+    return _theta_factor(t2, 3.0 * k1, 5.0 * k2, 7.0 * k3, 9.0 * k4)
+
+
+def fisheye_max_angle(k1: float, k2: float, k3: float = 0.0, k4: float = 0.0) -> float:
+    """Largest angle from the axis (rad, at most pi) up to which ``theta_d(theta)`` increases: the
+    first positive root of ``d theta_d / d theta`` (a quartic in ``theta^2``), else pi."""
+    roots = np.roots([9.0 * k4, 7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0])      # np.roots drops leading zeros
+    s = [r.real for r in roots if abs(r.imag) <= 1e-12 * max(abs(r), 1.0) and r.real > 0.0]
+    return float(min(np.sqrt(min(s)), np.pi)) if s else float(np.pi)
+
+
+def _theta_over_r(theta: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``theta / r`` (1 on the axis)."""
+    return np.divide(theta, r, out=np.ones_like(r), where=r > 0)
+
+
+def fisheye_distort(xy: np.ndarray, k1: float, k2: float, k3: float = 0.0, k4: float = 0.0) -> np.ndarray:
+    """Ideal normalised coordinates (N, 2) -> distorted ones of the ``kb4`` fisheye (module docstring)."""
+    xy = np.asarray(xy, dtype=float)
+    r = np.hypot(xy[..., 0], xy[..., 1])[..., None]
+    theta = np.arctan(r)
+    return xy * _theta_over_r(theta, r) * _theta_factor(theta * theta, k1, k2, k3, k4)
+
+
+def _fisheye_with_jacobian(x: np.ndarray, y: np.ndarray, k1: float, k2: float, k3: float, k4: float):
+    """``xd, yd``, ``d(xd, yd) / d(x, y)`` as ``(a, b, d)`` (symmetric) and ``{coefficient: (dxd,
+    dyd)}`` of the fisheye. With ``s = theta_d / r``: ``dxd/dx = s + x^2 g``, ``dxd/dy = x y g``,
+    ``g = s'(r) / r = (theta_d'(theta) / (1 + r^2) - s) / r^2`` (its limit ``2 (k1 - 1/3)`` on the
+    axis); ``d xd / d k_j = x (theta / r) theta^(2j)``."""
+    r2 = x * x + y * y
+    r = np.sqrt(r2)
+    theta = np.arctan(r)
+    t2 = theta * theta
+    q = _theta_over_r(theta, r)
+    s = q * _theta_factor(t2, k1, k2, k3, k4)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.where(r2 > 0, (_theta_slope(t2, k1, k2, k3, k4) / (1.0 + r2) - s) / r2, 2.0 * (k1 - 1.0 / 3.0))
+    xq, yq = x * q, y * q
+    powers = {"k1": t2, "k2": t2 * t2, "k3": t2 * t2 * t2, "k4": t2 ** 4}
+    return x * s, y * s, (s + x * x * g, x * y * g, s + y * y * g), {n: (xq * w, yq * w) for n, w in powers.items()}
+
+
+def _fisheye_angle(theta_d: np.ndarray, k: tuple, theta_max: float, max_iter: int = 100) -> np.ndarray:
+    """Solve ``theta (1 + k1 theta^2 + ...) = theta_d`` on ``[0, theta_max]`` (where it increases):
+    Newton safeguarded by bisection from ``theta = theta_d``, stopped on ``4 eps`` of the residual."""
+    lo, hi = np.zeros_like(theta_d), np.full_like(theta_d, theta_max)
+    t = np.clip(theta_d, lo, hi)
+    tol = 4.0 * np.finfo(float).eps * np.maximum(theta_d, np.finfo(float).tiny)
+    for _ in range(max_iter):
+        f = t * _theta_factor(t * t, *k) - theta_d
+        if np.all((np.abs(f) <= tol) | (hi - lo <= 2.0 * np.finfo(float).eps * hi)):
+            return t
+        lo, hi = np.where(f < 0, t, lo), np.where(f > 0, t, hi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            newton = t - f / _theta_slope(t * t, *k)
+        t = np.where(np.abs(f) <= tol, t, np.where((newton > lo) & (newton < hi), newton, 0.5 * (lo + hi)))
+    raise NotInvertibleError("fisheye undistortion did not converge (an angle too close to the fold of the model)")
+
+
+def fisheye_max_distorted_radius(k1: float, k2: float, k3: float = 0.0, k4: float = 0.0) -> float:
+    """Largest distorted normalised radius ``theta_d`` with a unique ray below 90 degrees (the image of
+    the fold of ``theta_d(theta)``, or of 90 degrees if that comes first): undistortion's limit."""
+    t = min(fisheye_max_angle(k1, k2, k3, k4), np.pi / 2)
+    return float(t * _theta_factor(t * t, k1, k2, k3, k4))
+
+
+def fisheye_undistort(xy_d: np.ndarray, k1: float, k2: float, k3: float = 0.0, k4: float = 0.0) -> np.ndarray:
+    """Distorted normalised coordinates (N, 2) of the ``kb4`` fisheye -> ideal ones (``x = X/Z``).
+
+    ``theta`` from ``theta_d = |xd|`` on the increasing branch of ``theta_d(theta)`` (bracketed
+    Newton), then ``r = tan(theta)`` along the same direction. NaN rows stay NaN.
+
+    Raises
+    ------
+    NotInvertibleError
+        A radius beyond :func:`fisheye_max_distorted_radius`: past the model's fold, or a ray at or
+        beyond 90 degrees from the axis, which has no point on the normalised plane.
+    """
+    xy_d = np.asarray(xy_d, dtype=float)
+    theta_d = np.hypot(xy_d[..., 0], xy_d[..., 1])
+    limit = fisheye_max_distorted_radius(k1, k2, k3, k4)
+    if np.any(theta_d >= limit):
+        raise NotInvertibleError(
+            f"fisheye {_coefficients_text(k1, k2, k3=k3, k4=k4)} has no ray below 90 degrees, or no unique "
+            f"one, beyond normalised radius {limit:.4g} (asked for {np.nanmax(theta_d):.4g})")
+    ok = np.isfinite(theta_d)
+    theta = np.full_like(theta_d, np.nan)
+    theta[ok] = _fisheye_angle(theta_d[ok], (k1, k2, k3, k4), min(fisheye_max_angle(k1, k2, k3, k4), np.pi / 2))
+    scale = np.divide(np.tan(theta), theta_d, out=np.ones_like(theta_d), where=theta_d > 0)
+    return xy_d * scale[..., None]
+
+
+# ----------------------------------------------------------------------------- a camera's lens, either family
+
+
+def distort(cam: CameraModel, xy: np.ndarray) -> np.ndarray:
+    """Ideal normalised coordinates (N, 2) -> distorted ones by ``cam``'s lens."""
+    if cam.fisheye:
+        return fisheye_distort(xy, *cam.distortion)
+    return distort_normalized(xy, *cam.distortion)
+
+
+def undistort(cam: CameraModel, xy_d: np.ndarray) -> np.ndarray:
+    """Distorted normalised coordinates (N, 2) -> ideal ones by ``cam``'s lens (:func:`undistort_normalized`,
+    :func:`fisheye_undistort`); raises :class:`NotInvertibleError` where that is not unique."""
+    if cam.fisheye:
+        return fisheye_undistort(xy_d, *cam.distortion)
+    return undistort_normalized(xy_d, *cam.distortion)
+
+
+def lens_jacobian(cam: CameraModel, x: np.ndarray, y: np.ndarray):
+    """``xd, yd`` of ideal ``x, y``, ``d(xd, yd) / d(x, y)`` as ``(a, b, d)`` (``[[a, b], [b, d]]``) and
+    ``{coefficient: (d xd, d yd)}`` for every coefficient of ``cam``'s lens family."""
+    if cam.fisheye:
+        return _fisheye_with_jacobian(x, y, *cam.distortion)
+    xd, yd, jac, r2 = _distorted_with_jacobian(x, y, *cam.distortion)
+    r4 = r2 * r2
+    xy2 = 2.0 * x * y
+    return xd, yd, jac, {"k1": (x * r2, y * r2), "k2": (x * r4, y * r4), "k3": (x * r4 * r2, y * r4 * r2),
+                         "p1": (xy2, r2 + 2.0 * y * y), "p2": (r2 + 2.0 * x * x, xy2)}
+
+
+def ray_directions(cam: CameraModel, xy_d: np.ndarray) -> np.ndarray:
+    """Distorted normalised coordinates (..., 2) -> the directions (..., 3) of their rays: ``(x, y, 1)``
+    of the ideal point, or for a fisheye ``(sin theta e, cos theta)`` (``e`` the unit direction in
+    the image), which reaches 90 degrees and beyond up to the model's fold. Raises
+    :class:`NotInvertibleError` beyond the fold (:func:`undistort`)."""
+    xy_d = np.asarray(xy_d, dtype=float)
+    if not cam.fisheye:
+        xy = undistort(cam, xy_d)
+        return np.concatenate([xy, np.ones_like(xy[..., :1])], axis=-1)
+    theta_d = np.hypot(xy_d[..., 0], xy_d[..., 1])
+    theta_max = fisheye_max_angle(*cam.distortion)
+    limit = theta_max * _theta_factor(theta_max**2, *cam.distortion)
+    if np.any(theta_d > limit):
+        raise NotInvertibleError(f"fisheye {_coefficients_text(cam.k1, cam.k2, k3=cam.k3, k4=cam.k4)} folds over "
+                                 f"beyond normalised radius {limit:.4g} (asked for {np.nanmax(theta_d):.4g})")
+    theta = np.full_like(theta_d, np.nan)
+    ok = np.isfinite(theta_d)
+    theta[ok] = _fisheye_angle(theta_d[ok], cam.distortion, theta_max)
+    e = xy_d * np.divide(1.0, theta_d, out=np.zeros_like(theta_d), where=theta_d > 0)[..., None]
+    return np.concatenate([e * np.sin(theta)[..., None], np.cos(theta)[..., None]], axis=-1)
+
+
+def fold_radius(cam: CameraModel) -> float:
+    """Largest ideal normalised radius up to which ``cam``'s lens is monotonic (``inf`` if never
+    folds): :func:`max_monotonic_radius` of the radial part, or ``tan`` of the fisheye's
+    :func:`fisheye_max_angle` (``inf`` when that is 90 degrees or more)."""
+    if cam.fisheye:
+        t = fisheye_max_angle(*cam.distortion)
+        return float(np.tan(t)) if t < np.pi / 2 else float("inf")
+    return max_monotonic_radius(*cam.radial)
+
+
+def fold_distorted_radius(cam: CameraModel) -> float:
+    """Largest distorted normalised radius that undistorts uniquely (:func:`max_distorted_radius`,
+    :func:`fisheye_max_distorted_radius`; the radial part of a radial-tangential lens)."""
+    if cam.fisheye:
+        return fisheye_max_distorted_radius(*cam.distortion)
+    return max_distorted_radius(*cam.radial)
+
+
+def distorted_radius(cam: CameraModel, r: np.ndarray) -> np.ndarray:
+    """The distorted normalised radius of ideal radii ``r`` (the radial part of the lens)."""
+    r = np.asarray(r, dtype=float)
+    if cam.fisheye:
+        theta = np.arctan(r)
+        return theta * _theta_factor(theta * theta, *cam.distortion)
+    return r * radial_factor(r * r, *cam.radial)
+
+
+def undistorted_radius(cam: CameraModel, rd: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`distorted_radius` on the monotonic branch (radii beyond the fold are NaN)."""
+    rd = np.asarray(rd, dtype=float)
+    ok = rd < fold_distorted_radius(cam)
+    out = np.full(rd.shape, np.nan)
+    out[ok] = undistort(cam, np.column_stack([rd[ok], np.zeros(int(ok.sum()))]))[:, 0]
+    return out
+
+
 def pixel_from_normalized(cam: CameraModel, xy_d: np.ndarray) -> np.ndarray:
     """Distorted normalised (N, 2) -> pixels (N, 2) through the matrix A (paper eq. 28)."""
     xy_d = np.asarray(xy_d, dtype=float)
@@ -401,28 +615,34 @@ def normalized_from_pixel(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
 
 
 def project_points(cam: CameraModel, X_cam: np.ndarray) -> np.ndarray:
-    """Camera-frame points (N, 3) -> distorted pixels (N, 2)."""
+    """Camera-frame points (N, 3) -> distorted pixels (N, 2). A fisheye projects points at and behind
+    90 degrees from the axis too (the angle ``atan2(sqrt(X^2 + Y^2), Z)``); a pinhole lens divides by Z."""
     X_cam = np.asarray(X_cam, dtype=float)
-    xy = X_cam[..., :2] / X_cam[..., 2:3]
-    return pixel_from_normalized(cam, distort_normalized(xy, *cam.distortion))
+    if not cam.fisheye:
+        xy = X_cam[..., :2] / X_cam[..., 2:3]
+        return pixel_from_normalized(cam, distort_normalized(xy, *cam.distortion))
+    rho = np.hypot(X_cam[..., 0], X_cam[..., 1])[..., None]
+    theta = np.arctan2(rho, X_cam[..., 2:3])
+    direction = np.divide(X_cam[..., :2], rho, out=np.zeros_like(X_cam[..., :2]), where=rho > 0)
+    return pixel_from_normalized(cam, direction * theta * _theta_factor(theta * theta, *cam.distortion))
 
 
 def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
-    """Projection and its exact derivatives.
+    """Projection and its exact derivatives (points in front of the camera, ``Z > 0``).
 
     Returns
     -------
     uv : (N, 2) pixels
     d_uv_d_X : (N, 2, 3) derivative with respect to the camera-frame point
-    d_uv_d_intrinsics : (N, 2, 10) derivative with respect to the intrinsics in the order of
-        :data:`INTRINSIC_NAMES`, ``[fx, fy, skew, cx, cy, k1, k2, p1, p2, k3]`` (every lens
-        coefficient, whichever the camera's model has)
+    d_uv_d_intrinsics : (N, 2, 11) derivative with respect to the intrinsics in the order of
+        :data:`INTRINSIC_NAMES`, ``[fx, fy, skew, cx, cy, k1, k2, p1, p2, k3, k4]`` (every lens
+        coefficient of the camera's lens family, whichever its model has; the others' columns 0)
     """
     X_cam = np.asarray(X_cam, dtype=float)
     X, Y, Z = X_cam[:, 0], X_cam[:, 1], X_cam[:, 2]
     iz = 1.0 / Z
     x, y = X * iz, Y * iz
-    xd, yd, (dxd_dx, dxd_dy, dyd_dy), r2 = _distorted_with_jacobian(x, y, *cam.distortion)
+    xd, yd, (dxd_dx, dxd_dy, dyd_dy), d_coefficients = lens_jacobian(cam, x, y)
     dyd_dx = dxd_dy
     u = cam.fx * xd + cam.skew * yd + cam.cx
     v = cam.fy * yd + cam.cy
@@ -446,22 +666,16 @@ def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
     J_K[:, 0, 3] = 1.0
     J_K[:, 1, 1] = yd
     J_K[:, 1, 4] = 1.0
-    pu = cam.fx * x + cam.skew * y
-    pv = cam.fy * y
-    J_K[:, 0, 5], J_K[:, 0, 6], J_K[:, 0, 9] = pu * r2, pu * r2 * r2, pu * r2 * r2 * r2
-    J_K[:, 1, 5], J_K[:, 1, 6], J_K[:, 1, 9] = pv * r2, pv * r2 * r2, pv * r2 * r2 * r2
-    dxd_dp1, dyd_dp1 = 2.0 * x * y, r2 + 2.0 * y * y           # and d(xd, yd)/dp2 = (r2 + 2 x^2, 2 x y)
-    dxd_dp2, dyd_dp2 = r2 + 2.0 * x * x, dxd_dp1
-    J_K[:, 0, 7] = cam.fx * dxd_dp1 + cam.skew * dyd_dp1
-    J_K[:, 1, 7] = cam.fy * dyd_dp1
-    J_K[:, 0, 8] = cam.fx * dxd_dp2 + cam.skew * dyd_dp2
-    J_K[:, 1, 8] = cam.fy * dyd_dp2
+    for name, (dxd, dyd) in d_coefficients.items():
+        i = INTRINSIC_NAMES.index(name)
+        J_K[:, 0, i] = cam.fx * dxd + cam.skew * dyd
+        J_K[:, 1, i] = cam.fy * dyd
     return np.stack([u, v], axis=-1), J_X, J_K
 
 
 def ideal_normalized_from_pixel(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
     """Observed (distorted) pixels -> ideal normalised coordinates ``(X/Z, Y/Z)`` of their rays."""
-    return undistort_normalized(normalized_from_pixel(cam, uv), *cam.distortion)
+    return undistort(cam, normalized_from_pixel(cam, uv))
 
 
 def undistort_points(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
@@ -471,8 +685,7 @@ def undistort_points(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
 
 def distort_points(cam: CameraModel, uv_ideal: np.ndarray) -> np.ndarray:
     """Ideal pinhole pixels -> observed (distorted) pixels; inverse of :func:`undistort_points`."""
-    xy = normalized_from_pixel(cam, uv_ideal)
-    return pixel_from_normalized(cam, distort_normalized(xy, *cam.distortion))
+    return pixel_from_normalized(cam, distort(cam, normalized_from_pixel(cam, uv_ideal)))
 
 
 def image_corner_radius(cam: CameraModel) -> float:
@@ -509,15 +722,20 @@ def check_invertible_in_image(cam: CameraModel, corners_may_fold: bool = False) 
     edge, i.e. where it cuts off only the image's corners (a forward remap masks those pixels).
     The radial part is checked exactly (its fold radius, :func:`max_distorted_radius`); for a lens
     with tangential terms the determinant of the full model's Jacobian must also be positive on a
-    dense grid of the ideal points that the image shows.
+    dense grid of the ideal points that the image shows. A fisheye must not fold inside the image,
+    nor show rays at 90 degrees or more from its axis (they have no undistorted point).
     """
-    rd_max = max_distorted_radius(*cam.radial)
+    rd_max = fold_distorted_radius(cam)
     w, h = cam.image_size
     edge_middles = np.array([[-0.5, (h - 1) / 2], [w - 0.5, (h - 1) / 2], [(w - 1) / 2, -0.5], [(w - 1) / 2, h - 0.5]])
     rd_img = float(np.max(np.linalg.norm(normalized_from_pixel(cam, edge_middles), axis=1))) if corners_may_fold \
         else image_corner_radius(cam)
     where = "at the middle of an image edge" if corners_may_fold else "inside the image"
     if rd_img > rd_max:
+        if cam.fisheye:
+            raise NotInvertibleError(
+                f"fisheye {_coefficients_text(cam.k1, cam.k2, k3=cam.k3, k4=cam.k4)} folds over, or sees "
+                f"90 degrees from its axis, {where}: beyond normalised {rd_max:.4g}, image reaches {rd_img:.4g}")
         raise NotInvertibleError(
             f"distortion {_coefficients_text(cam.k1, cam.k2, k3=cam.k3)} folds over {where}: "
             f"radius not monotonic beyond normalised {rd_max:.4g}, image reaches {rd_img:.4g}")

@@ -21,7 +21,13 @@ k1k2        k1 k2 0 0 0                 k1 k2 0 0               OPENCV          
 k1k2p1p2    k1 k2 p1 p2 0               k1 k2 p1 p2             OPENCV                 LENSMODEL_OPENCV4
 k1k2k3      k1 k2 0 0 k3                refused (no k3)         FULL_OPENCV            LENSMODEL_OPENCV5
 k1k2p1p2k3  k1 k2 p1 p2 k3              refused (no k3)         FULL_OPENCV            LENSMODEL_OPENCV5
+kb4         k1 k2 k3 k4 (cv2.fisheye)   ``equidistant``         OPENCV_FISHEYE         refused (no such)
 ==========  ==========================  ======================  =====================  ===================
+
+The fisheye ``kb4`` is OpenCV's ``cv2.fisheye`` model term for term: its ``D`` (1x4) is what
+``cv2.fisheye.projectPoints`` takes, Kalibr's ``pinhole`` + ``equidistant`` (``pinhole-equi``) and
+COLMAP's ``OPENCV_FISHEYE`` are the same model; mrcal has no Kannala-Brandt model, so a rig with one
+is refused there.
 
 (COLMAP's OPENCV is ``k1 k2 p1 p2``, its FULL_OPENCV ``k1 k2 p1 p2 k3 k4 k5 k6``, here with
 ``k4 = k5 = k6 = 0``; mrcal's OPENCV4 and OPENCV5 are OpenCV's first four and five.) None of
@@ -107,7 +113,8 @@ def opencv_yaml(rig: RigModel) -> str:
     map per camera (key: the name, characters other than letters, digits, ``-`` and ``_``
     replaced by ``_``, and ``_`` put in front of a leading digit) holding
     ``image_width``, ``image_height`` (px), ``K`` (3x3, px), ``D`` (1x5: k1, k2, p1, p2, k3, zero
-    where the lens model lacks them), ``lens_model`` (dualcal's name of it) and,
+    where the lens model lacks them; for the fisheye ``kb4`` 1x4, ``cv2.fisheye``'s k1, k2, k3, k4),
+    ``lens_model`` (dualcal's name of it) and,
     for every camera with a pose relative to the reference, ``R`` (3x3) and ``T`` (3x1, mm)
     such that ``X_cam = R X_ref + T`` (what ``cv2.stereoCalibrate`` returns). Each other camera
     also carries the stereo rectification of the pair (reference = camera 1, this camera =
@@ -121,7 +128,8 @@ def opencv_yaml(rig: RigModel) -> str:
     keys = _distinct(rig.camera_order(), _opencv_key, "the OpenCV key")
     fs = cv2.FileStorage(".yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     fs.writeComment(f"dualcal {__version__} rig calibration. K in pixels (skew dropped), "
-                    "D = (k1, k2, p1, p2, k3), X_cam = R X_ref + T with T in millimetres.")
+                    "D = (k1, k2, p1, p2, k3), or cv2.fisheye's (k1, k2, k3, k4) where lens_model is kb4; "
+                    "X_cam = R X_ref + T with T in millimetres.")
     fs.write("reference", rig.reference)
     fs.startWriteStruct("cameras", cv2.FileNode_SEQ)
     for name in rig.camera_order():
@@ -133,7 +141,7 @@ def opencv_yaml(rig: RigModel) -> str:
         fs.write("image_width", int(cam.image_size[0]))
         fs.write("image_height", int(cam.image_size[1]))
         fs.write("K", np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]]))
-        fs.write("D", np.array(cam.distortion).reshape(1, 5))
+        fs.write("D", np.array(cam.distortion).reshape(1, -1))
         fs.write("lens_model", cam.model)
         if name == rig.reference or name in rig.rig:
             pose = rig.pose_from_reference(name)
@@ -178,7 +186,8 @@ def kalibr_yaml(rig: RigModel) -> str:
 
     Each camera: ``camera_model: pinhole``, ``intrinsics: [fu, fv, pu, pv]`` (px),
     ``distortion_model: radtan``, ``distortion_coeffs: [k1, k2, p1, p2]`` (``p1 = p2 = 0`` for
-    the paper's ``k1k2``),
+    the paper's ``k1k2``), or for the fisheye ``kb4`` ``distortion_model: equidistant`` with
+    ``[k1, k2, k3, k4]`` (Kalibr's ``pinhole-equi``),
     ``resolution: [w, h]``, ``rostopic``, ``cam_overlaps`` (every other camera: all saw the same
     board) and, from cam1 on, ``T_cn_cnm1``: the 4x4 transform taking camera n-1 coordinates to
     camera n coordinates, translation in metres.
@@ -189,7 +198,7 @@ def kalibr_yaml(rig: RigModel) -> str:
         For a lens model with ``k3``, which radtan does not have.
     """
     order = rig.camera_order()
-    with_k3 = [name for name in order if _has_k3(rig.cameras[name])]
+    with_k3 = [name for name in order if _has_k3(rig.cameras[name]) and not rig.cameras[name].fisheye]
     if with_k3:
         raise InputError(f"kalibr's radtan model has no k3, which the lens model {rig.cameras[with_k3[0]].model} "
                          f"of {', '.join(with_k3)} has: export to opencv, colmap or mrcal, which hold it, or "
@@ -213,8 +222,8 @@ def kalibr_yaml(rig: RigModel) -> str:
         overlaps = ", ".join(str(j) for j in range(len(order)) if j != i)
         lines += [f"  cam_overlaps: [{overlaps}]",
                   "  camera_model: pinhole",
-                  f"  distortion_coeffs: {_yaml_list([cam.k1, cam.k2, cam.p1, cam.p2])}",
-                  "  distortion_model: radtan",
+                  f"  distortion_coeffs: {_yaml_list(cam.distortion if cam.fisheye else cam.distortion[:4])}",
+                  f"  distortion_model: {'equidistant' if cam.fisheye else 'radtan'}",
                   f"  intrinsics: {_yaml_list([cam.fx, cam.fy, cam.cx, cam.cy])}",
                   f"  resolution: [{cam.image_size[0]}, {cam.image_size[1]}]",
                   f"  rostopic: {topics[name]}"]
@@ -230,8 +239,9 @@ def colmap_cameras_txt(rig: RigModel) -> str:
 
     ``CAMERA_ID OPENCV WIDTH HEIGHT fx fy cx cy k1 k2 p1 p2``, or for a lens model with ``k3``
     ``CAMERA_ID FULL_OPENCV WIDTH HEIGHT fx fy cx cy k1 k2 p1 p2 k3 k4 k5 k6`` (``k4 = k5 = k6 =
-    0``), with ``cx, cy`` moved by +0.5 px to COLMAP's pixel convention (centre of the top-left
-    pixel at (0.5, 0.5)).
+    0``), or for the fisheye ``kb4`` ``CAMERA_ID OPENCV_FISHEYE WIDTH HEIGHT fx fy cx cy k1 k2 k3 k4``,
+    with ``cx, cy`` moved by +0.5 px to COLMAP's pixel convention (centre of the top-left pixel at
+    (0.5, 0.5)).
     """
     order = rig.camera_order()
     lines = ["# Camera list with one line of data per camera:",
@@ -243,7 +253,9 @@ def colmap_cameras_txt(rig: RigModel) -> str:
         cam = rig.cameras[name]
         params = [cam.fx, cam.fy, cam.cx + 0.5, cam.cy + 0.5, cam.k1, cam.k2, cam.p1, cam.p2]
         model = "OPENCV"
-        if _has_k3(cam):
+        if cam.fisheye:
+            params, model = params[:4] + list(cam.distortion), "OPENCV_FISHEYE"
+        elif _has_k3(cam):
             params, model = params + [cam.k3, 0.0, 0.0, 0.0], "FULL_OPENCV"
         lines.append(f"{i} {model} {cam.image_size[0]} {cam.image_size[1]} "
                      + " ".join(repr(float(p)) for p in params))
@@ -323,7 +335,8 @@ def export_files(rig: RigModel, fmt: str, output: str | Path) -> dict[Path, str]
     InputError
         for an unknown format, two cameras whose names the format would spell alike, in kalibr
         and mrcal (which place every camera relative to the reference), a rig whose cameras
-        have no relative pose (rig mode ``none``), or in kalibr, a lens model with ``k3``.
+        have no relative pose (rig mode ``none``), in kalibr a radial lens model with ``k3``, or in
+        mrcal a fisheye.
     """
     if fmt not in FORMATS:
         raise InputError(f"--format {fmt!r} is unknown (choose from {', '.join(FORMATS)})")
@@ -331,6 +344,10 @@ def export_files(rig: RigModel, fmt: str, output: str | Path) -> dict[Path, str]
     if fmt in ("kalibr", "mrcal") and unrelated:
         raise InputError(f"camera(s) {', '.join(unrelated)} have no pose relative to {rig.reference} "
                          f"(rig mode {rig.rig_mode!r}), which {fmt} needs: calibrate with --rig rigid or paper")
+    fisheyes = [name for name, cam in rig.cameras.items() if cam.fisheye]
+    if fmt == "mrcal" and fisheyes:
+        raise InputError(f"mrcal has no Kannala-Brandt fisheye, the lens model of {', '.join(fisheyes)}: export to "
+                         "opencv (cv2.fisheye), kalibr (pinhole-equi) or colmap (OPENCV_FISHEYE), which have it")
     if fmt == "mrcal":
         return {path: mrcal_cameramodel(rig, name) for name, path in mrcal_paths(rig, output).items()}
     text = {"opencv": opencv_yaml, "kalibr": kalibr_yaml, "colmap": colmap_cameras_txt}[fmt](rig)

@@ -26,7 +26,7 @@ from .board import SHAPE_TERMS, Board
 from .camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names,
                      max_distorted_radius, normalized_from_pixel)
 from .errors import InputError, OutputError
-from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation, rig_residuals, rms_px
+from .model import MIXED_LENS_MODELS, CameraCorners, CornerSet, Pose, RigModel, RigRelation, rig_residuals, rms_px
 from .parallel import raise_if_cancelled
 from .progress import warn
 from .schemas import validate
@@ -399,7 +399,7 @@ def rig_to_dict(rig: RigModel) -> dict:
     cameras = {}
     for name, cam in rig.cameras.items():
         names = intrinsic_names(cam.model)        # the model's coefficients only (k1k2: the keys of old files)
-        entry = {"image_size": list(cam.image_size)}
+        entry = {"image_size": list(cam.image_size), "model": cam.model}
         entry.update({n: float(getattr(cam, n)) for n in names})
         entry["sigma"] = {n: float(s) for n, s in rig.camera_sigma[name].items() if n in names}
         if name in rig.camera_sigma_formal:
@@ -485,10 +485,11 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
     try:
         corners = corners_from_dict(doc["corners"], f"{source} corners")
         board = board_from_dict(doc["board"], source)
-        model = _lens_model(doc, source)
+        common = _lens_model(doc, source)
         cameras, sigma, sigma_formal, rms = {}, {}, {}, {}
         for name, e in doc["cameras"].items():
             size = _image_size(e["image_size"], f"{source}: camera {name!r}")
+            model = _camera_lens_model(e, common, f"{source}: camera {name!r}")
             _check_lens_keys(e, model, f"{source}: camera {name!r}")
             cameras[name] = CameraModel(size, **{n: float(e[n]) for n in intrinsic_names(model)}, model=model)
             sigma[name] = {k: float(v) for k, v in e.get("sigma", {}).items()}
@@ -530,10 +531,21 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
 
 
 def _lens_model(doc: dict, source: str) -> str:
-    """calib.json's ``model``; a file without one (written before lens models) is the paper's ``k1k2``."""
+    """calib.json's ``model``: a lens model or ``mixed``; a file without one (written before lens models)
+    is the paper's ``k1k2``."""
     model = doc.get("model", DEFAULT_LENS_MODEL)
-    if model not in LENS_MODELS:
+    if model not in LENS_MODELS and model != MIXED_LENS_MODELS:
         raise InputError(f"{source}: lens model {model!r} is unknown (dualcal knows {', '.join(LENS_MODELS)})")
+    return model
+
+
+def _camera_lens_model(entry: dict, common: str, what: str) -> str:
+    """A camera's ``model``, else the file's common one (files written before cameras had their own)."""
+    model = entry.get("model", common)
+    if model not in LENS_MODELS:
+        raise InputError(f"{what}: lens model {model!r} is unknown (dualcal knows {', '.join(LENS_MODELS)})")
+    if common != MIXED_LENS_MODELS and model != common:
+        raise InputError(f"{what} has lens model {model}, the file's 'model' says {common} (or 'mixed')")
     return model
 
 

@@ -17,6 +17,10 @@ from .camera import CameraModel, project_points
 from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
 
 
+#: calib.json's top-level ``model`` when the cameras' lens models differ.
+MIXED_LENS_MODELS = "mixed"
+
+
 @dataclass
 class Pose:
     """A rigid transform ``X_to = R @ X_from + t_mm``."""
@@ -168,23 +172,21 @@ class RigModel:
 
     @property
     def model(self) -> str:
-        """The lens model of the cameras (calib.json's ``model``; every camera of a rig has the same).
+        """The cameras' common lens model (calib.json's ``model``), or ``"mixed"`` (:attr:`models`)."""
+        models = set(self.models.values())
+        return models.pop() if len(models) == 1 else MIXED_LENS_MODELS
 
-        Raises
-        ------
-        ValueError
-            Cameras of different lens models (no calibration makes such a rig).
-        """
-        models = {cam.model for cam in self.cameras.values()}
-        if len(models) != 1:
-            raise ValueError(f"the cameras of a rig have one lens model, these have {sorted(models)}")
-        return models.pop()
+    @property
+    def models(self) -> dict[str, str]:
+        """``{camera: its lens model}`` (calib.json's ``cameras.<name>.model``)."""
+        return {name: cam.model for name, cam in self.cameras.items()}
 
     def calibration_options(self) -> dict:
         """The options the calibration ran with (``adjustment["options"]``: ``drop_outliers``,
         ``outlier_factor``, ``board_shape``, ``model``: :func:`dualcal.calibrate.calibrate_rig`'s keyword
         arguments); files written before one was recorded get its default."""
-        return {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto", "model": self.model,
+        return {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto",
+                "model": self.model if self.model != MIXED_LENS_MODELS else self.models,
                 **self.adjustment.get("options", {})}
 
     def board_points_mm(self) -> np.ndarray:

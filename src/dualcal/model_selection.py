@@ -18,21 +18,42 @@ over the instants in units of its standard error says how many standard errors t
 worse than the best. The recommendation is the model with the fewest coefficients that is within
 :data:`RECOMMEND_WITHIN_SE` standard errors of the best: a richer model must earn its
 coefficients by predicting the unseen instants clearly better.
+
+:func:`calibrate_auto` (``calibrate_rig(model="auto")``) makes that choice for every camera, from
+its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera``). The
+candidates of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the
+camera's field of view makes one plausible: Zhang's closed form (no lens) puts the image's corner
+more than :data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis (a phone's main camera: about 40, its
+ultra-wide: 55-60 and more). For such a camera ``kb4`` is also the preferred model, as ``k1k2`` is
+for the others: a polynomial in the pinhole radius must then predict clearly better to be chosen
+(the paired test over instants is weak when, as here, the difference lies in the few instants
+that put the board near the image's edge). A first calibration gives each camera its preferred
+model and finds the outliers; then one calibration per lens model, on the corners the first used,
+with every camera alone (rig mode ``none``, so that no camera's lens changes another's held-out
+error through the shared poses), gives that model to every camera it is a candidate of (the
+others keep their preferred model): one solve per model scores every camera. Each camera then
+gets the model of the rule above among its candidates, and the rig is calibrated once more with
+them.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .camera import LENS_MODELS
+from .camera import DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraModel, image_corner_radius
 from .errors import EstimationError
-from .model import RigModel
+from .model import CornerSet, RigModel
 from .progress import warn
 
-__all__ = ["LensModelScore", "RECOMMEND_WITHIN_SE", "compare_lens_models", "score_lens_models"]
+__all__ = ["FISHEYE_HALF_DIAGONAL_DEG", "LensModelScore", "RECOMMEND_WITHIN_SE", "calibrate_auto",
+           "compare_lens_models", "lens_model_candidates", "score_lens_models"]
+
+#: A camera whose image corner lies more than this far from its axis (Zhang's closed form, no lens)
+#: has the fisheye ``kb4`` among its candidate lens models.
+FISHEYE_HALF_DIAGONAL_DEG = 50.0
 
 #: A model within this many standard errors of the best held-out error counts as good as the best.
 RECOMMEND_WITHIN_SE = 2.0
@@ -52,21 +73,28 @@ class LensModelScore:
     recommended: bool
 
 
-def _squares(rig: RigModel, views: list[str]) -> np.ndarray:
-    per = rig.adjustment["held_out_per_instant"]
-    return np.array([per[v]["rms_px"] ** 2 * per[v]["corners"] for v in views])
+def _held_out(rig: RigModel, camera: str | None) -> dict:
+    """The held-out errors per instant of the whole rig, or of one camera's corners."""
+    if camera is None:
+        return rig.adjustment["held_out_per_instant"]
+    return rig.adjustment["held_out_per_camera"][camera]
 
 
-def score_lens_models(rigs: dict[str, RigModel]) -> list[LensModelScore]:
+def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None,
+                      first: str | None = None) -> list[LensModelScore]:
     """Score calibrations of the same corners by different lens models (module docstring).
 
     Parameters
     ----------
-    rigs : ``{model: calibration}``, each with ``adjustment["held_out_per_instant"]``.
+    rigs : ``{model: calibration}``, each with ``adjustment["held_out_per_instant"]`` (and
+        ``"held_out_per_camera"`` for a ``camera``).
+    camera : score one camera's corners only (its fit RMS, its held-out errors), else the whole rig's.
+    first : a model preferred to all others (a fisheye's ``kb4``): it comes first in the order in which
+        the first model within :data:`RECOMMEND_WITHIN_SE` of the best is recommended.
 
     Returns
     -------
-    One score per model, fewest coefficients first; exactly one is ``recommended``.
+    One score per model, ``first`` first, then fewest coefficients first; exactly one is ``recommended``.
 
     Raises
     ------
@@ -75,27 +103,29 @@ def score_lens_models(rigs: dict[str, RigModel]) -> list[LensModelScore]:
     """
     if not rigs:
         raise EstimationError("no lens model to compare")
-    views = sorted(set.intersection(*(set(r.adjustment["held_out_per_instant"]) for r in rigs.values())))
+    held = {m: _held_out(r, camera) for m, r in rigs.items()}
+    views = sorted(set.intersection(*(set(h) for h in held.values())))
     if len(views) < 3:
         raise EstimationError(f"{len(views)} instant(s) can be left out by every model: a comparison needs 3")
-    corners = {m: {v: r.adjustment["held_out_per_instant"][v]["corners"] for v in views} for m, r in rigs.items()}
+    corners = {m: {v: h[v]["corners"] for v in views} for m, h in held.items()}
     if any(c != next(iter(corners.values())) for c in corners.values()):
         raise EstimationError("the calibrations compared did not use the same corners")
     n_corners = sum(next(iter(corners.values())).values())
-    squares = {m: _squares(r, views) for m, r in rigs.items()}
+    squares = {m: np.array([h[v]["rms_px"] ** 2 * h[v]["corners"] for v in views]) for m, h in held.items()}
     best = min(squares, key=lambda m: squares[m].sum())
-    order = sorted(rigs, key=lambda m: (len(LENS_MODELS[m]), m))
+    order = sorted(rigs, key=lambda m: (m != first, len(LENS_MODELS[m]), m))
     worse = {}
     for m in order:
         d = squares[m] - squares[best]
         se = np.std(d, ddof=1) / np.sqrt(len(d))
         worse[m] = float(np.mean(d) / se) if se > 0 else 0.0
     chosen = next(m for m in order if worse[m] <= RECOMMEND_WITHIN_SE)
-    return [LensModelScore(m, len(LENS_MODELS[m]), rigs[m].rms_px, float(np.sqrt(squares[m].sum() / n_corners)),
+    fit = {m: r.rms_px if camera is None else r.camera_rms_px[camera] for m, r in rigs.items()}
+    return [LensModelScore(m, len(LENS_MODELS[m]), fit[m], float(np.sqrt(squares[m].sum() / n_corners)),
                            worse[m], m == chosen) for m in order]
 
 
-def compare_lens_models(rig: RigModel, models=tuple(LENS_MODELS),
+def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m not in FISHEYE_MODELS),
                         calibrate: Callable[..., RigModel] | None = None) -> list[LensModelScore]:
     """Calibrate the corners ``rig`` used with every lens model of ``models`` and score them.
 
@@ -108,7 +138,7 @@ def compare_lens_models(rig: RigModel, models=tuple(LENS_MODELS),
         from .calibrate import calibrate_rig as calibrate
     corners = rig.used_corners()
     options = {**rig.calibration_options(), "drop_outliers": False}
-    rigs = {rig.model: rig}
+    rigs = {rig.model: rig} if rig.model in LENS_MODELS else {}
     for model in models:
         if model in rigs:
             continue
@@ -118,3 +148,79 @@ def compare_lens_models(rig: RigModel, models=tuple(LENS_MODELS),
         except EstimationError as exc:
             warn(f"lens model {model} could not be calibrated for the comparison: {exc}")
     return score_lens_models(rigs)
+
+
+def _camera_entry(score: LensModelScore | None) -> dict:
+    """calib.json's ``per_camera`` entry of one model for one camera (``candidate`` False: not scored)."""
+    if score is None:
+        return {"candidate": False}
+    return {"candidate": True, **{k: v for k, v in asdict(score).items() if k not in ("model", "coefficients")}}
+
+
+def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
+    """The lens models :func:`calibrate_auto` tries for a camera whose closed-form intrinsics are
+    ``cam`` (its matrix A): the radial-tangential ones, and the fisheyes where the image's corner lies
+    more than :data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis through a pinhole of that A."""
+    wide = np.degrees(np.arctan(image_corner_radius(cam.pinhole()))) > FISHEYE_HALF_DIAGONAL_DEG
+    return tuple(m for m in LENS_MODELS if wide or m not in FISHEYE_MODELS)
+
+
+def _closed_form_cameras(corners: CornerSet, skew: bool) -> dict[str, CameraModel]:
+    """Every camera's intrinsics by Zhang's closed form (no lens), from its usable photos."""
+    from .calibrate import unusable_reason
+    from .zhang import initial_camera
+
+    xy = corners.board.object_points_mm()[:, :2]
+    out = {}
+    for name, cam in corners.cameras.items():
+        views = {v: uv for v, uv in cam.found().items() if unusable_reason(uv, xy) is None}
+        if len(views) < 3:
+            raise EstimationError(f"camera {name!r} has {len(views)} usable view(s); at least 3 are needed")
+        out[name] = initial_camera(xy, views, cam.image_size, skew)[0]
+    return out
+
+
+def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None = None, **options) -> RigModel:
+    """Calibrate with every camera's lens model chosen by its held-out instants (module docstring).
+
+    ``options`` are :func:`dualcal.calibrate.calibrate_rig`'s (not ``model``). The result is the
+    calibration with the chosen models; ``adjustment["lens_models"]`` holds the comparison: one entry
+    per model (the whole rig's scores, every camera alone; for a model that is not every camera's
+    candidate, the others keep their preferred model), each with ``per_camera``
+    ``{camera: {"candidate", "fit_rms_px", "held_out_rms_px", "worse_se", "recommended"}}``; and
+    ``adjustment["lens_models_chosen"]`` ``{camera: model}``.
+    """
+    if calibrate is None:
+        from .calibrate import calibrate_rig as calibrate
+    names = sorted(corners.cameras)
+    candidates = {n: lens_model_candidates(cam) for n, cam in _closed_form_cameras(corners, options.get("skew", False)).items()}
+    preferred = {n: next((m for m in candidates[n] if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n in names}
+    base = calibrate(corners, model=preferred, **options)
+    used = base.used_corners()
+    rigs: dict[str, RigModel] = {}
+    for model in [m for m in LENS_MODELS if any(m in c for c in candidates.values())]:
+        mapping = {n: model if model in candidates[n] else preferred[n] for n in names}
+        try:
+            rigs[model] = calibrate(used, **{**options, "drop_outliers": False, "reference": base.reference,
+                                             "rig_mode": "none", "model": mapping})
+        except EstimationError as exc:
+            warn(f"lens model {model} could not be calibrated for the comparison: {exc}")
+    per_camera, chosen = {}, dict(preferred)
+    for n in names:
+        try:
+            scores = score_lens_models({m: r for m, r in rigs.items() if m in candidates[n]}, n, first=preferred[n])
+        except EstimationError as exc:
+            warn(f"the lens models of {n!r} could not be compared ({exc}): it keeps {preferred[n]}")
+            continue
+        per_camera[n] = {s.model: s for s in scores}
+        chosen[n] = next(s.model for s in scores if s.recommended)
+    final = base if chosen == preferred else calibrate(corners, **{**options, "model": chosen})
+    try:
+        overall = {s.model: asdict(s) for s in score_lens_models(rigs)}
+    except EstimationError:         # no model, or too few instants: the per-camera entries say it
+        overall = {}
+    final.adjustment["lens_models"] = [
+        {**overall.get(m, {"model": m, "coefficients": len(LENS_MODELS[m])}),
+         "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in rigs]
+    final.adjustment["lens_models_chosen"] = chosen
+    return final

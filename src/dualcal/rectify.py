@@ -6,7 +6,7 @@ model, so no equation has to be solved per pixel:
 
 * ``(x, y) = A'^-1 (u, v, 1)`` with the output matrix ``A'`` (eq. 28 inverted),
 * ``(x~, y~) = (x, y) (1 + k1 r^2 + k2 r^4)`` (eq. 13; eq. 25 corrected), or the camera's full
-  lens model (:mod:`dualcal.camera`: ``k3`` and the tangential ``p1, p2``),
+  lens model (:mod:`dualcal.camera`: ``k3`` and the tangential ``p1, p2``, or the fisheye ``kb4``),
 * ``(u~, v~) = A (x~, y~, 1)`` with the camera's matrix ``A`` (eq. 24 inverted),
 
 then the source is resampled there with ``cv2.remap``. Points go the other way with
@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 from PIL import Image, JpegImagePlugin
 
-from .camera import (CameraModel, check_invertible_in_image, intrinsic_names, max_monotonic_radius,
+from .camera import (CameraModel, check_invertible_in_image, fisheye_distort, fold_radius, intrinsic_names,
                      normalized_from_pixel, radial_factor, tangential_shift, undistort_points)
 from .photos import open_image, output_suffix, read_exif
 from .errors import InputError
@@ -136,6 +136,23 @@ def rectify_map(cam: CameraModel, new_cam: CameraModel, row0: int, row1: int,
         behind = z <= 0
         x, y = (a * x + b * y + c) / z, (d * x + e * y + f_) / z
     r2 = x * x + y * y                                                                        # (B, W)
+    if cam.fisheye:                  # no separable shortcut: the whole ideal point through the lens
+        x, y = np.broadcast_arrays(x, y)
+        xd = fisheye_distort(np.stack([x, y], axis=-1), *cam.distortion)
+        map_x = cam.fx * xd[..., 0] + cam.skew * xd[..., 1] + cam.cx
+        map_y = cam.fy * xd[..., 1] + cam.cy
+    else:
+        map_x, map_y = _radial_tangential_map(cam, x, y, r2)
+    r_max = fold_radius(cam)
+    invalid = r2 > r_max * r_max if np.isfinite(r_max) else np.zeros(map_x.shape, bool)
+    if behind is not None:
+        invalid |= behind
+    map_x[invalid] = map_y[invalid] = -1e6
+    return map_x.astype(np.float32), map_y.astype(np.float32)
+
+
+def _radial_tangential_map(cam: CameraModel, x: np.ndarray, y: np.ndarray, r2: np.ndarray):
+    """Source pixels ``(u~, v~)`` of ideal ``x, y`` through a radial-tangential lens (eq. 13)."""
     f = radial_factor(r2, *cam.radial)
     yd = y * f
     if cam.tangential:
@@ -144,13 +161,7 @@ def rectify_map(cam: CameraModel, new_cam: CameraModel, row0: int, row1: int,
         map_x = cam.fx * (x * f + tx) + cam.skew * yd + cam.cx
     else:
         map_x = (cam.fx * f) * x + cam.skew * yd + cam.cx
-    map_y = cam.fy * yd + cam.cy
-    r_max = max_monotonic_radius(*cam.radial)
-    invalid = r2 > r_max * r_max if np.isfinite(r_max) else np.zeros(map_x.shape, bool)
-    if behind is not None:
-        invalid |= behind
-    map_x[invalid] = map_y[invalid] = -1e6
-    return map_x.astype(np.float32), map_y.astype(np.float32)
+    return map_x, cam.fy * yd + cam.cy
 
 
 def undistort_image(image: np.ndarray, cam: CameraModel, new_cam: CameraModel | None = None,

@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 
 from .board import Board
-from .camera import CameraModel, check_invertible_in_image, project_points, undistort_normalized
+from .camera import CameraModel, check_invertible_in_image, project_points, ray_directions
 from .io import write_jpeg_atomic
 from .model import Pose
 from .parallel import interruptible_map
@@ -106,14 +106,14 @@ def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray
     """
     yd = ((v - cam.cy) / cam.fy)[:, None]
     xd = (u[None, :] - cam.cx - cam.skew * yd) / cam.fx
-    xy = undistort_normalized(np.stack(np.broadcast_arrays(xd, yd), axis=-1), *cam.distortion)  # (B, W, 2)
-    x, y = xy[..., 0], xy[..., 1]
+    ray = ray_directions(cam, np.stack(np.broadcast_arrays(xd, yd), axis=-1))   # (B, W, 3): (x, y, 1) or a fisheye's
+    x, y, z = ray[..., 0], ray[..., 1], ray[..., 2]
     Hinv = np.linalg.inv(np.column_stack([pose.R[:, 0], pose.R[:, 1], pose.t_mm]))
-    w = Hinv[2, 0] * x + Hinv[2, 1] * y + Hinv[2, 2]          # = 1 / Z_cam
+    w = Hinv[2, 0] * x + Hinv[2, 1] * y + Hinv[2, 2] * z      # = 1 / (distance along the ray)
     front = w > 0
     w = np.where(front, w, 1.0)
-    X = (Hinv[0, 0] * x + Hinv[0, 1] * y + Hinv[0, 2]) / w
-    Y = (Hinv[1, 0] * x + Hinv[1, 1] * y + Hinv[1, 2]) / w
+    X = (Hinv[0, 0] * x + Hinv[0, 1] * y + Hinv[0, 2] * z) / w
+    Y = (Hinv[1, 0] * x + Hinv[1, 1] * y + Hinv[1, 2] * z) / w
     return X, Y, front
 
 

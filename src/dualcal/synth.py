@@ -16,6 +16,14 @@ Presets
 ``stereo5`` the ``stereo`` rig with OpenCV's five-coefficient lens model (``k1k2p1p2k3``): left as
             OpenCV's own calibration of its stereo sample's left camera (``left_intrinsics.yml``:
             k3 = 0.238, p1 = 0.0018), right as Bouguet's joint stereo result (p1 = -0.0006, k3 = 0)
+``phone3``  a three-lens phone shot in RAW (12 MP portrait each): ``wide`` (26 mm equivalent,
+            ``k1k2p1p2k3``, modest), ``ultra`` a fisheye (``kb4``, about 125 x 105 degrees, 145
+            on the diagonal; 12 mm from the wide) and ``tele`` (3x, ``k1k2``; 22 mm from the wide
+            on the other side). Most views are seen whole by every camera (the tele the
+            narrowest); in the others (``edge``: 30 % for the ultra-wide, 20 % for the wide) the
+            board is near one camera, off its axis (35-62 degrees for the ultra-wide, 20-32 for the
+            wide) so that its corners reach that image's edges, and the cameras that do not see all
+            of it miss that instant (their corners are NaN, the view None).
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .board import Board
-from .camera import INTRINSIC_NAMES, CameraModel, max_monotonic_radius, project_points
+from .camera import INTRINSIC_NAMES, CameraModel, fold_radius, project_points
 from .errors import EstimationError, InputError
 from .model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
 from .rotation import ARCMIN_PER_RAD, rotation_from_opk
@@ -73,6 +81,21 @@ PRESETS = {
         fill=(0.45, 0.85),
     ),
 }
+PRESETS["phone3"] = dict(
+    board=Board(8, 5, 30.0),
+    cameras={
+        "wide": CameraModel((_W, _H), 2905.0, 2903.0, 0.0, 1515.0, 2008.0, 0.065, -0.2, 0.0, 0.0, 0.2,
+                            model="k1k2p1p2k3"),
+        "ultra": CameraModel((_W, _H), 1450.0, 1449.0, 0.0, 1508.0, 2022.0, 0.2, 0.02, k3=-0.005, k4=0.001,
+                             model="kb4"),
+        "tele": CameraModel((_W, _H), 8700.0, 8695.0, 0.0, 1498.0, 2030.0, -0.08, 0.5),
+    },
+    rig={"ultra": Pose(_opk([-20.0, 15.0, -30.0]), np.array([0.4, 12.0, -0.3])),
+         "tele": Pose(_opk([10.0, -25.0, 40.0]), np.array([-0.3, -22.0, 0.5]))},
+    fill=(0.45, 0.85),
+    edge=[dict(camera="ultra", share=0.3, fill=(0.25, 0.45), angle_deg=(35.0, 62.0)),
+          dict(camera="wide", share=0.2, fill=(0.3, 0.5), angle_deg=(20.0, 32.0))],
+)
 PRESETS["stereo5"] = dict(
     PRESETS["stereo"],
     cameras={
@@ -130,7 +153,7 @@ def _all_visible(cams: dict[str, CameraModel], poses: dict[str, Pose], X: np.nda
                  margin: float) -> bool:
     for name, cam in cams.items():
         Xc = poses[name].apply(X)
-        if np.any(Xc[:, 2] <= 0):
+        if np.any(Xc[:, 2] <= 0) or np.any(np.hypot(Xc[:, 0], Xc[:, 1]) >= fold_radius(cam) * Xc[:, 2]):
             return False
         uv = project_points(cam, Xc)
         w, h = cam.image_size
@@ -142,14 +165,14 @@ def _all_visible(cams: dict[str, CameraModel], poses: dict[str, Pose], X: np.nda
 
 def in_frame(cam: CameraModel, X_cam: np.ndarray) -> np.ndarray:
     """(N,) True for camera-frame points (N, 3) that ``cam`` sees: in front of it, short of the
-    lens's fold (:func:`~dualcal.camera.max_monotonic_radius`) and projected inside the image."""
+    lens's fold (:func:`~dualcal.camera.fold_radius`) and projected inside the image."""
     X_cam = np.asarray(X_cam, float)
     front = X_cam[:, 2] > 0
     xy = X_cam[:, :2] / np.where(front, X_cam[:, 2], 1.0)[:, None]
     uv = project_points(cam, np.where(front[:, None], X_cam, 1.0))
     w, h = cam.image_size
     inside = np.all((uv >= 0) & (uv <= [w - 1, h - 1]), axis=1)
-    return front & (np.hypot(xy[:, 0], xy[:, 1]) < max_monotonic_radius(*cam.radial)) & inside
+    return front & (np.hypot(xy[:, 0], xy[:, 1]) < fold_radius(cam)) & inside
 
 
 def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
@@ -195,6 +218,9 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
             raise InputError(f"coverage {lo:g}-{hi:g}: needs 0 < lo <= hi <= 1")
         fmax = max(fmax, 1.1 / np.sqrt(lo))
     reach = 0.15 if coverage is None else 0.45
+    # the last views of each kind of edge view (a preset's "edge"), in the order given
+    edge_of_view = [] if coverage is not None else [e for e in p.get("edge", []) for _ in range(round(views * e["share"]))]
+    edge_of_view = [None] * (views - len(edge_of_view)) + edge_of_view
 
     view_poses = {}
     attempts = 0
@@ -214,6 +240,12 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
         target = centre + np.array([rng.uniform(-reach, reach) * board.cols * s,
                                     rng.uniform(-reach, reach) * board.rows * s, 0.0])
         roll = rng.uniform(-np.pi, np.pi)
+        edge = edge_of_view[len(view_poses)]
+        if edge is not None:
+            poses = _edge_view_poses(cameras, rig, reference, edge, extent, target, direction, roll, rng)
+            if _all_visible({edge["camera"]: cameras[edge["camera"]]}, poses, X, margin=0.01):
+                view_poses[f"IMG_{len(view_poses) + 1:02d}"] = poses[reference]
+            continue
         ref_pose = _look_at_pose(target + dist * direction, target, roll)
         poses = {reference: ref_pose, **{n: q.compose(ref_pose) for n, q in rig.items()}}
         if coverage is None:
@@ -228,16 +260,46 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     return SynthTruth(board, cameras, reference, rig, view_poses)
 
 
+def _edge_view_poses(cameras, rig, reference, edge, extent, target, direction, roll, rng) -> dict[str, Pose]:
+    """Board-to-camera poses of a view near ``edge["camera"]``'s image edge: the board seen from
+    ``direction`` at a distance where it fills ``edge["fill"]`` of that camera's frame, the camera
+    then turned so that the board's centre lies ``edge["angle_deg"]`` off its axis."""
+    name = edge["camera"]
+    cam = cameras[name]
+    dist = cam.fx * extent / (rng.uniform(*edge["fill"]) * min(cam.image_size))
+    look = _look_at_pose(target + dist * direction, target, roll)
+    angle, azimuth = np.radians(rng.uniform(*edge["angle_deg"])), rng.uniform(0, 2 * np.pi)
+    axis = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
+    turn = Pose(np.cos(angle) * np.eye(3) + np.sin(angle) * _cross(axis) + (1 - np.cos(angle)) * np.outer(axis, axis),
+                np.zeros(3))
+    own = turn.compose(look)
+    ref_pose = own if name == reference else rig[name].inverse().compose(own)
+    return {reference: ref_pose, **{n: q.compose(ref_pose) for n, q in rig.items()}}
+
+
+def _cross(a: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
 def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
     """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner; NaN rows for the
-    corners a camera does not see (:func:`in_frame`: only on partial views)."""
+    corners a camera does not see (:func:`in_frame`: only on partial views). A chessboard (no
+    markers to number a part of it) that a camera does not see whole, with its outer squares, is
+    all NaN: the camera missed that instant."""
     X = truth.board.object_points_mm()
+    s = truth.board.square_mm
+    outline = np.array([[-s, -s, 0], [truth.board.cols * s, -s, 0], [-s, truth.board.rows * s, 0],
+                        [truth.board.cols * s, truth.board.rows * s, 0]])
     out = {}
     for cam, model in truth.cameras.items():
         out[cam] = {}
         for v in truth.view_poses:
-            Xc = truth.camera_pose(cam, v).apply(X)
+            pose = truth.camera_pose(cam, v)
+            Xc = pose.apply(X)
             seen = in_frame(model, Xc)
+            if truth.board.charuco is None and not _all_visible({cam: model}, {cam: pose}, np.vstack([X, outline]),
+                                                                margin=0.0):
+                seen[:] = False
             uv = project_points(model, np.where(seen[:, None], Xc, 1.0))
             uv[~seen] = np.nan
             out[cam][v] = uv
@@ -250,6 +312,7 @@ def noisy_corner_set(truth: SynthTruth, noise_px: float, seed: int = 0) -> Corne
     cams = {}
     for cam, views in true_corners(truth).items():
         noisy = {v: uv + rng.normal(0.0, noise_px, uv.shape) for v, uv in views.items()}
+        noisy = {v: None if np.isnan(uv).all() else uv for v, uv in noisy.items()}
         cams[cam] = CameraCorners(truth.cameras[cam].image_size, noisy)
     return CornerSet(truth.board, cams)
 

@@ -13,12 +13,12 @@ from __future__ import annotations
 from rich import box
 from rich.table import Table
 
-from .camera import DISTORTION_NAMES, INTRINSIC_NAMES, intrinsic_names
+from .camera import DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, intrinsic_names
 from .model import RigModel, observed_mask
 from .scale import relative_sigma, scale_share
 
 _PAPER_NAMES = {"fx": "alpha = fx", "fy": "beta = fy", "skew": "gamma = skew", "cx": "u0 = cx",
-                "cy": "v0 = cy", "k1": "k1", "k2": "k2", "p1": "p1", "p2": "p2", "k3": "k3"}
+                "cy": "v0 = cy", "k1": "k1", "k2": "k2", "p1": "p1", "p2": "p2", "k3": "k3", "k4": "k4"}
 
 
 def _pm(value: float, sigma: float, digits: int) -> tuple[str, str]:
@@ -31,9 +31,10 @@ def _model_label(rig: RigModel) -> str:
 
 def camera_table(name: str, models: list[RigModel]) -> Table:
     """Intrinsics of camera ``name`` in each model (the paper's Tables 2 and 3)."""
-    lens = {m.model for m in models}
-    kind = "radial" if lens <= {"k1k2", "k1k2k3"} else "lens"
-    t = Table(title=f"Camera {name!r}: intrinsics (px) and {kind} distortion, 1 sigma", box=box.SIMPLE_HEAD,
+    lens = {m.cameras[name].model for m in models}
+    kind = "radial" if lens <= {"k1k2", "k1k2k3"} else "fisheye" if lens <= FISHEYE_MODELS else "lens"
+    t = Table(title=f"Camera {name!r}: intrinsics (px) and {kind} distortion ({', '.join(sorted(lens))}), 1 sigma",
+              box=box.SIMPLE_HEAD,
               caption=_SIGMA_CAPTION)
     t.add_column("parameter")
     for m in models:
@@ -175,6 +176,28 @@ def lens_model_advice(scores, used: str) -> str:
     return (f"lens model {best.model} recommended (held-out RMS {best.held_out_rms_px:.4f} px vs "
             f"{mine.held_out_rms_px:.4f} px for {used}, {mine.worse_se:.1f} SE worse): calibrate again with "
             f"--model {best.model}")
+
+
+def lens_model_choice_table(adjustment: dict) -> Table:
+    """Each camera's lens models by their held-out RMS (px) and how many standard errors worse than
+    that camera's best (:func:`dualcal.model_selection.calibrate_auto`: ``adjustment["lens_models"]``),
+    the one chosen marked; ``-`` where a model is no candidate of the camera."""
+    entries, chosen = adjustment["lens_models"], adjustment["lens_models_chosen"]
+    t = Table(title="Lens model of each camera (--model auto): held-out RMS (px) and SE worse than the camera's best",
+              caption="chosen (*): the preferred model (kb4 for a fisheye's field of view, else k1k2) where it is "
+                      "within 2 SE of the best, else the one with the fewest terms that is; -: no candidate",
+              box=box.SIMPLE_HEAD)
+    t.add_column("camera", no_wrap=True)
+    for e in entries:
+        t.add_column(e["model"], justify="right", no_wrap=True)
+    for name, model in chosen.items():
+        cells = []
+        for e in entries:
+            d = e["per_camera"].get(name, {"candidate": False})
+            mark = "*" if e["model"] == model else " "
+            cells.append(f"{d['held_out_rms_px']:.4f} {d['worse_se']:.1f}{mark}" if d["candidate"] else "- ")
+        t.add_row(name, *cells)
+    return t
 
 
 def roll_tables(roll: dict) -> list[Table]:

@@ -142,20 +142,22 @@ def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant
     return replace(corners, reference=reference) if reference is not None else corners
 
 
-def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, **options) -> RigModel:
+def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="auto", **options) -> RigModel:
     """Calibrate a rig from its corners, with the lens models compared by held-out instants.
 
     ``options`` are those of :func:`dualcal.calibrate.calibrate_rig` (``skew``, ``rig_mode``,
-    ``reference``, ``drop_outliers``, ``outlier_factor``, ``board_shape``, ``model``). With
-    ``compare_lens`` every lens model is scored on instants left out of the calibration
-    (:func:`dualcal.model_selection.compare_lens_models`) and the scores are recorded in
+    ``reference``, ``drop_outliers``, ``outlier_factor``, ``board_shape``). ``model`` is as there, but
+    ``"auto"`` by default, as for the commands: each camera's lens model chosen by its held-out instants
+    (:func:`dualcal.model_selection.calibrate_auto`, which records its comparison). With one lens model
+    for every camera and ``compare_lens``, every other model is scored on instants left out of the
+    calibration (:func:`dualcal.model_selection.compare_lens_models`) and the scores are recorded in
     ``rig.adjustment["lens_models"]`` (calib.json); a comparison that cannot be made is a warning.
     """
     from .calibrate import calibrate_rig
     from .model_selection import compare_lens_models
 
-    rig = calibrate_rig(corners, **options)
-    if compare_lens:
+    rig = calibrate_rig(corners, model=model, **options)
+    if compare_lens and model != "auto" and rig.model != "mixed":
         try:
             rig.adjustment["lens_models"] = [asdict(s) for s in compare_lens_models(rig)]
         except EstimationError as exc:
@@ -164,10 +166,16 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, **option
 
 
 def lens_scores(rig: RigModel) -> list:
-    """The lens-model comparison :func:`calibrate_corners` recorded in ``rig`` (empty without one)."""
+    """The comparison of one lens model for every camera that :func:`calibrate_corners` recorded in ``rig``
+    (empty without one, and for ``"auto"``, whose choice camera by camera is ``adjustment["lens_models_chosen"]``)."""
+    from dataclasses import fields
+
     from .model_selection import LensModelScore
 
-    return [LensModelScore(**s) for s in rig.adjustment.get("lens_models", [])]
+    if "lens_models_chosen" in rig.adjustment:
+        return []
+    keys = {f.name for f in fields(LensModelScore)}
+    return [LensModelScore(**{k: v for k, v in s.items() if k in keys}) for s in rig.adjustment.get("lens_models", [])]
 
 
 def evaluate_calibration(rig: RigModel, holdout: bool = False, progress: bool = True) -> dict:

@@ -15,7 +15,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .calibrate import calibrate_command
+from .calibrate import calibrate_command, model_flags
 from .common import BOARD_OPTION_NAMES, board_from_flags, default_jobs, echo
 
 # calibrate's options that do not apply per device: its input and output, and what only the
@@ -81,6 +81,7 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
         raise InputError(f"--outlier-factor {per_device['outlier_factor']}: must be greater than 1")
     if not flag_sigmas > 0:
         raise InputError(f"--flag-sigmas {flag_sigmas}: must be positive")
+    per_device["model"] = model_flags(per_device.get("model", ()))
     earlier = read_fleet_table(baseline) if baseline is not None else None
     devices = find_devices(root, exclude=[out_dir])
     out_dir = make_output_folder(out_dir)

@@ -29,14 +29,17 @@ from .detect import dataset_options, read_corners_from_flags
               show_default=True,
               help="auto: estimate the board's sag, bend and twist and keep them where the photos show them "
                    "beyond their noise; fit: always keep them; flat: take the board as flat.")
-@click.option("--model", "model", type=LazyChoice("dualcal.camera:LENS_MODELS"), default="k1k2", show_default=True,
+@click.option("--model", "model", multiple=True, metavar="[CAMERA=]NAME", default=("auto",), show_default=True,
               help="Lens model: k1k2 (the paper's, two radial terms), k1k2k3 (three), k1k2p1p2 (two radial and "
-                   "two tangential), k1k2p1p2k3 (OpenCV's five coefficients).")
+                   "two tangential), k1k2p1p2k3 (OpenCV's five coefficients), kb4 (OpenCV's fisheye), or auto "
+                   "(each camera's chosen by its error on instants left out). NAME for every camera, CAMERA=NAME "
+                   "(repeatable) for one; cameras not named get the NAME given alone, else k1k2.")
 @click.option("--compare-models/--no-compare-models", default=True, show_default=True,
               help="Also solve the other skew model and print both side by side, as the paper's tables do.")
 @click.option("--compare-lens/--no-compare-lens", "compare_lens", default=True, show_default=True,
-              help="Also calibrate with every other lens model, compare them by their error on instants left "
-                   "out of the calibration, and recommend one (recorded in calib.json).")
+              help="With a --model NAME: also calibrate with every other lens model, compare them by their error "
+                   "on instants left out of the calibration, and recommend one (recorded in calib.json). --model "
+                   "auto always compares them, camera by camera.")
 @dataset_options
 def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, square_sigma_mm, output, skew, rig_mode,
                       drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens,
@@ -55,7 +58,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     from ..errors import EstimationError
     from ..io import check_output_file, save_rig
     from ..progress import warn
-    from ..tables import lens_model_advice, lens_model_table, photo_table, result_tables, roll_tables
+    from ..tables import (lens_model_advice, lens_model_choice_table, lens_model_table, photo_table, result_tables,
+                          roll_tables)
     from ..workflow import calibrate_corners, lens_scores
 
     if input_path is None and not dataset_opts.get("cameras"):
@@ -63,11 +67,13 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     if not outlier_factor > 1:
         raise InputError(f"--outlier-factor {outlier_factor}: must be greater than 1")
     check_output_file(output)
+    model = model_flags(model)
     corners = read_corners_from_flags(input_path, board_from_flags(board_spec, square_mm, marker_mm, dictionary),
                                       square_sigma_mm, dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
                   outlier_factor=outlier_factor, board_shape=board_shape, model=model)
     rig = calibrate_corners(corners, skew=skew, compare_lens=compare_lens, **kwargs)
+    kwargs["model"] = rig.models                  # the other skew model with the same lenses
     scores = lens_scores(rig)
     save_rig(output, rig)
     models = [rig]
@@ -91,11 +97,35 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     if scores:
         console.print(lens_model_table(scores, rig.model))
         console.print(lens_model_advice(scores, rig.model))
+    if "lens_models_chosen" in rig.adjustment:
+        console.print(lens_model_choice_table(rig.adjustment))
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
         console.print(f"  {name}: {rig.checks[name]['message']}")
     if "scale_plausible" not in rig.checks:
         console.print(f"  note: {scale_note(rig)}; check --square")
+
+
+def model_flags(values: tuple[str, ...]):
+    """``--model`` values as ``calibrate_rig``'s ``model``: ``"auto"``, one name, or ``{camera: name}``
+    (with the name given alone, if any, under the key ``"*"`` for the cameras not named)."""
+    from ..camera import LENS_MODELS
+
+    if not values:
+        return "auto"
+    alone = [v for v in values if "=" not in v]
+    named = dict(v.split("=", 1) for v in values if "=" in v)
+    for name in alone + list(named.values()):
+        if name not in (*LENS_MODELS, "auto"):
+            raise click.BadParameter(f"{name!r} is not one of {', '.join((*LENS_MODELS, 'auto'))}",
+                                     param_hint="'--model'")
+    if len(alone) > 1:
+        raise InputError(f"--model {' '.join(alone)}: give one NAME for every camera, and CAMERA=NAME for others")
+    if "auto" in alone + list(named.values()) and (named or len(alone) != 1):
+        raise InputError("--model auto chooses every camera's model: it cannot be combined with CAMERA=NAME")
+    if not named:
+        return alone[0]
+    return {**({"*": alone[0]} if alone else {}), **named}
 
 
 def _coverage(text: str | None, board) -> tuple[float, float] | None:
@@ -119,7 +149,8 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--preset", type=LazyChoice("dualcal.synth:PRESETS"), default="note8", show_default=True,
               help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra), "
-                   "stereo5 (the 640x480 pair with OpenCV's five-coefficient lenses, k1 k2 p1 p2 k3).")
+                   "stereo5 (the 640x480 pair with OpenCV's five-coefficient lenses, k1 k2 p1 p2 k3), phone3 "
+                   "(wide + 3x tele + a 145-degree fisheye ultra-wide, kb4).")
 @click.option("--views", type=int, default=13, show_default=True, help="Number of board poses.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed of poses, noise and photos.")
 @click.option("--scale", type=float, default=1.0, show_default=True,

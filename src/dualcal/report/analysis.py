@@ -31,9 +31,9 @@ import numpy as np
 from matplotlib.path import Path as MplPath
 
 from ..calibrate import outlier_limit_px
-from ..camera import (LENS_MODELS, CameraModel, image_corner_radius, max_distorted_radius, max_monotonic_radius,
-                      normalized_from_pixel, project_points, radial_factor, undistort_normalized,
-                      undistort_points)
+from ..camera import (LENS_MODELS, CameraModel, distorted_radius, fold_distorted_radius, image_corner_radius,
+                      max_monotonic_radius, normalized_from_pixel, project_points, undistort_normalized,
+                      undistort_points, undistorted_radius)
 from ..errors import NotInvertibleError
 from ..model import Pose, RigModel, ViewResiduals, observed_mask, rig_residuals, rms_px  # noqa: F401 (re-exported)
 
@@ -167,18 +167,21 @@ def distortion_curve(camera: CameraModel, samples: int = 200) -> DistortionCurve
 
     Of the radial part of the lens (``k1, k2, k3``): tangential terms (``p1, p2``) move points
     across the radius too, so they have no curve along it (:func:`displacement_map` shows them).
+    Of a fisheye, ``r`` is the pinhole radius ``tan(theta)`` of the same ray, and the curve ends
+    where the image's corner is, or short of 90 degrees.
     """
     f = _mean_focal_px(camera)
-    k1, k2, k3 = camera.radial
     rd_corner = image_corner_radius(camera)
-    rd_fold = max_distorted_radius(k1, k2, k3)
+    rd_fold = fold_distorted_radius(camera)
     fold = rd_fold < rd_corner
-    if fold:
-        r_end = max_monotonic_radius(k1, k2, k3)
+    if camera.fisheye:          # its "fold" may be 90 degrees from the axis, where tan(theta) is infinite
+        r_end = float(undistorted_radius(camera, np.array([min(rd_corner, rd_fold * (1 - 1e-9))]))[0])
+    elif fold:
+        r_end = max_monotonic_radius(*camera.radial)
     else:
-        r_end = float(undistort_normalized(np.array([[rd_corner, 0.0]]), k1, k2, k3=k3)[0, 0])
+        r_end = float(undistort_normalized(np.array([[rd_corner, 0.0]]), *camera.radial[:2], k3=camera.k3)[0, 0])
     r = np.linspace(0.0, r_end, samples)
-    rd = r * radial_factor(r * r, k1, k2, k3)
+    rd = distorted_radius(camera, r)
     return DistortionCurve(rd * f, (rd - r) * f, rd_corner * f, rd_fold * f if fold else None)
 
 
@@ -191,7 +194,7 @@ def displacement_px(camera: CameraModel, uv_px: np.ndarray) -> np.ndarray:
     uv_px = np.asarray(uv_px, float)
     out = np.full(len(uv_px), np.nan)
     rd = np.linalg.norm(normalized_from_pixel(camera, uv_px), axis=-1)
-    ok = rd < max_distorted_radius(*camera.radial)
+    ok = rd < fold_distorted_radius(camera)
     with contextlib.suppress(NotInvertibleError):   # Newton failed right at the fold: leave the map blank
         out[ok] = np.linalg.norm(uv_px[ok] - undistort_points(camera, uv_px[ok]), axis=-1)
     return out

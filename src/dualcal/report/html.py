@@ -18,7 +18,7 @@ from markupsafe import Markup
 from .. import __version__
 from ..board import SHAPE_TERMS
 from ..calibrate import OUTLIER_FLOOR_PX
-from ..camera import intrinsic_names
+from ..camera import INTRINSIC_NAMES, intrinsic_names
 from ..checks import verdict
 from ..model import RigModel
 from ..progress import track
@@ -31,7 +31,7 @@ from .templating import environment
 PARAMETER_LABELS = {"fx": "f<sub>x</sub> = α (px)", "fy": "f<sub>y</sub> = β (px)", "skew": "skew = γ (px)",
                     "cx": "c<sub>x</sub> = u<sub>0</sub> (px)", "cy": "c<sub>y</sub> = v<sub>0</sub> (px)",
                     "k1": "k<sub>1</sub>", "k2": "k<sub>2</sub>", "p1": "p<sub>1</sub>", "p2": "p<sub>2</sub>",
-                    "k3": "k<sub>3</sub>"}
+                    "k3": "k<sub>3</sub>", "k4": "k<sub>4</sub>"}
 
 #: Plain labels of the adjustment's numbers (calib.json ``adjustment``), in the order shown.
 ADJUSTMENT_LABELS = {
@@ -102,11 +102,34 @@ def _cell(value: float, sigma: float, formal: float | None = None) -> dict:
 
 
 def intrinsics_table(rig: RigModel, names: list[str]) -> list[dict]:
-    """Rows of the intrinsics table (paper Tables 2-3): one row per parameter, a cell per camera."""
-    return [{"label": Markup(PARAMETER_LABELS[p]),
-             "cells": [_cell(getattr(rig.cameras[name], p), rig.camera_sigma.get(name, {}).get(p, math.nan),
-                             rig.camera_sigma_formal.get(name, {}).get(p)) for name in names]}
-            for p in intrinsic_names(rig.model)]
+    """Rows of the intrinsics table (paper Tables 2-3): one row per parameter of any camera's lens model,
+    a cell per camera (empty where its model lacks the parameter)."""
+    params = [p for p in INTRINSIC_NAMES if any(p in intrinsic_names(rig.cameras[n].model) for n in names)]
+
+    def cell(name, p):
+        if p not in intrinsic_names(rig.cameras[name].model):
+            return {"value": "–", "sigma": "", "formal": None}
+        return _cell(getattr(rig.cameras[name], p), rig.camera_sigma.get(name, {}).get(p, math.nan),
+                     rig.camera_sigma_formal.get(name, {}).get(p))
+    return [{"label": Markup(PARAMETER_LABELS[p]), "cells": [cell(name, p) for name in names]} for p in params]
+
+
+def lens_model_choice(rig: RigModel) -> dict | None:
+    """The per-camera comparison of ``--model auto`` (``adjustment["lens_models_chosen"]``) as
+    ``{"models": [...], "rows": [{"camera", "cells": [text, ...]}]}``, None without one."""
+    chosen = rig.adjustment.get("lens_models_chosen")
+    if not chosen:
+        return None
+    entries = rig.adjustment["lens_models"]
+    rows = []
+    for name, model in chosen.items():
+        cells = []
+        for e in entries:
+            d = e["per_camera"].get(name, {"candidate": False})
+            cells.append(f"{d['held_out_rms_px']:.4f} ({d['worse_se']:.1f})" + (" chosen" if e["model"] == model else "")
+                         if d["candidate"] else "–")
+        rows.append({"camera": name, "cells": cells})
+    return {"models": [e["model"] for e in entries], "rows": rows}
 
 
 def rig_table(rig: RigModel) -> tuple[list[str], list[dict]]:
@@ -275,7 +298,8 @@ def _figure_jobs(rig: RigModel, names: list[str], found: dict[str, analysis.Came
                                          {n: found[n].outlier_limit_px for n in names},
                                          *_not_kept(rig, names))),
         (None, "fig-distortion-curve",
-         "Radial distortion (paper eq. 13) against the distance from the principal point, out to "
+         "Radial distortion (paper eq. 13; of a fisheye, against the pinhole image of the same ray) against "
+         "the distance from the principal point, out to "
          "the farthest image corner: solid where corners were observed, dashed beyond the last one "
          "(dot and dotted line), where the model is extrapolated."
          + (" This is the radial part of the lens only: its tangential terms (p1, p2) move points "
@@ -349,7 +373,8 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
                          if evaluation and evaluation.get("holdout")
                          else "photos oriented by the calibration's own poses"),
         adjustment=adjustment_rows(rig),
-        lens_models=rig.adjustment.get("lens_models"),
+        lens_models=None if "lens_models_chosen" in rig.adjustment else rig.adjustment.get("lens_models"),
+        lens_model_choice=lens_model_choice(rig),
         model=rig.model,
         checks=checks_table(rig),
         verdict=verdict(rig.checks) if rig.checks else None,
