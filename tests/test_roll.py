@@ -13,6 +13,7 @@ from dualcal.photos import Photo
 from dualcal.synth_roll import equivalent_focal_of, write_camera_roll
 from dualcal.workflow import calibrate_corners, read_corners
 from dualcal.board import Board
+from dualcal.camera import LENS_MODELS
 
 T0 = datetime(2026, 11, 30, 9, 0, 0)
 
@@ -102,8 +103,9 @@ def test_an_instant_one_lens_missed_is_kept():
 
 @pytest.fixture(scope="module")
 def rendered_roll(tmp_path_factory):
-    """A three-lens phone's tripod session in one folder (the ``triple`` rig at quarter size)."""
-    truth = synth.make_truth("triple", views=9, seed=4, scale=0.25)
+    """A three-lens phone's tripod session in one folder: ``phone3`` (a kb4 fisheye ultra-wide, a wide and a
+    3x tele) at quarter size, 12 board positions, some seen by the ultra-wide alone."""
+    truth = synth.make_truth("phone3", views=12, seed=4, scale=0.25)
     folder = tmp_path_factory.mktemp("roll") / "DCIM"
     shot = write_camera_roll(truth, folder, seed=4, progress=False)
     return truth, folder, shot
@@ -130,16 +132,18 @@ def test_a_rendered_roll_is_split_as_it_was_shot(rendered_roll, capsys):
 
 def test_a_rendered_roll_calibrates_with_no_flag_but_the_board(rendered_roll, tmp_path, run_cli):
     truth, folder, shot = rendered_roll
-    res = run_cli("calibrate", folder, "--board", "8x5", "--square", "30", "-o", tmp_path / "calib.json",
-                  "--no-compare-models", "--no-compare-lens")
+    res = run_cli("calibrate", folder, "--board", "8x5", "--square", "30", "-o", tmp_path / "calib.json")
     assert res.code == 0, res.err
     assert "Camera roll" in res.out and shot["retake"][0] in res.out
     doc = json.loads((tmp_path / "calib.json").read_text())
     assert doc["reference"] == "wide" and set(doc["cameras"]) == {"ultra", "wide", "tele"}
     assert shot["stray"] in doc["corners"]["roll"]["left_out"]          # the photo without the board
+    assert doc["cameras"]["ultra"]["model"] == "kb4" and doc["cameras"]["tele"]["model"] == "k1k2"   # --model auto
+    assert doc["cameras"]["ultra"]["rms_px"] < 0.06                     # at the renders' corner noise
     for name, cam in doc["cameras"].items():
         true = truth.cameras[name]
-        for p in ("fx", "fy", "cx", "cy", "k1"):
+        same_lens = cam["model"] == true.model or set(LENS_MODELS[cam["model"]]) <= set(LENS_MODELS[true.model])
+        for p in ("fx", "fy", "cx", "cy") + (LENS_MODELS[cam["model"]] if same_lens else ()):
             assert abs(cam[p] - getattr(true, p)) < 4 * cam["sigma"][p], (name, p, cam[p], getattr(true, p))
     for name, rel in doc["rig"].items():
         t_true = truth.rig[name].t_mm
@@ -154,8 +158,9 @@ def test_exclude_works_on_the_roll(rendered_roll):
     assert all(Path(p).name != tele for p in corners.cameras["tele"].meta["photos"].values())
 
 
-def test_equivalent_focal_length_of_the_render_matches_its_class():
-    truth = synth.make_truth("triple", views=3, seed=0)
+@pytest.mark.parametrize("preset", ["triple", "phone3"])
+def test_equivalent_focal_length_of_the_render_matches_its_class(preset):
+    truth = synth.make_truth(preset, views=3, seed=0)
     assert {n: roll.camera_class(equivalent_focal_of(c)) for n, c in truth.cameras.items()} == \
         {"wide": "wide", "tele": "tele", "ultra": "ultra"}
 
