@@ -355,7 +355,7 @@ def test_cli_says_after_which_photo_the_goals_are_met(note8, tmp_path, run_cli):
 
 def test_a_calibration_without_a_usable_covariance_is_refused(note8):
     _, _, rig = note8
-    with pytest.raises(A.InputError, match="holds no covariance"):
+    with pytest.raises(A.InputError, match="holds no joint covariance"):
         A.prior_from_rig(replace(rig, covariance=None))
     cov = dict(rig.covariance, formal=np.zeros_like(np.asarray(rig.covariance["formal"])).tolist())
     with pytest.raises(A.InputError, match="not positive definite"):

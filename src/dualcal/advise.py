@@ -52,6 +52,7 @@ import numpy as np
 from .board import Board, shape_basis, shaped_points_mm
 from .camera import (INTRINSIC_NAMES, CameraModel, ideal_normalized_from_pixel, normalized_from_pixel,
                      project_with_jacobians)
+from .covariance import JointCovariance
 from .errors import InputError, NotInvertibleError
 from .model import Pose, RigModel
 from .poses import opk_jacobian, tangent_basis
@@ -170,13 +171,11 @@ def prior_from_rig(rig: RigModel) -> Prior:
         The calibration holds no covariance (written before dualcal stored it), a covariance that is
         not positive definite, or no ``s0``.
     """
-    if not rig.covariance:
-        raise InputError("this calib.json holds no covariance of its parameters: calibrate again with "
-                         "this version of dualcal")
+    cov = JointCovariance.from_dict(rig.covariance)
     s0 = rig.adjustment.get("s0_px")
     if not s0 or not np.isfinite(s0):
         raise InputError("this calib.json has no a-posteriori sigma (adjustment.s0_px): calibrate again")
-    formal = np.asarray(rig.covariance["formal"], float)
+    formal = cov.matrices["formal"]
     try:
         np.linalg.cholesky(formal)
     except np.linalg.LinAlgError:
@@ -185,8 +184,7 @@ def prior_from_rig(rig: RigModel) -> Prior:
     lo, hi = photo_distance_range(rig)
     return Prior(rig.board, rig.reference, dict(rig.cameras), {n: r.pose for n, r in rig.rig.items()},
                  None if rig.board_shape_mm is None else np.asarray(rig.board_shape_mm, float),
-                 list(rig.covariance["parameters"]), formal,
-                 np.asarray(rig.covariance["clustered"], float), dict.fromkeys(rig.cameras, float(s0)),
+                 list(cov.parameters), formal, cov.matrices["clustered"], dict.fromkeys(rig.cameras, float(s0)),
                  (DISTANCE_FACTORS[0] * lo, DISTANCE_FACTORS[1] * hi), rig.rig_mode)
 
 

@@ -61,6 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import INTRINSIC_NAMES, project_with_jacobians
+from .covariance import JointCovariance
 from .errors import EstimationError, InputError
 from .intersect import triangulate
 from .io import points_from_dict
@@ -104,19 +105,10 @@ def _pixel_sigmas(rig: RigModel, given) -> tuple[dict[str, float], str]:
 
 
 def _covariances(rig: RigModel) -> tuple[dict[str, int], dict[str, np.ndarray]]:
-    """calib.json's joint covariance: index of every parameter name and ``{kind: (k, k)}``."""
-    cov = rig.covariance
-    if not cov or "parameters" not in cov:
-        raise InputError("calib.json holds no joint covariance of its parameters (written by an older dualcal?): "
-                         "calibrate again to measure with it")
-    index = {name: i for i, name in enumerate(cov["parameters"])}
-    mats = {}
-    for kind in COVARIANCE_KINDS:
-        m = np.asarray(cov.get(kind), float)
-        if m.shape != (len(index), len(index)) or not np.all(np.isfinite(m)):
-            raise InputError(f"calib.json: covariance {kind!r} is not a finite {len(index)} x {len(index)} matrix")
-        mats[kind] = m
-    return index, mats
+    """calib.json's joint covariance (:class:`dualcal.covariance.JointCovariance`): index of every
+    parameter name and ``{kind: (k, k)}``."""
+    cov = JointCovariance.from_dict(rig.covariance)
+    return {name: i for i, name in enumerate(cov.parameters)}, {k: cov.matrices[k] for k in COVARIANCE_KINDS}
 
 
 @dataclass(frozen=True)
