@@ -26,8 +26,9 @@ from .adjust import (COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_
                      rig_relation, shared_views)
 from .board import SHAPE_TERMS
 from .camera import DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS
-from .checks import run_checks
+from .checks import rig_rigid, run_checks
 from .errors import EstimationError, InputError
+from .loop_closure import loop_closure
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
 from .zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
@@ -364,6 +365,10 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     if shape_test is not None:
         rig.adjustment["board_shape_test"] = shape_test
     rig.checks = run_checks(rig, sol, flat, alone)
+    if rig_mode != "none":
+        loop = loop_closure(setup, sol.problem.blocks, rig_rigid)
+        if loop is not None:
+            rig.checks["loop_closure"] = loop
     return rig
 
 

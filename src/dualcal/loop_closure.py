@@ -1,0 +1,139 @@
+"""Whether the pairwise relative poses of a rig of three or more cameras close their loops.
+
+The joint adjustment of a rigid rig has one relative pose per camera (reference -> camera), so
+the relation between two other cameras B and C is ``T_BC = T_C T_B^-1`` and every loop closes by
+construction: comparing the joint solution with itself tests nothing. What can be tested is
+whether the cameras, taken two at a time, tell the same story. Every pair ``(X, Y)`` is
+calibrated alone as a rigid two-camera rig, from the instants both saw (intrinsics free, X its
+reference), and for every loop ``ref -> B -> C`` the composed pairwise relations are compared
+with the direct one:
+
+* the misclosure ``R_e = R_BC R_rB R_rC^T`` (as its rotation vector, arcmin) and
+  ``t_e = R_BC t_rB + t_BC - t_rC`` (mm), in C's frame;
+* its covariance, to first order in the left increments ``R <- exp([d]x) R`` of the three pairs'
+  relations (``d_e = d_BC + R_BC d_rB - d_rC``, ``dt_e = -[R_BC t_rB]x d_BC + R_BC dt_rB + dt_BC -
+  dt_rC``), the three pairs' covariances taken as independent (each from its own adjustment, the
+  larger by trace of the clustered and the textbook one, as calib.json's sigmas); the pairs share
+  photos, so this is an approximation;
+* ``chi2 = e^T Cov^-1 e`` (6 degrees of freedom), failing beyond its quantile at
+  :data:`LOOP_FALSE_ALARM` (Bonferroni over the loops).
+
+A loop of averages can close although a camera moved: with every instant seen by all three, the
+pairs with the moved camera average the same two poses. So each pair's own rigidity is judged too,
+by :func:`dualcal.checks.rig_rigid` on the pair's rigid and cameras-alone solutions: a camera
+knocked between instants fails the pairs it belongs to and passes the others, which names it.
+The check passes when every pair is rigid and every loop closes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from itertools import combinations
+
+import numpy as np
+
+from .adjust import Solution, rig_linearisation
+from .errors import EstimationError
+from .rotation import ARCMIN_PER_RAD, cross_matrix, rotvec_from_rotation
+
+__all__ = ["LOOP_FALSE_ALARM", "loop_closure"]
+
+#: False-alarm rate of the loop test, over all loops together.
+LOOP_FALSE_ALARM = 1e-3
+
+
+def _pair_relation(sol: Solution):
+    """Camera 1's rigid relation to camera 0 in a two-camera solution: R, t, 6x6 covariance of
+    (rotation increment rad, t mm), the larger by trace of the clustered and formal ones."""
+    lin = rig_linearisation(sol, 1)
+    J = np.vstack([lin.J_rot, lin.J_t])
+    covs = [J @ sol.covariance(lin.columns, kind) @ J.T for kind in ("clustered", "formal")]
+    return lin.R, lin.t, max(covs, key=np.trace)
+
+
+def _misclosure(rB, rC, BC):
+    """Misclosure (rotation vector rad, t mm) of ref -> B -> C against ref -> C and its covariance."""
+    (R_rB, t_rB, C_rB), (R_rC, t_rC, C_rC), (R_BC, t_BC, C_BC) = rB, rC, BC
+    e = np.concatenate([rotvec_from_rotation(R_BC @ R_rB @ R_rC.T), R_BC @ t_rB + t_BC - t_rC])
+    J_BC = np.block([[np.eye(3), np.zeros((3, 3))], [-cross_matrix(R_BC @ t_rB), np.eye(3)]])
+    J_rB = np.block([[R_BC, np.zeros((3, 3))], [np.zeros((3, 3)), R_BC]])
+    J_rC = -np.eye(6)
+    cov = J_BC @ C_BC @ J_BC.T + J_rB @ C_rB @ J_rB.T + J_rC @ C_rC @ J_rC.T
+    return e, cov
+
+
+def loop_closure(setup, blocks, rig_rigid) -> dict | None:
+    """The ``loop_closure`` check (module docstring) of a rig; None for fewer than three cameras.
+
+    Parameters
+    ----------
+    setup : :class:`dualcal.calibrate.Setup` of the calibration (its names, sizes, lens model, skew).
+    blocks : the (camera, view, uv) photos the calibration used.
+    rig_rigid : :func:`dualcal.checks.rig_rigid`.
+
+    Returns
+    -------
+    ``{"ok", "message", "pairs": {"X-Y": {"ok", "ratio", "views"}}, "loops": {"r-B-C": {"ok", "chi2",
+    "limit", "rotation_arcmin": [3], "t_mm": [3], "sigma_rotation_arcmin": [3], "sigma_t_mm": [3]}}}``.
+    """
+    from scipy.stats import chi2
+
+    names = setup.names
+    if len(names) < 3:
+        return None
+    ref = setup.reference
+    pairs, relations = {}, {}
+    for x, y in combinations(range(len(names)), 2):
+        if y == ref:
+            x, y = y, x
+        views = {v for c, v, _ in blocks if c == x} & {v for c, v, _ in blocks if c == y}
+        sub = [(0 if c == x else 1, v, uv) for c, v, uv in blocks if c in (x, y) and v in views]
+        key = f"{names[x]}-{names[y]}"
+        try:
+            pair = replace(setup, names=[names[x], names[y]], sizes=[setup.sizes[x], setup.sizes[y]], reference=0,
+                           mode="rigid")
+            tied = pair.solve(sub)
+            alone = pair.solve(sub, tied, mode="none")
+        except EstimationError as exc:
+            pairs[key] = {"ok": False, "views": len(views), "message": str(exc)}
+            continue
+        rigid = rig_rigid(tied, alone) or {"ok": True, "ratio": 0.0}
+        pairs[key] = {"ok": bool(rigid["ok"]), "ratio": float(rigid["ratio"]), "views": len(views)}
+        relations[(x, y)] = _pair_relation(tied)
+    others = [c for c in range(len(names)) if c != ref]
+    loops = {}
+    triples = [(b, c) for b, c in combinations(others, 2) if {(ref, b), (ref, c), (b, c)} <= set(relations)]
+    limit = float(chi2.ppf(1.0 - LOOP_FALSE_ALARM / max(1, len(triples)), 6))
+    for b, c in triples:
+        e, cov = _misclosure(relations[(ref, b)], relations[(ref, c)], relations[(b, c)])
+        stat = float(e @ np.linalg.solve(cov, e))
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        loops[f"{names[ref]}-{names[b]}-{names[c]}"] = {
+            "ok": stat <= limit, "chi2": stat, "limit": limit,
+            "rotation_arcmin": (e[:3] * ARCMIN_PER_RAD).tolist(), "t_mm": e[3:].tolist(),
+            "sigma_rotation_arcmin": (sd[:3] * ARCMIN_PER_RAD).tolist(), "sigma_t_mm": sd[3:].tolist()}
+    bad_pairs = [k for k, p in pairs.items() if not p["ok"]]
+    bad_loops = [k for k, lp in loops.items() if not lp["ok"]]
+    doc = {"ok": not bad_pairs and not bad_loops and bool(loops), "pairs": pairs, "loops": loops}
+    if not loops:
+        doc["message"] = ("no loop of three cameras can be checked: some pair of cameras shares too few "
+                          "instants to be calibrated alone")
+    elif doc["ok"]:
+        worst = max(loops.values(), key=lambda lp: lp["chi2"])
+        doc["message"] = (f"the cameras' pairwise relative poses agree: every pair fits one rigid relation and "
+                          f"{len(loops)} loop(s) close within their sigmas (largest chi2 {worst['chi2']:.1f}, "
+                          f"limit {limit:.1f} for 6 degrees of freedom)")
+    else:
+        parts = []
+        if bad_pairs:
+            cams = [set(k.split("-")) for k in bad_pairs]
+            common = set.intersection(*cams) if len(cams) > 1 else set()
+            parts.append(f"the pair(s) {', '.join(bad_pairs)} do not fit one rigid relation"
+                         + (f" (camera {', '.join(sorted(common))} in each: it moved between instants?)" if common else ""))
+        for k in bad_loops:
+            lp = loops[k]
+            parts.append(f"loop {k} misses by {np.linalg.norm(lp['rotation_arcmin']):.2f}' and "
+                         f"{np.linalg.norm(lp['t_mm']):.3f} mm (chi2 {lp['chi2']:.0f}, limit {limit:.1f})")
+        doc["message"] = ("; ".join(parts) + ": the rig's relative poses do not hold for every instant; "
+                          "find the instants with rig_rigid, drop them with --exclude or shoot again")
+    return doc
