@@ -316,7 +316,7 @@ def _write_one(task) -> str:
 
 
 def write_photo_set(truth, photo_dir, seed: int = 0, jobs: int | None = None, quality: int = 92,
-                    progress: bool = True, **render_kwargs) -> dict[str, dict[str, Path]]:
+                    progress: bool = True, marks: str | None = None, **render_kwargs) -> dict[str, dict[str, Path]]:
     """Render every camera and view of a synthetic rig as ``photo_dir/<camera>/<view>.jpg``.
 
     Parameters
@@ -328,7 +328,9 @@ def write_photo_set(truth, photo_dir, seed: int = 0, jobs: int | None = None, qu
     jobs : photos rendered at once, in threads (default: all cores).
     quality : JPEG quality (0-100).
     progress : draw a progress bar on stderr.
-    **render_kwargs : passed on to :func:`render_view` (``blur_px``, ``noise``, ...).
+    marks : marks printed in the chessboard's white squares (:mod:`dualcal.render_marks`: ``code``,
+        ``dots``, ``logo``, ``text``), the same board in every photo; None: plain squares.
+    **render_kwargs : passed on to :func:`render_view` (``blur_px``, ``noise``, ``inverted``, ...).
 
     Returns
     -------
@@ -343,7 +345,7 @@ def write_photo_set(truth, photo_dir, seed: int = 0, jobs: int | None = None, qu
             path = photo_dir / name / f"{view}.jpg"
             paths[name][view] = path
             tasks.append((cam, truth.camera_pose(name, view), truth.board, (seed, ci, vi), path,
-                          quality, render_kwargs))
+                          quality, dict(render_kwargs, marks=marks)))
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(tasks)))
     with progress_bar("rendering photos", len(tasks), enabled=progress) as advance:
         # threads: numpy's array loops, OpenCV's blur and JPEG encoding release the GIL
