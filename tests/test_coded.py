@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from dualcal.board import Board
+from dualcal.camera import project_points
 from dualcal.calibrate import calibrate_rig
 from dualcal.dataset import open_dataset
 from dualcal.detect import detect_dataset, detect_photo
@@ -125,6 +126,50 @@ def test_another_board_is_suggested_only_for_photos_where_no_grid_of_the_size_wa
         detect_dataset(open_dataset(tmp_path), board, progress=False)
     assert tried == []
     assert "in 3 photo(s) a 9x6 grid was found but failed the colours check" in str(err.value)
+
+
+def _cut_off(board: Board, view: int, shift: float, tmp_path):
+    """A photo of ``board`` moved sideways by ``shift`` of the image's width: partly out of the frame."""
+    cam, views = _views(3, seed=3, board=board)
+    pose = views[view][0]
+    w, h = cam.image_size
+    moved = Pose(pose.R, pose.t_mm + np.array([shift * w / cam.fx * pose.t_mm[2], 0.0, 0.0]))
+    uv = project_points(cam, moved.apply(board.object_points_mm()))
+    img = render_view(cam, moved, board, np.random.default_rng(0), marks="dots")
+    (tmp_path / "cam").mkdir(exist_ok=True)
+    path = tmp_path / "cam" / f"IMG_{view}.png"
+    cv2.imwrite(str(path), img)
+    ok, _ = cv2.findChessboardCornersSB(img, (board.cols, board.rows), flags=SB_FLAGS)
+    return path, uv, np.all((uv >= 0) & (uv <= [w - 1, h - 1]), axis=1), ok
+
+
+def test_a_board_cut_off_by_the_frame_is_numbered_when_it_is_not_symmetric(tmp_path):
+    """9x6 (cols + rows odd): its colours fix the numbering, its visible edges place the part found on the
+    board; every corner in view is measured in its place (OpenCV's SB detector needs the whole board)."""
+    path, uv, seen, opencv = _cut_off(Board(9, 6, 20.0), 1, 0.25, tmp_path)
+    assert not seen.all() and not opencv
+    res = detect_photo(path, Board(9, 6, 20.0))
+    assert res.uv is not None, res.reason
+    found = np.all(np.isfinite(res.uv), axis=1)
+    assert found.sum() >= seen.sum() - 1 and not np.any(found & ~seen)
+    assert np.max(np.linalg.norm(res.uv[found] - uv[found], axis=1)) < 0.1
+
+
+def test_a_symmetric_board_cut_off_by_the_frame_is_refused_and_counted(tmp_path, capsys):
+    """9x5 (cols + rows even) looks the same turned by 180 degrees: cut off by the frame it cannot be
+    numbered; the photo is said to show part of the board, and counted in corners.json."""
+    board = Board(9, 5, 20.0)
+    path, _, seen, _ = _cut_off(board, 1, 0.35, tmp_path)
+    assert not seen.all()
+    res = detect_photo(path, board)
+    assert res.uv is None and res.partial
+    assert "must be seen whole" in res.reason
+    for view in (0, 2):                                   # two photos of the whole board
+        cam, views = _views(3, seed=3, board=board)
+        cv2.imwrite(str(tmp_path / "cam" / f"IMG_{view}.png"),
+                    render_view(cam, views[view][0], board, np.random.default_rng(view), marks="dots"))
+    corners = detect_dataset(open_dataset(tmp_path), board, progress=False)
+    assert corners.cameras["cam"].meta["partial_views"] == ["IMG_1"]
 
 
 def _knocked(truth, cam: str, views, arcmin: float, mm: float):

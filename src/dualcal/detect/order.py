@@ -176,7 +176,12 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
     whose squares look like exactly the board (:func:`check_colours`: its outer ring continues
     the chessboard, the squares beyond do not) is returned. The extended corners are a start
     only, off by up to a few pixels where the lens bends the grid; the refinement takes them
-    from there.
+    from there. A placement that runs off the image (a board cut off by the frame) is judged on
+    the squares in view, where the board is not 180-degree symmetric (``cols + rows`` odd: its
+    colours then fix its numbering) and more than half of its corners are in the image; the
+    corners outside it are NaN after refinement. Placements that run off the image are judged
+    for symmetric boards too, so that a wrong placement inside the image is not taken for the only
+    one: a symmetric board whose one fitting placement runs off the image is refused.
 
     Raises
     ------
@@ -204,25 +209,30 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
                 J, I = np.meshgrid(np.arange(C) - j0, np.arange(R) - i0)
                 pts = cv2.perspectiveTransform(np.column_stack([J.ravel(), I.ravel()]).astype(np.float32)[None], H)[0]
                 grid = pts.reshape(R, C, 2).astype(float)
-                if np.any(grid < 0) or np.any(grid > size - 1):
+                inside = np.all((grid >= 0) & (grid <= size - 1), axis=2)
+                if not inside.all():
                     off_image = True
-                    continue
+                    # a board cut off by the frame, judged on the squares in view where most of it is
+                    if 2 * inside.sum() <= R * C or not np.all(np.isfinite(grid)):
+                        continue
                 try:
                     check_colours(square_colours(gray, grid, factor), C, R)
                 except DetectionError:
                     continue
-                fits.append(grid)
-    if not fits and off_image:
+                fits.append((grid, bool(inside.all())))
+    cut = any(not whole for _, whole in fits)
+    if (not fits and off_image) or (cut and (board.is_symmetric or len(fits) > 1)):
         step = np.median(np.linalg.norm(np.diff(part_px, axis=1), axis=2))
-        if np.any(part_px < 1.5 * step) or np.any(part_px > size - 1 - 1.5 * step):
+        if cut or np.any(part_px < 1.5 * step) or np.any(part_px > size - 1 - 1.5 * step):
             r, c = part_px.shape[:2]
+            how = ("a chessboard with cols + rows even must be seen whole: it looks the same turned by 180 degrees"
+                   if board.is_symmetric else "too little of it, or of its edges, is in view to number its corners")
             raise PartialBoard(f"only part of the {board.spec()} chessboard is in the photo ({c}x{r} corners "
-                               "at the frame's edge): a plain chessboard must be seen whole "
-                               "(a ChArUco board may be seen in part)")
+                               f"at the frame's edge): {how} (a ChArUco board may be seen in part)")
     if len(fits) != 1:
         raise DetectionError(f"no {board.spec()} chessboard found" + (
             " (a part of one was, but not where it lies on the board)" if fits else ""))
-    return fits[0]
+    return fits[0][0]
 
 
 def right_handed(grid: np.ndarray) -> bool:
