@@ -15,6 +15,7 @@ from dualcal.detect import detect_dataset, detect_photo
 from dualcal.errors import InputError
 from dualcal.model import Pose
 from dualcal.render import render_view, write_photo_set
+from dualcal.report import render_report
 from dualcal.render_marks import MARK_KINDS, marks_texture
 from dualcal.rotation import rotation_from_opk
 from dualcal.synth import make_truth, noisy_corner_set, true_corners
@@ -192,11 +193,16 @@ def test_loop_closure_passes_a_rigid_three_camera_rig_and_fails_one_with_a_knock
     knocked = _knocked(truth, "ultra", views, arcmin=10.0, mm=0.2)
     for v in views[6:]:                                        # knocked after the sixth instant
         good.cameras["ultra"].views[v] = knocked[v]
-    loop = calibrate_rig(good).checks["loop_closure"]
+    rig = calibrate_rig(good)
+    loop = rig.checks["loop_closure"]
     assert not loop["ok"]
     assert not loop["pairs"]["wide-ultra"]["ok"] and not loop["pairs"]["tele-ultra"]["ok"]
     assert loop["pairs"]["wide-tele"]["ok"]
     assert "camera ultra in each" in loop["message"]
+    page = render_report(rig)                                  # the report shows the loop and the pairs
+    table = page[page.index('id="table-loops"'):]
+    table = table[:table.index("</table>")]
+    assert "wide-tele-ultra" in table and table.count("FAIL") == 2 and "pair wide-tele (10 instants)" in table
 
 
 @pytest.mark.slow

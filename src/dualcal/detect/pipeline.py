@@ -330,15 +330,15 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         # another --board only where no grid of this size was found at all: a board found that
         # failed a later check is this board (its transposed size would not fix the check)
         missed = [path for (path, *_), res in zip(tasks, results) if res.uv is None and not res.failed_check]
-        failed = Counter(res.failed_check for res in results if res.failed_check)
-        hint = "; ".join(filter(None, [suggest_board(missed, board)] + [
-            f"in {n} photo(s) a {board.spec()} grid was found but failed the {check} check"
-            for check, n in failed.most_common()]))
+        failed = "; ".join(f"in {n} photo(s) a {board.spec()} grid was found but failed the {check} check"
+                           for check, n in Counter(r.failed_check for r in results if r.failed_check).most_common())
+        suggestion = suggest_board(missed, board)
         if found == 0:
             check = ("check --board (inner corners, COLSxROWS)" if board.charuco is None
                      else "check --board (squares, charuco:SXxSY), --square, --marker and --dictionary")
             raise InputError(f"no {board.describe()} found in any photo of {dataset.source} "
-                             f"({len(tasks)} photos): " + (hint or check))
+                             f"({len(tasks)} photos): " + ": ".join(filter(None, [failed, suggestion or check])))
+        hint = "; ".join(filter(None, [suggestion, failed]))
         if hint:
             warn(f"{board.spec()} found in only {found} of {len(tasks)} photos: {hint}")
     cameras = {}
