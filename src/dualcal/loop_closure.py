@@ -10,13 +10,17 @@ with the direct one:
 
 * the misclosure ``R_e = R_BC R_rB R_rC^T`` (as its rotation vector, arcmin) and
   ``t_e = R_BC t_rB + t_BC - t_rC`` (mm), in C's frame;
-* its covariance, to first order in the left increments ``R <- exp([d]x) R`` of the three pairs'
-  relations (``d_e = d_BC + R_BC d_rB - d_rC``, ``dt_e = -[R_BC t_rB]x d_BC + R_BC dt_rB + dt_BC -
-  dt_rC``), the three pairs' covariances taken as independent (each from its own adjustment, the
-  larger by trace of the clustered and the textbook one, as calib.json's sigmas); the pairs share
-  photos, so this is an approximation;
-* ``chi2 = e^T Cov^-1 e`` (6 degrees of freedom), failing beyond its quantile at
-  :data:`LOOP_FALSE_ALARM` (Bonferroni over the loops).
+* its covariance clustered by instant: each instant's shift of every pair's relation (its adjusted
+  score through the pair's inverse normal matrix, the terms of the pair's ``clustered`` covariance,
+  :meth:`dualcal.adjust.Solution.instant_shifts`) is carried to the misclosure to first order in the
+  left increments ``R <- exp([d]x) R`` (``d_e = d_BC + R_BC d_rB - d_rC``, ``dt_e = -[R_BC t_rB]x d_BC
+  + R_BC dt_rB + dt_BC - dt_rC``), summed over the pairs instant by instant, and ``Cov = sum_v s_v s_v^T``
+  over the ``n`` instants. The pairs share photos (each camera's are in two pairs), so their errors are
+  correlated; summing per instant keeps that (taking the pairs as independent overstated the sigma
+  about ten-fold on synthetic rigs);
+* Hotelling's ``T^2 = e^T Cov^-1 e``, failing beyond ``6 (n-1) / (n-6) F(6, n-6)`` at
+  :data:`LOOP_FALSE_ALARM` (Bonferroni over the loops): the covariance is estimated from ``n``
+  instants. A loop needs more than 6 instants.
 
 A loop of averages can close although a camera moved: with every instant seen by all three, the
 pairs with the moved camera average the same two poses. So each pair's own rigidity is judged too,
@@ -43,23 +47,24 @@ LOOP_FALSE_ALARM = 1e-3
 
 
 def _pair_relation(sol: Solution):
-    """Camera 1's rigid relation to camera 0 in a two-camera solution: R, t, 6x6 covariance of
-    (rotation increment rad, t mm), the larger by trace of the clustered and formal ones."""
+    """Camera 1's rigid relation to camera 0 in a two-camera solution: R, t and each instant's shift of
+    (rotation increment rad, t mm), ``{view: (6,)}``."""
     lin = rig_linearisation(sol, 1)
     J = np.vstack([lin.J_rot, lin.J_t])
-    covs = [J @ sol.covariance(lin.columns, kind) @ J.T for kind in ("clustered", "formal")]
-    return lin.R, lin.t, max(covs, key=np.trace)
+    return lin.R, lin.t, {v: J @ d for v, d in sol.instant_shifts(lin.columns).items()}
 
 
 def _misclosure(rB, rC, BC):
-    """Misclosure (rotation vector rad, t mm) of ref -> B -> C against ref -> C and its covariance."""
-    (R_rB, t_rB, C_rB), (R_rC, t_rC, C_rC), (R_BC, t_BC, C_BC) = rB, rC, BC
+    """Misclosure (rotation vector rad, t mm) of ref -> B -> C against ref -> C, and each instant's shift of it."""
+    (R_rB, t_rB, d_rB), (R_rC, t_rC, d_rC), (R_BC, t_BC, d_BC) = rB, rC, BC
     e = np.concatenate([rotvec_from_rotation(R_BC @ R_rB @ R_rC.T), R_BC @ t_rB + t_BC - t_rC])
     J_BC = np.block([[np.eye(3), np.zeros((3, 3))], [-cross_matrix(R_BC @ t_rB), np.eye(3)]])
     J_rB = np.block([[R_BC, np.zeros((3, 3))], [np.zeros((3, 3)), R_BC]])
-    J_rC = -np.eye(6)
-    cov = J_BC @ C_BC @ J_BC.T + J_rB @ C_rB @ J_rB.T + J_rC @ C_rC @ J_rC.T
-    return e, cov
+    views = set(d_rB) | set(d_rC) | set(d_BC)
+    zero = np.zeros(6)
+    shifts = np.array([J_BC @ d_BC.get(v, zero) + J_rB @ d_rB.get(v, zero) - d_rC.get(v, zero)
+                       for v in sorted(views)])
+    return e, shifts
 
 
 def loop_closure(setup, blocks, rig_rigid) -> dict | None:
@@ -73,10 +78,11 @@ def loop_closure(setup, blocks, rig_rigid) -> dict | None:
 
     Returns
     -------
-    ``{"ok", "message", "pairs": {"X-Y": {"ok", "ratio", "views"}}, "loops": {"r-B-C": {"ok", "chi2",
-    "limit", "rotation_arcmin": [3], "t_mm": [3], "sigma_rotation_arcmin": [3], "sigma_t_mm": [3]}}}``.
+    ``{"ok", "message", "pairs": {"X-Y": {"ok", "ratio", "views"}}, "loops": {"r-B-C": {"ok", "t2",
+    "limit", "instants", "rotation_arcmin": [3], "t_mm": [3], "sigma_rotation_arcmin": [3], "sigma_t_mm": [3]}}}``
+    (misclosure in C's frame; sigmas from the clustered covariance).
     """
-    from scipy.stats import chi2
+    from scipy.stats import f as f_dist
 
     names = setup.names
     if len(names) < 3:
@@ -103,13 +109,18 @@ def loop_closure(setup, blocks, rig_rigid) -> dict | None:
     others = [c for c in range(len(names)) if c != ref]
     loops = {}
     triples = [(b, c) for b, c in combinations(others, 2) if {(ref, b), (ref, c), (b, c)} <= set(relations)]
-    limit = float(chi2.ppf(1.0 - LOOP_FALSE_ALARM / max(1, len(triples)), 6))
+    alpha = LOOP_FALSE_ALARM / max(1, len(triples))
     for b, c in triples:
-        e, cov = _misclosure(relations[(ref, b)], relations[(ref, c)], relations[(b, c)])
-        stat = float(e @ np.linalg.solve(cov, e))
+        e, shifts = _misclosure(relations[(ref, b)], relations[(ref, c)], relations[(b, c)])
+        n = len(shifts)
+        if n <= 6:
+            continue
+        cov = shifts.T @ shifts
+        stat = float(e @ np.linalg.lstsq(cov, e, rcond=None)[0])
+        limit = float(6 * (n - 1) / (n - 6) * f_dist.ppf(1.0 - alpha, 6, n - 6))       # Hotelling's T^2
         sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
         loops[f"{names[ref]}-{names[b]}-{names[c]}"] = {
-            "ok": stat <= limit, "chi2": stat, "limit": limit,
+            "ok": stat <= limit, "t2": stat, "limit": limit, "instants": n,
             "rotation_arcmin": (e[:3] * ARCMIN_PER_RAD).tolist(), "t_mm": e[3:].tolist(),
             "sigma_rotation_arcmin": (sd[:3] * ARCMIN_PER_RAD).tolist(), "sigma_t_mm": sd[3:].tolist()}
     bad_pairs = [k for k, p in pairs.items() if not p["ok"]]
@@ -117,12 +128,12 @@ def loop_closure(setup, blocks, rig_rigid) -> dict | None:
     doc = {"ok": not bad_pairs and not bad_loops and bool(loops), "pairs": pairs, "loops": loops}
     if not loops:
         doc["message"] = ("no loop of three cameras can be checked: some pair of cameras shares too few "
-                          "instants to be calibrated alone")
+                          "instants to be calibrated alone, or the three pairs' instants are 6 or fewer")
     elif doc["ok"]:
-        worst = max(loops.values(), key=lambda lp: lp["chi2"])
+        worst = max(loops.values(), key=lambda lp: lp["t2"])
         doc["message"] = (f"the cameras' pairwise relative poses agree: every pair fits one rigid relation and "
-                          f"{len(loops)} loop(s) close within their sigmas (largest chi2 {worst['chi2']:.1f}, "
-                          f"limit {limit:.1f} for 6 degrees of freedom)")
+                          f"{len(loops)} loop(s) close within their sigmas (largest T^2 {worst['t2']:.1f}, "
+                          f"limit {worst['limit']:.1f})")
     else:
         parts = []
         if bad_pairs:
@@ -133,7 +144,7 @@ def loop_closure(setup, blocks, rig_rigid) -> dict | None:
         for k in bad_loops:
             lp = loops[k]
             parts.append(f"loop {k} misses by {np.linalg.norm(lp['rotation_arcmin']):.2f}' and "
-                         f"{np.linalg.norm(lp['t_mm']):.3f} mm (chi2 {lp['chi2']:.0f}, limit {limit:.1f})")
+                         f"{np.linalg.norm(lp['t_mm']):.3f} mm (T^2 {lp['t2']:.0f}, limit {lp['limit']:.1f})")
         doc["message"] = ("; ".join(parts) + ": the rig's relative poses do not hold for every instant; "
                           "find the instants with rig_rigid, drop them with --exclude or shoot again")
     return doc

@@ -176,7 +176,7 @@ def loops_table(rig: RigModel) -> list[dict]:
         return []
     rows = []
     for name, lp in check.get("loops", {}).items():
-        rows.append({"name": name, "ok": lp["ok"], "stat": f"{lp['chi2']:.1f} ({lp['limit']:.1f})",
+        rows.append({"name": name, "ok": lp["ok"], "stat": f"{lp['t2']:.1f} ({lp['limit']:.1f})",
                      "rotation": f"{np.linalg.norm(lp['rotation_arcmin']):.3f} ± {np.linalg.norm(lp['sigma_rotation_arcmin']):.3f}",
                      "t": f"{np.linalg.norm(lp['t_mm']):.4f} ± {np.linalg.norm(lp['sigma_t_mm']):.4f}"})
     for name, pair in check.get("pairs", {}).items():
