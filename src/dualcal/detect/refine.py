@@ -42,8 +42,10 @@ __all__ = ["refine_corners", "fit_saddles", "window_half_size", "drop_outliers",
 
 
 #: :func:`fit_saddles` fits again without the pixels off its first fit by more than this many robust
-#: sigmas (at least 1 grey level), where they are more than this share of the window's.
+#: sigmas (at least 1 grey level) and this share of the corner's half-contrast, where they are more
+#: than this share of the window's.
 OUTLIER_MADS = 4.0
+OUTLIER_CONTRAST = 0.5
 OUTLIER_SHARE = 0.01
 
 
@@ -123,10 +125,12 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
     cost = _lm(p, qx, qy, z, None, np.arange(K), iterations)
     # marks printed in a white square (a code, a dot, text) or a glare spot inside the window are
     # no part of the corner model: where more than OUTLIER_SHARE of a window's pixels are off the
-    # fit by over OUTLIER_MADS robust sigmas, the fit is done again without them
+    # fit by over OUTLIER_MADS robust sigmas and OUTLIER_CONTRAST of the corner's half-contrast a (a
+    # dark mark on white is off by about 2a; a real edge's profile, which tanh only approximates, by
+    # far less), the fit is done again without them
     res = _predict(p, qx, qy) - z
     mad = 1.4826 * np.median(np.abs(res - np.median(res, axis=1, keepdims=True)), axis=1, keepdims=True)
-    keep = np.abs(res) <= OUTLIER_MADS * np.maximum(mad, 1.0)
+    keep = np.abs(res) <= np.maximum(OUTLIER_MADS * np.maximum(mad, 1.0), OUTLIER_CONTRAST * np.abs(p[:, 8:9]))
     again = np.flatnonzero(valid & (np.mean(~keep, axis=1) > OUTLIER_SHARE))
     if len(again):
         wt = keep[again].astype(np.float32)
