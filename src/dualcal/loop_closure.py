@@ -31,7 +31,6 @@ The check passes when every pair is rigid and every loop closes.
 
 from __future__ import annotations
 
-from dataclasses import replace
 from itertools import combinations
 
 import numpy as np
@@ -67,14 +66,17 @@ def _misclosure(rB, rC, BC):
     return e, shifts
 
 
-def loop_closure(setup, blocks, rig_rigid) -> dict | None:
+def loop_closure(names: list[str], ref: int, pair_solutions, rig_rigid) -> dict | None:
     """The ``loop_closure`` check (module docstring) of a rig; None for fewer than three cameras.
 
     Parameters
     ----------
-    setup : :class:`dualcal.calibrate.Setup` of the calibration (its names, sizes, lens model, skew).
-    blocks : the (camera, view, uv) photos the calibration used.
-    rig_rigid : :func:`dualcal.checks.rig_rigid`.
+    names : the cameras; ``ref`` the index of the reference.
+    pair_solutions : ``(x, y) -> (tied, alone, instants)``, cameras ``x`` and ``y`` as a rigid two-camera
+        rig (``x`` its reference) and alone, over the instants both saw
+        (:func:`dualcal.calibrate.pair_solutions`); raises :class:`EstimationError` when they cannot be.
+    rig_rigid : ``(tied, alone) -> dict | None``, :func:`dualcal.checks.rig_rigid` of a pair (the
+        calibration passes the rig's design effect, so that every pair is judged against the same noise).
 
     Returns
     -------
@@ -84,27 +86,20 @@ def loop_closure(setup, blocks, rig_rigid) -> dict | None:
     """
     from scipy.stats import f as f_dist
 
-    names = setup.names
     if len(names) < 3:
         return None
-    ref = setup.reference
     pairs, relations = {}, {}
     for x, y in combinations(range(len(names)), 2):
         if y == ref:
             x, y = y, x
-        views = {v for c, v, _ in blocks if c == x} & {v for c, v, _ in blocks if c == y}
-        sub = [(0 if c == x else 1, v, uv) for c, v, uv in blocks if c in (x, y) and v in views]
         key = f"{names[x]}-{names[y]}"
         try:
-            pair = replace(setup, names=[names[x], names[y]], sizes=[setup.sizes[x], setup.sizes[y]], reference=0,
-                           mode="rigid")
-            tied = pair.solve(sub)
-            alone = pair.solve(sub, tied, mode="none")
+            tied, alone, views = pair_solutions(x, y)
         except EstimationError as exc:
-            pairs[key] = {"ok": False, "views": len(views), "message": str(exc)}
+            pairs[key] = {"ok": False, "views": 0, "message": str(exc)}
             continue
         rigid = rig_rigid(tied, alone) or {"ok": True, "ratio": 0.0}
-        pairs[key] = {"ok": bool(rigid["ok"]), "ratio": float(rigid["ratio"]), "views": len(views)}
+        pairs[key] = {"ok": bool(rigid["ok"]), "ratio": float(rigid["ratio"]), "views": views}
         relations[(x, y)] = _pair_relation(tied)
     others = [c for c in range(len(names)) if c != ref]
     loops = {}
