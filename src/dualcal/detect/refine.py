@@ -45,7 +45,7 @@ __all__ = ["refine_corners", "fit_saddles", "window_half_size", "drop_outliers",
 #: sigmas (at least 1 grey level) and this share of the corner's half-contrast, where they are more
 #: than this share of the window's.
 OUTLIER_MADS = 4.0
-OUTLIER_CONTRAST = 0.5
+OUTLIER_CONTRAST = 1.0
 OUTLIER_SHARE = 0.01
 
 
