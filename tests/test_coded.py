@@ -81,7 +81,7 @@ def test_marked_boards_are_found_wherever_opencv_finds_them_and_as_precisely(tmp
     assert np.sqrt(np.mean(np.square(ours))) <= np.sqrt(np.mean(np.square(theirs)))
 
 
-def test_a_board_larger_than_asked_stays_refused():
+def test_a_board_larger_than_asked_stays_refused(tmp_path):
     """A 15x9 board with codes, asked for as 13x9, is not taken for a 13x9 board."""
     big = Board(15, 9, 20.0)
     cam, views = _views(1, seed=5, board=big)
@@ -89,16 +89,8 @@ def test_a_board_larger_than_asked_stays_refused():
         img = render_view(cam, pose, big, np.random.default_rng(i), glare=glare, marks="code")
         ok, _ = cv2.findChessboardCornersSB(img, (BOARD.cols, BOARD.rows), flags=SB_FLAGS)
         assert not ok
-        res = detect_photo_image(img, BOARD)
-        assert res.uv is None
-
-
-def detect_photo_image(img, board):
-    import tempfile
-    with tempfile.TemporaryDirectory() as d:
-        path = f"{d}/photo.png"
-        cv2.imwrite(path, img)
-        return detect_photo(path, board)
+        cv2.imwrite(str(tmp_path / f"planted-{i}.png"), img)
+        assert detect_photo(tmp_path / f"planted-{i}.png", BOARD).uv is None
 
 
 def test_another_board_is_suggested_only_for_photos_where_no_grid_of_the_size_was_found(tmp_path, monkeypatch):
