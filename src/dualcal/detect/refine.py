@@ -259,9 +259,9 @@ def refine_corners(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int],
     if only is not None:
         todo &= np.asarray(only, bool)
     half = np.where(todo, window_half_size(np.where(todo, spacing, 0.0)), 0)
-    # a corner whose window leaves the image (a board cut off by the frame) cannot be measured
+    # a corner outside the image (a board cut off by the frame) cannot be measured
     H, W = img.shape
-    todo &= np.all((start >= half[:, None]) & (start <= np.array([W - 1, H - 1]) - half[:, None]), axis=1)
+    todo &= np.all((start >= 0) & (start <= [W - 1, H - 1]), axis=1)
     if wide_start:
         wide = np.clip(np.floor(0.45 * np.where(todo, spacing, 0.0)), 3, 80).astype(int)
         for h, k in _groups(wide[todo]):
