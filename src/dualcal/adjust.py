@@ -57,7 +57,7 @@ from .normal_equations import Factorization, NormalEquations
 from .poses import moved_on_sphere, opk_jacobian, relative_pose, rotated, tangent_basis
 from .progress import warn
 from .rotation import ARCMIN_PER_RAD, cross_matrix, opk_from_rotation
-from .uncertainty import cluster_scores, clustered_covariance, held_out_residuals
+from .uncertainty import cluster_scores, cluster_shifts, clustered_covariance, held_out_residuals
 
 RIG_MODES = ("rigid", "paper", "none")
 COVARIANCE_KINDS = ("clustered", "formal")
@@ -542,6 +542,12 @@ class Solution:
         if kind != "clustered":
             raise ValueError(f"covariance kind {kind!r} is not one of {COVARIANCE_KINDS}")
         return clustered_covariance(self._cluster_scores, self.factorization.inverse_block, columns)
+
+    def instant_shifts(self, columns) -> dict[str, np.ndarray]:
+        """``{view: (k,)}``: each instant's shift of the flat parameters ``columns`` (its adjusted score
+        through ``N^-1``), whose outer products sum to the ``clustered`` covariance."""
+        shifts = cluster_shifts(self._cluster_scores, self.factorization.inverse_block, columns)
+        return {rows.view: shifts[:, i] for i, rows in enumerate(self.instant_rows)}
 
     @cached_property
     def _cluster_scores(self):

@@ -32,6 +32,7 @@ from .checks import REFOCUS_SHARE, focal_scale_fits, focus_drift, rig_rigid, run
 from .covariance import JointCovariance, intrinsic_name
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from .errors import EstimationError, InputError
+from .loop_closure import loop_closure
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
 from .scale import relative_sigma, with_scale
@@ -158,6 +159,20 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape, models)
     starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
     return adjust(problem, min(starts, key=lambda state: cost(problem, state)))
+
+
+def pair_solutions(setup: Setup, sol: Solution, x: int, y: int) -> tuple[Solution, Solution, int]:
+    """Cameras ``x`` and ``y`` of ``sol`` as a rigid two-camera rig (``x`` its reference) and alone, from
+    the instants both saw there, started from ``sol``'s values; and the number of those instants."""
+    cams, poses = _starting_values(sol)
+    views = set(poses[x]) & set(poses[y])
+    blocks = [(int(c == y), v, uv) for c, v, uv in sol.problem.blocks if c in (x, y) and v in views]
+    pair = replace(setup, names=[setup.names[x], setup.names[y]], sizes=[setup.sizes[x], setup.sizes[y]],
+                   reference=0, mode="rigid")
+    _check_enough_views(blocks, pair.names)
+    problem = Problem(pair.X_board, pair.names, pair.sizes, blocks, "rigid", pair.skew, 0, False, pair.model)
+    tied = adjust(problem, initial_state(problem, [cams[x], cams[y]], [poses[x], poses[y]]))
+    return tied, pair.solve(blocks, tied, mode="none"), len(views)
 
 
 OUTLIER_FLOOR_PX = 0.05
@@ -490,6 +505,12 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         rig.adjustment["duplicates"] = duplicates
     rig.checks = run_checks(rig, sol, flat, alone,
                             attribution=partial(attribution_checks, setup) if rig_mode != "none" else None)
+    if rig_mode != "none":
+        kappa2 = rig.checks.get("rig_rigid", {}).get("design_effect")       # the rig's photo-level noise
+        loop = loop_closure(names, ref, lambda x, y: pair_solutions(setup, flat, x, y),
+                            lambda tied, alone: rig_rigid(tied, alone, None if kappa2 is None else {0: kappa2}))
+        if loop is not None:
+            rig.checks["loop_closure"] = loop
     return rig
 
 

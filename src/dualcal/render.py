@@ -45,6 +45,7 @@ from .model import Pose
 from .parallel import interruptible_map
 from .progress import progress_bar
 from .render_charuco import MarkerTexture, marker_darkness, marker_texture
+from .render_marks import marks_texture
 
 __all__ = ["render_view", "write_photo_set", "photo_seed"]
 
@@ -67,10 +68,11 @@ def _box_mean(F, x: np.ndarray, h: np.ndarray, lo: float, hi: float) -> np.ndarr
 
 def _reflectance(X: np.ndarray, Y: np.ndarray, hX: np.ndarray, hY: np.ndarray, board: Board,
                  margin_mm: float, white: float, black: float, background: np.ndarray,
-                 markers: MarkerTexture | None = None) -> np.ndarray:
+                 markers: MarkerTexture | None = None, inverted: bool = False) -> np.ndarray:
     """Box-filtered reflectance at board points ``(X, Y)`` mm with footprint half-widths ``hX, hY``.
 
-    ``markers``: a ChArUco board's markers (:mod:`dualcal.render_charuco`), drawn in its white squares.
+    ``markers``: a ChArUco board's markers (:mod:`dualcal.render_charuco`) or a chessboard's marks
+    (:mod:`dualcal.render_marks`), drawn in its white squares. ``inverted``: the other squares black.
     """
     s = board.square_mm
     tri = lambda x: _square_wave_integral(x, s)  # noqa: E731
@@ -80,7 +82,7 @@ def _reflectance(X: np.ndarray, Y: np.ndarray, hX: np.ndarray, hY: np.ndarray, b
     inside = _box_mean(ident, X, hX, x0, x1) * _box_mean(ident, Y, hY, y0, y1)
     product = _box_mean(tri, X, hX, x0, x1) * _box_mean(tri, Y, hY, y0, y1)
     black_share = 0.5 * (inside + product)          # black where sq(X) sq(Y) = +1, i.e. a + b even
-    if board.black_parity():                        # OpenCV's legacy ChArUco layout: the other squares
+    if board.black_parity() != inverted:            # OpenCV's legacy ChArUco layout: the other squares
         black_share = inside - black_share
     if markers is not None:
         black_share = black_share + marker_darkness(markers, X, Y, hX, hY)
@@ -126,7 +128,8 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
                 glare: Sequence[tuple[float, float, float, float]] = (),
                 shadow: tuple[float, float, float, float] | None = None,
                 outliers: Sequence[tuple[int, float, float]] = (),
-                swapped_markers: Sequence[tuple[int, int]] = ()) -> np.ndarray:
+                swapped_markers: Sequence[tuple[int, int]] = (), marks: str | None = None,
+                inverted: bool = False) -> np.ndarray:
     """Render the board as photographed by ``cam`` at ``pose``.
 
     Parameters
@@ -161,6 +164,12 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
         one. Shifts up to 0.19 of a square are drawn exactly (the shading does not fold).
     swapped_markers : planted misread ids of a ChArUco board, each ``(i, j)``: marker ``i`` is
         drawn with the code of id ``j``, so a detector reads id ``j`` in marker ``i``'s square.
+    marks : marks printed in a plain chessboard's white squares, one of
+        :data:`dualcal.render_marks.MARK_KINDS` (``code``, ``dots``, ``logo``, ``text``); the same
+        board in every photo. None: plain white squares.
+    inverted : a chessboard printed with the other squares black: square ``(-1, -1)`` is white
+        (as on BoofCV's ECoCheck boards); where ``cols + rows`` is even no corner then has a black
+        square diagonally outside it with the frame right-handed into the board.
 
     Returns
     -------
@@ -184,6 +193,8 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
             np.cos(bg_freq[2] * u + bg_phase[2])]
     scene = _clutter((W, H), rng, clutter, background)
     markers = marker_texture(board, swapped_markers) if board.charuco is not None else None
+    if marks is not None:
+        markers = marks_texture(board, marks, inverted=inverted)
 
     out = np.empty((H, W), np.uint8)
     for r0 in range(0, H, band_rows):
@@ -205,7 +216,7 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
             hY = 0.5 * (np.abs(np.gradient(Y, axis=1)) + np.abs(np.gradient(Y, axis=0))) + 1e-9
             bg = refl[rows, c0:c1]
             refl[rows, c0:c1] = np.where(front, _reflectance(X, Y, hX, hY, board, margin_mm,
-                                                             white, black, bg, markers), bg)
+                                                             white, black, bg, markers, inverted), bg)
         gain = ((1.0 - (vignetting / r_corner**2) * (du * du + dv * dv))
                 * (1.0 + light[0] * du + light[1] * dv))
         if shadow is not None:
@@ -301,7 +312,7 @@ def _write_one(task) -> str:
 
 
 def write_photo_set(truth, photo_dir, seed: int = 0, jobs: int | None = None, quality: int = 92,
-                    progress: bool = True, **render_kwargs) -> dict[str, dict[str, Path]]:
+                    progress: bool = True, marks: str | None = None, **render_kwargs) -> dict[str, dict[str, Path]]:
     """Render every camera and view of a synthetic rig as ``photo_dir/<camera>/<view>.jpg``.
 
     Parameters
@@ -313,7 +324,9 @@ def write_photo_set(truth, photo_dir, seed: int = 0, jobs: int | None = None, qu
     jobs : photos rendered at once, in threads (default: all cores).
     quality : JPEG quality (0-100).
     progress : draw a progress bar on stderr.
-    **render_kwargs : passed on to :func:`render_view` (``blur_px``, ``noise``, ...).
+    marks : marks printed in the chessboard's white squares (:mod:`dualcal.render_marks`: ``code``,
+        ``dots``, ``logo``, ``text``), the same board in every photo; None: plain squares.
+    **render_kwargs : passed on to :func:`render_view` (``blur_px``, ``noise``, ``inverted``, ...).
 
     Returns
     -------
@@ -328,7 +341,7 @@ def write_photo_set(truth, photo_dir, seed: int = 0, jobs: int | None = None, qu
             path = photo_dir / name / f"{view}.jpg"
             paths[name][view] = path
             tasks.append((cam, truth.camera_pose(name, view), truth.board, (seed, ci, vi), path,
-                          quality, render_kwargs))
+                          quality, dict(render_kwargs, marks=marks)))
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(tasks)))
     with progress_bar("rendering photos", len(tasks), enabled=progress) as advance:
         # threads: numpy's array loops, OpenCV's blur and JPEG encoding release the GIL

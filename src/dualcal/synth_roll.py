@@ -67,8 +67,9 @@ def _with_exif(jpeg: bytes, payload: bytes) -> bytes:
 
 def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic phone", first_number: int = 101,
                       retake: bool = True, stray_photo: bool = True, sidecars: bool = True, jobs: int | None = None,
-                      progress: bool = True) -> dict:
-    """Write the photos of ``truth`` (:class:`~dualcal.synth.SynthTruth`) as one camera-roll folder.
+                      progress: bool = True, **render_kwargs) -> dict:
+    """Write the photos of ``truth`` (:class:`~dualcal.synth.SynthTruth`) as one camera-roll folder
+    (``render_kwargs``: :func:`dualcal.render.write_photo_set`'s, e.g. ``marks``).
 
     Returns the roll as it was shot: ``{"photos": {file name: (camera, view)}, "retake": (first, second),
     "stray": file name, "sidecars": [file names]}`` (camera None for the photo without the board).
@@ -82,7 +83,7 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
     views = list(truth.view_poses)
     shot = {"photos": {}, "retake": None, "stray": None, "sidecars": []}
     with tempfile.TemporaryDirectory(dir=folder.parent) as tmp:
-        rendered = write_photo_set(truth, tmp, seed=seed, jobs=jobs, progress=progress)
+        rendered = write_photo_set(truth, tmp, seed=seed, jobs=jobs, progress=progress, **render_kwargs)
         number, taken = first_number, _START
 
         def put(data: bytes, cam, what) -> str:

@@ -116,17 +116,24 @@ def cluster_scores(clusters: Iterable[ClusterRows], inverse_block: Callable[[np.
     return out
 
 
-def clustered_covariance(scores, inverse_block: Callable[[np.ndarray], np.ndarray], columns) -> np.ndarray:
-    """The CR2 cluster-robust covariance (module docstring) of the parameters ``columns`` (k,).
-
-    ``Cov = sum_c (N^-1 s_c)(N^-1 s_c)^T`` over the clusters' adjusted scores ``s_c``
-    (:func:`cluster_scores`), restricted to ``columns``: a (k, k) matrix in the units of the
-    residuals squared (pixels^2) times those of ``N^-1``.
-    """
+def cluster_shifts(scores, inverse_block: Callable[[np.ndarray], np.ndarray], columns) -> np.ndarray:
+    """(k, clusters): each cluster's shift ``N^-1 s_c`` of the parameters ``columns`` (k,), from its
+    adjusted score ``s_c`` (:func:`cluster_scores`)."""
     columns = np.asarray(columns, int)
     k = len(columns)
     shifts = np.zeros((k, len(scores)))
     for i, (cols, s) in enumerate(scores):
         both = inverse_block(np.concatenate([columns, cols]))
-        shifts[:, i] = both[:k, k:] @ s                    # each cluster's shift of the parameters
+        shifts[:, i] = both[:k, k:] @ s
+    return shifts
+
+
+def clustered_covariance(scores, inverse_block: Callable[[np.ndarray], np.ndarray], columns) -> np.ndarray:
+    """The CR2 cluster-robust covariance (module docstring) of the parameters ``columns`` (k,).
+
+    ``Cov = sum_c (N^-1 s_c)(N^-1 s_c)^T`` over the clusters' adjusted scores ``s_c``
+    (:func:`cluster_scores`, :func:`cluster_shifts`), restricted to ``columns``: a (k, k) matrix in
+    the units of the residuals squared (pixels^2) times those of ``N^-1``.
+    """
+    shifts = cluster_shifts(scores, inverse_block, columns)
     return shifts @ shifts.T

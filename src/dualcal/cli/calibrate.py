@@ -166,8 +166,11 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @click.option("--coverage", metavar="LO:HI", default=None,
               help="Share of the board's corners the narrowest camera sees, drawn per view from LO to HI "
                    "(ChArUco boards; default 0.3:1 for them, the whole board for a chessboard).")
+@click.option("--marks", type=click.Choice(["code", "dots", "logo", "text"]), default=None,
+              help="Print marks in the chessboard's white squares: a binary code in each (as ECoCheck), a dot in "
+                   "each, a logo in two, or a serial number along the first row.")
 def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jobs, board_spec, square_mm, marker_mm,
-                  dictionary, coverage):
+                  dictionary, coverage, marks):
     """Write a synthetic rig with known truth to OUTDIR.
 
     \b
@@ -190,6 +193,8 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jo
         raise InputError(f"--noise {noise_px}: must be >= 0")
     board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
     board = with_default_markers(board) if board is not None else None
+    if marks is not None and board is not None and board.charuco is not None:
+        raise InputError("--marks is for chessboards: a ChArUco board has its markers in its white squares")
     share = _coverage(coverage, board)
     out = make_output_folder(outdir)
     truth = synth.make_truth(preset, views, seed, scale, board=board, coverage=share)
@@ -198,10 +203,10 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jo
     write_json_atomic(out / "truth.json", rig_to_dict(synth.truth_rig_model(truth, corners)))
     if roll:
         from ..synth_roll import write_camera_roll
-        write_camera_roll(truth, make_output_folder(out / "roll"), seed=seed, jobs=jobs or default_jobs())
+        write_camera_roll(truth, make_output_folder(out / "roll"), seed=seed, jobs=jobs or default_jobs(), marks=marks)
     elif photos:
         from ..render import write_photo_set
-        write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs())
+        write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs(), marks=marks)
     n = len(truth.view_poses) * len(truth.cameras)
     echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
          f"({n} {'photos' if photos or roll else 'corner sets'}{' in a camera roll' if roll else ''}) written to {out}")

@@ -105,6 +105,10 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square
     summary = ", ".join(f"{c} {n}/{len(corners.cameras[c].views)}" for c, n in found.items())
     excluded = sum(len(cc.meta.get("excluded", {})) for cc in corners.cameras.values())
     left_out = f"; {excluded} left out by --exclude" if excluded else ""
+    partial = sum(len(cc.meta.get("partial_views", [])) for cc in corners.cameras.values())
+    if partial:
+        left_out += (f"; {partial} show only part of the board, where its corners cannot be numbered "
+                     "(see the warnings)")
     echo(f"board found in: {summary} photos{left_out}; wrote {output}", err=True)
 
 

@@ -23,12 +23,20 @@ import numpy as np
 from ..board import Board
 from ..errors import DetectionError
 
-__all__ = ["SquareColours", "square_colours", "check_colours", "order_grid", "place_partial_grid", "right_handed"]
+__all__ = ["PartialBoard", "SquareColours", "square_colours", "check_colours", "order_grid", "place_partial_grid", "right_handed"]
+
+
+#: Samples per square along each side (:func:`square_colours`).
+_SAMPLES = 7
+
+
+class PartialBoard(DetectionError):
+    """Only part of a plain chessboard is in the photo: its corners cannot be numbered."""
 
 
 @dataclass
 class SquareColours:
-    """Mean grey of board squares; ``values[b + 2, a + 2]`` for square ``(a, b)``, NaN if unseen.
+    """Median grey of board squares; ``values[b + 2, a + 2]`` for square ``(a, b)``, NaN if unseen.
 
     Squares ``a = -2 .. cols``, ``b = -2 .. rows`` in the grid's own index frame: the inner
     squares, the outer ring (``a`` or ``b`` = -1 or cols-1/rows-1) and one ring beyond.
@@ -70,30 +78,36 @@ def square_colours(gray: np.ndarray, grid_px: np.ndarray, factor: int = 1) -> Sq
     grid_px : (rows, cols, 2) corners, full-resolution pixels.
     factor : reduction of ``gray`` relative to full resolution.
 
-    Each square is sampled at 5 x 5 points interpolated bilinearly between its four corners;
+    Each square is sampled at 7 x 7 points interpolated bilinearly between its four corners;
     corners outside the grid are extrapolated along the grid lines (:func:`extended_grid`).
-    Inner squares are sampled around their centre; squares outside the grid in the half
-    nearer to the grid, since many boards print the outer ring narrower than a full square.
+    Inner squares are sampled over the middle 80 % of their side and valued by the samples'
+    median, so that marks printed in a white square (a code, dots, a logo, text: less than half
+    its area) or glare on a dark one do not change its colour; squares outside the grid in the
+    half nearer to the grid, since many boards print the outer ring narrower than a full square.
     """
     R, C = grid_px.shape[:2]
     ext = extended_grid(np.asarray(grid_px, float))
 
-    def spans(n):     # (n + 3, 5) sample fractions across squares -2 .. n of a line of n corners
-        k = np.arange(-2, n + 1)[:, None]
-        lo = np.where(k < 0, 0.55, np.where(k >= n - 1, 0.1, 0.25))
-        return lo + (np.where(k < 0, 0.9, np.where(k >= n - 1, 0.45, 0.75)) - lo) * np.linspace(0, 1, 5)
+    n = _SAMPLES
 
-    fs = spans(C)[None, :, None, :, None]          # across columns: (1, C+3, 1, 5, 1)
-    ft = spans(R)[:, None, :, None, None]          # across rows:    (R+3, 1, 5, 1, 1)
+    def spans(m):     # (m + 3, n) sample fractions across squares -2 .. m of a line of m corners
+        k = np.arange(-2, m + 1)[:, None]
+        lo = np.where(k < 0, 0.55, 0.1)
+        return lo + (np.where(k < 0, 0.9, np.where(k >= m - 1, 0.45, 0.9)) - lo) * np.linspace(0, 1, n)
+
+    fs = spans(C)[None, :, None, :, None]          # across columns: (1, C+3, 1, n, 1)
+    ft = spans(R)[:, None, :, None, None]          # across rows:    (R+3, 1, n, 1, 1)
     p00, p01 = ext[:-1, :-1, None, None], ext[:-1, 1:, None, None]
     p10, p11 = ext[1:, :-1, None, None], ext[1:, 1:, None, None]
-    pts = (1 - ft) * ((1 - fs) * p00 + fs * p01) + ft * ((1 - fs) * p10 + fs * p11)   # (R+3, C+3, 5, 5, 2)
-    pts = ((pts + 0.5) / factor - 0.5).reshape(R + 3, C + 3, 25, 2)
+    pts = (1 - ft) * ((1 - fs) * p00 + fs * p01) + ft * ((1 - fs) * p10 + fs * p11)   # (R+3, C+3, n, n, 2)
+    pts = ((pts + 0.5) / factor - 0.5).reshape(R + 3, C + 3, n * n, 2)
     h, w = gray.shape
     inside = np.all((pts >= 0) & (pts <= [w - 1, h - 1]), axis=(2, 3))
     flat = pts.reshape(-1, 1, 2).astype(np.float32)
-    samples = cv2.remap(gray, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR).reshape(R + 3, C + 3, 25)
-    values = np.where(inside, samples.mean(axis=2), np.nan)
+    samples = cv2.remap(gray, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR).reshape(R + 3, C + 3, n * n)
+    # the median of most of the square, not its mean: a code, dots, a logo or text printed in a
+    # white square (up to nearly half of the area sampled), or glare on a dark one, leave it alone
+    values = np.where(inside, np.median(samples, axis=2), np.nan)
     inner = values[2:R + 1, 2:C + 1]
     a, b = np.meshgrid(np.arange(C - 1), np.arange(R - 1))
     even = (a + b) % 2 == 0
@@ -162,17 +176,25 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
     whose squares look like exactly the board (:func:`check_colours`: its outer ring continues
     the chessboard, the squares beyond do not) is returned. The extended corners are a start
     only, off by up to a few pixels where the lens bends the grid; the refinement takes them
-    from there.
+    from there. A placement that runs off the image (a board cut off by the frame) is judged on
+    the squares in view, where the board is not 180-degree symmetric (``cols + rows`` odd: its
+    colours then fix its numbering) and more than half of its corners are in the image; the
+    corners outside it are NaN after refinement. Placements that run off the image are judged
+    for symmetric boards too, so that a wrong placement inside the image is not taken for the only
+    one: a symmetric board whose one fitting placement runs off the image is refused.
 
     Raises
     ------
+    PartialBoard
+        When no placement fits, the part reaches to within 1.5 of its squares of the image's edge
+        and some placement runs off the image: the board is cut off by the frame.
     DetectionError
         When no placement, or more than one, fits.
     """
     R, C = board.rows, board.cols
     h, w = gray.shape
     size = np.array([w, h]) * factor
-    fits = []
+    fits, off_image = [], False
     for part in (part_px, np.swapaxes(part_px, 0, 1)):
         r, c = part.shape[:2]
         if r > R or c > C or r * c < 9:
@@ -187,17 +209,30 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
                 J, I = np.meshgrid(np.arange(C) - j0, np.arange(R) - i0)
                 pts = cv2.perspectiveTransform(np.column_stack([J.ravel(), I.ravel()]).astype(np.float32)[None], H)[0]
                 grid = pts.reshape(R, C, 2).astype(float)
-                if np.any(grid < 0) or np.any(grid > size - 1):
-                    continue
+                inside = np.all((grid >= 0) & (grid <= size - 1), axis=2)
+                if not inside.all():
+                    off_image = True
+                    # a board cut off by the frame, judged on the squares in view where most of it is
+                    if 2 * inside.sum() <= R * C or not np.all(np.isfinite(grid)):
+                        continue
                 try:
                     check_colours(square_colours(gray, grid, factor), C, R)
                 except DetectionError:
                     continue
-                fits.append(grid)
+                fits.append((grid, bool(inside.all())))
+    cut = any(not whole for _, whole in fits)
+    if (not fits and off_image) or (cut and (board.is_symmetric or len(fits) > 1)):
+        step = np.median(np.linalg.norm(np.diff(part_px, axis=1), axis=2))
+        if cut or np.any(part_px < 1.5 * step) or np.any(part_px > size - 1 - 1.5 * step):
+            r, c = part_px.shape[:2]
+            how = ("a chessboard with cols + rows even must be seen whole: it looks the same turned by 180 degrees"
+                   if board.is_symmetric else "too little of it, or of its edges, is in view to number its corners")
+            raise PartialBoard(f"only part of the {board.spec()} chessboard is in the photo ({c}x{r} corners "
+                               f"at the frame's edge): {how} (a ChArUco board may be seen in part)")
     if len(fits) != 1:
         raise DetectionError(f"no {board.spec()} chessboard found" + (
             " (a part of one was, but not where it lies on the board)" if fits else ""))
-    return fits[0]
+    return fits[0][0]
 
 
 def right_handed(grid: np.ndarray) -> bool:
@@ -217,29 +252,39 @@ def _candidates(square: bool):
 def order_grid(grid_px: np.ndarray, colours: SquareColours, board: Board):
     """Put a detected (rows, cols, 2) grid into the contract's corner order.
 
+    Corner 0 is an inner corner whose diagonally-outside square is black, with X along ``cols``
+    and Y along ``rows``. When ``cols + rows`` is even, one diagonal of the board has black
+    squares at its ends and the other white ones; on most boards (dualcal's, OpenCV's) it is the
+    diagonal where the frame is right-handed with Z into the board. Boards printed the other way
+    (BoofCV's ECoCheck, a chessboard of 14 x 10 squares whose top-left square is white) have no
+    such corner: they are numbered from a black end with the frame right-handed with Z towards
+    the camera (``mirrored``), which is as rigid a board frame as the other (the board is flat in
+    it, Z = 0), the same in every photo of that board.
+
     Returns
     -------
     uv : (rows*cols, 2) corners, corner ``k = r*cols + c``.
     ambiguous : True when the board is 180-degree symmetric and the corner nearest the
         image's top-left was taken as corner 0.
+    mirrored : True when the board's frame has Z towards the camera (see above).
     """
     R, C = grid_px.shape[:2]
     if (R, C) != (board.rows, board.cols):
         raise DetectionError(f"grid of {C}x{R} corners, expected {board.cols}x{board.rows}")
     idx = np.stack(np.meshgrid(np.arange(C), np.arange(R)), -1)          # idx[r, c] = (c, r)
-    keep = []
+    fits = {True: [], False: []}
     for f in _candidates(R == C):
         g, i = f(grid_px), f(idx)
-        if not right_handed(g):
-            continue
         # square (-1, -1) of the candidate has the colour of its square (0, 0): the cell
         # between its corners [0,0], [0,1], [1,0], [1,1], whose lowest index-frame corner is:
         a0, b0 = np.min(i[:2, :2].reshape(-1, 2), axis=0)
         if ((a0 + b0) % 2 == 0) == colours.even_is_dark:
-            keep.append(g)
+            fits[right_handed(g)].append(g)
+    mirrored = not fits[True]
+    keep = fits[not mirrored]
     if not keep:
         raise DetectionError("no corner ordering is consistent with the board's colours")
     ambiguous = len(keep) > 1
     if ambiguous:
         keep.sort(key=lambda g: float(np.hypot(*g[0, 0])))
-    return keep[0].reshape(-1, 2), ambiguous
+    return keep[0].reshape(-1, 2), ambiguous, mirrored

@@ -25,6 +25,8 @@ dictionary (or layout) is not given it first finds them from the photos
 
 from __future__ import annotations
 
+import os
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,7 +45,7 @@ from .charuco import detect_charuco, resolve_board
 from .coarse import find_grid, find_partial_grid, reduce_image, reduction_factor, to_full_resolution
 from .grid import validate_grid
 from .manual import grid_from_hints
-from .order import check_colours, order_grid, place_partial_grid, square_colours
+from .order import PartialBoard, check_colours, order_grid, place_partial_grid, square_colours
 from .refine import measure_grid
 from .symmetry import align_symmetric_numbering
 
@@ -52,13 +54,31 @@ __all__ = ["PhotoResult", "detect_photo", "detect_dataset", "likely_boards", "su
 
 @dataclass
 class PhotoResult:
-    """Outcome for one photo: ``uv`` (N, 2) pixels in corner order, or None with a ``reason``."""
+    """Outcome for one photo: ``uv`` (N, 2) pixels in corner order, or None with a ``reason``.
+
+    ``failed_check`` names the check that a grid of the board's size, found in the photo, failed
+    (``"colours"``: its squares are not those of the board; ``"corners"``: the refined corners
+    are not a board's grid); it is ``""`` where no such grid was found. ``partial``: only part of
+    a chessboard is in view (a plain chessboard must be seen whole). ``mirrored``: the board is
+    printed with its other diagonal black (:func:`.order.order_grid`).
+    """
 
     uv: np.ndarray | None
     image_size: tuple[int, int] | None = None
     reason: str = ""
     symmetric: bool = False
     manual: bool = False
+    failed_check: str = ""
+    partial: bool = False
+    mirrored: bool = False
+
+
+class _CheckFailed(DetectionError):
+    """A grid of the board's size was found but failed the check ``check``."""
+
+    def __init__(self, check: str, message: str):
+        super().__init__(message)
+        self.check = check
 
 
 def _coarse(full: np.ndarray, board: Board):
@@ -116,18 +136,22 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
                 raise DetectionError(f"no {board.spec()} chessboard found")
             grid = place_partial_grid(to_full_resolution(part, f), small, f, board)
         colours = square_colours(small, grid, f)
-        check_colours(colours, board.cols, board.rows)
+        try:
+            check_colours(colours, board.cols, board.rows)
+        except DetectionError as exc:
+            raise _CheckFailed("colours", str(exc)) from None
         # clicked grids too: whichever end the user started from, the contract's order
-        coarse, symmetric = order_grid(grid, colours, board)
+        coarse, symmetric, mirrored = order_grid(grid, colours, board)
         uv = measure_grid(full, coarse, (board.rows, board.cols), wide_start=manual)
         reason = validate_grid(uv, board)
         if reason:
-            raise DetectionError(reason)
+            raise _CheckFailed("corners", reason)
         if overlay_path is not None:
             write_overlay(overlay_path, small, uv, f)
-        return PhotoResult(uv, size, symmetric=symmetric, manual=manual)
+        return PhotoResult(uv, size, symmetric=symmetric, manual=manual, mirrored=mirrored)
     except (DetectionError, InputError) as exc:
-        return PhotoResult(None, None, reason=str(exc).replace(f"{path}: ", ""))
+        return PhotoResult(None, None, reason=str(exc).replace(f"{path}: ", ""),
+                           failed_check=getattr(exc, "check", ""), partial=isinstance(exc, PartialBoard))
     except (cv2.error, OSError, ValueError) as exc:
         return PhotoResult(None, None, reason=f"{type(exc).__name__}: {' '.join(str(exc).split())}")
 
@@ -285,23 +309,37 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
 
     views: dict[str, dict[str, np.ndarray | None]] = {c: {} for c in dataset.cameras}
     symmetric = 0
-    for (cam, view), (path, *_), res in zip(keys, tasks, results):
+    mirrored = sum(r.uv is not None and r.mirrored for r in results)
+    board_mirrored = 2 * mirrored > sum(r.uv is not None for r in results)
+    for i, ((cam, view), res) in enumerate(zip(keys, results)):
         if res.uv is not None and res.image_size != dataset.image_size(cam):
             res = PhotoResult(None, reason=f"decoded as {res.image_size}, its header and the camera's "
                                            f"other photos say {dataset.image_size(cam)}")
+        elif res.uv is not None and res.mirrored != board_mirrored:
+            # one printed board: its colours number every photo alike; a photo that disagrees
+            # misjudged its squares' colours
+            res = PhotoResult(None, reason="its squares' colours number the board as the mirror image of the "
+                                           "board in most photos", failed_check="colours")
+        results[i] = res
+    for (cam, view), (path, *_), res in zip(keys, tasks, results):
         views[cam][view] = res.uv
         if res.uv is None:
             warn(f"{path}: skipped: {res.reason}")
         symmetric += res.symmetric
     found = sum(v is not None for vs in views.values() for v in vs.values())
     if 2 * found < len(tasks):
-        missed = [path for (path, *_), res in zip(tasks, results) if res.uv is None]
-        hint = suggest_board(missed, board)
+        # another --board only where no grid of this size was found at all: a board found that
+        # failed a later check is this board (its transposed size would not fix the check)
+        missed = [path for (path, *_), res in zip(tasks, results) if res.uv is None and not res.failed_check]
+        failed = "; ".join(f"in {n} photo(s) a {board.spec()} grid was found but failed the {check} check"
+                           for check, n in Counter(r.failed_check for r in results if r.failed_check).most_common())
+        suggestion = suggest_board(missed, board)
         if found == 0:
             check = ("check --board (inner corners, COLSxROWS)" if board.charuco is None
                      else "check --board (squares, charuco:SXxSY), --square, --marker and --dictionary")
             raise InputError(f"no {board.describe()} found in any photo of {dataset.source} "
-                             f"({len(tasks)} photos): " + (hint or check))
+                             f"({len(tasks)} photos): " + ": ".join(filter(None, [failed, suggestion or check])))
+        hint = "; ".join(filter(None, [suggestion, failed]))
         if hint:
             warn(f"{board.spec()} found in only {found} of {len(tasks)} photos: {hint}")
     cameras = {}
@@ -310,6 +348,9 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         manual = sorted(v for (c, v), r in zip(keys, results) if c == cam and r.manual)
         if manual:
             meta["manual_views"] = manual
+        partial = sorted(v for (c, v), r in zip(keys, results) if c == cam and r.partial)
+        if partial:
+            meta["partial_views"] = partial
         cameras[cam] = CameraCorners(dataset.image_size(cam), views[cam], meta)
         if all(v is None for v in views[cam].values()):
             warn(f"camera {cam!r}: the board was found in none of its photos")

@@ -41,6 +41,14 @@ from .grid import local_spacing_px, outlier_limit_px, predict_from_neighbours, w
 __all__ = ["refine_corners", "fit_saddles", "window_half_size", "drop_outliers", "measure_grid"]
 
 
+#: :func:`fit_saddles` fits again without the pixels off its first fit by more than this many robust
+#: sigmas (at least 1 grey level) and this share of the corner's half-contrast, where they are more
+#: than this share of the window's.
+OUTLIER_MADS = 4.0
+OUTLIER_CONTRAST = 1.0
+OUTLIER_SHARE = 0.01
+
+
 def window_half_size(spacing_px: np.ndarray, lo: int = 3, hi: int = 24) -> np.ndarray:
     """Half-size of the refinement window of a corner ``spacing_px`` from its nearest neighbour.
 
@@ -114,12 +122,39 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
                                 (At @ z[..., None]).astype(float))[..., 0]
 
     ok = valid.copy()
-    lam = np.full(K, 1e-3)
-    cost = _cost(p, qx, qy, z)
-    active = np.arange(K)                    # corners still converging: only these are iterated
+    cost = _lm(p, qx, qy, z, None, np.arange(K), iterations)
+    # marks printed in a white square (a code, a dot, text) or a glare spot inside the window are
+    # no part of the corner model: where more than OUTLIER_SHARE of a window's pixels are off the
+    # fit by over OUTLIER_MADS robust sigmas and OUTLIER_CONTRAST of the corner's half-contrast a (a
+    # dark mark on white is off by about 2a; a real edge's profile, which tanh only approximates, by
+    # far less), the fit is done again without them
+    res = _predict(p, qx, qy) - z
+    mad = 1.4826 * np.median(np.abs(res - np.median(res, axis=1, keepdims=True)), axis=1, keepdims=True)
+    keep = np.abs(res) <= np.maximum(OUTLIER_MADS * np.maximum(mad, 1.0), OUTLIER_CONTRAST * np.abs(p[:, 8:9]))
+    again = np.flatnonzero(valid & (np.mean(~keep, axis=1) > OUTLIER_SHARE))
+    if len(again):
+        wt = keep[again].astype(np.float32)
+        sub = p[again]
+        cost_again = _lm(sub, qx, qy, z[again], wt, np.arange(len(again)), iterations)
+        p[again] = sub
+        cost[again] = cost_again * keep.shape[1] / np.maximum(wt.sum(axis=1), 1.0)
+    rms = np.sqrt(cost / max(1, z.shape[1]))
+    inside = np.all(np.abs(p[:, :2]) < 0.5 * half, axis=1) & (p[:, 4] > 0.2) & (p[:, 4] < half)
+    ok &= inside & np.all(np.isfinite(p), axis=1)
+    return centres + p[:, :2], ok, rms
+
+
+def _lm(p, qx, qy, z, wt, active, iterations):
+    """Levenberg-Marquardt on the corners ``active`` of ``p`` (K, 9), in place; ``wt`` (K, P) 0/1 pixel
+    weights or None. Returns the (K,) costs."""
+    lam = np.full(len(p), 1e-3)
+    cost = _cost(p, qx, qy, z, wt)
     for _ in range(iterations):
         pa, za = p[active], z[active]
+        wa = None if wt is None else wt[active]
         J, res = _jacobian(pa, qx, qy, za)
+        if wa is not None:
+            J, res = J * wa[..., None], res * wa
         Jt = np.swapaxes(J, 1, 2)
         JtJ = (Jt @ J).astype(float)
         Jtr = (Jt @ res[..., None])[..., 0].astype(float)
@@ -127,7 +162,7 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
         la = lam[active]
         step = np.linalg.solve(JtJ + la[:, None, None] * D[:, :, None] * np.eye(9), -Jtr[..., None])[..., 0]
         trial = pa + step
-        new_cost = _cost(trial, qx, qy, za)
+        new_cost = _cost(trial, qx, qy, za, wa)
         better = new_cost < cost[active]
         p[active[better]], cost[active[better]] = trial[better], new_cost[better]
         lam[active] = np.where(better, la * 0.3, la * 10.0)
@@ -135,10 +170,7 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
         active = active[~done]
         if len(active) == 0:
             break
-    rms = np.sqrt(cost / max(1, z.shape[1]))
-    inside = np.all(np.abs(p[:, :2]) < 0.5 * half, axis=1) & (p[:, 4] > 0.2) & (p[:, 4] < half)
-    ok &= inside & np.all(np.isfinite(p), axis=1)
-    return centres + p[:, :2], ok, rms
+    return cost
 
 
 def _model(p, qx, qy):
@@ -159,8 +191,10 @@ def _predict(p, qx, qy):
     return p[:, 5:6] + p[:, 6:7] * qx + p[:, 7:8] * qy + p[:, 8:9] * E1E2
 
 
-def _cost(p, qx, qy, z):
+def _cost(p, qx, qy, z, wt=None):
     r = _predict(p, qx, qy) - z
+    if wt is not None:
+        r = r * wt
     cost = np.sum(r * r, axis=1, dtype=np.float64)
     return np.where(np.isfinite(cost), cost, np.inf)
 
@@ -225,6 +259,9 @@ def refine_corners(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int],
     if only is not None:
         todo &= np.asarray(only, bool)
     half = np.where(todo, window_half_size(np.where(todo, spacing, 0.0)), 0)
+    # a corner outside the image (a board cut off by the frame) cannot be measured
+    H, W = img.shape
+    todo &= np.all((start >= 0) & (start <= [W - 1, H - 1]), axis=1)
     if wide_start:
         wide = np.clip(np.floor(0.45 * np.where(todo, spacing, 0.0)), 3, 80).astype(int)
         for h, k in _groups(wide[todo]):

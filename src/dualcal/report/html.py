@@ -211,6 +211,23 @@ def checks_table(rig: RigModel) -> list[dict]:
             for name, check in rig.checks.items()]
 
 
+def loops_table(rig: RigModel) -> list[dict]:
+    """The ``loop_closure`` check's loops (misclosure and its sigma, norm over the three axes) and pairs."""
+    check = rig.checks.get("loop_closure")
+    if not check:
+        return []
+    rows = []
+    for name, lp in check.get("loops", {}).items():
+        rows.append({"name": name, "ok": lp["ok"], "stat": f"{lp['t2']:.1f} ({lp['limit']:.1f})",
+                     "rotation": f"{np.linalg.norm(lp['rotation_arcmin']):.3f} ± {np.linalg.norm(lp['sigma_rotation_arcmin']):.3f}",
+                     "t": f"{np.linalg.norm(lp['t_mm']):.4f} ± {np.linalg.norm(lp['sigma_t_mm']):.4f}"})
+    for name, pair in check.get("pairs", {}).items():
+        stat = f"{pair['ratio']:.2f} x the noise" if "ratio" in pair else pair.get("message", "")
+        rows.append({"name": f"pair {name} ({pair['views']} instants)", "ok": pair["ok"], "rotation": "–", "t": "–",
+                     "stat": stat})
+    return rows
+
+
 def board_shape_text(rig: RigModel) -> dict | None:
     """The board's shape, where the calibration estimated it: ``{"sag_mm", "text"}``."""
     if rig.board_shape_mm is None:
@@ -377,6 +394,7 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
         lens_model_choice=lens_model_choice(rig),
         model=rig.model,
         checks=checks_table(rig),
+        loops=loops_table(rig),
         verdict=verdict(rig.checks) if rig.checks else None,
         board_shape=board_shape_text(rig),
         hints=[h for n in names for h in found[n].hints],
