@@ -167,8 +167,9 @@ def pair_solutions(setup: Setup, sol: Solution, x: int, y: int) -> tuple[Solutio
     cams, poses = _starting_values(sol)
     views = set(poses[x]) & set(poses[y])
     blocks = [(int(c == y), v, uv) for c, v, uv in sol.problem.blocks if c in (x, y) and v in views]
+    model = setup.model if isinstance(setup.model, str) else (setup.model[x], setup.model[y])
     pair = replace(setup, names=[setup.names[x], setup.names[y]], sizes=[setup.sizes[x], setup.sizes[y]],
-                   reference=0, mode="rigid")
+                   reference=0, mode="rigid", model=model)
     _check_enough_views(blocks, pair.names)
     problem = Problem(pair.X_board, pair.names, pair.sizes, blocks, "rigid", pair.skew, 0, False, pair.model)
     tied = adjust(problem, initial_state(problem, [cams[x], cams[y]], [poses[x], poses[y]]))
