@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from dualcal.adjust import (Problem, adjust, cost, initial_state, instant_rows, linearise, residuals,
-                            rig_relation)
+from dualcal.adjust import Problem, adjust, cost, initial_state, instant_rows, linearise, residuals
+from dualcal.rig_relations import rig_relation
 from dualcal.calibrate import solve, usable_photos
 from dualcal.camera import CameraModel, project_points
 from dualcal.model import Pose, choose_reference

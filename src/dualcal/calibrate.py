@@ -24,8 +24,7 @@ from functools import partial
 
 import numpy as np
 
-from .adjust import (COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state, parameter_covariance,
-                     rig_relation, shared_views)
+from .adjust import COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state
 from .board import SHAPE_TERMS
 from .camera import DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS
 from .checks import REFOCUS_SHARE, focal_scale_fits, focus_drift, rig_rigid, run_checks, tie_costs
@@ -35,6 +34,7 @@ from .errors import EstimationError, InputError
 from .loop_closure import loop_closure
 from .model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from .progress import warn
+from .rig_relations import parameter_covariance, rig_relation, shared_views
 from .scale import relative_sigma, with_scale
 from .zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
 

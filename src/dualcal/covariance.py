@@ -1,6 +1,6 @@
 """The joint covariance of a calibration: one object for its names, its blocks and every derived sigma.
 
-calib.json keeps the covariance of what a calibration reports (:func:`dualcal.adjust.parameter_covariance`)
+calib.json keeps the covariance of what a calibration reports (:func:`dualcal.rig_relations.parameter_covariance`)
 as ``{"parameters": [names], "clustered": (k, k), "formal": (k, k)}``, the two kinds of
 :mod:`dualcal.uncertainty`. The names are
 

@@ -35,8 +35,9 @@ from itertools import combinations
 
 import numpy as np
 
-from .adjust import Solution, rig_linearisation
+from .adjust import Solution
 from .errors import EstimationError
+from .rig_relations import rig_linearisation
 from .rotation import ARCMIN_PER_RAD, cross_matrix, rotvec_from_rotation
 
 __all__ = ["LOOP_FALSE_ALARM", "loop_closure"]

@@ -13,7 +13,7 @@ parameters moved by ``dtheta`` move the point by::
     dX = A (duv - J_theta dtheta),    A = (J^T J)^-1 J^T.
 
 ``theta`` are the parameters of calib.json's joint covariance (``covariance``, built by
-:func:`dualcal.adjust.parameter_covariance`) of the cameras the point was seen by: their free
+:func:`dualcal.rig_relations.parameter_covariance`) of the cameras the point was seen by: their free
 intrinsics (``J_theta`` from :func:`dualcal.camera.project_with_jacobians`, so any lens model),
 and for a non-reference camera its rotation's left increment ``d`` (``R_c <- exp([d]x) R_c``, so
 ``d(R_c X)/dd = -[R_c X]x``) and its translation ``t_c``. Every point of one measurement shares
