@@ -35,7 +35,8 @@ at hand (d residual / d board point is ``J_X R_c R_v``).
 Two covariances of the unknowns (``kind``): ``formal``, the textbook ``N^-1 s0^2`` with
 ``s0^2 = v^T v / redundancy``, and ``clustered``, from how the instants disagree with each other
 (:mod:`dualcal.uncertainty`), which holds where the corner errors of one photo are correlated
-(real photos). Derived values (baseline, omega-phi-kappa) get theirs by propagation, ``J Cov J^T``.
+(real photos). Derived values (baseline, omega-phi-kappa) get theirs by propagation, ``J Cov J^T``
+(:mod:`dualcal.rig_relations`, which also builds the joint covariance calib.json keeps).
 """
 
 from __future__ import annotations
