@@ -85,10 +85,10 @@ def loop_closure(names: list[str], ref: int, pair_solutions, rig_rigid) -> dict 
     "limit", "instants", "rotation_arcmin": [3], "t_mm": [3], "sigma_rotation_arcmin": [3], "sigma_t_mm": [3]}}}``
     (misclosure in C's frame; sigmas from the clustered covariance).
     """
-    from scipy.stats import f as f_dist
-
     if len(names) < 3:
         return None
+    from scipy.special import fdtri      # the F distribution's quantile (scipy.stats takes ~1 s to import)
+
     pairs, relations = {}, {}
     for x, y in combinations(range(len(names)), 2):
         if y == ref:
@@ -113,7 +113,7 @@ def loop_closure(names: list[str], ref: int, pair_solutions, rig_rigid) -> dict 
             continue
         cov = shifts.T @ shifts
         stat = float(e @ np.linalg.lstsq(cov, e, rcond=None)[0])
-        limit = float(6 * (n - 1) / (n - 6) * f_dist.ppf(1.0 - alpha, 6, n - 6))       # Hotelling's T^2
+        limit = float(6 * (n - 1) / (n - 6) * fdtri(6, n - 6, 1.0 - alpha))       # Hotelling's T^2
         sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
         loops[f"{names[ref]}-{names[b]}-{names[c]}"] = {
             "ok": stat <= limit, "t2": stat, "limit": limit, "instants": n,
