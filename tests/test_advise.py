@@ -215,7 +215,7 @@ def test_done_when_the_next_photo_would_hardly_help(note8):
 
 def test_a_plan_from_nominal_cameras_reaches_a_determined_rig():
     cams = {"wide": A.nominal_camera((3024, 4032), 26.0), "tele": A.nominal_camera((3024, 4032), 52.0)}
-    assert cams["wide"].fx == pytest.approx(26.0 / 43.27 * 5040.0)
+    assert cams["wide"].fx == pytest.approx(26.0 / np.hypot(36, 24) * 5040.0)
     rig = {"tele": Pose(np.eye(3), np.array([0.0, -10.0, 0.0]))}
     prior = A.nominal_prior(cams, synth.Board(8, 5, 30.0), "wide", rig)
     advice = A.advise(prior, count=8)

@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from dualcal.board_choice import MIN_SQUARE_PX, TELE_FILL, fitting_choice, focal_px, suggest_board
+from dualcal.board_choice import MIN_SQUARE_PX, TELE_FILL, fitting_choice, suggest_board
+from dualcal.camera import focal_px_from_35mm as focal_px
 from dualcal.boardprint import PAPERS, page_layout
 from dualcal.errors import InputError
 

@@ -188,7 +188,7 @@ def test_a_wrong_square_is_found_where_exif_shows_a_phone():
     corners = noisy_corner_set(truth, 0.2, seed=0)
     right = calibrate_rig(_with_phone_exif(corners, truth.board.square_mm), board_shape="flat")
     assert right.checks["scale_plausible"]["ok"], right.checks["scale_plausible"]["message"]
-    assert right.checks["scale_plausible"]["sensor_diagonal_mm"]["wide"] == pytest.approx(43.27 * 4.3 / 26.0)
+    assert right.checks["scale_plausible"]["sensor_diagonal_mm"]["wide"] == pytest.approx(np.hypot(36, 24) * 4.3 / 26.0)
     wrong = calibrate_rig(_with_phone_exif(corners, truth.board.square_mm / 10), board_shape="flat")
     check = wrong.checks["scale_plausible"]
     assert not check["ok"] and "lenses are tele 1.1 mm apart" in check["message"]

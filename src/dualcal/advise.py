@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .board import Board, shape_basis, shaped_points_mm
-from .camera import (INTRINSIC_NAMES, CameraModel, ideal_normalized_from_pixel, normalized_from_pixel,
+from .camera import (INTRINSIC_NAMES, focal_px_from_35mm, CameraModel, ideal_normalized_from_pixel, normalized_from_pixel,
                      project_with_jacobians)
 from .covariance import JointCovariance
 from .errors import InputError, NotInvertibleError
@@ -188,8 +188,6 @@ def prior_from_rig(rig: RigModel) -> Prior:
                  (DISTANCE_FACTORS[0] * lo, DISTANCE_FACTORS[1] * hi), rig.rig_mode)
 
 
-#: A 35 mm frame's diagonal, mm: ``fx = focal_35mm / 43.27 * image diagonal`` in pixels.
-FULL_FRAME_DIAGONAL_MM = 43.27
 #: A plan's prior: 1-sigma of what is known before any photo (relative focal length, principal point
 #: as a share of the image, lens coefficients, rig angles in radians and translation in mm).
 PLAN_PRIOR = {"focal": 0.05, "centre": 0.03, "lens": 0.1, "rotation_rad": 0.02, "t_mm": 3.0}
@@ -202,7 +200,7 @@ PLAN_FILL = (0.85, 0.3)
 def nominal_camera(image_size: tuple[int, int], focal_35mm: float) -> CameraModel:
     """A camera from its image size and 35 mm-equivalent focal length (square pixels, centred, no lens)."""
     w, h = image_size
-    f = focal_35mm / FULL_FRAME_DIAGONAL_MM * float(np.hypot(w, h))
+    f = focal_px_from_35mm((w, h), focal_35mm)
     return CameraModel((int(w), int(h)), f, f, 0.0, (w - 1) / 2, (h - 1) / 2, 0.0, 0.0)
 
 

@@ -21,8 +21,8 @@ import math
 from dataclasses import dataclass
 
 from .board import Board
+from .camera import focal_px_from_35mm
 from .errors import InputError
-from .roll import FULL_FRAME_DIAGONAL_MM
 
 __all__ = ["BoardChoice", "MIN_SQUARE_PX", "TELE_FILL", "fitting_choice", "suggest_board"]
 
@@ -56,11 +56,6 @@ class BoardChoice:
                 f"and a square is {px}")
 
 
-def focal_px(image_size: tuple[int, int], f35_mm: float) -> float:
-    """A camera's focal length in pixels from its 35 mm-equivalent focal length."""
-    return f35_mm * math.hypot(*image_size) / FULL_FRAME_DIAGONAL_MM
-
-
 def suggest_board(cameras: dict[str, tuple[tuple[int, int], float]], paper_mm: tuple[float, float]) -> BoardChoice:
     """The board to print on a page of ``paper_mm`` for cameras ``{name: (image size (W, H), f35 mm)}``.
 
@@ -72,7 +67,7 @@ def suggest_board(cameras: dict[str, tuple[tuple[int, int], float]], paper_mm: t
     """
     if not cameras:
         raise InputError("no camera to choose a board for")
-    f = {name: focal_px(size, f35) for name, (size, f35) in cameras.items()}
+    f = {name: focal_px_from_35mm(size, f35) for name, (size, f35) in cameras.items()}
     narrow, wide = max(f, key=f.get), min(f, key=f.get)
     short_narrow = min(cameras[narrow][0])
     n_max = math.floor(TELE_FILL * short_narrow * f[wide] / (f[narrow] * MIN_SQUARE_PX))

@@ -54,6 +54,20 @@ LENS_MODELS = {
     "kb4": ("k1", "k2", "k3", "k4"),
 }
 DEFAULT_LENS_MODEL = "k1k2"
+
+#: The diagonal of a 35 mm film frame (36 x 24 mm): what a "35 mm-equivalent" focal length refers to.
+FULL_FRAME_DIAGONAL_MM = float(np.hypot(36.0, 24.0))
+
+
+def focal_px_from_35mm(image_size: tuple[int, int], f35_mm: float) -> float:
+    """A camera's focal length in pixels from its 35 mm-equivalent focal length (EXIF
+    ``FocalLengthIn35mmFilm``): the image diagonal is to the pixels what 43.27 mm is to the film."""
+    return float(f35_mm) * float(np.hypot(*image_size)) / FULL_FRAME_DIAGONAL_MM
+
+
+def equivalent_focal_35mm(image_size: tuple[int, int], f_px: float) -> float:
+    """The 35 mm-equivalent focal length (mm) of a focal length in pixels (inverse of :func:`focal_px_from_35mm`)."""
+    return float(f_px) * FULL_FRAME_DIAGONAL_MM / float(np.hypot(*image_size))
 #: The lens models of the fisheye family (equidistant, ``theta_d`` a polynomial in the angle).
 FISHEYE_MODELS = frozenset({"kb4"})
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from .adjust import Solution, photo_rows
+from .camera import FULL_FRAME_DIAGONAL_MM
 from .model import RigModel
 
 __all__ = ["design_effect", "rig_rigid", "rigidity_statistics", "focus_drift", "focal_scale_fits", "tie_costs",
@@ -69,8 +70,6 @@ PHONE_SENSOR_DIAGONAL_MM = 20.0
 PHONE_BASELINE_MM = (5.0, 40.0)
 #: ... and whose board is held this far away (mm; the median over the instants, from the reference camera).
 PHONE_BOARD_DISTANCE_MM = (150.0, 5000.0)
-#: The diagonal of the 35 mm film frame, mm (what a "35 mm equivalent" focal length refers to).
-FILM_DIAGONAL_MM = 43.27
 
 #: ``lens_model``: RMS of the outermost third of a camera's corners (by their distance from the
 #: principal point) over that of the innermost third, beyond which the model misses terms.
@@ -395,7 +394,7 @@ def _sensor_diagonals_mm(rig: RigModel) -> dict[str, float]:
         exif = cam.meta.get("exif") or {}
         f_mm, f35_mm = exif.get("focal_length_mm"), exif.get("focal_length_35mm_mm")
         if isinstance(f_mm, (int, float)) and isinstance(f35_mm, (int, float)) and f_mm > 0 and f35_mm > 0:
-            out[name] = FILM_DIAGONAL_MM * f_mm / f35_mm
+            out[name] = FULL_FRAME_DIAGONAL_MM * f_mm / f35_mm
     return out
 
 

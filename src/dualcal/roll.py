@@ -31,14 +31,13 @@ from datetime import datetime
 
 import numpy as np
 
+from .camera import FULL_FRAME_DIAGONAL_MM
 from .errors import InputError
 from .photos import Photo
 
 __all__ = ["CameraRoll", "camera_class", "equivalent_focal_mm", "instant_gap", "is_camera_roll", "open_camera_roll",
            "split_cameras", "split_instants", "with_detection"]
 
-#: The diagonal of a 35 mm film frame (36 x 24 mm), the reference of equivalent focal lengths.
-FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 #: The smallest ratio between the gaps of two board positions and of two lenses of one position that
 #: counts as a break between them (below it the capture times do not tell the positions apart).
 MIN_GAP_RATIO = 2.5

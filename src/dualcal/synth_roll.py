@@ -15,7 +15,6 @@ length in mm that divided by a phone sensor's typical crop factor (:data:`CROP_F
 
 from __future__ import annotations
 
-import math
 import shutil
 import struct
 import tempfile
@@ -26,7 +25,8 @@ import numpy as np
 from PIL import Image, TiffImagePlugin
 
 from .io import write_bytes_atomic
-from .roll import FULL_FRAME_DIAGONAL_MM, camera_class
+from .camera import equivalent_focal_35mm
+from .roll import camera_class
 
 __all__ = ["CROP_FACTOR", "equivalent_focal_of", "write_camera_roll"]
 
@@ -38,7 +38,7 @@ _START = datetime(2026, 11, 30, 10, 0, 0)
 
 def equivalent_focal_of(cam) -> float:
     """The 35 mm-equivalent focal length (mm) of a :class:`~dualcal.camera.CameraModel`."""
-    return float(cam.fx) * FULL_FRAME_DIAGONAL_MM / math.hypot(*cam.image_size)
+    return equivalent_focal_35mm(cam.image_size, cam.fx)
 
 
 def _exif_bytes(cam, taken: datetime, device: str) -> bytes:
