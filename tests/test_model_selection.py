@@ -124,3 +124,24 @@ def test_auto_recovers_every_intrinsic_and_the_rig_within_4_sigma(phone3_auto):
         assert np.all(np.abs(rel.pose.t_mm - true.t_mm) < 4 * rel.sigma_t_mm)
     # the fisheye's residual is the corners' noise: 0.02 px per coordinate is 0.028 px of 2-D length
     assert rig.camera_rms_px["ultra"] < 1.1 * 0.02 * np.sqrt(2)
+
+
+def test_an_instant_one_model_cannot_predict_is_left_out_of_every_score_and_said():
+    """Issue 23: the models are scored on the same instants; one that a model can only fit, not predict
+    (it alone determines some of its terms), is left out for all of them, with a warning naming it."""
+    from types import SimpleNamespace
+
+    from dualcal.model_selection import score_lens_models
+    from dualcal.progress import collect_warnings
+
+    def fake(rms):
+        held = {v: {"rms_px": r, "corners": 40} for v, r in rms.items()}
+        return SimpleNamespace(adjustment={"held_out_per_instant": held}, rms_px=0.1)
+
+    rigs = {"k1k2": fake({"A": 0.2, "B": 0.3, "C": 0.25, "D": 0.9}),
+            "k1k2k3": fake({"A": 0.1, "B": 0.2, "C": 0.15})}            # D: k1k2k3 cannot predict it
+    with collect_warnings() as warnings:
+        scores = score_lens_models(rigs)
+    assert len(warnings) == 1 and "3 instants" in warnings[0] and "D (k1k2k3)" in warnings[0]
+    by_model = {s.model: s for s in scores}
+    assert by_model["k1k2"].held_out_rms_px == pytest.approx(np.sqrt((0.04 + 0.09 + 0.0625) / 3))   # A, B, C only

@@ -105,6 +105,12 @@ def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None,
         raise EstimationError("no lens model to compare")
     held = {m: _held_out(r, camera) for m, r in rigs.items()}
     views = sorted(set.intersection(*(set(h) for h in held.values())))
+    unscored = sorted(set.union(*(set(h) for h in held.values())) - set(views))
+    if unscored:            # an instant a model cannot predict without it determines some of its terms alone
+        why = ", ".join(f"{v} ({', '.join(m for m, h in held.items() if v not in h)})" for v in unscored[:6])
+        warn(f"lens models{f' of {camera}' if camera else ''} compared on the {len(views)} instants every one can "
+             f"predict without them; {len(unscored)} left out, which the model(s) named cannot predict without "
+             f"them (they alone determine some of its terms): {why}")
     if len(views) < 3:
         raise EstimationError(f"{len(views)} instant(s) can be left out by every model: a comparison needs 3")
     corners = {m: {v: h[v]["corners"] for v in views} for m, h in held.items()}
