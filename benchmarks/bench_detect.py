@@ -52,7 +52,7 @@ from dualcal.model import observed_mask
 from dualcal.render import render_view, write_photo_set
 from dualcal.synth import make_truth, true_corners
 
-_OPENCV_CLASSIC_SCRIPT = """
+OPENCV_CLASSIC_SCRIPT = """
 import sys, cv2
 cols, rows, paths = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3:]
 crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
@@ -150,7 +150,7 @@ def speed_part(root: Path, views: int, seed: int) -> bool:
                    check=True, stderr=subprocess.DEVNULL)
     t_dualcal = time.perf_counter() - t
     t = time.perf_counter()
-    listing = subprocess.run([sys.executable, "-c", _OPENCV_CLASSIC_SCRIPT, "8", "5", *photos], check=True,
+    listing = subprocess.run([sys.executable, "-c", OPENCV_CLASSIC_SCRIPT, "8", "5", *photos], check=True,
                              capture_output=True, text=True).stdout
     t_opencv = time.perf_counter() - t
     t = time.perf_counter()

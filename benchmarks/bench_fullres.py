@@ -37,19 +37,9 @@ from dualcal.model import observed_mask
 from dualcal.render import write_photo_set
 from dualcal.synth import make_truth, true_corners
 
-PEAK_LIMIT_BYTES = 1.5e9
+from bench_detect import OPENCV_CLASSIC_SCRIPT      # the same OpenCV path as the 12 MP benchmark
 
-_OPENCV_CLASSIC_SCRIPT = """
-import sys, cv2
-cols, rows, paths = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3:]
-crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
-for p in paths:
-    img = cv2.imread(p, cv2.IMREAD_GRAYSCALE)
-    found, c = cv2.findChessboardCorners(img, (cols, rows), cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-    if found:
-        c = cv2.cornerSubPix(img, c, (11, 11), (-1, -1), crit)
-    print(p, *(["-"] if not found else [f"{u:.4f},{v:.4f}" for u, v in c.reshape(-1, 2)]))
-"""
+PEAK_LIMIT_BYTES = 1.5e9
 
 SIZES = {"48 MP": 2.0, "50 MP": 8160 / 4032}
 
@@ -99,7 +89,7 @@ def one_size(root: Path, label: str, scale: float, views: int, seed: int, blur_p
     out = root / "corners.json"
     t_d, peak_d, _ = run_measured([str(dualcal), "detect", str(root / "photos"), "--board", "8x5", "--square", "30",
                                    "-o", str(out)])
-    t_o, peak_o, listing = run_measured([sys.executable, "-c", _OPENCV_CLASSIC_SCRIPT, "8", "5", *photos])
+    t_o, peak_o, listing = run_measured([sys.executable, "-c", OPENCV_CLASSIC_SCRIPT, "8", "5", *photos])
 
     err_d, found_d = [], 0
     for cam, cc in load_corners(out).cameras.items():

@@ -126,7 +126,7 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
     per tied camera): a synchronised rig fits about 1-3 x its photo-level noise per degree of freedom,
     a desynchronised shot or a lens that moved tens to hundreds of times (the constant's comment).
     ``explained`` are instants whose misfit a refocused photo explains (``focus``): they are not
-    flagged here. ``named`` are instants already found not to fit (:func:`dualcal.calibrate.rigidity_check`
+    flagged here. ``named`` are instants already found not to fit (:func:`dualcal.calibrate.attribution_checks`
     takes the worst out and judges the others without it, so that a bad instant, which pulls the
     shared pose, does not make the good ones look bad): their statistic as it was, flagged first.
     """
