@@ -65,12 +65,14 @@ for p in paths:
 """
 
 
-def _rms(err) -> float:
-    err = np.concatenate(err) if isinstance(err, list) else err
+def rms(err) -> float:
+    """RMS length (px) of (N, 2) corner errors, or of a list of them (NaN for none)."""
+    if isinstance(err, list):
+        err = np.concatenate(err) if err else np.zeros((0, 2))
     return float(np.sqrt(np.mean(np.sum(err**2, axis=1)))) if len(err) else float("nan")
 
 
-def _matched(uv, truth):
+def matched(uv, truth):
     """``uv - nearest true corner``, for detectors whose numbering differs from the contract's."""
     d = np.linalg.norm(uv[:, None, :] - truth[None, :, :], axis=2)
     return uv - truth[np.argmin(d, axis=1)]
@@ -122,18 +124,18 @@ def steep_part(root: Path, n: int, seed: int) -> bool:
         for name, fn in (("OpenCV classic", opencv_classic), ("OpenCV SB", opencv_sb)):
             uv = fn(gray, board.cols, board.rows)
             if uv is not None:
-                errors[name][view] = _matched(uv, uv_true)
+                errors[name][view] = matched(uv, uv_true)
     common = set.intersection(*(set(e) for e in errors.values()))
     print(f"steep views: {n} photos 1512x2016, 45-65 deg, glare on a dark square, shadow, blur 1.5 px, "
           f"11x8 board, squares {int(square_px)}-ish px")
     print(f"{'detector':15} {'found':>6} {'RMS px (all found)':>19} {f'RMS px ({len(common)} common)':>20}")
     for name in names:
         e = errors[name]
-        print(f"{name:15} {len(e):>3}/{n:<2} {_rms(list(e.values())):19.4f} "
-              f"{_rms([e[v] for v in sorted(common)]):20.4f}")
+        print(f"{name:15} {len(e):>3}/{n:<2} {rms(list(e.values())):19.4f} "
+              f"{rms([e[v] for v in sorted(common)]):20.4f}")
     print(f"dualcal null corners: {nulls} of {n * board.n_corners}")
-    best = min(_rms(list(errors[m].values())) for m in names[1:] if errors[m])
-    return len(errors["dualcal"]) == n and _rms(list(errors["dualcal"].values())) <= best
+    best = min(rms(list(errors[m].values())) for m in names[1:] if errors[m])
+    return len(errors["dualcal"]) == n and rms(list(errors["dualcal"].values())) <= best
 
 
 def speed_part(root: Path, views: int, seed: int) -> bool:
@@ -174,16 +176,16 @@ def speed_part(root: Path, views: int, seed: int) -> bool:
             continue
         found_o += 1
         cam, view = Path(path).parent.name, Path(path).stem
-        err_o.append(_matched(np.array([[float(x) for x in r.split(",")] for r in rest]), tc[cam][view]))
+        err_o.append(matched(np.array([[float(x) for x in r.split(",")] for r in rest]), tc[cam][view]))
     ratio = t_dualcal / t_opencv
     print(f"{'12 MP, 26 photos':17} {'wall s':>7} {'found':>6} {'RMS px':>8}")
-    print(f"{'dualcal detect':17} {t_dualcal:7.2f} {found_d:>3}/{len(photos):<2} {_rms(err_d):8.4f}   "
+    print(f"{'dualcal detect':17} {t_dualcal:7.2f} {found_d:>3}/{len(photos):<2} {rms(err_d):8.4f}   "
           f"(process, {os.cpu_count()} cores; {nulls} null corners)")
-    print(f"{'OpenCV classic':17} {t_opencv:7.2f} {found_o:>3}/{len(photos):<2} {_rms(err_o):8.4f}   "
+    print(f"{'OpenCV classic':17} {t_opencv:7.2f} {found_o:>3}/{len(photos):<2} {rms(err_o):8.4f}   "
           "(process, one photo after another, cornerSubPix 11x11)")
     print(f"time ratio dualcal / OpenCV: {ratio:.2f} (target <= 0.5); of dualcal's time, "
           f"{t_start:.2f} s is the command's start-up ('dualcal --version')")
-    return ratio <= 0.5 and _rms(err_d) <= 0.02 and found_d == len(photos)
+    return ratio <= 0.5 and rms(err_d) <= 0.02 and found_d == len(photos)
 
 
 def main(argv=None) -> int:

@@ -37,7 +37,7 @@ from dualcal.model import observed_mask
 from dualcal.render import write_photo_set
 from dualcal.synth import make_truth, true_corners
 
-from bench_detect import OPENCV_CLASSIC_SCRIPT      # the same OpenCV path as the 12 MP benchmark
+from bench_detect import OPENCV_CLASSIC_SCRIPT, matched, rms      # as the 12 MP benchmark does
 
 PEAK_LIMIT_BYTES = 1.5e9
 
@@ -64,16 +64,6 @@ def run_measured(cmd: list[str]) -> tuple[float, int, str]:
     if proc.returncode:
         raise SystemExit(f"{cmd[0]} failed with exit code {proc.returncode}")
     return wall, peak, "".join(out)
-
-
-def _rms(err: list[np.ndarray]) -> float:
-    err = np.concatenate(err) if err else np.zeros((0, 2))
-    return float(np.sqrt(np.mean(np.sum(err**2, axis=1)))) if len(err) else float("nan")
-
-
-def _matched(uv, truth):
-    d = np.linalg.norm(uv[:, None, :] - truth[None, :, :], axis=2)
-    return uv - truth[np.argmin(d, axis=1)]
 
 
 def one_size(root: Path, label: str, scale: float, views: int, seed: int, blur_px: float) -> bool:
@@ -104,17 +94,17 @@ def one_size(root: Path, label: str, scale: float, views: int, seed: int, blur_p
         if rest != ["-"]:
             found_o += 1
             uv = np.array([[float(x) for x in r.split(",")] for r in rest])
-            err_o.append(_matched(uv, tc[Path(path).parent.name][Path(path).stem]))
+            err_o.append(matched(uv, tc[Path(path).parent.name][Path(path).stem]))
     n = len(photos)
     print(f"{label + f', {n} photos':20} {'found':>6} {'RMS px':>8} {'wall s':>7} {'peak MB':>8}")
-    print(f"{'dualcal detect':20} {found_d:>3}/{n:<2} {_rms(err_d):8.4f} {t_d:7.2f} {peak_d / 1e6:8.0f}   "
+    print(f"{'dualcal detect':20} {found_d:>3}/{n:<2} {rms(err_d):8.4f} {t_d:7.2f} {peak_d / 1e6:8.0f}   "
           f"(process, default jobs, {psutil.cpu_count()} cores)")
-    print(f"{'OpenCV classic':20} {found_o:>3}/{n:<2} {_rms(err_o):8.4f} {t_o:7.2f} {peak_o / 1e6:8.0f}   "
+    print(f"{'OpenCV classic':20} {found_o:>3}/{n:<2} {rms(err_o):8.4f} {t_o:7.2f} {peak_o / 1e6:8.0f}   "
           "(process, one photo after another, cornerSubPix 11x11)")
     ratio = t_d / t_o
     print(f"time ratio dualcal / OpenCV: {ratio:.2f} (target <= 0.5); dualcal's peak "
           f"{peak_d / 1e9:.2f} GB (target <= {PEAK_LIMIT_BYTES / 1e9:.1f} GB)")
-    return (found_d == n and _rms(err_d) <= _rms(err_o) and ratio <= 0.5 and peak_d <= PEAK_LIMIT_BYTES)
+    return (found_d == n and rms(err_d) <= rms(err_o) and ratio <= 0.5 and peak_d <= PEAK_LIMIT_BYTES)
 
 
 def main(argv=None) -> int:
