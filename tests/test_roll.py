@@ -198,3 +198,21 @@ def test_a_copied_photo_counts_once_in_a_roll_and_in_a_camera_folder(rendered_ro
         shutil.copy(folder / f, cam / f)
     shutil.copy(cam / first, cam / "copy.JPG")
     assert len(open_dataset(tmp_path / "set").cameras["tele"]) == 4
+
+
+def test_a_folder_of_one_camera_keeps_the_copies_it_left_out(rendered_roll, tmp_path):
+    """One camera's flat folder: its copies are found once and recorded (identical_files)."""
+    import shutil
+
+    from dualcal.dataset import open_dataset
+
+    truth, folder, shot = rendered_roll
+    cam = tmp_path / "tele"
+    cam.mkdir()
+    teles = sorted(f for f, (c, _) in shot["photos"].items() if c == "tele")[:4]
+    for f in teles:
+        shutil.copy(folder / f, cam / f)
+    shutil.copy(cam / teles[0], cam / "copy.JPG")
+    ds = open_dataset(cam)
+    assert len(ds.cameras["tele"]) == 4
+    assert ds.meta("tele")["identical_files"] == {str(cam / "copy.JPG"): str(cam / teles[0])}

@@ -301,9 +301,11 @@ def _read_photos(files: dict[str, Path], skipped: list) -> dict[str, Photo]:
     return photos
 
 
-def _read_headers(name: str, files: dict[str, Path], skipped: list) -> dict[str, Photo]:
-    """:func:`_read_photos` of one camera, whose photos must have one size."""
-    photos = _read_photos(files, skipped)
+def _read_headers(name: str, files: dict[str, Path], skipped: list,
+                  read: dict[str, Photo] | None = None) -> dict[str, Photo]:
+    """:func:`_read_photos` of one camera, whose photos must have one size (``read``: headers already
+    read, by key, which are taken as they are)."""
+    photos = {k: read[k] for k in files} if read is not None else _read_photos(files, skipped)
     sizes = {p.size for p in photos.values()}
     if len(sizes) > 1:
         listing = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))
@@ -410,6 +412,7 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
         raise InputError(f"--pair-by {pair_by!r}: choose stem or time")
     specs = [parse_camera_spec(c) if isinstance(c, str) else tuple(c) for c in cameras]
     files: dict[str, dict[str, Path]] = {}
+    flat = False
     if specs:
         base = Path(path) if path is not None else None
         if base is not None and not base.is_dir():
@@ -429,23 +432,21 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
         folders, flat = _camera_folders(Path(path))
         files = {n: _key_by_stem(n, ps) for n, ps in folders.items()}
         source = str(path)
-        if flat:
-            skipped: list = []
-            (name, keyed), = files.items()
-            identical = _without_copies(keyed)
-            photos = _read_photos(keyed, skipped)
-            if is_camera_roll(list(photos.values())):
-                return _open_roll(list(photos.values()), source, reference, exclude, instant_gap_s, skipped,
-                                  identical)
-            files = {name: keyed}
-
     identical = {n: _without_copies(f) for n, f in files.items()}
+    skipped: list = []
+    read: dict[str, dict[str, Photo]] = {}
+    if flat:                                # a folder of photos: one camera, or a camera roll
+        (name, keyed), = files.items()
+        read[name] = _read_photos(keyed, skipped)
+        if is_camera_roll(list(read[name].values())):
+            return _open_roll(list(read[name].values()), source, reference, exclude, instant_gap_s, skipped,
+                              identical[name])
+        files = {name: {k: p for k, p in keyed.items() if k in read[name]}}
     excluded = {}
     if exclude:
         keys = _excluded_keys({n: {k: p.name for k, p in f.items()} for n, f in files.items()}, exclude)
         excluded = {n: {k: files[n].pop(k) for k in ks} for n, ks in keys.items()}
-    skipped = []
-    cams = {n: _read_headers(n, f, skipped) for n, f in sorted(files.items())}
+    cams = {n: _read_headers(n, f, skipped, read.get(n)) for n, f in sorted(files.items())}
     empty = [n for n, ps in cams.items() if not ps]
     if empty:
         raise InputError(f"camera {empty[0]!r} has no readable photo")
