@@ -50,9 +50,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .board import Board, shape_basis, shaped_points_mm
-from .camera import (INTRINSIC_NAMES, focal_px_from_35mm, CameraModel, ideal_normalized_from_pixel, normalized_from_pixel,
-                     project_with_jacobians)
-from .covariance import JointCovariance
+from .camera import (INTRINSIC_NAMES, CameraModel, focal_px_from_35mm, ideal_normalized_from_pixel,
+                     normalized_from_pixel, project_with_jacobians)
+from .covariance import JointCovariance, intrinsic_name, rig_name
 from .errors import InputError, NotInvertibleError
 from .model import Pose, RigModel
 from .poses import opk_jacobian, tangent_basis
@@ -213,13 +213,13 @@ def nominal_prior(cameras: dict[str, CameraModel], board: Board, reference: str,
     for name, cam in cameras.items():
         w, h = cam.image_size
         for n in ("fx", "fy", "cx", "cy", "k1", "k2"):
-            names.append(f"{name}.{n}")
+            names.append(intrinsic_name(name, n))
             sd.append({"fx": PLAN_PRIOR["focal"] * cam.fx, "fy": PLAN_PRIOR["focal"] * cam.fy,
                        "cx": PLAN_PRIOR["centre"] * w, "cy": PLAN_PRIOR["centre"] * h}.get(n, PLAN_PRIOR["lens"]))
     for name in rig:
         for what in ("rotation_rad", "t_mm"):
             for a in "xyz":
-                names.append(f"{name}.rig.{what}.{a}")
+                names.append(rig_name(name, what, a))
                 sd.append(PLAN_PRIOR[what])
     s = board.square_mm
     extent = float(np.hypot((board.cols + 1) * s, (board.rows + 1) * s))
@@ -266,18 +266,18 @@ def target_gradients(prior: Prior) -> dict[str, np.ndarray]:
             g[index[n]] = 1.0
             out[n] = g
     for name, cam in prior.cameras.items():
-        lens = [n for n in INTRINSIC_NAMES[5:] if f"{name}.{n}" in index]
+        lens = [n for n in INTRINSIC_NAMES[5:] if intrinsic_name(name, n) in index]
         if lens:
             uv, _, J_K = project_with_jacobians(cam, edge_point(cam)[None])
             radial = uv[0] - [cam.cx, cam.cy]
             radial /= np.linalg.norm(radial)
             g = np.zeros(k)
             for n in lens:
-                g[index[f"{name}.{n}"]] = radial @ J_K[0, :, INTRINSIC_NAMES.index(n)]
+                g[index[intrinsic_name(name, n)]] = radial @ J_K[0, :, INTRINSIC_NAMES.index(n)]
             out[f"{name}.distortion_edge_px"] = g
     for name, pose in prior.rig.items():
-        rot = [index.get(f"{name}.rig.rotation_rad.{a}") for a in "xyz"]
-        tr = [index.get(f"{name}.rig.t_mm.{a}") for a in "xyz"]
+        rot = [index.get(rig_name(name, "rotation_rad", a)) for a in "xyz"]
+        tr = [index.get(rig_name(name, "t_mm", a)) for a in "xyz"]
         if None in rot or None in tr:
             continue
         g = np.zeros(k)
@@ -381,7 +381,8 @@ def frame_margin_px(prior: Prior, name: str, J_K: np.ndarray) -> float:
     calibration knows the lens, within :data:`FRAME_MARGIN` and :data:`MAX_FRAME_MARGIN` of the
     frame's shorter side."""
     index = {n: i for i, n in enumerate(prior.parameters)}
-    used = [(j, index[f"{name}.{n}"]) for j, n in enumerate(INTRINSIC_NAMES) if f"{name}.{n}" in index]
+    used = [(j, index[intrinsic_name(name, n)]) for j, n in enumerate(INTRINSIC_NAMES)
+            if intrinsic_name(name, n) in index]
     J = J_K[:, :, [j for j, _ in used]]
     cols = [i for _, i in used]
     var = 0.0
@@ -487,12 +488,12 @@ def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray]) -
         Ag = np.zeros((n, 2, k))
         Al = np.zeros((n, 2, n_local))
         for j, par in enumerate(INTRINSIC_NAMES):
-            if f"{name}.{par}" in index:
-                Ag[:, :, index[f"{name}.{par}"]] = J_K[:, :, j]
+            if intrinsic_name(name, par) in index:
+                Ag[:, :, index[intrinsic_name(name, par)]] = J_K[:, :, j]
         J_ref = J_X @ rel.R                                          # d uv / d X_ref, (n, 2, 3)
-        if name in prior.rig and not own_poses and f"{name}.rig.t_mm.x" in index:
-            rot = [index[f"{name}.rig.rotation_rad.{a}"] for a in "xyz"]
-            tr = [index[f"{name}.rig.t_mm.{a}"] for a in "xyz"]
+        if name in prior.rig and not own_poses and rig_name(name, "t_mm", "x") in index:
+            rot = [index[rig_name(name, "rotation_rad", a)] for a in "xyz"]
+            tr = [index[rig_name(name, "t_mm", a)] for a in "xyz"]
             Ag[:, :, rot] = J_X @ -cross_matrix(X_c - rel.t_mm)    # R <- exp([d]x) R
             Ag[:, :, tr] = J_X
         for j, term in enumerate(("xx", "yy", "xy")):

@@ -27,7 +27,8 @@ import numpy as np
 from .adjust import COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state
 from .board import SHAPE_TERMS
 from .camera import DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS
-from .checks import REFOCUS_SHARE, focal_scale_fits, focus_drift, rig_rigid, run_checks, tie_costs
+from .checks import (REFOCUS_SHARE, design_effect, focal_scale_fits, focus_drift, rig_rigid, run_checks,
+                     tie_costs)
 from .covariance import JointCovariance, intrinsic_name
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from .errors import EstimationError, InputError
@@ -310,7 +311,6 @@ def _instant_misfit(setup: Setup, sol: Solution, alone: Solution | None, blocks,
     tie = sum(float(np.nansum(sol.residuals[i] ** 2)) - alone_cost.get((blocks[i][0], view), 0.0) for i in instant)
     if not any(tie > 0 and f["explained_px2"] >= REFOCUS_SHARE * tie for f in focal_scale_fits(sol, {view})):
         return "instant"
-    from .checks import design_effect
     c = _refocused_camera(alone, view, design_effect(alone))
     return [i for i in instant if blocks[i][0] == c] or "instant"
 

@@ -4,14 +4,14 @@ calib.json keeps the covariance of what a calibration reports (:func:`dualcal.ri
 as ``{"parameters": [names], "clustered": (k, k), "formal": (k, k)}``, the two kinds of
 :mod:`dualcal.uncertainty`. The names are
 
-* ``"<camera>.<intrinsic>"`` for every free intrinsic (``wide.fx``, ``tele.k1``, ...; :func:`intrinsic`),
+* ``"<camera>.<intrinsic>"`` for every free intrinsic (``wide.fx``, ``tele.k1``, ...; :func:`intrinsic_name`),
 * ``"<camera>.rig.rotation_rad.<x|y|z>"`` (the relative rotation's left increment, ``R <- exp([d]x) R``)
   and ``"<camera>.rig.t_mm.<x|y|z>"`` for every camera with a rig relation (:func:`rig_name`),
 * ``"board.shape_mm.<term>"`` where the board's shape was estimated.
 
 The sigma dualcal reports for any value is the larger of the two kinds' (the rule of
-:mod:`dualcal.uncertainty`), so :meth:`JointCovariance.sigma` and :meth:`JointCovariance.derived_sigma`
-take it; :meth:`JointCovariance.block` gives one kind's block for a caller that propagates it further
+:mod:`dualcal.uncertainty`), so :meth:`JointCovariance.derived_sigma`
+takes it; :meth:`JointCovariance.block` gives one kind's block for a caller that propagates it further
 (a measurement's points, an advised photo's information).
 """
 
@@ -90,7 +90,3 @@ class JointCovariance:
         of the kinds' ``sqrt(g^T C g)``."""
         g = np.asarray(gradient, float)
         return float(np.sqrt(max(max(g @ self.block(names, k) @ g, 0.0) for k in KINDS)))
-
-    def sigma(self, name: str) -> float:
-        """The sigma of one parameter (the larger of the kinds')."""
-        return self.derived_sigma([name], [1.0])

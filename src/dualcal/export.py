@@ -66,8 +66,9 @@ def skewed_cameras(rig: RigModel) -> dict[str, float]:
 
 
 def _has_k3(cam: CameraModel) -> bool:
-    """Whether the camera's lens model has ``k3`` (which a four-coefficient format cannot hold)."""
-    return "k3" in LENS_MODELS[cam.model]
+    """Whether the camera's lens has the radial-tangential ``k3`` (which a four-coefficient format cannot
+    hold; a fisheye's k3 is a term of its own model)."""
+    return not cam.fisheye and "k3" in LENS_MODELS[cam.model]
 
 
 def _safe_name(name: str) -> str:
@@ -198,7 +199,7 @@ def kalibr_yaml(rig: RigModel) -> str:
         For a lens model with ``k3``, which radtan does not have.
     """
     order = rig.camera_order()
-    with_k3 = [name for name in order if _has_k3(rig.cameras[name]) and not rig.cameras[name].fisheye]
+    with_k3 = [name for name in order if _has_k3(rig.cameras[name])]
     if with_k3:
         raise InputError(f"kalibr's radtan model has no k3, which the lens model {rig.cameras[with_k3[0]].model} "
                          f"of {', '.join(with_k3)} has: export to opencv, colmap or mrcal, which hold it, or "

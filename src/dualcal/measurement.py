@@ -61,7 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import INTRINSIC_NAMES, project_with_jacobians
-from .covariance import JointCovariance
+from .covariance import JointCovariance, intrinsic_name, rig_name
 from .errors import EstimationError, InputError
 from .intersect import triangulate
 from .io import points_from_dict
@@ -137,12 +137,12 @@ def _parameter_rows(rig: RigModel, name: str, X_cam: np.ndarray, J_X: np.ndarray
     Jacobians ``J_X`` (P, 2, 3) and ``J_K`` (P, 2, 10)) with respect to the covariance's parameters."""
     rows = np.zeros((len(X_cam), 2, len(index)))
     for i, n in enumerate(INTRINSIC_NAMES):
-        key = f"{name}.{n}"
+        key = intrinsic_name(name, n)
         if key in index:
             rows[:, :, index[key]] = J_K[:, :, i]
     if name == rig.reference:
         return rows
-    keys = [f"{name}.rig.{what}.{axis}" for what in ("rotation_rad", "t_mm") for axis in "xyz"]
+    keys = [rig_name(name, what, axis) for what in ("rotation_rad", "t_mm") for axis in "xyz"]
     if not all(k in index for k in keys):
         raise InputError(f"calib.json's covariance has no rig relation of camera {name!r}: it cannot measure")
     R_X = X_cam - rig.pose_from_reference(name).t_mm              # R_c X

@@ -59,7 +59,7 @@ class _StderrHandler(logging.Handler):
     """A warning as one line on stderr, ``dualcal: warning: MESSAGE``."""
 
     def emit(self, record: logging.LogRecord) -> None:
-        _stderr.print(f"[yellow]dualcal: warning:[/] {escape(printable(record.getMessage()))}", highlight=False,
+        _stderr.print(f"[yellow]dualcal: warning:[/] {escape(record.getMessage())}", highlight=False,
                       soft_wrap=True)
 
 

@@ -33,8 +33,8 @@ import cv2
 import numpy as np
 from PIL import Image, JpegImagePlugin
 
-from .camera import (CameraModel, check_invertible_in_image, fisheye_distort, fold_radius, intrinsic_names,
-                     normalized_from_pixel, radial_factor, tangential_shift, undistort_points)
+from .camera import (CameraModel, check_invertible_in_image, distort, fold_radius, intrinsic_names,
+                     normalized_from_pixel, pixel_from_normalized, radial_factor, tangential_shift, undistort_points)
 from .photos import open_image, output_suffix, read_exif
 from .errors import InputError
 from .io import make_output_folder, read_json, write_bytes_atomic
@@ -137,10 +137,8 @@ def rectify_map(cam: CameraModel, new_cam: CameraModel, row0: int, row1: int,
         x, y = (a * x + b * y + c) / z, (d * x + e * y + f_) / z
     r2 = x * x + y * y                                                                        # (B, W)
     if cam.fisheye:                  # no separable shortcut: the whole ideal point through the lens
-        x, y = np.broadcast_arrays(x, y)
-        xd = fisheye_distort(np.stack([x, y], axis=-1), *cam.distortion)
-        map_x = cam.fx * xd[..., 0] + cam.skew * xd[..., 1] + cam.cx
-        map_y = cam.fy * xd[..., 1] + cam.cy
+        uv = pixel_from_normalized(cam, distort(cam, np.stack(np.broadcast_arrays(x, y), axis=-1)))
+        map_x, map_y = uv[..., 0], uv[..., 1]
     else:
         map_x, map_y = _radial_tangential_map(cam, x, y, r2)
     r_max = fold_radius(cam)

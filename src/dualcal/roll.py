@@ -31,7 +31,7 @@ from datetime import datetime
 
 import numpy as np
 
-from .camera import FULL_FRAME_DIAGONAL_MM
+from .camera import equivalent_focal_35mm
 from .errors import InputError
 from .photos import Photo
 
@@ -68,8 +68,7 @@ def equivalent_focal_mm(photo: Photo) -> float | None:
         return float(e["focal_length_35mm_mm"])
     f_mm, px_per_mm = e.get("focal_length_mm"), e.get("focal_plane_px_per_mm")
     if f_mm and px_per_mm:
-        diagonal_mm = math.hypot(*photo.size) / px_per_mm
-        return float(f_mm) * FULL_FRAME_DIAGONAL_MM / diagonal_mm
+        return equivalent_focal_35mm(photo.size, float(f_mm) * px_per_mm)      # the focal length in pixels
     return None
 
 

@@ -15,7 +15,6 @@ length in mm that divided by a phone sensor's typical crop factor (:data:`CROP_F
 
 from __future__ import annotations
 
-import shutil
 import struct
 import tempfile
 from datetime import datetime, timedelta
@@ -24,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, TiffImagePlugin
 
-from .io import write_bytes_atomic
+from .io import encode_jpeg, write_bytes_atomic
 from .camera import equivalent_focal_35mm
 from .roll import camera_class
 
@@ -108,10 +107,8 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
                 cam = truth.cameras[truth.reference]
                 w, h = cam.image_size
                 pixels = (rng.normal(120, 25, (h // 8, w // 8)).clip(0, 255)).astype(np.uint8)
-                with tempfile.SpooledTemporaryFile() as buf:
-                    Image.fromarray(pixels).resize((w, h), Image.BILINEAR).save(buf, "JPEG", quality=85)
-                    buf.seek(0)
-                    shot["stray"] = put(buf.read(), cam, (None, None))
+                floor = np.asarray(Image.fromarray(pixels).resize((w, h), Image.BILINEAR))
+                shot["stray"] = put(encode_jpeg(floor, 85), cam, (None, None))
         if sidecars:
             names = sorted(shot["photos"])
             aae, mov = Path(names[0]).with_suffix(".AAE").name, Path(names[1]).with_suffix(".MOV").name
@@ -119,5 +116,4 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
                                b'<?xml version="1.0" encoding="UTF-8"?>\n<plist version="1.0"><dict/></plist>\n')
             write_bytes_atomic(folder / mov, b"\x00\x00\x00\x14ftypqt  \x00\x00\x00\x00qt  ")
             shot["sidecars"] = [aae, mov]
-    shutil.rmtree(Path(tmp), ignore_errors=True)
     return shot

@@ -166,7 +166,7 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @click.option("--coverage", metavar="LO:HI", default=None,
               help="Share of the board's corners the narrowest camera sees, drawn per view from LO to HI "
                    "(ChArUco boards; default 0.3:1 for them, the whole board for a chessboard).")
-@click.option("--marks", type=click.Choice(["code", "dots", "logo", "text"]), default=None,
+@click.option("--marks", type=LazyChoice("dualcal.render_marks:MARK_KINDS"), default=None,
               help="Print marks in the chessboard's white squares: a binary code in each (as ECoCheck), a dot in "
                    "each, a logo in two, or a serial number along the first row.")
 def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jobs, board_spec, square_mm, marker_mm,

@@ -96,11 +96,12 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square
     corners = read_corners_from_flags(dataset, board, square_sigma_mm, opts)
     save_corners(output, corners)
     if corners.roll:
-        from rich.console import Console
-
+        from ..progress import SafeConsole
         from ..tables import roll_tables
+
+        console = SafeConsole(stderr=True, soft_wrap=True, highlight=False)
         for table in roll_tables(corners.roll):
-            Console(stderr=True, soft_wrap=True, highlight=False).print(table)
+            console.print(table)
     found = {c: sum(v is not None for v in cc.views.values()) for c, cc in corners.cameras.items()}
     summary = ", ".join(f"{c} {n}/{len(corners.cameras[c].views)}" for c, n in found.items())
     excluded = sum(len(cc.meta.get("excluded", {})) for cc in corners.cameras.values())
