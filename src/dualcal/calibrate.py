@@ -26,7 +26,7 @@ import numpy as np
 
 from .adjust import COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state
 from .board import SHAPE_TERMS
-from .camera import DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS
+from .camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, LENS_MODELS
 from .checks import (REFOCUS_SHARE, design_effect, focal_scale_fits, focus_drift, rig_rigid, run_checks,
                      tie_costs)
 from .covariance import JointCovariance, intrinsic_name
@@ -463,14 +463,22 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     corners, duplicates = merge_duplicate_instants(corners)
     if duplicates:
         warn(describe_duplicates(duplicates))
-    names = sorted(corners.cameras)
+    options = dict(skew=skew, rig_mode=rig_mode, reference=reference, drop_outliers=drop_outliers,
+                   outlier_factor=outlier_factor, board_shape=board_shape)
     if isinstance(model, str) and model == AUTO_MODEL:
         from .model_selection import calibrate_auto
-        rig = calibrate_auto(corners, skew=skew, rig_mode=rig_mode, reference=reference, drop_outliers=drop_outliers,
-                             outlier_factor=outlier_factor, board_shape=board_shape)
-        if duplicates:
-            rig.adjustment["duplicates"] = duplicates
-        return rig
+        rig = calibrate_auto(corners, calibrate=_calibrate_distinct, **options)
+    else:
+        rig = _calibrate_distinct(corners, model=model, **options)
+    if duplicates:
+        rig.adjustment["duplicates"] = duplicates
+    return rig
+
+
+def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference: str | None, drop_outliers: bool,
+                        outlier_factor: float, board_shape: str, model: str | Mapping[str, str]) -> RigModel:
+    """:func:`calibrate_rig` with given lens models, of corners whose duplicate instants are merged."""
+    names = sorted(corners.cameras)
     models = lens_models_for(model, names)
     ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
     sizes = [corners.cameras[n].image_size for n in names]
@@ -502,8 +510,6 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
                                  "model": models[0] if len(set(models)) == 1 else dict(zip(names, models))}
     if shape_test is not None:
         rig.adjustment["board_shape_test"] = shape_test
-    if duplicates:
-        rig.adjustment["duplicates"] = duplicates
     rig.checks = run_checks(rig, sol, flat, alone,
                             attribution=partial(attribution_checks, setup) if rig_mode != "none" else None)
     if rig_mode != "none":
@@ -513,6 +519,54 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         if loop is not None:
             rig.checks["loop_closure"] = loop
     return rig
+
+
+def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
+          rig_mode: str | None = None) -> Solution:
+    """The corners ``rig`` used (:meth:`RigModel.used_corners`), adjusted again with another lens model,
+    skew model or rig mode (None: ``rig``'s), started from ``rig``'s values.
+
+    No outliers are looked for and the board keeps ``rig``'s treatment (its shape estimated again where
+    ``rig`` kept one): the same corners, so that the solutions compare. A lens model of ``rig``'s family
+    starts from ``rig``'s coefficients (a new coefficient at 0, a dropped one let go); one of another
+    family (a fisheye for a radial lens, or back) from Zhang's closed form with ``rig``'s poses.
+    This is what comparing lens or skew models costs: one adjustment from a near start, where a full
+    calibration (closed form, outliers alone and tied, the board-shape test) takes several.
+    """
+    corners = rig.used_corners()
+    names = sorted(corners.cameras)
+    models = lens_models_for(rig.models if model is None else model, names)
+    skew = rig.skew if skew is None else skew
+    X = corners.board.object_points_mm()
+    blocks = [(c, v, uv) for c, name in enumerate(names)
+              for v, uv in sorted(corners.cameras[name].found().items()) if unusable_reason(uv, X[:, :2]) is None]
+    _check_enough_views(blocks, names)
+    sizes = [corners.cameras[n].image_size for n in names]
+    poses = [dict(rig.camera_poses[n]) for n in names]
+    cams = []
+    for c, n in enumerate(names):
+        cam = rig.cameras[n]
+        if (models[c] in FISHEYE_MODELS) == cam.fisheye:
+            cams.append(replace(cam, model=models[c], skew=cam.skew if skew else 0.0,
+                                **{k: 0.0 for k in DISTORTION_NAMES if k not in LENS_MODELS[models[c]]}))
+        else:
+            cams.append(initial_camera(X[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew,
+                                       models[c])[0])
+    ref = names.index(rig.reference)
+    problem = Problem(X, names, sizes, blocks, rig_mode or rig.rig_mode, skew, ref, rig.board_shape_mm is not None,
+                      models)
+    return adjust(problem, initial_state(problem, cams, poses, rig.board_shape_mm))
+
+
+def fit_summary(sol: Solution) -> dict:
+    """What comparing models needs of a solution: ``rms_px`` (2-D, per corner), ``camera_rms_px``
+    ``{camera: px}`` and the held-out errors of :func:`held_out_error`."""
+    sq = np.sum(sol.residuals ** 2, axis=2)
+    cams = np.array([c for c, _, _ in sol.problem.blocks])
+    return {"rms_px": float(np.sqrt(np.nanmean(sq))),
+            "camera_rms_px": {name: float(np.sqrt(np.nanmean(sq[cams == c])))
+                              for c, name in enumerate(sol.problem.cameras)},
+            **held_out_error(sol)}
 
 
 def attribution_checks(setup: Setup, tied: Solution, alone: Solution, kappa2) -> tuple[dict, dict | None]:

@@ -10,31 +10,31 @@ cross-validation). dualcal computes them from the full adjustment alone, lineari
 eigen-decomposition per instant, no re-adjustment). calib.json records them in ``adjustment``:
 ``held_out_rms_px`` (2-D, per corner) and ``held_out_per_instant``.
 
-:func:`compare_lens_models` calibrates the same corners with every lens model (those the
-calibration used: its outliers stay out, so every model is scored on the same corners) and
-compares the models instant by instant: ``d_v = SS_v(model) - SS_v(best)``, the held-out sum of
-squares (px^2) of instant ``v`` minus that of the model with the least held-out error; its mean
-over the instants in units of its standard error says how many standard errors the model is
-worse than the best. The recommendation is the model with the fewest coefficients that is within
-:data:`RECOMMEND_WITHIN_SE` standard errors of the best: a richer model must earn its
-coefficients by predicting the unseen instants clearly better.
+:func:`compare_lens_models` adjusts the same corners with every lens model (those the calibration
+used: its outliers stay out, so every model is scored on the same corners; each adjustment starts
+from the calibration's values, :func:`dualcal.calibrate.refit`) and compares the models instant by
+instant: ``d_v = SS_v(model) - SS_v(best)``, the held-out sum of squares (px^2) of instant ``v``
+minus that of the model with the least held-out error; its mean over the instants in units of its
+standard error says how many standard errors the model is worse than the best. The recommendation is
+the model with the fewest coefficients that is within :data:`RECOMMEND_WITHIN_SE` standard errors of
+the best: a richer model must earn its coefficients by predicting the unseen instants clearly
+better.
 
 :func:`calibrate_auto` (``calibrate_rig(model="auto")``) makes that choice for every camera, from
-its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera``). The
-candidates of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the
-camera's field of view makes one plausible: Zhang's closed form (no lens) puts the image's corner
-more than :data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis (a phone's main camera: about 40, its
-ultra-wide: 55-60 and more). For such a camera ``kb4`` is also the preferred model, as ``k1k2`` is
-for the others: a polynomial in the pinhole radius must then predict clearly better to be chosen
-(the paired test over instants is weak when, as here, the difference lies in the few instants
-that put the board near the image's edge). A first calibration gives each camera its preferred
-model and finds the outliers; then one calibration per lens model, on the corners the first used,
-with every camera alone (rig mode ``none``, so that no camera's lens changes another's held-out
-error through the shared poses), gives that model to every camera it is a candidate of (the
-others keep their preferred model): one solve per model scores every camera. Each camera then
-gets the model of the rule above among its candidates, and the rig is calibrated once more with
-them.
-"""
+its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera``). The candidates
+of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the camera's field
+of view makes one plausible: Zhang's closed form (no lens) puts the image's corner more than
+:data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis (a phone's main camera: about 40, its ultra-wide:
+55-60 and more). For such a camera ``kb4`` is also the preferred model, as ``k1k2`` is for the
+others: a polynomial in the pinhole radius must then predict clearly better to be chosen (the paired
+test over instants is weak when, as here, the difference lies in the few instants that put the board
+near the image's edge). A first calibration gives each camera its preferred model and finds the
+outliers; then one adjustment per lens model, on the corners the first used and started from its
+values (:func:`dualcal.calibrate.refit`), with every camera alone (rig mode ``none``, so that no
+camera's lens changes another's held-out error through the shared poses), gives that model to every
+camera it is a candidate of (the others keep their preferred model): one solve per model scores
+every camera. Each camera then gets the model of the rule above among its candidates, and the rig is
+calibrated once more with them."""
 
 from __future__ import annotations
 
@@ -73,21 +73,22 @@ class LensModelScore:
     recommended: bool
 
 
-def _held_out(rig: RigModel, camera: str | None) -> dict:
-    """The held-out errors per instant of the whole rig, or of one camera's corners."""
-    if camera is None:
-        return rig.adjustment["held_out_per_instant"]
-    return rig.adjustment["held_out_per_camera"][camera]
+def rig_fit(rig: RigModel) -> dict:
+    """A calibration's fit and held-out errors as :func:`score_lens_models` takes them (the keys of
+    :func:`dualcal.calibrate.fit_summary`)."""
+    return {"rms_px": rig.rms_px, "camera_rms_px": rig.camera_rms_px,
+            **{k: rig.adjustment[k] for k in ("held_out_per_instant", "held_out_per_camera")}}
 
 
-def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None,
+def score_lens_models(fits: dict[str, dict], camera: str | None = None,
                       first: str | None = None) -> list[LensModelScore]:
-    """Score calibrations of the same corners by different lens models (module docstring).
+    """Score fits of the same corners by different lens models (module docstring).
 
     Parameters
     ----------
-    rigs : ``{model: calibration}``, each with ``adjustment["held_out_per_instant"]`` (and
-        ``"held_out_per_camera"`` for a ``camera``).
+    fits : ``{model: fit}``, each with ``held_out_per_instant`` and ``rms_px`` (and
+        ``held_out_per_camera``, ``camera_rms_px`` for a ``camera``): :func:`dualcal.calibrate.fit_summary`
+        of a solution, or :func:`rig_fit` of a calibration.
     camera : score one camera's corners only (its fit RMS, its held-out errors), else the whole rig's.
     first : a model preferred to all others (a fisheye's ``kb4``): it comes first in the order in which
         the first model within :data:`RECOMMEND_WITHIN_SE` of the best is recommended.
@@ -99,11 +100,12 @@ def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None,
     Raises
     ------
     EstimationError
-        No rigs, or fewer than 3 instants that every calibration could leave out.
+        No fits, or fewer than 3 instants that every model could leave out.
     """
-    if not rigs:
+    if not fits:
         raise EstimationError("no lens model to compare")
-    held = {m: _held_out(r, camera) for m, r in rigs.items()}
+    held = {m: f["held_out_per_instant"] if camera is None else f["held_out_per_camera"][camera]
+            for m, f in fits.items()}
     views = sorted(set.intersection(*(set(h) for h in held.values())))
     unscored = sorted(set.union(*(set(h) for h in held.values())) - set(views))
     if unscored:            # an instant a model cannot predict without it determines some of its terms alone
@@ -119,41 +121,42 @@ def score_lens_models(rigs: dict[str, RigModel], camera: str | None = None,
     n_corners = sum(next(iter(corners.values())).values())
     squares = {m: np.array([h[v]["rms_px"] ** 2 * h[v]["corners"] for v in views]) for m, h in held.items()}
     best = min(squares, key=lambda m: squares[m].sum())
-    order = sorted(rigs, key=lambda m: (m != first, len(LENS_MODELS[m]), m))
+    order = sorted(fits, key=lambda m: (m != first, len(LENS_MODELS[m]), m))
     worse = {}
     for m in order:
         d = squares[m] - squares[best]
         se = np.std(d, ddof=1) / np.sqrt(len(d))
         worse[m] = float(np.mean(d) / se) if se > 0 else 0.0
     chosen = next(m for m in order if worse[m] <= RECOMMEND_WITHIN_SE)
-    fit = {m: r.rms_px if camera is None else r.camera_rms_px[camera] for m, r in rigs.items()}
+    fit = {m: f["rms_px"] if camera is None else f["camera_rms_px"][camera] for m, f in fits.items()}
     return [LensModelScore(m, len(LENS_MODELS[m]), fit[m], float(np.sqrt(squares[m].sum() / n_corners)),
                            worse[m], m == chosen) for m in order]
 
 
-def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m not in FISHEYE_MODELS),
-                        calibrate: Callable[..., RigModel] | None = None) -> list[LensModelScore]:
-    """Calibrate the corners ``rig`` used with every lens model of ``models`` and score them.
+def _refits(rig: RigModel, mappings: dict[str, object], rig_mode: str | None = None) -> dict[str, dict]:
+    """:func:`dualcal.calibrate.fit_summary` of ``rig``'s corners refitted with each lens model mapping
+    ``{name: model or {camera: model}}`` (:func:`dualcal.calibrate.refit`); one that cannot be solved
+    is left out with a warning."""
+    from .calibrate import fit_summary, refit
 
-    Every calibration has ``rig``'s settings (skew, rig mode, reference, board shape), with the
-    corners and photos ``rig`` used (:meth:`RigModel.used_corners`) and outliers not looked for
-    again, so that every model is judged on the same corners; ``rig`` itself stands for its own
-    model. A model whose calibration fails is left out with a warning.
-    """
-    if calibrate is None:
-        from .calibrate import calibrate_rig as calibrate
-    corners = rig.used_corners()
-    options = {**rig.calibration_options(), "drop_outliers": False}
-    rigs = {rig.model: rig} if rig.model in LENS_MODELS else {}
-    for model in models:
-        if model in rigs:
-            continue
+    fits = {}
+    for name, mapping in mappings.items():
         try:
-            rigs[model] = calibrate(corners, skew=rig.skew, rig_mode=rig.rig_mode, reference=rig.reference,
-                                    **{**options, "model": model})
+            fits[name] = fit_summary(refit(rig, model=mapping, rig_mode=rig_mode))
         except EstimationError as exc:
-            warn(f"lens model {model} could not be calibrated for the comparison: {exc}")
-    return score_lens_models(rigs)
+            warn(f"lens model {name} could not be calibrated for the comparison: {exc}")
+    return fits
+
+
+def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m not in FISHEYE_MODELS)
+                        ) -> list[LensModelScore]:
+    """Score every lens model of ``models`` on the corners ``rig`` used (:meth:`RigModel.used_corners`):
+    each is adjusted from ``rig``'s values in ``rig``'s settings (skew, rig mode, reference, board shape),
+    without looking for outliers again (:func:`dualcal.calibrate.refit`), so that every model is judged
+    on the same corners; ``rig`` itself stands for its own model."""
+    fits = {rig.model: rig_fit(rig)} if rig.model in LENS_MODELS else {}
+    fits.update(_refits(rig, {m: m for m in models if m not in fits}))
+    return score_lens_models(fits)
 
 
 def _camera_entry(score: LensModelScore | None) -> dict:
@@ -202,19 +205,12 @@ def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None
     candidates = {n: lens_model_candidates(cam) for n, cam in _closed_form_cameras(corners, options.get("skew", False)).items()}
     preferred = {n: next((m for m in candidates[n] if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n in names}
     base = calibrate(corners, model=preferred, **options)
-    used = base.used_corners()
-    rigs: dict[str, RigModel] = {}
-    for model in [m for m in LENS_MODELS if any(m in c for c in candidates.values())]:
-        mapping = {n: model if model in candidates[n] else preferred[n] for n in names}
-        try:
-            rigs[model] = calibrate(used, **{**options, "drop_outliers": False, "reference": base.reference,
-                                             "rig_mode": "none", "model": mapping})
-        except EstimationError as exc:
-            warn(f"lens model {model} could not be calibrated for the comparison: {exc}")
+    fits = _refits(base, {m: {n: m if m in candidates[n] else preferred[n] for n in names}
+                          for m in LENS_MODELS if any(m in c for c in candidates.values())}, rig_mode="none")
     per_camera, chosen = {}, dict(preferred)
     for n in names:
         try:
-            scores = score_lens_models({m: r for m, r in rigs.items() if m in candidates[n]}, n, first=preferred[n])
+            scores = score_lens_models({m: f for m, f in fits.items() if m in candidates[n]}, n, first=preferred[n])
         except EstimationError as exc:
             warn(f"the lens models of {n!r} could not be compared ({exc}): it keeps {preferred[n]}")
             continue
@@ -222,11 +218,11 @@ def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None
         chosen[n] = next(s.model for s in scores if s.recommended)
     final = base if chosen == preferred else calibrate(corners, **{**options, "model": chosen})
     try:
-        overall = {s.model: asdict(s) for s in score_lens_models(rigs)}
+        overall = {s.model: asdict(s) for s in score_lens_models(fits)}
     except EstimationError:         # no model, or too few instants: the per-camera entries say it
         overall = {}
     final.adjustment["lens_models"] = [
         {**overall.get(m, {"model": m, "coefficients": len(LENS_MODELS[m])}),
-         "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in rigs]
+         "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in fits]
     final.adjustment["lens_models_chosen"] = chosen
     return final

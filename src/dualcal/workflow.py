@@ -165,6 +165,15 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
     return rig
 
 
+def other_skew_model(rig: RigModel) -> RigModel:
+    """``rig`` with the other skew model (the paper's Model 2 beside Model 1, or back), to show them side by
+    side: the same corners, lens models, rig mode and board shape, adjusted from ``rig``'s values
+    (:func:`dualcal.calibrate.refit`), with its sigmas and no checks of its own."""
+    from .calibrate import refit, rig_model_from_solution
+
+    return rig_model_from_solution(refit(rig, skew=not rig.skew), rig.corners, rig.dropped_views, rig.dropped_corners)
+
+
 def lens_scores(rig: RigModel) -> list:
     """The comparison of one lens model for every camera that :func:`calibrate_corners` recorded in ``rig``
     (empty without one, and for ``"auto"``, whose choice camera by camera is ``adjustment["lens_models_chosen"]``)."""

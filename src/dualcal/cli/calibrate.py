@@ -53,14 +53,13 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     lens models compared by their error on instants left out, and the checks' verdict.
     """
     from ..board import SHAPE_TERMS
-    from ..calibrate import calibrate_rig
     from ..checks import failed_checks, scale_note, verdict
     from ..errors import EstimationError
     from ..io import check_output_file, save_rig
     from ..progress import warn
     from ..tables import (lens_model_advice, lens_model_choice_table, lens_model_table, photo_table, result_tables,
                           roll_tables)
-    from ..workflow import calibrate_corners, lens_scores
+    from ..workflow import calibrate_corners, lens_scores, other_skew_model
 
     if input_path is None and not dataset_opts.get("cameras"):
         raise click.UsageError("give INPUT (a corners.json or a dataset folder) or --camera NAME=GLOB")
@@ -73,13 +72,12 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
                   outlier_factor=outlier_factor, board_shape=board_shape, model=model)
     rig = calibrate_corners(corners, skew=skew, compare_lens=compare_lens, **kwargs)
-    kwargs["model"] = rig.models                  # the other skew model with the same lenses
     scores = lens_scores(rig)
     save_rig(output, rig)
     models = [rig]
     if compare_models:
         try:
-            other = calibrate_rig(corners, skew=not skew, **kwargs)
+            other = other_skew_model(rig)
             models = [other, rig] if skew else [rig, other]
         except EstimationError as exc:
             warn(f"the other skew model could not be solved for comparison: {exc}")
