@@ -36,4 +36,17 @@ def test_start_up_imports_nothing_heavy(args):
 def test_a_command_imports_its_library_when_it_runs():
     """The probe can fail: the help of a command with library choices loads that library."""
     _, loaded = _loaded("calibrate", "--help")
-    assert "numpy" in loaded and "scipy" in loaded
+    assert "numpy" in loaded
+
+
+def test_calibrating_corners_imports_only_what_it_uses(tmp_path):
+    """Issue 23: ``dualcal calibrate corners.json`` (its defaults) needs numpy and the terminal's
+    libraries, not scipy (a third of a second to import), OpenCV, Pillow, matplotlib or jinja2."""
+    from dualcal.io import save_corners
+    from dualcal.synth import make_truth, noisy_corner_set
+
+    corners = tmp_path / "corners.json"
+    save_corners(corners, noisy_corner_set(make_truth("stereo", 6, seed=3), 0.1, seed=4))
+    out, loaded = _loaded("calibrate", str(corners), "-o", str(tmp_path / "calib.json"))
+    assert "written" in out
+    assert loaded == {"numpy", "rich"}, f"calibrate imported {sorted(loaded)}"

@@ -30,6 +30,7 @@ from .camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MODELS, INTRIN
 from .checks import (REFOCUS_SHARE, design_effect, focal_scale_fits, focus_drift, rig_rigid, run_checks,
                      tie_costs)
 from .covariance import JointCovariance, intrinsic_name
+from .distributions import f_quantile
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from .errors import EstimationError, InputError
 from .loop_closure import loop_closure
@@ -379,8 +380,6 @@ def board_shape_test(sol: Solution) -> dict:
     "sigma_mm"}``; with too few instants to judge (``G <= p + 1``) ``limit`` is None and the shape
     is not significant.
     """
-    from scipy.special import fdtri      # the F distribution's quantile (scipy.stats takes ~1 s to import)
-
     cols = sol.problem.layout.board_shape
     w = sol.state.board_shape_mm
     cov = sol.covariance(cols, "clustered")
@@ -390,7 +389,7 @@ def board_shape_test(sol: Solution) -> dict:
     if G <= p + 1:
         return {**doc, "t2": None, "limit": None, "significant": False}
     t2 = float(w @ np.linalg.lstsq(cov, w, rcond=None)[0])
-    limit = float(p * (G - 1) / (G - p) * fdtri(p, G - p, 1.0 - SHAPE_SIGNIFICANCE))
+    limit = float(p * (G - 1) / (G - p) * f_quantile(p, G - p, 1.0 - SHAPE_SIGNIFICANCE))
     return {**doc, "t2": t2, "limit": limit, "significant": bool(t2 > limit)}
 
 

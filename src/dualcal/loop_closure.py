@@ -36,6 +36,7 @@ from itertools import combinations
 import numpy as np
 
 from .adjust import Solution
+from .distributions import f_quantile
 from .errors import EstimationError
 from .rig_relations import rig_linearisation
 from .rotation import ARCMIN_PER_RAD, cross_matrix, rotvec_from_rotation
@@ -87,8 +88,6 @@ def loop_closure(names: list[str], ref: int, pair_solutions, rig_rigid) -> dict 
     """
     if len(names) < 3:
         return None
-    from scipy.special import fdtri      # the F distribution's quantile (scipy.stats takes ~1 s to import)
-
     pairs, relations = {}, {}
     for x, y in combinations(range(len(names)), 2):
         if y == ref:
@@ -113,7 +112,7 @@ def loop_closure(names: list[str], ref: int, pair_solutions, rig_rigid) -> dict 
             continue
         cov = shifts.T @ shifts
         stat = float(e @ np.linalg.lstsq(cov, e, rcond=None)[0])
-        limit = float(6 * (n - 1) / (n - 6) * fdtri(6, n - 6, 1.0 - alpha))       # Hotelling's T^2
+        limit = float(6 * (n - 1) / (n - 6) * f_quantile(6, n - 6, 1.0 - alpha))       # Hotelling's T^2
         sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
         loops[f"{names[ref]}-{names[b]}-{names[c]}"] = {
             "ok": stat <= limit, "t2": stat, "limit": limit, "instants": n,

@@ -12,7 +12,6 @@ Conventions (README, "Conventions"): ``X_cam = R @ X_board + t_mm``; a rig camer
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from .camera import CameraModel, ideal_normalized_from_pixel, project_with_jacobians
@@ -39,6 +38,8 @@ def planar_pose(X_board: np.ndarray, cam: CameraModel, uv_px: np.ndarray) -> Pos
                               f"({int(seen.sum())} given)")
     xy = ideal_normalized_from_pixel(cam, uv_px[seen])
     flat = np.column_stack([X_board[seen, :2], np.zeros(int(seen.sum()))]).astype(np.float64)
+    import cv2          # imported here: the calibration's other steps do not need OpenCV
+
     ok, rvec, tvec = cv2.solvePnP(flat, xy.astype(np.float64), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
     if not ok:
         raise EstimationError("space resection: no initial pose (degenerate corners?)")

@@ -65,6 +65,10 @@ def _interrupted() -> None:
 def main(argv=None) -> None:
     """Entry point of the console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    # The adjustment's matrices are small blocks, where OpenBLAS's worker threads cost more than they
+    # give (calibrate on 13 instants: 0.85 s with them, 0.77 s without); detection runs photos in
+    # threads of its own. Set before numpy loads; a value the user set is kept.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
         cli.main(args=argv, prog_name="dualcal", standalone_mode=False)
     except (click.exceptions.Abort, KeyboardInterrupt):

@@ -7,15 +7,26 @@ per-photo / per-dataset drivers (:mod:`.pipeline`); ChArUco boards through :mod:
 (OpenCV's markers and ids, checked against the board's geometry, then the same refinement).
 """
 
-from .charuco import detect_charuco, resolve_board
-from .coarse import find_grid, reduction_factor
-from .manual import display_problem, grid_from_hints, load_hints, pick_hints, save_hints
-from .order import order_grid
-from .grid import min_corners, neighbour_predictions, neighbour_residuals_px, predict_from_neighbours, validate_grid
-from .pipeline import PhotoResult, detect_dataset, detect_photo
-from .refine import fit_saddles, measure_grid, refine_corners
+#: Each public name and its module, imported on first use: the calibration needs :mod:`.grid` alone, and
+#: must not pay for the photo readers (Pillow, rawpy, OpenCV) that the detectors import.
+_API = {"detect_charuco": "charuco", "resolve_board": "charuco", "find_grid": "coarse", "reduction_factor": "coarse",
+        "display_problem": "manual", "grid_from_hints": "manual", "load_hints": "manual", "pick_hints": "manual",
+        "save_hints": "manual", "order_grid": "order", "min_corners": "grid", "neighbour_predictions": "grid",
+        "neighbour_residuals_px": "grid", "predict_from_neighbours": "grid", "validate_grid": "grid",
+        "PhotoResult": "pipeline", "detect_dataset": "pipeline", "detect_photo": "pipeline", "fit_saddles": "refine",
+        "measure_grid": "refine", "refine_corners": "refine"}
 
-__all__ = ["PhotoResult", "detect_charuco", "detect_dataset", "detect_photo", "display_problem", "find_grid", "fit_saddles",
-           "grid_from_hints", "load_hints", "measure_grid", "min_corners", "neighbour_predictions",
-           "neighbour_residuals_px", "order_grid", "predict_from_neighbours", "pick_hints", "reduction_factor", "refine_corners",
-           "resolve_board", "save_hints", "validate_grid"]
+__all__ = sorted(_API)
+
+
+def __getattr__(name):
+    if name in _API:
+        import importlib
+        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'dualcal.detect' has no attribute {name!r}")
+
+
+def __dir__():
+    return __all__
