@@ -1,19 +1,22 @@
 """``dualcal calibrate corners.json`` as a process against OpenCV's calibration path as a process.
 
 What a user waits for: the whole command, start-up and imports included. On the same synthetic
-corners.json (``dualcal synth --no-photos``), each side is timed as a fresh process (median of
-``--runs`` runs after one warm-up):
+corners.json, each side is timed as a fresh process (median of ``--runs`` runs after one warm-up):
 
 * dualcal, its defaults (``--model auto``: every camera's lens model chosen by held-out instants, the
   other skew model beside it, the board-shape test, covariances, held-out errors, checks);
-* dualcal, the paper's case alone (``--model k1k2 --no-compare-models``);
+* dualcal, the paper's case alone (``--model k1k2 --no-compare-models --no-compare-lens``: one lens
+  model, one skew model, still with the board-shape test, sigmas, held-out errors and checks);
 * OpenCV: a Python process that reads the same corners.json and runs ``cv2.calibrateCamera`` per
   camera (k1 k2) and ``cv2.stereoCalibrate`` of every other camera with the reference
   (``CALIB_USE_INTRINSIC_GUESS``), which gives no sigma, no check and no model choice.
 
-Then how the time grows: 13, 50 and 200 instants, two cameras (note8) and three (triple).
+Then how the time grows: 13, 50 and 200 instants of two cameras (``note8``), three (``triple``) and
+four (``bench_calibrate.QUAD_PRESET``: wide, tele, ultra-wide and a macro camera, a 10 x 10 board).
+dualcal's sources are byte-compiled first, as an installed package's are (this machine sets
+``PYTHONDONTWRITEBYTECODE``, which would otherwise make every run compile them again).
 
-    .venv/bin/python benchmarks/bench_calibrate_process.py            # the table and the growth (a few minutes)
+    .venv/bin/python benchmarks/bench_calibrate_process.py            # the table and the growth (~10 min)
     .venv/bin/python benchmarks/bench_calibrate_process.py --quick    # 13 instants of note8 only
 """
 
@@ -69,16 +72,29 @@ def _time(cmd: list[str], runs: int) -> float:
     return statistics.median(times)
 
 
-def measure(preset: str, views: int, runs: int, folder: Path) -> dict[str, float]:
+def write_corners(preset: str, views: int, folder: Path) -> Path:
+    """A synthetic corners.json of ``views`` instants of ``preset`` (``quad``: bench_calibrate's 4 cameras)."""
     data = folder / f"{preset}-{views}"
-    subprocess.run(DUALCAL + ["synth", str(data), "--preset", preset, "--views", str(views), "--no-photos",
-                              "--noise", "0.1"], check=True, capture_output=True)
-    corners, out = data / "corners.json", data / "calib.json"
+    if preset == "quad":
+        from bench_calibrate import float32_corner_set, quad_truth
+        from dualcal.io import save_corners
+
+        data.mkdir(parents=True)
+        save_corners(data / "corners.json", float32_corner_set(quad_truth(views, seed=7), 0.1, seed=8))
+    else:
+        subprocess.run(DUALCAL + ["synth", str(data), "--preset", preset, "--views", str(views), "--no-photos",
+                                  "--noise", "0.1"], check=True, capture_output=True)
+    return data / "corners.json"
+
+
+def measure(preset: str, views: int, runs: int, folder: Path) -> dict[str, float]:
+    corners = write_corners(preset, views, folder)
+    out = corners.parent / "calib.json"
     script = folder / "opencv_calibrate.py"
     script.write_text(OPENCV)
     return {"default": _time(DUALCAL + ["calibrate", str(corners), "-o", str(out)], runs),
             "paper": _time(DUALCAL + ["calibrate", str(corners), "-o", str(out), "--model", "k1k2",
-                                      "--no-compare-models"], runs),
+                                      "--no-compare-models", "--no-compare-lens"], runs),
             "opencv": _time([sys.executable, str(script), str(corners)], runs)}
 
 
@@ -87,16 +103,18 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="13 instants of note8 only")
     parser.add_argument("--runs", type=int, default=3)
     args = parser.parse_args()
-    cases = [("note8", 13)] if args.quick else [("note8", 13), ("note8", 50), ("note8", 200), ("triple", 13),
-                                                ("triple", 50), ("triple", 200)]
+    cases = [("note8", 13)] if args.quick else [(p, v) for p in ("note8", "triple", "quad") for v in (13, 50, 200)]
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "src" / "dualcal")], check=True)
+    sys.path.insert(0, str(ROOT / "benchmarks"))
     print(f"{'rig':8} {'instants':>8} {'dualcal default':>16} {'paper case':>11} {'OpenCV':>8} "
           f"{'default/OpenCV':>15} {'paper/OpenCV':>13}")
     with tempfile.TemporaryDirectory() as tmp:
         for preset, views in cases:
-            t = measure(preset, views, args.runs, Path(tmp))
+            t = measure(preset, views, args.runs if views < 200 else 1, Path(tmp))
             print(f"{preset:8} {views:8d} {t['default']:15.2f}s {t['paper']:10.2f}s {t['opencv']:7.2f}s "
                   f"{t['default'] / t['opencv']:15.2f} {t['paper'] / t['opencv']:13.2f}", flush=True)
-    print(f"(processes, median of {args.runs} runs after a warm-up; load average {os.getloadavg()[0]:.1f})")
+    print(f"(processes, median of {args.runs} runs after a warm-up, 1 run at 200 instants; cameras: note8 2, "
+          f"triple 3, quad 4; load average {os.getloadavg()[0]:.1f})")
 
 
 if __name__ == "__main__":
