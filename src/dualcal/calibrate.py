@@ -57,16 +57,18 @@ def unusable_reason(uv: np.ndarray, xy_board: np.ndarray) -> str | None:
             f"a photo needs at least {MIN_HOMOGRAPHY_CORNERS} corners, not all on one line")
 
 
-def usable_photos(corners: CornerSet, names: list[str], xy_board: np.ndarray) -> list[tuple[int, str, np.ndarray]]:
+def usable_photos(corners: CornerSet, names: list[str], xy_board: np.ndarray,
+                  quiet: bool = False) -> list[tuple[int, str, np.ndarray]]:
     """``(camera index, view, (N, 2) corners)`` of every photo whose measured corners determine a
     homography (:func:`unusable_reason`). Every other photo where the board was found is skipped
-    with a warning naming it."""
+    with a warning naming it (unless ``quiet``: a calibration already said so)."""
     blocks = []
     for c, name in enumerate(names):
         for v, uv in sorted(corners.cameras[name].found().items()):
             reason = unusable_reason(uv, xy_board)
             if reason:
-                warn(f"{name}/{v} skipped: {reason}")
+                if not quiet:
+                    warn(f"{name}/{v} skipped: {reason}")
                 continue
             blocks.append((c, v, uv))
     return blocks
@@ -537,8 +539,7 @@ def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: boo
     models = lens_models_for(rig.models if model is None else model, names)
     skew = rig.skew if skew is None else skew
     X = corners.board.object_points_mm()
-    blocks = [(c, v, uv) for c, name in enumerate(names)
-              for v, uv in sorted(corners.cameras[name].found().items()) if unusable_reason(uv, X[:, :2]) is None]
+    blocks = usable_photos(corners, names, X[:, :2], quiet=True)
     _check_enough_views(blocks, names)
     sizes = [corners.cameras[n].image_size for n in names]
     poses = [dict(rig.camera_poses[n]) for n in names]
@@ -649,7 +650,6 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
     """Package an adjustment result as the :class:`RigModel` written to calib.json (no checks)."""
     p, st = sol.problem, sol.state
     names = p.cameras
-    sq = np.sum(sol.residuals ** 2, axis=2)                 # (B, N) squared px, NaN where not measured
     cams = {name: st.camera(p, c) for c, name in enumerate(names)}
     names_cov, covs = parameter_covariance(sol, COVARIANCE_KINDS)
     sd = {kind: dict(zip(names_cov, np.sqrt(np.maximum(np.diag(cov), 0.0)))) for kind, cov in covs.items()}
@@ -657,10 +657,7 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
                     for name in names}
     sigma = {name: {n: max(sd["clustered"].get(intrinsic_name(name, n), 0.0), s)
                     for n, s in sigma_formal[name].items()} for name in names}
-    cam_rms = {}
-    for c, name in enumerate(names):
-        mask = [cc == c for cc, _, _ in p.blocks]
-        cam_rms[name] = float(np.sqrt(np.nanmean(sq[mask])))
+    fit = fit_summary(sol)
     view_rms: dict[str, dict[str, float]] = {}
     for b, (c, v, _) in enumerate(p.blocks):
         view_rms.setdefault(v, {})[names[c]] = sol.block_rms_px[b]
@@ -683,12 +680,13 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
                                 dict(zip(("t_mm", "baseline_mm", "opk_arcmin"), formal)))
     adjustment = {"s0_px": sol.s0_px, "redundancy": sol.redundancy, "iterations": sol.iterations,
                   "converged": sol.converged, "termination": sol.termination,
-                  "n_observations": p.n_observations, "n_parameters": p.n_parameters, **held_out_error(sol)}
+                  "n_observations": p.n_observations, "n_parameters": p.n_parameters,
+                  **{k: fit[k] for k in ("held_out_rms_px", "held_out_per_instant", "held_out_per_camera")}}
     shape = shape_sigma = None
     if p.board_shape:
         shape = st.board_shape_mm.copy()
         shape_sigma = np.array([max(sd[kind][f"board.shape_mm.{t}"] for kind in COVARIANCE_KINDS) for t in SHAPE_TERMS])
     covariance = JointCovariance(tuple(names_cov), covs).to_dict()
-    return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, cam_rms, rig, poses,
-                    dict(sorted(view_rms.items())), float(np.sqrt(np.nanmean(sq))), corners, adjustment, dropped,
+    return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, fit["camera_rms_px"], rig, poses,
+                    dict(sorted(view_rms.items())), fit["rms_px"], corners, adjustment, dropped,
                     sigma_formal, shape, shape_sigma, list(dropped_corners), {}, covariance)

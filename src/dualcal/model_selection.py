@@ -175,17 +175,20 @@ def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
 
 
 def _closed_form_cameras(corners: CornerSet, skew: bool) -> dict[str, CameraModel]:
-    """Every camera's intrinsics by Zhang's closed form (no lens), from its usable photos."""
-    from .calibrate import unusable_reason
-    from .zhang import initial_camera
+    """Every camera's intrinsics by Zhang's closed form (no lens), from its usable photos (the
+    calibration that follows warns about the others)."""
+    from .calibrate import usable_photos
+    from .zhang import closed_form_camera
 
+    names = sorted(corners.cameras)
     xy = corners.board.object_points_mm()[:, :2]
+    blocks = usable_photos(corners, names, xy, quiet=True)
     out = {}
-    for name, cam in corners.cameras.items():
-        views = {v: uv for v, uv in cam.found().items() if unusable_reason(uv, xy) is None}
+    for c, name in enumerate(names):
+        views = {v: uv for cc, v, uv in blocks if cc == c}
         if len(views) < 3:
             raise EstimationError(f"camera {name!r} has {len(views)} usable view(s); at least 3 are needed")
-        out[name] = initial_camera(xy, views, cam.image_size, skew)[0]
+        out[name] = closed_form_camera(xy, views, corners.cameras[name].image_size, skew)
     return out
 
 

@@ -289,6 +289,13 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
     return cam, dict(zip(keys, poses))
 
 
+def closed_form_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False) -> CameraModel:
+    """Zhang's closed-form intrinsics alone (sections 1.3-1.4; no lens): from the DLT's homographies,
+    not refined, which is enough to judge a lens's field of view."""
+    uvs = [views[k] for k in sorted(views)]
+    return _closed_form(xy_board, uvs, [observed_mask(uv) for uv in uvs], image_size, skew, refine=False)[0]
+
+
 def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool,
                  refine: bool = True):
     """Homographies (``refine``: on the pixel error), Zhang's closed form and one pose per view, no
@@ -313,9 +320,11 @@ _FISHEYE_ROUNDS = 12
 _FISHEYE_SETTLED = 1e-3        # relative change of fx at which the rounds stop
 
 
-def _pinhole_pixels(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
-    """The pixels a pinhole camera of ``cam``'s matrix A would record of the rays ``cam`` saw at ``uv``."""
-    return pixel_from_normalized(cam.pinhole(), undistort(cam, normalized_from_pixel(cam, uv)))
+def _pinhole_pixels(cam: CameraModel, uvs: list[np.ndarray]) -> list[np.ndarray]:
+    """The pixels a pinhole camera of ``cam``'s matrix A would record of the rays ``cam`` saw at each
+    ``uvs[i]`` (all views in one call: the fisheye's inverse has a set-up cost per call)."""
+    pins = pixel_from_normalized(cam.pinhole(), undistort(cam, normalized_from_pixel(cam, np.concatenate(uvs))))
+    return np.split(pins, np.cumsum([len(uv) for uv in uvs])[:-1])
 
 
 def _fisheye_guess(image_size, f: float, k1: float, cx: float, cy: float) -> CameraModel:
@@ -327,7 +336,7 @@ def _homography_misfit(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[n
     of the homographies' residuals in the pinhole pixels, over ``f`` (an angle); ``inf`` where a corner
     lies at 90 degrees or more."""
     try:
-        pins = [_pinhole_pixels(cam, uv[m]) for uv, m in zip(uvs, seen)]
+        pins = _pinhole_pixels(cam, [uv[m] for uv, m in zip(uvs, seen)])
     except NotInvertibleError:
         return np.inf
     squares = [np.sum((apply_homography(estimate_homography(xy_board[m], p, refine=False), xy_board[m]) - p) ** 2)
@@ -361,7 +370,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
         found = None
         for _ in range(_FISHEYE_ROUNDS):
             try:
-                pins = [_pinhole_pixels(guess, uv) for uv in uvs]
+                pins = _pinhole_pixels(guess, uvs)
             except NotInvertibleError:
                 break
             cam, poses = _closed_form(xy_board, pins, seen, image_size, skew, refine=False)
@@ -374,7 +383,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     if not starts or not np.isfinite(min(m for m, _ in starts)):
         raise EstimationError("the fisheye's start puts a corner at 90 degrees or more from the axis")
     guess = min(starts, key=lambda s: s[0])[1]
-    _, poses = _closed_form(xy_board, [_pinhole_pixels(guess, uv) for uv in uvs], seen, image_size, skew)
+    _, poses = _closed_form(xy_board, _pinhole_pixels(guess, uvs), seen, image_size, skew)
     coefficients = _fisheye_linear(guess, poses, xy_board, uvs)
     cam = guess.with_distortion(coefficients[0], coefficients[1], k3=coefficients[2], k4=coefficients[3])
     reach = max(np.max(np.linalg.norm(normalized_from_pixel(cam, uv[m]), axis=1)) for uv, m in zip(uvs, seen))
