@@ -318,6 +318,9 @@ def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndar
 _FISHEYE_K1_GRID = np.arange(0.0, 0.41, 0.05)
 _FISHEYE_ROUNDS = 12
 _FISHEYE_SETTLED = 1e-3        # relative change of fx at which the rounds stop
+#: The search for the fisheye's start (A and k1) looks at this many views at most, spread over them;
+#: the poses of the start are then those of every view.
+_FISHEYE_SEARCH_VIEWS = 16
 
 
 def _pinhole_pixels(cam: CameraModel, uvs: list[np.ndarray]) -> list[np.ndarray]:
@@ -353,7 +356,8 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     pinhole pixels gives A (and the poses); un-projected again with that A, the corners give the
     next A, until ``fx`` settles: with the right ``k1``, the true A is that round's fixed point (the
     rays of a plane are then exactly a homography of it). It starts from ``f`` = the image's
-    diagonal, where every ray is well inside 90 degrees. Each ``k1`` of :data:`_FISHEYE_K1_GRID`
+    diagonal, where every ray is well inside 90 degrees (the search looks at
+    :data:`_FISHEYE_SEARCH_VIEWS` views at most). Each ``k1`` of :data:`_FISHEYE_K1_GRID`
     has its fixed point (``f`` and ``k1`` trade off); the one kept is where the homographies fit
     the rays best (residual over ``f``, an angle). Last, the linear least squares of section 1.6 for
     ``k1 .. k4``: given the poses, ``(u~, v~) - (u, v) = A' (x theta / r) sum_j k_j theta^(2 j)`` with
@@ -363,6 +367,8 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     keys = sorted(views)
     uvs = [np.asarray(views[k], float) for k in keys]
     seen = [observed_mask(uv) for uv in uvs]
+    picked = np.unique(np.linspace(0, len(uvs) - 1, min(len(uvs), _FISHEYE_SEARCH_VIEWS)).round().astype(int))
+    search_uvs, search_seen = [uvs[i] for i in picked], [seen[i] for i in picked]
     w, h = image_size
     starts = []
     for k1 in _FISHEYE_K1_GRID:
@@ -370,16 +376,16 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
         found = None
         for _ in range(_FISHEYE_ROUNDS):
             try:
-                pins = _pinhole_pixels(guess, uvs)
+                pins = _pinhole_pixels(guess, search_uvs)
             except NotInvertibleError:
                 break
-            cam, poses = _closed_form(xy_board, pins, seen, image_size, skew, refine=False)
+            cam = _closed_form(xy_board, pins, search_seen, image_size, skew, refine=False)[0]
             settled = abs(cam.fx / guess.fx - 1.0) < _FISHEYE_SETTLED
             guess, found = replace(cam, model=model, k1=float(k1)), guess
             if settled:
                 break
         if found is not None:
-            starts.append((_homography_misfit(xy_board, uvs, seen, found), found))
+            starts.append((_homography_misfit(xy_board, search_uvs, search_seen, found), found))
     if not starts or not np.isfinite(min(m for m, _ in starts)):
         raise EstimationError("the fisheye's start puts a corner at 90 degrees or more from the axis")
     guess = min(starts, key=lambda s: s[0])[1]
