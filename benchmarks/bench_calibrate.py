@@ -19,7 +19,9 @@ Two parts, printed as plain-text tables:
    95 % range over the sets, and dualcal's z-scores ``(estimate - truth) / sigma`` (mean, and
    standard deviation with target 0.8-1.25: the reported sigmas are honest when it is near 1).
 
-2. Speed (wall time, ``time.perf_counter``, median of several runs after one warm-up run):
+2. Speed (wall time, ``time.perf_counter``, median of several runs after one warm-up run; then
+   ``dualcal calibrate`` against OpenCV's path as whole processes on 13 pairs, from
+   ``bench_calibrate_process.py``, which also prints how the time grows to 200 instants and 4 cameras):
    (a) the paper's set-up, note8 preset, 13 views x 2 cameras x 40 corners (target < 1 s);
    (b) 50 views x 4 cameras x 100 corners, a 4-camera rig built here (target < 10 s).
    OpenCV's time is that of its calibrateCamera per camera + stereoCalibrate per extra camera.
@@ -398,6 +400,15 @@ def main(argv=None) -> int:
             rows.append([f"speed {s['case']}: paper-mode s, converged {s['paper_converged']}", f"{s['paper_s']:.3f}",
                          f"< {PAPER_TIME_FACTOR:g} x rigid",
                          verdict(s["paper_converged"] and s["paper_s"] < PAPER_TIME_FACTOR * s["dualcal_s"])])
+        import tempfile
+
+        from bench_calibrate_process import measure as process_times
+        with tempfile.TemporaryDirectory() as tmp:
+            t = process_times("note8", 13, runs_small, Path(tmp))
+        for label, key in (("defaults", "default"), ("the paper's case", "paper")):
+            rows.append([f"speed as processes, 13 pairs, {label}: dualcal / OpenCV ({t[key]:.2f} s / "
+                         f"{t['opencv']:.2f} s)", f"{t[key] / t['opencv']:.2f}", "<= 1.0",
+                         verdict(t[key] <= t["opencv"])])
         real = real_stereo_case(runs_small)
         if real is not None:
             rows.append([f"real stereo: paper-mode s (rigid {real['rigid_s']:.3f} s), converged {real['paper_converged']}",
