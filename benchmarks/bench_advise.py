@@ -1,11 +1,11 @@
 """Advised photos against photos drawn like the first ones (synthetic rigs with known truth).
 
-For each preset and seed: 5 photos drawn by :func:`dualcal.synth.make_truth` (the whole board in
+For each preset and seed: 5 photos drawn by :func:`dualcal.synthetic.synth.make_truth` (the whole board in
 every camera, 0.2 px corner noise) are calibrated; then
 
-* **advised**: 6 times over, ``dualcal.advise`` is asked for the next pose, the photo is taken at
+* **advised**: 6 times over, ``dualcal.estimation.advise`` is asked for the next pose, the photo is taken at
   it (exact corners of the true rig plus the same noise, in the cameras it says see the board,
-  :func:`dualcal.synth.photographed`) and the rig is calibrated again, as a user would follow it;
+  :func:`dualcal.synthetic.synth.photographed`) and the rig is calibrated again, as a user would follow it;
 * **random**: the same 5 photos and the next 6 that ``make_truth`` draws.
 
 Printed: the ratio advised / random of the key sigmas (focal lengths, principal points, k1,
@@ -30,11 +30,11 @@ import time
 
 import numpy as np
 
-from dualcal import advise as A
-from dualcal import synth
-from dualcal.calibrate import calibrate_rig
-from dualcal.model import CornerSet
-from dualcal.rotation import ARCMIN_PER_RAD, opk_from_rotation
+from dualcal.estimation import advise as A
+from dualcal.synthetic import synth
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.model import CornerSet
+from dualcal.geometry.rotation import ARCMIN_PER_RAD, opk_from_rotation
 
 NOISE_PX = 0.2
 START, MORE, MAX_PHOTOS = 5, 6, 60

@@ -1,6 +1,6 @@
 """Fleet benchmark: devices per second of ``dualcal batch`` on 1 and 2 Dask workers, same run.
 
-A synthetic fleet (:func:`dualcal.synth_fleet.write_fleet`: note8 units given as corners.json,
+A synthetic fleet (:func:`dualcal.synthetic.synth_fleet.write_fleet`: note8 units given as corners.json,
 ``--views`` views each, seed 1000 and up, which the tests do not use) is calibrated
 
 * by the peer: a plain loop in this process over the devices, each ``load_corners``,
@@ -40,11 +40,11 @@ from pathlib import Path
 from dask.distributed import Client, LocalCluster
 
 from dualcal import batch
-from dualcal.calibrate import calibrate_rig
-from dualcal.evaluation import evaluate
-from dualcal.io import load_corners, save_rig, write_json_atomic
-from dualcal.report.fleet import render_fleet
-from dualcal.synth_fleet import write_fleet
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.estimation.evaluation import evaluate
+from dualcal.files.io import load_corners, save_rig, write_json_atomic
+from dualcal.pages.report.fleet import render_fleet
+from dualcal.synthetic.synth_fleet import write_fleet
 
 OPTIONS = batch.BatchOptions()
 

@@ -60,14 +60,14 @@ from unittest import mock
 import cv2
 import numpy as np
 
-from dualcal import synth
-from dualcal.board import Board
-from dualcal.dataset import open_dataset
-from dualcal.detect import detect_dataset
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import CameraModel
-from dualcal.model import CornerSet, Pose, RigModel
-from dualcal.rotation import ARCMIN_PER_RAD, rotation_from_opk
+from dualcal.synthetic import synth
+from dualcal.geometry.board import Board
+from dualcal.files.dataset import open_dataset
+from dualcal.files.detect import detect_dataset
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import CameraModel
+from dualcal.geometry.model import CornerSet, Pose, RigModel
+from dualcal.geometry.rotation import ARCMIN_PER_RAD, rotation_from_opk
 
 # Held-out data: the tests use make_truth seeds 0-11 and noise seeds 0-140.
 DEFAULT_SEEDS = tuple(range(1000, 1006))

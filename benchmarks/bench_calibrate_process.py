@@ -77,7 +77,7 @@ def write_corners(preset: str, views: int, folder: Path) -> Path:
     data = folder / f"{preset}-{views}"
     if preset == "quad":
         from bench_calibrate import float32_corner_set, quad_truth
-        from dualcal.io import save_corners
+        from dualcal.files.io import save_corners
 
         data.mkdir(parents=True)
         save_corners(data / "corners.json", float32_corner_set(quad_truth(views, seed=7), 0.1, seed=8))

@@ -2,14 +2,14 @@
 
 Each set is a ``note8`` wide + tele rig (12 MP at ``--scale 1``) looking at an 11x8 ChArUco board
 (25 mm squares, 18 mm markers, DICT_5X5_100) from ``--views`` poses in which the tele sees 30 to
-100 % of the board and the wide at least 80 % (``dualcal.synth.make_truth(coverage=(0.3, 1))``),
+100 % of the board and the wide at least 80 % (``dualcal.synthetic.synth.make_truth(coverage=(0.3, 1))``),
 rendered as ``dualcal synth`` renders photos. Every third photo is rendered once more with two
 pairs of markers drawn with each other's codes (planted misread ids; those copies are only
 detected, not calibrated). Seeds 2000+ (held out: the tests use others).
 
 1. **Detection**, every photo, same image for both:
 
-   * dualcal: :func:`dualcal.detect.detect_photo` (markers on a reduced image, ids checked against
+   * dualcal: :func:`dualcal.files.detect.detect_photo` (markers on a reduced image, ids checked against
      the board's geometry, corners refined at full resolution);
    * OpenCV: ``cv2.aruco.CharucoDetector(board).detectBoard`` on the full image (its defaults:
      local homographies from the markers, ``cornerSubPix``).
@@ -51,14 +51,14 @@ import cv2
 import numpy as np
 
 from dualcal import calibrate_rig
-from dualcal.board import Board
-from dualcal.camera import CameraModel
-from dualcal.detect import detect_photo
-from dualcal.detect.charuco import opencv_board
-from dualcal.model import CameraCorners, CornerSet, Pose, observed_mask
-from dualcal.render import photo_seed, render_view
-from dualcal.synth import make_truth, true_corners
-from dualcal.zhang import spans_a_plane
+from dualcal.geometry.board import Board
+from dualcal.geometry.camera import CameraModel
+from dualcal.files.detect import detect_photo
+from dualcal.files.detect.charuco import opencv_board
+from dualcal.geometry.model import CameraCorners, CornerSet, Pose, observed_mask
+from dualcal.synthetic.render import photo_seed, render_view
+from dualcal.synthetic.synth import make_truth, true_corners
+from dualcal.geometry.zhang import spans_a_plane
 
 BOARD = Board.charuco_board((11, 8), 25.0, 18.0, "DICT_5X5_100")
 SWAPS = [(5, 30), (30, 5), (17, 18), (18, 17)]

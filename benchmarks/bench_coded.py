@@ -1,13 +1,13 @@
 """Chessboards with marks in their white squares: dualcal against OpenCV's ``findChessboardCornersSB``.
 
-Renders (:mod:`dualcal.render`, :mod:`dualcal.render_marks`) of a 13x9 board of 20 mm squares (14 x 10
+Renders (:mod:`dualcal.synthetic.render`, :mod:`dualcal.synthetic.render_marks`) of a 13x9 board of 20 mm squares (14 x 10
 squares, BoofCV's ECoCheck size) seen by a 1024 x 768 camera (the ``stereo`` preset's left camera at
 1.6 x), tilted 0-60 degrees off frontal, a glare spot on a random corner, for each kind of mark (none,
 code, dots, logo, text) and for both colourings of the board (square (-1, -1) black as dualcal prints
 it, or white as on ECoCheck: ``inverted``). Seeds 2000+ (held out: the tests use others). These are
 synthetic figures.
 
-Detectors: dualcal's :func:`dualcal.detect.detect_photo`; OpenCV's ``findChessboardCornersSB`` with
+Detectors: dualcal's :func:`dualcal.files.detect.detect_photo`; OpenCV's ``findChessboardCornersSB`` with
 ``CALIB_CB_NORMALIZE_IMAGE | CALIB_CB_EXHAUSTIVE | CALIB_CB_ACCURACY``. Printed per kind: boards found
 by each, boards OpenCV found that dualcal missed, corner RMS vs truth on the photos both found (both
 matched to the truth up to the board's symmetries: numbering is checked by the calibration tests, not
@@ -29,10 +29,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dualcal.board import Board
-from dualcal.detect import detect_photo
-from dualcal.render import render_view
-from dualcal.synth import make_truth, true_corners
+from dualcal.geometry.board import Board
+from dualcal.files.detect import detect_photo
+from dualcal.synthetic.render import render_view
+from dualcal.synthetic.synth import make_truth, true_corners
 
 BOARD = Board(13, 9, 20.0)
 KINDS = (None, "code", "dots", "logo", "text")

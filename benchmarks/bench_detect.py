@@ -8,7 +8,7 @@ Two parts, each in this one run, on the same renders for every detector:
    across the image (35 % darker, soft edge), blur 1.5 px, the board filling 30-60 % of the
    frame. Seeds 1000+ (held out: the tests use others). Detectors:
 
-   * dualcal: :func:`dualcal.detect.detect_photo`;
+   * dualcal: :func:`dualcal.files.detect.detect_photo`;
    * OpenCV classic: ``findChessboardCorners`` (adaptive threshold, normalise) on the full
      image, then ``cornerSubPix`` with a window of 0.4 of the smallest corner spacing it found;
    * OpenCV SB: ``findChessboardCornersSB`` with ``CALIB_CB_ACCURACY | CALIB_CB_EXHAUSTIVE |
@@ -44,13 +44,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dualcal.board import Board
-from dualcal.camera import project_points
-from dualcal.detect import detect_photo
-from dualcal.io import load_corners
-from dualcal.model import observed_mask
-from dualcal.render import render_view, write_photo_set
-from dualcal.synth import make_truth, true_corners
+from dualcal.geometry.board import Board
+from dualcal.geometry.camera import project_points
+from dualcal.files.detect import detect_photo
+from dualcal.files.io import load_corners
+from dualcal.geometry.model import observed_mask
+from dualcal.synthetic.render import render_view, write_photo_set
+from dualcal.synthetic.synth import make_truth, true_corners
 
 OPENCV_CLASSIC_SCRIPT = """
 import sys, cv2

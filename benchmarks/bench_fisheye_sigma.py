@@ -12,8 +12,8 @@ import time
 
 import numpy as np
 
-from dualcal.calibrate import calibrate_rig
-from dualcal.synth import make_truth, noisy_corner_set
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
 
 def main(draws: int = 40, noise_px: float = 0.05) -> None:

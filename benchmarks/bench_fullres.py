@@ -32,10 +32,10 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-from dualcal.io import load_corners
-from dualcal.model import observed_mask
-from dualcal.render import write_photo_set
-from dualcal.synth import make_truth, true_corners
+from dualcal.files.io import load_corners
+from dualcal.geometry.model import observed_mask
+from dualcal.synthetic.render import write_photo_set
+from dualcal.synthetic.synth import make_truth, true_corners
 
 from bench_detect import OPENCV_CLASSIC_SCRIPT, matched, rms      # as the 12 MP benchmark does
 

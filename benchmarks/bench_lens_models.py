@@ -1,6 +1,6 @@
 """Lens models on the real photo sets: fit RMS and parameters per model, against OpenCV and the references.
 
-For each lens model ``M`` of :data:`dualcal.camera.LENS_MODELS` (``k1k2``, ``k1k2k3``, ``k1k2p1p2``,
+For each lens model ``M`` of :data:`dualcal.geometry.camera.LENS_MODELS` (``k1k2``, ``k1k2k3``, ``k1k2p1p2``,
 ``k1k2p1p2k3``), on corners detected once by dualcal:
 
 * dualcal ``calibrate_rig(corners, model=M, drop_outliers=False)``: on the stereo set
@@ -38,11 +38,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dualcal.board import Board
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import LENS_MODELS
-from dualcal.dataset import open_dataset
-from dualcal.detect import detect_dataset
+from dualcal.geometry.board import Board
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import LENS_MODELS
+from dualcal.files.dataset import open_dataset
+from dualcal.files.detect import detect_dataset
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 #: set name -> (folder, cameras given as NAME=GLOB (none: the folder is one camera), board)

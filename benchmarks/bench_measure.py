@@ -33,10 +33,10 @@ import time
 import cv2
 import numpy as np
 
-from dualcal.calibrate import calibrate_rig
-from dualcal.measurement import measure
-from dualcal.model import CameraCorners, CornerSet
-from dualcal.synth import make_truth, noisy_corner_set
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.estimation.measurement import measure
+from dualcal.geometry.model import CameraCorners, CornerSet
+from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
 PRESETS = ("note8", "stereo")
 

@@ -2,9 +2,9 @@
 
 For three rigs (a horizontal 640x480 stereo pair, the note8 wide + tele with its vertical baseline,
 the triple rig's ultra-wide + tele with focal lengths 1700 and 6100 px) it rectifies pairs of
-rendered photos of the true rig with ``dualcal.stereo``, detects the board in both rectified photos
+rendered photos of the true rig with ``dualcal.files.stereo``, detects the board in both rectified photos
 and prints how far corresponding corners are from sharing a row (a column for a vertical rig), next
-to the same figure for the true corners mapped through :func:`dualcal.stereo.rectify_points` (the
+to the same figure for the true corners mapped through :func:`dualcal.files.stereo.rectify_points` (the
 exact math) and for OpenCV's own rectification (``cv2.stereoRectify`` + ``initUndistortRectifyMap``
 + ``remap``, same rotations and camera) of the same photos.
 """
@@ -18,10 +18,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dualcal.detect import detect_photo
-from dualcal.render import render_view
-from dualcal.stereo import rectify_pair_files, rectify_points, stereo_rectify
-from dualcal.synth import make_truth, true_corners, truth_rig_model
+from dualcal.files.detect import detect_photo
+from dualcal.synthetic.render import render_view
+from dualcal.files.stereo import rectify_pair_files, rectify_points, stereo_rectify
+from dualcal.synthetic.synth import make_truth, true_corners, truth_rig_model
 
 RIGS = [("stereo", "left", "right", 1.0), ("note8", "wide", "tele", 0.5), ("triple", "ultra", "tele", 0.5)]
 

@@ -3,7 +3,7 @@
 For each real set of ``../shared/data`` (corners detected here by ``dualcal.detect_dataset``):
 calibrate two disjoint random halves of the instants with the project's defaults, ``--splits``
 times, and pool ``z = (p_A - p_B) / sqrt(s_A^2 + s_B^2)`` per kind of parameter
-(:mod:`dualcal.validation`): ``sqrt(mean(z^2))`` is about 1 for honest sigmas, larger for sigmas
+(:mod:`dualcal.estimation.validation`): ``sqrt(mean(z^2))`` is about 1 for honest sigmas, larger for sigmas
 that are too small. Printed for dualcal's ``sigma`` (clustered by instant, never below the
 textbook value) and ``sigma_formal`` (the textbook one, what OpenCV's ``calibrateCameraExtended``,
 MATLAB and Bouguet report), side by side; the target for ``sigma`` is 0.7-1.5 for every kind.
@@ -29,11 +29,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dualcal.board import Board
-from dualcal.dataset import open_dataset
-from dualcal.detect import detect_dataset
-from dualcal.model import observed_mask
-from dualcal.validation import GROUPS, instants_of, pooled_spread, split_half_z
+from dualcal.geometry.board import Board
+from dualcal.files.dataset import open_dataset
+from dualcal.files.detect import detect_dataset
+from dualcal.geometry.model import observed_mask
+from dualcal.estimation.validation import GROUPS, instants_of, pooled_spread, split_half_z
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 SETS = {

@@ -33,8 +33,8 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from dualcal.rectify import JPEG_QUALITY, rectify_map, undistort_file, undistort_image
-from dualcal.synth import PRESETS
+from dualcal.files.rectify import JPEG_QUALITY, rectify_map, undistort_file, undistort_image
+from dualcal.synthetic.synth import PRESETS
 
 CAMERA = PRESETS["note8"]["cameras"]["wide"]
 DIST = np.array([CAMERA.k1, CAMERA.k2, 0.0, 0.0])

@@ -68,7 +68,7 @@ def every_calibration_converges(request, monkeypatch):
     solve not to converge says so with ``@pytest.mark.not_converged``."""
     if request.node.get_closest_marker("not_converged"):
         return
-    from dualcal import calibrate
+    from dualcal.estimation import calibrate
 
     package = calibrate.rig_model_from_solution
 

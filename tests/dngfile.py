@@ -1,6 +1,6 @@
 """Writing DNG files for the tests: a rendered board mosaicked to a Bayer raw frame, or linear (pidng).
 
-A render (:func:`dualcal.render.render_view`) is an 8-bit grey photo of a grey board: its value
+A render (:func:`dualcal.synthetic.render.render_view`) is an 8-bit grey photo of a grey board: its value
 ``g`` is taken back to linear light ``(g / 255) ** 2.2`` and each pixel of the colour filter
 array records it through its channel's gain (a neutral scene seen by a sensor whose red and blue
 are less sensitive than its green), on a 12-bit scale above a black level. The DNG says so

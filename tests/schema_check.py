@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from dualcal.io import json_kind
-from dualcal.schemas import SCHEMA_NAMES, validate
+from dualcal.files.io import json_kind
+from dualcal.files.schemas import SCHEMA_NAMES, validate
 
 _BY_FILE_NAME = {"rectify.json": "rectify", "advise.json": "advise"}
 

@@ -1,4 +1,4 @@
-"""The joint adjustment (dualcal.adjust): exact Jacobians on partial views in every rig mode, the
+"""The joint adjustment (dualcal.estimation.adjust): exact Jacobians on partial views in every rig mode, the
 paper's model as the constrained form it replaces, sigma propagation, the per-instant pieces of
 the reduced system, and optimality against an independent solver."""
 
@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from dualcal.adjust import Problem, adjust, cost, initial_state, instant_rows, linearise, residuals
-from dualcal.rig_relations import rig_relation
-from dualcal.calibrate import solve, usable_photos
-from dualcal.camera import CameraModel, project_points
-from dualcal.model import Pose, choose_reference
-from dualcal.poses import relative_pose
-from dualcal.rotation import opk_from_rotation, rotation_from_opk, rotation_from_rotvec, rotvec_from_rotation
-from dualcal.synth import make_truth, noisy_corner_set
+from dualcal.estimation.adjust import Problem, adjust, cost, initial_state, instant_rows, linearise, residuals
+from dualcal.estimation.rig_relations import rig_relation
+from dualcal.estimation.calibrate import solve, usable_photos
+from dualcal.geometry.camera import CameraModel, project_points
+from dualcal.geometry.model import Pose, choose_reference
+from dualcal.geometry.poses import relative_pose
+from dualcal.geometry.rotation import opk_from_rotation, rotation_from_opk, rotation_from_rotvec, rotvec_from_rotation
+from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
 
 def _corners(preset, views, seed, noise, missing=0.3, absent=()):
@@ -33,7 +33,7 @@ def _corners(preset, views, seed, noise, missing=0.3, absent=()):
 
 
 def _setup(corners, mode="rigid", skew=False):
-    """The arguments of :func:`dualcal.calibrate.solve` for ``corners``."""
+    """The arguments of :func:`dualcal.estimation.calibrate.solve` for ``corners``."""
     names = sorted(corners.cameras)
     X = corners.board.object_points_mm()
     sizes = [corners.cameras[n].image_size for n in names]

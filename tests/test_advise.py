@@ -1,4 +1,4 @@
-"""dualcal.advise: which board pose next, predicted from the calibration's covariance."""
+"""dualcal.estimation.advise: which board pose next, predicted from the calibration's covariance."""
 
 from __future__ import annotations
 
@@ -9,10 +9,11 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from dualcal import advise as A
-from dualcal import io, synth
-from dualcal.calibrate import calibrate_rig
-from dualcal.model import Pose
+from dualcal.estimation import advise as A
+from dualcal.files import io
+from dualcal.synthetic import synth
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.model import Pose
 
 
 def _calibration(preset="note8", views=6, seed=1, noise=0.2, **kwargs):
@@ -169,7 +170,7 @@ def test_a_charuco_board_may_be_seen_in_part():
 
 
 def test_the_pose_in_words_says_which_side_is_farther():
-    from dualcal.rotation import rotation_from_rotvec
+    from dualcal.geometry.rotation import rotation_from_rotvec
     centre = np.array([0.0, 0.0, 600.0])
     for axis, angle in ((0, 0.5), (0, -0.5), (1, 0.5), (1, -0.5)):
         R = rotation_from_rotvec(np.eye(3)[axis] * angle)
@@ -317,7 +318,7 @@ def test_the_page_renders_one_outline_per_camera_per_pose(browser, note8, tmp_pa
 
 
 def test_the_report_has_the_advice_section(note8):
-    from dualcal.report import render_report
+    from dualcal.pages.report import render_report
     _, _, rig = note8
     html = render_report(rig)
     parser = _Outlines()

@@ -10,12 +10,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dualcal import synth
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import project_points
-from dualcal.model import CameraCorners, CornerSet, Pose
+from dualcal.synthetic import synth
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import project_points
+from dualcal.geometry.model import CameraCorners, CornerSet, Pose
 from dualcal.progress import collect_warnings
-from dualcal.rotation import rotation_from_opk
+from dualcal.geometry.rotation import rotation_from_opk
 
 
 def _one_bad_instant(seed: int, kind: str, noise: float = 0.05):

@@ -1,6 +1,6 @@
 """The fleet: one Dask task per device on a local cluster of 2 worker processes, against known truth.
 
-The synthetic fleet (:mod:`dualcal.synth_fleet`): 12 units of the note8 rig given as corners.json,
+The synthetic fleet (:mod:`dualcal.synthetic.synth_fleet`): 12 units of the note8 rig given as corners.json,
 each with its own true intrinsics and rig; one triple-camera unit; one unit given as rendered
 photos; and two that must fail (a truncated corners.json, a unit with 2 views). The cluster and
 the first run over the fleet (during which a worker process is killed) are made once per module.
@@ -25,10 +25,10 @@ import pytest
 
 from schema_check import assert_valid
 from dualcal import batch
-from dualcal.io import load_rig, rig_to_dict, save_corners
-from dualcal.report import fleet
-from dualcal.synth import noisy_corner_set, truth_rig_model
-from dualcal.synth_fleet import device_truth, write_device_photos, write_fleet
+from dualcal.files.io import load_rig, rig_to_dict, save_corners
+from dualcal.pages.report import fleet
+from dualcal.synthetic.synth import noisy_corner_set, truth_rig_model
+from dualcal.synthetic.synth_fleet import device_truth, write_device_photos, write_fleet
 
 distributed = pytest.importorskip("dask.distributed")
 
@@ -519,7 +519,7 @@ def test_every_option_batch_takes_from_calibrate_reaches_the_library():
     calibrate_corners' compare_lens) or read_corners, or a board flag: the command sorts them by those names."""
     import inspect
 
-    from dualcal.calibrate import calibrate_rig
+    from dualcal.estimation.calibrate import calibrate_rig
     from dualcal.cli.batch import _PER_DEVICE
     from dualcal.cli.common import BOARD_OPTION_NAMES
     from dualcal.workflow import read_corners

@@ -7,13 +7,13 @@ import cv2
 import numpy as np
 import pytest
 
-from dualcal.board import DICTIONARIES, Board, board_from_spec, dictionary_name, with_default_markers
-from dualcal.boardprint import page_layout, write_board
-from dualcal.detect import detect_photo
-from dualcal.detect.charuco import aruco_dictionary, opencv_board
+from dualcal.geometry.board import DICTIONARIES, Board, board_from_spec, dictionary_name, with_default_markers
+from dualcal.pages.boardprint import page_layout, write_board
+from dualcal.files.detect import detect_photo
+from dualcal.files.detect.charuco import aruco_dictionary, opencv_board
 from dualcal.errors import InputError
-from dualcal.io import corners_from_dict, corners_to_dict, load_corners
-from dualcal.model import CameraCorners, CornerSet
+from dualcal.files.io import corners_from_dict, corners_to_dict, load_corners
+from dualcal.geometry.model import CameraCorners, CornerSet
 
 CONTRACT_ENTRY = {"cols": 10, "rows": 7, "square_mm": 25.0,
                   "charuco": {"squares": [11, 8], "marker_mm": 18.0, "dictionary": "DICT_5X5_100"}}

@@ -12,13 +12,13 @@ import cv2
 import numpy as np
 import pytest
 
-from dualcal.board import sag_mm, shaped_points_mm
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import INTRINSIC_NAMES, project_points
+from dualcal.geometry.board import sag_mm, shaped_points_mm
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import INTRINSIC_NAMES, project_points
 from dualcal.errors import EstimationError, InputError
-from dualcal.model import CameraCorners, CornerSet, Pose
-from dualcal.rotation import rotation_from_rotvec
-from dualcal.synth import make_truth, noisy_corner_set
+from dualcal.geometry.model import CameraCorners, CornerSet, Pose
+from dualcal.geometry.rotation import rotation_from_rotvec
+from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
 
 def _intrinsic_errors(rig, truth):
@@ -402,13 +402,13 @@ def test_rms_and_redundancy_count_only_measured_corners():
 def test_a_solve_that_does_not_converge_says_so(tmp_path, run_cli, monkeypatch):
     """An adjustment cut at 2 iterations: calib.json records converged false and why, and the
     command warns (exit code 0: the result is written, but marked)."""
-    from dualcal import adjust as adjust_module
-    from dualcal.io import save_corners
-    from dualcal.lm import LMOptions
+    from dualcal.estimation import adjust as adjust_module
+    from dualcal.files.io import save_corners
+    from dualcal.estimation.lm import LMOptions
 
     def two_iterations(problem, state, options=None):
         return adjust_module.adjust(problem, state, LMOptions(max_iter=2))
-    monkeypatch.setattr("dualcal.calibrate.adjust", two_iterations)
+    monkeypatch.setattr("dualcal.estimation.calibrate.adjust", two_iterations)
     save_corners(tmp_path / "corners.json", noisy_corner_set(make_truth("note8", 6, seed=3), 0.2, seed=4))
     res = run_cli("calibrate", tmp_path / "corners.json", "-o", tmp_path / "calib.json", "--no-compare-models",
                   "--keep-outliers")

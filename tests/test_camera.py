@@ -9,13 +9,14 @@ import cv2
 
 from dataclasses import replace
 
-from dualcal.camera import (INTRINSIC_NAMES, LENS_MODELS, CameraModel, check_invertible_in_image, distort_normalized,
-                            distort_points, fisheye_max_angle, fold_radius, ideal_normalized_from_pixel,
-                            intrinsic_names, max_distorted_radius, max_monotonic_radius, normalized_from_pixel,
-                            pixel_from_normalized, project_points, project_with_jacobians, ray_directions, undistort,
-                            undistort_normalized, undistort_points, undistort_radius)
+from dualcal.geometry.camera import (INTRINSIC_NAMES, LENS_MODELS, CameraModel, check_invertible_in_image,
+                                     distort_normalized, distort_points, fisheye_max_angle, fold_radius,
+                                     ideal_normalized_from_pixel, intrinsic_names, max_distorted_radius,
+                                     max_monotonic_radius, normalized_from_pixel, pixel_from_normalized, project_points,
+                                     project_with_jacobians, ray_directions, undistort, undistort_normalized,
+                                     undistort_points, undistort_radius)
 from dualcal.errors import NotInvertibleError
-from dualcal.synth import PRESETS
+from dualcal.synthetic.synth import PRESETS
 
 CAM = CameraModel((3024, 4032), 3127.2, 3136.0, 2.5, 1453.7, 2021.1, 0.08, -0.20)
 #: OpenCV's five-coefficient lens (and skew) on the same sensor
@@ -241,9 +242,9 @@ def test_folding_distortion_inside_the_image_is_a_clear_error():
        X=st.tuples(st.floats(-150, 150), st.floats(-150, 150)))
 def test_projection_of_random_poses_back_projects_onto_the_ray(rotvec, t, X):
     """Any board point in front of the camera projects to a pixel whose ray passes through it."""
-    from dualcal.camera import ideal_normalized_from_pixel
-    from dualcal.model import Pose
-    from dualcal.rotation import rotation_from_rotvec
+    from dualcal.geometry.camera import ideal_normalized_from_pixel
+    from dualcal.geometry.model import Pose
+    from dualcal.geometry.rotation import rotation_from_rotvec
     Xc = Pose(rotation_from_rotvec(np.array(rotvec)), np.array(t)).apply(np.array([[X[0], X[1], 0.0]]))
     xy = Xc[:, :2] / Xc[:, 2:]
     if Xc[0, 2] <= 0 or np.hypot(*xy[0]) >= 0.99 * max_monotonic_radius(CAM.k1, CAM.k2):

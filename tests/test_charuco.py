@@ -13,17 +13,17 @@ import cv2
 import numpy as np
 import pytest
 
-from dualcal.board import Board
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import INTRINSIC_NAMES, CameraModel, project_points
-from dualcal.detect import detect_photo, validate_grid
-from dualcal.detect.charuco import check_markers, detect_charuco, opencv_board, resolve_board
+from dualcal.geometry.board import Board
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import INTRINSIC_NAMES, CameraModel, project_points
+from dualcal.files.detect import detect_photo, validate_grid
+from dualcal.files.detect.charuco import check_markers, detect_charuco, opencv_board, resolve_board
 from dualcal.errors import DetectionError
-from dualcal.evaluation import evaluate
-from dualcal.io import load_corners, load_rig
-from dualcal.model import Pose, observed_mask
-from dualcal.render import render_view, write_photo_set
-from dualcal.synth import make_truth, noisy_corner_set, true_corners, truth_rig_model
+from dualcal.estimation.evaluation import evaluate
+from dualcal.files.io import load_corners, load_rig
+from dualcal.geometry.model import Pose, observed_mask
+from dualcal.synthetic.render import render_view, write_photo_set
+from dualcal.synthetic.synth import make_truth, noisy_corner_set, true_corners, truth_rig_model
 
 BOARD = Board.charuco_board((11, 8), 25.0, 18.0, "DICT_5X5_100")
 

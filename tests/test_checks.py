@@ -1,4 +1,4 @@
-"""The checks of a calibration (dualcal.checks): each one passes on a clean synthetic rig and
+"""The checks of a calibration (dualcal.estimation.checks): each one passes on a clean synthetic rig and
 fails, with a message that names the cause, on a rig built to break it."""
 
 import dataclasses
@@ -6,12 +6,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dualcal.calibrate import calibrate_rig, solve, usable_photos
-from dualcal.camera import project_points
-from dualcal.checks import failed_checks, lens_model_fit, verdict
-from dualcal.model import CameraCorners, CornerSet, Pose
-from dualcal.rotation import rotation_from_rotvec
-from dualcal.synth import make_truth, noisy_corner_set, true_corners
+from dualcal.estimation.calibrate import calibrate_rig, solve, usable_photos
+from dualcal.geometry.camera import project_points
+from dualcal.estimation.checks import failed_checks, lens_model_fit, verdict
+from dualcal.geometry.model import CameraCorners, CornerSet, Pose
+from dualcal.geometry.rotation import rotation_from_rotvec
+from dualcal.synthetic.synth import make_truth, noisy_corner_set, true_corners
 
 
 @pytest.fixture(scope="module")
@@ -147,9 +147,9 @@ def test_true_corners_of_every_instant_make_the_check_quiet():
 def test_the_edge_distortion_sigma_is_the_lens_jacobians_with_the_larger_covariance():
     """determination's distortion sigma at the outermost corner: for the paper's radial lens it is
     ``f r (r^2, r^4)`` against the covariance of k1, k2 (with fx = fy), the larger of the two kinds."""
-    from dualcal.checks import _edge_distortion_sigma
-    from dualcal.camera import ideal_normalized_from_pixel
-    from dualcal.covariance import JointCovariance
+    from dualcal.estimation.checks import _edge_distortion_sigma
+    from dualcal.geometry.camera import ideal_normalized_from_pixel
+    from dualcal.estimation.covariance import JointCovariance
 
     truth = make_truth("stereo", 10, seed=3)
     rig = calibrate_rig(noisy_corner_set(truth, 0.1, seed=3), rig_mode="none")
@@ -170,8 +170,8 @@ def test_the_edge_distortion_sigma_is_the_lens_jacobians_with_the_larger_covaria
 def _with_phone_exif(corners, square_mm: float):
     """The corners of a phone (EXIF: wide 4.3 mm = 26 mm equivalent, tele 6.0 mm = 52 mm), on a board whose
     square is said to be ``square_mm`` (the pixels are the same whatever the user says)."""
-    from dualcal.board import Board
-    from dualcal.model import CameraCorners, CornerSet
+    from dualcal.geometry.board import Board
+    from dualcal.geometry.model import CameraCorners, CornerSet
 
     exif = {"wide": {"focal_length_mm": 4.3, "focal_length_35mm_mm": 26.0},
             "tele": {"focal_length_mm": 6.0, "focal_length_35mm_mm": 52.0}}
@@ -182,7 +182,7 @@ def _with_phone_exif(corners, square_mm: float):
 
 def test_a_wrong_square_is_found_where_exif_shows_a_phone():
     """The finding: --square 3 instead of 30 gave a 1.1 mm baseline and a board 8-14 cm away, every check passing."""
-    from dualcal.checks import scale_note
+    from dualcal.estimation.checks import scale_note
 
     truth = make_truth("note8", views=8, seed=1, scale=0.25)
     corners = noisy_corner_set(truth, 0.2, seed=0)

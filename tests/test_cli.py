@@ -2,7 +2,7 @@
 
 import pytest
 
-import dualcal.synth as synth_module
+import dualcal.synthetic.synth as synth_module
 
 COMMANDS = ["detect", "calibrate", "evaluate", "undistort", "rectify", "report", "export", "synth", "pick", "measure"]
 

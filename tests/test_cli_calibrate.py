@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from schema_check import assert_valid
-from dualcal.io import load_rig, save_corners
-from dualcal.synth import make_truth, noisy_corner_set
+from dualcal.files.io import load_rig, save_corners
+from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
 
 @pytest.fixture
@@ -126,7 +126,7 @@ def test_fewer_than_three_usable_views(tmp_path, run_cli):
 def test_degenerate_parallel_views(tmp_path, run_cli):
     truth = make_truth("note8", 1, seed=2)
     base = truth.view_poses["IMG_01"]
-    from dualcal.model import Pose
+    from dualcal.geometry.model import Pose
     for k in range(2, 6):
         truth.view_poses[f"IMG_{k:02d}"] = Pose(base.R.copy(), base.t_mm + [8.0 * k, -4.0 * k, 15.0 * k])
     save_corners(tmp_path / "corners.json", noisy_corner_set(truth, 0.05))
@@ -162,7 +162,7 @@ def test_killed_mid_write_leaves_the_old_output_intact(synth_dir):
     out = synth_dir / "calib.json"
     out.write_text('{"earlier": "result"}\n')
     child = textwrap.dedent(f"""
-        import sys, time, dualcal.io as io
+        import sys, time, dualcal.files.io as io
         real_fsync = io.os.fsync
         def slow_fsync(fd):
             print("writing", flush=True)
@@ -186,7 +186,7 @@ def test_synth_writes_truth_and_noisy_corners(synth_dir):
     assert set(corners["cameras"]) == {"wide", "tele"}
     assert corners["cameras"]["wide"]["image_size"] == [3024, 4032]
     uv = np.array(corners["cameras"]["tele"]["views"]["IMG_01"])
-    from dualcal.camera import project_points
+    from dualcal.geometry.camera import project_points
     exact = project_points(truth.cameras["tele"],
                            truth.camera_poses["tele"]["IMG_01"].apply(truth.board.object_points_mm()))
     assert 0.05 < np.std(uv - exact) < 0.15          # --noise 0.1 px by default

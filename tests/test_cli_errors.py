@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from dualcal.calibrate import calibrate_rig
-from dualcal.io import save_corners, save_rig
-from dualcal.synth import make_truth, noisy_corner_set
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.files.io import save_corners, save_rig
+from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
 
 @pytest.fixture(scope="module")

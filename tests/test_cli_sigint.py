@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 import pytest
 
-from dualcal.io import load_rig, save_rig
-from dualcal.synth import make_truth, truth_rig_model
+from dualcal.files.io import load_rig, save_rig
+from dualcal.synthetic.synth import make_truth, truth_rig_model
 
 pytestmark = pytest.mark.slow
 

@@ -42,8 +42,8 @@ def test_a_command_imports_its_library_when_it_runs():
 def test_calibrating_corners_imports_only_what_it_uses(tmp_path):
     """Issue 23: ``dualcal calibrate corners.json`` (its defaults) needs numpy and the terminal's
     libraries, not scipy (a third of a second to import), OpenCV, Pillow, matplotlib or jinja2."""
-    from dualcal.io import save_corners
-    from dualcal.synth import make_truth, noisy_corner_set
+    from dualcal.files.io import save_corners
+    from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
     corners = tmp_path / "corners.json"
     save_corners(corners, noisy_corner_set(make_truth("stereo", 6, seed=3), 0.1, seed=4))

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from schema_check import assert_valid
-from dualcal.io import calibration_fingerprint, load_corners, load_rig, save_corners, save_rig
-from dualcal.synth import make_truth, noisy_corner_set, truth_rig_model
+from dualcal.files.io import calibration_fingerprint, load_corners, load_rig, save_corners, save_rig
+from dualcal.synthetic.synth import make_truth, noisy_corner_set, truth_rig_model
 
 
 @pytest.fixture(scope="module")
@@ -156,7 +156,7 @@ def test_a_corners_json_with_null_corners_keeps_working(corners_json, tmp_path, 
 
 @pytest.fixture(scope="module")
 def two_calibrations(tmp_path_factory, corners_json):
-    from dualcal.calibrate import calibrate_rig
+    from dualcal.estimation.calibrate import calibrate_rig
 
     d = tmp_path_factory.mktemp("two")
     save_rig(d / "a.json", calibrate_rig(load_corners(corners_json)))

@@ -7,18 +7,18 @@ import cv2
 import numpy as np
 import pytest
 
-from dualcal.board import Board
-from dualcal.camera import project_points
-from dualcal.calibrate import calibrate_rig
-from dualcal.dataset import open_dataset
-from dualcal.detect import detect_dataset, detect_photo
+from dualcal.geometry.board import Board
+from dualcal.geometry.camera import project_points
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.files.dataset import open_dataset
+from dualcal.files.detect import detect_dataset, detect_photo
 from dualcal.errors import InputError
-from dualcal.model import Pose
-from dualcal.render import render_view, write_photo_set
-from dualcal.report import render_report
-from dualcal.render_marks import MARK_KINDS, marks_texture
-from dualcal.rotation import rotation_from_opk
-from dualcal.synth import make_truth, noisy_corner_set, true_corners
+from dualcal.geometry.model import Pose
+from dualcal.synthetic.render import render_view, write_photo_set
+from dualcal.pages.report import render_report
+from dualcal.synthetic.render_marks import MARK_KINDS, marks_texture
+from dualcal.geometry.rotation import rotation_from_opk
+from dualcal.synthetic.synth import make_truth, noisy_corner_set, true_corners
 
 BOARD = Board(13, 9, 20.0)             # 14 x 10 squares, as BoofCV's ECoCheck board of the issue
 SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
@@ -96,7 +96,7 @@ def test_a_board_larger_than_asked_stays_refused(tmp_path):
 def test_another_board_is_suggested_only_for_photos_where_no_grid_of_the_size_was_found(tmp_path, monkeypatch):
     """Where the board's grid was found but failed a later check, its transposed size is not tried (it
     would fail the same check): the hint names the check that failed."""
-    import dualcal.detect.pipeline as pipeline
+    import dualcal.files.detect.pipeline as pipeline
     from dualcal.errors import DetectionError
 
     board = Board(9, 6, 20.0)

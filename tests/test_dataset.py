@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from dualcal.dataset import open_dataset, open_image, read_exif, read_gray
-from dualcal.io import make_output_folder
+from dualcal.files.dataset import open_dataset, open_image, read_exif, read_gray
+from dualcal.files.io import make_output_folder
 from dualcal.errors import InputError
 
 

@@ -11,23 +11,23 @@ import cv2
 import numpy as np
 import pytest
 
-from dualcal.board import Board
-from dualcal.camera import project_points
+from dualcal.geometry.board import Board
+from dualcal.geometry.camera import project_points
 from dualcal.cli import main
-from dualcal.dataset import open_dataset
-from dualcal.detect import (detect_dataset, detect_photo, grid_from_hints, load_hints, neighbour_residuals_px,
-                            save_hints, validate_grid)
-from dualcal.detect.coarse import reduce_image, reduction_factor, to_full_resolution
-from dualcal.detect.grid import OUTLIER_CEIL_FRACTION, local_spacing_px
-from dualcal.detect.manual import CornerClicks, connect_clicks
-from dualcal.detect.refine import drop_outliers
-from dualcal.detect.symmetry import align_symmetric_numbering
+from dualcal.files.dataset import open_dataset
+from dualcal.files.detect import (detect_dataset, detect_photo, grid_from_hints, load_hints, neighbour_residuals_px,
+                                  save_hints, validate_grid)
+from dualcal.files.detect.coarse import reduce_image, reduction_factor, to_full_resolution
+from dualcal.files.detect.grid import OUTLIER_CEIL_FRACTION, local_spacing_px
+from dualcal.files.detect.manual import CornerClicks, connect_clicks
+from dualcal.files.detect.refine import drop_outliers
+from dualcal.files.detect.symmetry import align_symmetric_numbering
 from dualcal.errors import InputError
-from dualcal.io import load_corners
-from dualcal.model import CameraCorners, CornerSet, Pose, observed_mask
-from dualcal.render import render_view, write_photo_set
-from dualcal.rotation import rotation_from_opk
-from dualcal.synth import make_truth, true_corners
+from dualcal.files.io import load_corners
+from dualcal.geometry.model import CameraCorners, CornerSet, Pose, observed_mask
+from dualcal.synthetic.render import render_view, write_photo_set
+from dualcal.geometry.rotation import rotation_from_opk
+from dualcal.synthetic.synth import make_truth, true_corners
 
 
 def _rms(a, b):
@@ -124,8 +124,8 @@ def test_manual_mode_predicts_the_grid_from_four_clicks(tmp_path, monkeypatch):
     predicted = grid_from_hints(clicks, b).reshape(-1, 2)
     assert np.max(np.linalg.norm(predicted - uv_true, axis=1)) < 15
     # force the automatic search to fail, so that the hints are used
-    monkeypatch.setattr("dualcal.detect.pipeline.find_grid", lambda *a, **k: None)
-    monkeypatch.setattr("dualcal.detect.pipeline.find_partial_grid", lambda *a, **k: None)
+    monkeypatch.setattr("dualcal.files.detect.pipeline.find_grid", lambda *a, **k: None)
+    monkeypatch.setattr("dualcal.files.detect.pipeline.find_partial_grid", lambda *a, **k: None)
     assert detect_photo(path, b).uv is None
     res = detect_photo(path, b, hint_uv=clicks)
     assert res.manual and res.uv is not None
@@ -244,7 +244,7 @@ def test_a_symmetric_board_on_a_rig_that_is_not_rigid_is_refused():
 
 
 def test_importing_detection_pulls_in_neither_scipy_nor_matplotlib():
-    code = "import sys, dualcal.detect; print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'matplotlib'}))"
+    code = "import sys, dualcal.files.detect; print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'matplotlib'}))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 
@@ -375,14 +375,14 @@ def test_a_photo_that_breaks_opencv_is_skipped_but_a_bug_is_not_hidden(small_set
     def opencv_fails(*args, **kwargs):
         raise cv2.error("unsupported format")
 
-    monkeypatch.setattr("dualcal.detect.pipeline.measure_grid", opencv_fails)
+    monkeypatch.setattr("dualcal.files.detect.pipeline.measure_grid", opencv_fails)
     res = detect_photo(path, truth.board)
     assert res.uv is None and "unsupported format" in res.reason
 
     def bug(*args, **kwargs):
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr("dualcal.detect.pipeline.measure_grid", bug)
+    monkeypatch.setattr("dualcal.files.detect.pipeline.measure_grid", bug)
     with pytest.raises(ZeroDivisionError):
         detect_photo(path, truth.board)
 
@@ -405,7 +405,7 @@ def test_detect_checks_its_outputs_before_detecting(small_set, tmp_path, run_cli
     def must_not_run(*args, **kwargs):
         raise AssertionError("detection ran before the outputs were checked")
 
-    monkeypatch.setattr("dualcal.detect.pipeline.detect_photo", must_not_run)
+    monkeypatch.setattr("dualcal.files.detect.pipeline.detect_photo", must_not_run)
     res = run_cli("detect", photos, "--board", "8x5", "--square", "30", "-o", tmp_path / "no" / "c.json")
     assert res.code == 2 and len(res.err_lines) == 1 and "does not exist" in res.err
     res = run_cli("detect", photos, "--board", "8x5", "--square", "30", "-o", tmp_path / "c.json",
@@ -493,7 +493,7 @@ def test_escape_skips_and_q_stops(key, outcome):
 def test_pick_hints_turns_clicks_into_full_resolution_corners(small_set, monkeypatch):
     from matplotlib.backend_bases import FigureCanvasBase, KeyEvent, MouseEvent
 
-    from dualcal.detect import pick_hints
+    from dualcal.files.detect import pick_hints
 
     _, photos = small_set
     script = iter([[(10, 20), (200, 20), (200, 300), (10, 300), "enter"],   # accepted
@@ -510,7 +510,7 @@ def test_pick_hints_turns_clicks_into_full_resolution_corners(small_set, monkeyp
                 event = MouseEvent("button_press_event", canvas, *ax.transData.transform(step), button=1)
             canvas.callbacks.process(event.name, event)
 
-    monkeypatch.setattr("dualcal.detect.manual.display_problem", lambda: None)
+    monkeypatch.setattr("dualcal.files.detect.manual.display_problem", lambda: None)
     monkeypatch.setattr(FigureCanvasBase, "start_event_loop", user)
     todo = {"wide": {v: photos / "wide" / f"{v}.jpg" for v in ("IMG_01", "IMG_02", "IMG_03")},
             "tele": {"IMG_01": photos / "tele" / "IMG_01.jpg"}}

@@ -3,7 +3,7 @@
 import pytest
 from scipy.special import betainc, fdtri
 
-from dualcal.distributions import f_quantile, regularized_beta
+from dualcal.estimation.distributions import f_quantile, regularized_beta
 
 
 @pytest.mark.parametrize("d1", [1, 2, 3, 6, 10])

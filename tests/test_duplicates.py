@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dualcal import synth
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import project_points
-from dualcal.duplicates import duplicate_files, find_duplicate_instants, merge_duplicate_instants
-from dualcal.model import CameraCorners, CornerSet
+from dualcal.synthetic import synth
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import project_points
+from dualcal.files.duplicates import duplicate_files, find_duplicate_instants, merge_duplicate_instants
+from dualcal.geometry.model import CameraCorners, CornerSet
 
 NOISE_PX = 0.2
 

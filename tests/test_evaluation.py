@@ -1,4 +1,4 @@
-"""The paper's stereo-intersection check (dualcal.evaluation) and ``dualcal evaluate``."""
+"""The paper's stereo-intersection check (dualcal.estimation.evaluation) and ``dualcal evaluate``."""
 
 import json
 from dataclasses import replace
@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import project_points
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import project_points
 from dualcal.errors import EstimationError, InputError
-from dualcal.evaluation import corner_length_errors, evaluate, pose_free_check, resect_view, stereo_cases
-from dualcal.io import load_evaluation, save_rig
-from dualcal.model import Pose, observed_mask
-from dualcal.resection import resect
-from dualcal.rotation import rotation_from_rotvec, rotvec_from_rotation
-from dualcal.synth import make_truth, noisy_corner_set, true_corners, truth_rig_model
+from dualcal.estimation.evaluation import corner_length_errors, evaluate, pose_free_check, resect_view, stereo_cases
+from dualcal.files.io import load_evaluation, save_rig
+from dualcal.geometry.model import Pose, observed_mask
+from dualcal.geometry.resection import resect
+from dualcal.geometry.rotation import rotation_from_rotvec, rotvec_from_rotation
+from dualcal.synthetic.synth import make_truth, noisy_corner_set, true_corners, truth_rig_model
 
 IDENTITY = Pose(np.eye(3), np.zeros(3))
 FLOOR_FACTOR = 1.25
@@ -216,7 +216,7 @@ def test_holdout_folds_repeat_the_calibration(monkeypatch, options, expected):
         folds.append(({(c, v) for c, cc in fold_corners.cameras.items() for v in cc.found()}, kwargs))
         return truth_rig_model(truth)
 
-    monkeypatch.setattr("dualcal.calibrate.calibrate_rig", fold)
+    monkeypatch.setattr("dualcal.estimation.calibrate.calibrate_rig", fold)
     doc = evaluate(rig, holdout=True, progress=False)
     views = sorted(truth.view_poses)
     assert len(folds) == len(views)
@@ -328,7 +328,7 @@ def test_pose_free_check_catches_a_focal_length_1_percent_off_where_tables_5_6_b
     for key in ("fx", "fy"):
         doc["cameras"]["tele"][key] *= 1.01
     (tmp_path / "off.json").write_text(json.dumps(doc))
-    from dualcal.io import load_rig
+    from dualcal.files.io import load_rig
     off = load_rig(tmp_path / "off.json")
     before, after = _paper_tables(rig), _paper_tables(off)
     assert list(before) == ["dual", "wide", "tele"]

@@ -16,12 +16,13 @@ import cv2
 import numpy as np
 import pytest
 
-from dualcal import io, synth
-from dualcal.camera import project_points
+from dualcal.files import io
+from dualcal.synthetic import synth
+from dualcal.geometry.camera import project_points
 from dualcal.errors import InputError
-from dualcal.export import (FORMATS, _yaml_float, colmap_cameras_txt, export_files,
-                            kalibr_yaml, mrcal_cameramodel, mrcal_paths, write_export)
-from dualcal.rotation import rotation_from_rotvec
+from dualcal.pages.export import (FORMATS, _yaml_float, colmap_cameras_txt, export_files, kalibr_yaml,
+                                  mrcal_cameramodel, mrcal_paths, write_export)
+from dualcal.geometry.rotation import rotation_from_rotvec
 
 yaml = pytest.importorskip("yaml", reason="pyyaml (test extra) parses the Kalibr export")
 

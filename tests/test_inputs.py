@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from dualcal.dataset import open_dataset
+from dualcal.files.dataset import open_dataset
 from dualcal.errors import InputError
-from dualcal.photos import check_plausible_photo, open_image, read_gray
+from dualcal.files.photos import check_plausible_photo, open_image, read_gray
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:

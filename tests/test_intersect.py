@@ -1,15 +1,15 @@
-"""Space intersection (dualcal.intersect): exact rays, least-squares optimality, degenerate cases."""
+"""Space intersection (dualcal.estimation.intersect): exact rays, least-squares optimality, degenerate cases."""
 
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from dualcal.camera import CameraModel, project_points
+from dualcal.geometry.camera import CameraModel, project_points
 from dualcal.errors import EstimationError
-from dualcal.intersect import intersect_rays, triangulate, viewing_rays
-from dualcal.model import Pose
-from dualcal.rotation import rotation_from_rotvec
-from dualcal.synth import make_truth
+from dualcal.estimation.intersect import intersect_rays, triangulate, viewing_rays
+from dualcal.geometry.model import Pose
+from dualcal.geometry.rotation import rotation_from_rotvec
+from dualcal.synthetic.synth import make_truth
 
 WIDE = CameraModel((3024, 4032), 3127.2, 3136.0, 0.0, 1453.7, 2021.1, 0.08, -0.20)
 TELE = CameraModel((3024, 4032), 6058.7, 6076.3, 2.5, 1373.1, 1971.9, -0.12, 0.80)

@@ -7,11 +7,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from dualcal.calibrate import calibrate_rig
+from dualcal.estimation.calibrate import calibrate_rig
 from dualcal.errors import InputError
-from dualcal.io import (corners_from_dict, corners_to_dict, json_kind, load_corners, load_rig,
-                        rig_from_dict, rig_to_dict, save_corners, save_rig, write_text_atomic)
-from dualcal.synth import make_truth, noisy_corner_set
+from dualcal.files.io import (corners_from_dict, corners_to_dict, json_kind, load_corners, load_rig, rig_from_dict,
+                              rig_to_dict, save_corners, save_rig, write_text_atomic)
+from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
 
 @pytest.fixture(scope="module")
@@ -199,7 +199,7 @@ def test_valid_corner_documents_round_trip(cols, rows, data):
 
 
 def test_a_failed_write_keeps_the_old_file(tmp_path, monkeypatch):
-    import dualcal.io as io_module
+    import dualcal.files.io as io_module
     target = tmp_path / "out.json"
     target.write_text("old")
 

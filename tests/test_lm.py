@@ -1,4 +1,4 @@
-"""Levenberg-Marquardt (dualcal.lm) on a small separable problem with a known optimum.
+"""Levenberg-Marquardt (dualcal.estimation.lm) on a small separable problem with a known optimum.
 
 The model: instant ``v`` measures ``y_vi = a_v exp(-b t_i) + c`` plus noise; ``b`` and ``c`` are
 global, each ``a_v`` local. scipy's least_squares gives the reference optimum.
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from dualcal.lm import LMOptions, levenberg_marquardt
-from dualcal.normal_equations import NormalEquations
+from dualcal.estimation.lm import LMOptions, levenberg_marquardt
+from dualcal.estimation.normal_equations import NormalEquations
 
 T = np.linspace(0.0, 4.0, 15)
 V = 5

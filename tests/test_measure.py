@@ -1,4 +1,4 @@
-"""Measuring with a calibrated rig (dualcal.measurement), ``dualcal measure`` and its pick page.
+"""Measuring with a calibrated rig (dualcal.estimation.measurement), ``dualcal measure`` and its pick page.
 
 The Monte Carlo tests draw the calibration photos' corner noise and the measured pixels' noise
 afresh in every draw, calibrate, measure one dual shot of a tilted 3 x 3 grid of points at two
@@ -16,14 +16,14 @@ import pytest
 from PIL import Image
 
 from schema_check import assert_valid
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import project_points
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import project_points
 from dualcal.errors import EstimationError, InputError
-from dualcal.io import load_points, save_rig
-from dualcal.measurement import _covariances, calibration_pixel_sigma, intersect_point, measure
-from dualcal.model import Pose
-from dualcal.rotation import rotation_from_opk, rotation_from_rotvec
-from dualcal.synth import make_truth, noisy_corner_set, truth_rig_model
+from dualcal.files.io import load_points, save_rig
+from dualcal.estimation.measurement import _covariances, calibration_pixel_sigma, intersect_point, measure
+from dualcal.geometry.model import Pose
+from dualcal.geometry.rotation import rotation_from_opk, rotation_from_rotvec
+from dualcal.synthetic.synth import make_truth, noisy_corner_set, truth_rig_model
 
 CORNER_NOISE_PX = 0.3     # of the calibration photos' corners, px per coordinate
 PIXEL_SIGMA = 0.3         # of the measured points' pixels
@@ -401,7 +401,7 @@ def test_the_pick_page_exports_the_clicked_full_resolution_pixels(browser, note8
 def _dense_reference(rig, points: dict) -> tuple[dict, dict]:
     """The points' and lengths' sigmas from the full 3P x 3P covariance (the computation measure made before it
     went to fixed-size blocks): ``({point: sigma_mm (3,)}, {(a, b): (sigma_mm, bias_mm)})``."""
-    from dualcal.measurement import COVARIANCE_KINDS, _covariances, _pixel_sigmas, intersect_point
+    from dualcal.estimation.measurement import COVARIANCE_KINDS, _covariances, _pixel_sigmas, intersect_point
 
     index, cov_theta = _covariances(rig)
     sigma_px, _ = _pixel_sigmas(rig, points.get("pixel_sigma"))

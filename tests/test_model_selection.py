@@ -5,13 +5,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import intrinsic_names, project_points
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import intrinsic_names, project_points
 from dualcal.errors import EstimationError
-from dualcal.evaluation import resect_view
-from dualcal.model_selection import compare_lens_models, rig_fit, score_lens_models
-from dualcal.synth import make_truth, noisy_corner_set
-from dualcal.validation import instants_of
+from dualcal.estimation.evaluation import resect_view
+from dualcal.estimation.model_selection import compare_lens_models, rig_fit, score_lens_models
+from dualcal.synthetic.synth import make_truth, noisy_corner_set
+from dualcal.estimation.validation import instants_of
 
 FLAT = dict(rig_mode="rigid", drop_outliers=False, board_shape="flat")
 
@@ -129,7 +129,7 @@ def test_auto_recovers_every_intrinsic_and_the_rig_within_4_sigma(phone3_auto):
 def test_an_instant_one_model_cannot_predict_is_left_out_of_every_score_and_said():
     """Issue 23: the models are scored on the same instants; one that a model can only fit, not predict
     (it alone determines some of its terms), is left out for all of them, with a warning naming it."""
-    from dualcal.model_selection import score_lens_models
+    from dualcal.estimation.model_selection import score_lens_models
     from dualcal.progress import collect_warnings
 
     def fake(rms):

@@ -14,14 +14,14 @@ import pytest
 from PIL import Image
 from rich.table import Table
 
-from dualcal import synth
+from dualcal.synthetic import synth
 from dualcal.batch import (BatchOptions, Device, calibrate_device, csv_safe_cell, find_devices, input_snapshot,
                            write_fleet_tables)
 from dualcal.cli.common import stdout_console
 from dualcal.errors import InputError
-from dualcal.io import save_corners
+from dualcal.files.io import save_corners
 from dualcal.progress import warn
-from dualcal.report.pick import render_pick_page, script_json
+from dualcal.pages.report.pick import render_pick_page, script_json
 from dualcal.terminal import printable
 
 HOSTILE = ["=HYPERLINK(\"http://x\",\"y\")", "+cmd|' /C calc'!A0", "-2+3", "@SUM(A1)", "\tx", "\rx"]

@@ -1,9 +1,9 @@
-"""Block normal equations (dualcal.normal_equations) against the same algebra on dense matrices."""
+"""Block normal equations (dualcal.estimation.normal_equations) against the same algebra on dense matrices."""
 
 import numpy as np
 import pytest
 
-from dualcal.normal_equations import NormalEquations
+from dualcal.estimation.normal_equations import NormalEquations
 
 G, V, L = 5, 4, 3
 

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from dualcal.io import write_text_atomic
+from dualcal.files.io import write_text_atomic
 from dualcal.parallel import Cancelled, interruptible_map, raise_if_cancelled
 
 

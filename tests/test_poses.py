@@ -1,13 +1,13 @@
-"""Pose algebra (dualcal.poses): increments, directions on the sphere, the omega-phi-kappa Jacobian."""
+"""Pose algebra (dualcal.geometry.poses): increments, directions on the sphere, the omega-phi-kappa Jacobian."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dualcal.model import Pose
-from dualcal.poses import moved_on_sphere, opk_jacobian, relative_pose, rotated, tangent_basis
-from dualcal.rotation import opk_from_rotation, rotation_from_opk, rotation_from_rotvec
+from dualcal.geometry.model import Pose
+from dualcal.geometry.poses import moved_on_sphere, opk_jacobian, relative_pose, rotated, tangent_basis
+from dualcal.geometry.rotation import opk_from_rotation, rotation_from_opk, rotation_from_rotvec
 
 unit_vectors = st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda v: np.linalg.norm(v) > 0.1).map(
     lambda v: np.array(v) / np.linalg.norm(v))

@@ -1,4 +1,4 @@
-"""RAW (DNG) photos (dualcal.photos): read as the sensor recorded them, detected, calibrated.
+"""RAW (DNG) photos (dualcal.files.photos): read as the sensor recorded them, detected, calibrated.
 
 The DNGs are written by ``tests/dngfile.py`` (pidng): a render of the board with known truth,
 mosaicked to a Bayer frame, so every test knows what each sensor pixel holds.
@@ -15,20 +15,20 @@ import pytest
 import rawpy
 from dngfile import write_dng, write_linear_dng
 
-from dualcal.board import Board
-from dualcal.calibrate import calibrate_rig
-from dualcal.dataset import open_dataset
-from dualcal.detect import detect_dataset, detect_photo
+from dualcal.geometry.board import Board
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.files.dataset import open_dataset
+from dualcal.files.detect import detect_dataset, detect_photo
 from dualcal.errors import InputError
-from dualcal.photos import (PHOTO_SUFFIXES, Photo, jobs_within_memory, open_image, read_exif, read_gray,
-                            source_format)
-from dualcal.rectify import undistort_files
-from dualcal.render import photo_seed, render_view, write_photo_set
-from dualcal.io import load_rig, save_rig
-from dualcal.report import render_report
-from dualcal.report.html import source_formats
-from dualcal.stereo import rectify_pair_files, stereo_rectify
-from dualcal.synth import make_truth, true_corners, truth_rig_model
+from dualcal.files.photos import (PHOTO_SUFFIXES, Photo, jobs_within_memory, open_image, read_exif, read_gray,
+                                  source_format)
+from dualcal.files.rectify import undistort_files
+from dualcal.synthetic.render import photo_seed, render_view, write_photo_set
+from dualcal.files.io import load_rig, save_rig
+from dualcal.pages.report import render_report
+from dualcal.pages.report.html import source_formats
+from dualcal.files.stereo import rectify_pair_files, stereo_rectify
+from dualcal.synthetic.synth import make_truth, true_corners, truth_rig_model
 
 
 def _smooth_image(shape=(48, 64), seed=0) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Rectification (dualcal.rectify) and the undistort command: round trips, straight lines,
+"""Rectification (dualcal.files.rectify) and the undistort command: round trips, straight lines,
 agreement with OpenCV, bands, output matrices, EXIF, and the errors users can cause."""
 
 import json
@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from dualcal.camera import (CameraModel, check_invertible_in_image, distort_points, normalized_from_pixel,
-                            pixel_from_normalized, project_points, undistort_points)
+from dualcal.geometry.camera import (CameraModel, check_invertible_in_image, distort_points, normalized_from_pixel,
+                                     pixel_from_normalized, project_points, undistort_points)
 from dualcal.errors import InputError, NotInvertibleError
-from dualcal.io import save_rig
-from dualcal.dataset import open_image, read_exif
-from dualcal.rectify import (KEEP_MODES, _pixels, _undistort_task, rectified_camera, rectify_map, undistort_file,
-                             undistort_image)
-from dualcal.synth import PRESETS, make_truth, scale_camera, truth_rig_model
+from dualcal.files.io import save_rig
+from dualcal.files.dataset import open_image, read_exif
+from dualcal.files.rectify import (KEEP_MODES, _pixels, _undistort_task, rectified_camera, rectify_map, undistort_file,
+                                   undistort_image)
+from dualcal.synthetic.synth import PRESETS, make_truth, scale_camera, truth_rig_model
 
 ALL_CAMERAS = {f"{preset}-{name}": cam for preset, p in PRESETS.items() for name, cam in p["cameras"].items()}
 STEREO_LEFT = PRESETS["stereo"]["cameras"]["left"]                       # 640 x 480, strong barrel
@@ -291,14 +291,14 @@ def test_a_photo_that_breaks_a_library_is_skipped_but_a_bug_is_not_hidden(tmp_pa
     for error in (cv2.error("bad depth"), OSError(28, "No space left on device"), ValueError("bad mode")):
         def fail(*args, error=error):
             raise error
-        monkeypatch.setattr("dualcal.rectify.undistort_file", fail)
+        monkeypatch.setattr("dualcal.files.rectify.undistort_file", fail)
         message = _undistort_task(task)
         assert message.startswith(f"{tmp_path / 'left01.jpg'}: ") and type(error).__name__ in message
 
     def bug(*args):
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr("dualcal.rectify.undistort_file", bug)
+    monkeypatch.setattr("dualcal.files.rectify.undistort_file", bug)
     with pytest.raises(ZeroDivisionError):
         _undistort_task(task)
 

@@ -6,11 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from dualcal.board import Board
-from dualcal.camera import project_points
-from dualcal.detect.refine import fit_saddles
-from dualcal.render import _box_mean, _square_wave_integral, board_coordinates, render_view, write_photo_set
-from dualcal.synth import make_truth, true_corners
+from dualcal.geometry.board import Board
+from dualcal.geometry.camera import project_points
+from dualcal.files.detect.refine import fit_saddles
+from dualcal.synthetic.render import _box_mean, _square_wave_integral, board_coordinates, render_view, write_photo_set
+from dualcal.synthetic.synth import make_truth, true_corners
 
 
 @pytest.fixture(scope="module")

@@ -12,12 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dualcal import io, synth
-from dualcal.calibrate import outlier_limit_px
-from dualcal.camera import CameraModel, distort_normalized, max_distorted_radius, project_points, undistort_points
-from dualcal.model import CameraCorners, CornerSet, Pose
-from dualcal.report import analysis, figures, html as report_html, render_report
-from dualcal.tables import photo_status
+from dualcal.files import io
+from dualcal.synthetic import synth
+from dualcal.estimation.calibrate import outlier_limit_px
+from dualcal.geometry.camera import (CameraModel, distort_normalized, max_distorted_radius, project_points,
+                                     undistort_points)
+from dualcal.geometry.model import CameraCorners, CornerSet, Pose
+from dualcal.pages.report import analysis, figures, html as report_html, render_report
+from dualcal.pages.tables import photo_status
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 NOISE_PX = 0.3
@@ -639,10 +641,10 @@ def test_end_to_end_real_stereo_photos(tmp_path, run_cli):
     """
     import cv2
 
-    from dualcal.board import Board
-    from dualcal.calibrate import calibrate_rig
-    from dualcal.dataset import open_dataset
-    from dualcal.detect.pipeline import detect_dataset
+    from dualcal.geometry.board import Board
+    from dualcal.estimation.calibrate import calibrate_rig
+    from dualcal.files.dataset import open_dataset
+    from dualcal.files.detect.pipeline import detect_dataset
 
     ds = open_dataset(None, [f"left={STEREO}/left*.jpg", f"right={STEREO}/right*.jpg"])
     corners = detect_dataset(ds, Board(9, 6, 30.0), jobs=1, progress=False)
@@ -666,8 +668,8 @@ def test_the_verdict_the_checks_the_board_shape_and_both_sigmas_are_on_the_page(
     """A calibration of a bent board whose corners are far off (1.5 px): the verdict and the
     failing fit check at the top, the board's shape in the summary, the textbook sigma beside
     every sigma."""
-    from dualcal.board import shaped_points_mm
-    from dualcal.calibrate import calibrate_rig
+    from dualcal.geometry.board import shaped_points_mm
+    from dualcal.estimation.calibrate import calibrate_rig
 
     truth = synth.make_truth("stereo", 10, seed=3)
     X = shaped_points_mm(truth.board.object_points_mm(), np.array([0.8, 0.0, 0.6]))

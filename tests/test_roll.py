@@ -1,4 +1,4 @@
-"""A phone's camera roll (dualcal.roll): cameras by EXIF, instants by capture time, retakes, sidecars."""
+"""A phone's camera roll (dualcal.files.roll): cameras by EXIF, instants by capture time, retakes, sidecars."""
 
 import json
 from datetime import datetime, timedelta
@@ -7,13 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dualcal import roll, synth
+from dualcal.files import roll
+from dualcal.synthetic import synth
 from dualcal.errors import InputError
-from dualcal.photos import Photo
-from dualcal.synth_roll import equivalent_focal_of, write_camera_roll
+from dualcal.files.photos import Photo
+from dualcal.synthetic.synth_roll import equivalent_focal_of, write_camera_roll
 from dualcal.workflow import calibrate_corners, read_corners
-from dualcal.board import Board
-from dualcal.camera import LENS_MODELS
+from dualcal.geometry.board import Board
+from dualcal.geometry.camera import LENS_MODELS
 
 T0 = datetime(2026, 11, 30, 9, 0, 0)
 
@@ -113,7 +114,7 @@ def rendered_roll(tmp_path_factory):
 
 def test_a_rendered_roll_is_split_as_it_was_shot(rendered_roll, capsys):
     truth, folder, shot = rendered_roll
-    from dualcal.dataset import open_dataset
+    from dualcal.files.dataset import open_dataset
 
     ds = open_dataset(folder)
     err = capsys.readouterr().err
@@ -179,7 +180,7 @@ def test_synth_writes_a_roll_and_board_suggests_a_board_for_its_cameras(tmp_path
 def test_a_copied_photo_counts_once_in_a_roll_and_in_a_camera_folder(rendered_roll, tmp_path, capsys):
     import shutil
 
-    from dualcal.dataset import open_dataset
+    from dualcal.files.dataset import open_dataset
 
     truth, folder, shot = rendered_roll
     roll = tmp_path / "roll"
@@ -204,7 +205,7 @@ def test_a_folder_of_one_camera_keeps_the_copies_it_left_out(rendered_roll, tmp_
     """One camera's flat folder: its copies are found once and recorded (identical_files)."""
     import shutil
 
-    from dualcal.dataset import open_dataset
+    from dualcal.files.dataset import open_dataset
 
     truth, folder, shot = rendered_roll
     cam = tmp_path / "tele"

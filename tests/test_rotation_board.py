@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from dualcal.board import Board, is_black_square, parse_board_spec
+from dualcal.geometry.board import Board, is_black_square, parse_board_spec
 from dualcal.errors import InputError
-from dualcal.rotation import (cross_matrix, nearest_rotation, opk_from_rotation, rotation_from_opk,
-                              rotation_from_rotvec, rotvec_from_rotation)
+from dualcal.geometry.rotation import (cross_matrix, nearest_rotation, opk_from_rotation, rotation_from_opk,
+                                       rotation_from_rotvec, rotvec_from_rotation)
 
 
 def _Rx(a):

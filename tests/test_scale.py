@@ -1,16 +1,16 @@
-"""The board's scale (dualcal.scale): the printed squares' tolerance in every length-like sigma."""
+"""The board's scale (dualcal.geometry.scale): the printed squares' tolerance in every length-like sigma."""
 
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from dualcal import synth
-from dualcal.board import Board
-from dualcal.calibrate import calibrate_rig
-from dualcal.camera import project_points
-from dualcal.measurement import measure
-from dualcal.scale import scale_share, with_scale, with_scale_in_measurement
+from dualcal.synthetic import synth
+from dualcal.geometry.board import Board
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import project_points
+from dualcal.estimation.measurement import measure
+from dualcal.geometry.scale import scale_share, with_scale, with_scale_in_measurement
 
 
 def _with_tolerance(corners, sigma_mm, square_mm=None):

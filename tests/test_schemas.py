@@ -11,10 +11,10 @@ import jsonschema
 import pytest
 from schema_check import assert_valid
 
-from dualcal import synth
+from dualcal.synthetic import synth
 from dualcal.errors import InputError
-from dualcal.io import load_corners, load_rig, save_corners, save_rig
-from dualcal.schemas import SCHEMA_NAMES, schema, validate
+from dualcal.files.io import load_corners, load_rig, save_corners, save_rig
+from dualcal.files.schemas import SCHEMA_NAMES, schema, validate
 
 
 @pytest.mark.parametrize("name", SCHEMA_NAMES)
@@ -138,7 +138,7 @@ def test_a_corners_json_with_nan_or_a_wrong_type_is_refused(stereo, tmp_path):
 def test_the_one_pass_corner_check_agrees_with_the_schema(stereo, tmp_path, bad):
     """validate() checks the corner lists in one pass of its own (the bulk of a file): it refuses what the
     full schema refuses, naming the corner."""
-    from dualcal.schemas import _validator
+    from dualcal.files.schemas import _validator
 
     save_rig(tmp_path / "calib.json", stereo[1])
     doc = json.loads((tmp_path / "calib.json").read_text())

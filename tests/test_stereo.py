@@ -1,4 +1,4 @@
-"""Stereo rectification (dualcal.stereo) and `dualcal rectify`: rows (columns) of corresponding points
+"""Stereo rectification (dualcal.files.stereo) and `dualcal rectify`: rows (columns) of corresponding points
 agree, OpenCV's conventions hold, maps and points agree, real rendered photos line up."""
 
 from __future__ import annotations
@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 
 from schema_check import assert_valid
-from dualcal.detect import detect_photo
+from dualcal.files.detect import detect_photo
 from dualcal.errors import EstimationError, InputError
-from dualcal.io import save_rig
-from dualcal.model import Pose
-from dualcal.camera import project_points
-from dualcal.rectify import rectify_map
-from dualcal.render import render_view
-from dualcal.stereo import rectify_points, stereo_rectify
-from dualcal.synth import make_truth, true_corners, truth_rig_model
+from dualcal.files.io import save_rig
+from dualcal.geometry.model import Pose
+from dualcal.geometry.camera import project_points
+from dualcal.files.rectify import rectify_map
+from dualcal.synthetic.render import render_view
+from dualcal.files.stereo import rectify_points, stereo_rectify
+from dualcal.synthetic.synth import make_truth, true_corners, truth_rig_model
 
 # (preset, first camera, second camera, vertical): a horizontal stereo rig, the note8 wide + tele
 # (baseline along the columns), and ultra-wide + tele of the triple rig (focal lengths 1700 and 6100 px)

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from dualcal.camera import normalized_from_pixel, undistort
-from dualcal.synth import PRESETS, make_truth, noisy_corner_set, true_corners
+from dualcal.geometry.camera import normalized_from_pixel, undistort
+from dualcal.synthetic.synth import PRESETS, make_truth, noisy_corner_set, true_corners
 
 
 def test_phone3_is_a_three_lens_phone_with_a_fisheye_ultra_wide():

@@ -7,8 +7,8 @@ cluster (like the intrinsics) and one local parameter per cluster (like its boar
 import numpy as np
 import pytest
 
-from dualcal.uncertainty import (ClusterRows, cluster_scores, clustered_covariance, held_out_residuals,
-                                 leverage_adjusted_residuals)
+from dualcal.estimation.uncertainty import (ClusterRows, cluster_scores, clustered_covariance, held_out_residuals,
+                                            leverage_adjusted_residuals)
 
 G, M, P = 10, 30, 3          # clusters, rows per cluster, global parameters
 

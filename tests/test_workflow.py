@@ -5,11 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from dualcal import synth, workflow
+from dualcal.synthetic import synth
+from dualcal import workflow
 from dualcal.batch import BatchOptions, Device, calibrate_device, input_snapshot
-from dualcal.board import Board
+from dualcal.geometry.board import Board
 from dualcal.errors import InputError
-from dualcal.io import rig_to_dict, save_corners
+from dualcal.files.io import rig_to_dict, save_corners
 from dualcal.progress import collect_warnings, warn
 
 

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import dualcal.io as io_module
+import dualcal.files.io as io_module
 from dualcal.errors import OutputError
-from dualcal.io import (TEMP_MARK, clean_stale_temporaries, make_output_folder, write_bytes_atomic,
-                        write_json_atomic, write_text_atomic)
-from dualcal.synth import make_truth, truth_rig_model
+from dualcal.files.io import (TEMP_MARK, clean_stale_temporaries, make_output_folder, write_bytes_atomic,
+                              write_json_atomic, write_text_atomic)
+from dualcal.synthetic.synth import make_truth, truth_rig_model
 
 
 def _leftovers(folder: Path) -> list[str]:
@@ -81,7 +81,7 @@ def test_a_sigkilled_write_is_cleaned_on_the_next_run_into_that_folder(tmp_path)
     """A process killed (SIGKILL) in the middle of a write leaves its temporary file; the next run into that
     folder removes it."""
     import sys
-    code = ("import os, time, dualcal.io as io\n"
+    code = ("import os, time, dualcal.files.io as io\n"
             "def stuck(fd, data):\n    os.write(fd, bytes(data[:10]))\n    time.sleep(60)\n"
             "io._write_all = stuck\n"
             f"io.write_text_atomic({str(tmp_path / 'calib.json')!r}, 'x' * 1000)\n")
@@ -152,7 +152,7 @@ def test_a_read_only_output_folder_is_found_before_the_work(tmp_path, stereo_cal
         with pytest.raises(OutputError, match="cannot write there"):
             make_output_folder(ro)
         worked = []
-        monkeypatch.setattr("dualcal.rectify._undistort_task", lambda task: worked.append(task))
+        monkeypatch.setattr("dualcal.files.rectify._undistort_task", lambda task: worked.append(task))
         res = run_cli("undistort", stereo_calib, "--camera", "left", photo, "-o", ro)
         assert res.code == 2 and "cannot write there" in res.err and worked == []
         res = run_cli("evaluate", stereo_calib, "-o", ro / "eval.json")

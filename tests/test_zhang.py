@@ -5,13 +5,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dualcal.camera import LENS_MODELS, ideal_normalized_from_pixel, project_points
+from dualcal.geometry.camera import LENS_MODELS, ideal_normalized_from_pixel, project_points
 from dualcal.errors import EstimationError
-from dualcal.rotation import rotation_from_opk
-from dualcal.model import Pose
-from dualcal.synth import make_truth, true_corners
-from dualcal.zhang import (apply_homography, estimate_homography, extrinsics_from_homography, initial_camera,
-                           intrinsics_from_homographies, radial_distortion_linear, spans_a_plane)
+from dualcal.geometry.rotation import rotation_from_opk
+from dualcal.geometry.model import Pose
+from dualcal.synthetic.synth import make_truth, true_corners
+from dualcal.geometry.zhang import (apply_homography, estimate_homography, extrinsics_from_homography, initial_camera,
+                                    intrinsics_from_homographies, radial_distortion_linear, spans_a_plane)
 
 
 def _pinhole_views(truth, name, skew=0.0):
@@ -172,7 +172,7 @@ def test_linear_k1_k2_that_fold_the_lens_where_the_corners_are_start_at_zero(mon
     truth = make_truth("note8", 6, seed=14)
     cam, xy, views = _pinhole_views(truth, "tele")
     bad = dataclasses.replace(cam, fx=4 * cam.fx, fy=4 * cam.fy, cx=2900.0, cy=300.0)
-    monkeypatch.setattr("dualcal.zhang.intrinsics_from_homographies", lambda *args, **kwargs: bad)
+    monkeypatch.setattr("dualcal.geometry.zhang.intrinsics_from_homographies", lambda *args, **kwargs: bad)
     est, _ = initial_camera(xy, views, cam.image_size)
     assert est.k1 == est.k2 == 0.0
     for uv in views.values():
@@ -182,14 +182,14 @@ def test_linear_k1_k2_that_fold_the_lens_where_the_corners_are_start_at_zero(mon
 def test_a_pose_with_corners_behind_the_camera_is_replaced_by_resection(monkeypatch):
     truth = make_truth("note8", 5, seed=15)
     cam, xy, views = _pinhole_views(truth, "wide")
-    from dualcal import zhang
+    from dualcal.geometry import zhang
     original = zhang.extrinsics_from_homography
 
     def mirrored_first(K, H, calls=[]):
         calls.append(1)
         pose = original(K, H)
         return Pose(pose.R, -pose.t_mm) if len(calls) == 1 else pose
-    monkeypatch.setattr("dualcal.zhang.extrinsics_from_homography", mirrored_first)
+    monkeypatch.setattr("dualcal.geometry.zhang.extrinsics_from_homography", mirrored_first)
     _, poses = initial_camera(xy, views, cam.image_size)
     np.testing.assert_allclose(poses["IMG_01"].t_mm, truth.camera_pose("wide", "IMG_01").t_mm, atol=1e-6)
 

@@ -14,26 +14,33 @@ Names are imported on first use, so ``import dualcal`` stays light.
 
 __version__ = "0.1.0"
 
+#: The layers of the library, in order: a module imports only from its own layer, those before it and
+#: the cross-cutting modules beside this file (README, "Architecture"; tests/test_layout.py).
+_LAYERS = ("geometry", "files", "synthetic", "estimation", "pages")
+_CROSS_CUTTING = ("errors", "extras", "parallel", "progress", "terminal")
+
 _API = {
     # data and models
-    "Board": "board", "CameraModel": "camera", "Pose": "model", "CornerSet": "model",
-    "CameraCorners": "model", "RigModel": "model", "RigRelation": "model",
+    "Board": "geometry.board", "CameraModel": "geometry.camera", "Pose": "geometry.model",
+    "CornerSet": "geometry.model",
+    "CameraCorners": "geometry.model", "RigModel": "geometry.model", "RigRelation": "geometry.model",
     # the math
-    "project_points": "camera", "undistort_points": "camera", "distort_points": "camera",
-    "calibrate_rig": "calibrate", "triangulate": "intersect", "evaluate": "evaluation",
-    "measure": "measurement",
-    "undistort_image": "rectify", "rectified_camera": "rectify",
-    "stereo_rectify": "stereo", "rectify_points": "stereo", "StereoRectification": "stereo",
+    "project_points": "geometry.camera", "undistort_points": "geometry.camera", "distort_points": "geometry.camera",
+    "calibrate_rig": "estimation.calibrate", "triangulate": "estimation.intersect", "evaluate": "estimation.evaluation",
+    "measure": "estimation.measurement",
+    "undistort_image": "files.rectify", "rectified_camera": "files.rectify",
+    "stereo_rectify": "files.stereo", "rectify_points": "files.stereo", "StereoRectification": "files.stereo",
     # the workflow every command runs
     "read_corners": "workflow", "calibrate_corners": "workflow", "evaluate_calibration": "workflow",
     "read_calibration": "workflow",
     # photos
-    "open_dataset": "dataset", "detect_dataset": "detect", "detect_photo": "detect",
+    "open_dataset": "files.dataset", "detect_dataset": "files.detect", "detect_photo": "files.detect",
     # files
-    "load_corners": "io", "save_corners": "io", "load_rig": "io", "save_rig": "io",
-    "render_report": "report", "write_export": "export",
+    "load_corners": "files.io", "save_corners": "files.io", "load_rig": "files.io", "save_rig": "files.io",
+    "render_report": "pages.report", "write_export": "pages.export",
     # synthetic truth
-    "make_truth": "synth", "noisy_corner_set": "synth", "truth_rig_model": "synth", "write_photo_set": "render",
+    "make_truth": "synthetic.synth", "noisy_corner_set": "synthetic.synth", "truth_rig_model": "synthetic.synth",
+    "write_photo_set": "synthetic.render",
     # errors
     "DualcalError": "errors", "InputError": "errors", "EstimationError": "errors",
     "NotInvertibleError": "errors", "DetectionError": "errors",

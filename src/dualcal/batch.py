@@ -39,10 +39,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import __version__
-from .board import Board
-from .calibrate import calibrate_rig
+from .geometry.board import Board
+from .estimation.calibrate import calibrate_rig
 from .errors import DualcalError, InputError, OutputError
-from .io import make_output_folder, read_json, rig_to_dict, write_bytes_atomic, write_json_atomic, write_text_atomic
+from .files.io import (make_output_folder, read_json, rig_to_dict, write_bytes_atomic, write_json_atomic,
+                       write_text_atomic)
 from .progress import collect_warnings, progress_bar
 from .workflow import DETECTION_OPTIONS, calibrate_corners, evaluate_calibration, read_corners
 
@@ -136,7 +137,7 @@ class BatchOptions:
     """What applies to every device of a batch.
 
     ``calibrate`` holds keyword arguments of :func:`dualcal.workflow.calibrate_corners` (those of
-    :func:`dualcal.calibrate.calibrate_rig`: ``skew``, ``rig_mode``, ``reference``, ``drop_outliers``,
+    :func:`dualcal.estimation.calibrate.calibrate_rig`: ``skew``, ``rig_mode``, ``reference``, ``drop_outliers``,
     ``outlier_factor``, ...; and ``compare_lens``), ``dataset`` those of :func:`dualcal.workflow.read_corners`
     (``cameras`` with globs relative to each device folder, ``pair_by``, ``square_sigma_mm``, ...).
     ``board`` is needed for photos and, where given, must agree with every corners.json. ``evaluate``

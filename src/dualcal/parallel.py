@@ -3,7 +3,7 @@
 :func:`interruptible_map` runs a function over items in worker threads and yields the results
 in order. When the caller is interrupted (``KeyboardInterrupt``) or fails, the items not yet
 started are cancelled, the running ones are told to stop (:func:`raise_if_cancelled`, which
-:func:`dualcal.io.write_bytes_atomic` calls before it commits a file, so an interrupted run never
+:func:`dualcal.files.io.write_bytes_atomic` calls before it commits a file, so an interrupted run never
 writes an output after the interruption), and the call returns only once no worker runs any
 more: no thread or process is left behind.
 

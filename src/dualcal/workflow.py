@@ -5,8 +5,8 @@ the same input gives the same files whichever way it came in:
 
 * :func:`read_corners`: a ``corners.json`` as it is (less the views ``exclude`` leaves out) or a
   dataset of photos through detection: one loader, one board check (:func:`check_board`), the
-  dataset's pair check (:func:`dualcal.dataset.check_pairs`).
-* :func:`calibrate_corners`: :func:`dualcal.calibrate.calibrate_rig` and the comparison of lens
+  dataset's pair check (:func:`dualcal.files.dataset.check_pairs`).
+* :func:`calibrate_corners`: :func:`dualcal.estimation.calibrate.calibrate_rig` and the comparison of lens
   models by held-out instants, recorded in the calibration (calib.json ``adjustment.lens_models``).
 * :func:`evaluate_calibration`: the paper's stereo-intersection check as eval.json's content,
   stamped with the fingerprint of the calibration it checked (``calibration_fingerprint``).
@@ -22,9 +22,9 @@ from __future__ import annotations
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from .board import Board
+from .geometry.board import Board
 from .errors import EstimationError, InputError
-from .model import CornerSet, RigModel
+from .geometry.model import CornerSet, RigModel
 from .progress import warn
 
 __all__ = ["DETECTION_OPTIONS", "calibrate_corners", "check_board", "evaluate_calibration", "lens_scores",
@@ -74,24 +74,24 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
 
     Parameters
     ----------
-    source : a corners.json, a dataset folder (:func:`dualcal.dataset.open_dataset`; a camera roll too),
+    source : a corners.json, a dataset folder (:func:`dualcal.files.dataset.open_dataset`; a camera roll too),
         or None when ``cameras`` are given.
     board : the board; needed for photos, checked against a corners.json's (:func:`check_board`).
     square_sigma_mm : the 1-sigma of the printed square's size (:attr:`Board.square_sigma_mm`), recorded
         with the board; None keeps what the board or the corners.json says.
     cameras, pair_by, time_tolerance_s, instant_gap_s, reference : how a dataset's photos are found and
-        grouped into instants (:func:`dualcal.dataset.open_dataset`).
-    exclude : glob patterns of photos to leave out (:func:`dualcal.dataset.is_excluded`), for a
+        grouped into instants (:func:`dualcal.files.dataset.open_dataset`).
+    exclude : glob patterns of photos to leave out (:func:`dualcal.files.dataset.is_excluded`), for a
         dataset and a corners.json alike; they are listed in each camera's ``excluded``.
-    jobs, hints_path, overlays_dir, progress : detection (:func:`dualcal.detect.detect_dataset`); for a
+    jobs, hints_path, overlays_dir, progress : detection (:func:`dualcal.files.detect.detect_dataset`); for a
         corners.json they do not apply (a warning says so).
 
     Raises
     ------
     InputError
         A missing input, a file given with cameras from globs, photos without a board, a board that
-        disagrees with the corners.json, and every refusal of :func:`~dualcal.dataset.open_dataset`,
-        :func:`~dualcal.dataset.check_pairs` and :func:`~dualcal.io.load_corners`.
+        disagrees with the corners.json, and every refusal of :func:`~dualcal.files.dataset.open_dataset`,
+        :func:`~dualcal.files.dataset.check_pairs` and :func:`~dualcal.files.io.load_corners`.
     """
     if _is_corners_file(source) and cameras:
         raise InputError(f"{source} is a file, but cameras given by globs take photos: give a dataset folder "
@@ -108,7 +108,7 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
                           instant_gap_s=instant_gap_s, reference=reference, exclude=exclude, jobs=jobs,
                           hints_path=hints_path, overlays_dir=overlays_dir, progress=progress)
     else:
-        from .io import load_corners
+        from .files.io import load_corners
 
         ignored = [name for name, value in zip(DETECTION_OPTIONS, (jobs, hints_path, overlays_dir)) if value]
         if ignored:
@@ -118,7 +118,7 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
         if reference is not None:
             corners = replace(corners, reference=reference)
         if exclude:
-            from .dataset import exclude_views      # (it reads photos: not imported for a corners.json alone)
+            from .files.dataset import exclude_views      # (it reads photos: not imported for a corners.json alone)
             corners = exclude_views(corners, exclude)
     if square_sigma_mm is not None:
         corners = replace(corners, board=replace(corners.board, square_sigma_mm=float(square_sigma_mm)))
@@ -128,8 +128,8 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
 def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant_gap_s, reference, exclude,
             jobs, hints_path, overlays_dir, progress) -> CornerSet:
     """A dataset's corners: open it, refuse cameras that pair with nothing, detect."""
-    from .dataset import check_pairs, open_dataset
-    from .detect import detect_dataset, load_hints
+    from .files.dataset import check_pairs, open_dataset
+    from .files.detect import detect_dataset, load_hints
 
     dataset = open_dataset(source, cameras, pair_by=pair_by, reference=reference,
                            time_tolerance_s=time_tolerance_s, instant_gap_s=instant_gap_s, exclude=exclude)
@@ -137,7 +137,7 @@ def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant
     hints = load_hints(hints_path) if hints_path else None
     corners = detect_dataset(dataset, board, jobs=jobs, hints=hints, overlays_dir=overlays_dir, progress=progress)
     if dataset.roll is not None:
-        from .roll import with_detection
+        from .files.roll import with_detection
         corners = replace(corners, roll=with_detection(dataset.roll, corners))
     return replace(corners, reference=reference) if reference is not None else corners
 
@@ -145,16 +145,16 @@ def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant
 def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="auto", **options) -> RigModel:
     """Calibrate a rig from its corners, with the lens models compared by held-out instants.
 
-    ``options`` are those of :func:`dualcal.calibrate.calibrate_rig` (``skew``, ``rig_mode``,
+    ``options`` are those of :func:`dualcal.estimation.calibrate.calibrate_rig` (``skew``, ``rig_mode``,
     ``reference``, ``drop_outliers``, ``outlier_factor``, ``board_shape``). ``model`` is as there, but
     ``"auto"`` by default, as for the commands: each camera's lens model chosen by its held-out instants
-    (:func:`dualcal.model_selection.calibrate_auto`, which records its comparison). With one lens model
+    (:func:`dualcal.estimation.model_selection.calibrate_auto`, which records its comparison). With one lens model
     for every camera and ``compare_lens``, every other model is scored on instants left out of the
-    calibration (:func:`dualcal.model_selection.compare_lens_models`) and the scores are recorded in
+    calibration (:func:`dualcal.estimation.model_selection.compare_lens_models`) and the scores are recorded in
     ``rig.adjustment["lens_models"]`` (calib.json); a comparison that cannot be made is a warning.
     """
-    from .calibrate import calibrate_rig
-    from .model_selection import compare_lens_models
+    from .estimation.calibrate import calibrate_rig
+    from .estimation.model_selection import compare_lens_models
 
     rig = calibrate_rig(corners, model=model, **options)
     if compare_lens and model != "auto" and rig.model != "mixed":
@@ -168,8 +168,8 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
 def other_skew_model(rig: RigModel) -> RigModel:
     """``rig`` with the other skew model (the paper's Model 2 beside Model 1, or back), to show them side by
     side: the same corners, lens models, rig mode and board shape, adjusted from ``rig``'s values
-    (:func:`dualcal.calibrate.refit`), with its sigmas and no checks of its own."""
-    from .calibrate import refit, rig_model_from_solution
+    (:func:`dualcal.estimation.calibrate.refit`), with its sigmas and no checks of its own."""
+    from .estimation.calibrate import refit, rig_model_from_solution
 
     return rig_model_from_solution(refit(rig, skew=not rig.skew), rig.corners, rig.dropped_views, rig.dropped_corners)
 
@@ -179,7 +179,7 @@ def lens_scores(rig: RigModel) -> list:
     (empty without one, and for ``"auto"``, whose choice camera by camera is ``adjustment["lens_models_chosen"]``)."""
     from dataclasses import fields
 
-    from .model_selection import LensModelScore
+    from .estimation.model_selection import LensModelScore
 
     if "lens_models_chosen" in rig.adjustment:
         return []
@@ -188,18 +188,18 @@ def lens_scores(rig: RigModel) -> list:
 
 
 def evaluate_calibration(rig: RigModel, holdout: bool = False, progress: bool = True) -> dict:
-    """eval.json's content: the paper's stereo-intersection check (:func:`dualcal.evaluation.evaluate`)
+    """eval.json's content: the paper's stereo-intersection check (:func:`dualcal.estimation.evaluation.evaluate`)
     with the fingerprint of the calibration it checked (``calibration_fingerprint``)."""
-    from .evaluation import evaluate
-    from .io import calibration_fingerprint
+    from .estimation.evaluation import evaluate
+    from .files.io import calibration_fingerprint
 
     return {**evaluate(rig, holdout=holdout, progress=progress), "calibration_fingerprint": calibration_fingerprint(rig)}
 
 
 def read_calibration(path) -> RigModel:
-    """A calib.json (:func:`dualcal.io.load_rig`), refused when its corners do not fit its parameters
-    (:func:`dualcal.io.check_corners_fit`: corners of another calibration pasted in)."""
-    from .io import check_corners_fit, load_rig
+    """A calib.json (:func:`dualcal.files.io.load_rig`), refused when its corners do not fit its parameters
+    (:func:`dualcal.files.io.check_corners_fit`: corners of another calibration pasted in)."""
+    from .files.io import check_corners_fit, load_rig
 
     rig = load_rig(path)
     check_corners_fit(rig, str(path))

@@ -26,7 +26,7 @@ def _goals(values) -> dict[str, float]:
 
 def _plan_camera(item: str):
     """``NAME=WxH:FOCAL35MM`` or ``NAME=PHOTO`` (its image size and 35 mm focal length from EXIF)."""
-    from ..advise import nominal_camera
+    from ..estimation.advise import nominal_camera
     from ..errors import InputError
     name, sep, spec = item.partition("=")
     if not sep or not name:
@@ -39,7 +39,7 @@ def _plan_camera(item: str):
         except ValueError:
             raise InputError(f"--camera {item!r}: expected NAME=WxH:FOCAL35MM, e.g. wide=4032x3024:26") from None
     else:
-        from ..photos import read_exif
+        from ..files.photos import read_exif
         if not Path(spec).is_file():
             raise InputError(f"--camera {item!r}: {spec!r} is neither WxH:FOCAL35MM nor a photo")
         (w, h), exif = read_exif(spec)
@@ -56,9 +56,9 @@ def _plan_prior(cameras, board, baseline_mm: float):
     """Nominal prior: the cameras side by side, ``baseline_mm`` apart along the phone's long side."""
     import numpy as np
 
-    from ..advise import nominal_prior
+    from ..estimation.advise import nominal_prior
     from ..errors import InputError
-    from ..model import Pose, choose_reference
+    from ..geometry.model import Pose, choose_reference
     if not cameras:
         raise InputError("--plan needs the cameras: --camera NAME=WxH:FOCAL35MM (repeatable) or NAME=PHOTO")
     if board is None:
@@ -102,10 +102,10 @@ def advise_command(calib, output, count, targets, plan, cameras, baseline_mm, bo
     dualcal advise --plan --camera wide=4032x3024:26 --camera tele=4032x3024:52 \\
         --board 8x5 --square 30 -o plan.json
     """
-    from ..advise import advice_to_dict, advise, describe, prior_from_rig
+    from ..estimation.advise import advice_to_dict, advise, describe, prior_from_rig
     from ..errors import InputError
-    from ..io import check_output_file, load_rig, write_json_atomic, write_text_atomic
-    from ..report.advice import render_advice_page
+    from ..files.io import check_output_file, load_rig, write_json_atomic, write_text_atomic
+    from ..pages.report.advice import render_advice_page
 
     check_output_file(output)
     page = output.with_suffix(".html")

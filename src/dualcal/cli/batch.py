@@ -2,7 +2,7 @@
 
 The options of ``calibrate`` that apply to every device are ``calibrate``'s own option objects:
 those whose names are keyword arguments of :func:`~dualcal.workflow.calibrate_corners` (those of
-:func:`~dualcal.calibrate.calibrate_rig`) or :func:`~dualcal.workflow.read_corners`, and the board. Dask and pandas are imported only when
+:func:`~dualcal.estimation.calibrate.calibrate_rig`) or :func:`~dualcal.workflow.read_corners`, and the board. Dask and pandas are imported only when
 the command runs.
 """
 
@@ -66,8 +66,8 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     require("report")
     from ..batch import (PAGE_NAME, TABLE_NAMES, BatchOptions, calibrate_fleet, find_devices, fleet_inputs_digest,
                          fleet_outputs_current, fleet_table, read_fleet_table, write_fleet_tables)
-    from ..calibrate import calibrate_rig
-    from ..io import make_output_folder, write_text_atomic
+    from ..estimation.calibrate import calibrate_rig
+    from ..files.io import make_output_folder, write_text_atomic
     from ..progress import warn
     from ..workflow import DETECTION_OPTIONS, read_corners
 
@@ -101,7 +101,7 @@ def batch_command(root, out_dir, workers, scheduler, baseline, flag_sigmas, run_
     digest = fleet_inputs_digest(results, baseline, flag_sigmas)
     current = fleet_outputs_current(out_dir, digest)
     if not current:      # else the tables and the page are those of these very rows: nothing to write
-        from ..report.fleet import render_fleet
+        from ..pages.report.fleet import render_fleet
 
         table = fleet_table(results)
         written = write_fleet_tables(out_dir, table)

@@ -1,4 +1,4 @@
-"""``dualcal board``: the printable board that a command line describes (a shell over :mod:`dualcal.boardprint`)."""
+"""``dualcal board``: the printable board that a command line describes (a shell over :mod:`dualcal.pages.boardprint`)."""
 
 from __future__ import annotations
 
@@ -37,8 +37,8 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
     chosen for those cameras and the paper (default A4): how many squares, how large, and how far
     from the phone to hold it.
     """
-    from ..boardprint import write_board
-    from ..io import check_output_file
+    from ..pages.boardprint import write_board
+    from ..files.io import check_output_file
 
     if spec is not None and board_spec is not None and spec != board_spec:
         raise InputError(f"the board is given twice ({spec} and --board {board_spec}): give it once")
@@ -60,11 +60,11 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
 
 
 def _board_for(photos, paper: str):
-    """The board :func:`dualcal.board_choice.suggest_board` chooses for the cameras of ``photos``, printed
+    """The board :func:`dualcal.pages.board_choice.suggest_board` chooses for the cameras of ``photos``, printed
     to stderr with where to hold it; and the paper it is for (``auto`` is A4)."""
-    from ..board_choice import fitting_choice
-    from ..dataset import open_dataset
-    from ..roll import equivalent_focal_mm
+    from ..pages.board_choice import fitting_choice
+    from ..files.dataset import open_dataset
+    from ..files.roll import equivalent_focal_mm
 
     dataset = open_dataset(photos)
     cameras = {}

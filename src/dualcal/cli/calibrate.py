@@ -16,7 +16,7 @@ from .detect import dataset_options, read_corners_from_flags
 @square_sigma_option
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="calib.json to write.")
 @click.option("--skew", is_flag=True, help="Estimate skew (the paper's Model 2); default skew = 0 (Model 1).")
-@click.option("--rig", "rig_mode", type=LazyChoice("dualcal.adjust:RIG_MODES"), default="rigid", show_default=True,
+@click.option("--rig", "rig_mode", type=LazyChoice("dualcal.estimation.adjust:RIG_MODES"), default="rigid", show_default=True,
               help="rigid: one relative pose per camera; paper: per-view poses with the paper's "
                    "constraints (equal baseline and angles); none: each camera alone.")
 @click.option("--drop-outliers/--keep-outliers", default=True, show_default=True,
@@ -52,13 +52,13 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     or left out and why), then the parameters with their 1-sigma (the paper's Tables 2-4), the
     lens models compared by their error on instants left out, and the checks' verdict.
     """
-    from ..board import SHAPE_TERMS
-    from ..checks import failed_checks, scale_note, verdict
+    from ..geometry.board import SHAPE_TERMS
+    from ..estimation.checks import failed_checks, scale_note, verdict
     from ..errors import EstimationError
-    from ..io import check_output_file, save_rig
+    from ..files.io import check_output_file, save_rig
     from ..progress import warn
-    from ..tables import (lens_model_advice, lens_model_choice_table, lens_model_table, photo_table, result_tables,
-                          roll_tables)
+    from ..pages.tables import (lens_model_advice, lens_model_choice_table, lens_model_table, photo_table,
+                                result_tables, roll_tables)
     from ..workflow import calibrate_corners, lens_scores, other_skew_model
 
     if input_path is None and not dataset_opts.get("cameras"):
@@ -107,7 +107,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
 def model_flags(values: tuple[str, ...]):
     """``--model`` values as ``calibrate_rig``'s ``model``: ``"auto"``, one name, or ``{camera: name}``
     (with the name given alone, if any, under the key ``"*"`` for the cameras not named)."""
-    from ..camera import LENS_MODELS
+    from ..geometry.camera import LENS_MODELS
 
     if not values:
         return "auto"
@@ -145,7 +145,7 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 
 @cli.command("synth")
 @click.argument("outdir", type=click.Path(file_okay=False))
-@click.option("--preset", type=LazyChoice("dualcal.synth:PRESETS"), default="note8", show_default=True,
+@click.option("--preset", type=LazyChoice("dualcal.synthetic.synth:PRESETS"), default="note8", show_default=True,
               help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra), "
                    "stereo5 (the 640x480 pair with OpenCV's five-coefficient lenses, k1 k2 p1 p2 k3), phone3 "
                    "(wide + 3x tele + a 145-degree fisheye ultra-wide, kb4).")
@@ -164,7 +164,7 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @click.option("--coverage", metavar="LO:HI", default=None,
               help="Share of the board's corners the narrowest camera sees, drawn per view from LO to HI "
                    "(ChArUco boards; default 0.3:1 for them, the whole board for a chessboard).")
-@click.option("--marks", type=LazyChoice("dualcal.render_marks:MARK_KINDS"), default=None,
+@click.option("--marks", type=LazyChoice("dualcal.synthetic.render_marks:MARK_KINDS"), default=None,
               help="Print marks in the chessboard's white squares: a binary code in each (as ECoCheck), a dot in "
                    "each, a logo in two, or a serial number along the first row.")
 def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jobs, board_spec, square_mm, marker_mm,
@@ -181,9 +181,9 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jo
     --marker 18) the narrowest camera (the tele) sees only part of the board in most views
     (--coverage), and corners.json has null for the corners a photo does not show.
     """
-    from .. import synth
-    from ..board import with_default_markers
-    from ..io import make_output_folder, rig_to_dict, save_corners, write_json_atomic
+    from ..synthetic import synth
+    from ..geometry.board import with_default_markers
+    from ..files.io import make_output_folder, rig_to_dict, save_corners, write_json_atomic
 
     if not 0 < scale <= 4:
         raise InputError(f"--scale {scale}: must be in (0, 4]")
@@ -200,10 +200,10 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jo
     save_corners(out / "corners.json", corners)
     write_json_atomic(out / "truth.json", rig_to_dict(synth.truth_rig_model(truth, corners)))
     if roll:
-        from ..synth_roll import write_camera_roll
+        from ..synthetic.synth_roll import write_camera_roll
         write_camera_roll(truth, make_output_folder(out / "roll"), seed=seed, jobs=jobs or default_jobs(), marks=marks)
     elif photos:
-        from ..render import write_photo_set
+        from ..synthetic.render import write_photo_set
         write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs(), marks=marks)
     n = len(truth.view_poses) * len(truth.cameras)
     echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "

@@ -19,8 +19,8 @@ from ..terminal import printable
 class LazyChoice(click.Choice):
     """A :class:`click.Choice` whose choices are a library constant, imported when first needed.
 
-    ``LazyChoice("dualcal.adjust:RIG_MODES")`` shows and checks the values of
-    ``dualcal.adjust.RIG_MODES`` without importing that module when the command is only listed.
+    ``LazyChoice("dualcal.estimation.adjust:RIG_MODES")`` shows and checks the values of
+    ``dualcal.estimation.adjust.RIG_MODES`` without importing that module when the command is only listed.
     """
 
     def __init__(self, source: str):
@@ -69,7 +69,7 @@ def board_options(required: bool, dictionary_default: str = "found from the phot
 
 
 def exclude_option(f):
-    """``--exclude PATTERN`` (repeatable): photos left out, see :func:`dualcal.dataset.is_excluded`."""
+    """``--exclude PATTERN`` (repeatable): photos left out, see :func:`dualcal.files.dataset.is_excluded`."""
     return click.option("--exclude", "exclude", multiple=True, metavar="PATTERN",
                         help="Leave out the photos that match this glob (repeatable). It is matched "
                              "against the view key (IMG_03: every camera's photo of that instant), the "
@@ -79,7 +79,7 @@ def exclude_option(f):
 
 def board_from_flags(board_spec: str | None, square_mm: float | None, marker_mm: float | None = None,
                      dictionary: str | None = None):
-    """A :class:`~dualcal.board.Board` from the flags (:func:`dualcal.board.board_from_spec`), or None
+    """A :class:`~dualcal.geometry.board.Board` from the flags (:func:`dualcal.geometry.board.board_from_spec`), or None
     when none is given."""
     if board_spec is None and square_mm is None:
         if marker_mm is not None or dictionary is not None:
@@ -88,7 +88,7 @@ def board_from_flags(board_spec: str | None, square_mm: float | None, marker_mm:
         return None
     if board_spec is None or square_mm is None:
         raise InputError("give both --board (COLSxROWS, or charuco:SXxSY) and --square MM")
-    from ..board import board_from_spec
+    from ..geometry.board import board_from_spec
     return board_from_spec(board_spec, square_mm, marker_mm, dictionary)
 
 

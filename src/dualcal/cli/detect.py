@@ -51,7 +51,7 @@ _DETECTION_OPTIONS = [
 def dataset_selection_options(f):
     """Click options that find and pair a dataset's photos: ``--camera``, ``--pair-by``,
     ``--time-tolerance``, ``--reference``, ``--exclude`` (keyword names as
-    :func:`~dualcal.dataset.open_dataset`'s)."""
+    :func:`~dualcal.files.dataset.open_dataset`'s)."""
     for option in reversed(_SELECTION_OPTIONS):
         f = option(f)
     return f
@@ -87,7 +87,7 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square
     A ChArUco board (--board charuco:SXxSY --marker MM) may be seen in part: the corners a photo
     does not show are null; without --dictionary, the dictionary is found from the photos.
     """
-    from ..io import check_output_file, save_corners
+    from ..files.io import check_output_file, save_corners
 
     check_output_file(output)
     if dataset is not None and Path(dataset).is_file():
@@ -97,7 +97,7 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square
     save_corners(output, corners)
     if corners.roll:
         from ..progress import SafeConsole
-        from ..tables import roll_tables
+        from ..pages.tables import roll_tables
 
         console = SafeConsole(stderr=True, soft_wrap=True, highlight=False)
         for table in roll_tables(corners.roll):
@@ -114,14 +114,14 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square
 
 
 def display_problem():
-    """Why no window can be opened here, or None (:func:`dualcal.detect.display_problem`)."""
-    from ..detect import display_problem as problem
+    """Why no window can be opened here, or None (:func:`dualcal.files.detect.display_problem`)."""
+    from ..files.detect import display_problem as problem
     return problem()
 
 
 def pick_hints(todo):
-    """The clicking session (:func:`dualcal.detect.pick_hints`)."""
-    from ..detect import pick_hints as pick
+    """The clicking session (:func:`dualcal.files.detect.pick_hints`)."""
+    from ..files.detect import pick_hints as pick
     return pick(todo)
 
 
@@ -139,9 +139,9 @@ def pick_command(dataset, board_spec, square_mm, marker_mm, dictionary, all_phot
     the photo, q stops (the hints so far are kept); the toolbar zooms in. The result is a
     hints file for 'dualcal detect --hints' with the same dataset options. Needs a display.
     """
-    from ..dataset import open_dataset
-    from ..detect import detect_photo, save_hints
-    from ..io import check_output_file
+    from ..files.dataset import open_dataset
+    from ..files.detect import detect_photo, save_hints
+    from ..files.io import check_output_file
     from ..progress import track
 
     board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)

@@ -69,7 +69,7 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
     fingerprint of the calibration it checked ("calibration_fingerprint"), so that 'dualcal
     report' can refuse an eval.json of another calibration.
     """
-    from ..io import check_output_file, write_json_atomic
+    from ..files.io import check_output_file, write_json_atomic
     from ..workflow import evaluate_calibration, read_calibration
 
     check_output_file(output)
@@ -91,7 +91,7 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
 @click.option("-o", "--output", "out_dir", required=True, metavar="OUTDIR",
               type=click.Path(file_okay=False, path_type=Path),
               help="Output folder (created if its parent exists); photos keep their names.")
-@click.option("--keep", type=LazyChoice("dualcal.rectify:KEEP_MODES"), default="same", show_default=True,
+@click.option("--keep", type=LazyChoice("dualcal.files.rectify:KEEP_MODES"), default="same", show_default=True,
               help="Camera matrix of the output: the calibrated one (same), one that keeps every "
                    "source pixel (all), or one with no empty border (valid).")
 @click.option("--jobs", type=click.IntRange(min=1), default=None,
@@ -105,9 +105,9 @@ def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, o
     rectify'). Writes OUTDIR/<photo name> for each photo and OUTDIR/<NAME>.rectified.json, the
     pinhole camera (k1 = k2 = 0) of the undistorted photos.
     """
-    from ..io import load_rig, write_json_atomic
-    from ..rectify import (check_same_rectified_camera, rectified_camera, rectified_camera_doc, rectified_json_path,
-                           undistort_files)
+    from ..files.io import load_rig, write_json_atomic
+    from ..files.rectify import (check_same_rectified_camera, rectified_camera, rectified_camera_doc,
+                                 rectified_json_path, undistort_files)
 
     rig = load_rig(calib)
     if camera_name not in rig.cameras:

@@ -14,7 +14,7 @@ from .common import echo, stdout_console
 
 def _photos(specs: tuple[str, ...]) -> dict[str, Path]:
     """``("wide=a.jpg", "tele=b.jpg")`` -> ``{"wide": Path("a.jpg"), "tele": Path("b.jpg")}``."""
-    from ..dataset import parse_camera_spec
+    from ..files.dataset import parse_camera_spec
 
     photos = {}
     for spec in specs:
@@ -81,7 +81,7 @@ def measure_command(calib: Path, photo_specs: tuple[str, ...], points_path: Path
     the calibration). A length whose sigma is large, or whose end points' depth is too uncertain
     for a linear sigma to hold, gets a warning saying what would help.
     """
-    from ..io import check_output_file, load_rig
+    from ..files.io import check_output_file, load_rig
 
     if pick == (points_path is not None):
         raise InputError("give either --points points.json (to measure) or --pick NAME=IMAGE NAME2=IMAGE2 "
@@ -93,8 +93,8 @@ def measure_command(calib: Path, photo_specs: tuple[str, ...], points_path: Path
     if pick:
         _write_pick_page(rig, _photos(photo_specs), output, open_page)
         return
-    from ..io import load_points, write_json_atomic
-    from ..measurement import measure
+    from ..files.io import load_points, write_json_atomic
+    from ..estimation.measurement import measure
 
     doc = measure(rig, load_points(points_path))
     write_json_atomic(output, doc)
@@ -115,8 +115,8 @@ def measure_command(calib: Path, photo_specs: tuple[str, ...], points_path: Path
 
 
 def _write_pick_page(rig, photos: dict[str, Path], output: Path, open_page: bool) -> None:
-    from ..io import write_text_atomic
-    from ..report.pick import render_pick_page
+    from ..files.io import write_text_atomic
+    from ..pages.report.pick import render_pick_page
 
     if len(photos) < 2:
         raise InputError("--pick needs the photos of two or more cameras of one instant: NAME=IMAGE NAME2=IMAGE2")

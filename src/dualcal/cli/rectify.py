@@ -15,7 +15,7 @@ EPIPOLAR_IMAGE = "epipolar.jpg"
 
 def _pair(specs: tuple[str, str]) -> dict[str, Path]:
     """``("wide=a.jpg", "tele=b.jpg")`` -> ``{"wide": Path("a.jpg"), "tele": Path("b.jpg")}``."""
-    from ..dataset import parse_camera_spec
+    from ..files.dataset import parse_camera_spec
 
     pair = {}
     for spec in specs:
@@ -32,7 +32,7 @@ def _pair(specs: tuple[str, str]) -> dict[str, Path]:
               help="The two photos, one of each camera, taken at one instant; the first is OpenCV's camera 1.")
 @click.option("-o", "--output", "out_dir", required=True, metavar="OUTDIR",
               type=click.Path(file_okay=False, path_type=Path), help="Output folder (created if its parent exists).")
-@click.option("--keep", type=LazyChoice("dualcal.stereo:KEEP_REGIONS"), default="valid", show_default=True,
+@click.option("--keep", type=LazyChoice("dualcal.files.stereo:KEEP_REGIONS"), default="valid", show_default=True,
               help="valid: the region both photos fill, no empty border (OpenCV alpha=0); all: every pixel "
                    "of both photos (alpha=1).")
 def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, keep: str) -> None:
@@ -51,10 +51,10 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
     """
     import numpy as np
 
-    from ..photos import open_image, output_suffix
-    from ..io import (calibration_fingerprint, check_output_file, load_rig, make_output_folder, write_jpeg_atomic,
-                      write_json_atomic)
-    from ..stereo import epipolar_check_image, rectify_pair_files, stereo_rectify
+    from ..files.photos import open_image, output_suffix
+    from ..files.io import (calibration_fingerprint, check_output_file, load_rig, make_output_folder, write_jpeg_atomic,
+                            write_json_atomic)
+    from ..files.stereo import epipolar_check_image, rectify_pair_files, stereo_rectify
 
     photos = _pair(pair_specs)
     rig = load_rig(calib)

@@ -25,8 +25,8 @@ def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
     distortion curve and map, a 3-D view of the board poses and the rig, and the evaluation
     (paper Tables 5, 6) when --eval is given.
     """
-    from ..io import check_evaluation_belongs, check_output_file, load_evaluation, write_text_atomic
-    from ..report import render_report
+    from ..files.io import check_evaluation_belongs, check_output_file, load_evaluation, write_text_atomic
+    from ..pages.report import render_report
     from ..workflow import read_calibration
 
     check_output_file(output)  # fail before rendering, not after
@@ -42,7 +42,7 @@ def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
 
 @cli.command("export")
 @click.argument("calib", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--format", "fmt", required=True, type=LazyChoice("dualcal.export:FORMATS"),
+@click.option("--format", "fmt", required=True, type=LazyChoice("dualcal.pages.export:FORMATS"),
               help="opencv: FileStorage YAML (K, D, R, T in mm); kalibr: camchain YAML (metres); "
                    "colmap: cameras.txt (OPENCV model); mrcal: one .cameramodel per camera (metres).")
 @click.option("-o", "--output", required=True, type=click.Path(),  # a str: keeps a trailing "/"
@@ -67,8 +67,8 @@ def export_command(calib: Path, fmt: str, output: str) -> None:
     with zeros for the coefficients it lacks. None of these formats has a skew term: a
     non-zero skew is dropped with a warning.
     """
-    from ..export import write_export
-    from ..io import load_rig
+    from ..pages.export import write_export
+    from ..files.io import load_rig
 
     rig = load_rig(calib)
     for path in write_export(rig, fmt, output):

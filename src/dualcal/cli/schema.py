@@ -17,6 +17,6 @@ def schema_command(name: str) -> None:
     Every file dualcal reads is checked against its schema; unknown keys are admitted (the
     contract is extended only by adding).
     """
-    from ..schemas import schema_text
+    from ..files.schemas import schema_text
 
     echo(schema_text(name.removesuffix(".json")), nl=False)

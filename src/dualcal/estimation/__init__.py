@@ -1,0 +1,6 @@
+"""The estimation: the joint adjustment and its solver, the covariance and its honest sigmas, outliers and
+model choice, the checks of a calibration, and what a calibration measures (intersection, evaluation,
+measurement, advice on the next photo).
+
+A layer of dualcal (README, "Architecture"): its modules import only from it, the layers before it
+(``dualcal._LAYERS``) and the cross-cutting modules at the top (``dualcal._CROSS_CUTTING``)."""

@@ -1,0 +1,601 @@
+"""The joint least-squares adjustment of all cameras and views (paper section 1.7).
+
+Minimises the pixel reprojection error of every measured corner in every photo of every camera
+(eqs. 16-19) over the intrinsics of each camera (:data:`dualcal.geometry.camera.INTRINSIC_NAMES`, those
+left free) and the poses, by Levenberg-Marquardt (:mod:`dualcal.estimation.lm`) on normal equations kept per
+instant (:mod:`dualcal.estimation.normal_equations`). A photo's corners that were not measured (NaN rows)
+simply have no residual, so two cameras of one instant may see different corners. Three ways to
+tie the cameras together (``mode``):
+
+``rigid``  per instant one board-to-reference pose; per extra camera one relative pose
+           ``X_c = R_c X_ref + t_c``: the rig is rigid by construction.
+``paper``  the paper's model (eqs. 20-23: baseline D and the three relative angles equal in every
+           instant), as a parametrisation rather than as constraints: per extra camera one
+           relative rotation ``R_c`` and one baseline length ``D_c`` shared by all instants, and
+           per instant its own unit direction ``u_v`` of the baseline (2 unknowns), so
+           ``X_c = R_c X_ref + D_c u_v``. In an instant the reference did not see, ``u_v`` stays
+           at its starting value (the model says nothing about it there).
+``none``   every camera alone: each photo its own board pose.
+
+Unknowns are *global* (intrinsics; ``R_c, t_c`` or ``R_c, D_c``) or *local* to one instant (its
+board pose, or each camera's in mode ``none``; the directions ``u_v``). :class:`Layout` says where
+each sits in the flat parameter vector. Rotations are updated by left increments and directions
+on the sphere (:mod:`dualcal.geometry.poses`), so covariances are those of the increments. Every
+Jacobian is analytic.
+
+With ``board_shape`` the board is not taken as flat: three global unknowns, shared by every
+photo, give its out-of-plane shape (:data:`dualcal.geometry.board.SHAPE_TERMS`: sag, bend, twist), so the
+corners sit at ``X + Z(X) e_z``.
+
+To add a group of global parameters: give it columns in :func:`_build_layout`, a field in
+:class:`State` updated in :meth:`State.updated`, and its Jacobian piece in
+:func:`_jacobian_pieces`, where ``J_X`` (d residual / d camera-frame point) and the rotations are
+at hand (d residual / d board point is ``J_X R_c R_v``).
+
+Two covariances of the unknowns (``kind``): ``formal``, the textbook ``N^-1 s0^2`` with
+``s0^2 = v^T v / redundancy``, and ``clustered``, from how the instants disagree with each other
+(:mod:`dualcal.estimation.uncertainty`), which holds where the corner errors of one photo are correlated
+(real photos). Derived values (baseline, omega-phi-kappa) get theirs by propagation, ``J Cov J^T``
+(:mod:`dualcal.estimation.rig_relations`, which also builds the joint covariance calib.json keeps).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from ..geometry.board import SHAPE_TERMS, shape_basis, shaped_points_mm
+from ..geometry.camera import (DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS, CameraModel, intrinsic_names,
+                               project_points, project_with_jacobians)
+from ..errors import EstimationError, InputError
+from .lm import LMOptions, levenberg_marquardt
+from ..geometry.model import Pose, mean_pose, observed_mask
+from .normal_equations import Factorization, NormalEquations
+from ..geometry.poses import moved_on_sphere, relative_pose, rotated, tangent_basis
+from .uncertainty import cluster_scores, cluster_shifts, clustered_covariance, held_out_residuals
+
+RIG_MODES = ("rigid", "paper", "none")
+COVARIANCE_KINDS = ("clustered", "formal")
+
+
+# ----------------------------------------------------------------------------- what is observed
+
+
+@dataclass(frozen=True)
+class CameraBatch:
+    """All photos of one camera: ``blocks`` (B,) indices into ``Problem.blocks``, ``views`` (B,)
+    instant indices, ``uv_px`` (B, N, 2) corners (NaN rows unmeasured), ``observed`` (B, N)."""
+
+    camera: int
+    blocks: np.ndarray
+    views: np.ndarray
+    uv_px: np.ndarray
+    observed: np.ndarray
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where each unknown sits: global columns, and local slots within an instant's block.
+
+    Global (indices into the first ``n_global`` entries of the flat vector):
+    ``intrinsics[c]`` the free intrinsics of camera ``c`` (``free_intrinsics[c]``, a (K,) mask
+    over :data:`INTRINSIC_NAMES`); ``rig_rotation[c]`` (3) of each tied camera; ``rig_translation[c]``
+    (3, rigid) or ``baseline[c]`` (1, paper); ``board_shape`` (3, or none) the board's shape
+    coefficients. Local (0 .. ``n_local``): ``pose[k]`` (6: rotation
+    increment, then translation) of pose slot ``k`` (slot 0 is the reference's board pose; in mode
+    ``none`` slot ``c`` is camera ``c``'s); ``direction[c]`` (2, paper). ``local_used`` (V, L) marks
+    the slots each instant has.
+    """
+
+    free_intrinsics: np.ndarray
+    intrinsics: dict[int, np.ndarray]
+    rig_rotation: dict[int, np.ndarray]
+    rig_translation: dict[int, np.ndarray]
+    baseline: dict[int, np.ndarray]
+    board_shape: np.ndarray
+    n_global: int
+    pose: dict[int, np.ndarray]
+    direction: dict[int, np.ndarray]
+    n_local: int
+    local_used: np.ndarray
+
+    def local_columns(self, view: int, slots: np.ndarray) -> np.ndarray:
+        """Flat indices of local ``slots`` of instant ``view``."""
+        return self.n_global + view * self.n_local + np.asarray(slots)
+
+
+@dataclass
+class Problem:
+    """What is observed: every camera's corners in every view it saw, and how the rig is tied.
+
+    ``blocks`` is a list of ``(camera index, view key, (N, 2) pixels)``, one per photo; row k is
+    corner k of ``X_board`` (N, 3); unmeasured corners are NaN rows. ``model`` is the lens model
+    (:data:`dualcal.geometry.camera.LENS_MODELS`) of every camera, or a sequence of one per camera; its
+    coefficients are free, the others stay 0. ``models`` is the sequence, one per camera.
+    """
+
+    X_board: np.ndarray
+    cameras: list[str]
+    image_sizes: list[tuple[int, int]]
+    blocks: list[tuple[int, str, np.ndarray]]
+    mode: str = "rigid"
+    skew: bool = False
+    reference: int = 0
+    board_shape: bool = False
+    model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
+
+    def __post_init__(self):
+        if self.mode not in RIG_MODES:
+            raise InputError(f"rig mode {self.mode!r} is unknown (choose from {', '.join(RIG_MODES)})")
+        self.models = (self.model,) * len(self.cameras) if isinstance(self.model, str) else tuple(self.model)
+        unknown = [m for m in self.models if m not in LENS_MODELS]
+        if unknown or len(self.models) != len(self.cameras):
+            raise InputError(f"lens model {unknown[0] if unknown else self.model!r} is unknown or not one per "
+                             f"camera (choose from {', '.join(LENS_MODELS)})")
+        self.views = sorted({v for _, v, _ in self.blocks})
+        self.view_index = {v: i for i, v in enumerate(self.views)}
+        self.batches = []
+        for c in range(len(self.cameras)):
+            idx = np.array([b for b, (cc, _, _) in enumerate(self.blocks) if cc == c], int)
+            if len(idx):
+                uv = np.array([self.blocks[b][2] for b in idx], float)
+                self.batches.append(CameraBatch(c, idx, np.array([self.view_index[self.blocks[b][1]] for b in idx]),
+                                                uv, observed_mask(uv)))
+        self.shape_basis = shape_basis(self.X_board)          # (N, 3), used when board_shape
+        self.layout = _build_layout(self)
+
+    def tied(self, c: int) -> bool:
+        """Whether camera ``c`` is tied to the reference by a relative pose."""
+        return self.mode != "none" and c != self.reference
+
+    def pose_slot(self, c: int) -> int:
+        """The local pose slot camera ``c``'s photos hang on."""
+        return c if self.mode == "none" else 0
+
+    @property
+    def n_observations(self) -> int:
+        return 2 * int(sum(b.observed.sum() for b in self.batches))
+
+    @property
+    def n_parameters(self) -> int:
+        return self.layout.n_global + int(self.layout.local_used.sum())
+
+    def seen(self, c: int) -> np.ndarray:
+        """(V,) bool: the instants camera ``c`` saw."""
+        out = np.zeros(len(self.views), bool)
+        for b in self.batches:
+            if b.camera == c:
+                out[b.views] = True
+        return out
+
+
+def _take(counter: list[int], n: int) -> np.ndarray:
+    start = counter[0]
+    counter[0] += int(n)
+    return np.arange(start, counter[0])
+
+
+def _build_layout(p: Problem) -> Layout:
+    C, V = len(p.cameras), len(p.views)
+    # skew per --skew; the lens coefficients of the model (the others stay at 0)
+    free = np.array([[n in intrinsic_names(m) for n in INTRINSIC_NAMES] for m in p.models]).reshape(C, -1)
+    if not p.skew:
+        free[:, INTRINSIC_NAMES.index("skew")] = False
+    g = [0]
+    intrinsics = {c: _take(g, free[c].sum()) for c in range(C)}
+    tied = [c for c in range(C) if p.tied(c)]
+    rig_rotation = {c: _take(g, 3) for c in tied}
+    rig_translation = {c: _take(g, 3) for c in tied} if p.mode == "rigid" else {}
+    baseline = {c: _take(g, 1) for c in tied} if p.mode == "paper" else {}
+    board_shape = _take(g, len(SHAPE_TERMS) if p.board_shape else 0)
+    loc = [0]
+    pose = {k: _take(loc, 6) for k in (range(C) if p.mode == "none" else [0])}
+    direction = {c: _take(loc, 2) for c in tied} if p.mode == "paper" else {}
+    used = np.zeros((V, loc[0]), bool)
+    for b in p.batches:
+        used[np.ix_(b.views, pose[p.pose_slot(b.camera)])] = True
+    for c, slots in direction.items():
+        used[np.ix_(p.seen(c) & p.seen(p.reference), slots)] = True
+    return Layout(free, intrinsics, rig_rotation, rig_translation, baseline, board_shape, g[0], pose, direction,
+                  loc[0], used)
+
+
+# ----------------------------------------------------------------------------- the unknowns
+
+
+@dataclass
+class State:
+    """The unknowns (conventions: README).
+
+    intrinsics : (C, K) per camera, in the order of :data:`INTRINSIC_NAMES`.
+    pose_R, pose_t : (V, P, 3, 3), (V, P, 3) board-to-camera pose of each pose slot per instant.
+    rig_R : (C, 3, 3) reference-to-camera rotation (identity where the camera is not tied).
+    rig_t : (C, 3) reference-to-camera translation, mm (mode ``rigid``).
+    baseline_mm : (C,) the paper's D (mode ``paper``).
+    direction : (V, C, 3) unit direction of the baseline per instant (mode ``paper``).
+    board_shape_mm : (3,) the board's shape coefficients (:data:`dualcal.geometry.board.SHAPE_TERMS`; zero
+        for a flat board).
+    """
+
+    intrinsics: np.ndarray
+    pose_R: np.ndarray
+    pose_t: np.ndarray
+    rig_R: np.ndarray
+    rig_t: np.ndarray
+    baseline_mm: np.ndarray
+    direction: np.ndarray
+    board_shape_mm: np.ndarray = field(default_factory=lambda: np.zeros(len(SHAPE_TERMS)))
+
+    def updated(self, layout: Layout, h: np.ndarray) -> "State":
+        """The state moved by a flat step ``h`` (numbering of :mod:`dualcal.estimation.normal_equations`)."""
+        h_g, h_l = h[:layout.n_global], h[layout.n_global:].reshape(len(self.pose_R), layout.n_local)
+        intr = self.intrinsics.copy()
+        for c, cols in layout.intrinsics.items():
+            intr[c, layout.free_intrinsics[c]] += h_g[cols]
+        rig_R, rig_t, D = self.rig_R.copy(), self.rig_t.copy(), self.baseline_mm.copy()
+        for c, cols in layout.rig_rotation.items():
+            rig_R[c] = rotated(rig_R[c], h_g[cols])
+        for c, cols in layout.rig_translation.items():
+            rig_t[c] += h_g[cols]
+        for c, cols in layout.baseline.items():
+            D[c] += h_g[cols[0]]
+        shape = self.board_shape_mm + h_g[layout.board_shape] if len(layout.board_shape) else self.board_shape_mm
+        pose_R, pose_t, direction = self.pose_R.copy(), self.pose_t.copy(), self.direction.copy()
+        for k, slots in layout.pose.items():
+            pose_R[:, k] = rotated(pose_R[:, k], h_l[:, slots[:3]])
+            pose_t[:, k] += h_l[:, slots[3:]]
+        for c, slots in layout.direction.items():
+            direction[:, c] = moved_on_sphere(direction[:, c], h_l[:, slots])
+        return State(intr, pose_R, pose_t, rig_R, rig_t, D, direction, shape)
+
+    def camera(self, problem: Problem, c: int) -> CameraModel:
+        return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c], problem.models[c])
+
+    def relative_t(self, problem: Problem, c: int, views: np.ndarray) -> np.ndarray:
+        """(B, 3) reference-to-camera ``c`` translation in the given instants (tied cameras)."""
+        if problem.mode == "rigid":
+            return np.broadcast_to(self.rig_t[c], (len(views), 3))
+        return self.baseline_mm[c] * self.direction[views, c]
+
+    def photo_pose(self, problem: Problem, c: int, view: int) -> Pose:
+        """Board-to-camera ``c`` pose in instant ``view``."""
+        k = problem.pose_slot(c)
+        pose = Pose(self.pose_R[view, k].copy(), self.pose_t[view, k].copy())
+        if not problem.tied(c):
+            return pose
+        return Pose(self.rig_R[c], self.relative_t(problem, c, np.array([view]))[0]).compose(pose)
+
+
+def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict[str, Pose]],
+                  board_shape_mm: np.ndarray | None = None) -> State:
+    """Starting values in the problem's layout from every camera's own estimates.
+
+    ``cameras[c]`` is a CameraModel, ``poses[c][view]`` a board-to-camera Pose (e.g. from Zhang's
+    closed form, or from an earlier adjustment). A tied camera's relative pose starts at the mean
+    of its relative poses over the instants it shares with the reference (in mode ``paper``:
+    ``D`` at the mean baseline length, each instant's direction at its own). The board's shape
+    starts at ``board_shape_mm`` (default flat).
+    """
+    C, V, ref = len(cameras), len(problem.views), problem.reference
+    rig_R, rig_t = np.tile(np.eye(3), (C, 1, 1)), np.zeros((C, 3))
+    D, direction = np.zeros(C), np.zeros((V, C, 3))
+    for c in range(C):
+        if not problem.tied(c):
+            continue
+        shared = [v for v in poses[c] if v in poses[ref]]
+        if not shared:
+            raise EstimationError(f"camera {problem.cameras[c]!r} shares no view with the reference camera "
+                                  f"{problem.cameras[ref]!r}: photos of the same instant are needed")
+        rels = {v: relative_pose(poses[ref][v], poses[c][v]) for v in shared}
+        mean = mean_pose(list(rels.values()))
+        rig_R[c], rig_t[c] = mean.R, mean.t_mm
+        D[c] = np.mean([np.linalg.norm(rel.t_mm) for rel in rels.values()])
+        direction[:, c] = mean.t_mm / np.linalg.norm(mean.t_mm)
+        for v, rel in rels.items():
+            direction[problem.view_index[v], c] = rel.t_mm / np.linalg.norm(rel.t_mm)
+    slots = C if problem.mode == "none" else 1
+    pose_R, pose_t = np.tile(np.eye(3), (V, slots, 1, 1)), np.zeros((V, slots, 3))
+    shape = np.zeros(len(SHAPE_TERMS)) if board_shape_mm is None else np.array(board_shape_mm, float)
+    state = State(np.array([cam.as_vector() for cam in cameras]), pose_R, pose_t, rig_R, rig_t, D, direction, shape)
+    for i, v in enumerate(problem.views):
+        if problem.mode == "none":
+            for c in range(C):
+                if v in poses[c]:
+                    pose_R[i, c], pose_t[i, c] = poses[c][v].R, poses[c][v].t_mm
+            continue
+        c = ref if v in poses[ref] else next(c for c in range(C) if v in poses[c])
+        pose = poses[c][v]
+        if c != ref:     # seen only by other cameras: through the rig
+            rel = Pose(rig_R[c], state.relative_t(problem, c, np.array([i]))[0])
+            pose = rel.inverse().compose(pose)
+        pose_R[i, 0], pose_t[i, 0] = pose.R, pose.t_mm
+    return state
+
+
+# ----------------------------------------------------------------------------- residuals and Jacobians
+
+
+def _camera_points(problem: Problem, state: State, batch: CameraBatch):
+    """``W = R_v X`` (B, N, 3), the camera-frame points ``X_c`` (B, N, 3) and the relative
+    translation (B, 3) (None for an untied camera)."""
+    k = problem.pose_slot(batch.camera)
+    X = shaped_points_mm(problem.X_board, state.board_shape_mm) if problem.board_shape else problem.X_board
+    W = np.einsum("bij,nj->bni", state.pose_R[batch.views, k], X)
+    Y = W + state.pose_t[batch.views, k][:, None, :]
+    if not problem.tied(batch.camera):
+        return W, Y, None
+    rel_t = state.relative_t(problem, batch.camera, batch.views)
+    return W, Y @ state.rig_R[batch.camera].T + rel_t[:, None, :], rel_t
+
+
+def corners_behind(problem: Problem, state: State) -> int:
+    """How many measured corners lie at ``Z <= 0``, behind their camera."""
+    return sum(int(np.sum(_camera_points(problem, state, b)[1][b.observed][:, 2] <= 0)) for b in problem.batches)
+
+
+def cost(problem: Problem, state: State, allowed_behind: int = 0) -> float:
+    """``r^T r`` over the measured corners, residuals only; ``inf`` if more than ``allowed_behind``
+    of them lie at ``Z <= 0`` (a projection from behind the camera is a mirror image, not a fit)."""
+    total, behind = 0.0, 0
+    for batch in problem.batches:
+        Xc = _camera_points(problem, state, batch)[1][batch.observed]
+        behind += int(np.sum(Xc[:, 2] <= 0))
+        if behind > allowed_behind:
+            return np.inf
+        with np.errstate(divide="ignore", invalid="ignore"):
+            total += float(np.sum((project_points(state.camera(problem, batch.camera), Xc)
+                                   - batch.uv_px[batch.observed]) ** 2))
+    return total if np.isfinite(total) else np.inf
+
+
+def residuals(problem: Problem, state: State) -> np.ndarray:
+    """(n_blocks, N, 2) predicted - observed pixels, NaN where a corner was not measured."""
+    out = np.full((len(problem.blocks), len(problem.X_board), 2), np.nan)
+    for batch in problem.batches:
+        Xc = _camera_points(problem, state, batch)[1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = project_points(state.camera(problem, batch.camera), Xc.reshape(-1, 3)).reshape(Xc.shape[:2] + (2,))
+        out[batch.blocks] = np.where(batch.observed[..., None], uv - batch.uv_px, np.nan)
+    return out
+
+
+def _jacobian_pieces(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, J_X, J_K):
+    """d residual / d unknowns of one camera's photos, as ``(columns, (B, N, 2, k))`` pieces:
+    a list of global pieces (columns in the flat vector) and one of local ones (slots)."""
+    lay, c = problem.layout, batch.camera
+    glob = [(lay.intrinsics[c], J_K[..., lay.free_intrinsics[c]])]
+    loc = []
+    M = J_X                                                              # d res / d (R_v X + t_v)
+    if problem.tied(c):
+        M = J_X @ state.rig_R[c]
+        glob.append((lay.rig_rotation[c], -np.cross(J_X, (Xc - rel_t[:, None, :])[:, :, None, :])))
+        if problem.mode == "rigid":
+            glob.append((lay.rig_translation[c], J_X))
+        else:
+            u = state.direction[batch.views, c]
+            glob.append((lay.baseline[c], np.einsum("bnij,bj->bni", J_X, u)[..., None]))
+            free = lay.local_used[batch.views][:, lay.direction[c][0]]
+            d_dir = state.baseline_mm[c] * np.einsum("bnij,bjk->bnik", J_X, tangent_basis(u))
+            loc.append((lay.direction[c], d_dir * free[:, None, None, None]))
+    loc.insert(0, (lay.pose[problem.pose_slot(c)], np.concatenate([-np.cross(M, W[:, :, None, :]), M], axis=-1)))
+    if problem.board_shape:       # d X_board / d w = basis e_z, seen through R_v: its third column
+        normal = state.pose_R[batch.views, problem.pose_slot(c)][:, :, 2]                # (B, 3)
+        along = np.einsum("bnij,bj->bni", M, normal)                                      # (B, N, 2)
+        glob.append((lay.board_shape, along[..., None] * problem.shape_basis[None, :, None, :]))
+    return glob, loc
+
+
+def _linearised_batches(problem: Problem, state: State):
+    """Per camera: ``(batch, r (B, 2N), J_g (B, 2N, k_g), global columns, J_l (B, 2N, k_l), local
+    slots)``, with the rows of unmeasured corners zero."""
+    for batch in problem.batches:
+        W, Xc, rel_t = _camera_points(problem, state, batch)
+        B, n = batch.observed.shape
+        with np.errstate(divide="ignore", invalid="ignore"):      # unmeasured corners may sit anywhere
+            uv, J_X, J_K = project_with_jacobians(state.camera(problem, batch.camera), Xc.reshape(-1, 3))
+        obs = batch.observed[:, :, None]
+        r = np.where(obs, uv.reshape(B, n, 2) - batch.uv_px, 0.0).reshape(B, 2 * n)
+        glob, loc = _jacobian_pieces(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3),
+                                     J_K.reshape(B, n, 2, -1))
+
+        def stacked(pieces):
+            J = np.concatenate([p for _, p in pieces], axis=-1)
+            return np.where(obs[..., None], J, 0.0).reshape(B, 2 * n, -1), np.concatenate([cols for cols, _ in pieces])
+        J_g, cols_g = stacked(glob)
+        J_l, slots_l = stacked(loc)
+        yield batch, r, J_g, cols_g, J_l, slots_l
+
+
+def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
+    """``r^T r`` and the normal equations, assembled photo by photo from dense (2N, k) pieces."""
+    lay = problem.layout
+    ne = NormalEquations.zeros(lay.n_global, lay.local_used)
+    total = 0.0
+    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
+        total += float(np.sum(r * r))
+        v = batch.views[:, None, None]              # one photo per instant in a camera: no index repeats
+        J_gT, J_lT = np.swapaxes(J_g, 1, 2), np.swapaxes(J_l, 1, 2)
+        ne.gg[v, cg[:, None], cg[None, :]] += J_gT @ J_g
+        ne.gl[v, cg[:, None], sl[None, :]] += J_gT @ J_l
+        ne.ll[v, sl[:, None], sl[None, :]] += J_lT @ J_l
+        g_g, g_l = np.einsum("bki,bk->bi", J_g, r), np.einsum("bki,bk->bi", J_l, r)
+        ne.grad_g[batch.views[:, None], cg] += g_g
+        ne.grad_l[batch.views[:, None], sl] += g_l
+        if problem.mode == "paper" and problem.tied(batch.camera):
+            _add_sphere_curvature(problem, state, ne, batch, g_g[:, cg == lay.baseline[batch.camera][0]][:, 0],
+                                  g_l[:, np.isin(sl, lay.direction[batch.camera])])
+    return total, ne
+
+
+def _add_sphere_curvature(problem: Problem, state: State, ne: NormalEquations, batch: CameraBatch,
+                          g_D: np.ndarray, g_dir: np.ndarray) -> None:
+    """Add the exact second-order terms ``sum r d2r`` that the paper's baseline ``D u_v`` brings in.
+
+    The constraint ``|t_v| = D`` is curved: where an instant's baseline depth is poorly determined
+    its direction moves far, and Gauss-Newton alone then converges only linearly. On the sphere
+    ``u(delta) = u + B delta - |delta|^2 u / 2 + ...``, so ``d2 X_c / d delta^2 = -D u I`` and
+    ``d2 X_c / dD d delta = B``; through the projection (whose own curvature Gauss-Newton neglects
+    as usual) these give ``H_delta,delta = -D g_D I`` and ``H_D,delta = g_delta / D`` with the
+    photo's gradients ``g_D = sum r^T J_X u`` and ``g_delta = D sum r^T J_X B``. ``g_D`` (B,) and
+    ``g_dir`` (B, 2) are those gradients of each photo of ``batch``.
+    """
+    lay, c = problem.layout, batch.camera
+    if ne.curvature_ll is None:
+        ne.curvature_ll, ne.curvature_gl = np.zeros_like(ne.ll), np.zeros_like(ne.gl)
+    D, dirs = state.baseline_mm[c], lay.direction[c]
+    free = lay.local_used[batch.views, dirs[0]]
+    ne.curvature_ll[batch.views[:, None], dirs, dirs] += (-D * g_D * free)[:, None]
+    ne.curvature_gl[batch.views[:, None], lay.baseline[c][0], dirs] += g_dir * free[:, None] / D
+
+
+@dataclass(frozen=True)
+class PhotoRows:
+    """The Jacobian rows of one photo's measured corners: ``J`` (m, k) over the flat parameter
+    indices ``columns`` (k,), residuals ``r`` (m,) (predicted - observed, px; corner by corner, u
+    then v); ``block`` is the photo's index in ``Problem.blocks``."""
+
+    block: int
+    columns: np.ndarray
+    J: np.ndarray
+    r: np.ndarray
+
+
+def photo_rows(problem: Problem, state: State) -> list[PhotoRows]:
+    """The Jacobian rows of every photo's measured corners, in the order of ``problem.blocks``."""
+    lay = problem.layout
+    out = []
+    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
+        rows = np.repeat(batch.observed, 2, axis=1)
+        for i, (b, v) in enumerate(zip(batch.blocks, batch.views)):
+            used = lay.local_used[v, sl]
+            J = np.concatenate([J_g[i], J_l[i][:, used]], axis=1)[rows[i]]
+            out.append(PhotoRows(int(b), np.concatenate([cg, lay.local_columns(v, sl[used])]), J, r[i][rows[i]]))
+    return sorted(out, key=lambda pr: pr.block)
+
+
+@dataclass(frozen=True)
+class InstantRows:
+    """The Jacobian rows of one instant's measured corners: ``J`` (m, k) over the flat parameter
+    indices ``columns`` (k,), residuals ``r`` (m,) (predicted - observed, px); ``row_cameras`` (m,) the
+    camera index of each row."""
+
+    view: str
+    columns: np.ndarray
+    J: np.ndarray
+    r: np.ndarray
+    row_cameras: np.ndarray | None = None
+
+
+def instant_rows(problem: Problem, state: State) -> list[InstantRows]:
+    """The Jacobian rows of every instant's measured corners, in the order of ``problem.views``
+    (within an instant: camera by camera, corner by corner, u then v)."""
+    parts = defaultdict(list)
+    for pr in photo_rows(problem, state):
+        parts[problem.view_index[problem.blocks[pr.block][1]]].append(pr)
+    out = []
+    for v, pieces in sorted(parts.items()):
+        pieces.sort(key=lambda pr: problem.blocks[pr.block][0])
+        columns = np.unique(np.concatenate([pr.columns for pr in pieces]))
+        J = np.zeros((sum(len(pr.r) for pr in pieces), len(columns)))
+        row = 0
+        for pr in pieces:
+            J[row:row + len(pr.r), np.searchsorted(columns, pr.columns)] = pr.J
+            row += len(pr.r)
+        out.append(InstantRows(problem.views[v], columns, J, np.concatenate([pr.r for pr in pieces]),
+                               np.concatenate([np.full(len(pr.r), problem.blocks[pr.block][0]) for pr in pieces])))
+    return out
+
+
+# ----------------------------------------------------------------------------- the solution
+
+
+@dataclass
+class Solution:
+    """Result of :func:`adjust`: the state, the fit and the factorized normal equations.
+
+    ``residuals`` is (n_blocks, N, 2), NaN where a corner was not measured; ``block_rms_px`` the
+    RMS length of each photo's 2-D residuals over its measured corners.
+    """
+
+    problem: Problem
+    state: State
+    residuals: np.ndarray
+    s0_px: float
+    redundancy: int
+    iterations: int
+    converged: bool
+    termination: str
+    factorization: Factorization
+    block_rms_px: list[float] = field(default_factory=list)
+
+    def covariance(self, columns, kind: str = "formal") -> np.ndarray:
+        """The covariance of the flat parameters ``columns`` (mm, rad, px...): ``formal``
+        ``s0^2 N^-1``, or ``clustered`` by instant (module docstring)."""
+        if kind == "formal":
+            return self.s0_px ** 2 * self.factorization.inverse_block(columns)
+        if kind != "clustered":
+            raise ValueError(f"covariance kind {kind!r} is not one of {COVARIANCE_KINDS}")
+        return clustered_covariance(self._cluster_scores, self.factorization.inverse_block, columns)
+
+    def instant_shifts(self, columns) -> dict[str, np.ndarray]:
+        """``{view: (k,)}``: each instant's shift of the flat parameters ``columns`` (its adjusted score
+        through ``N^-1``), whose outer products sum to the ``clustered`` covariance."""
+        shifts = cluster_shifts(self._cluster_scores, self.factorization.inverse_block, columns)
+        return {rows.view: shifts[:, i] for i, rows in enumerate(self.instant_rows)}
+
+    @cached_property
+    def _cluster_scores(self):
+        return cluster_scores(self.instant_rows, self.factorization.inverse_block)
+
+    def intrinsic_sigma(self, c: int, kind: str = "formal") -> dict[str, float]:
+        """1-sigma of every intrinsic of camera ``c`` (0 for a fixed one), of covariance ``kind``."""
+        lay = self.problem.layout
+        sig = dict.fromkeys(INTRINSIC_NAMES, 0.0)
+        cols = lay.intrinsics[c]
+        values = np.sqrt(np.maximum(np.diag(self.covariance(cols, kind)), 0.0))
+        for name, s in zip(np.array(INTRINSIC_NAMES)[lay.free_intrinsics[c]], values):
+            sig[str(name)] = float(s)
+        return sig
+
+    @cached_property
+    def instant_rows(self) -> list[InstantRows]:
+        """:func:`instant_rows` at the solution (for a covariance clustered by instant; ``N^-1``
+        on any columns from :meth:`covariance` over ``s0^2``)."""
+        return instant_rows(self.problem, self.state)
+
+    def held_out_residuals(self) -> dict[str, np.ndarray | None]:
+        """Every instant's residuals (px, as :class:`InstantRows`) predicted by the adjustment
+        without it, its own poses fitted to it again: a linearised leave-one-instant-out
+        (:func:`dualcal.estimation.uncertainty.held_out_residuals`); None for an instant the others cannot
+        do without (the only one to show some parameter)."""
+        G, inverse = self.problem.layout.n_global, self.factorization.inverse_block
+        return {ir.view: held_out_residuals(ir.J, ir.r, inverse(ir.columns), int(np.sum(ir.columns >= G)))
+                for ir in self.instant_rows}
+
+
+def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> Solution:
+    """Levenberg-Marquardt from ``state`` (:func:`dualcal.estimation.lm.levenberg_marquardt`).
+
+    Raises
+    ------
+    EstimationError
+        Fewer observations than unknowns, or a singular normal matrix (the data do not determine
+        the parameters).
+    """
+    redundancy = problem.n_observations - problem.n_parameters
+    if redundancy <= 0:
+        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
+    try:
+        behind = corners_behind(problem, state)       # a poor start may have some: none may be added
+        res = levenberg_marquardt(state, lambda s: linearise(problem, s), lambda s: cost(problem, s, behind),
+                                  lambda s, h: s.updated(problem.layout, h), redundancy, options)
+    except np.linalg.LinAlgError:
+        raise EstimationError("the normal equations are singular: the photos do not determine every "
+                              "parameter (too few views, or views all alike)") from None
+    r = residuals(problem, res.x)
+    block_rms = np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1))
+    return Solution(problem, res.x, r, float(np.sqrt(res.cost / redundancy)), redundancy, res.iterations,
+                    res.converged, res.termination, res.factorization, block_rms.tolist())

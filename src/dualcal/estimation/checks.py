@@ -1,0 +1,478 @@
+"""Checks of a calibration: whether, and how far, to trust it.
+
+Each check is ``{"ok": bool, "message": "...", ...}`` (calib.json's ``checks``, the contract), with
+a message in plain words that says what is wrong and what would help:
+
+``converged``      the adjustment reached its optimum.
+``photos``         enough instants for sigmas that come from how the photos disagree.
+``fit``            every camera's RMS (2-D, per corner) near what corner detection achieves.
+``rig_rigid``      the photos of every instant fit one rigid relative pose of the cameras, judged
+                   against the photo-level noise (an unsynchronised pair, a lens that moved).
+``focus``          no photo whose own focal length is off by many sigma (the phone refocused).
+``determination``  every parameter determined well enough (focal length, principal point,
+                   distortion as far out as corners were measured, baseline, angles).
+``lens_model``     residuals that do not grow towards the image's edge (the lens model lacks terms).
+``scale_plausible`` where EXIF shows a phone's small sensor (focal length in mm and its 35 mm equivalent):
+                   the board's distance and the lenses' spacing are a phone's (:func:`scale_plausibility`).
+                   Every length scales with the board's square size, which only the user knows; a wrong
+                   one passes every other check. Without those EXIF facts there is nothing to judge it by,
+                   so there is no such check and :func:`scale_note` says that the scale rests on the square
+                   (a check that always passes would only add to "all checks pass").
+
+*Photo-level noise.* Corner errors within one photo are correlated on real photos, so a test
+against white corner noise (``s0``) would fail every real rig. The checks measure noise in units of
+``kappa^2 s0^2``, where the design effect ``kappa^2`` of a camera is how much more its photos
+disagree than white noise allows: the median ratio of the clustered to the formal variance of
+its intrinsics, never below 1 (:func:`design_effect`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .adjust import Solution, photo_rows
+from ..geometry.camera import FULL_FRAME_DIAGONAL_MM
+from ..geometry.model import RigModel
+
+__all__ = ["design_effect", "rig_rigid", "rigidity_statistics", "focus_drift", "focal_scale_fits", "tie_costs",
+           "determination", "fit_quality", "photo_count", "lens_model_fit", "convergence", "scale_plausibility",
+           "scale_note", "run_checks", "verdict",
+           "failed_checks"]
+
+#: Fewer instants than this give unreliable sigmas (they come from the instants' scatter).
+MIN_INSTANTS = 8
+#: A camera's RMS (2-D, per corner) above this is far beyond what corner detection achieves.
+FIT_RMS_LIMIT_PX = 1.0
+#: The instants together, or one instant, fail where they fit this many times worse than the
+#: photo-level noise allows per degree of freedom. That noise is estimated from the intrinsics'
+#: scatter, and the poses see more of an error that is smooth across one photo than the intrinsics do
+#: (a shift of 0.02 px common to one photo's corners, independent between the cameras, already fits a
+#: rigid rig 2-3 x worse than white noise of 0.05 px allows; the renders of ``make demo`` 1.6 x), while
+#: a shot out of sync or a lens that moved fits tens to hundreds of times worse.
+RIGID_RATIO = 10.0
+#: A photo's own focal length this many sigma from the others' is a refocus ...
+FOCUS_SIGMAS = 5.0
+#: ... where that focal change takes away at least this share of its instant's extra cost of being tied
+#: to the rig (a desynchronised shot also pulls the focal lengths, but explains little of its misfit so).
+REFOCUS_SHARE = 0.6
+#: Noise below this (px) is numerical: exact synthetic corners are judged against it instead.
+NOISE_FLOOR_PX = 1e-6
+#: Thresholds of ``determination``.
+MAX_FOCAL_REL = 0.01               # sigma of fx, fy relative to the value
+MAX_CENTRE_REL = 0.01              # sigma of cx, cy relative to the image width, height
+MAX_DISTORTION_PX = 0.5            # sigma of the radial distortion at the outermost corner measured
+MAX_BASELINE_REL = 0.02            # sigma of the baseline relative to it
+MAX_ANGLE_ARCMIN = 30.0            # sigma of omega, phi, kappa
+#: ``scale_plausible``: a sensor whose diagonal (from EXIF: 43.27 mm x focal length / its 35 mm
+#: equivalent) is below this is a phone's (1/1.3" is 12 mm, a 1" type 16 mm), whose lenses sit this
+#: far apart (mm) ...
+PHONE_SENSOR_DIAGONAL_MM = 20.0
+PHONE_BASELINE_MM = (5.0, 40.0)
+#: ... and whose board is held this far away (mm; the median over the instants, from the reference camera).
+PHONE_BOARD_DISTANCE_MM = (150.0, 5000.0)
+
+#: ``lens_model``: RMS of the outermost third of a camera's corners (by their distance from the
+#: principal point) over that of the innermost third, beyond which the model misses terms.
+EDGE_RATIO = 2.0
+
+
+def design_effect(sol: Solution) -> dict[int, float]:
+    """Per camera index: median over its free intrinsics of clustered / formal variance, at least 1."""
+    out = {}
+    for c in range(len(sol.problem.cameras)):
+        clustered, formal = sol.intrinsic_sigma(c, "clustered"), sol.intrinsic_sigma(c, "formal")
+        out[c] = max(1.0, float(np.median([(clustered[n] / s) ** 2 for n, s in formal.items() if s > 0])))
+    return out
+
+
+def _block_costs(sol: Solution) -> np.ndarray:
+    return np.nansum(sol.residuals ** 2, axis=(1, 2))
+
+
+def rigidity_statistics(tied: Solution, alone: Solution, kappa2: dict[int, float] | None = None):
+    """Per instant, the extra cost of tying its photos to one relative pose, in units of the photo-level
+    noise, and its degrees of freedom; and the noise ``kappa^2 s0^2`` (px^2). None for a rig of one
+    camera or mode ``none``. See :func:`rig_rigid`."""
+    p = tied.problem
+    if p.mode == "none" or len(p.cameras) < 2:
+        return None
+    kappa2 = max((design_effect(alone) if kappa2 is None else kappa2).values())
+    noise = max(kappa2 * alone.s0_px ** 2, NOISE_FLOOR_PX ** 2)
+    per = 6 if p.mode == "rigid" else 4
+    stats, dofs = {}, {}
+    for view, extra in tie_costs(tied, alone).items():
+        cams = {c for c, v, _ in p.blocks if v == view}
+        k = per * len(cams - {p.reference}) if p.reference in cams else 0
+        if k:
+            stats[view], dofs[view] = float(extra / noise), k
+    tied_cams = {c for c, _, _ in p.blocks if c != p.reference}
+    dof = sum(dofs.values()) - per * len(tied_cams)
+    if dof <= 0 or not stats:
+        return None
+    return {"stats": stats, "dofs": dofs, "dof": dof, "design_effect": kappa2}
+
+
+def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None = None,
+              explained=(), named: dict[str, float] | None = None) -> dict | None:
+    """Whether every instant's photos fit one rigid relative pose (None for a rig of one camera or
+    mode ``none``).
+
+    Both solutions must be over the same photos: ``tied`` in rig mode ``rigid`` or ``paper``,
+    ``alone`` with every camera alone. The extra cost of tying instant ``v`` in units of the photo-level
+    noise ``kappa^2 s0^2`` of the cameras alone is ``T_v`` (:func:`rigidity_statistics`), with ``k_v``
+    degrees of freedom (6 per tied camera of the instant; 4 for the paper's model, whose baseline
+    direction is free). An instant fails where ``T_v > RIGID_RATIO k_v``, and the instants together
+    where ``sum T_v`` exceeds :data:`RIGID_RATIO` times their degrees of freedom (less one instant's worth
+    per tied camera): a synchronised rig fits about 1-3 x its photo-level noise per degree of freedom,
+    a desynchronised shot or a lens that moved tens to hundreds of times (the constant's comment).
+    ``explained`` are instants whose misfit a refocused photo explains (``focus``): they are not
+    flagged here. ``named`` are instants already found not to fit (:func:`dualcal.estimation.calibrate.attribution_checks`
+    takes the worst out and judges the others without it, so that a bad instant, which pulls the
+    shared pose, does not make the good ones look bad): their statistic as it was, flagged first.
+    """
+    found = rigidity_statistics(tied, alone, kappa2)
+    if found is None:
+        return None
+    stats, dofs, dof, kappa2 = found["stats"], found["dofs"], found["dof"], found["design_effect"]
+    named = named or {}
+    flagged = list(named) + sorted((v for v in stats if v not in explained and stats[v] > RIGID_RATIO * dofs[v]),
+                                   key=lambda v: -stats[v])
+    kept = {v: t for v, t in stats.items() if v not in explained}
+    ratio = float(sum(kept.values())) / dof if kept else 0.0
+    ok = ratio <= RIGID_RATIO and not flagged
+    doc = {"ok": ok, "ratio": ratio, "limit_ratio": RIGID_RATIO, "design_effect": kappa2,
+           "instants": {v: round(t, 3) for v, t in {**stats, **named}.items()}, "flagged": flagged,
+           "explained_by_refocus": sorted(v for v in explained if v in stats)}
+    if ok:
+        doc["message"] = (f"the photos of every instant fit one rigid relative pose ({ratio:.2f} x the photo-level "
+                          f"noise on average, limit {RIGID_RATIO:.3g})")
+    elif flagged:
+        all_stats = {**stats, **named}
+        worst = ", ".join(f"{v} ({all_stats[v] / dofs.get(v, 6):.0f} x)" for v in flagged[:5])
+        doc["message"] = (f"the photos of {len(flagged)} instant(s) do not fit the rig's relative pose: {worst} the "
+                          "photo-level noise, the others fit: the cameras' shots of "
+                          f"{'that instant' if len(flagged) == 1 else 'those instants'} disagree (not taken at the same "
+                          "instant, a lens that moved, or a board that moved between the shots); drop them with "
+                          "--exclude or shoot them again")
+    else:
+        doc["message"] = (f"the instants fit one rigid relative pose {ratio:.1f} x worse than the photo-level noise "
+                          f"allows (limit {RIGID_RATIO:.3g}): the cameras' shots are not synchronised, or the "
+                          "rig is not rigid; its baseline and angles hold only on average")
+    return doc
+
+
+def focal_scale_fits(sol: Solution, views=None) -> list[dict]:
+    """Each photo's own focal scale, fitted with its instant's own unknowns, linearised at ``sol``.
+
+    For every photo of the instants ``views`` (default: all), ``fx`` and ``fy`` times ``1 + s`` are
+    fitted together with the instant's own unknowns (the board pose; in a rig it is held by the
+    instant's other photos too, so a tele that refocused shows against the wide) and every other
+    parameter held. Returns ``{"block", "camera" (index), "view", "s", "var_s" (per unit residual
+    variance), "explained_px2"}`` per photo: ``explained_px2`` is how much of the instant's squared
+    residuals the focal scale takes away.
+    """
+    p, lay = sol.problem, sol.problem.layout
+    by_instant: dict[str, list] = {}
+    for pr in photo_rows(p, sol.state):
+        view = p.blocks[pr.block][1]
+        if views is None or view in views:
+            by_instant.setdefault(view, []).append(pr)
+    fits = []
+    for view, rows in by_instant.items():
+        local = np.unique(np.concatenate([pr.columns[pr.columns >= lay.n_global] for pr in rows]))
+        m = sum(len(pr.r) for pr in rows)
+        J_local, r = np.zeros((m, len(local))), np.concatenate([pr.r for pr in rows])
+        row = 0
+        for pr in rows:
+            own = pr.columns >= lay.n_global
+            J_local[row:row + len(pr.r), np.searchsorted(local, pr.columns[own])] = pr.J[:, own]
+            row += len(pr.r)
+        row = 0
+        for pr in rows:
+            c = p.blocks[pr.block][0]
+            col = {int(k): i for i, k in enumerate(pr.columns)}
+            fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are always free
+            cam = sol.state.intrinsics[c]
+            J_scale = np.zeros(m)
+            J_scale[row:row + len(pr.r)] = cam[0] * pr.J[:, col[fx_col]] + cam[1] * pr.J[:, col[fy_col]]
+            row += len(pr.r)
+            A = np.column_stack([J_local, J_scale])
+            try:
+                inv = np.linalg.inv(A.T @ A)
+            except np.linalg.LinAlgError:
+                continue
+            step = inv @ (A.T @ r)
+            fits.append({"block": pr.block, "camera": c, "view": view, "s": float(-step[-1]),
+                         "var_s": float(inv[-1, -1]), "explained_px2": float(step[-1] ** 2 / inv[-1, -1])})
+    return fits
+
+
+def tie_costs(tied: Solution, alone: Solution) -> dict[str, float]:
+    """Per instant, how much more its photos cost (px^2) tied to the rig than with every camera alone."""
+    extra = _block_costs(tied) - _block_costs(alone)
+    out: dict[str, float] = {}
+    for b, (_, view, _) in enumerate(tied.problem.blocks):
+        out[view] = out.get(view, 0.0) + float(extra[b])
+    return out
+
+
+def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str, float] | None = None,
+                named: list[dict] = ()) -> dict:
+    """Photos whose own focal length is off: the phone refocused or zoomed between shots.
+
+    A photo's own focal scale ``s`` (:func:`focal_scale_fits`) against its sigma in photo-level noise
+    (``kappa2[c]`` for camera ``c``) beyond :data:`FOCUS_SIGMAS` is a candidate. In a rig, an instant
+    whose cameras' shots disagree (a desynchronised shot, a lens that moved) also pulls the focal
+    lengths of its photos, but a focal change explains only a small part of its misfit, where a refocus
+    explains most of it: with ``tie_cost_px2`` (:func:`tie_costs`), a candidate is a refocus only where
+    its focal scale takes away at least :data:`REFOCUS_SHARE` of its instant's extra cost of being tied
+    to the rig; the others are left to ``rig_rigid`` (``flagged`` lists them with ``"cause": "rig"``).
+    ``named`` are refocused photos already found (:func:`dualcal.estimation.calibrate.attribution_checks` takes each
+    out and judges the others without it): they are flagged first, as they were found.
+    """
+    flagged = list(named)
+    for fit in focal_scale_fits(sol):
+        c, view = fit["camera"], fit["view"]
+        z = fit["s"] / np.sqrt(max(kappa2[c] * sol.s0_px ** 2, NOISE_FLOOR_PX ** 2) * fit["var_s"])
+        if abs(z) <= FOCUS_SIGMAS:
+            continue
+        tie = (tie_cost_px2 or {}).get(view)
+        share = fit["explained_px2"] / tie if tie and tie > 0 else None
+        cause = "refocus" if share is None or share >= REFOCUS_SHARE else "rig"
+        flagged.append({"camera": sol.problem.cameras[c], "view": view, "focal_change": fit["s"], "sigmas": float(z),
+                        "explained_share": share, "cause": cause})
+    flagged[len(named):] = sorted(flagged[len(named):], key=lambda f: -abs(f["sigmas"]))
+    refocused = [f for f in flagged if f["cause"] == "refocus"]
+    if not refocused:
+        rest = (f" (the focal lengths of {len(flagged)} photo(s) of instants that do not fit the rig move too, as a "
+                "pose error pulls them: see rig_rigid)") if flagged else ""
+        return {"ok": True, "flagged": flagged, "message": f"no photo's own focal length is off by more than "
+                                                            f"{FOCUS_SIGMAS:g} sigma{rest}"}
+    worst = ", ".join(f"{f['camera']}/{f['view']} ({100 * f['focal_change']:+.2f} %, {abs(f['sigmas']):.0f} sigma)"
+                      for f in refocused[:4])
+    return {"ok": False, "flagged": flagged,
+            "message": f"{len(refocused)} photo(s) have a focal length of their own: {worst}: the phone refocused or "
+                       "zoomed between shots; lock focus (AF/AE lock) and shoot again, or leave them out with --exclude"}
+
+
+def _edge_distortion_sigma(rig: RigModel, name: str, uv: np.ndarray) -> float | None:
+    """The sigma (px, radial, the larger of the covariance kinds) of camera ``name``'s lens distortion at
+    the measured corner ``uv`` (N, 2) farthest from the principal point; None without a covariance of its
+    lens coefficients. The derivative of the pixel by the lens coefficients comes from the camera model
+    (:func:`dualcal.geometry.camera.project_with_jacobians`), so it holds for every lens model."""
+    from ..geometry.camera import INTRINSIC_NAMES, LENS_MODELS, ideal_normalized_from_pixel, project_with_jacobians
+    from .covariance import JointCovariance, intrinsic_name
+
+    cam = rig.cameras[name]
+    terms = [k for k in LENS_MODELS[cam.model] if rig.camera_sigma[name].get(k, 0.0) > 0]
+    names = [intrinsic_name(name, k) for k in terms]
+    if not terms or not len(uv) or not rig.covariance:
+        return None
+    cov = JointCovariance.from_dict(rig.covariance)
+    if not cov.has(names):
+        return None
+    xy = ideal_normalized_from_pixel(cam, uv)
+    far = int(np.argmax(np.hypot(xy[:, 0], xy[:, 1])))
+    uv_far, _, J_K = project_with_jacobians(cam, np.array([[xy[far, 0], xy[far, 1], 1.0]]))
+    outward = uv_far[0] - [cam.cx, cam.cy]
+    outward = outward / max(np.linalg.norm(outward), 1e-12)
+    g = outward @ J_K[0][:, [INTRINSIC_NAMES.index(k) for k in terms]]
+    return cov.derived_sigma(names, g)
+
+
+def determination(rig: RigModel) -> dict:
+    """Parameters known too poorly to use, in plain words with what would help (thresholds above)."""
+    problems = []
+    used = rig.used_corners()
+    for name, cam in rig.cameras.items():
+        sig = rig.camera_sigma[name]
+        w, h = cam.image_size
+        for key in ("fx", "fy"):
+            rel = sig.get(key, 0.0) / getattr(cam, key)
+            if rel > MAX_FOCAL_REL:
+                problems.append(f"{name} {key} known only to +-{100 * rel:.1f} %: add photos with the board tilted "
+                                "30-50 degrees in different directions")
+        for key, size in (("cx", w), ("cy", h)):
+            if sig.get(key, 0.0) > MAX_CENTRE_REL * size:
+                problems.append(f"{name} {key} known only to +-{sig[key]:.0f} px: add photos with the board tilted "
+                                "and in every part of the frame")
+        # the distortion where the data reach: beyond the outermost corner it is extrapolated
+        uv = np.vstack([uv for uv in used.cameras[name].found().values()] or [np.zeros((0, 2))])
+        uv = uv[np.all(np.isfinite(uv), axis=1)]
+        s = _edge_distortion_sigma(rig, name, uv)
+        if s is not None:
+            if s > MAX_DISTORTION_PX:
+                problems.append(f"{name} distortion known only to +-{s:.1f} px at the outermost corner measured: "
+                                "add photos with the board near the corners and edges of the frame")
+    for name, rel in rig.rig.items():
+        D = rel.baseline_mm
+        if D > 0 and rel.sigma_baseline_mm > MAX_BASELINE_REL * D:
+            problems.append(f"{name} baseline known only to +-{100 * rel.sigma_baseline_mm / D:.1f} %: add instants "
+                            "with the board tilted, at several distances")
+        if np.max(rel.sigma_opk_arcmin) > MAX_ANGLE_ARCMIN:
+            problems.append(f"{name} relative angles known only to +-{np.max(rel.sigma_opk_arcmin):.0f} arcmin: add "
+                            "instants with the board tilted in different directions")
+    if not problems:
+        return {"ok": True, "problems": [], "message": "every parameter is well determined"}
+    return {"ok": False, "problems": problems, "message": "; ".join(problems)}
+
+
+def fit_quality(rig: RigModel) -> dict:
+    """Every camera's RMS (2-D, per corner) below :data:`FIT_RMS_LIMIT_PX`."""
+    bad = {n: r for n, r in rig.camera_rms_px.items() if r > FIT_RMS_LIMIT_PX}
+    if not bad:
+        return {"ok": True, "message": "every camera fits its corners to "
+                                       f"{max(rig.camera_rms_px.values()):.3g} px RMS (2-D, per corner) or better"}
+    worst = ", ".join(f"{n} {r:.2f} px" for n, r in bad.items())
+    return {"ok": False, "message": f"RMS (2-D, per corner) {worst}, far above what corner detection achieves on sharp "
+                                    "photos (0.02-0.3 px): a board that is not flat or not printed true, blurred or "
+                                    "moving photos, or corners found wrongly; the sigmas account for it, but check "
+                                    "the board and the photos"}
+
+
+def photo_count(rig: RigModel) -> dict:
+    """At least :data:`MIN_INSTANTS` instants."""
+    n = len({v for poses in rig.camera_poses.values() for v in poses})
+    if n >= MIN_INSTANTS:
+        return {"ok": True, "instants": n, "message": f"{n} instants"}
+    return {"ok": False, "instants": n,
+            "message": f"only {n} instants: 10-20, the board tilted 30-50 degrees in different directions and "
+                       "reaching the corners of the frame, give parameters and sigmas you can rely on (the sigmas "
+                       "come from how the photos disagree with each other)"}
+
+
+def lens_model_fit(sol: Solution) -> dict:
+    """Residuals that grow towards the image's edge: a model problem, reported, never a reason to drop."""
+    p = sol.problem
+    bad, views = [], []
+    for c, name in enumerate(p.cameras):
+        cam = sol.state.camera(p, c)
+        w, h = cam.image_size
+        rho_all, len_all = [], []
+        for b, (cc, view, uv) in enumerate(p.blocks):
+            if cc != c:
+                continue
+            length = np.linalg.norm(sol.residuals[b], axis=1)
+            seen = np.isfinite(length)
+            rho = np.hypot(uv[seen, 0] - cam.cx, uv[seen, 1] - cam.cy)
+            rho_all.append(rho)
+            len_all.append(length[seen])
+            if _edge_ratio(rho, length[seen]) > EDGE_RATIO:
+                views.append(f"{name}/{view}")
+        ratio = _edge_ratio(np.concatenate(rho_all), np.concatenate(len_all)) if rho_all else np.nan
+        if ratio > EDGE_RATIO:
+            bad.append(f"{name} ({ratio:.1f} x)")
+    if not bad:
+        return {"ok": True, "views": views, "message": "residuals do not grow towards the image's edge"}
+    return {"ok": False, "views": views,
+            "message": f"residuals at the image's edge are far larger than at its centre: {', '.join(bad)}: the lens "
+                       "model misses terms; try --model with more coefficients (k1k2p1p2k3), and see the report's "
+                       "residual plots"}
+
+
+def _edge_ratio(rho: np.ndarray, length: np.ndarray, min_points: int = 10) -> float:
+    """RMS of the residual lengths of the outermost third of the corners (by ``rho``) over that of the
+    innermost third (NaN with fewer than ``min_points`` in a third)."""
+    if len(rho) < 3 * min_points:
+        return float("nan")
+    lo, hi = np.quantile(rho, [1 / 3, 2 / 3])
+    inner, outer = length[rho <= lo], length[rho >= hi]
+    return float(np.sqrt(np.mean(outer ** 2)) / max(np.sqrt(np.mean(inner ** 2)), 1e-12))
+
+
+def convergence(sol: Solution) -> dict:
+    if sol.converged:
+        return {"ok": True, "message": f"the adjustment converged in {sol.iterations} iterations"}
+    return {"ok": False, "message": f"the adjustment did not converge ({sol.termination}): the results and their sigmas "
+                                    "are not those of the best fit"}
+
+
+def _sensor_diagonals_mm(rig: RigModel) -> dict[str, float]:
+    """Each camera's sensor diagonal from its corners' EXIF facts (``meta["exif"]``), where they are given."""
+    out = {}
+    for name, cam in rig.corners.cameras.items():
+        exif = cam.meta.get("exif") or {}
+        f_mm, f35_mm = exif.get("focal_length_mm"), exif.get("focal_length_35mm_mm")
+        if isinstance(f_mm, (int, float)) and isinstance(f35_mm, (int, float)) and f_mm > 0 and f35_mm > 0:
+            out[name] = FULL_FRAME_DIAGONAL_MM * f_mm / f35_mm
+    return out
+
+
+def scale_plausibility(rig: RigModel) -> dict | None:
+    """The ``scale_plausible`` check (module docstring), or None where no camera's EXIF shows a phone's sensor.
+
+    Returns ``{"ok", "message", "sensor_diagonal_mm": {camera: mm}, "board_distance_mm": median over the
+    instants, "baseline_mm": {camera: mm}}``.
+    """
+    diagonals = _sensor_diagonals_mm(rig)
+    if not diagonals or max(diagonals.values()) >= PHONE_SENSOR_DIAGONAL_MM:
+        return None
+    centre = rig.board.object_points_mm().mean(axis=0)
+    distance = float(np.median([np.linalg.norm(p.R @ centre + p.t_mm) for p in rig.reference_poses().values()]))
+    baselines = {name: float(rel.baseline_mm) for name, rel in rig.rig.items()}
+    problems = []
+    lo, hi = PHONE_BOARD_DISTANCE_MM
+    if not lo <= distance <= hi:
+        problems.append(f"the board is {distance:.0f} mm from the {rig.reference} camera, where a phone's board is "
+                        f"held {lo / 1000:g}-{hi / 1000:g} m away")
+    lo, hi = PHONE_BASELINE_MM
+    odd = {n: b for n, b in baselines.items() if not lo <= b <= hi}
+    if odd:
+        problems.append(f"the lenses are {', '.join(f'{n} {b:.1f} mm' for n, b in odd.items())} apart, where a "
+                        f"phone's are {lo:g}-{hi:g} mm")
+    doc = {"sensor_diagonal_mm": diagonals, "board_distance_mm": distance, "baseline_mm": baselines}
+    sensors = ", ".join(f"{n} {d:.1f} mm" for n, d in diagonals.items())
+    if problems:
+        return {"ok": False, **doc,
+                "message": f"{'; '.join(problems)} (a phone's sensor by EXIF: diagonal {sensors}): is the board's "
+                           f"square really {rig.board.square_mm:g} mm? Every length scales with it"}
+    return {"ok": True, **doc,
+            "message": f"the board's distance ({distance:.0f} mm) and the lenses' spacing are a phone's (sensor "
+                       f"diagonal by EXIF {sensors}), as a square of {rig.board.square_mm:g} mm makes them"}
+
+
+def scale_note(rig: RigModel) -> str:
+    """One line for a calibration without the ``scale_plausible`` check: what its lengths rest on."""
+    return (f"the scale (every length in mm) rests on the board's square of {rig.board.square_mm:g} mm alone: "
+            "the photos' EXIF has no focal length and 35 mm equivalent of a phone's lens to judge it by")
+
+
+def _attribution(tied: Solution, alone: Solution, kappa2) -> tuple[dict, dict | None]:
+    """``focus`` and ``rig_rigid`` from one pair of solutions (no photo or instant taken out)."""
+    focus = focus_drift(tied, kappa2, tie_costs(tied, alone) if tied.problem.mode != "none" else None)
+    explained = {f["view"] for f in focus["flagged"] if f["cause"] == "refocus"}
+    return focus, rig_rigid(tied, alone, kappa2, explained)
+
+
+def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solution, attribution=None) -> dict:
+    """Every check of a calibration: ``rig`` and its final solution ``sol``; ``tied_flat`` the same
+    rig mode with a flat board and ``alone`` every camera alone, over the same photos (for
+    ``rig_rigid`` and ``focus``). ``attribution(tied, alone, kappa2) -> (focus, rig_rigid)`` makes those
+    two (default: from these solutions alone; :func:`dualcal.estimation.calibrate.attribution_checks` names each
+    refocused photo and each instant that does not fit the rig alone)."""
+    checks = {"converged": convergence(sol), "photos": photo_count(rig), "fit": fit_quality(rig)}
+    kappa2 = design_effect(alone)
+    focus, rigid = (attribution or _attribution)(tied_flat, alone, kappa2)
+    if rigid is not None:
+        checks["rig_rigid"] = rigid
+    checks["focus"] = focus
+    checks["determination"] = determination(rig)
+    checks["lens_model"] = lens_model_fit(sol)
+    scale = scale_plausibility(rig)
+    if scale is not None:
+        checks["scale_plausible"] = scale
+    return checks
+
+
+def failed_checks(checks: dict) -> list[str]:
+    return [name for name, c in checks.items() if not c.get("ok", True)]
+
+
+def verdict(checks: dict) -> str:
+    """One line: whether to trust the calibration, naming the checks that fail."""
+    if not checks:
+        return "verdict: no checks were run"
+    failed = failed_checks(checks)
+    if not failed:
+        return f"verdict: all {len(checks)} checks pass: the results and their sigmas hold for these photos"
+    return f"verdict: use with care: {len(failed)} of {len(checks)} checks fail ({', '.join(failed)})"

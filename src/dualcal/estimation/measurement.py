@@ -1,0 +1,342 @@
+"""Measuring with a calibrated rig: 3-D points and lengths from one instant, each with an honest sigma.
+
+A point is given by its pixels in two or more cameras of the rig, in photos taken at one instant
+(points.json, contract "measure"). It is intersected in the reference camera's frame with the
+rig alone: camera ``c`` sees ``X_c = R_c X + t_c`` (:meth:`dualcal.geometry.model.RigModel.pose_from_reference`),
+by :func:`dualcal.estimation.intersect.triangulate` (least squares on the pixel residuals, paper section 2).
+
+Uncertainty, to first order. The point minimises the pixel residuals
+``r(X, theta, uv) = project(cam_i, R_i X + t_i) - uv_i`` of its photos; at the minimum
+``J^T r = 0`` with ``J = dr/dX`` (2m x 3), so measured pixels moved by ``duv`` and calibrated
+parameters moved by ``dtheta`` move the point by::
+
+    dX = A (duv - J_theta dtheta),    A = (J^T J)^-1 J^T.
+
+``theta`` are the parameters of calib.json's joint covariance (``covariance``, built by
+:func:`dualcal.estimation.rig_relations.parameter_covariance`) of the cameras the point was seen by: their free
+intrinsics (``J_theta`` from :func:`dualcal.geometry.camera.project_with_jacobians`, so any lens model),
+and for a non-reference camera its rotation's left increment ``d`` (``R_c <- exp([d]x) R_c``, so
+``d(R_c X)/dd = -[R_c X]x``) and its translation ``t_c``. Every point of one measurement shares
+``theta``, so their errors are correlated; the joint covariance of the P points (3P x 3P) is::
+
+    Cov = blockdiag(A_p S_p A_p^T) + B Cov_theta B^T,    B = [-A_p J_theta,p]  (3P x k),
+
+with ``S_p`` the pixel noise (``pixel_sigma^2`` per coordinate, independent between photos). A
+length ``L = |X_a - X_b|`` has ``sigma_L^2 = g^T Cov g``, ``g = (e, -e)``, ``e`` the unit vector
+from b to a: the correlations are kept, so an error of the rig's scale shows in full in a length,
+while a shift of both ends alike cancels.
+
+Which covariance of ``theta``: calib.json holds two, ``clustered`` by instant and ``formal``
+(:mod:`dualcal.estimation.uncertainty`). As for every sigma dualcal reports, each value's sigma is the larger
+of the two propagated ones: for a coordinate the larger variance, for a length the larger
+``sigma_L``, each computed within one covariance with all its correlations (taking the larger per
+coordinate first and combining those would not be a covariance, and would lose the correlations
+that make a length more certain than its ends).
+
+Pixel noise: ``pixel_sigma`` of points.json (px per coordinate; one number, or one per camera);
+by default each camera's own noise in its calibration, ``rms_px / sqrt(2)`` (per coordinate, from
+the 2-D RMS) times ``sqrt(observations / redundancy)`` (the residuals of a fit are smaller than its
+errors): :func:`calibration_pixel_sigma`. That is the noise of a detected corner; pixels placed
+by hand are less precise, and should say so.
+
+When the linear model stops describing a length, its sigma means little, and the length is
+flagged (``meaningless`` in measure.json, a warning on stderr saying what would help): its sigma
+above :data:`MAX_RELATIVE_SIGMA` of it; an end point whose depth is uncertain by more than
+:data:`MAX_DEPTH_SHARE` of its distance (the intersection is then far from linear: depth goes as
+1 / parallax); or end points so uncertain across the line (mostly in depth) that the length comes
+out long on average by more than :data:`MAX_BIAS_SHARE` of its sigma (to second order a length
+errs by ``+tr(P Cov_ab) / 2L``, ``P = I - e e^T``, ``Cov_ab`` the covariance of ``X_a - X_b``).
+A point whose pixels disagree beyond what their noise and the calibration's uncertainty allow is
+flagged too (``consistent``: its residuals' chi-square, against their covariance
+``(I - J A)(S + J_theta Cov_theta J_theta^T)(I - J A)^T``, beyond the :data:`RESIDUAL_PROBABILITY`
+quantile with ``2m - 3`` degrees of freedom): not the same point in every photo, or photos not of one
+instant. Near the rig, the calibration's part dominates: a relative pose uncertain by 0.1 mm moves a
+point at 0.4 m by a pixel in the tele.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry.camera import INTRINSIC_NAMES, project_with_jacobians
+from .covariance import JointCovariance, intrinsic_name, rig_name
+from ..errors import EstimationError, InputError
+from .intersect import triangulate
+from ..files.io import points_from_dict
+from ..geometry.model import RigModel
+from ..progress import warn
+from ..geometry.rotation import cross_matrix
+from ..geometry.scale import relative_sigma, with_scale_in_measurement
+
+#: A length is flagged when its sigma is above this share of it.
+MAX_RELATIVE_SIGMA = 0.10
+#: ... or when an end point's depth sigma is above this share of its distance from the reference camera.
+MAX_DEPTH_SHARE = 0.10
+#: ... or when its second-order bias (end points uncertain across the line) is above this share of its sigma.
+MAX_BIAS_SHARE = 0.25
+#: A point's pixels disagree when their residual is beyond this quantile of chi-square.
+RESIDUAL_PROBABILITY = 0.999
+
+COVARIANCE_KINDS = ("clustered", "formal")
+
+
+def calibration_pixel_sigma(rig: RigModel) -> dict[str, float]:
+    """Each camera's noise of one pixel coordinate in its calibration, px (module docstring)."""
+    adj = rig.adjustment
+    n, redundancy = adj.get("n_observations"), adj.get("redundancy")
+    factor = np.sqrt(n / redundancy) if n and redundancy else 1.0
+    return {name: float(rms / np.sqrt(2.0) * factor) for name, rms in rig.camera_rms_px.items()}
+
+
+def _pixel_sigmas(rig: RigModel, given) -> tuple[dict[str, float], str]:
+    """``pixel_sigma`` per camera and where it comes from: ``points.json`` or ``calibration``."""
+    own = calibration_pixel_sigma(rig)
+    if given is None:
+        missing = [c for c, s in own.items() if not np.isfinite(s)]
+        if missing:
+            raise InputError(f"calib.json states no rms_px for camera {missing[0]!r}: give pixel_sigma (px) in "
+                             "points.json")
+        return own, "calibration"
+    if isinstance(given, dict):
+        return {**own, **given}, "points.json"
+    return dict.fromkeys(own, float(given)), "points.json"
+
+
+def _covariances(rig: RigModel) -> tuple[dict[str, int], dict[str, np.ndarray]]:
+    """calib.json's joint covariance (:class:`dualcal.estimation.covariance.JointCovariance`): index of every
+    parameter name and ``{kind: (k, k)}``."""
+    cov = JointCovariance.from_dict(rig.covariance)
+    return {name: i for i, name in enumerate(cov.parameters)}, {k: cov.matrices[k] for k in COVARIANCE_KINDS}
+
+
+@dataclass(frozen=True)
+class IntersectedPoint:
+    """One point intersected from its photos (module docstring).
+
+    ``xyz_mm`` (3,) in the reference camera's frame; ``cameras`` the m photos' cameras;
+    ``A`` (3, 2m) its sensitivity to their pixels, ``B`` (3, k) to the calibration's parameters
+    (``dX = A duv + B dtheta``); ``residual_px`` (m, 2) of each photo; ``J_theta`` (2m, k) the
+    residuals' derivative with respect to the parameters and ``annihilator`` (2m, 2m) ``I - J A``, which
+    turns errors of pixels and parameters into residuals (``r = -(I - J A)(duv - J_theta dtheta)``).
+    """
+
+    xyz_mm: np.ndarray
+    cameras: tuple[str, ...]
+    A: np.ndarray
+    B: np.ndarray
+    residual_px: np.ndarray
+    J_theta: np.ndarray
+    annihilator: np.ndarray
+
+
+def _parameter_rows(rig: RigModel, name: str, X_cam: np.ndarray, J_X: np.ndarray, J_K: np.ndarray,
+                    index: dict[str, int]) -> np.ndarray:
+    """(P, 2, k) derivative of P photos' residuals in camera ``name`` (points ``X_cam`` (P, 3), their
+    Jacobians ``J_X`` (P, 2, 3) and ``J_K`` (P, 2, 10)) with respect to the covariance's parameters."""
+    rows = np.zeros((len(X_cam), 2, len(index)))
+    for i, n in enumerate(INTRINSIC_NAMES):
+        key = intrinsic_name(name, n)
+        if key in index:
+            rows[:, :, index[key]] = J_K[:, :, i]
+    if name == rig.reference:
+        return rows
+    keys = [rig_name(name, what, axis) for what in ("rotation_rad", "t_mm") for axis in "xyz"]
+    if not all(k in index for k in keys):
+        raise InputError(f"calib.json's covariance has no rig relation of camera {name!r}: it cannot measure")
+    R_X = X_cam - rig.pose_from_reference(name).t_mm              # R_c X
+    d_rotation = -np.einsum("pkj,pji->pki", J_X, cross_matrix(R_X))
+    for k, column in zip(keys, np.concatenate([d_rotation, J_X], axis=2).transpose(2, 0, 1)):
+        rows[:, :, index[k]] = column
+    return rows
+
+
+def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]],
+                     index: dict[str, int]) -> dict[str, IntersectedPoint]:
+    """Intersect and linearise points ``{name: {camera: (2,) uv}}`` (module docstring), those seen by the
+    same cameras together (one triangulation and one projection per camera for all of them).
+
+    ``index`` maps the names of calib.json's covariance parameters to their positions.
+    """
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for name, seen in uv_px.items():
+        groups.setdefault(tuple(seen), []).append(name)
+    out = {}
+    for names, members in groups.items():
+        cams = [rig.cameras[c] for c in names]
+        poses = [rig.pose_from_reference(c) for c in names]
+        uv = [np.array([np.asarray(uv_px[m][c], float) for m in members]) for c in names]    # per camera (P, 2)
+        try:
+            X = triangulate(cams, poses, uv)
+        except EstimationError as exc:
+            if len(members) == 1:
+                raise EstimationError(f"point {members[0]!r}: {exc}") from None
+            for m in members:                      # name the point whose rays fail
+                out.update(intersect_points(rig, {m: uv_px[m]}, index))
+            continue
+        J, J_theta, res = [], [], []
+        for name, cam, pose, uv_c in zip(names, cams, poses, uv):
+            X_cam = pose.apply(X)
+            uv_hat, J_X, J_K = project_with_jacobians(cam, X_cam)
+            J.append(J_X @ pose.R)
+            J_theta.append(_parameter_rows(rig, name, X_cam, J_X, J_K, index))
+            res.append(uv_hat - uv_c)
+        J, J_theta = np.concatenate(J, axis=1), np.concatenate(J_theta, axis=1)     # (P, 2m, 3), (P, 2m, k)
+        A = np.linalg.solve(np.einsum("pki,pkj->pij", J, J), J.transpose(0, 2, 1))  # (P, 3, 2m)
+        B = -A @ J_theta
+        annihilator = np.eye(J.shape[1]) - J @ A
+        res = np.stack(res, axis=1)                                                 # (P, m, 2)
+        for i, m in enumerate(members):
+            out[m] = IntersectedPoint(X[i], names, A[i], B[i], res[i], J_theta[i], annihilator[i])
+    return {name: out[name] for name in uv_px}
+
+
+def intersect_point(rig: RigModel, uv_px: dict[str, np.ndarray], index: dict[str, int]) -> IntersectedPoint:
+    """Intersect one point from its pixels ``{camera: (2,) uv}`` and linearise it (:func:`intersect_points`)."""
+    return intersect_points(rig, {"point": uv_px}, index)["point"]
+
+
+def _residual_chi2(p: IntersectedPoint, var_px: np.ndarray, cov_theta: dict[str, np.ndarray]) -> float:
+    """The point's residuals against what its pixel noise ``var_px`` (2m,) and the calibration's uncertainty allow.
+
+    ``Cov(r) = (I - J A) (S + J_theta C J_theta^T) (I - J A)^T`` (rank ``2m - 3``), for each covariance
+    ``C`` of calib.json; the smaller chi-square of the two (the larger uncertainty) is returned.
+    """
+    r = p.residual_px.ravel()
+    chis = []
+    for C in cov_theta.values():
+        cov_r = p.annihilator @ (np.diag(var_px) + p.J_theta @ C @ p.J_theta.T) @ p.annihilator.T
+        chis.append(float(r @ np.linalg.pinv(cov_r, rcond=1e-10, hermitian=True) @ r))
+    return min(chis)
+
+
+def _length_note(rig, a, b, points, length, sigma, pixel_share, depth, bias, pixel_sigma):
+    """Why a length is not meaningful and what would help (None where it is); ``pixel_share`` is the pixel
+    noise's share of its variance."""
+    reasons = []
+    if sigma > MAX_RELATIVE_SIGMA * length:
+        reasons.append(f"its sigma is {100 * sigma / length:.0f} % of it")
+    for p in (a, b):
+        d, s = np.linalg.norm(points[p].xyz_mm), depth[p]
+        if s > MAX_DEPTH_SHARE * d:
+            reasons.append(f"the depth of {p} is uncertain by {100 * s / d:.0f} % of its distance ({d:.0f} mm)")
+    if bias > MAX_BIAS_SHARE * sigma:
+        reasons.append(f"its end points are so uncertain across the line (in depth: {a} +-{depth[a]:.3g} mm, "
+                       f"{b} +-{depth[b]:.3g} mm) that it comes out long by about {bias:.3g} mm on average, "
+                       f"{bias / sigma:.1f} of its sigma")
+    if not reasons:
+        return None
+    far = max((a, b), key=lambda p: np.linalg.norm(points[p].xyz_mm))
+    used = sorted(set(points[a].cameras) | set(points[b].cameras), key=rig.camera_order().index)
+    centres = [rig.pose_from_reference(c).center_mm for c in used]
+    base = max(np.linalg.norm(p - q) for i, p in enumerate(centres) for q in centres[i + 1:])
+    helps = [f"get closer ({far} is {np.linalg.norm(points[far].xyz_mm):.0f} mm away)",
+             f"a pair of cameras with a longer baseline ({'+'.join(used)}: {base:.1f} mm)"]
+    if pixel_share >= 0.5:
+        px = ", ".join(f"{c} {pixel_sigma[c]:.2g}" for c in used)
+        helps.append(f"pixels placed more precisely (pixel_sigma {px} px: {100 * pixel_share:.0f} % of "
+                     "the variance)")
+    else:
+        helps.append(f"more instants in the calibration ({100 * (1 - pixel_share):.0f} % of the variance "
+                     "is the calibration's)")
+    return (f"length {a}-{b} = {length:.1f} +- {sigma:.2g} mm is not meaningful: {'; '.join(reasons)}. "
+            f"What would help: {', '.join(helps)}")
+
+
+def measure(rig: RigModel, points: dict) -> dict:
+    """Points and lengths measured with a calibrated rig, each with its 1-sigma (module docstring).
+
+    Parameters
+    ----------
+    rig : the calibration (calib.json content), with its joint covariance.
+    points : a points.json document (contract, "measure"): ``{"points": {name: {camera: [u, v]}},
+        "lengths": [[from, to], ...], "pixel_sigma": px}`` (``lengths`` and ``pixel_sigma``
+        optional; ``pixel_sigma`` may also be ``{camera: px}``). Pixels are in the stored frame of
+        photos of one instant.
+
+    Returns
+    -------
+    The measure.json document: ``{"frame": reference camera, "points": {name: {"xyz_mm", "sigma_mm",
+    "cameras", "distance_mm", "depth_sigma_mm", "residual_px", "consistent"}}, "lengths": [{"from",
+    "to", "length_mm", "sigma_mm", "sigma_percent", "sigma_pixels_mm", "sigma_calibration_mm",
+    "bias_mm", "meaningless", "warning"}], "pixel_sigma": {camera: px}, "pixel_sigma_source"}``.
+    ``depth_sigma_mm`` is the sigma along the line of sight from the reference camera, ``bias_mm``
+    a length's second-order bias, ``sigma_pixels_mm`` and ``sigma_calibration_mm`` the parts of its
+    sigma from the pixels and the calibration, ``sigma_scale_mm`` (points and lengths) the part from the
+    tolerance of the printed squares (:mod:`dualcal.geometry.scale`), which every sigma includes.
+
+    Raises
+    ------
+    InputError
+        A malformed points document, a camera the rig does not have, a calibration without its
+        joint covariance.
+    EstimationError
+        A point whose rays do not intersect (parallel, or behind a camera).
+    """
+    from scipy.special import chdtri     # the chi-square quantile (scipy.stats takes ~1 s to import)
+
+    spec = points_from_dict(points, "points")
+    for name, seen in spec["points"].items():
+        unknown = [c for c in seen if c not in rig.cameras]
+        if unknown:
+            raise InputError(f"point {name!r}: camera {unknown[0]!r} is not in the calibration "
+                             f"(cameras: {', '.join(rig.camera_order())})")
+        loose = [c for c in seen if c != rig.reference and c not in rig.rig]
+        if loose:
+            raise InputError(f"point {name!r}: the calibration has no relative pose of camera {loose[0]!r} to "
+                             f"{rig.reference!r} (calibrated alone, rig mode {rig.rig_mode!r}): it cannot measure with it")
+    pixel_sigma, source = _pixel_sigmas(rig, spec["pixel_sigma"])
+    index, cov_theta = _covariances(rig)
+    found = intersect_points(rig, spec["points"], index)
+    names = list(found)
+    var_px = {n: np.repeat([pixel_sigma[c] ** 2 for c in found[n].cameras], 2) for n in names}
+    # Every part is a fixed-size block (module docstring): a point's 3 x 3 pixel part A S A^T, and the
+    # calibration's part through B (3 x k), so the cost grows linearly with the points and the lengths.
+    pixels = {n: (found[n].A * var_px[n]) @ found[n].A.T for n in names}
+
+    doc_points, depth, chi2_limit = {}, {}, {}
+    for n in names:
+        p = found[n]
+        blocks = [pixels[n] + p.B @ C @ p.B.T for C in cov_theta.values()]
+        distance = float(np.linalg.norm(p.xyz_mm))
+        ray = p.xyz_mm / distance
+        var = np.max([np.diag(block) for block in blocks], axis=0)
+        depth[n] = float(np.sqrt(max(ray @ block @ ray for block in blocks)))
+        dof = 2 * len(p.cameras) - 3
+        if dof not in chi2_limit:
+            chi2_limit[dof] = chdtri(dof, 1.0 - RESIDUAL_PROBABILITY)
+        consistent = bool(_residual_chi2(p, var_px[n], cov_theta) <= chi2_limit[dof])
+        doc_points[n] = {"xyz_mm": p.xyz_mm.tolist(), "sigma_mm": np.sqrt(var).tolist(), "cameras": list(p.cameras),
+                         "distance_mm": distance, "depth_sigma_mm": depth[n],
+                         "residual_px": {c: float(np.linalg.norm(r)) for c, r in zip(p.cameras, p.residual_px)},
+                         "consistent": consistent}
+        if not consistent:
+            warn(f"point {n}: its pixels disagree by "
+                 f"{', '.join(f'{c} {np.linalg.norm(r):.2g} px' for c, r in zip(p.cameras, p.residual_px))}, "
+                 "far beyond their noise (pixel_sigma) and the calibration's uncertainty: not the same point in "
+                 "every photo (a mis-click?), or photos not taken at one instant")
+
+    lengths = []
+    for a, b in spec["lengths"]:
+        d = found[a].xyz_mm - found[b].xyz_mm
+        length = float(np.linalg.norm(d))
+        e = d / length
+        # X_a - X_b moves by A_a duv_a - A_b duv_b + (B_a - B_b) dtheta: its covariance, per kind
+        pixel_part, dB = pixels[a] + pixels[b], found[a].B - found[b].B
+        diff_cov = {kind: pixel_part + dB @ C @ dB.T for kind, C in cov_theta.items()}
+        kind = max(COVARIANCE_KINDS, key=lambda k: e @ diff_cov[k] @ e)
+        sigma = float(np.sqrt(e @ diff_cov[kind] @ e))
+        var_pixels = float(e @ pixel_part @ e)
+        across = np.eye(3) - np.outer(e, e)
+        bias = float(np.trace(across @ diff_cov[kind]) / (2.0 * length))
+        note = _length_note(rig, a, b, found, length, sigma, var_pixels / sigma ** 2, depth, bias, pixel_sigma)
+        if note:
+            warn(note)
+        lengths.append({"from": a, "to": b, "length_mm": length, "sigma_mm": sigma,
+                        "sigma_percent": 100.0 * sigma / length, "sigma_pixels_mm": float(np.sqrt(var_pixels)),
+                        "sigma_calibration_mm": float(np.sqrt(max(e @ dB @ cov_theta[kind] @ dB.T @ e, 0.0))),
+                        "bias_mm": bias, "meaningless": note is not None, "warning": note})
+    doc = {"frame": rig.reference, "points": doc_points, "lengths": lengths,
+           "pixel_sigma": {c: pixel_sigma[c] for c in rig.camera_order()}, "pixel_sigma_source": source}
+    return with_scale_in_measurement(doc, relative_sigma(rig.board))

@@ -1,0 +1,231 @@
+"""Which lens model the photos support: the error on instants the calibration did not see.
+
+A lens model with more coefficients always fits the photos it was calibrated on better; the fair
+question is whether it also predicts photos it did not see. For every instant ``v``, the
+calibration without ``v`` predicts where ``v``'s corners lie once ``v``'s own board pose is fitted
+again; the residuals of that prediction are the held-out residuals (a leave-one-instant-out
+cross-validation). dualcal computes them from the full adjustment alone, linearised:
+``e_v = (I - H_vv)^-1 r_v`` with ``H_vv`` the instant's block of the hat matrix
+(:func:`dualcal.estimation.uncertainty.held_out_residuals`; exact for a linear model, one small
+eigen-decomposition per instant, no re-adjustment). calib.json records them in ``adjustment``:
+``held_out_rms_px`` (2-D, per corner) and ``held_out_per_instant``.
+
+:func:`compare_lens_models` adjusts the same corners with every lens model (those the calibration
+used: its outliers stay out, so every model is scored on the same corners; each adjustment starts
+from the calibration's values, :func:`dualcal.estimation.calibrate.refit`) and compares the models instant by
+instant: ``d_v = SS_v(model) - SS_v(best)``, the held-out sum of squares (px^2) of instant ``v``
+minus that of the model with the least held-out error; its mean over the instants in units of its
+standard error says how many standard errors the model is worse than the best. The recommendation is
+the model with the fewest coefficients that is within :data:`RECOMMEND_WITHIN_SE` standard errors of
+the best: a richer model must earn its coefficients by predicting the unseen instants clearly
+better.
+
+:func:`calibrate_auto` (``calibrate_rig(model="auto")``) makes that choice for every camera, from
+its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera``). The candidates
+of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the camera's field
+of view makes one plausible: Zhang's closed form (no lens) puts the image's corner more than
+:data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis (a phone's main camera: about 40, its ultra-wide:
+55-60 and more). For such a camera ``kb4`` is also the preferred model, as ``k1k2`` is for the
+others: a polynomial in the pinhole radius must then predict clearly better to be chosen (the paired
+test over instants is weak when, as here, the difference lies in the few instants that put the board
+near the image's edge). A first calibration gives each camera its preferred model and finds the
+outliers; then one adjustment per lens model, on the corners the first used and started from its
+values (:func:`dualcal.estimation.calibrate.refit`), with every camera alone (rig mode ``none``, so that no
+camera's lens changes another's held-out error through the shared poses), gives that model to every
+camera it is a candidate of (the others keep their preferred model): one solve per model scores
+every camera. Each camera then gets the model of the rule above among its candidates, and the rig is
+calibrated once more with them."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..geometry.camera import DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraModel, image_corner_radius
+from ..errors import EstimationError
+from ..geometry.model import CornerSet, RigModel
+from ..progress import warn
+
+__all__ = ["FISHEYE_HALF_DIAGONAL_DEG", "LensModelScore", "RECOMMEND_WITHIN_SE", "calibrate_auto",
+           "compare_lens_models", "lens_model_candidates", "score_lens_models"]
+
+#: A camera whose image corner lies more than this far from its axis (Zhang's closed form, no lens)
+#: has the fisheye ``kb4`` among its candidate lens models.
+FISHEYE_HALF_DIAGONAL_DEG = 50.0
+
+#: A model within this many standard errors of the best held-out error counts as good as the best.
+RECOMMEND_WITHIN_SE = 2.0
+
+
+@dataclass(frozen=True)
+class LensModelScore:
+    """One lens model's fit and held-out error (px, 2-D per corner) on the compared instants;
+    ``worse_se`` how many standard errors of the paired per-instant difference its held-out error
+    exceeds the best model's (0 for the best)."""
+
+    model: str
+    coefficients: int
+    fit_rms_px: float
+    held_out_rms_px: float
+    worse_se: float
+    recommended: bool
+
+
+def rig_fit(rig: RigModel) -> dict:
+    """A calibration's fit and held-out errors as :func:`score_lens_models` takes them (the keys of
+    :func:`dualcal.estimation.calibrate.fit_summary`)."""
+    return {"rms_px": rig.rms_px, "camera_rms_px": rig.camera_rms_px,
+            **{k: rig.adjustment[k] for k in ("held_out_per_instant", "held_out_per_camera")}}
+
+
+def score_lens_models(fits: dict[str, dict], camera: str | None = None,
+                      first: str | None = None) -> list[LensModelScore]:
+    """Score fits of the same corners by different lens models (module docstring).
+
+    Parameters
+    ----------
+    fits : ``{model: fit}``, each with ``held_out_per_instant`` and ``rms_px`` (and
+        ``held_out_per_camera``, ``camera_rms_px`` for a ``camera``): :func:`dualcal.estimation.calibrate.fit_summary`
+        of a solution, or :func:`rig_fit` of a calibration.
+    camera : score one camera's corners only (its fit RMS, its held-out errors), else the whole rig's.
+    first : a model preferred to all others (a fisheye's ``kb4``): it comes first in the order in which
+        the first model within :data:`RECOMMEND_WITHIN_SE` of the best is recommended.
+
+    Returns
+    -------
+    One score per model, ``first`` first, then fewest coefficients first; exactly one is ``recommended``.
+
+    Raises
+    ------
+    EstimationError
+        No fits, or fewer than 3 instants that every model could leave out.
+    """
+    if not fits:
+        raise EstimationError("no lens model to compare")
+    held = {m: f["held_out_per_instant"] if camera is None else f["held_out_per_camera"][camera]
+            for m, f in fits.items()}
+    views = sorted(set.intersection(*(set(h) for h in held.values())))
+    unscored = sorted(set.union(*(set(h) for h in held.values())) - set(views))
+    if unscored:            # an instant a model cannot predict without it determines some of its terms alone
+        why = ", ".join(f"{v} ({', '.join(m for m, h in held.items() if v not in h)})" for v in unscored[:6])
+        warn(f"lens models{f' of {camera}' if camera else ''} compared on the {len(views)} instants every one can "
+             f"predict without them; {len(unscored)} left out, which the model(s) named cannot predict without "
+             f"them (they alone determine some of its terms): {why}")
+    if len(views) < 3:
+        raise EstimationError(f"{len(views)} instant(s) can be left out by every model: a comparison needs 3")
+    corners = {m: {v: h[v]["corners"] for v in views} for m, h in held.items()}
+    if any(c != next(iter(corners.values())) for c in corners.values()):
+        raise EstimationError("the calibrations compared did not use the same corners")
+    n_corners = sum(next(iter(corners.values())).values())
+    squares = {m: np.array([h[v]["rms_px"] ** 2 * h[v]["corners"] for v in views]) for m, h in held.items()}
+    best = min(squares, key=lambda m: squares[m].sum())
+    order = sorted(fits, key=lambda m: (m != first, len(LENS_MODELS[m]), m))
+    worse = {}
+    for m in order:
+        d = squares[m] - squares[best]
+        se = np.std(d, ddof=1) / np.sqrt(len(d))
+        worse[m] = float(np.mean(d) / se) if se > 0 else 0.0
+    chosen = next(m for m in order if worse[m] <= RECOMMEND_WITHIN_SE)
+    fit = {m: f["rms_px"] if camera is None else f["camera_rms_px"][camera] for m, f in fits.items()}
+    return [LensModelScore(m, len(LENS_MODELS[m]), fit[m], float(np.sqrt(squares[m].sum() / n_corners)),
+                           worse[m], m == chosen) for m in order]
+
+
+def _refits(rig: RigModel, mappings: dict[str, object], rig_mode: str | None = None) -> dict[str, dict]:
+    """:func:`dualcal.estimation.calibrate.fit_summary` of ``rig``'s corners refitted with each lens model mapping
+    ``{name: model or {camera: model}}`` (:func:`dualcal.estimation.calibrate.refit`); one that cannot be solved
+    is left out with a warning."""
+    from .calibrate import fit_summary, refit
+
+    fits = {}
+    for name, mapping in mappings.items():
+        try:
+            fits[name] = fit_summary(refit(rig, model=mapping, rig_mode=rig_mode))
+        except EstimationError as exc:
+            warn(f"lens model {name} could not be calibrated for the comparison: {exc}")
+    return fits
+
+
+def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m not in FISHEYE_MODELS)
+                        ) -> list[LensModelScore]:
+    """Score every lens model of ``models`` on the corners ``rig`` used (:meth:`RigModel.used_corners`):
+    each is adjusted from ``rig``'s values in ``rig``'s settings (skew, rig mode, reference, board shape),
+    without looking for outliers again (:func:`dualcal.estimation.calibrate.refit`), so that every model is judged
+    on the same corners; ``rig`` itself stands for its own model."""
+    fits = {rig.model: rig_fit(rig)} if rig.model in LENS_MODELS else {}
+    fits.update(_refits(rig, {m: m for m in models if m not in fits}))
+    return score_lens_models(fits)
+
+
+def _camera_entry(score: LensModelScore | None) -> dict:
+    """calib.json's ``per_camera`` entry of one model for one camera (``candidate`` False: not scored)."""
+    if score is None:
+        return {"candidate": False}
+    return {"candidate": True, **{k: v for k, v in asdict(score).items() if k not in ("model", "coefficients")}}
+
+
+def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
+    """The lens models :func:`calibrate_auto` tries for a camera whose closed-form intrinsics are
+    ``cam`` (its matrix A): the radial-tangential ones, and the fisheyes where the image's corner lies
+    more than :data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis through a pinhole of that A."""
+    wide = np.degrees(np.arctan(image_corner_radius(cam.pinhole()))) > FISHEYE_HALF_DIAGONAL_DEG
+    return tuple(m for m in LENS_MODELS if wide or m not in FISHEYE_MODELS)
+
+
+def _closed_form_cameras(corners: CornerSet, skew: bool) -> dict[str, CameraModel]:
+    """Every camera's intrinsics by Zhang's closed form (no lens), from its usable photos (the
+    calibration that follows warns about the others)."""
+    from .calibrate import usable_photos
+    from ..geometry.zhang import closed_form_camera
+
+    names = sorted(corners.cameras)
+    xy = corners.board.object_points_mm()[:, :2]
+    blocks = usable_photos(corners, names, xy, quiet=True)
+    out = {}
+    for c, name in enumerate(names):
+        views = {v: uv for cc, v, uv in blocks if cc == c}
+        if len(views) < 3:
+            raise EstimationError(f"camera {name!r} has {len(views)} usable view(s); at least 3 are needed")
+        out[name] = closed_form_camera(xy, views, corners.cameras[name].image_size, skew)
+    return out
+
+
+def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None = None, **options) -> RigModel:
+    """Calibrate with every camera's lens model chosen by its held-out instants (module docstring).
+
+    ``options`` are :func:`dualcal.estimation.calibrate.calibrate_rig`'s (not ``model``). The result is the
+    calibration with the chosen models; ``adjustment["lens_models"]`` holds the comparison: one entry
+    per model (the whole rig's scores, every camera alone; for a model that is not every camera's
+    candidate, the others keep their preferred model), each with ``per_camera``
+    ``{camera: {"candidate", "fit_rms_px", "held_out_rms_px", "worse_se", "recommended"}}``; and
+    ``adjustment["lens_models_chosen"]`` ``{camera: model}``.
+    """
+    if calibrate is None:
+        from .calibrate import calibrate_rig as calibrate
+    names = sorted(corners.cameras)
+    candidates = {n: lens_model_candidates(cam) for n, cam in _closed_form_cameras(corners, options.get("skew", False)).items()}
+    preferred = {n: next((m for m in candidates[n] if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n in names}
+    base = calibrate(corners, model=preferred, **options)
+    fits = _refits(base, {m: {n: m if m in candidates[n] else preferred[n] for n in names}
+                          for m in LENS_MODELS if any(m in c for c in candidates.values())}, rig_mode="none")
+    per_camera, chosen = {}, dict(preferred)
+    for n in names:
+        try:
+            scores = score_lens_models({m: f for m, f in fits.items() if m in candidates[n]}, n, first=preferred[n])
+        except EstimationError as exc:
+            warn(f"the lens models of {n!r} could not be compared ({exc}): it keeps {preferred[n]}")
+            continue
+        per_camera[n] = {s.model: s for s in scores}
+        chosen[n] = next(s.model for s in scores if s.recommended)
+    final = base if chosen == preferred else calibrate(corners, **{**options, "model": chosen})
+    try:
+        overall = {s.model: asdict(s) for s in score_lens_models(fits)}
+    except EstimationError:         # no model, or too few instants: the per-camera entries say it
+        overall = {}
+    final.adjustment["lens_models"] = [
+        {**overall.get(m, {"model": m, "coefficients": len(LENS_MODELS[m])}),
+         "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in fits]
+    final.adjustment["lens_models_chosen"] = chosen
+    return final

@@ -1,0 +1,32 @@
+"""Board corners: fast, accurate and self-checking (paper section 1.2).
+
+A coarse search on a reduced image (:mod:`.coarse`), the contract's corner order and colour
+checks (:mod:`.order`), sub-pixel refinement at full resolution in small windows only
+(:mod:`.refine`), the paper's manual mode from four clicked corners (:mod:`.manual`), and the
+per-photo / per-dataset drivers (:mod:`.pipeline`); ChArUco boards through :mod:`.charuco`
+(OpenCV's markers and ids, checked against the board's geometry, then the same refinement).
+"""
+
+#: Each public name and its module, imported on first use: the calibration needs :mod:`.grid` alone, and
+#: must not pay for the photo readers (Pillow, rawpy, OpenCV) that the detectors import.
+_API = {"detect_charuco": "charuco", "resolve_board": "charuco", "find_grid": "coarse", "reduction_factor": "coarse",
+        "display_problem": "manual", "grid_from_hints": "manual", "load_hints": "manual", "pick_hints": "manual",
+        "save_hints": "manual", "order_grid": "order", "min_corners": "grid", "neighbour_predictions": "grid",
+        "neighbour_residuals_px": "grid", "predict_from_neighbours": "grid", "validate_grid": "grid",
+        "PhotoResult": "pipeline", "detect_dataset": "pipeline", "detect_photo": "pipeline", "fit_saddles": "refine",
+        "measure_grid": "refine", "refine_corners": "refine"}
+
+__all__ = sorted(_API)
+
+
+def __getattr__(name):
+    if name in _API:
+        import importlib
+        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'dualcal.files.detect' has no attribute {name!r}")
+
+
+def __dir__():
+    return __all__

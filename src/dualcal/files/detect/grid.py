@@ -1,0 +1,297 @@
+"""Geometry of a detected grid of corners: local spacing, leave-one-out prediction, checks.
+
+Pure functions over (N, 2) arrays of pixels in the contract's corner order (corner
+``k = r*cols + c``), where a corner that was not measured is a NaN row
+(:func:`dualcal.geometry.model.observed_mask`). Nothing here reads an image, so the checks are tested
+on stored real grids (``tests/data``).
+
+The check of a corner is its distance from where its neighbours put it
+(:func:`neighbour_predictions`): a homography fitted to the measured corners around it (it left
+out), with a quadratic correction for the bending by the lens, maps its board position into
+the image. Over two squares that follows perspective exactly and lens distortion to within
+its third-order change, so exact corners sit within a few hundredths of a pixel of their
+predictions (``tests/test_detect.py``); what a real photo adds is its corner noise (0.1-0.3 px
+on the real sets) and its board's own departures from a true grid, while a corner measured on
+the wrong feature, or pulled by glare or a smudge, stands out by more.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...geometry.board import Board
+from ...geometry.model import observed_mask
+
+__all__ = ["local_spacing_px", "neighbour_predictions", "predict_from_neighbours", "neighbour_residuals_px",
+           "outlier_limit_px", "worst_outlier", "min_corners", "validate_grid"]
+
+#: An accepted corner lies within ``OUTLIER_TIMES`` the photo's median neighbour residual of its
+#: neighbours' prediction (:func:`outlier_limit_px`), but the limit is never below
+#: ``OUTLIER_FLOOR_PX`` (on clean photos the median is a few hundredths of a pixel, and
+#: rejecting at that scale would only thin the grid) and never above the larger of
+#: ``OUTLIER_CEIL_PX`` and ``OUTLIER_CEIL_FRACTION`` of the corner's spacing (the fraction
+#: admits home-made boards, whose printed squares are off a true grid by a few tenths of a
+#: pixel on an 8 MP photo, and stops there: a corner more than 0.8 % of a square off is wrong).
+OUTLIER_TIMES = 4.0
+OUTLIER_FLOOR_PX = 0.3
+OUTLIER_CEIL_PX = 0.5
+OUTLIER_CEIL_FRACTION = 0.008
+#: The gain (:func:`predict_from_neighbours`) of an inner corner's prediction from its full
+#: 5 x 5 patch; a corner whose prediction carries more noise (the board's edge, 0.65-0.8, and
+#: its four corners, about 2) gets a limit larger by sqrt(1 + gain^2) / sqrt(1 + INNER_GAIN^2).
+INNER_GAIN = 0.43
+
+
+def _grid(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    return np.asarray(uv, float).reshape(shape[0], shape[1], 2)
+
+
+def local_spacing_px(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(N,) distance from each corner to its nearest measured grid neighbour (of the eight), pixels.
+
+    This bounds the window a corner may be refined in without seeing another corner. NaN for a
+    corner that is not measured or has no measured neighbour.
+    """
+    g = _grid(uv, shape)
+    R, C = shape
+    pad = np.full((R + 2, C + 2, 2), np.nan)
+    pad[1:-1, 1:-1] = g
+    best = np.full((R, C), np.inf)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr or dc:
+                d = np.linalg.norm(pad[1 + dr:R + 1 + dr, 1 + dc:C + 1 + dc] - g, axis=2)
+                best = np.fmin(best, d)
+    best[~np.isfinite(best)] = np.nan
+    return best.ravel()
+
+
+def _neighbourhoods(shape: tuple[int, int]):
+    """(N, M) indices of each corner's neighbours and their (N, M, 2) offsets ``(dc, dr)``.
+
+    A corner's neighbours are the other corners within two rows and columns (a 5 x 5 patch,
+    cut at the board's edge: ``M = 24``, indices -1 outside the board).
+    """
+    R, C = shape
+    offs = np.array([(dc, dr) for dr in range(-2, 3) for dc in range(-2, 3) if dr or dc])
+    r, c = np.divmod(np.arange(R * C), C)
+    rr, cc = r[:, None] + offs[None, :, 1], c[:, None] + offs[None, :, 0]
+    inside = (rr >= 0) & (rr < R) & (cc >= 0) & (cc < C)
+    idx = np.where(inside, rr * C + cc, -1)
+    return idx, np.broadcast_to(offs, idx.shape + (2,)).astype(float)
+
+
+def neighbour_predictions(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(N, 2) position of every corner predicted from its neighbours, leaving itself out.
+
+    See :func:`predict_from_neighbours`, which also says how sensitive each prediction is.
+    """
+    return predict_from_neighbours(uv, shape)[0]
+
+
+def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int]):
+    """Leave-one-out predictions of every corner and their sensitivity to the neighbours' errors.
+
+    Parameters
+    ----------
+    uv : (N, 2) corners in grid order (row-major, ``shape[1]`` per row); NaN rows are unmeasured.
+    shape : ``(rows, cols)``.
+
+    Returns
+    -------
+    pred : (N, 2) predictions, NaN where a corner has fewer than 8 measured neighbours within
+        two rows and columns.
+    gain : (N,) how much of a neighbour's error reaches the prediction: the root sum of squares
+        of the weights of the neighbours in a quadratic fit (about 0.4 for an inner corner, 2-3
+        for a corner of the board, whose prediction is an extrapolation).
+
+    Notes
+    -----
+    The neighbours are the measured corners of the 5 x 5 patch around the corner (cut at the
+    board's edge). A homography from their board offsets ``(dc, dr)`` to the image is fitted by
+    the direct linear transform (on coordinates centred on their mean and scaled by their
+    spread); a quadratic in ``(dc, dr)`` is then fitted to what the homography leaves, and both
+    are evaluated at offset ``(0, 0)``. The homography follows perspective exactly; the
+    quadratic takes up the bending of the grid lines by the lens, which over two squares of a
+    640 x 480 photo with k1 = -0.29 leaves the true corners of the real stereo set 0.5-0.8 px off
+    a homography alone (and only odd-order, 3rd-degree bending, which cancels at an inner corner
+    whose patch is symmetric, is left).
+    """
+    uv = np.asarray(uv, float)
+    N = len(uv)
+    use = observed_mask(uv)
+    idx, offs = _neighbourhoods(shape)
+    valid = (idx >= 0) & use[np.maximum(idx, 0)]
+    enough = valid.sum(axis=1) >= 8
+    pts = np.where(valid[..., None], uv[np.maximum(idx, 0)], 0.0)          # (N, M, 2)
+    w = valid.astype(float)
+    n = np.maximum(w.sum(axis=1), 1.0)
+    mean = (pts * w[..., None]).sum(axis=1) / n[:, None]
+    spread = np.sqrt((((pts - mean[:, None]) ** 2).sum(axis=2) * w).sum(axis=1) / n) + 1e-12
+    p = (pts - mean[:, None]) / spread[:, None, None]
+    x, y = offs[..., 0], offs[..., 1]
+    u, v = p[..., 0], p[..., 1]
+    z, o = np.zeros_like(x), np.ones_like(x)
+    rows_u = np.stack([x, y, o, z, z, z, -u * x, -u * y, -u], axis=-1)
+    rows_v = np.stack([z, z, z, x, y, o, -v * x, -v * y, -v], axis=-1)
+    A = np.concatenate([rows_u, rows_v], axis=1) * np.concatenate([w, w], axis=1)[..., None]
+    # the null vector of A: eigenvector of the smallest eigenvalue of A^T A (coordinates are
+    # normalised, so the 9 x 9 normal matrix is well conditioned; far cheaper than an SVD of A)
+    _, vecs = np.linalg.eigh(np.swapaxes(A, 1, 2) @ A)
+    h = vecs[:, :, 0]                                                         # (N, 9)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = h[:, None, 6] * x + h[:, None, 7] * y + h[:, None, 8]
+        fitted = np.stack([(h[:, None, 0] * x + h[:, None, 1] * y + h[:, None, 2]) / den,
+                           (h[:, None, 3] * x + h[:, None, 4] * y + h[:, None, 5]) / den], axis=-1)
+        at_zero = np.stack([h[:, 2], h[:, 5]], axis=1) / h[:, 8:9]
+    left = np.where(valid[..., None], p - fitted, 0.0)                       # (N, M, 2)
+    Q = np.stack([o, x, y, x * x, x * y, y * y], axis=-1) * w[..., None]     # (N, M, 6)
+    with np.errstate(invalid="ignore"):
+        Qt = np.swapaxes(Q, 1, 2)
+        Qinv = np.linalg.solve(Qt @ Q + 1e-9 * np.eye(6), Qt)               # (N, 6, M)
+        coef = Qinv @ left                                                   # (N, 6, 2)
+    with np.errstate(invalid="ignore"):      # corners with too few neighbours: NaN below
+        pred = (at_zero + coef[:, 0, :]) * spread[:, None] + mean
+    pred[~enough | ~np.all(np.isfinite(pred), axis=1)] = np.nan
+    return pred, np.sqrt(np.sum(Qinv[:, 0, :] ** 2, axis=1))
+
+
+def neighbour_residuals_px(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(N,) distance of each corner from its neighbours' prediction (NaN where it cannot be judged)."""
+    return np.linalg.norm(np.asarray(uv, float) - neighbour_predictions(uv, shape), axis=1)
+
+
+def outlier_limit_px(spacing_px: np.ndarray, typical_px: float, gain=INNER_GAIN) -> np.ndarray:
+    """Largest accepted neighbour residual of corners ``spacing_px`` from their nearest neighbour.
+
+    ``typical_px`` is the photo's median neighbour residual (its corner noise and the board's
+    own departures from a true grid), ``gain`` that of each corner's prediction; see
+    :data:`OUTLIER_TIMES` and :data:`INNER_GAIN` for the rule.
+    """
+    ceil = np.maximum(OUTLIER_CEIL_PX, OUTLIER_CEIL_FRACTION * np.asarray(spacing_px, float))
+    noise = np.sqrt((1.0 + np.asarray(gain, float) ** 2) / (1.0 + INNER_GAIN**2))
+    return np.clip(OUTLIER_TIMES * typical_px, OUTLIER_FLOOR_PX, ceil) * np.maximum(noise, 1.0)
+
+
+def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray | None = None,
+                  candidates: int = 4, judged: np.ndarray | None = None):
+    """The corner to reject first, or None when every corner that can be judged is within its limit.
+
+    Parameters
+    ----------
+    uv : (N, 2) corners in grid order, NaN rows unmeasured.
+    shape : ``(rows, cols)``.
+    spacing_px : (N,) spacing that sets each corner's limit; default :func:`local_spacing_px` of ``uv``.
+    candidates : how many of the corners over their limit are tried (see below).
+    judged : (N,) bool, the corners that may be judged (default: all); the others still predict
+        their neighbours.
+
+    Returns
+    -------
+    ``(k, residual_px)`` or None.
+
+    Notes
+    -----
+    One bad corner also spoils the predictions of its neighbours, and it can push the
+    extrapolated prediction of a board corner next to it further than its own residual. So the
+    corners over their :func:`outlier_limit_px` are tried, the ``candidates`` of them whose
+    residual is largest for the noise their prediction carries (residual / sqrt(1 + gain^2),
+    :func:`predict_from_neighbours`) first: each is left out in turn, and the one whose absence
+    leaves the others closest to their predictions (least sum of squared residual / limit) is
+    the corner to reject.
+    """
+    uv = np.asarray(uv, float)
+    pred, gain = predict_from_neighbours(uv, shape)
+    res = np.linalg.norm(uv - pred, axis=1)
+    if judged is not None:
+        res[~np.asarray(judged, bool)] = np.nan
+    finite = np.isfinite(res)
+    if not finite.any():
+        return None
+    if spacing_px is None:
+        spacing_px = local_spacing_px(uv, shape)
+    limit = outlier_limit_px(spacing_px, float(np.median(res[finite])), gain)
+    over = finite & (res > limit)
+    if not over.any():
+        return None
+    z = np.where(over, res / np.sqrt(1.0 + gain**2), -np.inf)
+    tried = np.argsort(-z)[: min(candidates, int(over.sum()))]
+    if len(tried) == 1:
+        return int(tried[0]), float(res[tried[0]])
+
+    def left_over(k):
+        without = uv.copy()
+        without[k] = np.nan
+        r = np.linalg.norm(without - neighbour_predictions(without, shape), axis=1) / limit
+        return float(np.sum(np.where(np.isfinite(r) & finite, r * r, 0.0)))
+
+    k = int(min(tried, key=left_over))
+    return k, float(res[k])
+
+
+#: Fewest corners of a ChArUco photo (:func:`min_corners`).
+MIN_CHARUCO_CORNERS = 6
+
+
+def min_corners(board: Board) -> int:
+    """Fewest measured corners for a photo to be kept: more than half of a chessboard, and at least 6.
+
+    More than half of a chessboard, so that the photo still shows most of the board (a photo
+    that lost more than half its corners has a problem a corner-by-corner check should not paper
+    over: heavy blur, a wrong board, a detection on the wrong pattern), and the board's extent
+    still constrains the pose; at least 6, so that the photo's homography (8 unknowns) has
+    redundancy: 12 equations, 4 more than the unknowns, enough for a wrong corner to show in the
+    fit and to be told from the others. A ChArUco photo may show any part of its board (the
+    markers number the corners, and every corner was checked against them), so it needs only
+    those :data:`MIN_CHARUCO_CORNERS`, not on one line.
+    """
+    if board.charuco is not None:
+        return MIN_CHARUCO_CORNERS
+    return max(6, board.n_corners // 2 + 1)
+
+
+def validate_grid(uv: np.ndarray, board: Board, judged: np.ndarray | None = None) -> str | None:
+    """Why a detected grid is not a ``board`` seen by a camera, or None when it is.
+
+    Parameters
+    ----------
+    uv : (N, 2) corners in the contract's order, NaN rows where a corner was rejected.
+    board : the board.
+    judged : (N,) bool, the corners to check against their neighbours (default: all).
+
+    Returns
+    -------
+    A one-line reason, or None. Checked: the number of measured corners
+    (:func:`min_corners`), not all on one line; every grid cell with four measured corners is a convex quadrilateral
+    turning the same way as the others (no fold, no crossed rows); every measured corner that
+    can be judged sits within :func:`outlier_limit_px` of its neighbours' prediction
+    (:func:`worst_outlier`).
+    """
+    uv = np.asarray(uv, float)
+    if uv.shape != (board.n_corners, 2):
+        return f"{len(uv)} corners, expected {board.n_corners}"
+    shape = (board.rows, board.cols)
+    seen = observed_mask(uv)
+    need = min_corners(board)
+    if seen.sum() < need:
+        why = "for a homography with redundancy" if board.charuco is not None else "more than half of the board"
+        return (f"only {int(seen.sum())} of {board.n_corners} corners passed their checks "
+                f"(at least {need} needed: {why})")
+    r, c = np.divmod(np.flatnonzero(seen), board.cols)
+    if min(np.linalg.matrix_rank(np.column_stack([r - r.mean(), c - c.mean()])), 2) < 2:
+        return f"its {int(seen.sum())} corners lie on one line of the board (a homography needs them to span it)"
+    g = _grid(uv, shape)
+    quad = np.stack([g[:-1, :-1], g[:-1, 1:], g[1:, 1:], g[1:, :-1]], axis=2)     # (R-1, C-1, 4, 2)
+    edge = np.roll(quad, -1, axis=2) - quad
+    turn = edge[..., 0] * np.roll(edge, -1, axis=2)[..., 1] - edge[..., 1] * np.roll(edge, -1, axis=2)[..., 0]
+    full = np.all(np.isfinite(turn), axis=2)
+    if full.any():
+        signs = np.sign(turn[full])
+        majority = np.sign(np.sum(signs))
+        if majority == 0 or np.any(signs != majority):
+            r, c = np.argwhere(full)[np.flatnonzero(np.any(signs != majority, axis=1))[0]]
+            return f"the grid folds over itself at the cell of corner {r * board.cols + c}"
+    worst = worst_outlier(uv, shape, judged=judged)
+    if worst is not None:
+        return f"corner {worst[0]} is {worst[1]:.2f} px from where its neighbours put it"
+    return None

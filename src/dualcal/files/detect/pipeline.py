@@ -1,0 +1,366 @@
+"""Detection of one photo and of a whole dataset (paper section 1.2).
+
+Per photo (:func:`detect_photo`), one photo in memory at a time (a ChArUco board goes through
+:func:`.charuco.detect_charuco` instead: its markers number the corners):
+
+1. decode the photo once, reduce it to 1/2-1/8 size and find the grid there (:mod:`.coarse`),
+   or, where that fails and the user clicked four corners, predict the grid from them
+   (:mod:`.manual`); failing that, find the largest part of the board the detector can and
+   place it on the board by the colours of the squares around it (glare on a square, a
+   shadow);
+2. sample the squares: they must alternate like a chessboard, the outer ring too, and the
+   board must not continue beyond it (:mod:`.order`); put the corners in the contract's order;
+3. refine each corner at full resolution in a window fitted to its own squares, check it
+   against the homography of its neighbours and refine it again from there if it disagrees;
+   a corner that still fails is a NaN row (``null`` in corners.json), not a lost photo
+   (:func:`.refine.measure_grid`);
+4. check the grid as a whole (:func:`.grid.validate_grid`): enough corners left, no fold, no
+   corner off its neighbours' prediction. A grid that fails is reported as not found.
+
+:func:`detect_dataset` runs that over every photo of a :class:`~dualcal.files.dataset.Dataset` in
+parallel threads and gathers a :class:`~dualcal.geometry.model.CornerSet`; for a ChArUco board whose
+dictionary (or layout) is not given it first finds them from the photos
+(:func:`.charuco.resolve_board`).
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ...geometry.board import DICTIONARIES, Board, dictionary_family
+from ..dataset import Dataset, unpaired_cameras
+from ..photos import jobs_within_memory, read_gray
+from ...errors import DetectionError, InputError
+from ..io import make_output_folder, write_jpeg_atomic
+from ...geometry.model import CameraCorners, CornerSet
+from ...parallel import interruptible_map
+from ...progress import progress_bar, warn
+from .charuco import detect_charuco, resolve_board
+from .coarse import find_grid, find_partial_grid, reduce_image, reduction_factor, to_full_resolution
+from .grid import validate_grid
+from .manual import grid_from_hints
+from .order import PartialBoard, check_colours, order_grid, place_partial_grid, square_colours
+from .refine import measure_grid
+from .symmetry import align_symmetric_numbering
+
+__all__ = ["PhotoResult", "detect_photo", "detect_dataset", "likely_boards", "suggest_board"]
+
+
+@dataclass
+class PhotoResult:
+    """Outcome for one photo: ``uv`` (N, 2) pixels in corner order, or None with a ``reason``.
+
+    ``failed_check`` names the check that a grid of the board's size, found in the photo, failed
+    (``"colours"``: its squares are not those of the board; ``"corners"``: the refined corners
+    are not a board's grid); it is ``""`` where no such grid was found. ``partial``: only part of
+    a chessboard is in view (a plain chessboard must be seen whole). ``mirrored``: the board is
+    printed with its other diagonal black (:func:`.order.order_grid`).
+    """
+
+    uv: np.ndarray | None
+    image_size: tuple[int, int] | None = None
+    reason: str = ""
+    symmetric: bool = False
+    manual: bool = False
+    failed_check: str = ""
+    partial: bool = False
+    mirrored: bool = False
+
+
+class _CheckFailed(DetectionError):
+    """A grid of the board's size was found but failed the check ``check``."""
+
+    def __init__(self, check: str, message: str):
+        super().__init__(message)
+        self.check = check
+
+
+def _coarse(full: np.ndarray, board: Board):
+    """Find the grid on a reduced image; retry at twice the resolution before giving up."""
+    size = full.shape[::-1]
+    f = reduction_factor(size)
+    while True:
+        small = reduce_image(full, f)
+        grid = find_grid(small, board.cols, board.rows)
+        if grid is not None or f == 1 or max(size) / f >= 2000:
+            return small, f, (None if grid is None else to_full_resolution(grid, f))
+        f //= 2
+
+
+def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
+                 overlay_path: Path | None = None) -> PhotoResult:
+    """Find, order, refine and check the chessboard corners of one photo.
+
+    Parameters
+    ----------
+    path : photo file (JPEG, PNG, TIFF, HEIC).
+    board : the expected board; a board of another size is not accepted. A ChArUco board whose
+        dictionary or layout is not given gets them from this photo.
+    hint_uv : (4, 2) clicked corners 0, cols-1, N-1, N-cols (manual mode), used when the
+        automatic search fails (chessboards only).
+    overlay_path : where to write a small JPEG with the corners and their numbers drawn.
+
+    Returns
+    -------
+    :class:`PhotoResult`; ``uv is None`` with a one-line ``reason`` when the photo cannot be
+    read or the board is not found or fails its checks. A failure that one photo can cause in
+    OpenCV, the file system or Pillow (``cv2.error``, ``OSError``, ``ValueError``) is reported
+    the same way, so one odd photo never stops a dataset; any other exception is a bug and
+    propagates.
+    """
+    try:
+        full = read_gray(path)
+        size = (full.shape[1], full.shape[0])
+        if board.charuco is not None:
+            # a dataset settles the dictionary and layout first (detect_dataset); one photo alone tells its own
+            uv = detect_charuco(full, board if board.charuco.resolved else resolve_board(board, [full]))
+            if overlay_path is not None:
+                f = reduction_factor(size)
+                write_overlay(overlay_path, reduce_image(full, f), uv, f)
+            return PhotoResult(uv, size)
+        small, f, grid = _coarse(full, board)
+        manual = grid is None and hint_uv is not None
+        if manual:
+            grid = grid_from_hints(hint_uv, board)
+        elif grid is None:
+            # glare, a shadow or blur can hide a square: find the part of the board on one
+            # side of it and place it on the board by the squares' colours
+            part = find_partial_grid(small)
+            if part is None:
+                raise DetectionError(f"no {board.spec()} chessboard found")
+            grid = place_partial_grid(to_full_resolution(part, f), small, f, board)
+        colours = square_colours(small, grid, f)
+        try:
+            check_colours(colours, board.cols, board.rows)
+        except DetectionError as exc:
+            raise _CheckFailed("colours", str(exc)) from None
+        # clicked grids too: whichever end the user started from, the contract's order
+        coarse, symmetric, mirrored = order_grid(grid, colours, board)
+        uv = measure_grid(full, coarse, (board.rows, board.cols), wide_start=manual)
+        reason = validate_grid(uv, board)
+        if reason:
+            raise _CheckFailed("corners", reason)
+        if overlay_path is not None:
+            write_overlay(overlay_path, small, uv, f)
+        return PhotoResult(uv, size, symmetric=symmetric, manual=manual, mirrored=mirrored)
+    except (DetectionError, InputError) as exc:
+        return PhotoResult(None, None, reason=str(exc).replace(f"{path}: ", ""),
+                           failed_check=getattr(exc, "check", ""), partial=isinstance(exc, PartialBoard))
+    except (cv2.error, OSError, ValueError) as exc:
+        return PhotoResult(None, None, reason=f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+
+
+def write_overlay(path: Path, small: np.ndarray, uv: np.ndarray, factor: int, max_side: int = 1200) -> None:
+    """A small JPEG of the photo with every measured corner marked and numbered (corner 0 in red).
+
+    ``path``'s folder must exist (see :func:`prepare_overlay_folders`).
+    """
+    scale = min(1.0, max_side / max(small.shape)) / factor
+    img = cv2.cvtColor(cv2.resize(small, None, fx=scale * factor, fy=scale * factor,
+                                  interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
+    pts = (uv + 0.5) * scale - 0.5
+    for k, (u, v) in enumerate(pts):
+        if not (np.isfinite(u) and np.isfinite(v)):
+            continue
+        colour = (0, 0, 255) if k == 0 else (0, 200, 0)
+        p = (int(round(u)), int(round(v)))
+        cv2.circle(img, p, 4 if k else 7, colour, 2)
+        cv2.putText(img, str(k), (p[0] + 5, p[1] - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.4, colour, 1)
+    write_jpeg_atomic(path, img, 85)
+
+
+def prepare_overlay_folders(overlays_dir, cameras) -> dict[str, Path]:
+    """``{camera: overlays_dir/camera}``, created; ``overlays_dir`` itself only if its parent exists."""
+    root = make_output_folder(overlays_dir)
+    return {cam: make_output_folder(root / cam) for cam in cameras}
+
+
+def warn_unpaired_cameras(dataset: Dataset) -> None:
+    """One warning per camera that shares no view key with the reference: nothing pairs it."""
+    ref_keys = set(dataset.cameras[dataset.reference])
+    for cam in unpaired_cameras(dataset):
+        photos = dataset.cameras[cam]
+        warn(f"camera {cam!r} shares no view with the reference {dataset.reference!r} (e.g. "
+             f"{next(iter(photos))!r} vs {next(iter(ref_keys))!r}): name photos of one instant alike "
+             "(same stem, or what the --camera globs' wildcards match) or use --pair-by time")
+
+
+def likely_boards(board: Board) -> list[Board]:
+    """The ``--board`` a user most likely meant when ``board`` is not found: squares counted
+    instead of inner corners (``cols-1 x rows-1``), the counts swapped, or both."""
+    if board.charuco is not None:
+        return []                     # its markers say which board it is: none is mistaken for another
+    c, r, s = board.cols, board.rows, board.square_mm
+    sizes = [(c - 1, r - 1), (r, c), (r - 1, c - 1)]
+    return [Board(a, b, s) for a, b in dict.fromkeys(sizes) if min(a, b) >= 2 and (a, b) != (c, r)]
+
+
+def suggest_board(paths, board: Board, tries: int = 3) -> str:
+    """A sentence naming the ``--board`` under which the board is found in ``paths`` (the first
+    ``tries`` of them), or "" when none of :func:`likely_boards` is."""
+    paths = list(paths)[:tries]
+    best, best_found = None, 0
+    for other in likely_boards(board):
+        found = sum(detect_photo(p, other).uv is not None for p in paths)
+        if found > best_found:
+            best, best_found = other, found
+    if best is None:
+        return ""
+    return (f"the board is found as --board {best.spec()} in {best_found} of {len(paths)} photo(s) tried "
+            f"(--board counts inner corners, COLSxROWS)")
+
+
+def find_board_markers(dataset: Dataset, board: Board) -> Board:
+    """A ChArUco board with the dictionary and layout its photos show (:func:`.charuco.resolve_board`),
+    from the first photos of the reference camera, then of the others; says in a warning what it found."""
+    order = [dataset.reference] + [c for c in dataset.cameras if c != dataset.reference]
+    paths = [photo.path for cam in order for photo in dataset.cameras[cam].values()]
+
+    def images():
+        for path in paths:
+            try:
+                yield read_gray(path)
+            except InputError:
+                continue
+
+    try:
+        found = resolve_board(board, images())
+    except DetectionError as exc:
+        raise InputError(f"{dataset.source}: {exc}: check --board, --square, --marker (or give --dictionary)") from None
+    ch = found.charuco
+    same = [d for d in dictionary_family(ch.dictionary) if DICTIONARIES[d][1] > DICTIONARIES[ch.dictionary][1]]
+    notes = []
+    if board.charuco.dictionary is None:
+        notes.append(f"dictionary {ch.dictionary}" + (f" (a board made with {', '.join(same)} is the same board)"
+                                                      if same else ""))
+    if board.charuco.legacy is None and ch.squares[1] % 2 == 0:
+        notes.append("OpenCV's legacy layout (OpenCV < 4.6)" if ch.legacy else "OpenCV's current layout")
+    warn(f"{found.spec()}: found from the photos: {'; '.join(notes)}")
+    return found
+
+
+def _work(task) -> PhotoResult:
+    path, board, hint, overlay = task
+    return detect_photo(path, board, hint, overlay)
+
+
+def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
+                   hints: dict[str, dict[str, np.ndarray]] | None = None,
+                   overlays_dir=None, progress: bool = True) -> CornerSet:
+    """Detect the board in every photo of a dataset.
+
+    Parameters
+    ----------
+    dataset : from :func:`dualcal.files.dataset.open_dataset`.
+    board : the chessboard (``--board``, ``--square``).
+    jobs : photos processed at once, in threads; each holds one photo (default: all cores, fewer
+        where the photos are so large that the memory they take would pass 1.2 GB,
+        :func:`dualcal.files.photos.jobs_within_memory`).
+    hints : ``{camera: {view: (4, 2)}}`` clicked corners (manual mode) for photos where the
+        automatic search fails (see :mod:`dualcal.files.detect.manual`).
+    overlays_dir : write ``overlays_dir/<camera>/<view>.jpg`` with the detected corners drawn
+        (``overlays_dir`` is created if its parent exists).
+    progress : draw a progress bar on stderr.
+
+    Returns
+    -------
+    :class:`~dualcal.geometry.model.CornerSet`; a view is None where no board was found (each such
+    photo is named in a warning).
+
+    Raises
+    ------
+    InputError
+        When no photo of the dataset yields the board, or ``overlays_dir``'s parent is missing.
+    """
+    hints = hints or {}
+    unknown = [f"{c}/{v}" for c, vs in hints.items() for v in vs
+               if c not in dataset.cameras or v not in dataset.cameras[c]]
+    if unknown:
+        warn(f"hints for photos not in the dataset are ignored: {', '.join(sorted(unknown))}")
+    if hints and board.charuco is not None:
+        warn(f"hints are for chessboards; {board.describe()} numbers its corners by its markers: hints ignored")
+        hints = {}
+    warn_unpaired_cameras(dataset)
+    if board.charuco is not None and not board.charuco.resolved:
+        board = find_board_markers(dataset, board)
+    overlay_dirs = {} if overlays_dir is None else prepare_overlay_folders(overlays_dir, dataset.cameras)
+    tasks, keys = [], []
+    for cam, photos in dataset.cameras.items():
+        for view, photo in photos.items():
+            overlay = overlay_dirs[cam] / f"{view}.jpg" if overlay_dirs else None
+            tasks.append((photo.path, board, hints.get(cam, {}).get(view), overlay))
+            keys.append((cam, view))
+    every_photo = [photo for cam in dataset.cameras.values() for photo in cam.values()]
+    jobs = max(1, min(jobs or jobs_within_memory(every_photo), len(tasks)))
+    results: list[PhotoResult] = []
+    with progress_bar("detecting corners", len(tasks), enabled=progress) as advance:
+        # threads, not processes: decoding, OpenCV's detectors and numpy's array loops release
+        # the GIL, and threads start at once, share the board and need no picklable state;
+        # a Ctrl-C cancels the photos not yet started (dualcal.parallel)
+        for r in interruptible_map(_work, tasks, jobs):
+            results.append(r)
+            advance()
+
+    views: dict[str, dict[str, np.ndarray | None]] = {c: {} for c in dataset.cameras}
+    symmetric = 0
+    mirrored = sum(r.uv is not None and r.mirrored for r in results)
+    board_mirrored = 2 * mirrored > sum(r.uv is not None for r in results)
+    for i, ((cam, view), res) in enumerate(zip(keys, results)):
+        if res.uv is not None and res.image_size != dataset.image_size(cam):
+            res = PhotoResult(None, reason=f"decoded as {res.image_size}, its header and the camera's "
+                                           f"other photos say {dataset.image_size(cam)}")
+        elif res.uv is not None and res.mirrored != board_mirrored:
+            # one printed board: its colours number every photo alike; a photo that disagrees
+            # misjudged its squares' colours
+            res = PhotoResult(None, reason="its squares' colours number the board as the mirror image of the "
+                                           "board in most photos", failed_check="colours")
+        results[i] = res
+    for (cam, view), (path, *_), res in zip(keys, tasks, results):
+        views[cam][view] = res.uv
+        if res.uv is None:
+            warn(f"{path}: skipped: {res.reason}")
+        symmetric += res.symmetric
+    found = sum(v is not None for vs in views.values() for v in vs.values())
+    if 2 * found < len(tasks):
+        # another --board only where no grid of this size was found at all: a board found that
+        # failed a later check is this board (its transposed size would not fix the check)
+        missed = [path for (path, *_), res in zip(tasks, results) if res.uv is None and not res.failed_check]
+        failed = "; ".join(f"in {n} photo(s) a {board.spec()} grid was found but failed the {check} check"
+                           for check, n in Counter(r.failed_check for r in results if r.failed_check).most_common())
+        suggestion = suggest_board(missed, board)
+        if found == 0:
+            check = ("check --board (inner corners, COLSxROWS)" if board.charuco is None
+                     else "check --board (squares, charuco:SXxSY), --square, --marker and --dictionary")
+            raise InputError(f"no {board.describe()} found in any photo of {dataset.source} "
+                             f"({len(tasks)} photos): " + ": ".join(filter(None, [failed, suggestion or check])))
+        hint = "; ".join(filter(None, [suggestion, failed]))
+        if hint:
+            warn(f"{board.spec()} found in only {found} of {len(tasks)} photos: {hint}")
+    cameras = {}
+    for cam in dataset.cameras:
+        meta = dataset.meta(cam)
+        manual = sorted(v for (c, v), r in zip(keys, results) if c == cam and r.manual)
+        if manual:
+            meta["manual_views"] = manual
+        partial = sorted(v for (c, v), r in zip(keys, results) if c == cam and r.partial)
+        if partial:
+            meta["partial_views"] = partial
+        cameras[cam] = CameraCorners(dataset.image_size(cam), views[cam], meta)
+        if all(v is None for v in views[cam].values()):
+            warn(f"camera {cam!r}: the board was found in none of its photos")
+    corners = CornerSet(board, cameras)
+    if symmetric:
+        how = "the candidate nearest the image's top-left"
+        if len(cameras) > 1:
+            corners, turned = align_symmetric_numbering(corners, dataset.reference)
+            how += (f" in camera {dataset.reference!r}, and in the other cameras the numbering that fits the rig's "
+                    f"relative pose ({turned} photo(s) renumbered)")
+        warn(f"board {board.spec()} looks the same turned by 180 degrees: in {symmetric} photo(s) corner 0 was "
+             f"taken as {how}")
+    return corners

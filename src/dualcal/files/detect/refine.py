@@ -1,0 +1,356 @@
+"""Sub-pixel corners at full resolution, in small windows only (paper section 1.2, last step).
+
+Each corner has its own window, 0.4 of the distance to its nearest neighbour (on a tilted
+board the squares of one photo range from a few to many tens of pixels). Two steps per
+corner, both touching only that window:
+
+1. ``cv2.cornerSubPix`` (gradient orthogonality, Förstner / Bouguet) from the coarse position:
+   a wide basin of convergence, accurate to a few hundredths of a pixel.
+2. :func:`fit_saddles`: a least-squares fit of a blurred ideal corner to the window's pixels,
+   all corners at once (batched Levenberg-Marquardt). The model is two straight edges through the
+   corner ``c`` with unit normals ``n1, n2`` (angles ``theta1, theta2``), a blurred step of
+   width ``w`` across each edge and a linear light gradient::
+
+       I(p) = m + g . (p - p0) + a * E(n1 . (p - c)) * E(n2 . (p - c)),
+       E(t) = tanh(t / w)
+
+   ``tanh`` stands in for the Gaussian-blurred step ``erf``: like it, it is odd, so any
+   mismatch of the edge profile is symmetric about the corner and cannot move it, and it is
+   forty times cheaper to evaluate.
+
+   It uses every pixel's value rather than only gradient directions, so with sensor noise it
+   is more precise than step 1. Where the printed squares do not quite meet (home-made
+   boards), it returns the crossing of the four edges, which gradient orthogonality in a small
+   window does not. A corner whose fit does not converge inside its window is reported as
+   failed.
+
+:func:`measure_grid` then checks every corner against its neighbours (:mod:`.grid`), refines
+again from the neighbours' prediction where it disagrees, and makes a NaN row of what still
+fails.
+
+Pixel ``(row i, col j)`` has its centre at ``(u=j, v=i)``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .grid import local_spacing_px, outlier_limit_px, predict_from_neighbours, worst_outlier
+
+__all__ = ["refine_corners", "fit_saddles", "window_half_size", "drop_outliers", "measure_grid"]
+
+
+#: :func:`fit_saddles` fits again without the pixels off its first fit by more than this many robust
+#: sigmas (at least 1 grey level) and this share of the corner's half-contrast, where they are more
+#: than this share of the window's.
+OUTLIER_MADS = 4.0
+OUTLIER_CONTRAST = 1.0
+OUTLIER_SHARE = 0.01
+
+
+def window_half_size(spacing_px: np.ndarray, lo: int = 3, hi: int = 24) -> np.ndarray:
+    """Half-size of the refinement window of a corner ``spacing_px`` from its nearest neighbour.
+
+    A window must not reach the next corner; 0.4 of the distance to the nearest of the eight
+    neighbours (diagonals included, so a sheared grid is covered) leaves room for a start off
+    by a few pixels. Larger windows see more of the four edges (more precise, and on
+    boards whose squares do not quite meet, a better-defined crossing), up to ``hi``.
+    """
+    return np.clip(np.floor(0.4 * np.asarray(spacing_px, float)), lo, hi).astype(int)
+
+
+def _subpix(img: np.ndarray, uv: np.ndarray, half: int) -> np.ndarray:
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 60, 1e-3)
+    pts = np.ascontiguousarray(uv, np.float32).reshape(-1, 1, 2)
+    return cv2.cornerSubPix(img, pts, (int(half), int(half)), (-1, -1), crit).reshape(-1, 2).astype(float)
+
+
+def _windows(img: np.ndarray, centres: np.ndarray, half: int):
+    """(K, n, n) float32 windows around integer ``centres`` (K, 2); ``valid`` where fully inside."""
+    H, W = img.shape
+    n = 2 * half + 1
+    cu, cv = centres[:, 0], centres[:, 1]
+    valid = (cu - half >= 0) & (cv - half >= 0) & (cu + half < W) & (cv + half < H)
+    out = np.zeros((len(centres), n, n), np.float32)
+    for k in np.flatnonzero(valid):
+        out[k] = img[cv[k] - half: cv[k] + half + 1, cu[k] - half: cu[k] + half + 1]
+    return out, valid
+
+
+def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: int,
+                iterations: int = 12):
+    """Fit the blurred-corner model of the module docstring around every corner.
+
+    Parameters
+    ----------
+    img : (H, W) uint8 or float image.
+    uv : (K, 2) starting corner positions, pixels.
+    edge_dirs : (K, 2, 2) unit directions of the two grid lines through each corner (along
+        the board's rows and columns); only their angles are used, as a start.
+    half : window half-size; the fit uses the pixels within a disc of this radius.
+    iterations : at most this many Levenberg-Marquardt steps.
+
+    Returns
+    -------
+    uv_fit : (K, 2) fitted corners.
+    ok : (K,) True where the fit converged inside its window.
+    rms : (K,) residual RMS of the fit, in grey levels (the image's units).
+    """
+    uv = np.asarray(uv, float)
+    K = len(uv)
+    centres = np.rint(uv).astype(int)
+    win, valid = _windows(img, centres, half)
+    r = np.arange(-half, half + 1, dtype=np.float32)
+    qy, qx = np.meshgrid(r, r, indexing="ij")
+    disc = (qx * qx + qy * qy <= (half + 0.5) ** 2).ravel()
+    qx, qy = qx.ravel()[disc], qy.ravel()[disc]           # offsets from the window centre
+    z = win.reshape(K, -1)[:, disc]                        # (K, P) observations
+
+    # parameters: cu, cv (relative to the window centre), theta1, theta2, w, m, gx, gy, a
+    normals = np.stack([-edge_dirs[:, :, 1], edge_dirs[:, :, 0]], axis=-1)   # (K, 2, 2)
+    p = np.zeros((K, 9))
+    p[:, 0:2] = uv - centres
+    p[:, 2] = np.arctan2(normals[:, 0, 1], normals[:, 0, 0])
+    p[:, 3] = np.arctan2(normals[:, 1, 1], normals[:, 1, 0])
+    p[:, 4] = 1.5
+    # linear start for the photometric terms (m, g, a) given the geometry
+    _, E1E2, _ = _model(p, qx, qy)
+    A = np.stack(np.broadcast_arrays(1.0, qx[None, :], qy[None, :], E1E2), axis=-1)  # (K, P, 4)
+    At = np.swapaxes(A, 1, 2)
+    p[:, 5:9] = np.linalg.solve((At @ A).astype(float) + 1e-9 * np.eye(4),
+                                (At @ z[..., None]).astype(float))[..., 0]
+
+    ok = valid.copy()
+    cost = _lm(p, qx, qy, z, None, np.arange(K), iterations)
+    # marks printed in a white square (a code, a dot, text) or a glare spot inside the window are
+    # no part of the corner model: where more than OUTLIER_SHARE of a window's pixels are off the
+    # fit by over OUTLIER_MADS robust sigmas and OUTLIER_CONTRAST of the corner's half-contrast a (a
+    # dark mark on white is off by about 2a; a real edge's profile, which tanh only approximates, by
+    # far less), the fit is done again without them
+    res = _predict(p, qx, qy) - z
+    mad = 1.4826 * np.median(np.abs(res - np.median(res, axis=1, keepdims=True)), axis=1, keepdims=True)
+    keep = np.abs(res) <= np.maximum(OUTLIER_MADS * np.maximum(mad, 1.0), OUTLIER_CONTRAST * np.abs(p[:, 8:9]))
+    again = np.flatnonzero(valid & (np.mean(~keep, axis=1) > OUTLIER_SHARE))
+    if len(again):
+        wt = keep[again].astype(np.float32)
+        sub = p[again]
+        cost_again = _lm(sub, qx, qy, z[again], wt, np.arange(len(again)), iterations)
+        p[again] = sub
+        cost[again] = cost_again * keep.shape[1] / np.maximum(wt.sum(axis=1), 1.0)
+    rms = np.sqrt(cost / max(1, z.shape[1]))
+    inside = np.all(np.abs(p[:, :2]) < 0.5 * half, axis=1) & (p[:, 4] > 0.2) & (p[:, 4] < half)
+    ok &= inside & np.all(np.isfinite(p), axis=1)
+    return centres + p[:, :2], ok, rms
+
+
+def _lm(p, qx, qy, z, wt, active, iterations):
+    """Levenberg-Marquardt on the corners ``active`` of ``p`` (K, 9), in place; ``wt`` (K, P) 0/1 pixel
+    weights or None. Returns the (K,) costs."""
+    lam = np.full(len(p), 1e-3)
+    cost = _cost(p, qx, qy, z, wt)
+    for _ in range(iterations):
+        pa, za = p[active], z[active]
+        wa = None if wt is None else wt[active]
+        J, res = _jacobian(pa, qx, qy, za)
+        if wa is not None:
+            J, res = J * wa[..., None], res * wa
+        Jt = np.swapaxes(J, 1, 2)
+        JtJ = (Jt @ J).astype(float)
+        Jtr = (Jt @ res[..., None])[..., 0].astype(float)
+        D = np.einsum("kii->ki", JtJ) + 1e-12
+        la = lam[active]
+        step = np.linalg.solve(JtJ + la[:, None, None] * D[:, :, None] * np.eye(9), -Jtr[..., None])[..., 0]
+        trial = pa + step
+        new_cost = _cost(trial, qx, qy, za, wa)
+        better = new_cost < cost[active]
+        p[active[better]], cost[active[better]] = trial[better], new_cost[better]
+        lam[active] = np.where(better, la * 0.3, la * 10.0)
+        done = (np.max(np.abs(step[:, :2]), axis=1) < 1e-4) | (lam[active] > 1e4)
+        active = active[~done]
+        if len(active) == 0:
+            break
+    return cost
+
+
+def _model(p, qx, qy):
+    p = p.astype(np.float32)          # pixel-scale arithmetic: float32 is ample and twice as fast
+    c, s = np.cos(p[:, 2:4]), np.sin(p[:, 2:4])                # (K, 2)
+    dx = qx[None, :] - p[:, 0:1]
+    dy = qy[None, :] - p[:, 1:2]
+    t1 = c[:, 0:1] * dx + s[:, 0:1] * dy
+    t2 = c[:, 1:2] * dx + s[:, 1:2] * dy
+    k = 1.0 / p[:, 4:5]
+    E1, E2 = np.tanh(t1 * k), np.tanh(t2 * k)
+    return (E1, E2), E1 * E2, (t1, t2, dx, dy, c, s)
+
+
+def _predict(p, qx, qy):
+    _, E1E2, _ = _model(p, qx, qy)
+    p = p.astype(np.float32)
+    return p[:, 5:6] + p[:, 6:7] * qx + p[:, 7:8] * qy + p[:, 8:9] * E1E2
+
+
+def _cost(p, qx, qy, z, wt=None):
+    r = _predict(p, qx, qy) - z
+    if wt is not None:
+        r = r * wt
+    cost = np.sum(r * r, axis=1, dtype=np.float64)
+    return np.where(np.isfinite(cost), cost, np.inf)
+
+
+def _jacobian(p, qx, qy, z):
+    (E1, E2), E1E2, (t1, t2, dx, dy, c, s) = _model(p, qx, qy)
+    p = p.astype(np.float32)
+    w = p[:, 4:5]
+    a = p[:, 8:9]
+    g1 = (1.0 - E1 * E1) / w           # dE/dt of E = tanh(t / w)
+    g2 = (1.0 - E2 * E2) / w
+    G1, G2 = g1 * E2, E1 * g2
+    J = np.empty(t1.shape + (9,), np.float32)
+    J[..., 0] = -a * (G1 * c[:, 0:1] + G2 * c[:, 1:2])
+    J[..., 1] = -a * (G1 * s[:, 0:1] + G2 * s[:, 1:2])
+    J[..., 2] = a * G1 * (-s[:, 0:1] * dx + c[:, 0:1] * dy)
+    J[..., 3] = a * G2 * (-s[:, 1:2] * dx + c[:, 1:2] * dy)
+    J[..., 4] = -a * (G1 * t1 + G2 * t2) / w
+    J[..., 5] = 1.0
+    J[..., 6] = qx[None, :]
+    J[..., 7] = qy[None, :]
+    J[..., 8] = E1E2
+    res = p[:, 5:6] + p[:, 6:7] * qx + p[:, 7:8] * qy + a * E1E2 - z
+    return J, res
+
+
+def _groups(half: np.ndarray):
+    """Indices of the corners sharing each window half-size (windows are batched per size)."""
+    for h in np.unique(half):
+        yield int(h), np.flatnonzero(half == h)
+
+
+def refine_corners(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int],
+                   spacing_px: np.ndarray | None = None, wide_start: bool = False,
+                   only: np.ndarray | None = None):
+    """Refine grid corners at full resolution, each in a window fitted to its own squares.
+
+    Parameters
+    ----------
+    img : (H, W) uint8 full-resolution image.
+    uv : (rows*cols, 2) starting corners in row-major grid order (any of the grid's orders);
+        NaN rows are left alone.
+    grid_shape : ``(rows, cols)`` of ``uv``.
+    spacing_px : (rows*cols,) distance from each corner to its nearest neighbour, which sets its
+        window (:func:`window_half_size`); default: measured on ``uv``
+        (:func:`~dualcal.files.detect.grid.local_spacing_px`).
+    wide_start : first pull every corner in with a window of nearly half its spacing, for
+        starting points that may be off by many pixels (corners predicted from four clicks).
+    only : (N,) bool, refine only these corners (the others are returned as they are, not ok);
+        all others still set the grid's directions.
+
+    Returns
+    -------
+    uv : (N, 2) refined corners, pixels, in the order of ``uv``.
+    ok : (N,) True where the blurred-corner fit converged inside the corner's window; elsewhere
+        ``uv`` holds the ``cornerSubPix`` result, which the caller should not trust as it is.
+    """
+    rows, cols = grid_shape
+    start = np.array(uv, float).reshape(rows * cols, 2)
+    spacing = local_spacing_px(start, grid_shape) if spacing_px is None else np.asarray(spacing_px, float)
+    todo = np.isfinite(spacing) & np.all(np.isfinite(start), axis=1)
+    if only is not None:
+        todo &= np.asarray(only, bool)
+    half = np.where(todo, window_half_size(np.where(todo, spacing, 0.0)), 0)
+    # a corner outside the image (a board cut off by the frame) cannot be measured
+    H, W = img.shape
+    todo &= np.all((start >= 0) & (start <= [W - 1, H - 1]), axis=1)
+    if wide_start:
+        wide = np.clip(np.floor(0.45 * np.where(todo, spacing, 0.0)), 3, 80).astype(int)
+        for h, k in _groups(wide[todo]):
+            k = np.flatnonzero(todo)[k]
+            start[k] = _subpix(img, start[k], h)
+    g = start.reshape(rows, cols, 2)
+    dirs = np.stack([_grid_direction(g, axis=1), _grid_direction(g, axis=0)], axis=1)
+    out = start.copy()
+    ok = np.zeros(len(start), bool)
+    for h, k in _groups(half[todo]):
+        k = np.flatnonzero(todo)[k]
+        first = _subpix(img, start[k], h)
+        fit, good, _ = fit_saddles(img, first, dirs[k], h)
+        out[k] = np.where(good[:, None], fit, first)
+        ok[k] = good & (np.linalg.norm(out[k] - start[k], axis=1) < h)
+    return out, ok
+
+
+def _grid_direction(g: np.ndarray, axis: int) -> np.ndarray:
+    """(N, 2) unit direction of the grid line through each corner along ``axis`` (NaN-tolerant)."""
+    fwd = np.diff(g, axis=axis)
+    pad = [(0, 0)] * 3
+    pad[axis] = (1, 0)
+    back_d = np.pad(fwd, pad, constant_values=np.nan)
+    pad[axis] = (0, 1)
+    fwd_d = np.pad(fwd, pad, constant_values=np.nan)
+    d = np.where(np.isfinite(fwd_d), fwd_d, 0.0) + np.where(np.isfinite(back_d), back_d, 0.0)
+    d = d.reshape(-1, 2)
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    fallback = np.array([1.0, 0.0]) if axis == 1 else np.array([0.0, 1.0])
+    return np.where(n > 0, d / np.where(n > 0, n, 1.0), fallback)
+
+
+def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.ndarray,
+                  judged: np.ndarray | None = None) -> np.ndarray:
+    """``uv`` with the corners that disagree with their neighbours set to NaN, worst first.
+
+    The worst corner (:func:`~dualcal.files.detect.grid.worst_outlier`) goes first and the residuals
+    are computed again, so that one bad corner does not take with it its neighbours, whose
+    predictions it spoiled. What is left passes :func:`~dualcal.files.detect.grid.validate_grid`'s
+    residual check. ``judged``: only these corners may be dropped (default: all).
+    """
+    uv = np.array(uv, float)
+    while (worst := worst_outlier(uv, grid_shape, spacing_px, judged=judged)) is not None:
+        uv[worst[0]] = np.nan
+    return uv
+
+
+def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, int],
+                 wide_start: bool = False) -> np.ndarray:
+    """Sub-pixel corners of a whole grid, each checked against its neighbours.
+
+    1. A coarse corner further than 0.15 of its spacing from its neighbours' prediction (the
+       classic detector's corners at the border of a tilted board can be 5-13 px off) starts
+       from that prediction instead.
+    2. Every corner is refined in its own window (:func:`refine_corners`); a corner whose fit
+       fails is dropped, and so, worst first, is every corner further than
+       :func:`~dualcal.files.detect.grid.outlier_limit_px` from its neighbours' prediction
+       (:func:`drop_outliers`).
+    3. Each dropped corner gets a second chance: refined again from where its remaining
+       neighbours put it, and kept if its fit converges there within the limit.
+
+    Parameters
+    ----------
+    img : (H, W) uint8 full-resolution image.
+    coarse_uv : (N, 2) starting corners in grid order.
+    grid_shape : ``(rows, cols)``.
+    wide_start : see :func:`refine_corners`.
+
+    Returns
+    -------
+    (N, 2) corners, NaN rows for the corners that failed.
+    """
+    coarse = np.asarray(coarse_uv, float)
+    spacing = local_spacing_px(coarse, grid_shape)
+    pred, _ = predict_from_neighbours(coarse, grid_shape)
+    far = np.linalg.norm(coarse - pred, axis=1) > 0.15 * spacing
+    start = np.where(far[:, None], pred, coarse)
+    uv, ok = refine_corners(img, start, grid_shape, spacing, wide_start=wide_start)
+    uv[~ok] = np.nan
+    uv = drop_outliers(uv, grid_shape, spacing)
+    lost = ~np.all(np.isfinite(uv), axis=1)
+    pred, gain = predict_from_neighbours(uv, grid_shape)
+    retry = lost & np.all(np.isfinite(pred), axis=1)
+    if retry.any():
+        again, ok = refine_corners(img, np.where(retry[:, None], pred, uv), grid_shape, spacing, only=retry)
+        res = np.linalg.norm(uv - pred, axis=1)
+        typical = float(np.nanmedian(res)) if np.isfinite(res).any() else 0.0
+        keep = retry & ok & (np.linalg.norm(again - pred, axis=1) <= outlier_limit_px(spacing, typical, gain))
+        uv[keep] = again[keep]
+        uv = drop_outliers(uv, grid_shape, spacing)
+    return uv

@@ -1,0 +1,184 @@
+"""Duplicate instants: the same view counted twice makes every sigma lie.
+
+dualcal's sigmas come from the scatter between instants (:mod:`dualcal.estimation.uncertainty`), so an instant
+must be an independent look at the board. A photo copied (a camera roll exported twice, a re-run into
+the same folder) or a burst (the phone and the board still, several shots) is the same view again: its
+corners agree with the first one's within their noise, and counting it shrinks every sigma by about
+``sqrt(copies)`` while the errors stay. Such instants are one instant.
+
+Two instants are duplicates when the same cameras found the board in both and, in every one of them,
+the corners both measured agree to within :data:`DUPLICATE_SIGMAS` times what two measurements of one
+corner differ by (``sqrt(2)`` x the camera's corner noise per coordinate, :func:`corner_noise_px`),
+as an RMS over the corners. Two different board positions never come that close: a board moved by a
+tenth of a square, or turned by a tenth of a degree, moves its corners by far more than a few tenths
+of a pixel. Groups are closed transitively; the first key of a group (in sorted order) is kept.
+
+:func:`duplicate_files` finds identical files by content, for the layer that lists photos.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry.model import CameraCorners, CornerSet, observed_mask
+
+#: Corners of two instants agree "within the noise" up to this many sigmas of their difference (RMS).
+DUPLICATE_SIGMAS = 4.0
+#: Corner noise assumed at least this (px per coordinate), so that noise-free synthetic corners still
+#: merge only what is the same to well below a pixel.
+MIN_NOISE_PX = 0.02
+#: A camera's corners of two instants are compared only where both measured this share of those the fuller
+#: view measured.
+MIN_COMMON_SHARE = 0.5
+
+
+#: :func:`corner_noise_px` looks at this many of a camera's views at most (spread over them): the median
+#: of a few views' noise is as good as of all, and each costs a small fit per corner.
+NOISE_VIEWS = 8
+
+
+def corner_noise_px(views: list[np.ndarray], shape: tuple[int, int]) -> float:
+    """A camera's corner noise, px per coordinate: the median over its views (:data:`NOISE_VIEWS` of them
+    at most, spread over the list) of the RMS of each corner against its prediction from its 5 x 5
+    neighbours (:func:`dualcal.files.detect.grid.predict_from_neighbours`), the prediction's own noise taken
+    out (``/ sqrt(1 + gain^2)``)."""
+    from .detect.grid import predict_from_neighbours
+
+    per_view = []
+    picked = np.unique(np.linspace(0, len(views) - 1, min(len(views), NOISE_VIEWS)).round().astype(int))
+    for uv in (views[i] for i in picked):
+        pred, gain = predict_from_neighbours(uv, shape)
+        e2 = np.sum((uv - pred) ** 2, axis=1) / (1.0 + gain ** 2)
+        e2 = e2[np.isfinite(e2)]
+        if len(e2):
+            per_view.append(np.sqrt(np.mean(e2) / 2.0))
+    return max(float(np.median(per_view)) if per_view else 0.0, MIN_NOISE_PX)
+
+
+def _found(cam: CameraCorners) -> dict[str, np.ndarray]:
+    return {k: v for k, v in cam.views.items() if v is not None and observed_mask(v).any()}
+
+
+def _rms_differences(stack: np.ndarray, a: int) -> tuple[np.ndarray, np.ndarray]:
+    """RMS 2-D difference per corner between view ``a`` and every view of ``stack`` (V, N, 2), over the
+    corners both measured, and their share of the corners the fuller of the two views measured (a
+    partial view of a ChArUco board and its copy share all of theirs)."""
+    d2 = np.sum((stack - stack[a]) ** 2, axis=2)                       # (V, N), NaN where either is missing
+    common = np.isfinite(d2)
+    n = common.sum(axis=1)
+    measured = np.isfinite(stack[..., 0]).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(np.where(common, d2, 0.0).sum(axis=1) / n)
+        share = n / np.maximum(np.maximum(measured, measured[a]), 1)
+    return np.where(n > 0, rms, np.inf), share
+
+
+def find_duplicate_instants(corners: CornerSet, sigmas: float = DUPLICATE_SIGMAS) -> list[dict]:
+    """Groups of instants whose views are the same within the noise (module docstring).
+
+    Returns
+    -------
+    One record per group of two or more instants, in key order: ``{"kept": key, "merged": [keys],
+    "rms_px": {camera: largest RMS difference to the kept instant}, "limit_px": {camera: limit}}``.
+    """
+    shape = (corners.board.rows, corners.board.cols)
+    found = {name: _found(cam) for name, cam in corners.cameras.items()}
+    keys = sorted({k for views in found.values() for k in views})
+    if len(keys) < 2:
+        return []
+    index = {k: i for i, k in enumerate(keys)}
+    names = sorted(found)
+    seen = np.array([[k in found[n] for n in names] for k in keys])           # (V, C)
+    close = np.all(seen[:, None, :] == seen[None, :, :], axis=2)             # the same cameras found the board
+    rms_of, limit_of = {}, {}
+    for name, views in found.items():
+        if not views:
+            continue
+        stack = np.full((len(keys), corners.board.n_corners, 2), np.nan)
+        for k, uv in views.items():
+            stack[index[k]] = uv
+        limit = sigmas * np.sqrt(2.0) * corner_noise_px(list(views.values()), shape)
+        limit_of[name] = limit
+        rms = np.full((len(keys), len(keys)), np.inf)
+        for k in views:
+            a = index[k]
+            r, share = _rms_differences(stack, a)
+            rms[a] = np.where(share >= MIN_COMMON_SHARE, r, np.inf)
+        rms_of[name] = rms
+        both = np.outer(seen[:, names.index(name)], seen[:, names.index(name)])
+        close &= ~both | (rms <= limit)
+    records = []
+    for group in _connected_groups(close):
+        first, cams = group[0], [n for c, n in enumerate(names) if seen[group[0], c]]
+        records.append({"kept": keys[first], "merged": [keys[i] for i in group[1:]],
+                        "rms_px": {n: float(max(rms_of[n][first, i] for i in group[1:])) for n in cams},
+                        "limit_px": {n: float(limit_of[n]) for n in cams}})
+    return records
+
+
+def _connected_groups(close: np.ndarray) -> list[list[int]]:
+    """The groups (two or more members, each sorted) of the graph whose edges are ``close[i, j]`` for i != j."""
+    parent = list(range(len(close)))
+
+    def root(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, j in zip(*np.nonzero(np.triu(close, 1))):
+        ri, rj = root(i), root(j)
+        if ri != rj:
+            parent[max(ri, rj)] = min(ri, rj)
+    members = defaultdict(list)
+    for i in range(len(close)):
+        members[root(i)].append(i)
+    return [sorted(g) for g in members.values() if len(g) > 1]
+
+
+def merge_duplicate_instants(corners: CornerSet, sigmas: float = DUPLICATE_SIGMAS) -> tuple[CornerSet, list[dict]]:
+    """``corners`` with one instant per group of duplicates (:func:`find_duplicate_instants`; the kept one's
+    corners) and the groups' records, which every camera's ``meta["duplicates"]`` also holds (corners.json)."""
+    records = find_duplicate_instants(corners, sigmas)
+    if not records:
+        return corners, []
+    merged = {k for r in records for k in r["merged"]}
+    out = corners.with_views(lambda camera, view: view not in merged)
+    for cam in out.cameras.values():
+        cam.meta = {**cam.meta, "duplicates": [{"kept": r["kept"], "merged": r["merged"]} for r in records]}
+    return out, records
+
+
+def describe_duplicates(records: list[dict]) -> str:
+    """One line saying which instants were merged into which."""
+    n = sum(len(r["merged"]) for r in records)
+    pairs = "; ".join(f"{', '.join(r['merged'])} = {r['kept']}" for r in records[:8])
+    more = f"; and {len(records) - 8} more groups" if len(records) > 8 else ""
+    return (f"{n} instant(s) repeat another's view (the same corners within {DUPLICATE_SIGMAS:g} sigma of their "
+            f"noise: a copied photo or a burst) and count once, so that the sigmas come from distinct "
+            f"instants: {pairs}{more}")
+
+
+def duplicate_files(paths) -> list[list[Path]]:
+    """Groups (two or more, each in the given order) of files with identical content: by size, then sha256."""
+    by_size = defaultdict(list)
+    for p in map(Path, paths):
+        by_size[p.stat().st_size].append(p)
+    groups = []
+    for same_size in by_size.values():
+        if len(same_size) < 2:
+            continue
+        by_hash = defaultdict(list)
+        for p in same_size:
+            digest = hashlib.sha256()
+            with open(p, "rb") as fh:
+                for chunk in iter(lambda: fh.read(1 << 20), b""):
+                    digest.update(chunk)
+            by_hash[digest.hexdigest()].append(p)
+        groups += [g for g in by_hash.values() if len(g) > 1]
+    order = {p: i for i, p in enumerate(map(Path, paths))}
+    return sorted(groups, key=lambda g: order[g[0]])

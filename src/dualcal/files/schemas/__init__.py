@@ -1,0 +1,132 @@
+"""JSON Schemas of dualcal's files, and the one validation every JSON input goes through.
+
+``schemas/NAME.json`` (draft 2020-12) for each file of the contract: :data:`SCHEMA_NAMES`. They
+describe the contract's keys and types; unknown keys are admitted everywhere ("extend only by
+adding"). :func:`validate` checks a parsed document against one, and beyond what a schema can
+say, that every number is finite (Python's JSON reader accepts ``NaN`` and ``Infinity``). What
+needs the library (a lens model's name, a lens invertible over its image, rotations, checks that
+were edited) is checked by the loaders in :mod:`dualcal.files.io`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+from importlib import resources
+
+from ...errors import InputError
+
+#: The files that have a schema: ``dualcal schema NAME`` prints ``NAME.json``.
+SCHEMA_NAMES = ("corners", "calib", "eval", "measure", "points", "rectify", "advise")
+
+
+def schema(name: str) -> dict:
+    """The JSON Schema of ``NAME.json`` (:data:`SCHEMA_NAMES`) as a dict."""
+    return json.loads(schema_text(name))
+
+
+def schema_text(name: str) -> str:
+    """The text of ``schemas/NAME.json``; :class:`InputError` for a name without one."""
+    if name not in SCHEMA_NAMES:
+        raise InputError(f"no schema named {name!r} (dualcal has {', '.join(SCHEMA_NAMES)})")
+    return resources.files(__name__).joinpath(f"{name}.json").read_text(encoding="utf-8")
+
+
+@functools.cache
+def _validator(name: str):
+    import jsonschema
+    from referencing import Registry, Resource
+
+    registry = Registry().with_resources(
+        (f"dualcal:{n}.json", Resource.from_contents(schema(n))) for n in SCHEMA_NAMES)
+    return jsonschema.Draft202012Validator(schema(name), registry=registry)
+
+
+def key_path(parts) -> str:
+    """``["cameras", "wide", "fx"]`` -> ``cameras.wide.fx``; list indices as ``[3]``."""
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out or "(top level)"
+
+
+def non_finite_key(doc) -> str | None:
+    """The key path of the first NaN or infinite number in ``doc``, or None (iterative: any depth)."""
+    stack = [((), doc)]
+    while stack:
+        path, value = stack.pop()
+        if isinstance(value, float) and not math.isfinite(value):
+            return key_path(path)
+        if isinstance(value, dict):
+            stack.extend((path + (k,), v) for k, v in value.items())
+        elif isinstance(value, list):
+            stack.extend((path + (i,), v) for i, v in enumerate(value))
+    return None
+
+
+#: Where the files hold their corner lists (the bulk of a corners.json or calib.json).
+_CORNER_LISTS = {"corners": (), "calib": ("corners",)}
+
+
+def _corner_problem(views) -> tuple[tuple, str] | None:
+    """The key path and the fault of the first view entry that is not ``null`` or a list of corners
+    ``[u, v]`` / ``null`` (what the schema says of them, checked here in one pass: a generic
+    validator takes ten times longer over thousands of corners)."""
+    for key, corners in views.items():
+        if corners is None:
+            continue
+        if not isinstance(corners, list):
+            return (key,), f"{corners!r:.40} is not of type 'array', 'null'"
+        for i, uv in enumerate(corners):
+            if uv is None:
+                continue
+            if not (isinstance(uv, list) and len(uv) == 2):
+                return (key, i), f"{uv!r:.40} is not a corner [u, v] or null"
+            for j, x in enumerate(uv):
+                if type(x) not in (int, float):
+                    return (key, i, j), f"{x!r:.40} is not of type 'number'"
+    return None
+
+
+def _split_corner_lists(doc, name: str):
+    """``doc`` with every camera's ``views`` of its corners emptied (shallow copies), and the views taken
+    out, by the key path of their camera: the schema checks the rest, :func:`_corner_problem` these."""
+    if name not in _CORNER_LISTS or not isinstance(doc, dict):
+        return doc, []
+    taken = []
+    outer = doc = dict(doc)
+    parent_path = _CORNER_LISTS[name]
+    for key in parent_path:
+        if not isinstance(doc.get(key), dict):
+            return outer, []
+        doc[key] = dict(doc[key])
+        doc = doc[key]
+    cameras = doc.get("cameras")
+    if not isinstance(cameras, dict):
+        return outer, []
+    doc["cameras"] = cameras = dict(cameras)
+    for cam, entry in cameras.items():
+        if isinstance(entry, dict) and isinstance(entry.get("views"), dict):
+            taken.append((parent_path + ("cameras", cam, "views"), entry["views"]))
+            cameras[cam] = {**entry, "views": {}}
+    return outer, taken
+
+
+def validate(doc, name: str, source: str) -> None:
+    """Raise :class:`InputError` unless ``doc`` is a valid ``NAME.json``: one line naming ``source``
+    and the key that breaks the schema, or that holds NaN or an infinite number."""
+    import jsonschema
+
+    bad = non_finite_key(doc)
+    if bad is not None:
+        raise InputError(f"{source}: {bad} is NaN or infinite: every number must be finite")
+    doc, corner_lists = _split_corner_lists(doc, name)
+    for path, views in corner_lists:
+        problem = _corner_problem(views)
+        if problem is not None:
+            raise InputError(f"{source}: {key_path(path + problem[0])}: {problem[1]} (schema: dualcal schema {name})")
+    error = jsonschema.exceptions.best_match(_validator(name).iter_errors(doc))
+    if error is not None:
+        message = error.message if len(error.message) <= 160 else error.message[:157] + "..."
+        raise InputError(f"{source}: {key_path(error.absolute_path)}: {message} (schema: dualcal schema {name})")

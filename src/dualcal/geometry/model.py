@@ -1,0 +1,290 @@
+"""Data classes for what flows between the stages: corners in, a calibrated rig out.
+
+Conventions (README, "Conventions"): board to camera ``X_cam = R @ X_board + t_mm``; a
+non-reference camera ``c`` of a rig sees ``X_c = R_c @ X_ref + t_c``. Poses are plain numpy
+arrays; the classes only group them and never hide state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .board import Board, sag_mm, shaped_points_mm
+from .camera import CameraModel, project_points
+from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
+
+
+#: calib.json's top-level ``model`` when the cameras' lens models differ.
+MIXED_LENS_MODELS = "mixed"
+
+
+@dataclass
+class Pose:
+    """A rigid transform ``X_to = R @ X_from + t_mm``."""
+
+    R: np.ndarray
+    t_mm: np.ndarray
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        """Transform (N, 3) points."""
+        return np.asarray(X) @ self.R.T + self.t_mm
+
+    def compose(self, first: "Pose") -> "Pose":
+        """``self after first``: ``X -> self.apply(first.apply(X))``."""
+        return Pose(self.R @ first.R, self.R @ first.t_mm + self.t_mm)
+
+    def inverse(self) -> "Pose":
+        return Pose(self.R.T, -self.R.T @ self.t_mm)
+
+    @property
+    def center_mm(self) -> np.ndarray:
+        """Perspective centre in the 'from' frame: ``-R^T t`` (paper eq. 11)."""
+        return -self.R.T @ self.t_mm
+
+    @property
+    def opk_arcmin(self) -> np.ndarray:
+        return opk_from_rotation(self.R) * ARCMIN_PER_RAD
+
+    def to_dict(self) -> dict:
+        return {"R": self.R.tolist(), "t_mm": self.t_mm.tolist()}
+
+
+def mean_pose(poses: list[Pose]) -> Pose:
+    """Chordal mean of the rotations (nearest rotation to their sum) and mean of the translations."""
+    return Pose(nearest_rotation(np.sum([p.R for p in poses], axis=0)), np.mean([p.t_mm for p in poses], axis=0))
+
+
+def observed_mask(uv_px: np.ndarray) -> np.ndarray:
+    """(N,) True for the corners of a view that were measured (rows that are not NaN)."""
+    return np.all(np.isfinite(np.asarray(uv_px, float)), axis=-1)
+
+
+@dataclass
+class CameraCorners:
+    """Detected corners of one camera: ``views[key]`` is (N, 2) pixels, or None if not found.
+
+    Inside a view, a corner that could not be measured (or was rejected) is a row of NaN: the
+    array keeps its length and order, so row k is always corner k (corners.json writes such a
+    corner as ``null``, see the contract). ``meta`` holds extra per-camera information carried
+    through corners.json (photo paths, EXIF make, model and focal length, ...); keys are written
+    as they are.
+    """
+
+    image_size: tuple[int, int]
+    views: dict[str, np.ndarray | None]
+    meta: dict = field(default_factory=dict)
+
+    def found(self) -> dict[str, np.ndarray]:
+        """The views where the board was found (at least one corner measured)."""
+        return {k: v for k, v in self.views.items() if v is not None and observed_mask(v).any()}
+
+
+@dataclass
+class CornerSet:
+    """The content of a corners.json: a board and each camera's corners per view key; ``roll`` is the
+    record of a camera roll's split into cameras and instants (:mod:`dualcal.files.roll`), or None."""
+
+    board: Board
+    cameras: dict[str, CameraCorners]
+    reference: str | None = None     # the reference camera chosen at detection, if one was given
+    roll: dict | None = None
+
+    def with_views(self, keep: Callable[[str, str], bool]) -> "CornerSet":
+        """The same corners with only the photos for which ``keep(camera, view)`` is true."""
+        cams = {name: CameraCorners(c.image_size, {v: uv for v, uv in c.views.items() if keep(name, v)}, c.meta)
+                for name, c in self.cameras.items()}
+        return replace(self, cameras=cams)
+
+
+def choose_reference(names, override: str | None = None) -> str:
+    """The reference camera: ``override``, else ``wide`` if present, else the first sorted name."""
+    names = sorted(names)
+    if override is not None:
+        if override not in names:
+            from ..errors import InputError
+            raise InputError(f"--reference {override!r} is not a camera here (cameras: {', '.join(names)})")
+        return override
+    return "wide" if "wide" in names else names[0]
+
+
+@dataclass
+class RigRelation:
+    """Pose of a non-reference camera relative to the reference, with 1-sigma uncertainties.
+
+    ``sigma_*`` are the sigmas that hold on real photos (as ``RigModel.camera_sigma``); ``sigma_formal``
+    the textbook ones, ``{"t_mm": (3,), "baseline_mm": float, "opk_arcmin": (3,)}`` (empty when
+    unknown).
+    """
+
+    pose: Pose
+    sigma_t_mm: np.ndarray
+    sigma_baseline_mm: float
+    sigma_opk_arcmin: np.ndarray
+    sigma_formal: dict = field(default_factory=dict)
+
+    @property
+    def baseline_mm(self) -> float:
+        """Distance between the perspective centres: ``|t_c|``."""
+        return float(np.linalg.norm(self.pose.t_mm))
+
+
+@dataclass
+class RigModel:
+    """A calibrated rig: the content of calib.json.
+
+    ``camera_poses[cam][view]`` is the board-to-camera pose of every camera in every view it
+    saw; ``views[view]`` (the contract's ``views``) is the reference camera's.
+
+    ``camera_sigma`` holds the 1-sigmas that hold on real photos (the larger of the one from the
+    covariance clustered by instant, :mod:`dualcal.estimation.uncertainty`, and the textbook one),
+    ``camera_sigma_formal`` the textbook ones. Where the
+    board's shape was estimated, ``board_shape_mm`` (3,) holds its coefficients
+    (:data:`dualcal.geometry.board.SHAPE_TERMS`) and ``board_shape_sigma_mm`` their sigmas; None for a flat
+    board. ``dropped_corners`` lists the single corners the calibration left out
+    (``{"camera", "view", "corner", "residual_px"}``), ``checks`` the named checks of the result
+    (:mod:`dualcal.estimation.checks`), ``covariance`` the joint covariance of the calibrated parameters
+    (``{"parameters": [names], "clustered": (k, k), "formal": (k, k)}``) or None.
+    """
+
+    board: Board
+    reference: str
+    skew: bool
+    rig_mode: str
+    cameras: dict[str, CameraModel]
+    camera_sigma: dict[str, dict[str, float]]
+    camera_rms_px: dict[str, float]
+    rig: dict[str, RigRelation]
+    camera_poses: dict[str, dict[str, Pose]]
+    view_rms_px: dict[str, dict[str, float]]
+    rms_px: float
+    corners: CornerSet
+    adjustment: dict = field(default_factory=dict)
+    dropped_views: list[dict] = field(default_factory=list)
+    camera_sigma_formal: dict[str, dict[str, float]] = field(default_factory=dict)
+    board_shape_mm: np.ndarray | None = None
+    board_shape_sigma_mm: np.ndarray | None = None
+    dropped_corners: list[dict] = field(default_factory=list)
+    checks: dict = field(default_factory=dict)
+    covariance: dict | None = None
+
+    @property
+    def model(self) -> str:
+        """The cameras' common lens model (calib.json's ``model``), or ``"mixed"`` (:attr:`models`)."""
+        models = set(self.models.values())
+        return models.pop() if len(models) == 1 else MIXED_LENS_MODELS
+
+    @property
+    def models(self) -> dict[str, str]:
+        """``{camera: its lens model}`` (calib.json's ``cameras.<name>.model``)."""
+        return {name: cam.model for name, cam in self.cameras.items()}
+
+    def calibration_options(self) -> dict:
+        """The options the calibration ran with (``adjustment["options"]``: ``drop_outliers``,
+        ``outlier_factor``, ``board_shape``, ``model``: :func:`dualcal.estimation.calibrate.calibrate_rig`'s keyword
+        arguments); files written before one was recorded get its default."""
+        return {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto",
+                "model": self.model if self.model != MIXED_LENS_MODELS else self.models,
+                **self.adjustment.get("options", {})}
+
+    def board_points_mm(self) -> np.ndarray:
+        """(N, 3) the board's corners as calibrated: flat, or shaped by ``board_shape_mm``."""
+        return shaped_points_mm(self.board.object_points_mm(), self.board_shape_mm)
+
+    def board_sag_mm(self) -> float | None:
+        """How far the calibrated board's corners are off a plane (:func:`dualcal.geometry.board.sag_mm`); None
+        where its shape was not estimated."""
+        if self.board_shape_mm is None:
+            return None
+        return sag_mm(self.board.object_points_mm(), self.board_shape_mm)
+
+    def used_corners(self) -> CornerSet:
+        """The corners the calibration used: ``corners`` without the photos it dropped
+        (``dropped_views``; an entry without a camera drops the view in every camera) and with the
+        single corners it dropped (``dropped_corners``) set to NaN."""
+        views_out = {(d.get("camera"), d.get("view")) for d in self.dropped_views}
+        corners_out: dict[tuple[str, str], list[int]] = {}
+        for d in self.dropped_corners:
+            corners_out.setdefault((d["camera"], d["view"]), []).append(int(d["corner"]))
+        cams = {}
+        for name, cc in self.corners.cameras.items():
+            views = {}
+            for v, uv in cc.views.items():
+                if (name, v) in views_out or (None, v) in views_out:
+                    continue
+                if uv is not None and (name, v) in corners_out:
+                    uv = np.array(uv, float)
+                    uv[corners_out[(name, v)]] = np.nan
+                views[v] = uv
+            cams[name] = CameraCorners(cc.image_size, views, cc.meta)
+        return replace(self.corners, cameras=cams)
+
+    def camera_order(self) -> list[str]:
+        """Camera names, the reference first, then the others in calib.json's order."""
+        return [self.reference] + [name for name in self.cameras if name != self.reference]
+
+    def pose_from_reference(self, name: str) -> Pose:
+        """``X_cam = R X_ref + t_mm`` for camera ``name`` (identity for the reference camera)."""
+        if name == self.reference:
+            return Pose(np.eye(3), np.zeros(3))
+        return self.rig[name].pose
+
+    def reference_poses(self) -> dict[str, Pose]:
+        """Board-to-reference-camera pose per view (derived through the rig where needed)."""
+        out = dict(self.camera_poses.get(self.reference, {}))
+        for cam, rel in self.rig.items():
+            for view, pose in self.camera_poses.get(cam, {}).items():
+                if view not in out:
+                    out[view] = rel.pose.inverse().compose(pose)
+        return dict(sorted(out.items()))
+
+
+# ---------------------------------------------------------------------------- residuals of a calibration
+
+
+@dataclass(frozen=True)
+class ViewResiduals:
+    """Measured corners of one camera in one view: ``uv_px`` observed (M, 2), ``residual_px`` (M, 2).
+
+    Corners that were not measured (NaN rows, :func:`dualcal.geometry.model.observed_mask`) are not in them.
+    """
+
+    uv_px: np.ndarray
+    residual_px: np.ndarray
+
+    @property
+    def rms_px(self) -> float:
+        return rms_px(self.residual_px)
+
+
+def rms_px(residual_px: np.ndarray) -> float:
+    """Root mean square length of (N, 2) residual vectors, ``sqrt(mean(du^2 + dv^2))``."""
+    residual_px = np.asarray(residual_px, float).reshape(-1, 2)
+    if len(residual_px) == 0:
+        return float("nan")
+    return float(np.sqrt(np.mean(np.sum(residual_px**2, axis=1))))
+
+
+def rig_residuals(rig: RigModel) -> dict[str, dict[str, ViewResiduals]]:
+    """Residuals ``[camera][view]`` of every view that has both detected corners and a pose.
+
+    Views without a pose (not found, or dropped by the calibration) are left out; views are
+    in sorted key order; corners not measured (NaN rows) or dropped by the calibration are left
+    out of each view; the board is the one calibrated (:meth:`RigModel.board_points_mm`).
+    """
+    X_board = rig.board_points_mm()
+    used = rig.used_corners()
+    out: dict[str, dict[str, ViewResiduals]] = {}
+    for name, camera in rig.cameras.items():
+        found = used.cameras[name].found() if name in used.cameras else {}
+        poses = rig.camera_poses.get(name, {})
+        views = {}
+        for view in sorted(set(found) & set(poses)):
+            measured = observed_mask(found[view])
+            uv = np.asarray(found[view], float)[measured]
+            uv_model = project_points(camera, poses[view].apply(X_board[measured]))
+            views[view] = ViewResiduals(uv, uv - uv_model)
+        out[name] = views
+    return out

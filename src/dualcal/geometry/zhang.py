@@ -1,0 +1,422 @@
+"""Closed-form initial calibration of one camera (paper sections 1.3 to 1.6).
+
+* :func:`estimate_homography`: normalised DLT, refined on pixel error (section 1.3, eq. 3).
+* :func:`intrinsics_from_homographies`: Zhang's constraints (eqs. 4-10) solved by SVD, and
+  Burger's closed-form formulas for alpha, beta, gamma, u0, v0 (section 1.4). With skew fixed
+  to 0 (the paper's Model 1) the unknown ``b2`` is removed, which imposes ``b2 = 0`` exactly.
+* :func:`extrinsics_from_homography`: lambda, r1, r2, t, r3 = r1 x r2, then the nearest rotation
+  (section 1.5, eq. 11).
+* :func:`radial_distortion_linear`: linear least squares for k1, k2 (section 1.6, eqs. 13-15), and
+  for the other coefficients of a lens model (eq. 15 extended).
+* A fisheye (lens model ``kb4``) is beyond a homography of its pixels: :func:`initial_fisheye_camera`
+  first un-projects them with an equidistant guess, then runs the steps above on the pinhole pixels
+  of the same rays.
+
+Board points are the board's ``(X, Y)`` in mm (Z = 0); image points are pixels ``(u, v)``. A
+view may have corners that were not measured (NaN rows, :func:`dualcal.geometry.model.observed_mask`):
+each view uses the corners it has, at least :data:`MIN_HOMOGRAPHY_CORNERS` not on one line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .camera import (DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraModel, fold_distorted_radius,
+                     normalized_from_pixel, pixel_from_normalized, undistort)
+from ..errors import NotInvertibleError
+from ..errors import EstimationError
+from .model import Pose, observed_mask
+from .resection import planar_pose
+from .rotation import nearest_rotation
+
+MIN_HOMOGRAPHY_CORNERS = 4      # a homography has 8 unknowns; each corner gives 2 equations
+
+
+def spans_a_plane(xy_board: np.ndarray) -> bool:
+    """Whether (N, 2) board points are not all on one line (so that they fix a homography)."""
+    centred = np.asarray(xy_board, float) - np.mean(xy_board, axis=0)
+    s = np.linalg.svd(centred, compute_uv=False)
+    return len(s) == 2 and s[1] > 1e-9 * s[0]
+
+
+def _normalising_transform(pts: np.ndarray) -> np.ndarray:
+    """Similarity moving ``pts`` to zero mean and mean distance sqrt(2) (Hartley's normalisation)."""
+    mean = pts.mean(axis=0)
+    scale = np.sqrt(2.0) / max(np.mean(np.linalg.norm(pts - mean, axis=1)), 1e-12)
+    return np.array([[scale, 0.0, -scale * mean[0]], [0.0, scale, -scale * mean[1]], [0.0, 0.0, 1.0]])
+
+
+def apply_homography(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Map (N, 2) points through a 3x3 homography."""
+    p = xy @ H[:, :2].T + H[:, 2]
+    return p[:, :2] / p[:, 2:3]
+
+
+def _homography_dlt(xy_board: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    Tb, Ti = _normalising_transform(xy_board), _normalising_transform(uv)
+    b = apply_homography(Tb, xy_board)
+    i = apply_homography(Ti, uv)
+    n = len(b)
+    A = np.zeros((2 * n, 9))
+    A[0::2, 0:2], A[0::2, 2] = b, 1.0
+    A[0::2, 6:8] = -i[:, :1] * b
+    A[0::2, 8] = -i[:, 0]
+    A[1::2, 3:5], A[1::2, 5] = b, 1.0
+    A[1::2, 6:8] = -i[:, 1:2] * b
+    A[1::2, 8] = -i[:, 1]
+    _, s, Vt = np.linalg.svd(A, full_matrices=False)
+    if s[-2] < 1e-9 * s[0]:
+        raise EstimationError("homography is degenerate: board points are (nearly) collinear")
+    H = np.linalg.inv(Ti) @ Vt[-1].reshape(3, 3) @ Tb
+    return H / H[2, 2]
+
+
+def estimate_homography(xy_board: np.ndarray, uv: np.ndarray, refine: bool = True) -> np.ndarray:
+    """Homography ``H`` with ``[u, v, 1] ~ H [X, Y, 1]`` (paper eq. 3), ``H[2, 2] = 1``.
+
+    Normalised DLT, then (``refine``) Gauss-Newton on the pixel reprojection error.
+    """
+    xy_board = np.asarray(xy_board, float)
+    uv = np.asarray(uv, float)
+    if len(xy_board) < MIN_HOMOGRAPHY_CORNERS:
+        raise EstimationError(f"a homography needs at least {MIN_HOMOGRAPHY_CORNERS} points")
+    H = _homography_dlt(xy_board, uv)
+    return _refine_homography(H, xy_board, uv) if refine else H
+
+
+def _refine_homography(H: np.ndarray, xy_board: np.ndarray, uv: np.ndarray, max_iter: int = 20) -> np.ndarray:
+    """Gauss-Newton on the pixel reprojection error from the DLT's ``H`` (its start is close, so
+    no damping is needed: a step that does not lower the error ends the iteration)."""
+    X, Y = xy_board[:, 0], xy_board[:, 1]
+    ones = np.ones_like(X)
+
+    def residuals(h):
+        return (apply_homography(np.append(h, 1.0).reshape(3, 3), xy_board) - uv).ravel()
+
+    h = H.ravel()[:8] / H[2, 2]
+    r = residuals(h)
+    cost = r @ r
+    for _ in range(max_iter):
+        Hm = np.append(h, 1.0).reshape(3, 3)
+        w = Hm[2, 0] * X + Hm[2, 1] * Y + 1.0
+        p = apply_homography(Hm, xy_board)
+        J = np.zeros((len(X), 2, 8))
+        J[:, 0, 0:3] = np.column_stack([X, Y, ones]) / w[:, None]
+        J[:, 1, 3:6] = J[:, 0, 0:3]
+        J[:, :, 6] = -p * (X / w)[:, None]
+        J[:, :, 7] = -p * (Y / w)[:, None]
+        step = np.linalg.lstsq(J.reshape(-1, 8), -r, rcond=None)[0]
+        trial = h + step
+        r_trial = residuals(trial)
+        cost_trial = r_trial @ r_trial
+        if not cost_trial < cost:
+            break
+        h, r, cost = trial, r_trial, cost_trial
+        if np.max(np.abs(step) / (np.abs(h) + 1e-12)) < 1e-12:
+            break
+    return np.append(h, 1.0).reshape(3, 3)
+
+
+def _v_row(H: np.ndarray, i: int, j: int) -> np.ndarray:
+    """Zhang's ``v_ij`` (paper eqs. 9, 10) for columns ``i, j`` of ``H``; b = [B11 B12 B22 B13 B23 B33]."""
+    hi, hj = H[:, i], H[:, j]
+    return np.array([hi[0] * hj[0], hi[0] * hj[1] + hi[1] * hj[0], hi[1] * hj[1],
+                     hi[2] * hj[0] + hi[0] * hj[2], hi[2] * hj[1] + hi[1] * hj[2], hi[2] * hj[2]])
+
+
+def intrinsics_from_homographies(homographies, image_size, skew: bool = False, weights=None) -> CameraModel:
+    """Zhang's closed form with Burger's formulas (paper section 1.4); no distortion.
+
+    Parameters
+    ----------
+    homographies : sequence of (3, 3) board-to-pixel homographies: at least 2 with ``skew=False``
+        (4 equations for the 4 degrees of freedom of ``B`` up to scale), 3 with ``skew=True`` (5)
+    image_size : (W, H), used to condition the system (pixels are centred and scaled first)
+    skew : False fixes gamma = 0 (Model 1), True estimates it (Model 2)
+    weights : one per homography (default 1): each view's two equations are multiplied by it
+        (a view of weight 0 is left out)
+
+    Raises
+    ------
+    EstimationError
+        If the views do not determine the intrinsics (e.g. all boards parallel to each other).
+    """
+    w, h = image_size
+    s = 0.5 * (w + h)
+    # Condition: work in centred, scaled pixels (an upper-triangular similarity keeps A upper triangular).
+    Nrm = np.array([[1.0 / s, 0.0, -0.5 * (w - 1) / s], [0.0, 1.0 / s, -0.5 * (h - 1) / s], [0.0, 0.0, 1.0]])
+    weights = np.ones(len(homographies)) if weights is None else np.asarray(weights, float)
+    rows = []
+    for H, weight in zip(homographies, weights, strict=True):
+        if weight > 0:
+            Hn = Nrm @ H
+            Hn = Hn / np.linalg.norm(Hn[:, :2])
+            rows += [weight * _v_row(Hn, 0, 1), weight * (_v_row(Hn, 0, 0) - _v_row(Hn, 1, 1))]
+    V = np.array(rows).reshape(-1, 6)
+    free = [i for i in range(6) if skew or i != 1]
+    V = V[:, free]                                  # b2 = 0  <=>  gamma = 0
+    n = len(free)                                   # unknowns of b; b is found up to scale
+    views_needed = int(np.ceil((n - 1) / 2))
+    if len(V) < n - 1:
+        model = "with skew free (Model 2)" if skew else "with skew = 0 (Model 1)"
+        raise EstimationError(f"Zhang's closed form {model} needs at least {views_needed} views "
+                              f"({len(V) // 2} given)")
+    # b spans the null space of V: the last right singular vector of the *full* decomposition
+    # (with fewer rows than unknowns a reduced SVD does not contain it).
+    _, sv, Vt = np.linalg.svd(V, full_matrices=True)
+    sv = np.concatenate([sv, np.zeros(n - len(sv))])
+    if sv[-2] < 1e-6 * sv[0]:
+        raise EstimationError("the views do not determine the intrinsics: the board poses are (nearly) "
+                              "parallel to each other; take photos with the board tilted in different directions")
+    b = np.zeros(6)
+    b[free] = Vt[-1]
+    if b[0] < 0:                                    # B = A^-T A^-1 up to scale: make it positive
+        b = -b
+    b1, b2, b3, b4, b5, b6 = b
+    # Burger's formulas (paper section 1.4).
+    wB = b1 * b3 * b6 - b2**2 * b6 - b1 * b5**2 + 2 * b2 * b4 * b5 - b3 * b4**2
+    d = b1 * b3 - b2**2
+    if d <= 0 or wB <= 0:
+        raise EstimationError("Zhang's closed form gave no valid camera (B is not positive definite): the "
+                              "board poses are too alike (e.g. all parallel) or the corners too noisy; take photos "
+                              "with the board tilted in different directions")
+    alpha = np.sqrt(wB / (d * b1))
+    beta = np.sqrt(b1 * wB / d**2)
+    # B12 = -gamma / (alpha^2 beta): the minus sign is missing in the paper's print of this formula.
+    gamma = -b2 * np.sqrt(wB / (d**2 * b1))
+    u0 = (b2 * b5 - b3 * b4) / d
+    v0 = (b2 * b4 - b1 * b5) / d
+    A = np.linalg.inv(Nrm) @ np.array([[alpha, gamma, u0], [0.0, beta, v0], [0.0, 0.0, 1.0]])
+    return CameraModel(tuple(image_size), A[0, 0], A[1, 1], A[0, 1], A[0, 2], A[1, 2])
+
+
+def extrinsics_from_homography(K: np.ndarray, H: np.ndarray) -> Pose:
+    """Board-to-camera pose from a homography (paper section 1.5).
+
+    ``lambda = 1 / |A^-1 h1|``, ``r1 = lambda A^-1 h1``, ``r2 = lambda A^-1 h2``,
+    ``t = lambda A^-1 h3``, ``r3 = r1 x r2``, then the nearest rotation. The sign of lambda is
+    chosen so that the board lies in front of the camera (t_z > 0).
+    """
+    Ki = np.linalg.inv(K)
+    a1, a2, a3 = Ki @ H[:, 0], Ki @ H[:, 1], Ki @ H[:, 2]
+    lam = 2.0 / (np.linalg.norm(a1) + np.linalg.norm(a2))
+    if a3[2] < 0:
+        lam = -lam
+    r1, r2, t = lam * a1, lam * a2, lam * a3
+    R = nearest_rotation(np.column_stack([r1, r2, np.cross(r1, r2)]))
+    return Pose(R, t)
+
+
+_RADIAL_POWER = {"k1": 1, "k2": 2, "k3": 3}     # coefficient of r^(2 n)
+
+
+def radial_distortion_linear(cam: CameraModel, poses, xy_board: np.ndarray, observed,
+                             model: str = DEFAULT_LENS_MODEL) -> tuple[float, ...]:
+    """The lens coefficients of ``model`` by linear least squares (paper eqs. 13-15, extended).
+
+    For each point, ``(u~ - u, v~ - v) = A' (xd - x, yd - y)`` where ``(u, v)`` is the ideal
+    (distortion-free) projection of normalised ``(x, y)``, ``(u~, v~)`` the observed pixel and
+    ``A' = [[fx, skew], [0, fy]]``. In the paper's model (eq. 14) that is
+    ``(u - u0, v - v0) (k1 r^2 + k2 r^4)``, ``u - u0`` including the skew term ``fx x + gamma y``.
+    This extends eq. 15 to the other coefficients of :mod:`dualcal.geometry.camera`'s model, which are
+    linear too given the ideal projections: ``k3`` adds the column of ``r^6``, ``p1`` the column
+    ``A' (2 x y, r^2 + 2 y^2)`` and ``p2`` the column ``A' (r^2 + 2 x^2, 2 x y)``. Rows of
+    ``observed`` that are NaN (corners not measured) are left out.
+
+    Returns the coefficients in the order of :data:`dualcal.geometry.camera.LENS_MODELS` ``[model]``
+    (``k1, k2`` for the paper's model).
+    """
+    names = LENS_MODELS[model]
+    X = np.column_stack([xy_board, np.zeros(len(xy_board))])
+    D_rows, d_rows = [], []
+    for pose, uv_obs in zip(poses, observed):
+        seen = observed_mask(uv_obs)
+        uv_obs = uv_obs[seen]
+        Xc = pose.apply(X[seen])
+        x, y = Xc[:, 0] / Xc[:, 2], Xc[:, 1] / Xc[:, 2]
+        r2 = x * x + y * y
+        du = cam.fx * x + cam.skew * y
+        dv = cam.fy * y
+        u, v = du + cam.cx, dv + cam.cy
+        tangential = {"p1": (2 * x * y, r2 + 2 * y * y), "p2": (r2 + 2 * x * x, 2 * x * y)}   # d(xd, yd) / dp
+        cols_u, cols_v = [], []
+        for n in names:
+            if n in tangential:
+                sx, sy = tangential[n]
+                cols_u.append(cam.fx * sx + cam.skew * sy)
+                cols_v.append(cam.fy * sy)
+            else:                                # k1, k2, k3: (u - u0, v - v0) r^2, r^4, r^6
+                cu, cv = du, dv
+                for _ in range(_RADIAL_POWER[n]):
+                    cu, cv = cu * r2, cv * r2
+                cols_u.append(cu)
+                cols_v.append(cv)
+        D_rows += [np.column_stack(cols_u), np.column_stack(cols_v)]
+        d_rows += [uv_obs[:, 0] - u, uv_obs[:, 1] - v]
+    D = np.vstack(D_rows)
+    d = np.concatenate(d_rows)
+    k, *_ = np.linalg.lstsq(D, d, rcond=None)                     # eq. 15
+    return tuple(float(c) for c in k)
+
+
+def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False,
+                   model: str = DEFAULT_LENS_MODEL):
+    """Zhang's full initialisation of one camera: intrinsics, the lens (k1 k2, or the coefficients
+    of lens ``model``) and one pose per view.
+
+    ``views[k]`` is (N, 2), NaN rows for corners not measured; every view needs at least
+    :data:`MIN_HOMOGRAPHY_CORNERS` corners not on one line (``dualcal.estimation.calibrate`` skips the others).
+    Returns ``(CameraModel, {view: Pose})``: homographies (section 1.3), closed-form intrinsics
+    (1.4), one pose per view (1.5), then the lens by linear least squares (1.6). The closed form
+    weighs each view by its homography's redundancy (``sqrt(2 n - 8)`` for n corners: one of 4
+    corners has none, and no say; unweighted, a single such view of a narrow lens that sees
+    small parts of the board was seen to make fx 790 px for a true 6059). A start the
+    adjustment could not move from is avoided: linear coefficients whose radial part folds over
+    where the corners are become 0, and a pose with a corner behind the camera is replaced by
+    space resection (IPPE). These are the starting values of the joint adjustment, which refines
+    all of them together.
+    """
+    if model in FISHEYE_MODELS:
+        return initial_fisheye_camera(xy_board, views, image_size, skew, model)
+    keys = sorted(views)
+    seen = [observed_mask(views[k]) for k in keys]
+    cam, poses = _closed_form(xy_board, [views[k] for k in keys], seen, image_size, skew)
+    coefficients = radial_distortion_linear(cam, poses, xy_board, [views[k] for k in keys], model)
+    cam = replace(cam, model=model, **dict(zip(LENS_MODELS[model], coefficients)))
+    cam = _admissible_distortion(cam, [views[k][m] for k, m in zip(keys, seen)])
+    return cam, dict(zip(keys, poses))
+
+
+def closed_form_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False) -> CameraModel:
+    """Zhang's closed-form intrinsics alone (sections 1.3-1.4; no lens): from the DLT's homographies,
+    not refined, which is enough to judge a lens's field of view."""
+    uvs = [views[k] for k in sorted(views)]
+    return _closed_form(xy_board, uvs, [observed_mask(uv) for uv in uvs], image_size, skew, refine=False)[0]
+
+
+def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool,
+                 refine: bool = True):
+    """Homographies (``refine``: on the pixel error), Zhang's closed form and one pose per view, no
+    lens (sections 1.3-1.5)."""
+    Hs = [estimate_homography(xy_board[m], uv[m], refine) for uv, m in zip(uvs, seen)]
+    # A homography of n corners has 2n - 8 redundant equations; one of 4 corners fits them
+    # exactly, noise and all, and would pull the closed form as hard as one of 40.
+    weights = [np.sqrt(2.0 * m.sum() - 2 * MIN_HOMOGRAPHY_CORNERS) for m in seen]
+    cam = intrinsics_from_homographies(Hs, image_size, skew, weights)
+    # a pose that puts a corner behind the camera (from a poor closed form) is replaced by IPPE's
+    X = np.column_stack([xy_board, np.zeros(len(xy_board))])
+    poses = [extrinsics_from_homography(cam.K, H) for H in Hs]
+    poses = [pose if np.all(pose.apply(X[m])[:, 2] > 0) else planar_pose(X, cam, uv)
+             for uv, m, pose in zip(uvs, seen, poses)]
+    return cam, poses
+
+
+#: The fisheye start's ``k1`` values tried (0: equidistant; 1/3 is a pinhole's ``tan`` to third order)
+#: and its rounds of the closed form on the rays' pinhole image.
+_FISHEYE_K1_GRID = np.arange(0.0, 0.41, 0.05)
+_FISHEYE_ROUNDS = 12
+_FISHEYE_SETTLED = 1e-3        # relative change of fx at which the rounds stop
+#: The search for the fisheye's start (A and k1) looks at this many views at most, spread over them;
+#: the poses of the start are then those of every view.
+_FISHEYE_SEARCH_VIEWS = 16
+
+
+def _pinhole_pixels(cam: CameraModel, uvs: list[np.ndarray]) -> list[np.ndarray]:
+    """The pixels a pinhole camera of ``cam``'s matrix A would record of the rays ``cam`` saw at each
+    ``uvs[i]`` (all views in one call: the fisheye's inverse has a set-up cost per call)."""
+    pins = pixel_from_normalized(cam.pinhole(), undistort(cam, normalized_from_pixel(cam, np.concatenate(uvs))))
+    return np.split(pins, np.cumsum([len(uv) for uv in uvs])[:-1])
+
+
+def _fisheye_guess(image_size, f: float, k1: float, cx: float, cy: float) -> CameraModel:
+    return CameraModel(tuple(image_size), f, f, 0.0, cx, cy, k1, model="kb4")
+
+
+def _homography_misfit(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], cam: CameraModel) -> float:
+    """How far the rays ``cam`` assigns to the corners are from a plane's perspective image: the RMS
+    of the homographies' residuals in the pinhole pixels, over ``f`` (an angle); ``inf`` where a corner
+    lies at 90 degrees or more."""
+    try:
+        pins = _pinhole_pixels(cam, [uv[m] for uv, m in zip(uvs, seen)])
+    except NotInvertibleError:
+        return np.inf
+    squares = [np.sum((apply_homography(estimate_homography(xy_board[m], p, refine=False), xy_board[m]) - p) ** 2)
+               for p, m in zip(pins, seen)]
+    return float(np.sqrt(np.sum(squares) / sum(int(m.sum()) for m in seen)) / cam.fx)
+
+
+def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False, model: str = "kb4"):
+    """Zhang's initialisation for a fisheye (``kb4``), which may see 120 degrees and more.
+
+    A plane's fisheye image is not a homography of it, but the pinhole image of its rays is. So the
+    corners are un-projected with a guess ``theta (1 + k1 theta^2) = rho / f`` (``rho`` the
+    distance from the principal point, ``k1 = 0``: equidistant), and Zhang's closed form on the rays'
+    pinhole pixels gives A (and the poses); un-projected again with that A, the corners give the
+    next A, until ``fx`` settles: with the right ``k1``, the true A is that round's fixed point (the
+    rays of a plane are then exactly a homography of it). It starts from ``f`` = the image's
+    diagonal, where every ray is well inside 90 degrees (the search looks at
+    :data:`_FISHEYE_SEARCH_VIEWS` views at most). Each ``k1`` of :data:`_FISHEYE_K1_GRID`
+    has its fixed point (``f`` and ``k1`` trade off); the one kept is where the homographies fit
+    the rays best (residual over ``f``, an angle). Last, the linear least squares of section 1.6 for
+    ``k1 .. k4``: given the poses, ``(u~, v~) - (u, v) = A' (x theta / r) sum_j k_j theta^(2 j)`` with
+    ``(u, v)`` the equidistant projection. Returns ``(CameraModel, {view: Pose})``. On phone3's
+    ultra-wide (145 degrees on the diagonal) A starts within 3 % of the truth.
+    """
+    keys = sorted(views)
+    uvs = [np.asarray(views[k], float) for k in keys]
+    seen = [observed_mask(uv) for uv in uvs]
+    picked = np.unique(np.linspace(0, len(uvs) - 1, min(len(uvs), _FISHEYE_SEARCH_VIEWS)).round().astype(int))
+    search_uvs, search_seen = [uvs[i] for i in picked], [seen[i] for i in picked]
+    w, h = image_size
+    starts = []
+    for k1 in _FISHEYE_K1_GRID:
+        guess = _fisheye_guess(image_size, float(np.hypot(w, h)), float(k1), 0.5 * (w - 1), 0.5 * (h - 1))
+        found = None
+        for _ in range(_FISHEYE_ROUNDS):
+            try:
+                pins = _pinhole_pixels(guess, search_uvs)
+            except NotInvertibleError:
+                break
+            cam = _closed_form(xy_board, pins, search_seen, image_size, skew, refine=False)[0]
+            settled = abs(cam.fx / guess.fx - 1.0) < _FISHEYE_SETTLED
+            guess, found = replace(cam, model=model, k1=float(k1)), guess
+            if settled:
+                break
+        if found is not None:
+            starts.append((_homography_misfit(xy_board, search_uvs, search_seen, found), found))
+    if not starts or not np.isfinite(min(m for m, _ in starts)):
+        raise EstimationError("the fisheye's start puts a corner at 90 degrees or more from the axis")
+    guess = min(starts, key=lambda s: s[0])[1]
+    _, poses = _closed_form(xy_board, _pinhole_pixels(guess, uvs), seen, image_size, skew)
+    coefficients = _fisheye_linear(guess, poses, xy_board, uvs)
+    cam = guess.with_distortion(coefficients[0], coefficients[1], k3=coefficients[2], k4=coefficients[3])
+    reach = max(np.max(np.linalg.norm(normalized_from_pixel(cam, uv[m]), axis=1)) for uv, m in zip(uvs, seen))
+    return (cam if reach < fold_distorted_radius(cam) else guess), dict(zip(keys, poses))
+
+
+def _fisheye_linear(cam: CameraModel, poses, xy_board: np.ndarray, observed) -> np.ndarray:
+    """``k1 .. k4`` of a fisheye by linear least squares given A and the poses (eq. 15's idea)."""
+    X = np.column_stack([xy_board, np.zeros(len(xy_board))])
+    D_rows, d_rows = [], []
+    for pose, uv_obs in zip(poses, observed):
+        m = observed_mask(uv_obs)
+        Xc = pose.apply(X[m])
+        rho = np.hypot(Xc[:, 0], Xc[:, 1])
+        theta = np.arctan2(rho, Xc[:, 2])
+        ex, ey = (np.divide(Xc[:, i], rho, out=np.zeros_like(rho), where=rho > 0) * theta for i in (0, 1))
+        du, dv = cam.fx * ex + cam.skew * ey, cam.fy * ey
+        powers = np.column_stack([theta ** (2 * j) for j in range(1, 5)])
+        D_rows += [du[:, None] * powers, dv[:, None] * powers]
+        d_rows += [uv_obs[m, 0] - (du + cam.cx), uv_obs[m, 1] - (dv + cam.cy)]
+    k, *_ = np.linalg.lstsq(np.vstack(D_rows), np.concatenate(d_rows), rcond=None)
+    return k
+
+
+def _admissible_distortion(cam: CameraModel, observed: list[np.ndarray]) -> CameraModel:
+    """``cam``, or ``cam`` without distortion if its radial part folds over inside the radius that
+    the measured corners reach (a linear estimate from a poor closed form; the adjustment cannot
+    start from a lens that is not invertible where the corners are)."""
+    rd = max(np.max(np.linalg.norm(normalized_from_pixel(cam, uv), axis=1)) for uv in observed)
+    return cam if rd < fold_distorted_radius(cam) else cam.with_distortion(0.0, 0.0)

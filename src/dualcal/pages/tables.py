@@ -1,0 +1,233 @@
+"""The paper's result tables (Tables 2-4) and the per-photo table, as rich tables for the terminal.
+
+Table 2/3: intrinsics and radial distortion of each camera, value +- sigma, Model 1 (skew = 0)
+next to Model 2 (skew free). ``sigma`` is the one that holds on real photos (from the scatter
+between the instants, never below the textbook one, which calib.json keeps as ``sigma_formal``):
+one standard deviation of the value, while RMS values are of the 2-D length of a corner's residual. Table 4: the rig, distance D between perspective centres (mm) and
+the relative angles (minutes of arc), for every non-reference camera. :func:`photo_table`: every
+photo of the calibration, its RMS per camera and whether it was kept, dropped or left out, and why.
+"""
+
+from __future__ import annotations
+
+from rich import box
+from rich.table import Table
+
+from ..geometry.camera import DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, intrinsic_names
+from ..geometry.model import RigModel, observed_mask
+from ..geometry.scale import relative_sigma, scale_share
+
+_PAPER_NAMES = {"fx": "alpha = fx", "fy": "beta = fy", "skew": "gamma = skew", "cx": "u0 = cx",
+                "cy": "v0 = cy", "k1": "k1", "k2": "k2", "p1": "p1", "p2": "p2", "k3": "k3", "k4": "k4"}
+
+
+def _pm(value: float, sigma: float, digits: int) -> tuple[str, str]:
+    return f"{value:.{digits}f}", ("-" if sigma == 0 else f"{sigma:.{digits}f}")
+
+
+def _model_label(rig: RigModel) -> str:
+    return "Model 2 (skew free)" if rig.skew else "Model 1 (skew = 0)"
+
+
+def camera_table(name: str, models: list[RigModel]) -> Table:
+    """Intrinsics of camera ``name`` in each model (the paper's Tables 2 and 3)."""
+    lens = {m.cameras[name].model for m in models}
+    kind = "radial" if lens <= {"k1k2", "k1k2k3"} else "fisheye" if lens <= FISHEYE_MODELS else "lens"
+    t = Table(title=f"Camera {name!r}: intrinsics (px) and {kind} distortion ({', '.join(sorted(lens))}), 1 sigma",
+              box=box.SIMPLE_HEAD,
+              caption=_SIGMA_CAPTION)
+    t.add_column("parameter")
+    for m in models:
+        t.add_column(f"{_model_label(m)}", justify="right")
+        t.add_column("sigma", justify="right")
+    for p in [p for p in INTRINSIC_NAMES if any(p in intrinsic_names(model) for model in lens)]:
+        digits = 5 if p in DISTORTION_NAMES else 3
+        row = [_PAPER_NAMES[p]]
+        for m in models:
+            row += _pm(getattr(m.cameras[name], p), m.camera_sigma[name][p], digits)
+        t.add_row(*row)
+    t.add_row("RMS (px, 2-D)", *[x for m in models for x in (f"{m.camera_rms_px[name]:.3f}", "")])
+    return t
+
+
+_SIGMA_CAPTION = ("sigma: from the scatter between the instants, never below the textbook value "
+                  "(calib.json: sigma_formal); RMS: of each corner's 2-D residual")
+
+
+def rig_table(models: list[RigModel]) -> Table | None:
+    """Distance and relative angles of every non-reference camera (the paper's Table 4)."""
+    first = models[0]
+    if not first.rig:
+        return None
+    t = Table(title=f"Rig relative to {first.reference!r}: D (mm) and angles (minutes of arc), 1 sigma",
+              box=box.SIMPLE_HEAD, caption=_SIGMA_CAPTION)
+    rel = relative_sigma(first.board)
+    t.add_column("camera")
+    t.add_column("value")
+    for m in models:
+        t.add_column(_model_label(m), justify="right")
+        t.add_column("sigma", justify="right")
+    if rel:
+        t.add_column("of it the squares' tolerance", justify="right")
+        t.caption += (f"; the printed squares are known to +-{first.board.square_sigma_mm:g} mm in "
+                      f"{first.board.square_mm:g} mm: that part of each length's variance")
+    for cam in first.rig:
+        rows = [("D (mm)", lambda r: (r.baseline_mm, r.sigma_baseline_mm), True)]
+        for i, a in enumerate(("d_omega", "d_phi", "d_kappa")):
+            rows.append((f"{a} (')", lambda r, i=i: (r.pose.opk_arcmin[i], r.sigma_opk_arcmin[i]), False))
+        for i, a in enumerate("xyz"):
+            rows.append((f"t_{a} (mm)", lambda r, i=i: (r.pose.t_mm[i], r.sigma_t_mm[i]), True))
+        for k, (label, get, length) in enumerate(rows):
+            row = [cam if k == 0 else "", label]
+            for m in models:
+                row += _pm(*get(m.rig[cam]), 3)
+            if rel:
+                value, sigma = get(first.rig[cam])
+                row.append(f"{100 * scale_share(sigma, value, rel):.0f} %" if length else "-")
+            t.add_row(*row)
+    return t
+
+
+def result_tables(models: list[RigModel]) -> list[Table]:
+    """All tables for one or more calibrations of the same data (e.g. Model 1 and Model 2)."""
+    tables = [camera_table(name, models) for name in models[0].cameras]
+    rig = rig_table(models)
+    return tables + ([rig] if rig is not None else [])
+
+
+def photo_status(rig: RigModel) -> dict[str, dict[str, tuple[float | None, str]]]:
+    """``[view][camera] -> (rms_px or None, status)`` for every photo of the calibration's corners.
+
+    The status is ``"kept"``, ``"board not found"``, ``"dropped: <why>"`` (the start of the
+    calibration's reason; the RMS is the one the photo had when it was dropped), ``"left out by
+    --exclude"`` or ``"not used"`` (corners but no pose, e.g. no other camera saw that instant).
+    """
+    dropped = {(d.get("camera"), d.get("view")): d for d in rig.dropped_views if isinstance(d, dict)}
+    out: dict[str, dict[str, tuple[float | None, str]]] = {}
+    for cam in rig.camera_order():
+        corners = rig.corners.cameras[cam]
+        for view in corners.meta.get("excluded", {}):
+            out.setdefault(view, {})[cam] = (None, "left out by --exclude")
+        for view, uv in corners.views.items():
+            if uv is None or not observed_mask(uv).any():
+                entry = (None, "board not found")
+            elif view in rig.camera_poses.get(cam, {}):
+                entry = (rig.view_rms_px.get(view, {}).get(cam), "kept")
+            elif (cam, view) in dropped:
+                d = dropped[(cam, view)]
+                entry = (d.get("rms_px"), "dropped: " + str(d.get("reason", "outlier")).split(";")[0].split(" (")[0])
+            else:
+                entry = (None, "not used")
+            out.setdefault(view, {})[cam] = entry
+    return dict(sorted(out.items()))
+
+
+def photo_rows(status: dict, names: list[str], missing: str = "-") -> list[tuple[str, list[str], str]]:
+    """The rows of the per-photo table from :func:`photo_status`: ``(view, RMS per camera in
+    ``names`` order, status)``, ``missing`` where a camera has no RMS for the view."""
+    rows = []
+    for view, per in status.items():
+        cells = [f"{per[n][0]:.3f}" if n in per and per[n][0] is not None else missing for n in names]
+        notes = [f"{n}: {per[n][1]}" for n in names if n in per and per[n][1] != "kept"]
+        rows.append((view, cells, "; ".join(notes) or "kept"))
+    return rows
+
+
+def photo_table(rig: RigModel) -> Table:
+    """Every photo: its RMS (px) per camera and, where a photo was not kept, which and why."""
+    names = rig.camera_order()
+    status = photo_status(rig)
+    kept = sum(s == "kept" for per in status.values() for _, s in per.values())
+    total = sum(len(per) for per in status.values())
+    t = Table(title=f"Photos: {kept} of {total} kept; RMS reprojection error (px) per camera",
+              box=box.SIMPLE_HEAD)
+    t.add_column("view", no_wrap=True)
+    for name in names:
+        t.add_column(name, justify="right", no_wrap=True)
+    t.add_column("status")
+    for view, cells, note in photo_rows(status, names):
+        t.add_row(view, *cells, note)
+    return t
+
+
+def lens_model_table(scores, used: str) -> Table:
+    """The lens models side by side (:func:`dualcal.estimation.model_selection.score_lens_models`): fit and
+    held-out RMS (px), how many standard errors worse than the best held out, the one recommended
+    and the one ``used`` by the calibration."""
+    t = Table(title="Lens models: RMS (px) on the photos fitted, and on each instant left out of the calibration",
+              caption="vs best: how many standard errors the held-out error exceeds the best model's",
+              box=box.SIMPLE_HEAD)
+    for col in ("model", "terms", "fit", "held out", "vs best", ""):
+        t.add_column(col, justify="left" if col in ("model", "") else "right", no_wrap=True)
+    for s in scores:
+        notes = (["recommended"] if s.recommended else []) + (["used"] if s.model == used else [])
+        t.add_row(s.model, str(s.coefficients), f"{s.fit_rms_px:.4f}", f"{s.held_out_rms_px:.4f}",
+                  f"{s.worse_se:.1f}", ", ".join(notes))
+    return t
+
+
+def lens_model_advice(scores, used: str) -> str:
+    """One line: the recommended model and, where it is not ``used``, how to calibrate with it."""
+    best = next(s for s in scores if s.recommended)
+    if best.model == used:
+        return (f"lens model {used}: no richer model predicts the instants left out better by more than "
+                f"its noise (held-out RMS {best.held_out_rms_px:.4f} px)")
+    mine = next(s for s in scores if s.model == used)
+    return (f"lens model {best.model} recommended (held-out RMS {best.held_out_rms_px:.4f} px vs "
+            f"{mine.held_out_rms_px:.4f} px for {used}, {mine.worse_se:.1f} SE worse): calibrate again with "
+            f"--model {best.model}")
+
+
+def lens_model_choice_table(adjustment: dict) -> Table:
+    """Each camera's lens models by their held-out RMS (px) and how many standard errors worse than
+    that camera's best (:func:`dualcal.estimation.model_selection.calibrate_auto`: ``adjustment["lens_models"]``),
+    the one chosen marked; ``-`` where a model is no candidate of the camera."""
+    entries, chosen = adjustment["lens_models"], adjustment["lens_models_chosen"]
+    t = Table(title="Lens model of each camera (--model auto): held-out RMS (px) and SE worse than the camera's best",
+              caption="chosen (*): the preferred model (kb4 for a fisheye's field of view, else k1k2) where it is "
+                      "within 2 SE of the best, else the one with the fewest terms that is; -: no candidate",
+              box=box.SIMPLE_HEAD)
+    t.add_column("camera", no_wrap=True)
+    for e in entries:
+        t.add_column(e["model"], justify="right", no_wrap=True)
+    for name, model in chosen.items():
+        cells = []
+        for e in entries:
+            d = e["per_camera"].get(name, {"candidate": False})
+            mark = "*" if e["model"] == model else " "
+            cells.append(f"{d['held_out_rms_px']:.4f} {d['worse_se']:.1f}{mark}" if d["candidate"] else "- ")
+        t.add_row(name, *cells)
+    return t
+
+
+def roll_tables(roll: dict) -> list[Table]:
+    """A camera roll's split (corners.json ``roll``, :mod:`dualcal.files.roll`) as two tables: the cameras found
+    (lens, focal length, image size, photos) and every instant with the photo of each camera, then the
+    photos left out and why."""
+    cams = roll["cameras"]
+    gap = roll.get("instant_gap_s")
+    how = "found from the capture times" if roll.get("instant_gap_found") else "given"
+    found = Table(title=f"Camera roll {roll['folder']}: {len(cams)} cameras", box=box.SIMPLE_HEAD)
+    for col in ("camera", "lens", "f (35 mm equiv.)", "image size", "photos"):
+        found.add_column(col, justify="left" if col in ("camera", "lens") else "right")
+    for name, c in cams.items():
+        f35 = c.get("focal_length_35mm_mm")
+        found.add_row(name, c.get("lens_model") or f"{c.get('focal_length_mm') or '?'} mm",
+                      f"{f35:.0f} mm" if f35 else "?", "x".join(map(str, c["image_size"])), str(c["photos"]))
+    gap_text = f"a new board position after a gap of more than {gap:.1f} s ({how})" if gap else "one board position"
+    instants = Table(title=f"Instants: {gap_text}", box=box.SIMPLE_HEAD)
+    instants.add_column("instant")
+    instants.add_column("taken")
+    for name in cams:
+        instants.add_column(name)
+    for key, inst in roll["instants"].items():
+        instants.add_row(key, inst["taken"].replace("T", " ")[:21], *(inst["photos"].get(n, "-") for n in cams))
+    tables = [found, instants]
+    if roll.get("left_out"):
+        out = Table(title="Left out", box=box.SIMPLE_HEAD)
+        out.add_column("photo")
+        out.add_column("why")
+        for file_name, why in roll["left_out"].items():
+            out.add_row(file_name, why)
+        tables.append(out)
+    return tables
