@@ -10,6 +10,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[report,fleet,test]'
+	$(BIN)/python -m compileall -q src    # as a non-editable install would: start-up without compiling
 	touch $(STAMP)
 
 # Render a small synthetic wide+tele photo set, detect, calibrate, evaluate, report.
