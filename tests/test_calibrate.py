@@ -476,3 +476,27 @@ def test_monte_carlo_sigmas_of_a_fisheye_rig_are_honest():
               "rig": z["baseline"] + z["angles"]}
     spreads = {k: round(float(np.std(v, ddof=1)), 2) for k, v in pooled.items()}
     assert all(0.8 <= s <= 1.25 for s in spreads.values()), spreads
+
+
+# ----------------------------------------------------------------------------- refit
+
+
+def test_a_refit_is_the_full_calibration_of_the_other_model():
+    """Issue 23: comparing models by one adjustment from the calibration's values (``refit``) gives what a
+    full calibration of that model on the same corners gives (outliers not looked for), to 1e-3 of a
+    sigma: for a richer lens model, for the other skew model and for the cameras alone."""
+    from dualcal.estimation.calibrate import refit
+    from dualcal.geometry.camera import intrinsic_names
+
+    corners = noisy_corner_set(make_truth("note8", 10, seed=5), 0.15, seed=6)
+    rig = calibrate_rig(corners, model="k1k2")
+    for change in (dict(model="k1k2p1p2"), dict(skew=True), dict(rig_mode="none")):
+        full = calibrate_rig(corners, **{"model": "k1k2", "drop_outliers": False, **change})
+        sol = refit(rig, **change)
+        assert sol.converged and sol.problem.mode == full.rig_mode and sol.problem.skew == full.skew
+        for c, name in enumerate(sol.problem.cameras):
+            cam, want, sigma = sol.state.camera(sol.problem, c), full.cameras[name], full.camera_sigma[name]
+            assert cam.model == want.model
+            for p in intrinsic_names(cam.model):
+                if sigma[p] > 0:
+                    assert abs(getattr(cam, p) - getattr(want, p)) < 1e-3 * sigma[p], (change, name, p)
