@@ -49,14 +49,20 @@ _API = {
 __all__ = sorted(_API) + ["__version__"]
 
 
-def __getattr__(name):
-    if name in _API:
-        import importlib
-        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'dualcal' has no attribute {name!r}")
+def _lazy_names(package: str, api: dict[str, str], public: list[str]):
+    """``__getattr__`` and ``__dir__`` (PEP 562) for ``package``, whose names ``api`` (``{name: module}``,
+    relative to it) are imported from their modules on first use and kept; ``public``: its ``__all__``."""
+    def __getattr__(name):
+        if name in api:
+            import importlib
+            import sys
+
+            value = getattr(importlib.import_module(f".{api[name]}", package), name)
+            setattr(sys.modules[package], name, value)
+            return value
+        raise AttributeError(f"module {package!r} has no attribute {name!r}")
+
+    return __getattr__, lambda: public
 
 
-def __dir__():
-    return __all__
+__getattr__, __dir__ = _lazy_names(__name__, _API, __all__)

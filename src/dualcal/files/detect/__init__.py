@@ -7,6 +7,8 @@ per-photo / per-dataset drivers (:mod:`.pipeline`); ChArUco boards through :mod:
 (OpenCV's markers and ids, checked against the board's geometry, then the same refinement).
 """
 
+from ... import _lazy_names
+
 #: Each public name and its module, imported on first use: the calibration needs :mod:`.grid` alone, and
 #: must not pay for the photo readers (Pillow, rawpy, OpenCV) that the detectors import.
 _API = {"detect_charuco": "charuco", "resolve_board": "charuco", "find_grid": "coarse", "reduction_factor": "coarse",
@@ -17,16 +19,4 @@ _API = {"detect_charuco": "charuco", "resolve_board": "charuco", "find_grid": "c
         "measure_grid": "refine", "refine_corners": "refine"}
 
 __all__ = sorted(_API)
-
-
-def __getattr__(name):
-    if name in _API:
-        import importlib
-        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'dualcal.files.detect' has no attribute {name!r}")
-
-
-def __dir__():
-    return __all__
+__getattr__, __dir__ = _lazy_names(__name__, _API, __all__)
