@@ -88,7 +88,8 @@ def _trim_to_consistent(part: np.ndarray, min_size: int, tolerance: float = 0.08
     into the background at its edge); None when less than ``min_size x min_size`` is left."""
     while min(part.shape[:2]) >= min_size:
         flat = part.reshape(-1, 2)
-        bad = neighbour_residuals_px(flat, part.shape[:2]) / local_spacing_px(flat, part.shape[:2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bad = neighbour_residuals_px(flat, part.shape[:2]) / local_spacing_px(flat, part.shape[:2])
         # not finite: a corner on top of its neighbour (every corner of a 3 x 3 grid or more
         # has the 8 neighbours a prediction needs)
         bad = np.where(np.isfinite(bad), bad, 1.0).reshape(part.shape[:2])
