@@ -164,9 +164,10 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     return adjust(problem, min(starts, key=lambda state: cost(problem, state)))
 
 
-def pair_solutions(setup: Setup, sol: Solution, x: int, y: int) -> tuple[Solution, Solution, int]:
+def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int) -> tuple[Solution, Solution, int]:
     """Cameras ``x`` and ``y`` of ``sol`` as a rigid two-camera rig (``x`` its reference) and alone, from
-    the instants both saw there, started from ``sol``'s values; and the number of those instants."""
+    the instants both saw there, started from ``sol``'s values (the tied pair) and ``alone``'s (the
+    cameras alone: where the pair's photos are all those ``alone`` had, it is already their solution)."""
     cams, poses = _starting_values(sol)
     views = set(poses[x]) & set(poses[y])
     blocks = [(int(c == y), v, uv) for c, v, uv in sol.problem.blocks if c in (x, y) and v in views]
@@ -174,9 +175,14 @@ def pair_solutions(setup: Setup, sol: Solution, x: int, y: int) -> tuple[Solutio
     pair = replace(setup, names=[setup.names[x], setup.names[y]], sizes=[setup.sizes[x], setup.sizes[y]],
                    reference=0, mode="rigid", model=model)
     _check_enough_views(blocks, pair.names)
-    problem = Problem(pair.X_board, pair.names, pair.sizes, blocks, "rigid", pair.skew, 0, False, pair.model)
-    tied = adjust(problem, initial_state(problem, [cams[x], cams[y]], [poses[x], poses[y]]))
-    return tied, pair.solve(blocks, tied, mode="none"), len(views)
+
+    def adjusted(mode: str, start: Solution) -> Solution:
+        problem = Problem(pair.X_board, pair.names, pair.sizes, blocks, mode, pair.skew, 0, False, pair.model)
+        start_cams, start_poses = _starting_values(start)
+        return adjust(problem, initial_state(problem, [start_cams[x], start_cams[y]],
+                                             [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)]))
+
+    return adjusted("rigid", sol), adjusted("none", alone), len(views)
 
 
 OUTLIER_FLOOR_PX = 0.05
@@ -514,7 +520,7 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
                             attribution=partial(attribution_checks, setup) if rig_mode != "none" else None)
     if rig_mode != "none":
         kappa2 = rig.checks.get("rig_rigid", {}).get("design_effect")       # the rig's photo-level noise
-        loop = loop_closure(names, ref, lambda x, y: pair_solutions(setup, flat, x, y),
+        loop = loop_closure(names, ref, lambda x, y: pair_solutions(setup, flat, alone, x, y),
                             lambda tied, alone: rig_rigid(tied, alone, None if kappa2 is None else {0: kappa2}))
         if loop is not None:
             rig.checks["loop_closure"] = loop
