@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from dualcal.estimation.adjust import Problem, adjust, cost, initial_state, instant_rows, linearise, residuals
+from dualcal.estimation.adjust import Problem, cost, initial_state, instant_rows, linearise, residuals
 from dualcal.estimation.rig_relations import rig_relation
 from dualcal.estimation.calibrate import solve, usable_photos
 from dualcal.geometry.camera import CameraModel, project_points

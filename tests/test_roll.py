@@ -12,7 +12,7 @@ from dualcal.synthetic import synth
 from dualcal.errors import InputError
 from dualcal.files.photos import Photo
 from dualcal.synthetic.synth_roll import equivalent_focal_of, write_camera_roll
-from dualcal.workflow import calibrate_corners, read_corners
+from dualcal.workflow import read_corners
 from dualcal.geometry.board import Board
 from dualcal.geometry.camera import LENS_MODELS
 

@@ -3,7 +3,6 @@ agree, OpenCV's conventions hold, maps and points agree, real rendered photos li
 
 from __future__ import annotations
 
-import json
 
 import cv2
 import numpy as np
@@ -14,7 +13,6 @@ from dualcal.files.detect import detect_photo
 from dualcal.errors import EstimationError, InputError
 from dualcal.files.io import save_rig
 from dualcal.geometry.model import Pose
-from dualcal.geometry.camera import project_points
 from dualcal.files.rectify import rectify_map
 from dualcal.synthetic.render import render_view
 from dualcal.files.stereo import rectify_points, stereo_rectify

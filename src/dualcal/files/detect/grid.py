@@ -118,7 +118,6 @@ def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int]):
     whose patch is symmetric, is left).
     """
     uv = np.asarray(uv, float)
-    N = len(uv)
     use = observed_mask(uv)
     idx, offs = _neighbourhoods(shape)
     valid = (idx >= 0) & use[np.maximum(idx, 0)]

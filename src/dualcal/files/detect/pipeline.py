@@ -25,7 +25,6 @@ dictionary (or layout) is not given it first finds them from the photos
 
 from __future__ import annotations
 
-import os
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path

@@ -32,7 +32,7 @@ from matplotlib.path import Path as MplPath
 
 from ...estimation.calibrate import outlier_limit_px
 from ...geometry.camera import (LENS_MODELS, CameraModel, distorted_radius, fold_distorted_radius, image_corner_radius,
-                                max_monotonic_radius, normalized_from_pixel, project_points, undistort_normalized,
+                                max_monotonic_radius, normalized_from_pixel, undistort_normalized,
                                 undistort_points, undistorted_radius)
 from ...errors import NotInvertibleError
 from ...geometry.model import Pose, RigModel, ViewResiduals, observed_mask, rig_residuals, rms_px  # noqa: F401 (re-exported)
