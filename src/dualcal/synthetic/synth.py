@@ -36,7 +36,7 @@ from ..geometry.board import Board
 from ..geometry.camera import INTRINSIC_NAMES, CameraModel, fold_radius, project_points
 from ..errors import EstimationError, InputError
 from ..geometry.model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
-from ..geometry.rotation import ARCMIN_PER_RAD, rotation_from_opk
+from ..geometry.rotation import ARCMIN_PER_RAD, rotation_from_opk, rotation_from_rotvec
 
 _W, _H = 3024, 4032
 
@@ -270,15 +270,20 @@ def _edge_view_poses(cameras, rig, reference, edge, extent, target, direction, r
     look = _look_at_pose(target + dist * direction, target, roll)
     angle, azimuth = np.radians(rng.uniform(*edge["angle_deg"])), rng.uniform(0, 2 * np.pi)
     axis = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
-    turn = Pose(np.cos(angle) * np.eye(3) + np.sin(angle) * _cross(axis) + (1 - np.cos(angle)) * np.outer(axis, axis),
-                np.zeros(3))
+    turn = Pose(rotation_from_rotvec(angle * axis), np.zeros(3))
     own = turn.compose(look)
     ref_pose = own if name == reference else rig[name].inverse().compose(own)
     return {reference: ref_pose, **{n: q.compose(ref_pose) for n, q in rig.items()}}
 
 
-def _cross(a: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+def seen_pixels(cam: CameraModel, pose: Pose, X_board: np.ndarray) -> np.ndarray:
+    """(N, 2) exact pixels of the board points ``X_board`` that ``cam`` at board-to-camera ``pose`` sees
+    (:func:`in_frame`), NaN rows for the others."""
+    Xc = pose.apply(X_board)
+    seen = in_frame(cam, Xc)
+    uv = project_points(cam, np.where(seen[:, None], Xc, 1.0))
+    uv[~seen] = np.nan
+    return uv
 
 
 def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
@@ -295,14 +300,9 @@ def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
         out[cam] = {}
         for v in truth.view_poses:
             pose = truth.camera_pose(cam, v)
-            Xc = pose.apply(X)
-            seen = in_frame(model, Xc)
-            if truth.board.charuco is None and not _all_visible({cam: model}, {cam: pose}, np.vstack([X, outline]),
-                                                                margin=0.0):
-                seen[:] = False
-            uv = project_points(model, np.where(seen[:, None], Xc, 1.0))
-            uv[~seen] = np.nan
-            out[cam][v] = uv
+            missed = truth.board.charuco is None and not _all_visible({cam: model}, {cam: pose},
+                                                                      np.vstack([X, outline]), margin=0.0)
+            out[cam][v] = np.full((len(X), 2), np.nan) if missed else seen_pixels(model, pose, X)
     return out
 
 
@@ -341,11 +341,8 @@ def photographed(truth: SynthTruth, corners: CornerSet, view: str, board_pose: P
         views = dict(cc.views)
         if name in cameras:
             pose = board_pose if name == truth.reference else truth.rig[name].compose(board_pose)
-            Xc = pose.apply(X)
-            seen = in_frame(truth.cameras[name], Xc)
-            uv = project_points(truth.cameras[name], np.where(seen[:, None], Xc, 1.0))
+            uv = seen_pixels(truth.cameras[name], pose, X)
             uv = uv + rng.normal(0.0, noise_px, uv.shape)
-            uv[~seen] = np.nan
-            views[view] = uv if seen.any() else None
+            views[view] = uv if np.isfinite(uv[:, 0]).any() else None
         cams[name] = CameraCorners(cc.image_size, views, cc.meta)
     return CornerSet(corners.board, cams, corners.reference)
