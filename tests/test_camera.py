@@ -349,3 +349,21 @@ def test_kb4_fold_is_the_first_root_of_the_slope():
     with pytest.raises(NotInvertibleError):
         check_invertible_in_image(cam)
     assert fisheye_max_angle(0.0, 0.0) == np.pi                   # equidistant: no fold before 180 degrees
+
+
+def test_the_radial_lens_gradient_is_the_outward_motion_per_coefficient():
+    """Against central differences, in a radial-tangential model and in the fisheye one."""
+    from dualcal.geometry.camera import radial_lens_gradient
+
+    X = np.array([0.4, -0.3, 1.0])
+    for cam in (CameraModel((4000, 3000), 3000.0, 3001.0, 0.0, 2010.0, 1490.0, 0.05, -0.1, 0.001, -0.002, 0.02,
+                            model="k1k2p1p2k3"),
+                CameraModel((4000, 3000), 1500.0, 1500.0, 0.0, 2000.0, 1500.0, 0.1, 0.01, -0.003, 0.001, model="kb4")):
+        names = LENS_MODELS[cam.model]
+        outward = project_points(cam, X[None])[0] - [cam.cx, cam.cy]
+        outward /= np.linalg.norm(outward)
+        h = 1e-6
+        numeric = [outward @ (project_points(replace(cam, **{n: getattr(cam, n) + h}), X[None])[0]
+                              - project_points(replace(cam, **{n: getattr(cam, n) - h}), X[None])[0]) / (2 * h)
+                   for n in names]
+        assert np.allclose(radial_lens_gradient(cam, X, names), numeric, rtol=1e-6, atol=1e-6)

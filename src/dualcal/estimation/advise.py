@@ -51,7 +51,7 @@ import numpy as np
 
 from ..geometry.board import Board, shape_basis, shaped_points_mm
 from ..geometry.camera import (INTRINSIC_NAMES, CameraModel, focal_px_from_35mm, ideal_normalized_from_pixel,
-                               normalized_from_pixel, project_with_jacobians)
+                               normalized_from_pixel, project_with_jacobians, radial_lens_gradient)
 from .covariance import JointCovariance, intrinsic_name, rig_name
 from ..errors import InputError, NotInvertibleError
 from ..geometry.model import Pose, RigModel
@@ -268,12 +268,8 @@ def target_gradients(prior: Prior) -> dict[str, np.ndarray]:
     for name, cam in prior.cameras.items():
         lens = [n for n in INTRINSIC_NAMES[5:] if intrinsic_name(name, n) in index]
         if lens:
-            uv, _, J_K = project_with_jacobians(cam, edge_point(cam)[None])
-            radial = uv[0] - [cam.cx, cam.cy]
-            radial /= np.linalg.norm(radial)
             g = np.zeros(k)
-            for n in lens:
-                g[index[intrinsic_name(name, n)]] = radial @ J_K[0, :, INTRINSIC_NAMES.index(n)]
+            g[[index[intrinsic_name(name, n)] for n in lens]] = radial_lens_gradient(cam, edge_point(cam), lens)
             out[f"{name}.distortion_edge_px"] = g
     for name, pose in prior.rig.items():
         rot = [index.get(rig_name(name, "rotation_rad", a)) for a in "xyz"]

@@ -258,9 +258,8 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
 def _edge_distortion_sigma(rig: RigModel, name: str, uv: np.ndarray) -> float | None:
     """The sigma (px, radial, the larger of the covariance kinds) of camera ``name``'s lens distortion at
     the measured corner ``uv`` (N, 2) farthest from the principal point; None without a covariance of its
-    lens coefficients. The derivative of the pixel by the lens coefficients comes from the camera model
-    (:func:`dualcal.geometry.camera.project_with_jacobians`), so it holds for every lens model."""
-    from ..geometry.camera import INTRINSIC_NAMES, LENS_MODELS, ideal_normalized_from_pixel, project_with_jacobians
+    lens coefficients (:func:`dualcal.geometry.camera.radial_lens_gradient`: every lens model)."""
+    from ..geometry.camera import LENS_MODELS, ideal_normalized_from_pixel, radial_lens_gradient
     from .covariance import JointCovariance, intrinsic_name
 
     cam = rig.cameras[name]
@@ -273,11 +272,7 @@ def _edge_distortion_sigma(rig: RigModel, name: str, uv: np.ndarray) -> float | 
         return None
     xy = ideal_normalized_from_pixel(cam, uv)
     far = int(np.argmax(np.hypot(xy[:, 0], xy[:, 1])))
-    uv_far, _, J_K = project_with_jacobians(cam, np.array([[xy[far, 0], xy[far, 1], 1.0]]))
-    outward = uv_far[0] - [cam.cx, cam.cy]
-    outward = outward / max(np.linalg.norm(outward), 1e-12)
-    g = outward @ J_K[0][:, [INTRINSIC_NAMES.index(k) for k in terms]]
-    return cov.derived_sigma(names, g)
+    return cov.derived_sigma(names, radial_lens_gradient(cam, [xy[far, 0], xy[far, 1], 1.0], terms))
 
 
 def determination(rig: RigModel) -> dict:

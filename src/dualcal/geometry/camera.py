@@ -687,6 +687,16 @@ def project_with_jacobians(cam: CameraModel, X_cam: np.ndarray):
     return np.stack([u, v], axis=-1), J_X, J_K
 
 
+def radial_lens_gradient(cam: CameraModel, X_cam: np.ndarray, names) -> np.ndarray:
+    """How the image of the camera-frame point ``X_cam`` (3,) moves outward (along the line from the
+    principal point) per unit of each lens coefficient ``names``: (len(names),) px per unit. With a
+    covariance of the coefficients it gives the sigma of the lens's displacement there, in any lens model."""
+    uv, _, J_K = project_with_jacobians(cam, np.asarray(X_cam, float).reshape(1, 3))
+    outward = uv[0] - [cam.cx, cam.cy]
+    outward = outward / max(np.linalg.norm(outward), 1e-12)
+    return outward @ J_K[0][:, [INTRINSIC_NAMES.index(n) for n in names]]
+
+
 def ideal_normalized_from_pixel(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
     """Observed (distorted) pixels -> ideal normalised coordinates ``(X/Z, Y/Z)`` of their rays."""
     return undistort(cam, normalized_from_pixel(cam, uv))
