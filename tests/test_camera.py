@@ -358,7 +358,7 @@ def test_the_radial_lens_gradient_is_the_outward_motion_per_coefficient():
     X = np.array([0.4, -0.3, 1.0])
     for cam in (CameraModel((4000, 3000), 3000.0, 3001.0, 0.0, 2010.0, 1490.0, 0.05, -0.1, 0.001, -0.002, 0.02,
                             model="k1k2p1p2k3"),
-                CameraModel((4000, 3000), 1500.0, 1500.0, 0.0, 2000.0, 1500.0, 0.1, 0.01, -0.003, 0.001, model="kb4")):
+                CameraModel((4000, 3000), 1500.0, 1500.0, 0.0, 2000.0, 1500.0, 0.1, 0.01, k3=-0.003, k4=0.001, model="kb4")):
         names = LENS_MODELS[cam.model]
         outward = project_points(cam, X[None])[0] - [cam.cx, cam.cy]
         outward /= np.linalg.norm(outward)
