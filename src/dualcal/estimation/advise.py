@@ -316,9 +316,13 @@ def honest_sigmas(prior: Prior, covariance: np.ndarray | None = None) -> dict[st
     the sigmas calib.json reports). A baseline's includes the printed squares' tolerance
     (:mod:`dualcal.geometry.scale`), which no photo shrinks."""
     gradients = target_gradients(prior)
-    kappa = photo_factors(prior, gradients)
-    formal = sigmas(prior.covariance if covariance is None else covariance, gradients)
-    out = {n: kappa[n] * s for n, s in formal.items()}
+    return _honest(prior, prior.covariance if covariance is None else covariance, gradients,
+                   photo_factors(prior, gradients))
+
+
+def _honest(prior: Prior, covariance: np.ndarray, gradients: dict, kappa: dict) -> dict[str, float]:
+    """:func:`honest_sigmas` from the targets' ``gradients`` and photo factors ``kappa``, computed once."""
+    out = {n: kappa[n] * s for n, s in sigmas(covariance, gradients).items()}
     rel = relative_sigma(prior.board)
     for name, pose in prior.rig.items():
         key = f"{name}.baseline_mm"
@@ -566,7 +570,7 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
     gradients = target_gradients(prior)
     goals = parse_goals(goals or {}, gradients)
     kappa = photo_factors(prior, gradients)
-    current = honest_sigmas(prior)
+    current = _honest(prior, prior.covariance, gradients, kappa)
     if goals:
         names = list(goals)
         groups = [np.arange(len(names))]
@@ -600,8 +604,8 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
         C, score_now = Cs[best], float(score[best])
         pose, seen = candidates[best]
         outline = {n: outline_px(prior, n, pose) for n in prior.cameras}
-        chosen.append(AdvisedPose(pose, [n for n in prior.cameras if n in seen], honest_sigmas(prior, C), gain,
-                                  pose.apply(centre_b[None])[0], outline))
+        chosen.append(AdvisedPose(pose, [n for n in prior.cameras if n in seen], _honest(prior, C, gradients, kappa),
+                                  gain, pose.apply(centre_b[None])[0], outline))
     done = (all(current[n] <= s for n, s in goals.items()) if goals else first_gain < STOP_GAIN)
     return Advice(prior.reference, current, chosen, bool(done), goals, float(first_gain))
 
