@@ -155,11 +155,10 @@ class Advice:
 
 def photo_distance_range(rig: RigModel) -> tuple[float, float]:
     """(lo, hi) distances of the board's centre from the reference camera over the calibration's photos, mm."""
-    centre = rig.board.object_points_mm().mean(axis=0)
-    d = [float(np.linalg.norm(p.apply(centre[None])[0])) for p in rig.reference_poses().values()]
-    if not d:
+    d = rig.board_distances_mm()
+    if not len(d):
         raise InputError("the calibration has no photo with a board pose: nothing to advise from")
-    return min(d), max(d)
+    return float(d.min()), float(d.max())
 
 
 def prior_from_rig(rig: RigModel) -> Prior:

@@ -402,8 +402,7 @@ def scale_plausibility(rig: RigModel) -> dict | None:
     diagonals = _sensor_diagonals_mm(rig)
     if not diagonals or max(diagonals.values()) >= PHONE_SENSOR_DIAGONAL_MM:
         return None
-    centre = rig.board.object_points_mm().mean(axis=0)
-    distance = float(np.median([np.linalg.norm(p.R @ centre + p.t_mm) for p in rig.reference_poses().values()]))
+    distance = float(np.median(rig.board_distances_mm()))
     baselines = {name: float(rel.baseline_mm) for name, rel in rig.rig.items()}
     problems = []
     lo, hi = PHONE_BOARD_DISTANCE_MM

@@ -240,6 +240,11 @@ class RigModel:
                     out[view] = rel.pose.inverse().compose(pose)
         return dict(sorted(out.items()))
 
+    def board_distances_mm(self) -> np.ndarray:
+        """(views,) distance of the board's centre from the reference camera in every view, mm."""
+        centre = self.board.object_points_mm().mean(axis=0)
+        return np.array([np.linalg.norm(p.apply(centre[None])[0]) for p in self.reference_poses().values()])
+
 
 # ---------------------------------------------------------------------------- residuals of a calibration
 
