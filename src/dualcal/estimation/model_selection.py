@@ -159,6 +159,20 @@ def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m 
     return score_lens_models(fits)
 
 
+def lens_model_grid(adjustment: dict) -> tuple[list[str], list[tuple[str, list[dict | None]]]]:
+    """``--model auto``'s comparison as a grid (what its tables show): the models (calib.json
+    ``adjustment["lens_models"]``), and per camera one cell per model, ``{"held_out_rms_px", "worse_se",
+    "chosen"}``, or None where the model is no candidate of the camera."""
+    entries, chosen = adjustment["lens_models"], adjustment["lens_models_chosen"]
+    rows = []
+    for name, model in chosen.items():
+        cells = [e["per_camera"].get(name, {"candidate": False}) for e in entries]
+        rows.append((name, [{"held_out_rms_px": d["held_out_rms_px"], "worse_se": d["worse_se"],
+                             "chosen": e["model"] == model} if d["candidate"] else None
+                            for e, d in zip(entries, cells)]))
+    return [e["model"] for e in entries], rows
+
+
 def _camera_entry(score: LensModelScore | None) -> dict:
     """calib.json's ``per_camera`` entry of one model for one camera (``candidate`` False: not scored)."""
     if score is None:
@@ -205,7 +219,8 @@ def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None
     if calibrate is None:
         from .calibrate import calibrate_rig as calibrate
     names = sorted(corners.cameras)
-    candidates = {n: lens_model_candidates(cam) for n, cam in _closed_form_cameras(corners, options.get("skew", False)).items()}
+    candidates = {n: lens_model_candidates(cam)
+                  for n, cam in _closed_form_cameras(corners, options.get("skew", False)).items()}
     preferred = {n: next((m for m in candidates[n] if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n in names}
     base = calibrate(corners, model=preferred, **options)
     fits = _refits(base, {m: {n: m if m in candidates[n] else preferred[n] for n in names}

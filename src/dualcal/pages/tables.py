@@ -182,21 +182,19 @@ def lens_model_choice_table(adjustment: dict) -> Table:
     """Each camera's lens models by their held-out RMS (px) and how many standard errors worse than
     that camera's best (:func:`dualcal.estimation.model_selection.calibrate_auto`: ``adjustment["lens_models"]``),
     the one chosen marked; ``-`` where a model is no candidate of the camera."""
-    entries, chosen = adjustment["lens_models"], adjustment["lens_models_chosen"]
+    from ..estimation.model_selection import lens_model_grid
+
+    models, grid = lens_model_grid(adjustment)
     t = Table(title="Lens model of each camera (--model auto): held-out RMS (px) and SE worse than the camera's best",
               caption="chosen (*): the preferred model (kb4 for a fisheye's field of view, else k1k2) where it is "
                       "within 2 SE of the best, else the one with the fewest terms that is; -: no candidate",
               box=box.SIMPLE_HEAD)
     t.add_column("camera", no_wrap=True)
-    for e in entries:
-        t.add_column(e["model"], justify="right", no_wrap=True)
-    for name, model in chosen.items():
-        cells = []
-        for e in entries:
-            d = e["per_camera"].get(name, {"candidate": False})
-            mark = "*" if e["model"] == model else " "
-            cells.append(f"{d['held_out_rms_px']:.4f} {d['worse_se']:.1f}{mark}" if d["candidate"] else "- ")
-        t.add_row(name, *cells)
+    for model in models:
+        t.add_column(model, justify="right", no_wrap=True)
+    for name, cells in grid:
+        t.add_row(name, *(f"{c['held_out_rms_px']:.4f} {c['worse_se']:.1f}{'*' if c['chosen'] else ' '}" if c else "- "
+                          for c in cells))
     return t
 
 

@@ -117,19 +117,16 @@ def intrinsics_table(rig: RigModel, names: list[str]) -> list[dict]:
 def lens_model_choice(rig: RigModel) -> dict | None:
     """The per-camera comparison of ``--model auto`` (``adjustment["lens_models_chosen"]``) as
     ``{"models": [...], "rows": [{"camera", "cells": [text, ...]}]}``, None without one."""
-    chosen = rig.adjustment.get("lens_models_chosen")
-    if not chosen:
+    from ...estimation.model_selection import lens_model_grid
+
+    if not rig.adjustment.get("lens_models_chosen"):
         return None
-    entries = rig.adjustment["lens_models"]
-    rows = []
-    for name, model in chosen.items():
-        cells = []
-        for e in entries:
-            d = e["per_camera"].get(name, {"candidate": False})
-            cells.append(f"{d['held_out_rms_px']:.4f} ({d['worse_se']:.1f})" + (" chosen" if e["model"] == model else "")
-                         if d["candidate"] else "–")
-        rows.append({"camera": name, "cells": cells})
-    return {"models": [e["model"] for e in entries], "rows": rows}
+    models, grid = lens_model_grid(rig.adjustment)
+
+    def text(c):
+        return f"{c['held_out_rms_px']:.4f} ({c['worse_se']:.1f})" + (" chosen" if c["chosen"] else "") if c else "–"
+
+    return {"models": models, "rows": [{"camera": name, "cells": [text(c) for c in cells]} for name, cells in grid]}
 
 
 def rig_table(rig: RigModel) -> tuple[list[str], list[dict]]:
