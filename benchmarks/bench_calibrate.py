@@ -51,6 +51,9 @@ import cProfile
 import os
 import pstats
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from collections import defaultdict
 from dataclasses import replace
@@ -108,6 +111,83 @@ QUAD_PRESET = dict(
          "macro": Pose(_opk([2.0, 2.5, -4.0]), np.array([0.5, 11.0, -0.2]))},
     fill=(0.45, 0.85),
 )
+
+
+# ----------------------------------------------------------------------------- as processes
+
+
+DUALCAL = [sys.executable, "-m", "dualcal"]
+
+OPENCV = r"""
+import json, sys
+import cv2, numpy as np
+doc = json.load(open(sys.argv[1]))
+b = doc["board"]
+obj = np.array([[c * b["square_mm"], r * b["square_mm"], 0] for r in range(b["rows"]) for c in range(b["cols"])],
+               np.float32)
+cams = doc["cameras"]
+names = sorted(cams)
+ref = "wide" if "wide" in names else names[0]
+flags = cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
+K, D = {}, {}
+for n in names:
+    views = [np.array(v, np.float32) for v in cams[n]["views"].values() if v is not None]
+    _, K[n], D[n], _, _ = cv2.calibrateCamera([obj] * len(views), views, tuple(cams[n]["image_size"]), None, None,
+                                              flags=flags)
+for n in names:
+    if n == ref:
+        continue
+    keys = [k for k in cams[ref]["views"] if cams[ref]["views"][k] is not None and cams[n]["views"].get(k) is not None]
+    a = [np.array(cams[ref]["views"][k], np.float32) for k in keys]
+    c = [np.array(cams[n]["views"][k], np.float32) for k in keys]
+    cv2.stereoCalibrate([obj] * len(keys), a, c, K[ref], D[ref], K[n], D[n], tuple(cams[ref]["image_size"]),
+                        flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS)
+"""
+
+
+def _time(cmd: list[str], runs: int) -> float:
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1")}
+    subprocess.run(cmd, check=True, capture_output=True, env=env)          # warm-up (file caches)
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=True, capture_output=True, env=env)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def write_corners(preset: str, views: int, folder: Path) -> Path:
+    """A synthetic corners.json of ``views`` instants of ``preset`` (``quad``: :data:`QUAD_PRESET`'s 4 cameras)."""
+    from dualcal.files.io import save_corners
+
+    data = folder / f"{preset}-{views}"
+    if preset == "quad":
+        data.mkdir(parents=True)
+        save_corners(data / "corners.json", float32_corner_set(quad_truth(views, seed=7), 0.1, seed=8))
+    else:
+        subprocess.run(DUALCAL + ["synth", str(data), "--preset", preset, "--views", str(views), "--no-photos",
+                                  "--noise", "0.1"], check=True, capture_output=True)
+    return data / "corners.json"
+
+
+def process_times(preset: str, views: int, runs: int, folder: Path) -> dict[str, float]:
+    """``dualcal calibrate`` (its defaults; the paper's case) and OpenCV's path, each as a process on the same
+    corners.json: median wall seconds ``{"default", "paper", "opencv"}``."""
+    corners = write_corners(preset, views, folder)
+    out = corners.parent / "calib.json"
+    script = folder / "opencv_calibrate.py"
+    script.write_text(OPENCV)
+    return {"default": _time(DUALCAL + ["calibrate", str(corners), "-o", str(out)], runs),
+            "paper": _time(DUALCAL + ["calibrate", str(corners), "-o", str(out), "--model", "k1k2",
+                                      "--no-compare-models", "--no-compare-lens"], runs),
+            "opencv": _time([sys.executable, str(script), str(corners)], runs)}
+
+
+def compile_sources() -> None:
+    """Byte-compile dualcal's sources, as an installed package's are (this machine sets
+    ``PYTHONDONTWRITEBYTECODE``, which would otherwise make every process compile them again)."""
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(Path(__file__).resolve().parents[1] / "src" / "dualcal")],
+                   check=True)
 
 
 # ----------------------------------------------------------------------------- data
@@ -400,9 +480,7 @@ def main(argv=None) -> int:
             rows.append([f"speed {s['case']}: paper-mode s, converged {s['paper_converged']}", f"{s['paper_s']:.3f}",
                          f"< {PAPER_TIME_FACTOR:g} x rigid",
                          verdict(s["paper_converged"] and s["paper_s"] < PAPER_TIME_FACTOR * s["dualcal_s"])])
-        import tempfile
-
-        from bench_calibrate_process import measure as process_times
+        compile_sources()
         with tempfile.TemporaryDirectory() as tmp:
             t = process_times("note8", 13, runs_small, Path(tmp))
         for label, key in (("defaults", "default"), ("the paper's case", "paper")):
