@@ -33,30 +33,36 @@ def test_projection_follows_the_contract_formula():
     np.testing.assert_allclose(project_points(CAM, X)[0], expected, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("cam", [CAM, CAM5], ids=["k1k2", "k1k2p1p2k3"])
-def test_jacobians_match_central_differences(cam):
-    rng = np.random.default_rng(0)
-    X = np.column_stack([rng.uniform(-200, 200, 20), rng.uniform(-300, 300, 20), rng.uniform(400, 900, 20)])
+def _assert_jacobians_are_differences(cam, X, model, absent, h_mm, atol_X, atol_K):
+    """project_with_jacobians' J_X and J_K against central differences: by the point (steps of ``h_mm``)
+    and by every intrinsic in ``model``'s family (steps of 1e-6 relative); the ``absent`` columns zero."""
     _, J_X, J_K = project_with_jacobians(cam, X)
-    assert J_K.shape == (20, 2, len(INTRINSIC_NAMES))
-    h = 1e-4
     for i in range(3):
         d = np.zeros(3)
-        d[i] = h
-        num = (project_points(cam, X + d) - project_points(cam, X - d)) / (2 * h)
-        np.testing.assert_allclose(J_X[:, :, i], num, rtol=1e-6, atol=1e-7)
+        d[i] = h_mm
+        num = (project_points(cam, X + d) - project_points(cam, X - d)) / (2 * h_mm)
+        np.testing.assert_allclose(J_X[:, :, i], num, rtol=1e-6, atol=atol_X)
     vec = cam.as_vector()
-    for i, name in enumerate(INTRINSIC_NAMES):    # every coefficient, also those the model lacks
-        if name == "k4":                          # the fisheye's alone: no column in a radial-tangential lens
+    for i, name in enumerate(INTRINSIC_NAMES):
+        if name in absent:
             assert not J_K[:, :, i].any()
             continue
         step = 1e-6 * max(1.0, abs(vec[i]))
         plus, minus = vec.copy(), vec.copy()
         plus[i] += step
         minus[i] -= step
-        num = (project_points(CameraModel.from_vector(cam.image_size, plus, "k1k2p1p2k3"), X)
-               - project_points(CameraModel.from_vector(cam.image_size, minus, "k1k2p1p2k3"), X)) / (2 * step)
-        np.testing.assert_allclose(J_K[:, :, i], num, rtol=1e-5, atol=1e-6)
+        num = (project_points(CameraModel.from_vector(cam.image_size, plus, model), X)
+               - project_points(CameraModel.from_vector(cam.image_size, minus, model), X)) / (2 * step)
+        np.testing.assert_allclose(J_K[:, :, i], num, rtol=1e-5, atol=atol_K)
+
+
+@pytest.mark.parametrize("cam", [CAM, CAM5], ids=["k1k2", "k1k2p1p2k3"])
+def test_jacobians_match_central_differences(cam):
+    rng = np.random.default_rng(0)
+    X = np.column_stack([rng.uniform(-200, 200, 20), rng.uniform(-300, 300, 20), rng.uniform(400, 900, 20)])
+    assert project_with_jacobians(cam, X)[2].shape == (20, 2, len(INTRINSIC_NAMES))
+    # every coefficient, also those the model lacks; k4, the fisheye's alone, has no column
+    _assert_jacobians_are_differences(cam, X, "k1k2p1p2k3", absent=("k4",), h_mm=1e-4, atol_X=1e-7, atol_K=1e-6)
 
 
 @settings(max_examples=60, deadline=None)
@@ -288,24 +294,8 @@ def test_kb4_jacobians_match_central_differences():
     rng = np.random.default_rng(1)
     cam = replace(FISH, skew=1.5)
     X = np.vstack([_rays(rng, 30, 70.0), [[0.0, 0.0, 800.0], [1e-9, 0.0, 800.0]]])     # the axis too
-    _, J_X, J_K = project_with_jacobians(cam, X)
-    for i in range(3):
-        d = np.zeros(3)
-        d[i] = 1e-3
-        num = (project_points(cam, X + d) - project_points(cam, X - d)) / 2e-3
-        np.testing.assert_allclose(J_X[:, :, i], num, rtol=1e-6, atol=1e-6)
-    vec = cam.as_vector()
-    for i, name in enumerate(INTRINSIC_NAMES):
-        if name in ("p1", "p2"):                  # the radial-tangential lens's alone: no column in a fisheye
-            assert not J_K[:, :, i].any()
-            continue
-        step = 1e-6 * max(1.0, abs(vec[i]))
-        plus, minus = vec.copy(), vec.copy()
-        plus[i] += step
-        minus[i] -= step
-        num = (project_points(CameraModel.from_vector(cam.image_size, plus, "kb4"), X)
-               - project_points(CameraModel.from_vector(cam.image_size, minus, "kb4"), X)) / (2 * step)
-        np.testing.assert_allclose(J_K[:, :, i], num, rtol=1e-5, atol=1e-5)
+    # p1, p2, the radial-tangential lens's alone, have no column in a fisheye
+    _assert_jacobians_are_differences(cam, X, "kb4", absent=("p1", "p2"), h_mm=1e-3, atol_X=1e-6, atol_K=1e-5)
 
 
 def test_kb4_undistorts_like_cv2_fisheye_and_round_trips():

@@ -13,6 +13,20 @@ from dualcal.synthetic.render import _box_mean, _square_wave_integral, board_coo
 from dualcal.synthetic.synth import make_truth, true_corners
 
 
+def _grid_directions(uv: np.ndarray, board: Board) -> np.ndarray:
+    """(N, 2, 2) unit directions of the grid's rows and columns at every corner (what fit_saddles starts from)."""
+    g = uv.reshape(board.rows, board.cols, 2)
+    dirs = np.stack([np.gradient(g, axis=1).reshape(-1, 2), np.gradient(g, axis=0).reshape(-1, 2)], 1)
+    return dirs / np.linalg.norm(dirs, axis=2, keepdims=True)
+
+
+def _fit_from_near(img: np.ndarray, uv_true: np.ndarray, board: Board, half: int):
+    """``(fit, ok)`` of fit_saddles on ``img`` started 0.3 px (per coordinate, a fixed draw) off the true corners."""
+    start = uv_true + np.random.default_rng(2).normal(0, 0.3, uv_true.shape)
+    fit, ok, _ = fit_saddles(img, start, _grid_directions(uv_true, board), half=half)
+    return fit, ok
+
+
 @pytest.fixture(scope="module")
 def truth():
     return make_truth("note8", views=2, seed=3, scale=0.5)
@@ -46,11 +60,7 @@ def test_rendered_corners_sit_exactly_where_the_model_projects_them(truth, cam_n
     cam, pose = truth.cameras[cam_name], truth.camera_pose(cam_name, "IMG_02")
     img = render_view(cam, pose, truth.board, np.random.default_rng(1), noise=0.0)
     uv_true = true_corners(truth)[cam_name]["IMG_02"]
-    g = uv_true.reshape(truth.board.rows, truth.board.cols, 2)
-    dirs = np.stack([np.gradient(g, axis=1).reshape(-1, 2), np.gradient(g, axis=0).reshape(-1, 2)], 1)
-    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
-    start = uv_true + np.random.default_rng(2).normal(0, 0.3, uv_true.shape)
-    fit, ok, _ = fit_saddles(img, start, dirs, half=12)
+    fit, ok = _fit_from_near(img, uv_true, truth.board, half=12)
     assert ok.all()
     err = fit - uv_true
     assert np.sqrt(np.mean(np.sum(err**2, axis=1))) < 0.005
@@ -64,10 +74,7 @@ def test_a_lens_with_tangential_terms_renders_its_corners_where_the_model_projec
         pose = truth.camera_pose(name, "IMG_01")
         img = render_view(cam, pose, truth.board, np.random.default_rng(1), noise=0.0)
         uv_true = true_corners(truth)[name]["IMG_01"]
-        g = uv_true.reshape(truth.board.rows, truth.board.cols, 2)
-        dirs = np.stack([np.gradient(g, axis=1).reshape(-1, 2), np.gradient(g, axis=0).reshape(-1, 2)], 1)
-        dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
-        fit, ok, _ = fit_saddles(img, uv_true + np.random.default_rng(2).normal(0, 0.3, uv_true.shape), dirs, half=8)
+        fit, ok = _fit_from_near(img, uv_true, truth.board, half=8)
         assert ok.all()
         assert np.sqrt(np.mean(np.sum((fit - uv_true) ** 2, axis=1))) < 0.01
 
@@ -135,9 +142,7 @@ def test_a_planted_corner_is_drawn_where_it_was_moved_and_the_others_stay(truth)
     uv_true = true_corners(truth)["wide"]["IMG_02"]
     k, shift_mm = 19, np.array([2.0, -1.0])
     img = render_view(cam, pose, b, np.random.default_rng(1), noise=0.0, outliers=[(k, *shift_mm)])
-    g = uv_true.reshape(b.rows, b.cols, 2)
-    dirs = np.stack([np.gradient(g, axis=1).reshape(-1, 2), np.gradient(g, axis=0).reshape(-1, 2)], 1)
-    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+    dirs = _grid_directions(uv_true, b)
     X = b.object_points_mm()
     moved = project_points(cam, pose.apply(X[k:k + 1] + [*shift_mm, 0.0]))
     start = uv_true.copy()
@@ -156,9 +161,6 @@ def test_a_fisheye_renders_its_corners_where_the_model_projects_them():
     for view in ("IMG_01", "IMG_06"):                 # IMG_06: the first near the ultra-wide's edge
         img = render_view(cam, truth.camera_pose("ultra", view), truth.board, np.random.default_rng(1), noise=0.0)
         uv_true = true_corners(truth)["ultra"][view]
-        g = uv_true.reshape(truth.board.rows, truth.board.cols, 2)
-        dirs = np.stack([np.gradient(g, axis=1).reshape(-1, 2), np.gradient(g, axis=0).reshape(-1, 2)], 1)
-        dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
-        fit, ok, _ = fit_saddles(img, uv_true + np.random.default_rng(2).normal(0, 0.3, uv_true.shape), dirs, half=6)
+        fit, ok = _fit_from_near(img, uv_true, truth.board, half=6)
         assert ok.all()
         assert np.sqrt(np.mean(np.sum((fit - uv_true) ** 2, axis=1))) < 0.02
