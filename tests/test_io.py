@@ -150,10 +150,10 @@ def test_file_kinds_are_told_apart(tmp_path, rig):
 @pytest.mark.parametrize("text,message", [
     ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {"wide": {"image_size": [10', "truncated"),
     ("[1, 2]", "top level"),
-    ('{"board": {"cols": 8}, "cameras": {}}', "cameras: {} should be non-empty"),
-    ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {}}', "non-empty"),
+    ('{"board": {"cols": 8}, "cameras": {}}', r"board: must contain \['rows', 'square_mm'\] properties"),
+    ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {}}', "cameras: must contain at least 1 properties"),
     ('{"board": {"cols": 8, "rows": 5, "square_mm": 30}, "cameras": {"w": {"image_size": [0, 5], "views": {}}}}',
-     r"cameras.w.image_size\[0\]: 0 is less than the minimum of 1"),
+     r"cameras.w.image_size\[0\]: 0 must be bigger than or equal to 1"),
     ('{"board": {"cols": 2, "rows": 2, "square_mm": 30}, "cameras": {"w": {"image_size": [9, 9], '
      '"views": {"a": [[1, 2], [3, 4], [5, 6]]}}}}', "4 corners"),
 ])

@@ -33,14 +33,44 @@ def schema_text(name: str) -> str:
     return resources.files(__name__).joinpath(f"{name}.json").read_text(encoding="utf-8")
 
 
+def _inlined(name: str) -> dict:
+    """``NAME.json`` with each reference into another of dualcal's schemas (``dualcal:FILE.json#/pointer``)
+    replaced by the part it points to, itself with its references inlined, so that the schema stands alone
+    (fastjsonschema cannot join the ``dualcal:`` identifiers)."""
+    def pointed(doc: str, pointer: str):
+        target = schema(doc)
+        for part in filter(None, pointer.split("/")):
+            target = target[part]
+        return target
+
+    def resolve(node, doc: str):
+        if isinstance(node, list):
+            return [resolve(v, doc) for v in node]
+        if not isinstance(node, dict):
+            return node
+        ref = node.get("$ref", "")
+        if ref.startswith("dualcal:"):
+            other, _, pointer = ref.removeprefix("dualcal:").partition("#")
+            return resolve(pointed(other.removesuffix(".json"), pointer), other.removesuffix(".json"))
+        if ref.startswith("#") and doc != name:
+            return resolve(pointed(doc, ref[1:]), doc)
+        return {k: resolve(v, doc) for k, v in node.items() if not (k in ("$id", "$schema") and node is not root)}
+
+    root = schema(name)
+    alone = resolve(root, name)
+    del alone["$id"]
+    return alone
+
+
 @functools.cache
 def _validator(name: str):
-    import jsonschema
-    from referencing import Registry, Resource
+    """The compiled validator of ``NAME.json``: a function that raises
+    ``fastjsonschema.JsonSchemaValueException`` at the first fault. fastjsonschema reads the schemas
+    as draft 7, which means the same as draft 2020-12 for the keywords they use (no ``$ref`` beside
+    other keywords, no ``items`` lists); ``tests/test_schemas.py`` checks both validators agree."""
+    import fastjsonschema
 
-    registry = Registry().with_resources(
-        (f"dualcal:{n}.json", Resource.from_contents(schema(n))) for n in SCHEMA_NAMES)
-    return jsonschema.Draft202012Validator(schema(name), registry=registry)
+    return fastjsonschema.compile(_inlined(name), use_default=False, use_formats=False)
 
 
 def key_path(parts) -> str:
@@ -77,7 +107,7 @@ def _corner_problem(views) -> tuple[tuple, str] | None:
         if corners is None:
             continue
         if not isinstance(corners, list):
-            return (key,), f"{corners!r:.40} is not of type 'array', 'null'"
+            return (key,), f"{corners!r:.40} must be array or null"
         for i, uv in enumerate(corners):
             if uv is None:
                 continue
@@ -85,7 +115,7 @@ def _corner_problem(views) -> tuple[tuple, str] | None:
                 return (key, i), f"{uv!r:.40} is not a corner [u, v] or null"
             for j, x in enumerate(uv):
                 if type(x) not in (int, float):
-                    return (key, i, j), f"{x!r:.40} is not of type 'number'"
+                    return (key, i, j), f"{x!r:.40} must be number"
     return None
 
 
@@ -116,8 +146,6 @@ def _split_corner_lists(doc, name: str):
 def validate(doc, name: str, source: str) -> None:
     """Raise :class:`InputError` unless ``doc`` is a valid ``NAME.json``: one line naming ``source``
     and the key that breaks the schema, or that holds NaN or an infinite number."""
-    import jsonschema
-
     bad = non_finite_key(doc)
     if bad is not None:
         raise InputError(f"{source}: {bad} is NaN or infinite: every number must be finite")
@@ -126,7 +154,12 @@ def validate(doc, name: str, source: str) -> None:
         problem = _corner_problem(views)
         if problem is not None:
             raise InputError(f"{source}: {key_path(path + problem[0])}: {problem[1]} (schema: dualcal schema {name})")
-    error = jsonschema.exceptions.best_match(_validator(name).iter_errors(doc))
-    if error is not None:
-        message = error.message if len(error.message) <= 160 else error.message[:157] + "..."
-        raise InputError(f"{source}: {key_path(error.absolute_path)}: {message} (schema: dualcal schema {name})")
+    from fastjsonschema import JsonSchemaValueException
+
+    try:
+        _validator(name)(doc)
+    except JsonSchemaValueException as error:
+        key = error.name.removeprefix("data").removeprefix(".") or "(top level)"
+        rule = error.message.removeprefix(error.name).strip()
+        value = "" if isinstance(error.value, dict) else f"{error.value!r:.40} "
+        raise InputError(f"{source}: {key}: {value}{rule} (schema: dualcal schema {name})") from None
