@@ -252,9 +252,11 @@ def _jpeg_complete(data: bytes) -> bool:
 
     Inside entropy-coded data every 0xFF byte is stuffed, so neither SOS (FF DA) nor EOI
     (FF D9) can occur there: a file cut short has no EOI after its last SOS. Data appended
-    after the EOI (maker trailers) does not matter.
+    after the EOI (maker trailers) does not matter. (Searched from both ends: a baseline JPEG's one
+    SOS is near its start, and a backward search for it would read the whole file.)
     """
-    return data.rfind(b"\xff\xd9") > data.rfind(b"\xff\xda") > 0
+    eoi = data.rfind(b"\xff\xd9")
+    return eoi > 0 and data.find(b"\xff\xda", eoi) < 0 and data.find(b"\xff\xda", 0, eoi) > 0
 
 
 def read_gray(path) -> np.ndarray:

@@ -152,11 +152,10 @@ def _lm(p, qx, qy, z, wt, active, iterations):
     for _ in range(iterations):
         pa, za = p[active], z[active]
         wa = None if wt is None else wt[active]
-        J, res = _jacobian(pa, qx, qy, za)
+        Jt, res = _jacobian(pa, qx, qy, za)
         if wa is not None:
-            J, res = J * wa[..., None], res * wa
-        Jt = np.swapaxes(J, 1, 2)
-        JtJ = (Jt @ J).astype(float)
+            Jt, res = Jt * wa[:, None, :], res * wa
+        JtJ = (Jt @ np.swapaxes(Jt, 1, 2)).astype(float)
         Jtr = (Jt @ res[..., None])[..., 0].astype(float)
         D = np.einsum("kii->ki", JtJ) + 1e-12
         la = lam[active]
@@ -200,25 +199,27 @@ def _cost(p, qx, qy, z, wt=None):
 
 
 def _jacobian(p, qx, qy, z):
+    """``(Jt, res)``: the transposed Jacobian (K, 9, P) of the model at ``p`` (K, 9) by its parameters
+    (one contiguous row of pixels per parameter, which the products ``Jt Jt^T`` and ``Jt res`` want) and
+    the residuals (K, P) against ``z``."""
     (E1, E2), E1E2, (t1, t2, dx, dy, c, s) = _model(p, qx, qy)
     p = p.astype(np.float32)
     w = p[:, 4:5]
     a = p[:, 8:9]
-    g1 = (1.0 - E1 * E1) / w           # dE/dt of E = tanh(t / w)
-    g2 = (1.0 - E2 * E2) / w
-    G1, G2 = g1 * E2, E1 * g2
-    J = np.empty(t1.shape + (9,), np.float32)
-    J[..., 0] = -a * (G1 * c[:, 0:1] + G2 * c[:, 1:2])
-    J[..., 1] = -a * (G1 * s[:, 0:1] + G2 * s[:, 1:2])
-    J[..., 2] = a * G1 * (-s[:, 0:1] * dx + c[:, 0:1] * dy)
-    J[..., 3] = a * G2 * (-s[:, 1:2] * dx + c[:, 1:2] * dy)
-    J[..., 4] = -a * (G1 * t1 + G2 * t2) / w
-    J[..., 5] = 1.0
-    J[..., 6] = qx[None, :]
-    J[..., 7] = qy[None, :]
-    J[..., 8] = E1E2
+    aG1 = a * (1.0 - E1 * E1) / w * E2           # a dE1/dt1 E2, with dE/dt = (1 - E^2) / w for E = tanh(t / w)
+    aG2 = a * E1 * (1.0 - E2 * E2) / w
+    Jt = np.empty((len(p), 9, t1.shape[1]), np.float32)
+    Jt[:, 0] = -(aG1 * c[:, 0:1] + aG2 * c[:, 1:2])
+    Jt[:, 1] = -(aG1 * s[:, 0:1] + aG2 * s[:, 1:2])
+    Jt[:, 2] = aG1 * (-s[:, 0:1] * dx + c[:, 0:1] * dy)
+    Jt[:, 3] = aG2 * (-s[:, 1:2] * dx + c[:, 1:2] * dy)
+    Jt[:, 4] = -(aG1 * t1 + aG2 * t2) / w
+    Jt[:, 5] = 1.0
+    Jt[:, 6] = qx[None, :]
+    Jt[:, 7] = qy[None, :]
+    Jt[:, 8] = E1E2
     res = p[:, 5:6] + p[:, 6:7] * qx + p[:, 7:8] * qy + a * E1E2 - z
-    return J, res
+    return Jt, res
 
 
 def _groups(half: np.ndarray):
