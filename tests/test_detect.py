@@ -330,8 +330,21 @@ def test_detect_names_the_board_that_is_found_when_squares_were_counted(small_se
     for wrong, right in (("9x6", "8x5"), ("6x9", "5x8")):      # squares counted (and swapped)
         res = run_cli("detect", photos, "--board", wrong, "--square", "30", "-o", tmp_path / "c.json", "--jobs", "1")
         assert res.code == 2
-        assert f"no {wrong} chessboard found in any photo" in res.err_lines[-1]
+        assert f"no {wrong} chessboard found in the first 3 photos" in res.err_lines[-1]
         assert f"found as --board {right} in 3 of 3 photo(s) tried" in res.err_lines[-1]
+        assert "the other 3 photos were not searched" in res.err_lines[-1]        # it stopped there
+
+
+@pytest.mark.slow
+def test_a_set_of_three_photos_is_searched_whole_before_another_board_is_named(small_set, tmp_path):
+    """The early stop needs more photos than it looks at: three are all searched, then the board named."""
+    _, photos = small_set
+    for i in (1, 2, 3):
+        (tmp_path / "wide").mkdir(exist_ok=True)
+        (tmp_path / "wide" / f"IMG_0{i}.jpg").write_bytes((photos / "wide" / f"IMG_0{i}.jpg").read_bytes())
+    with pytest.raises(InputError, match=r"no 9x6 chessboard found in any photo .*\(3 photos\): the board is found "
+                                         r"as --board 8x5 in 3 of 3"):
+        detect_dataset(open_dataset(tmp_path), Board(9, 6, 30.0), jobs=1, progress=False)
 
 
 def test_detect_command_writes_corners_json_and_overlays(small_set, tmp_path):

@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextvars
 import threading
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 
 __all__ = ["Cancelled", "interruptible_map", "raise_if_cancelled"]
 
@@ -62,6 +61,8 @@ def interruptible_map(func: Callable, items: Iterable, jobs: int = 1) -> Iterato
             return func(item)
         finally:
             _STOP.reset(token)
+
+    from concurrent.futures import ThreadPoolExecutor
 
     pool = ThreadPoolExecutor(max_workers=min(jobs, len(items)))
     try:

@@ -15,7 +15,6 @@ from collections.abc import Iterable, Iterator
 
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from .terminal import printable
 
@@ -37,6 +36,8 @@ def progress_bar(description: str, total: int, enabled: bool = True):
     if not enabled or total <= 1:
         yield lambda n=1: None
         return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=_stderr, transient=True) as prog:
         task = prog.add_task(description, total=total)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ...parallel import raise_if_cancelled
 from .grid import local_spacing_px, neighbour_residuals_px
 
 __all__ = ["reduction_factor", "reduce_image", "find_grid", "find_partial_grid", "to_full_resolution"]
@@ -51,9 +52,11 @@ def find_grid(gray: np.ndarray, cols: int, rows: int) -> np.ndarray | None:
     """Inner corners of a ``cols x rows`` board in ``gray``, as a (rows, cols, 2) grid, or None.
 
     The grid is in the detector's own order (row-major, ``cols`` corners per row); which end
-    is corner 0 is decided later by :mod:`dualcal.files.detect.order`.
+    is corner 0 is decided later by :mod:`dualcal.files.detect.order`. Each attempt can take a second
+    on a large image: an interrupted pool (:func:`dualcal.parallel.raise_if_cancelled`) stops between them.
     """
     for kind, flags in _ATTEMPTS:
+        raise_if_cancelled()
         if kind == "sb":
             found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=flags)
         else:

@@ -200,19 +200,47 @@ def likely_boards(board: Board) -> list[Board]:
     return [Board(a, b, s) for a, b in dict.fromkeys(sizes) if min(a, b) >= 2 and (a, b) != (c, r)]
 
 
-def suggest_board(paths, board: Board, tries: int = 3) -> str:
-    """A sentence naming the ``--board`` under which the board is found in ``paths`` (the first
-    ``tries`` of them), or "" when none of :func:`likely_boards` is."""
-    paths = list(paths)[:tries]
+def board_found_instead(paths, board: Board) -> tuple[Board | None, int]:
+    """Of :func:`likely_boards`, the first found in most of ``paths``, and in how many (``(None, 0)``: none)."""
+    paths = list(paths)
     best, best_found = None, 0
     for other in likely_boards(board):
         found = sum(detect_photo(p, other).uv is not None for p in paths)
         if found > best_found:
             best, best_found = other, found
+        if best_found == len(paths):        # none can be found in more
+            break
+    return best, best_found
+
+
+def suggest_board(paths, board: Board, tries: int = 3) -> str:
+    """A sentence naming the ``--board`` under which the board is found in ``paths`` (the first
+    ``tries`` of them), or "" when none of :func:`likely_boards` is."""
+    paths = list(paths)[:tries]
+    best, found = board_found_instead(paths, board)
     if best is None:
         return ""
-    return (f"the board is found as --board {best.spec()} in {best_found} of {len(paths)} photo(s) tried "
+    return (f"the board is found as --board {best.spec()} in {found} of {len(paths)} photo(s) tried "
             f"(--board counts inner corners, COLSxROWS)")
+
+
+#: When none of the first this many photos shows a grid of ``--board``'s size and every one shows one of
+#: :func:`likely_boards`, detection stops there: ``--board`` is wrong, and searching each photo for a board
+#: that is not in it takes seconds (a minute for 26 photos of 12 MP).
+EARLY_CHECK_PHOTOS = 3
+
+
+def _stop_if_another_board(tasks, results: list[PhotoResult], board: Board, source, total: int) -> None:
+    """Raise :class:`InputError` naming the board of :data:`EARLY_CHECK_PHOTOS` photos that all show
+    another board than ``board`` (no grid of ``board``'s size found, no clicked corners)."""
+    if any(r.uv is not None or r.failed_check for r in results) or any(hint is not None for _, _, hint, _ in tasks):
+        return
+    paths = [path for path, *_ in tasks]
+    other, found = board_found_instead(paths, board)
+    if other is not None and found == len(paths):
+        raise InputError(f"no {board.describe()} found in the first {len(paths)} photos of {source}: the board is "
+                         f"found as --board {other.spec()} in {found} of {found} photo(s) tried (--board counts "
+                         f"inner corners, COLSxROWS); the other {total - len(paths)} photos were not searched")
 
 
 def find_board_markers(dataset: Dataset, board: Board) -> Board:
@@ -305,6 +333,8 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         for r in interruptible_map(_work, tasks, jobs):
             results.append(r)
             advance()
+            if len(results) == EARLY_CHECK_PHOTOS < len(tasks):
+                _stop_if_another_board(tasks[:len(results)], results, board, dataset.source, len(tasks))
 
     views: dict[str, dict[str, np.ndarray | None]] = {c: {} for c in dataset.cameras}
     symmetric = 0
