@@ -50,3 +50,25 @@ def test_calibrating_corners_imports_only_what_it_uses(tmp_path):
     out, loaded = _loaded("calibrate", str(corners), "-o", str(tmp_path / "calib.json"))
     assert "written" in out
     assert loaded == {"numpy", "rich"}, f"calibrate imported {sorted(loaded)}"
+
+
+def test_the_heic_and_dng_readers_load_only_for_a_photo_that_needs_them(tmp_path):
+    """pillow-heif and rawpy (about 50 ms to import) are not loaded to read JPEGs; a HEIC read in a fresh
+    process registers pillow-heif's opener itself."""
+    import numpy as np
+    from PIL import Image
+
+    pytest.importorskip("pillow_heif").register_heif_opener()       # for Pillow to write HEIC here
+    jpg, heic = tmp_path / "a.jpg", tmp_path / "b.heic"
+    image = Image.fromarray(np.full((48, 64, 3), 200, np.uint8))
+    image.save(jpg)
+    image.save(heic, format="HEIF")
+    code = ("import sys\n"
+            "from dualcal.files.photos import read_exif, read_gray\n"
+            "jpg, heic = sys.argv[1:]\n"
+            "read_exif(jpg), read_gray(jpg)\n"
+            "print(sorted({'pillow_heif', 'rawpy'} & set(sys.modules)))\n"
+            "print(read_exif(heic)[0], read_gray(heic).shape, 'pillow_heif' in sys.modules, 'rawpy' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code, str(jpg), str(heic)], capture_output=True, text=True,
+                         check=True).stdout.splitlines()
+    assert out == ["[]", "(64, 48) (48, 64) True False"]

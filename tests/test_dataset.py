@@ -132,7 +132,7 @@ def test_exif_is_reported_and_orientation_never_applied(tmp_path):
 
 
 def test_heic_photos_are_read(tmp_path):
-    pytest.importorskip("pillow_heif")
+    pytest.importorskip("pillow_heif").register_heif_opener()      # for Pillow to write HEIC here
     path = tmp_path / "cam" / "a.heic"
     path.parent.mkdir()
     Image.fromarray(np.full((48, 64, 3), 200, np.uint8)).save(path, format="HEIF")
@@ -143,7 +143,7 @@ def test_heic_photos_are_read(tmp_path):
 
 def _rotated_heic(path, orientation: int) -> np.ndarray:
     """A lossless HEIC whose stored pixels are returned; pillow-heif writes irot/imir for the tag."""
-    pytest.importorskip("pillow_heif")
+    pytest.importorskip("pillow_heif").register_heif_opener()      # for Pillow to write HEIC here
     stored = np.zeros((48, 64), np.uint8)
     stored[:8, :16] = 250                      # marks the stored frame's top-left
     stored[40:, 56:] = 120

@@ -271,7 +271,7 @@ def test_16_bit_modes_stay_16_bit_in_native_byte_order(mode, order):
 
 
 def test_rotated_heic_is_rectified_in_its_stored_frame_and_keeps_its_orientation(tmp_path):
-    pytest.importorskip("pillow_heif")
+    pytest.importorskip("pillow_heif").register_heif_opener()      # for Pillow to write HEIC here
     cam = scale_camera(STEREO_LEFT, 0.25)                # 160 x 120
     stored = _smooth_texture(120, 160)
     exif = Image.Exif()

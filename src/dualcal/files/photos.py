@@ -20,25 +20,27 @@ corrected): calibrate the DNGs or the JPEGs of a camera, not a mix.
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import os
+import sys
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-import rawpy
-from PIL import Image
+from PIL import Image, UnidentifiedImageError
 
 from ..errors import InputError
 
-try:  # HEIC/HEIF through pillow-heif
-    import pillow_heif
+if TYPE_CHECKING:
+    import rawpy
 
-    pillow_heif.register_heif_opener()
-except ImportError:  # pragma: no cover - pillow-heif is a dependency; HEIC is then unreadable
-    pillow_heif = None
+# pillow-heif (HEIC) and rawpy (DNG) are imported on the first file that needs them
+# (:func:`_pillow_open`, :func:`_open_raw`): together they take about 50 ms to import, which a
+# folder of JPEGs need not pay.
 
 # Pillow refuses an image of more than 2 * MAX_IMAGE_PIXELS as a decompression bomb (179 MP by
 # default), but phones make 200 MP photos: allow up to 512 MP (detection bounds the memory they
@@ -121,8 +123,36 @@ def _exif_from_image(img: Image.Image) -> dict:
 # documents ValueError, EOFError, SyntaxError, RuntimeError and OSError; Pillow refuses
 # absurdly large images with DecompressionBombError).
 # rawpy raises LibRawError (and its subclasses) for a file LibRaw cannot open or unpack.
-_UNREADABLE = (OSError, SyntaxError, ValueError, EOFError, RuntimeError, Image.DecompressionBombError,
-               rawpy.LibRawError)
+_UNREADABLE = (OSError, SyntaxError, ValueError, EOFError, RuntimeError, Image.DecompressionBombError)
+
+
+def _unreadable() -> tuple[type[Exception], ...]:
+    """:data:`_UNREADABLE`, and rawpy's ``LibRawError`` once a raw file was opened (rawpy imported)."""
+    raw = sys.modules.get("rawpy")
+    return _UNREADABLE + ((raw.LibRawError,) if raw is not None else ())
+
+
+@functools.cache
+def _heif_plugin():
+    """pillow-heif, its HEIF opener registered with Pillow (None where it is not installed)."""
+    try:
+        import pillow_heif
+    except ImportError:  # pragma: no cover - pillow-heif is a dependency; HEIC is then unreadable
+        return None
+    pillow_heif.register_heif_opener()
+    return pillow_heif
+
+
+def _pillow_open(fp) -> Image.Image:
+    """``Image.open(fp)``; a file Pillow does not know is tried again with the HEIF opener registered."""
+    try:
+        return Image.open(fp)
+    except UnidentifiedImageError:
+        if "HEIF" in Image.OPEN or _heif_plugin() is None:
+            raise
+        if hasattr(fp, "seek"):
+            fp.seek(0)
+        return Image.open(fp)
 
 
 def _detail(exc: Exception) -> str:
@@ -138,7 +168,7 @@ def _reading(path):
         yield
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
-    except _UNREADABLE as exc:
+    except _unreadable() as exc:
         raise InputError(f"{path}: not a readable image ({_detail(exc)})") from None
 
 
@@ -158,7 +188,7 @@ def _heif_undo(img: Image.Image) -> list[Image.Transpose]:
     try:  # private: pillow-heif has no public accessor for the transformations
         steps = img._heif_file[img.tell()]._c_image.transformations
     except (AttributeError, TypeError, IndexError):
-        version = getattr(pillow_heif, "__version__", "?")
+        version = getattr(_heif_plugin(), "__version__", "?")
         raise InputError(f"{img.filename}: pillow-heif {version} does not report the HEIF rotation, so the "
                          "photo cannot be read in its stored frame (dualcal is tested with pillow-heif 1.8)") from None
     quarter_turns = {90: Image.Transpose.ROTATE_270, 180: Image.Transpose.ROTATE_180,
@@ -189,7 +219,7 @@ def read_exif(path) -> tuple[tuple[int, int], dict]:
     """
     if _is_raw(path):
         return _raw_exif(path)
-    with _reading(path), Image.open(path) as img:
+    with _reading(path), _pillow_open(path) as img:
         return _stored_size(img, _heif_undo(img)), _exif_from_image(img)
 
 
@@ -204,7 +234,7 @@ def open_image(path) -> Image.Image:
     if _is_raw(path):
         return _developed_image(path)
     with _reading(path):
-        img = Image.open(path)
+        img = _pillow_open(path)
         try:
             check_plausible_photo(path, img.size, os.path.getsize(path))
             undo = _heif_undo(img)
@@ -276,7 +306,7 @@ def read_gray(path) -> np.ndarray:
     except OSError as exc:
         raise InputError(f"{path}: cannot be read ({exc.strerror})") from None
     try:
-        with Image.open(io.BytesIO(data)) as header:
+        with _pillow_open(io.BytesIO(data)) as header:
             size = header.size
     except Image.DecompressionBombError as exc:
         raise InputError(f"{path}: {exc}: not decoded") from None
@@ -334,11 +364,20 @@ def jobs_within_memory(photos, memory_bytes: float = PHOTO_MEMORY_BYTES, cores: 
 # stored frame), the camera's white balance, no auto-brightening (a fixed exposure: a photo's
 # tone does not depend on its content), BT.709 gamma; none of these moves a pixel.
 _DEVELOP = {"half_size": False, "user_flip": 0, "use_camera_wb": True, "no_auto_bright": True,
-            "output_bps": 8, "demosaic_algorithm": rawpy.DemosaicAlgorithm.AHD}
+            "output_bps": 8}
+
+
+def _developed(raw: rawpy.RawPy) -> np.ndarray:
+    """``raw`` developed by LibRaw: :data:`_DEVELOP`, AHD demosaicing."""
+    import rawpy
+
+    return raw.postprocess(**_DEVELOP, demosaic_algorithm=rawpy.DemosaicAlgorithm.AHD)
 
 
 def _open_raw(path) -> rawpy.RawPy:
     """LibRaw's handle of a raw file (metadata read; pixels unpacked on first use)."""
+    import rawpy
+
     Path(path).stat()                        # a missing file: FileNotFoundError, which LibRaw calls an I/O error
     return rawpy.imread(str(path))
 
@@ -378,6 +417,8 @@ def _check_visible(path, image: np.ndarray, raw) -> np.ndarray:
 
 def _is_bayer(raw) -> bool:
     """A raw frame of one sample a pixel under a 2 x 2 red, green, blue colour filter array."""
+    import rawpy
+
     pattern = raw.raw_pattern
     return (raw.raw_type == rawpy.RawType.Flat and pattern is not None and pattern.shape == (2, 2)
             and sorted(raw.color_desc.decode()[c] for c in pattern.flat) == ["B", "G", "G", "R"])
@@ -421,17 +462,17 @@ def _raw_gray(path) -> np.ndarray:
         if _is_bayer(raw):
             gray = _bayer_gray(raw)
         else:
-            gray = cv2.cvtColor(raw.postprocess(**_DEVELOP), cv2.COLOR_RGB2GRAY)
+            gray = cv2.cvtColor(_developed(raw), cv2.COLOR_RGB2GRAY)
         return _check_visible(path, gray, raw)
 
 
 def _developed_image(path) -> Image.Image:
-    """A DNG developed by LibRaw (:data:`_DEVELOP`: 8-bit sRGB, the camera's white balance, no
+    """A DNG developed by LibRaw (:func:`_developed`: 8-bit sRGB, the camera's white balance, no
     auto-brightening, AHD demosaicing) as a Pillow image of format TIFF in the raw frame's own
     orientation, with the DNG's EXIF (its make, model, orientation tag, and EXIF IFD) in ``info``."""
     with _reading(path):
         with _open_raw(path) as raw:
-            rgb = _check_visible(path, raw.postprocess(**_DEVELOP), raw)
+            rgb = _check_visible(path, _developed(raw), raw)
         with open(path, "rb") as fp:
             dng = _TiffTags(fp).getexif()
             exif = Image.Exif()
