@@ -190,3 +190,45 @@ def test_the_one_pass_corner_check_agrees_with_the_schema(stereo, tmp_path, bad)
     assert not _reference_validator("calib").is_valid(doc)
     with pytest.raises(InputError, match=where):
         validate(doc, "calib", "calib.json")
+
+
+def _key_paths(doc, path=()):
+    """Every key path of ``doc`` (lists: their first 3 items)."""
+    yield path
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc[:3]) if isinstance(doc, list) else ()
+    for key, value in items:
+        yield from _key_paths(value, path + (key,))
+
+
+@pytest.mark.parametrize("name", ["calib", "corners"])
+def test_the_fast_validator_agrees_with_the_reference_on_random_edits(calib_path, name):
+    """120 seeded edits of a calib.json (or its corners), each a value replaced by one of another type or
+    range, or a key deleted: fastjsonschema and jsonschema's draft 2020-12 validator judge each alike."""
+    import random
+
+    doc = json.loads(calib_path.read_text())
+    doc = doc["corners"] if name == "corners" else doc
+    reference = _reference_validator(name)
+    values = [None, True, 0, -1, 1.5, -2.5, 0.0, 3, "x", [], [1, 2], {}, {"a": 1}]
+    rng = random.Random(7)
+    paths = [p for p in _key_paths(doc) if p]
+    refused = 0
+    for _ in range(120):
+        edited = json.loads(json.dumps(doc))
+        *parents, key = rng.choice(paths)
+        parent = edited
+        for k in parents:
+            parent = parent[k]
+        if isinstance(parent, dict) and rng.random() < 0.15:
+            del parent[key]
+        else:
+            parent[key] = json.loads(json.dumps(rng.choice(values)))
+        expected = reference.is_valid(edited)
+        try:
+            validate(edited, name, f"{name}.json")
+            valid = True
+        except InputError as exc:
+            valid = "schema" not in str(exc)          # the loaders' own checks are not the schema's
+        assert valid == expected, (parents, key)
+        refused += not expected
+    assert refused > 40                                # the edits do break the schema, most of the time
