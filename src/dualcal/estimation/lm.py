@@ -48,7 +48,7 @@ class LMOptions:
 
     max_iter: int = 100
     gtol: float = 1e-10
-    xtol: float = 1e-4
+    xtol: float = 1e-3
     ftol: float = 1e-12
     verify_sigma: float = 1e-3
     floor_px: float = 1e-6
