@@ -10,8 +10,9 @@ from dualcal.errors import EstimationError
 from dualcal.geometry.rotation import rotation_from_opk
 from dualcal.geometry.model import Pose
 from dualcal.synthetic.synth import make_truth, true_corners
-from dualcal.geometry.zhang import (apply_homography, estimate_homography, extrinsics_from_homography, initial_camera,
-                                    intrinsics_from_homographies, radial_distortion_linear, spans_a_plane)
+from dualcal.geometry.zhang import (apply_homography, estimate_homographies, estimate_homography,
+                                    extrinsics_from_homography, initial_camera, intrinsics_from_homographies,
+                                    radial_distortion_linear, spans_a_plane)
 
 
 def _pinhole_views(truth, name, skew=0.0):
@@ -28,6 +29,23 @@ def test_homography_maps_board_to_pixels_exactly():
     H = estimate_homography(xy, uv)
     assert np.max(np.abs(apply_homography(H, xy) - uv)) < 1e-8
     assert H[2, 2] == 1.0
+
+
+@pytest.mark.parametrize("refine", [False, True])
+def test_the_batched_homographies_of_partial_views_are_each_views_own(refine):
+    """estimate_homographies solves every view's DLT in one batch, an unseen corner's rows zero: each
+    view's homography is the one of its seen corners alone, to rounding."""
+    truth = make_truth("note8", 4, seed=3)
+    _, xy, views = _pinhole_views(truth, "wide")
+    rng = np.random.default_rng(5)
+    uvs = [uv + rng.normal(0, 0.3, uv.shape) for uv in views.values()]
+    seen = [np.ones(len(xy), bool), rng.random(len(xy)) < 0.5, np.arange(len(xy)) < 10, rng.random(len(xy)) < 0.9]
+    uvs = [np.where(m[:, None], uv, np.nan) for uv, m in zip(uvs, seen)]
+    for H, uv, m in zip(estimate_homographies(xy, uvs, seen, refine), uvs, seen):
+        alone = estimate_homography(xy[m], uv[m], refine)
+        np.testing.assert_allclose(H, alone, rtol=0, atol=1e-9 * np.abs(alone).max())
+    with pytest.raises(EstimationError, match="at least 4 points"):
+        estimate_homographies(xy, uvs, [seen[0], np.arange(len(xy)) < 3, seen[2], seen[3]], refine)
 
 
 @pytest.mark.parametrize("preset,name", [("note8", "wide"), ("note8", "tele"), ("stereo", "left")])

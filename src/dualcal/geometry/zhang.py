@@ -41,11 +41,18 @@ def spans_a_plane(xy_board: np.ndarray) -> bool:
     return len(s) == 2 and s[1] > 1e-9 * s[0]
 
 
-def _normalising_transform(pts: np.ndarray) -> np.ndarray:
-    """Similarity moving ``pts`` to zero mean and mean distance sqrt(2) (Hartley's normalisation)."""
-    mean = pts.mean(axis=0)
-    scale = np.sqrt(2.0) / max(np.mean(np.linalg.norm(pts - mean, axis=1)), 1e-12)
-    return np.array([[scale, 0.0, -scale * mean[0]], [0.0, scale, -scale * mean[1]], [0.0, 0.0, 1.0]])
+def _normalising_transforms(pts: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """(V, 3, 3) similarities moving each view's points ``pts[v][seen[v]]`` ((V, N, 2), (V, N)) to zero
+    mean and mean distance sqrt(2) (Hartley's normalisation)."""
+    n = seen.sum(axis=1)
+    mean = np.where(seen[..., None], pts, 0.0).sum(axis=1) / n[:, None]
+    spread = np.where(seen, np.linalg.norm(np.where(seen[..., None], pts - mean[:, None], 0.0), axis=2), 0.0)
+    scale = np.sqrt(2.0) / np.maximum(spread.sum(axis=1) / n, 1e-12)
+    T = np.zeros((len(pts), 3, 3))
+    T[:, 0, 0] = T[:, 1, 1] = scale
+    T[:, :2, 2] = -scale[:, None] * mean
+    T[:, 2, 2] = 1.0
+    return T
 
 
 def apply_homography(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -54,23 +61,42 @@ def apply_homography(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return p[:, :2] / p[:, 2:3]
 
 
-def _homography_dlt(xy_board: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    Tb, Ti = _normalising_transform(xy_board), _normalising_transform(uv)
-    b = apply_homography(Tb, xy_board)
-    i = apply_homography(Ti, uv)
-    n = len(b)
-    A = np.zeros((2 * n, 9))
-    A[0::2, 0:2], A[0::2, 2] = b, 1.0
-    A[0::2, 6:8] = -i[:, :1] * b
-    A[0::2, 8] = -i[:, 0]
-    A[1::2, 3:5], A[1::2, 5] = b, 1.0
-    A[1::2, 6:8] = -i[:, 1:2] * b
-    A[1::2, 8] = -i[:, 1]
+def _homographies_dlt(xy_board: np.ndarray, uvs: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """(V, 3, 3) normalised DLTs of the views ``uvs`` (V, N, 2) over their corners ``seen`` (V, N), in
+    one batch: an unseen corner's two rows of the DLT matrix are zero, which leaves its singular
+    vectors those of the seen corners' rows alone."""
+    V = len(uvs)
+    board = np.broadcast_to(xy_board, uvs.shape)
+    Tb, Ti = _normalising_transforms(board, seen), _normalising_transforms(uvs, seen)
+    b = np.where(seen[..., None], board @ np.swapaxes(Tb[:, :2, :2], 1, 2) + Tb[:, None, :2, 2], 0.0)
+    i = np.where(seen[..., None], uvs @ np.swapaxes(Ti[:, :2, :2], 1, 2) + Ti[:, None, :2, 2], 0.0)
+    on = seen.astype(float)
+    A = np.zeros((V, 2 * uvs.shape[1], 9))
+    A[:, 0::2, 0:2], A[:, 0::2, 2] = b, on
+    A[:, 0::2, 6:8] = -i[..., :1] * b
+    A[:, 0::2, 8] = -i[..., 0]
+    A[:, 1::2, 3:5], A[:, 1::2, 5] = b, on
+    A[:, 1::2, 6:8] = -i[..., 1:2] * b
+    A[:, 1::2, 8] = -i[..., 1]
     _, s, Vt = np.linalg.svd(A, full_matrices=False)
-    if s[-2] < 1e-9 * s[0]:
+    if np.any(s[:, -2] < 1e-9 * s[:, 0]):
         raise EstimationError("homography is degenerate: board points are (nearly) collinear")
-    H = np.linalg.inv(Ti) @ Vt[-1].reshape(3, 3) @ Tb
-    return H / H[2, 2]
+    H = np.linalg.inv(Ti) @ Vt[:, -1].reshape(V, 3, 3) @ Tb
+    return H / H[:, 2:3, 2:3]
+
+
+def estimate_homographies(xy_board: np.ndarray, uvs, seen, refine: bool = True) -> list[np.ndarray]:
+    """:func:`estimate_homography` of each view ``uvs[v]`` (N, 2) over its corners ``seen[v]`` (N,),
+    the DLTs solved in one batch."""
+    xy_board = np.asarray(xy_board, float)
+    uvs = np.asarray(uvs, float).reshape(-1, len(xy_board), 2)
+    seen = np.asarray(seen, bool).reshape(len(uvs), len(xy_board))
+    if np.any(seen.sum(axis=1) < MIN_HOMOGRAPHY_CORNERS):
+        raise EstimationError(f"a homography needs at least {MIN_HOMOGRAPHY_CORNERS} points")
+    Hs = list(_homographies_dlt(xy_board, uvs, seen))
+    if refine:
+        Hs = [_refine_homography(H, xy_board[m], uv[m]) for H, uv, m in zip(Hs, uvs, seen)]
+    return Hs
 
 
 def estimate_homography(xy_board: np.ndarray, uv: np.ndarray, refine: bool = True) -> np.ndarray:
@@ -78,12 +104,8 @@ def estimate_homography(xy_board: np.ndarray, uv: np.ndarray, refine: bool = Tru
 
     Normalised DLT, then (``refine``) Gauss-Newton on the pixel reprojection error.
     """
-    xy_board = np.asarray(xy_board, float)
     uv = np.asarray(uv, float)
-    if len(xy_board) < MIN_HOMOGRAPHY_CORNERS:
-        raise EstimationError(f"a homography needs at least {MIN_HOMOGRAPHY_CORNERS} points")
-    H = _homography_dlt(xy_board, uv)
-    return _refine_homography(H, xy_board, uv) if refine else H
+    return estimate_homographies(xy_board, [uv], [np.ones(len(uv), bool)], refine)[0]
 
 
 def _refine_homography(H: np.ndarray, xy_board: np.ndarray, uv: np.ndarray, max_iter: int = 20) -> np.ndarray:
@@ -300,7 +322,7 @@ def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndar
                  refine: bool = True):
     """Homographies (``refine``: on the pixel error), Zhang's closed form and one pose per view, no
     lens (sections 1.3-1.5)."""
-    Hs = [estimate_homography(xy_board[m], uv[m], refine) for uv, m in zip(uvs, seen)]
+    Hs = estimate_homographies(xy_board, uvs, seen, refine)
     # A homography of n corners has 2n - 8 redundant equations; one of 4 corners fits them
     # exactly, noise and all, and would pull the closed form as hard as one of 40.
     weights = [np.sqrt(2.0 * m.sum() - 2 * MIN_HOMOGRAPHY_CORNERS) for m in seen]
@@ -339,11 +361,11 @@ def _homography_misfit(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[n
     of the homographies' residuals in the pinhole pixels, over ``f`` (an angle); ``inf`` where a corner
     lies at 90 degrees or more."""
     try:
-        pins = _pinhole_pixels(cam, [uv[m] for uv, m in zip(uvs, seen)])
+        pins = _pinhole_pixels(cam, uvs)
     except NotInvertibleError:
         return np.inf
-    squares = [np.sum((apply_homography(estimate_homography(xy_board[m], p, refine=False), xy_board[m]) - p) ** 2)
-               for p, m in zip(pins, seen)]
+    Hs = estimate_homographies(xy_board, pins, seen, refine=False)
+    squares = [np.sum((apply_homography(H, xy_board[m]) - p[m]) ** 2) for H, p, m in zip(Hs, pins, seen)]
     return float(np.sqrt(np.sum(squares) / sum(int(m.sum()) for m in seen)) / cam.fx)
 
 
