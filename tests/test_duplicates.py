@@ -121,3 +121,22 @@ def test_a_copied_partial_view_is_a_duplicate(stereo):
             uv[len(uv) // 3:] = np.nan
             cam.views[key] = uv
     assert len(find_duplicate_instants(twice)) == 8
+
+
+def test_the_corner_noise_is_estimated_only_where_two_instants_come_close(stereo, monkeypatch):
+    """The noise sets the limit of a duplicate; where no two instants are within the limit of the largest
+    noise admitted (:data:`MAX_NOISE_PX`), as the set's distinct board positions are not, it is not
+    estimated and nothing is merged; with a burst it is, for every camera, and each limit is the camera's own."""
+    import dualcal.files.duplicates as duplicates
+
+    _, cs = stereo
+    calls = []
+    real = duplicates.corner_noise_px
+    monkeypatch.setattr(duplicates, "corner_noise_px", lambda views, shape: calls.append(len(views)) or real(views, shape))
+    assert find_duplicate_instants(cs) == [] and calls == []
+    records = find_duplicate_instants(repeated(cs, 2, jitter_px=0.3 * NOISE_PX))
+    assert len(records) == 8 and len(calls) == 2
+    for r in records:
+        for name, limit in r["limit_px"].items():
+            assert limit < 4 * np.sqrt(2) * duplicates.MAX_NOISE_PX
+            assert limit == pytest.approx(4 * np.sqrt(2) * NOISE_PX, rel=0.3)      # from the noise of 0.2 px

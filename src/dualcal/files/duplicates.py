@@ -11,7 +11,9 @@ the corners both measured agree to within :data:`DUPLICATE_SIGMAS` times what tw
 corner differ by (``sqrt(2)`` x the camera's corner noise per coordinate, :func:`corner_noise_px`),
 as an RMS over the corners. Two different board positions never come that close: a board moved by a
 tenth of a square, or turned by a tenth of a degree, moves its corners by far more than a few tenths
-of a pixel. Groups are closed transitively; the first key of a group (in sorted order) is kept.
+of a pixel. Groups are closed transitively; the first key of a group (in sorted order) is kept. (The
+noise is taken between :data:`MIN_NOISE_PX` and :data:`MAX_NOISE_PX`; a camera none of whose instants
+come within the limit of the largest is spared estimating it.)
 
 :func:`duplicate_files` finds identical files by content, for the layer that lists photos.
 """
@@ -31,6 +33,9 @@ DUPLICATE_SIGMAS = 4.0
 #: Corner noise assumed at least this (px per coordinate), so that noise-free synthetic corners still
 #: merge only what is the same to well below a pixel.
 MIN_NOISE_PX = 0.02
+#: ... and at most this: corners noisier than that are no measurement to judge by. Where no two instants
+#: are within the limit this noise sets, the camera's own noise is not needed (nor computed).
+MAX_NOISE_PX = 2.0
 #: A camera's corners of two instants are compared only where both measured this share of those the fuller
 #: view measured.
 MIN_COMMON_SHARE = 0.5
@@ -45,7 +50,7 @@ def corner_noise_px(views: list[np.ndarray], shape: tuple[int, int]) -> float:
     """A camera's corner noise, px per coordinate: the median over its views (:data:`NOISE_VIEWS` of them
     at most, spread over the list) of the RMS of each corner against its prediction from its 5 x 5
     neighbours (:func:`dualcal.files.detect.grid.predict_from_neighbours`), the prediction's own noise taken
-    out (``/ sqrt(1 + gain^2)``)."""
+    out (``/ sqrt(1 + gain^2)``), within :data:`MIN_NOISE_PX` .. :data:`MAX_NOISE_PX`."""
     from .detect.grid import predict_from_neighbours
 
     per_view = []
@@ -56,7 +61,7 @@ def corner_noise_px(views: list[np.ndarray], shape: tuple[int, int]) -> float:
         e2 = e2[np.isfinite(e2)]
         if len(e2):
             per_view.append(np.sqrt(np.mean(e2) / 2.0))
-    return max(float(np.median(per_view)) if per_view else 0.0, MIN_NOISE_PX)
+    return min(max(float(np.median(per_view)) if per_view else 0.0, MIN_NOISE_PX), MAX_NOISE_PX)
 
 
 def _found(cam: CameraCorners) -> dict[str, np.ndarray]:
@@ -101,8 +106,6 @@ def find_duplicate_instants(corners: CornerSet, sigmas: float = DUPLICATE_SIGMAS
         stack = np.full((len(keys), corners.board.n_corners, 2), np.nan)
         for k, uv in views.items():
             stack[index[k]] = uv
-        limit = sigmas * np.sqrt(2.0) * corner_noise_px(list(views.values()), shape)
-        limit_of[name] = limit
         rms = np.full((len(keys), len(keys)), np.inf)
         for k in views:
             a = index[k]
@@ -110,6 +113,10 @@ def find_duplicate_instants(corners: CornerSet, sigmas: float = DUPLICATE_SIGMAS
             rms[a] = np.where(share >= MIN_COMMON_SHARE, r, np.inf)
         rms_of[name] = rms
         both = np.outer(seen[:, names.index(name)], seen[:, names.index(name)])
+        limit = sigmas * np.sqrt(2.0) * MAX_NOISE_PX
+        if np.any(close & both & (rms <= limit) & ~np.eye(len(keys), dtype=bool)):
+            limit = sigmas * np.sqrt(2.0) * corner_noise_px(list(views.values()), shape)
+        limit_of[name] = limit
         close &= ~both | (rms <= limit)
     records = []
     for group in _connected_groups(close):
