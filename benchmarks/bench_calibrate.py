@@ -145,15 +145,20 @@ for n in names:
 """
 
 
-def _time(cmd: list[str], runs: int) -> float:
+def _times(cmds: dict[str, list[str]], runs: int) -> dict[str, float]:
+    """Median wall seconds of each command as a process, the commands taking turns run by run (after one
+    warm-up each, for the file caches), so that a machine that slows down or speeds up meanwhile (a shared
+    one does, by a third) weighs on every side alike."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1")}
-    subprocess.run(cmd, check=True, capture_output=True, env=env)          # warm-up (file caches)
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
+    for cmd in cmds.values():
         subprocess.run(cmd, check=True, capture_output=True, env=env)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    times = {name: [] for name in cmds}
+    for _ in range(runs):
+        for name, cmd in cmds.items():
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True, env=env)
+            times[name].append(time.perf_counter() - t0)
+    return {name: statistics.median(t) for name, t in times.items()}
 
 
 def write_corners(preset: str, views: int, folder: Path) -> Path:
@@ -177,10 +182,10 @@ def process_times(preset: str, views: int, runs: int, folder: Path) -> dict[str,
     out = corners.parent / "calib.json"
     script = folder / "opencv_calibrate.py"
     script.write_text(OPENCV)
-    return {"default": _time(DUALCAL + ["calibrate", str(corners), "-o", str(out)], runs),
-            "paper": _time(DUALCAL + ["calibrate", str(corners), "-o", str(out), "--model", "k1k2",
-                                      "--no-compare-models", "--no-compare-lens"], runs),
-            "opencv": _time([sys.executable, str(script), str(corners)], runs)}
+    return _times({"default": DUALCAL + ["calibrate", str(corners), "-o", str(out)],
+                   "paper": DUALCAL + ["calibrate", str(corners), "-o", str(out), "--model", "k1k2",
+                                       "--no-compare-models", "--no-compare-lens"],
+                   "opencv": [sys.executable, str(script), str(corners)]}, runs)
 
 
 def compile_sources() -> None:

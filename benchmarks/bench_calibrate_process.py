@@ -1,7 +1,8 @@
 """``dualcal calibrate corners.json`` as a process against OpenCV's calibration path as a process.
 
 What a user waits for: the whole command, start-up and imports included. On the same synthetic
-corners.json, each side is timed as a fresh process (median of ``--runs`` runs after one warm-up):
+corners.json, each side is timed as a fresh process (median of ``--runs`` runs after one warm-up, the
+three commands taking turns run by run, so that a shared machine's drift weighs on each alike):
 
 * dualcal, its defaults (``--model auto``: every camera's lens model chosen by held-out instants, the
   other skew model beside it, the board-shape test, covariances, held-out errors, checks);
@@ -44,7 +45,7 @@ def main() -> None:
             t = process_times(preset, views, args.runs if views < 200 else 1, Path(tmp))
             print(f"{preset:8} {views:8d} {t['default']:15.2f}s {t['paper']:10.2f}s {t['opencv']:7.2f}s "
                   f"{t['default'] / t['opencv']:15.2f} {t['paper'] / t['opencv']:13.2f}", flush=True)
-    print(f"(processes, median of {args.runs} runs after a warm-up, 1 run at 200 instants; cameras: note8 2, "
+    print(f"(processes taking turns, median of {args.runs} runs after a warm-up, 1 run at 200 instants; cameras: note8 2, "
           f"triple 3, quad 4; load average {os.getloadavg()[0]:.1f})")
 
 
