@@ -218,9 +218,11 @@ def suggest_board(paths, board: Board, tries: int = 3) -> str:
     ``tries`` of them), or "" when none of :func:`likely_boards` is."""
     paths = list(paths)[:tries]
     best, found = board_found_instead(paths, board)
-    if best is None:
-        return ""
-    return (f"the board is found as --board {best.spec()} in {found} of {len(paths)} photo(s) tried "
+    return "" if best is None else _found_as(best, found, len(paths))
+
+
+def _found_as(other: Board, found: int, tried: int) -> str:
+    return (f"the board is found as --board {other.spec()} in {found} of {tried} photo(s) tried "
             f"(--board counts inner corners, COLSxROWS)")
 
 
@@ -238,9 +240,9 @@ def _stop_if_another_board(tasks, results: list[PhotoResult], board: Board, sour
     paths = [path for path, *_ in tasks]
     other, found = board_found_instead(paths, board)
     if other is not None and found == len(paths):
-        raise InputError(f"no {board.describe()} found in the first {len(paths)} photos of {source}: the board is "
-                         f"found as --board {other.spec()} in {found} of {found} photo(s) tried (--board counts "
-                         f"inner corners, COLSxROWS); the other {total - len(paths)} photos were not searched")
+        raise InputError(f"no {board.describe()} found in the first {len(paths)} photos of {source}: "
+                         f"{_found_as(other, found, len(paths))}; the other {total - len(paths)} photos were not "
+                         "searched")
 
 
 def find_board_markers(dataset: Dataset, board: Board) -> Board:
