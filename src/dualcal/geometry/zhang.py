@@ -46,8 +46,8 @@ def _normalising_transforms(pts: np.ndarray, seen: np.ndarray) -> np.ndarray:
     mean and mean distance sqrt(2) (Hartley's normalisation)."""
     n = seen.sum(axis=1)
     mean = np.where(seen[..., None], pts, 0.0).sum(axis=1) / n[:, None]
-    spread = np.where(seen, np.linalg.norm(np.where(seen[..., None], pts - mean[:, None], 0.0), axis=2), 0.0)
-    scale = np.sqrt(2.0) / np.maximum(spread.sum(axis=1) / n, 1e-12)
+    distance = np.linalg.norm(np.where(seen[..., None], pts - mean[:, None], 0.0), axis=2)     # 0 where unseen
+    scale = np.sqrt(2.0) / np.maximum(distance.sum(axis=1) / n, 1e-12)
     T = np.zeros((len(pts), 3, 3))
     T[:, 0, 0] = T[:, 1, 1] = scale
     T[:, :2, 2] = -scale[:, None] * mean
