@@ -39,14 +39,17 @@ def test_a_command_imports_its_library_when_it_runs():
     assert "numpy" in loaded
 
 
-def test_calibrating_corners_imports_only_what_it_uses(tmp_path):
+@pytest.mark.parametrize("preset", ["stereo", "triple"])
+def test_calibrating_corners_imports_only_what_it_uses(tmp_path, preset):
     """Issue 23: ``dualcal calibrate corners.json`` (its defaults) needs numpy and the terminal's
-    libraries, not scipy (a third of a second to import), OpenCV, Pillow, matplotlib or jinja2."""
+    libraries, not scipy (a third of a second to import), OpenCV, Pillow, matplotlib or jinja2; also
+    where an ultra-wide is tried as a fisheye and a k1 k2 k3 lens started from Zhang's linear
+    coefficients (``triple``: the fold of a cubic lens was found with scipy's root finder)."""
     from dualcal.files.io import save_corners
     from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
     corners = tmp_path / "corners.json"
-    save_corners(corners, noisy_corner_set(make_truth("stereo", 6, seed=3), 0.1, seed=4))
+    save_corners(corners, noisy_corner_set(make_truth(preset, 6, seed=3), 0.1, seed=4))
     out, loaded = _loaded("calibrate", str(corners), "-o", str(tmp_path / "calib.json"))
     assert "written" in out
     assert loaded == {"numpy", "rich"}, f"calibrate imported {sorted(loaded)}"
