@@ -357,3 +357,23 @@ def test_the_radial_lens_gradient_is_the_outward_motion_per_coefficient():
                               - project_points(replace(cam, **{n: getattr(cam, n) - h}), X[None])[0]) / (2 * h)
                    for n in names]
         assert np.allclose(radial_lens_gradient(cam, X, names), numeric, rtol=1e-6, atol=1e-6)
+
+
+def test_the_fold_of_a_cubic_lens_is_brents_root():
+    """The first root of the slope of a k1 k2 k3 lens, found without scipy, is scipy's brentq root on the
+    same bracket to a few rounding errors, down to a k3 so small that the cubic's other roots are 1e15
+    times further out."""
+    from scipy.optimize import brentq
+
+    from dualcal.geometry.camera import _first_positive_root
+
+    rng = np.random.default_rng(3)
+    for k1, k2, k3 in [(-0.3, 0.1, -1e-40), (-1.0, 0.0, 1e-12), (0.0, 0.0, -1e-30),
+                       *zip(rng.uniform(-1, 1, 300), rng.uniform(-1, 1, 300),
+                            rng.choice([-1, 1], 300) * 10.0 ** rng.uniform(-30, 0, 300))]:
+        c1, c2, c3 = 3 * k1, 5 * k2, 7 * k3
+        s = _first_positive_root(c1, c2, c3)
+        if np.isfinite(s):
+            P = lambda x: 1 + x * (c1 + x * (c2 + c3 * x))          # noqa: E731
+            ref = brentq(P, 0.999 * s, 1.001 * s, xtol=1e-300, rtol=4 * np.finfo(float).eps)
+            assert abs(s - ref) <= 1e-14 * ref
