@@ -250,7 +250,7 @@ def _bracketed_root(P, dP, a: float, b: float) -> float:
     which shrinks at every step, until it is a few rounding errors wide. (Written out rather than
     scipy's ``brentq``: importing scipy takes a third of a second, for one scalar root.)"""
     x = b
-    for _ in range(400):
+    for _ in range(1000):           # from b = 1e60 Newton shrinks a cubic's tail by 2/3 a step: 350 at most
         p = P(x)
         if p == 0.0:
             return x
