@@ -301,6 +301,20 @@ def test_measure_command_writes_measure_json_and_prints_the_tables(note8, calib_
     assert "pixel noise per coordinate: wide 0.3 px, tele 0.3 px (points.json)" in res.out
 
 
+def test_measuring_imports_no_scipy(note8, calib_file, tmp_path):
+    """``dualcal measure`` takes its chi-square quantile from :mod:`dualcal.estimation.distributions`:
+    scipy, a third of a second to import, is not loaded (a fresh process)."""
+    import subprocess
+    import sys
+
+    (tmp_path / "points.json").write_text(json.dumps(shot(note8[0], np.array([[-60.0, -40.0, 450.0]]))))
+    code = ("import sys\nfrom dualcal.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+            "print('scipy' in sys.modules)")
+    res = subprocess.run([sys.executable, "-c", code, "measure", str(calib_file), "--points", str(tmp_path / "points.json"),
+                          "-o", str(tmp_path / "m.json")], capture_output=True, text=True, check=True)
+    assert (tmp_path / "m.json").exists() and res.stdout.splitlines()[-1] == "False", res.stdout + res.stderr
+
+
 def test_measure_command_errors(calib_file, tmp_path, run_cli):
     out = tmp_path / "measure.json"
     (tmp_path / "points.json").write_text(json.dumps({"points": {"A": {"wide": [1, 2]}}}))

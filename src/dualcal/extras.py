@@ -1,6 +1,6 @@
 """The optional parts of dualcal and the packages they need (``pip install 'dualcal[NAME]'``).
 
-The core (detect, calibrate, evaluate, measure, rectify, undistort, export) needs numpy, scipy,
+The core (detect, calibrate, evaluate, measure, rectify, undistort, export) needs numpy, fastjsonschema,
 OpenCV, Pillow, rich and click. Two parts need more and are extras of the package: ``report`` (the
 HTML report's figures, the printable board and the manual mode's window: matplotlib) and ``fleet``
 (``batch``: Dask, pandas, pyarrow). :func:`require` imports what a part needs, or says in one line

@@ -1,4 +1,5 @@
-"""The F distribution's quantile, for the tests a calibration runs (Hotelling's T^2).
+"""The F and chi-square distributions' quantiles, for the tests a calibration runs (Hotelling's T^2)
+and the consistency of a measured point's rays (:mod:`dualcal.estimation.measurement`).
 
 The board-shape test (:func:`dualcal.estimation.calibrate.board_shape_test`) and the loop check
 (:mod:`dualcal.estimation.loop_closure`) compare a statistic with a quantile of ``F(d1, d2)``. scipy has it
@@ -6,8 +7,9 @@ The board-shape test (:func:`dualcal.estimation.calibrate.board_shape_test`) and
 to calibrate a 13-instant rig, and nothing else on the calibration's path needs scipy: so the
 quantile is computed here, from the regularised incomplete beta function
 ``I_x(a, b)`` (``P(F <= f) = I_x(d1/2, d2/2)`` with ``x = d1 f / (d1 f + d2)``), by its continued
-fraction (DLMF 8.17.22, evaluated by the modified Lentz method), inverted by bisection in ``x``.
-The tests check it against scipy to 1e-10.
+fraction (DLMF 8.17.22, evaluated by the modified Lentz method), inverted by bisection in ``x``;
+the chi-square quantile from the regularised incomplete gamma function likewise (DLMF 8.7.1 and
+8.9.2). The tests check both against scipy.
 """
 
 from __future__ import annotations
@@ -65,3 +67,54 @@ def f_quantile(d1: float, d2: float, q: float) -> float:
             break
     x = 0.5 * (lo + hi)
     return d2 * x / (d1 * (1.0 - x))
+
+
+def regularized_gamma(a: float, x: float) -> float:
+    """``P(a, x)``, the regularised lower incomplete gamma function, for ``a > 0``, ``x >= 0``: its series
+    (DLMF 8.7.1) below ``x = a + 1``, else one minus the continued fraction of ``Q(a, x)`` (DLMF 8.9.2,
+    modified Lentz)."""
+    if x <= 0.0:
+        return 0.0
+    log_front = a * math.log(x) - x - math.lgamma(a)
+    if x < a + 1.0:
+        term = total = 1.0 / a
+        for n in range(1, 10000):
+            term *= x / (a + n)
+            total += term
+            if abs(term) < _EPS * abs(total):
+                break
+        return math.exp(log_front) * total
+    b = x + 1.0 - a
+    c, d = 1.0 / _TINY, 1.0 / b
+    f = d
+    for n in range(1, 10000):
+        an = -n * (n - a)
+        b += 2.0
+        d = an * d + b
+        d = 1.0 / (d if abs(d) > _TINY else _TINY)
+        c = b + an / c
+        c = c if abs(c) > _TINY else _TINY
+        f *= c * d
+        if abs(c * d - 1.0) < _EPS:
+            break
+    return 1.0 - math.exp(log_front) * f
+
+
+def chi2_quantile(dof: float, q: float) -> float:
+    """The ``q`` quantile of the chi-square distribution with ``dof`` degrees of freedom
+    (``scipy.special.chdtri(dof, 1 - q)``): ``P(dof / 2, x / 2) = q`` solved by bisection in ``x``."""
+    if not (dof > 0 and 0.0 < q < 1.0):
+        raise ValueError(f"chi-square quantile: need dof > 0 and 0 < q < 1 (got {dof}, {q})")
+    a = 0.5 * dof
+    lo, hi = 0.0, max(1.0, dof)
+    while regularized_gamma(a, 0.5 * hi) < q:     # P increases in x: bracket the quantile
+        lo, hi = hi, 2.0 * hi
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if regularized_gamma(a, 0.5 * mid) < q:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-15 * hi:
+            break
+    return 0.5 * (lo + hi)

@@ -62,6 +62,7 @@ import numpy as np
 
 from ..geometry.camera import INTRINSIC_NAMES, project_with_jacobians
 from .covariance import JointCovariance, intrinsic_name, rig_name
+from .distributions import chi2_quantile
 from ..errors import EstimationError, InputError
 from .intersect import triangulate
 from ..files.io import points_from_dict
@@ -274,8 +275,6 @@ def measure(rig: RigModel, points: dict) -> dict:
     EstimationError
         A point whose rays do not intersect (parallel, or behind a camera).
     """
-    from scipy.special import chdtri     # the chi-square quantile (scipy.stats takes ~1 s to import)
-
     spec = points_from_dict(points, "points")
     for name, seen in spec["points"].items():
         unknown = [c for c in seen if c not in rig.cameras]
@@ -305,7 +304,7 @@ def measure(rig: RigModel, points: dict) -> dict:
         depth[n] = float(np.sqrt(max(ray @ block @ ray for block in blocks)))
         dof = 2 * len(p.cameras) - 3
         if dof not in chi2_limit:
-            chi2_limit[dof] = chdtri(dof, 1.0 - RESIDUAL_PROBABILITY)
+            chi2_limit[dof] = chi2_quantile(dof, RESIDUAL_PROBABILITY)
         consistent = bool(_residual_chi2(p, var_px[n], cov_theta) <= chi2_limit[dof])
         doc_points[n] = {"xyz_mm": p.xyz_mm.tolist(), "sigma_mm": np.sqrt(var).tolist(), "cameras": list(p.cameras),
                          "distance_mm": distance, "depth_sigma_mm": depth[n],
