@@ -23,7 +23,6 @@ import math
 import re
 from dataclasses import dataclass
 
-import jinja2
 import numpy as np
 import pandas as pd
 from markupsafe import Markup
@@ -235,12 +234,6 @@ def _groups(parameters: list[Parameter]) -> dict[str, list[Parameter]]:
     return out
 
 
-def _report_css(env: jinja2.Environment) -> Markup:
-    """The calibration report's style sheet (its template's ``<style>``), so both pages look alike."""
-    source = env.loader.get_source(env, "report.html")[0]
-    return Markup(re.search(r"<style>(.*?)</style>", source, re.S).group(1))
-
-
 def render_fleet(table, baseline=None, flag_sigmas: float = 5.0, title: str | None = None,
                  inputs_digest: str | None = None) -> str:
     """The fleet page as one self-contained HTML string.
@@ -277,7 +270,7 @@ def render_fleet(table, baseline=None, flag_sigmas: float = 5.0, title: str | No
     env = environment()
     return env.get_template("fleet.html").render(
         title=title or f"dualcal fleet: {len(table)} devices",
-        version=__version__, inputs_digest=inputs_digest, css=_report_css(env), k=f"{flag_sigmas:g}",
+        version=__version__, inputs_digest=inputs_digest, k=f"{flag_sigmas:g}",
         n_devices=len(table), n_ok=len(ok),
         failed=[{"device": d, "reason": s.removeprefix("failed: ")} for d, s in zip(failed["device"], failed["status"])],
         checks=_failing_checks(ok),
