@@ -56,17 +56,21 @@ def f_quantile(d1: float, d2: float, q: float) -> float:
     if not (d1 > 0 and d2 > 0 and 0.0 < q < 1.0):
         raise ValueError(f"F quantile: need d1, d2 > 0 and 0 < q < 1 (got {d1}, {d2}, {q})")
     a, b = 0.5 * d1, 0.5 * d2
-    lo, hi = 0.0, 1.0
-    for _ in range(200):                 # bisection in x = d1 f / (d1 f + d2): I_x is increasing in x
+    x = _bisect(lambda x: regularized_beta(a, b, x), q, 0.0, 1.0, 1e-16)     # x = d1 f / (d1 f + d2)
+    return d2 * x / (d1 * (1.0 - x))
+
+
+def _bisect(cdf, q: float, lo: float, hi: float, rtol: float) -> float:
+    """The ``x`` in ``[lo, hi]`` where the increasing ``cdf`` reaches ``q``, by bisection to ``rtol``."""
+    for _ in range(200):
         mid = 0.5 * (lo + hi)
-        if regularized_beta(a, b, mid) < q:
+        if cdf(mid) < q:
             lo = mid
         else:
             hi = mid
-        if hi - lo <= 1e-16 * hi:
+        if hi - lo <= rtol * hi:
             break
-    x = 0.5 * (lo + hi)
-    return d2 * x / (d1 * (1.0 - x))
+    return 0.5 * (lo + hi)
 
 
 def regularized_gamma(a: float, x: float) -> float:
@@ -109,12 +113,4 @@ def chi2_quantile(dof: float, q: float) -> float:
     lo, hi = 0.0, max(1.0, dof)
     while regularized_gamma(a, 0.5 * hi) < q:     # P increases in x: bracket the quantile
         lo, hi = hi, 2.0 * hi
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if regularized_gamma(a, 0.5 * mid) < q:
-            lo = mid
-        else:
-            hi = mid
-        if hi - lo <= 1e-15 * hi:
-            break
-    return 0.5 * (lo + hi)
+    return _bisect(lambda x: regularized_gamma(a, 0.5 * x), q, lo, hi, 1e-15)
