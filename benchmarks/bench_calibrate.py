@@ -177,15 +177,29 @@ def write_corners(preset: str, views: int, folder: Path) -> Path:
 
 def process_times(preset: str, views: int, runs: int, folder: Path) -> dict[str, float]:
     """``dualcal calibrate`` (its defaults; the paper's case) and OpenCV's path, each as a process on the same
-    corners.json: median wall seconds ``{"default", "paper", "opencv"}``."""
+    corners.json, and the floor under dualcal's: a process that only imports what the command imports
+    (:func:`imports_alone`). Median wall seconds ``{"default", "paper", "opencv", "imports"}``."""
     corners = write_corners(preset, views, folder)
     out = corners.parent / "calib.json"
     script = folder / "opencv_calibrate.py"
     script.write_text(OPENCV)
-    return _times({"default": DUALCAL + ["calibrate", str(corners), "-o", str(out)],
-                   "paper": DUALCAL + ["calibrate", str(corners), "-o", str(out), "--model", "k1k2",
-                                       "--no-compare-models", "--no-compare-lens"],
-                   "opencv": [sys.executable, str(script), str(corners)]}, runs)
+    default = ["calibrate", str(corners), "-o", str(out)]
+    return _times({"default": DUALCAL + default,
+                   "paper": DUALCAL + default + ["--model", "k1k2", "--no-compare-models", "--no-compare-lens"],
+                   "opencv": [sys.executable, str(script), str(corners)],
+                   "imports": imports_alone(default)}, runs)
+
+
+def imports_alone(args: list[str]) -> list[str]:
+    """A command that imports every module ``dualcal ARGS`` has imported by its end, in the order it did,
+    and does nothing else: the time no work of the command can go below."""
+    probe = ("import sys\nfrom dualcal.cli import main\nsys.argv = ['dualcal', *sys.argv[1:]]\n"
+             "try:\n    main()\nexcept SystemExit:\n    pass\nprint('\\nmodules:', *sys.modules, file=sys.stderr)")
+    stderr = subprocess.run([sys.executable, "-c", probe, *args], check=True, capture_output=True, text=True).stderr
+    loaded = stderr.rsplit("\nmodules:", 1)[1].split()
+    modules = [m for m in loaded if m != "__main__" and not m.startswith("_")]
+    return [sys.executable, "-c", "import importlib\nfor m in %r:\n    try:\n        importlib.import_module(m)\n"
+            "    except ImportError:\n        pass" % modules]
 
 
 def compile_sources() -> None:
@@ -490,8 +504,8 @@ def main(argv=None) -> int:
             t = process_times("note8", 13, runs_small, Path(tmp))
         for label, key in (("defaults", "default"), ("the paper's case", "paper")):
             rows.append([f"speed as processes, 13 pairs, {label}: dualcal / OpenCV ({t[key]:.2f} s / "
-                         f"{t['opencv']:.2f} s)", f"{t[key] / t['opencv']:.2f}", "<= 1.0",
-                         verdict(t[key] <= t["opencv"])])
+                         f"{t['opencv']:.2f} s; dualcal's imports alone {t['imports']:.2f} s)",
+                         f"{t[key] / t['opencv']:.2f}", "<= 1.0", verdict(t[key] <= t["opencv"])])
         real = real_stereo_case(runs_small)
         if real is not None:
             rows.append([f"real stereo: paper-mode s (rigid {real['rigid_s']:.3f} s), converged {real['paper_converged']}",

@@ -10,7 +10,9 @@ three commands taking turns run by run, so that a shared machine's drift weighs 
   model, one skew model, still with the board-shape test, sigmas, held-out errors and checks);
 * OpenCV: a Python process that reads the same corners.json and runs ``cv2.calibrateCamera`` per
   camera (k1 k2) and ``cv2.stereoCalibrate`` of every other camera with the reference
-  (``CALIB_USE_INTRINSIC_GUESS``), which gives no sigma, no check and no model choice.
+  (``CALIB_USE_INTRINSIC_GUESS``), which gives no sigma, no check and no model choice;
+* the floor under dualcal's time: a process that imports every module the default command imported, in
+  its order, and does nothing else (``imports alone``). What lies between it and the command is the work.
 
 Then how the time grows: 13, 50 and 200 instants of two cameras (``note8``), three (``triple``) and
 four (``bench_calibrate.QUAD_PRESET``: wide, tele, ultra-wide and a macro camera, a 10 x 10 board).
@@ -39,12 +41,13 @@ def main() -> None:
     cases = [("note8", 13)] if args.quick else [(p, v) for p in ("note8", "triple", "quad") for v in (13, 50, 200)]
     compile_sources()
     print(f"{'rig':8} {'instants':>8} {'dualcal default':>16} {'paper case':>11} {'OpenCV':>8} "
-          f"{'default/OpenCV':>15} {'paper/OpenCV':>13}")
+          f"{'default/OpenCV':>15} {'paper/OpenCV':>13} {'imports alone':>14} {'imports/OpenCV':>15}")
     with tempfile.TemporaryDirectory() as tmp:
         for preset, views in cases:
             t = process_times(preset, views, args.runs if views < 200 else 1, Path(tmp))
             print(f"{preset:8} {views:8d} {t['default']:15.2f}s {t['paper']:10.2f}s {t['opencv']:7.2f}s "
-                  f"{t['default'] / t['opencv']:15.2f} {t['paper'] / t['opencv']:13.2f}", flush=True)
+                  f"{t['default'] / t['opencv']:15.2f} {t['paper'] / t['opencv']:13.2f} {t['imports']:13.2f}s "
+                  f"{t['imports'] / t['opencv']:15.2f}", flush=True)
     print(f"(processes taking turns, median of {args.runs} runs after a warm-up, 1 run at 200 instants; cameras: note8 2, "
           f"triple 3, quad 4; load average {os.getloadavg()[0]:.1f})")
 
