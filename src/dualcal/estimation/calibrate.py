@@ -33,6 +33,7 @@ from .distributions import f_quantile
 from ..files.duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import EstimationError, InputError
 from .loop_closure import loop_closure
+from .lm import LMOptions
 from ..geometry.model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from ..progress import warn
 from .rig_relations import parameter_covariance, rig_relation, shared_views
@@ -528,7 +529,7 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
 
 
 def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
-          rig_mode: str | None = None) -> Solution:
+          rig_mode: str | None = None, options: LMOptions = LMOptions()) -> Solution:
     """The corners ``rig`` used (:meth:`RigModel.used_corners`), adjusted again with another lens model,
     skew model or rig mode (None: ``rig``'s), started from ``rig``'s values.
 
@@ -537,7 +538,8 @@ def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: boo
     starts from ``rig``'s coefficients (a new coefficient at 0, a dropped one let go); one of another
     family (a fisheye for a radial lens, or back) from Zhang's closed form with ``rig``'s poses.
     This is what comparing lens or skew models costs: one adjustment from a near start, where a full
-    calibration (closed form, outliers alone and tied, the board-shape test) takes several.
+    calibration (closed form, outliers alone and tied, the board-shape test) takes several. ``options``:
+    the adjustment's tolerances (a comparison needs fewer digits than a result).
     """
     corners = rig.used_corners()
     names = sorted(corners.cameras)
@@ -560,7 +562,7 @@ def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: boo
     ref = names.index(rig.reference)
     problem = Problem(X, names, sizes, blocks, rig_mode or rig.rig_mode, skew, ref, rig.board_shape_mm is not None,
                       models)
-    return adjust(problem, initial_state(problem, cams, poses, rig.board_shape_mm))
+    return adjust(problem, initial_state(problem, cams, poses, rig.board_shape_mm), options)
 
 
 def fit_summary(sol: Solution) -> dict:
