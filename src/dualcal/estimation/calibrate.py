@@ -33,7 +33,7 @@ from .distributions import f_quantile
 from ..files.duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import EstimationError, InputError
 from .loop_closure import loop_closure
-from .lm import LMOptions
+from .lm import NEAR_START, LMOptions
 from ..geometry.model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
 from ..progress import warn
 from .rig_relations import parameter_covariance, rig_relation, shared_views
@@ -157,12 +157,12 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
             poses.append(p)
     first_mode = "rigid" if mode == "paper" else mode
     problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape, models)
-    sol = adjust(problem, initial_state(problem, cams, poses, shape))
+    sol = adjust(problem, initial_state(problem, cams, poses, shape), LMOptions() if start is None else NEAR_START)
     if mode != "paper":
         return sol
     problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape, models)
     starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
-    return adjust(problem, min(starts, key=lambda state: cost(problem, state)))
+    return adjust(problem, min(starts, key=lambda state: cost(problem, state)), NEAR_START)
 
 
 def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int) -> tuple[Solution, Solution, int]:
@@ -181,7 +181,8 @@ def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int)
         problem = Problem(pair.X_board, pair.names, pair.sizes, blocks, mode, pair.skew, 0, False, pair.model)
         start_cams, start_poses = _starting_values(start)
         return adjust(problem, initial_state(problem, [start_cams[x], start_cams[y]],
-                                             [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)]))
+                                             [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)]),
+                      NEAR_START)
 
     return adjusted("rigid", sol), adjusted("none", alone), len(views)
 
@@ -529,7 +530,7 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
 
 
 def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
-          rig_mode: str | None = None, options: LMOptions = LMOptions()) -> Solution:
+          rig_mode: str | None = None, options: LMOptions = NEAR_START) -> Solution:
     """The corners ``rig`` used (:meth:`RigModel.used_corners`), adjusted again with another lens model,
     skew model or rig mode (None: ``rig``'s), started from ``rig``'s values.
 

@@ -22,6 +22,16 @@ It stops on the first of these tests (``s0 = sqrt(F / redundancy)``, never taken
 * function: actual and predicted relative decrease of ``F`` both ``<= ftol``;
 * the iteration limit, or the damping limit (no step lowers the cost).
 
+``mu0`` is where the damping starts: 1e-6 (:class:`LMOptions`) from a start far from the minimum
+(Zhang's closed form), 1e-9 (:data:`NEAR_START`) from an earlier solution. With Marquardt's scaling
+the normal matrix has a unit diagonal, and its smallest eigenvalues belong to the parameters the
+photos determine together, not one by one: about 2e-6 for a 12 MP phone's wide and tele (``synth
+--preset note8``), 4e-5 to 2e-4 on the real sets. A damping of that order shortens the step along
+those directions by a good part of itself in every iteration, and the convergence turns linear
+(the steps shrank about tenfold an iteration where Gauss-Newton's shrink a hundredfold and more):
+from a near start, 1e-6 took 4 to 6 iterations to the 3 of 1e-9. From a far start the damping is
+needed and a small ``mu0`` only adds rejected trials.
+
 None of these is believed alone: when one fires, an undamped solve (the one the covariance needs
 anyway) checks that the Gauss-Newton step ``h0 = -N^-1 g`` from the estimate has a Mahalanobis
 length ``sqrt(g^T N^-1 g) / s0 <= verify_sigma``, i.e. that no parameter nor any function of them is
@@ -54,6 +64,10 @@ class LMOptions:
     floor_px: float = 1e-6
     mu0: float = 1e-6
     mu_max: float = 1e20
+
+
+#: The tolerances for a start from an earlier solution (module docstring: ``mu0``).
+NEAR_START = LMOptions(mu0=1e-9)
 
 
 @dataclass

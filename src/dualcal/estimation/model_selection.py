@@ -39,7 +39,7 @@ calibrated once more with them."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -47,14 +47,14 @@ from ..geometry.camera import DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, C
 from ..errors import EstimationError
 from ..geometry.model import CornerSet, RigModel
 from ..progress import warn
-from .lm import LMOptions
+from .lm import NEAR_START
 
 #: Where the comparison's refits stop: within 0.05 sigma of their minimum (the LM's undamped check),
 #: not the 1e-3 of a calibration. What is compared, the fit and held-out RMS, is flat at the minimum
 #: (the cost moves by the square of the distance); 0.05 sigma moved ``worse_se`` by at most 1.4e-3 SE
 #: (the choice is at 2) and a held-out RMS by 1e-4 relative on the three real sets, chose the same
 #: models, and saves one or two of the five or six iterations of each refit.
-COMPARISON_LM = LMOptions(xtol=0.05, verify_sigma=0.05)
+COMPARISON_LM = replace(NEAR_START, xtol=0.05, verify_sigma=0.05)
 
 __all__ = ["FISHEYE_HALF_DIAGONAL_DEG", "LensModelScore", "RECOMMEND_WITHIN_SE", "calibrate_auto",
            "compare_lens_models", "lens_model_candidates", "score_lens_models"]
