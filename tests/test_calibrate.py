@@ -502,7 +502,6 @@ def test_a_refit_is_the_full_calibration_of_the_other_model():
                     assert abs(getattr(cam, p) - getattr(want, p)) < 1e-3 * sigma[p], (change, name, p)
 
 
-
 def test_a_start_from_a_solution_needs_fewer_iterations_with_little_damping():
     """A 12 MP phone's normal matrix, scaled to a unit diagonal, has eigenvalues near 2e-6: the far
     start's damping of 1e-6 made every refit converge linearly. From a solution the damping starts at

@@ -13,9 +13,10 @@ eigen-decomposition per instant, no re-adjustment). calib.json records them in `
 :func:`compare_lens_models` adjusts the same corners with every lens model (those the calibration
 used: its outliers stay out, so every model is scored on the same corners; each adjustment starts
 from the calibration's values, :func:`dualcal.estimation.calibrate.refit`, and stops within 0.05 sigma of its
-minimum, :data:`COMPARISON_LM`) and compares the models instant by instant: ``d_v = SS_v(model) - SS_v(best)``, the held-out sum of squares (px^2) of instant ``v``
-minus that of the model with the least held-out error; its mean over the instants in units of its
-standard error says how many standard errors the model is worse than the best. The recommendation is
+minimum, :data:`COMPARISON_LM`) and compares the models instant by instant: ``d_v = SS_v(model) -
+SS_v(best)``, the held-out sum of squares (px^2) of instant ``v`` minus that of the model with the
+least held-out error; its mean over the instants in units of its standard error says how many
+standard errors the model is worse than the best. The recommendation is
 the model with the fewest coefficients that is within :data:`RECOMMEND_WITHIN_SE` standard errors of
 the best: a richer model must earn its coefficients by predicting the unseen instants clearly
 better.
@@ -53,7 +54,7 @@ from .lm import NEAR_START
 #: not the 1e-3 of a calibration. What is compared, the fit and held-out RMS, is flat at the minimum
 #: (the cost moves by the square of the distance); 0.05 sigma moved ``worse_se`` by at most 1.4e-3 SE
 #: (the choice is at 2) and a held-out RMS by 1e-4 relative on the three real sets, chose the same
-#: models, and saves one or two of the five or six iterations of each refit.
+#: models, and saves one or two of each refit's three to five iterations.
 COMPARISON_LM = replace(NEAR_START, xtol=0.05, verify_sigma=0.05)
 
 __all__ = ["FISHEYE_HALF_DIAGONAL_DEG", "LensModelScore", "RECOMMEND_WITHIN_SE", "calibrate_auto",
