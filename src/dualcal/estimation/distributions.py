@@ -20,23 +20,32 @@ _TINY = 1e-300
 _EPS = 1e-15
 
 
-def _beta_fraction(a: float, b: float, x: float) -> float:
-    """The continued fraction of ``I_x(a, b)`` (DLMF 8.17.22), for ``x < (a + 1) / (a + b + 2)``."""
-    f = c = 1.0
-    d = 1.0 - (a + b) * x / (a + 1.0)
-    d = 1.0 / (d if abs(d) > _TINY else _TINY)
-    f = d
-    for m in range(1, 1000):
-        for num in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),                    # d_2m
-                    -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):         # d_2m+1
-            d = 1.0 + num * d
-            d = 1.0 / (d if abs(d) > _TINY else _TINY)
-            c = 1.0 + num / c
-            c = c if abs(c) > _TINY else _TINY
-            f *= c * d
+def _continued_fraction(terms) -> float:
+    """``a1 / (b1 + a2 / (b2 + ...))`` for the pairs ``(a_n, b_n)`` of ``terms``, by the modified Lentz
+    method, to a relative ``_EPS``."""
+    f = c = _TINY
+    d = 0.0
+    for a, b in terms:
+        d = b + a * d
+        d = 1.0 / (d if abs(d) > _TINY else _TINY)
+        c = b + a / c
+        c = c if abs(c) > _TINY else _TINY
+        f *= c * d
         if abs(c * d - 1.0) < _EPS:
             break
     return f
+
+
+def _beta_fraction(a: float, b: float, x: float) -> float:
+    """The continued fraction of ``I_x(a, b)`` (DLMF 8.17.22), for ``x < (a + 1) / (a + b + 2)``:
+    ``1 / (1 + d_1 / (1 + d_2 / (1 + ...)))``."""
+    def terms():
+        yield 1.0, 1.0
+        yield -(a + b) * x / (a + 1.0), 1.0                                                # d_1
+        for m in range(1, 1000):
+            yield m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)), 1.0                   # d_2m
+            yield -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1)), 1.0        # d_2m+1
+    return _continued_fraction(terms())
 
 
 def regularized_beta(a: float, b: float, x: float) -> float:
@@ -88,20 +97,12 @@ def regularized_gamma(a: float, x: float) -> float:
             if abs(term) < _EPS * abs(total):
                 break
         return math.exp(log_front) * total
-    b = x + 1.0 - a
-    c, d = 1.0 / _TINY, 1.0 / b
-    f = d
-    for n in range(1, 10000):
-        an = -n * (n - a)
-        b += 2.0
-        d = an * d + b
-        d = 1.0 / (d if abs(d) > _TINY else _TINY)
-        c = b + an / c
-        c = c if abs(c) > _TINY else _TINY
-        f *= c * d
-        if abs(c * d - 1.0) < _EPS:
-            break
-    return 1.0 - math.exp(log_front) * f
+
+    def terms():                    # Q(a, x) / front = 1 / (x + 1 - a - 1 (1 - a) / (x + 3 - a - ...))
+        yield 1.0, x + 1.0 - a
+        for n in range(1, 10000):
+            yield -n * (n - a), x + 1.0 - a + 2.0 * n
+    return 1.0 - math.exp(log_front) * _continued_fraction(terms())
 
 
 def chi2_quantile(dof: float, q: float) -> float:
