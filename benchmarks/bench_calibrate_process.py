@@ -2,7 +2,7 @@
 
 What a user waits for: the whole command, start-up and imports included. On the same synthetic
 corners.json, each side is timed as a fresh process (median of ``--runs`` runs after one warm-up, the
-three commands taking turns run by run, so that a shared machine's drift weighs on each alike):
+four commands taking turns run by run, so that a shared machine's drift weighs on each alike):
 
 * dualcal, its defaults (``--model auto``: every camera's lens model chosen by held-out instants, the
   other skew model beside it, the board-shape test, covariances, held-out errors, checks);

@@ -30,7 +30,8 @@ photos determine together, not one by one: about 2e-6 for a 12 MP phone's wide a
 those directions by a good part of itself in every iteration, and the convergence turns linear
 (the steps shrank about tenfold an iteration where Gauss-Newton's shrink a hundredfold and more):
 the eight solves of a note8 calibration (with ``--model auto`` and the other skew model) took 39
-iterations from 1e-6 and take 31 with the near starts' 1e-9. From a far start the damping is needed, and a small ``mu0`` only adds rejected trials.
+iterations from 1e-6 and take 31 with the near starts' 1e-9. From a far start the damping is
+needed, and a small ``mu0`` only adds rejected trials.
 
 None of these is believed alone: when one fires, an undamped solve (the one the covariance needs
 anyway) checks that the Gauss-Newton step ``h0 = -N^-1 g`` from the estimate has a Mahalanobis
