@@ -277,7 +277,8 @@ def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict
     closed form, or from an earlier adjustment). A tied camera's relative pose starts at the mean
     of its relative poses over the instants it shares with the reference (in mode ``paper``:
     ``D`` at the mean baseline length, each instant's direction at its own). The board's shape
-    starts at ``board_shape_mm`` (default flat).
+    starts at ``board_shape_mm`` (default flat). Poses of views the problem does not have (an earlier
+    solution's, of photos dropped since) are ignored.
     """
     C, V, ref = len(cameras), len(problem.views), problem.reference
     rig_R, rig_t = np.tile(np.eye(3), (C, 1, 1)), np.zeros((C, 3))
@@ -285,7 +286,7 @@ def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict
     for c in range(C):
         if not problem.tied(c):
             continue
-        shared = [v for v in poses[c] if v in poses[ref]]
+        shared = [v for v in poses[c] if v in poses[ref] and v in problem.view_index]
         if not shared:
             raise EstimationError(f"camera {problem.cameras[c]!r} shares no view with the reference camera "
                                   f"{problem.cameras[ref]!r}: photos of the same instant are needed")
