@@ -13,6 +13,7 @@ from dualcal.estimation import advise as A
 from dualcal.files import io
 from dualcal.synthetic import synth
 from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.geometry.camera import in_frame
 from dualcal.geometry.model import Pose
 
 
@@ -141,7 +142,7 @@ def _check_holdable(rig, advice, prior):
         assert p.cameras, "a pose no camera sees"
         for name in p.cameras:         # every camera said to see it sees the whole board
             X_cam = prior.camera_pose(name, p.pose).apply(X)
-            assert synth.in_frame(rig.cameras[name], X_cam).all()
+            assert in_frame(rig.cameras[name], X_cam).all()
 
 
 @pytest.mark.parametrize("preset, seeds, mode", [("note8", (2, 3, 4), "rigid"), ("stereo", (0, 1, 2), "rigid"),

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dualcal.geometry.board import DICTIONARIES, Board, board_from_spec, dictionary_name, with_default_markers
-from dualcal.pages.boardprint import page_layout, write_board
+from dualcal.files.boardprint import page_layout, write_board
 from dualcal.files.detect import detect_photo
 from dualcal.files.detect.charuco import aruco_dictionary, opencv_board
 from dualcal.errors import InputError

@@ -1,12 +1,12 @@
-"""Choosing the board for a rig's fields of view (dualcal.pages.board_choice)."""
+"""Choosing the board for a rig's fields of view (dualcal.files.board_choice)."""
 
 import math
 
 import pytest
 
-from dualcal.pages.board_choice import MIN_SQUARE_PX, TELE_FILL, fitting_choice, suggest_board
+from dualcal.files.board_choice import MIN_SQUARE_PX, TELE_FILL, fitting_choice, suggest_board
 from dualcal.geometry.camera import focal_px_from_35mm as focal_px
-from dualcal.pages.boardprint import PAPERS, page_layout
+from dualcal.files.boardprint import PAPERS, page_layout
 from dualcal.errors import InputError
 
 IPHONE = {"ultra": ((4032, 3024), 13.0), "wide": ((4032, 3024), 24.0), "tele": ((4032, 3024), 77.0)}

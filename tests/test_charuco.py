@@ -16,7 +16,8 @@ import pytest
 from dualcal.geometry.board import Board
 from dualcal.estimation.calibrate import calibrate_rig
 from dualcal.geometry.camera import INTRINSIC_NAMES, CameraModel, project_points
-from dualcal.files.detect import detect_photo, validate_grid
+from dualcal.files.detect import detect_photo
+from dualcal.geometry.grid import validate_grid
 from dualcal.files.detect.charuco import check_markers, detect_charuco, opencv_board, resolve_board
 from dualcal.errors import DetectionError
 from dualcal.estimation.evaluation import evaluate

@@ -15,10 +15,9 @@ from dualcal.geometry.board import Board
 from dualcal.geometry.camera import project_points
 from dualcal.cli import main
 from dualcal.files.dataset import open_dataset
-from dualcal.files.detect import (detect_dataset, detect_photo, grid_from_hints, load_hints, neighbour_residuals_px,
-                                  save_hints, validate_grid)
+from dualcal.files.detect import detect_dataset, detect_photo, grid_from_hints, load_hints, save_hints
 from dualcal.files.detect.coarse import reduce_image, reduction_factor, to_full_resolution
-from dualcal.files.detect.grid import OUTLIER_CEIL_FRACTION, local_spacing_px
+from dualcal.geometry.grid import OUTLIER_CEIL_FRACTION, local_spacing_px, neighbour_residuals_px, validate_grid
 from dualcal.files.detect.manual import CornerClicks, connect_clicks
 from dualcal.files.detect.refine import drop_outliers
 from dualcal.files.detect.symmetry import align_symmetric_numbering

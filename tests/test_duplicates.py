@@ -9,7 +9,8 @@ import pytest
 from dualcal.synthetic import synth
 from dualcal.estimation.calibrate import calibrate_rig
 from dualcal.geometry.camera import project_points
-from dualcal.files.duplicates import duplicate_files, find_duplicate_instants, merge_duplicate_instants
+from dualcal.estimation.duplicates import find_duplicate_instants, merge_duplicate_instants
+from dualcal.files.dataset import duplicate_files
 from dualcal.geometry.model import CameraCorners, CornerSet
 
 NOISE_PX = 0.2
@@ -127,7 +128,7 @@ def test_the_corner_noise_is_estimated_only_where_two_instants_come_close(stereo
     """The noise sets the limit of a duplicate; where no two instants are within the limit of the largest
     noise admitted (:data:`MAX_NOISE_PX`), as the set's distinct board positions are not, it is not
     estimated and nothing is merged; with a burst it is, for every camera, and each limit is the camera's own."""
-    import dualcal.files.duplicates as duplicates
+    import dualcal.estimation.duplicates as duplicates
 
     _, cs = stereo
     calls = []

@@ -20,7 +20,7 @@ from dualcal.files import io
 from dualcal.synthetic import synth
 from dualcal.geometry.camera import project_points
 from dualcal.errors import InputError
-from dualcal.pages.export import (FORMATS, _yaml_float, colmap_cameras_txt, export_files, kalibr_yaml,
+from dualcal.files.export import (FORMATS, _yaml_float, colmap_cameras_txt, export_files, kalibr_yaml,
                                   mrcal_cameramodel, mrcal_paths, write_export)
 from dualcal.geometry.rotation import rotation_from_rotvec
 

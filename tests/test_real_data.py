@@ -22,9 +22,10 @@ import pytest
 from dualcal.geometry.board import Board, sag_mm
 from dualcal.estimation.calibrate import calibrate_rig
 from dualcal.files.dataset import open_dataset
-from dualcal.files.detect import detect_dataset, predict_from_neighbours
-from dualcal.files.detect.grid import INNER_GAIN, local_spacing_px
-from dualcal.files.duplicates import find_duplicate_instants
+from dualcal.files.detect import detect_dataset
+from dualcal.geometry.grid import predict_from_neighbours
+from dualcal.geometry.grid import INNER_GAIN, local_spacing_px
+from dualcal.estimation.duplicates import find_duplicate_instants
 from dualcal.files.io import save_corners
 from dualcal.geometry.model import observed_mask
 from dualcal.estimation.model_selection import compare_lens_models
@@ -65,7 +66,7 @@ def _neighbour_check(corners, fraction: float = 0.0):
 
     The limit is 0.5 px, or ``fraction`` of the corner's spacing if that is more, for a corner
     predicted from a full 5 x 5 patch; larger by the noise of its prediction at the board's
-    edge (``dualcal.files.detect.grid.INNER_GAIN``).
+    edge (``dualcal.geometry.grid.INNER_GAIN``).
     """
     b = corners.board
     worst, lost, total = 0.0, 0, 0

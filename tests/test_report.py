@@ -18,7 +18,7 @@ from dualcal.geometry.camera import (CameraModel, distort_normalized, max_distor
                                      undistort_points)
 from dualcal.geometry.model import CameraCorners, CornerSet, Pose
 from dualcal.pages.report import analysis, figures, html as report_html, render_report
-from dualcal.pages.tables import photo_status
+from dualcal.pages.photos import photo_status
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 NOISE_PX = 0.3

@@ -16,7 +16,7 @@ __version__ = "0.1.0"
 
 #: The layers of the library, in order: a module imports only from its own layer, those before it and
 #: the cross-cutting modules beside this file (README, "Architecture"; tests/test_layout.py).
-_LAYERS = ("geometry", "files", "synthetic", "estimation", "pages")
+_LAYERS = ("geometry", "estimation", "files", "synthetic", "pages")
 _CROSS_CUTTING = ("errors", "extras", "parallel", "progress", "terminal")
 
 _API = {
@@ -37,7 +37,7 @@ _API = {
     "open_dataset": "files.dataset", "detect_dataset": "files.detect", "detect_photo": "files.detect",
     # files
     "load_corners": "files.io", "save_corners": "files.io", "load_rig": "files.io", "save_rig": "files.io",
-    "render_report": "pages.report", "write_export": "pages.export",
+    "render_report": "pages.report", "write_export": "files.export",
     # synthetic truth
     "make_truth": "synthetic.synth", "noisy_corner_set": "synthetic.synth", "truth_rig_model": "synthetic.synth",
     "write_photo_set": "synthetic.render",

@@ -48,6 +48,7 @@ from . import measure as _measure  # noqa: E402,F401
 from . import rectify as _rectify  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
 from . import schema as _schema  # noqa: E402,F401
+from . import synth as _synth  # noqa: E402,F401
 
 
 def _debug_requested(argv) -> bool:

@@ -1,4 +1,4 @@
-"""``dualcal board``: the printable board that a command line describes (a shell over :mod:`dualcal.pages.boardprint`)."""
+"""``dualcal board``: the printable board that a command line describes (a shell over :mod:`dualcal.files.boardprint`)."""
 
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
     chosen for those cameras and the paper (default A4): how many squares, how large, and how far
     from the phone to hold it.
     """
-    from ..pages.boardprint import write_board
+    from ..files.boardprint import write_board
     from ..files.io import check_output_file
 
     if spec is not None and board_spec is not None and spec != board_spec:
@@ -60,9 +60,9 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
 
 
 def _board_for(photos, paper: str):
-    """The board :func:`dualcal.pages.board_choice.suggest_board` chooses for the cameras of ``photos``, printed
+    """The board :func:`dualcal.files.board_choice.suggest_board` chooses for the cameras of ``photos``, printed
     to stderr with where to hold it; and the paper it is for (``auto`` is A4)."""
-    from ..pages.board_choice import fitting_choice
+    from ..files.board_choice import fitting_choice
     from ..files.dataset import open_dataset
     from ..files.roll import equivalent_focal_mm
 

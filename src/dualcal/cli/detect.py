@@ -97,7 +97,7 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square
     save_corners(output, corners)
     if corners.roll:
         from ..progress import SafeConsole
-        from ..pages.tables import roll_tables
+        from .tables import roll_tables
 
         console = SafeConsole(stderr=True, soft_wrap=True, highlight=False)
         for table in roll_tables(corners.roll):

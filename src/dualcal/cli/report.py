@@ -42,7 +42,7 @@ def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
 
 @cli.command("export")
 @click.argument("calib", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--format", "fmt", required=True, type=LazyChoice("dualcal.pages.export:FORMATS"),
+@click.option("--format", "fmt", required=True, type=LazyChoice("dualcal.files.export:FORMATS"),
               help="opencv: FileStorage YAML (K, D, R, T in mm); kalibr: camchain YAML (metres); "
                    "colmap: cameras.txt (OPENCV model); mrcal: one .cameramodel per camera (metres).")
 @click.option("-o", "--output", required=True, type=click.Path(),  # a str: keeps a trailing "/"
@@ -67,7 +67,7 @@ def export_command(calib: Path, fmt: str, output: str) -> None:
     with zeros for the coefficients it lacks. None of these formats has a skew term: a
     non-zero skew is dropped with a warning.
     """
-    from ..pages.export import write_export
+    from ..files.export import write_export
     from ..files.io import load_rig
 
     rig = load_rig(calib)

@@ -50,15 +50,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.board import Board, shape_basis, shaped_points_mm
-from ..geometry.camera import (INTRINSIC_NAMES, CameraModel, focal_px_from_35mm, ideal_normalized_from_pixel,
-                               normalized_from_pixel, project_with_jacobians, radial_lens_gradient)
+from ..geometry.camera import (INTRINSIC_NAMES, CameraModel, focal_px_from_35mm, in_frame, pixel_rays,
+                               project_with_jacobians, radial_lens_gradient)
 from .covariance import JointCovariance, intrinsic_name, rig_name
-from ..errors import InputError, NotInvertibleError
+from ..errors import InputError
 from ..geometry.model import Pose, RigModel
 from ..geometry.poses import opk_jacobian, tangent_basis
 from ..geometry.rotation import ARCMIN_PER_RAD, cross_matrix, opk_from_rotation, rotation_from_rotvec
 from ..geometry.scale import relative_sigma, with_scale
-from ..synthetic.synth import in_frame
 
 #: The distance range of holdable poses, as factors of the range the calibration's photos span.
 DISTANCE_FACTORS = (0.67, 1.5)
@@ -228,19 +227,6 @@ def nominal_prior(cameras: dict[str, CameraModel], board: Board, reference: str,
 
 
 # ---------------------------------------------------------------------------- targets
-
-
-def pixel_rays(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
-    """The camera-frame rays ``(x, y, 1)`` (n, 3) of pixels ``uv`` (n, 2), through the lens; where the
-    lens cannot be undone there (a poorly determined one may fold inside the image), the pinhole rays."""
-    uv = np.asarray(uv, float).reshape(-1, 2)
-    try:
-        xy = ideal_normalized_from_pixel(cam, uv)
-    except NotInvertibleError:
-        xy = None
-    if xy is None or not np.all(np.isfinite(xy)):
-        xy = normalized_from_pixel(cam, uv)
-    return np.column_stack([xy, np.ones(len(xy))])
 
 
 def edge_point(cam: CameraModel) -> np.ndarray:

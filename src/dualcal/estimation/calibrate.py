@@ -30,7 +30,7 @@ from ..geometry.camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MODE
 from .checks import REFOCUS_SHARE, design_effect, focal_scale_fits, focus_drift, rig_rigid, run_checks, tie_costs
 from .covariance import JointCovariance, intrinsic_name
 from .distributions import f_quantile
-from ..files.duplicates import describe_duplicates, merge_duplicate_instants
+from .duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import EstimationError, InputError
 from .loop_closure import loop_closure
 from .lm import NEAR_START, LMOptions
@@ -439,7 +439,7 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     Parameters
     ----------
     corners : the detected corners (corners.json content). Instants that repeat another's view (a copied
-        photo, a burst: :mod:`dualcal.files.duplicates`) count once, with a warning; calib.json records them
+        photo, a burst: :mod:`dualcal.estimation.duplicates`) count once, with a warning; calib.json records them
         (``adjustment.duplicates``, and ``duplicates`` in each camera's entry of its corners).
     skew : False fixes skew = 0 (the paper's Model 1), True estimates it (Model 2)
     rig_mode : ``rigid``, ``paper`` or ``none`` (see :mod:`dualcal.estimation.adjust`)

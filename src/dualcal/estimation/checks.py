@@ -259,7 +259,7 @@ def _edge_distortion_sigma(rig: RigModel, name: str, uv: np.ndarray) -> float | 
     """The sigma (px, radial, the larger of the covariance kinds) of camera ``name``'s lens distortion at
     the measured corner ``uv`` (N, 2) farthest from the principal point; None without a covariance of its
     lens coefficients (:func:`dualcal.geometry.camera.radial_lens_gradient`: every lens model)."""
-    from ..geometry.camera import LENS_MODELS, ideal_normalized_from_pixel, radial_lens_gradient
+    from ..geometry.camera import LENS_MODELS, pixel_rays, radial_lens_gradient
     from .covariance import JointCovariance, intrinsic_name
 
     cam = rig.cameras[name]
@@ -270,9 +270,9 @@ def _edge_distortion_sigma(rig: RigModel, name: str, uv: np.ndarray) -> float | 
     cov = JointCovariance.from_dict(rig.covariance)
     if not cov.has(names):
         return None
-    xy = ideal_normalized_from_pixel(cam, uv)
-    far = int(np.argmax(np.hypot(xy[:, 0], xy[:, 1])))
-    return cov.derived_sigma(names, radial_lens_gradient(cam, [xy[far, 0], xy[far, 1], 1.0], terms))
+    rays = pixel_rays(cam, uv)
+    far = int(np.argmax(np.hypot(rays[:, 0], rays[:, 1])))
+    return cov.derived_sigma(names, radial_lens_gradient(cam, rays[far], terms))
 
 
 def determination(rig: RigModel) -> dict:

@@ -56,6 +56,7 @@ point at 0.4 m by a pixel in the tele.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,7 +66,6 @@ from .covariance import JointCovariance, intrinsic_name, rig_name
 from .distributions import chi2_quantile
 from ..errors import EstimationError, InputError
 from .intersect import triangulate
-from ..files.io import points_from_dict
 from ..geometry.model import RigModel
 from ..progress import warn
 from ..geometry.rotation import cross_matrix
@@ -243,6 +243,68 @@ def _length_note(rig, a, b, points, length, sigma, pixel_share, depth, bias, pix
                      "is the calibration's)")
     return (f"length {a}-{b} = {length:.1f} +- {sigma:.2g} mm is not meaningful: {'; '.join(reasons)}. "
             f"What would help: {', '.join(helps)}")
+
+
+def _finite_uv(value, what: str) -> np.ndarray:
+    """A pixel ``[u, v]``: two finite numbers."""
+    try:
+        uv = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: expected numbers") from None
+    if uv.shape != (2,):
+        raise InputError(f"{what}: expected shape (2,), got {uv.shape}")
+    if not np.all(np.isfinite(uv)):
+        raise InputError(f"{what}: contains NaN or infinite values")
+    return uv
+
+
+def _positive_px(value, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise InputError(f"{what}: expected a positive number of pixels, got {value!r}")
+    return float(value)
+
+
+def points_from_dict(doc: dict, source: str = "points.json") -> dict:
+    """Validate a points.json document (contract, "measure").
+
+    Returns ``{"points": {name: {camera: (2,) uv_px}}, "lengths": [(from, to), ...], "pixel_sigma":
+    None | px | {camera: px}}``. ``pixel_sigma`` may be one number (px per coordinate, every camera)
+    or, as dualcal adds, one per camera. Which cameras exist is checked against the calibration by
+    :func:`dualcal.estimation.measurement.measure`.
+    """
+    points = doc.get("points")
+    if not isinstance(points, dict) or not points:
+        raise InputError(f"{source}: 'points' must be a non-empty object: {{\"A\": {{\"wide\": [u, v], "
+                         "\"tele\": [u, v]}, ...}")
+    out = {}
+    for name, seen in points.items():
+        if not isinstance(seen, dict):
+            raise InputError(f"{source}: point {name!r} must be an object of camera names to pixels [u, v]")
+        if len(seen) < 2:
+            raise InputError(f"{source}: point {name!r} is given in {len(seen)} camera(s) "
+                             f"({', '.join(seen) or 'none'}); a point needs its pixels in two or more cameras "
+                             "of one instant")
+        out[str(name)] = {str(cam): _finite_uv(uv, f"{source}: point {name!r} in camera {cam!r}")
+                          for cam, uv in seen.items()}
+    lengths = doc.get("lengths", [])
+    if not isinstance(lengths, (list, tuple)):
+        raise InputError(f"{source}: 'lengths' must be a list of pairs of point names, e.g. [[\"A\", \"B\"]]")
+    pairs = []
+    for pair in lengths:
+        if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(isinstance(p, str) for p in pair)):
+            raise InputError(f"{source}: length {pair!r}: expected a pair of point names, e.g. [\"A\", \"B\"]")
+        unknown = [p for p in pair if p not in out]
+        if unknown:
+            raise InputError(f"{source}: length {pair!r} names point {unknown[0]!r}, which is not in 'points'")
+        if pair[0] == pair[1]:
+            raise InputError(f"{source}: length {pair!r} joins a point to itself")
+        pairs.append((pair[0], pair[1]))
+    sigma = doc.get("pixel_sigma")
+    if isinstance(sigma, dict):
+        sigma = {str(cam): _positive_px(s, f"{source}: pixel_sigma of camera {cam!r}") for cam, s in sigma.items()}
+    elif sigma is not None:
+        sigma = _positive_px(sigma, f"{source}: pixel_sigma")
+    return {"points": out, "lengths": pairs, "pixel_sigma": sigma}
 
 
 def measure(rig: RigModel, points: dict) -> dict:

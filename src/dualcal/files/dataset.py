@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import fnmatch
 import glob as globmod
+import hashlib
 import os
 import re
+from collections import defaultdict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -345,12 +347,31 @@ def _pair_by_time(cams: dict[str, dict[str, Photo]], reference: str, tolerance_s
     return out
 
 
+def duplicate_files(paths) -> list[list[Path]]:
+    """Groups (two or more, each in the given order) of files with identical content: by size, then sha256."""
+    by_size = defaultdict(list)
+    for p in map(Path, paths):
+        by_size[p.stat().st_size].append(p)
+    groups = []
+    for same_size in by_size.values():
+        if len(same_size) < 2:
+            continue
+        by_hash = defaultdict(list)
+        for p in same_size:
+            digest = hashlib.sha256()
+            with open(p, "rb") as fh:
+                for chunk in iter(lambda: fh.read(1 << 20), b""):
+                    digest.update(chunk)
+            by_hash[digest.hexdigest()].append(p)
+        groups += [g for g in by_hash.values() if len(g) > 1]
+    order = {p: i for i, p in enumerate(map(Path, paths))}
+    return sorted(groups, key=lambda g: order[g[0]])
+
+
 def _without_copies(files: dict[str, Path]) -> dict[Path, Path]:
     """Remove from ``files`` (key -> path) every file whose content is that of an earlier one (a photo
     copied, exported twice): it would count as an instant of its own, and the sigmas, which come from
     how the instants disagree, would shrink. Returns ``{removed path: kept path}``, each said in a warning."""
-    from .duplicates import duplicate_files
-
     removed = {}
     for kept, *copies in duplicate_files(sorted(files.values())):
         for copy in copies:

@@ -13,7 +13,6 @@ import contextlib
 import errno
 import hashlib
 import json
-import math
 import os
 import re
 import tempfile
@@ -681,55 +680,8 @@ def check_corners_fit(rig: RigModel, source: str, slack_px: float = 1.0) -> None
 # ---------------------------------------------------------------------------- points.json (dualcal measure)
 
 
-def _positive_px(value, what: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-        raise InputError(f"{what}: expected a positive number of pixels, got {value!r}")
-    return float(value)
-
-
-def points_from_dict(doc: dict, source: str = "points.json") -> dict:
-    """Validate a points.json document (contract, "measure").
-
-    Returns ``{"points": {name: {camera: (2,) uv_px}}, "lengths": [(from, to), ...], "pixel_sigma":
-    None | px | {camera: px}}``. ``pixel_sigma`` may be one number (px per coordinate, every camera)
-    or, as dualcal adds, one per camera. Which cameras exist is checked against the calibration by
-    :func:`dualcal.estimation.measurement.measure`.
-    """
-    points = doc.get("points")
-    if not isinstance(points, dict) or not points:
-        raise InputError(f"{source}: 'points' must be a non-empty object: {{\"A\": {{\"wide\": [u, v], "
-                         "\"tele\": [u, v]}, ...}")
-    out = {}
-    for name, seen in points.items():
-        if not isinstance(seen, dict):
-            raise InputError(f"{source}: point {name!r} must be an object of camera names to pixels [u, v]")
-        if len(seen) < 2:
-            raise InputError(f"{source}: point {name!r} is given in {len(seen)} camera(s) "
-                             f"({', '.join(seen) or 'none'}); a point needs its pixels in two or more cameras "
-                             "of one instant")
-        out[str(name)] = {str(cam): _finite_array(uv, (2,), f"{source}: point {name!r} in camera {cam!r}")
-                          for cam, uv in seen.items()}
-    lengths = doc.get("lengths", [])
-    if not isinstance(lengths, (list, tuple)):
-        raise InputError(f"{source}: 'lengths' must be a list of pairs of point names, e.g. [[\"A\", \"B\"]]")
-    pairs = []
-    for pair in lengths:
-        if not (isinstance(pair, (list, tuple)) and len(pair) == 2 and all(isinstance(p, str) for p in pair)):
-            raise InputError(f"{source}: length {pair!r}: expected a pair of point names, e.g. [\"A\", \"B\"]")
-        unknown = [p for p in pair if p not in out]
-        if unknown:
-            raise InputError(f"{source}: length {pair!r} names point {unknown[0]!r}, which is not in 'points'")
-        if pair[0] == pair[1]:
-            raise InputError(f"{source}: length {pair!r} joins a point to itself")
-        pairs.append((pair[0], pair[1]))
-    sigma = doc.get("pixel_sigma")
-    if isinstance(sigma, dict):
-        sigma = {str(cam): _positive_px(s, f"{source}: pixel_sigma of camera {cam!r}") for cam, s in sigma.items()}
-    elif sigma is not None:
-        sigma = _positive_px(sigma, f"{source}: pixel_sigma")
-    return {"points": out, "lengths": pairs, "pixel_sigma": sigma}
-
-
 def load_points(path) -> dict:
-    """Read and validate a points.json (:func:`points_from_dict`)."""
+    """Read and validate a points.json (:func:`dualcal.estimation.measurement.points_from_dict`)."""
+    from ..estimation.measurement import points_from_dict
+
     return points_from_dict(_load(path, "points"), str(path))

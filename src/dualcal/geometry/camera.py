@@ -793,3 +793,28 @@ def check_invertible_in_image(cam: CameraModel, corners_may_fold: bool = False) 
     if cam.tangential and _folds_tangentially(cam, rd_img):
         raise NotInvertibleError(f"distortion {_coefficients_text(*cam.distortion)} folds over {where}: its "
                                  "tangential terms fold the image there, so undistortion is not unique")
+
+
+def in_frame(cam: CameraModel, X_cam: np.ndarray) -> np.ndarray:
+    """(N,) True for camera-frame points (N, 3) that ``cam`` sees: in front of it, short of the
+    lens's fold (:func:`~dualcal.geometry.camera.fold_radius`) and projected inside the image."""
+    X_cam = np.asarray(X_cam, float)
+    front = X_cam[:, 2] > 0
+    xy = X_cam[:, :2] / np.where(front, X_cam[:, 2], 1.0)[:, None]
+    uv = project_points(cam, np.where(front[:, None], X_cam, 1.0))
+    w, h = cam.image_size
+    inside = np.all((uv >= 0) & (uv <= [w - 1, h - 1]), axis=1)
+    return front & (np.hypot(xy[:, 0], xy[:, 1]) < fold_radius(cam)) & inside
+
+
+def pixel_rays(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
+    """The camera-frame rays ``(x, y, 1)`` (n, 3) of pixels ``uv`` (n, 2), through the lens; where the
+    lens cannot be undone there (a poorly determined one may fold inside the image), the pinhole rays."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    try:
+        xy = ideal_normalized_from_pixel(cam, uv)
+    except NotInvertibleError:
+        xy = None
+    if xy is None or not np.all(np.isfinite(xy)):
+        xy = normalized_from_pixel(cam, uv)
+    return np.column_stack([xy, np.ones(len(xy))])

@@ -33,7 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..geometry.board import Board
-from ..geometry.camera import INTRINSIC_NAMES, CameraModel, fold_radius, project_points
+from ..geometry.camera import INTRINSIC_NAMES, CameraModel, fold_radius, in_frame, project_points
 from ..errors import EstimationError, InputError
 from ..geometry.model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
 from ..geometry.rotation import ARCMIN_PER_RAD, rotation_from_opk, rotation_from_rotvec
@@ -123,8 +123,11 @@ class SynthTruth:
 
     def camera_pose(self, cam: str, view: str) -> Pose:
         """Board-to-camera pose of ``cam`` in ``view``."""
-        ref = self.view_poses[view]
-        return ref if cam == self.reference else self.rig[cam].compose(ref)
+        return self.seen_by(cam, self.view_poses[view])
+
+    def seen_by(self, cam: str, board_pose: Pose) -> Pose:
+        """Board-to-camera pose of ``cam`` when the board is at ``board_pose`` (board to reference camera)."""
+        return board_pose if cam == self.reference else self.rig[cam].compose(board_pose)
 
 
 def scale_camera(cam: CameraModel, scale: float) -> CameraModel:
@@ -161,18 +164,6 @@ def _all_visible(cams: dict[str, CameraModel], poses: dict[str, Pose], X: np.nda
         if np.any(uv < m) or np.any(uv[:, 0] > w - 1 - m) or np.any(uv[:, 1] > h - 1 - m):
             return False
     return True
-
-
-def in_frame(cam: CameraModel, X_cam: np.ndarray) -> np.ndarray:
-    """(N,) True for camera-frame points (N, 3) that ``cam`` sees: in front of it, short of the
-    lens's fold (:func:`~dualcal.geometry.camera.fold_radius`) and projected inside the image."""
-    X_cam = np.asarray(X_cam, float)
-    front = X_cam[:, 2] > 0
-    xy = X_cam[:, :2] / np.where(front, X_cam[:, 2], 1.0)[:, None]
-    uv = project_points(cam, np.where(front[:, None], X_cam, 1.0))
-    w, h = cam.image_size
-    inside = np.all((uv >= 0) & (uv <= [w - 1, h - 1]), axis=1)
-    return front & (np.hypot(xy[:, 0], xy[:, 1]) < fold_radius(cam)) & inside
 
 
 def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
@@ -340,8 +331,7 @@ def photographed(truth: SynthTruth, corners: CornerSet, view: str, board_pose: P
     for name, cc in corners.cameras.items():
         views = dict(cc.views)
         if name in cameras:
-            pose = board_pose if name == truth.reference else truth.rig[name].compose(board_pose)
-            uv = seen_pixels(truth.cameras[name], pose, X)
+            uv = seen_pixels(truth.cameras[name], truth.seen_by(name, board_pose), X)
             uv = uv + rng.normal(0.0, noise_px, uv.shape)
             views[view] = uv if np.isfinite(uv[:, 0]).any() else None
         cams[name] = CameraCorners(cc.image_size, views, cc.meta)

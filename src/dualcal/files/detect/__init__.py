@@ -9,13 +9,12 @@ per-photo / per-dataset drivers (:mod:`.pipeline`); ChArUco boards through :mod:
 
 from ... import _lazy_names
 
-#: Each public name and its module, imported on first use: the calibration needs :mod:`.grid` alone, and
-#: must not pay for the photo readers (Pillow, rawpy, OpenCV) that the detectors import.
+#: Each public name and its module, imported on first use: nothing here costs the photo readers (Pillow, rawpy,
+#: OpenCV) that the detectors import before a detector is used. The checks of a detected grid are geometry
+#: (:mod:`dualcal.geometry.grid`).
 _API = {"detect_charuco": "charuco", "resolve_board": "charuco", "find_grid": "coarse", "reduction_factor": "coarse",
         "display_problem": "manual", "grid_from_hints": "manual", "load_hints": "manual", "pick_hints": "manual",
-        "save_hints": "manual", "order_grid": "order", "min_corners": "grid", "neighbour_predictions": "grid",
-        "neighbour_residuals_px": "grid", "predict_from_neighbours": "grid", "validate_grid": "grid",
-        "PhotoResult": "pipeline", "detect_dataset": "pipeline", "detect_photo": "pipeline", "fit_saddles": "refine",
+        "save_hints": "manual", "order_grid": "order", "PhotoResult": "pipeline", "detect_dataset": "pipeline", "detect_photo": "pipeline", "fit_saddles": "refine",
         "measure_grid": "refine", "refine_corners": "refine"}
 
 __all__ = sorted(_API)

@@ -26,9 +26,9 @@ part of it. Per photo (:func:`detect_charuco`):
    :data:`CORNER_TOLERANCE` of its spacing from its markers' prediction is left out; then,
    where a corner has enough measured neighbours and its squares are small enough for their
    homography to follow the lens (:data:`GRID_CHECK_SPACING`), the chessboard check of
-   :mod:`dualcal.files.detect.grid` (leave-one-out homography of its neighbours) drops what disagrees.
-4. **The view as a whole** (:func:`dualcal.files.detect.grid.validate_grid`): at least
-   :data:`dualcal.files.detect.grid.MIN_CHARUCO_CORNERS` corners, not on one line, no fold.
+   :mod:`dualcal.geometry.grid` (leave-one-out homography of its neighbours) drops what disagrees.
+4. **The view as a whole** (:func:`dualcal.geometry.grid.validate_grid`): at least
+   :data:`dualcal.geometry.grid.MIN_CHARUCO_CORNERS` corners, not on one line, no fold.
 
 The dictionary and, for an even number of rows of squares, the layout (OpenCV's current one or
 its legacy one, :mod:`dualcal.geometry.board`) are found from the photos when the board does not say
@@ -49,7 +49,7 @@ import numpy as np
 from ...geometry.board import DICTIONARIES, Board, dictionary_family, smallest_dictionary
 from ...errors import DetectionError
 from .coarse import reduce_image, reduction_factor, to_full_resolution
-from .grid import local_spacing_px, validate_grid
+from ...geometry.grid import local_spacing_px, validate_grid
 from .refine import drop_outliers, refine_corners, window_half_size
 
 __all__ = ["opencv_board", "detect_markers", "check_markers", "agreeing_markers", "predict_corners",
@@ -63,7 +63,7 @@ NEIGHBOUR_RADIUS_SQUARES = 2.1
 MARKER_TOLERANCE = 0.25
 #: A refined corner must lie within this share of its spacing from its markers' prediction.
 CORNER_TOLERANCE = 0.1
-#: The chessboard check of a corner against its neighbours (:func:`dualcal.files.detect.grid.worst_outlier`)
+#: The chessboard check of a corner against its neighbours (:func:`dualcal.geometry.grid.worst_outlier`)
 #: applies where its spacing is at most this share of the image's long side: there the
 #: neighbours of exact corners predict them to within 0.1 px through a phone's lens, beyond it
 #: (squares of 3-12 % of the frame) the lens bends a 5 x 5 patch by 0.3-5 px.

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ...parallel import raise_if_cancelled
-from .grid import local_spacing_px, neighbour_residuals_px
+from ...geometry.grid import local_spacing_px, neighbour_residuals_px
 
 __all__ = ["reduction_factor", "reduce_image", "find_grid", "find_partial_grid", "to_full_resolution"]
 

@@ -42,7 +42,7 @@ from ...parallel import interruptible_map
 from ...progress import progress_bar, warn
 from .charuco import detect_charuco, resolve_board
 from .coarse import find_grid, find_partial_grid, reduce_image, reduction_factor, to_full_resolution
-from .grid import validate_grid
+from ...geometry.grid import validate_grid
 from .manual import grid_from_hints
 from .order import PartialBoard, check_colours, order_grid, place_partial_grid, square_colours
 from .refine import measure_grid

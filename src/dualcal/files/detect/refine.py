@@ -36,7 +36,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .grid import local_spacing_px, outlier_limit_px, predict_from_neighbours, worst_outlier
+from ...geometry.grid import local_spacing_px, outlier_limit_px, predict_from_neighbours, worst_outlier
 
 __all__ = ["refine_corners", "fit_saddles", "window_half_size", "drop_outliers", "measure_grid"]
 
@@ -241,7 +241,7 @@ def refine_corners(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int],
     grid_shape : ``(rows, cols)`` of ``uv``.
     spacing_px : (rows*cols,) distance from each corner to its nearest neighbour, which sets its
         window (:func:`window_half_size`); default: measured on ``uv``
-        (:func:`~dualcal.files.detect.grid.local_spacing_px`).
+        (:func:`~dualcal.geometry.grid.local_spacing_px`).
     wide_start : first pull every corner in with a window of nearly half its spacing, for
         starting points that may be off by many pixels (corners predicted from four clicks).
     only : (N,) bool, refine only these corners (the others are returned as they are, not ok);
@@ -300,9 +300,9 @@ def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.nd
                   judged: np.ndarray | None = None) -> np.ndarray:
     """``uv`` with the corners that disagree with their neighbours set to NaN, worst first.
 
-    The worst corner (:func:`~dualcal.files.detect.grid.worst_outlier`) goes first and the residuals
+    The worst corner (:func:`~dualcal.geometry.grid.worst_outlier`) goes first and the residuals
     are computed again, so that one bad corner does not take with it its neighbours, whose
-    predictions it spoiled. What is left passes :func:`~dualcal.files.detect.grid.validate_grid`'s
+    predictions it spoiled. What is left passes :func:`~dualcal.geometry.grid.validate_grid`'s
     residual check. ``judged``: only these corners may be dropped (default: all).
     """
     uv = np.array(uv, float)
@@ -320,7 +320,7 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
        from that prediction instead.
     2. Every corner is refined in its own window (:func:`refine_corners`); a corner whose fit
        fails is dropped, and so, worst first, is every corner further than
-       :func:`~dualcal.files.detect.grid.outlier_limit_px` from its neighbours' prediction
+       :func:`~dualcal.geometry.grid.outlier_limit_px` from its neighbours' prediction
        (:func:`drop_outliers`).
     3. Each dropped corner gets a second chance: refined again from where its remaining
        neighbours put it, and kept if its fit converges there within the limit.

@@ -23,8 +23,8 @@ from ...estimation.checks import verdict
 from ...geometry.model import RigModel
 from ...progress import track
 from ...geometry.scale import relative_sigma, scale_share
-from ..tables import photo_rows, photo_status
 from . import analysis, figures
+from ..photos import photo_rows, photo_status
 from .templating import environment
 
 #: Intrinsic parameters: label with the paper's name (Tables 2 and 3) and unit.
@@ -184,7 +184,7 @@ def pose_free_table(evaluation: dict | None) -> list[dict]:
 
 
 def photos_table(rig: RigModel, names: list[str]) -> list[dict]:
-    """Every photo: RMS per camera (px) and, for a photo not kept, why (:func:`dualcal.pages.tables.photo_status`)."""
+    """Every photo: RMS per camera (px) and, for a photo not kept, why (:func:`dualcal.pages.photos.photo_status`)."""
     return [{"view": view, "cells": cells, "status": note}
             for view, cells, note in photo_rows(photo_status(rig), names, missing="–")]
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..geometry.board import Board, with_default_markers
 from ..errors import InputError
-from ..files.io import write_bytes_atomic
+from .io import write_bytes_atomic
 
 __all__ = ["PAPERS", "PageLayout", "page_layout", "write_board"]
 

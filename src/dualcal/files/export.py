@@ -50,7 +50,7 @@ import numpy as np
 from .. import __version__
 from ..geometry.camera import LENS_MODELS, CameraModel
 from ..errors import InputError
-from ..files.io import check_output_file, write_text_atomic
+from .io import check_output_file, write_text_atomic
 from ..geometry.model import RigModel
 from ..progress import warn
 from ..geometry.rotation import rotvec_from_rotation
@@ -124,7 +124,7 @@ def opencv_yaml(rig: RigModel) -> str:
     ``cv2.stereoRectify`` returns) and ``rectified_width``, ``rectified_height``.
     """
     from ..errors import EstimationError
-    from ..files.stereo import stereo_rectify
+    from .stereo import stereo_rectify
 
     keys = _distinct(rig.camera_order(), _opencv_key, "the OpenCV key")
     fs = cv2.FileStorage(".yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)

@@ -15,17 +15,16 @@ of a pixel. Groups are closed transitively; the first key of a group (in sorted 
 noise is taken between :data:`MIN_NOISE_PX` and :data:`MAX_NOISE_PX`; a camera none of whose instants
 come within the limit of the largest is spared estimating it.)
 
-:func:`duplicate_files` finds identical files by content, for the layer that lists photos.
+Identical files are found where a dataset lists its photos (:func:`dualcal.files.dataset.duplicate_files`).
 """
 
 from __future__ import annotations
 
-import hashlib
 from collections import defaultdict
-from pathlib import Path
 
 import numpy as np
 
+from ..geometry.grid import predict_from_neighbours
 from ..geometry.model import CameraCorners, CornerSet, observed_mask
 
 #: Corners of two instants agree "within the noise" up to this many sigmas of their difference (RMS).
@@ -49,10 +48,8 @@ NOISE_VIEWS = 8
 def corner_noise_px(views: list[np.ndarray], shape: tuple[int, int]) -> float:
     """A camera's corner noise, px per coordinate: the median over its views (:data:`NOISE_VIEWS` of them
     at most, spread over the list) of the RMS of each corner against its prediction from its 5 x 5
-    neighbours (:func:`dualcal.files.detect.grid.predict_from_neighbours`), the prediction's own noise taken
+    neighbours (:func:`dualcal.geometry.grid.predict_from_neighbours`), the prediction's own noise taken
     out (``/ sqrt(1 + gain^2)``), within :data:`MIN_NOISE_PX` .. :data:`MAX_NOISE_PX`."""
-    from .detect.grid import predict_from_neighbours
-
     per_view = []
     picked = np.unique(np.linspace(0, len(views) - 1, min(len(views), NOISE_VIEWS)).round().astype(int))
     for uv in (views[i] for i in picked):
@@ -168,24 +165,3 @@ def describe_duplicates(records: list[dict]) -> str:
     return (f"{n} instant(s) repeat another's view (the same corners within {DUPLICATE_SIGMAS:g} sigma of their "
             f"noise: a copied photo or a burst) and count once, so that the sigmas come from distinct "
             f"instants: {pairs}{more}")
-
-
-def duplicate_files(paths) -> list[list[Path]]:
-    """Groups (two or more, each in the given order) of files with identical content: by size, then sha256."""
-    by_size = defaultdict(list)
-    for p in map(Path, paths):
-        by_size[p.stat().st_size].append(p)
-    groups = []
-    for same_size in by_size.values():
-        if len(same_size) < 2:
-            continue
-        by_hash = defaultdict(list)
-        for p in same_size:
-            digest = hashlib.sha256()
-            with open(p, "rb") as fh:
-                for chunk in iter(lambda: fh.read(1 << 20), b""):
-                    digest.update(chunk)
-            by_hash[digest.hexdigest()].append(p)
-        groups += [g for g in by_hash.values() if len(g) > 1]
-    order = {p: i for i, p in enumerate(map(Path, paths))}
-    return sorted(groups, key=lambda g: order[g[0]])

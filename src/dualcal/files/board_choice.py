@@ -89,8 +89,8 @@ def suggest_board(cameras: dict[str, tuple[tuple[int, int], float]], paper_mm: t
 
 
 def fitting_choice(cameras: dict[str, tuple[tuple[int, int], float]], paper: str) -> BoardChoice:
-    """:func:`suggest_board` for a paper of :data:`dualcal.pages.boardprint.PAPERS`, its squares made smaller by
-    whole millimetres until the page (:func:`dualcal.pages.boardprint.page_layout`) holds the board."""
+    """:func:`suggest_board` for a paper of :data:`dualcal.files.boardprint.PAPERS`, its squares made smaller by
+    whole millimetres until the page (:func:`dualcal.files.boardprint.page_layout`) holds the board."""
     from dataclasses import replace
 
     from .boardprint import PAPERS, page_layout

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...geometry.board import Board
-from ...geometry.model import observed_mask
+from .board import Board
+from .model import observed_mask
 
 __all__ = ["local_spacing_px", "neighbour_predictions", "predict_from_neighbours", "neighbour_residuals_px",
            "outlier_limit_px", "worst_outlier", "min_corners", "validate_grid"]

@@ -1,0 +1,93 @@
+"""``dualcal synth``: a synthetic rig with known truth, for the demo, the tests and trying dualcal out."""
+
+from __future__ import annotations
+
+import click
+
+from ..errors import InputError
+from . import cli
+from .common import LazyChoice, board_from_flags, board_options, default_jobs, echo
+
+
+def _coverage(text: str | None, board) -> tuple[float, float] | None:
+    """``--coverage LO:HI`` as a pair (None: the whole board in every camera)."""
+    charuco = board is not None and board.charuco is not None
+    if text is None:
+        return (0.3, 1.0) if charuco else None
+    if not charuco:
+        raise InputError("--coverage needs a ChArUco board (--board charuco:SXxSY): a chessboard must be seen whole")
+    lo, sep, hi = text.partition(":")
+    try:
+        pair = (float(lo), float(hi if sep else lo))
+    except ValueError:
+        raise InputError(f"--coverage {text!r}: give LO:HI, two shares of the board, e.g. 0.3:1") from None
+    if not 0 < pair[0] <= pair[1] <= 1:
+        raise InputError(f"--coverage {text!r}: needs 0 < LO <= HI <= 1")
+    return pair
+
+
+@cli.command("synth")
+@click.argument("outdir", type=click.Path(file_okay=False))
+@click.option("--preset", type=LazyChoice("dualcal.synthetic.synth:PRESETS"), default="note8", show_default=True,
+              help="The rig: note8 (wide + tele, 12 MP), stereo (640x480 pair), triple (wide + tele + ultra), "
+                   "stereo5 (the 640x480 pair with OpenCV's five-coefficient lenses, k1 k2 p1 p2 k3), phone3 "
+                   "(wide + 3x tele + a 145-degree fisheye ultra-wide, kb4).")
+@click.option("--views", type=int, default=13, show_default=True, help="Number of board poses.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed of poses, noise and photos.")
+@click.option("--scale", type=float, default=1.0, show_default=True,
+              help="Resample the sensors (0.25 gives small, fast photos).")
+@click.option("--noise", "noise_px", type=float, default=0.1, show_default=True,
+              help="Gaussian noise (px, per coordinate) added to the true corners in corners.json.")
+@click.option("--photos/--no-photos", default=True, show_default=True, help="Render photo-like JPEGs.")
+@click.option("--roll", is_flag=True,
+              help="Write the photos as a phone's camera roll instead: one folder OUTDIR/roll, every lens mixed in "
+                   "shooting order with EXIF, a retake, a photo without the board and sidecar files.")
+@click.option("--jobs", type=click.IntRange(min=1), default=None, help="Photos rendered in parallel (default: all cores).")
+@board_options(required=False, dictionary_default="the smallest DICT_5X5 that holds the markers")
+@click.option("--coverage", metavar="LO:HI", default=None,
+              help="Share of the board's corners the narrowest camera sees, drawn per view from LO to HI "
+                   "(ChArUco boards; default 0.3:1 for them, the whole board for a chessboard).")
+@click.option("--marks", type=LazyChoice("dualcal.synthetic.render_marks:MARK_KINDS"), default=None,
+              help="Print marks in the chessboard's white squares: a binary code in each (as ECoCheck), a dot in "
+                   "each, a logo in two, or a serial number along the first row.")
+def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jobs, board_spec, square_mm, marker_mm,
+                  dictionary, coverage, marks):
+    """Write a synthetic rig with known truth to OUTDIR.
+
+    \b
+    OUTDIR/corners.json        true corners plus --noise (input of 'dualcal calibrate')
+    OUTDIR/truth.json          the true calibration, in calib.json format
+    OUTDIR/photos/<cam>/*.jpg  photo-like renders of the board (a dataset for 'dualcal detect')
+    OUTDIR/roll/IMG_*.JPG      with --roll: the same photos as a phone's camera roll
+
+    --board replaces the preset's board. With a ChArUco board (--board charuco:11x8 --square 25
+    --marker 18) the narrowest camera (the tele) sees only part of the board in most views
+    (--coverage), and corners.json has null for the corners a photo does not show.
+    """
+    from ..synthetic import synth
+    from ..geometry.board import with_default_markers
+    from ..files.io import make_output_folder, rig_to_dict, save_corners, write_json_atomic
+
+    if not 0 < scale <= 4:
+        raise InputError(f"--scale {scale}: must be in (0, 4]")
+    if noise_px < 0:
+        raise InputError(f"--noise {noise_px}: must be >= 0")
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
+    board = with_default_markers(board) if board is not None else None
+    if marks is not None and board is not None and board.charuco is not None:
+        raise InputError("--marks is for chessboards: a ChArUco board has its markers in its white squares")
+    share = _coverage(coverage, board)
+    out = make_output_folder(outdir)
+    truth = synth.make_truth(preset, views, seed, scale, board=board, coverage=share)
+    corners = synth.noisy_corner_set(truth, noise_px, seed)
+    save_corners(out / "corners.json", corners)
+    write_json_atomic(out / "truth.json", rig_to_dict(synth.truth_rig_model(truth, corners)))
+    if roll:
+        from ..synthetic.synth_roll import write_camera_roll
+        write_camera_roll(truth, make_output_folder(out / "roll"), seed=seed, jobs=jobs or default_jobs(), marks=marks)
+    elif photos:
+        from ..synthetic.render import write_photo_set
+        write_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs(), marks=marks)
+    n = len(truth.view_poses) * len(truth.cameras)
+    echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
+         f"({n} {'photos' if photos or roll else 'corner sets'}{' in a camera roll' if roll else ''}) written to {out}")
