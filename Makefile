@@ -23,7 +23,7 @@ demo: $(STAMP)
 	@echo "demo written to out/demo/ (calib.json, eval.json, report.html)"
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto    # one worker per core (pytest-xdist)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_calibrate.py
