@@ -19,14 +19,13 @@ Nothing here imports anything: the commands' ``--help`` reads this module.
 
 __all__ = ["DOCS", "CHECKS", "ERRORS", "LINES", "COMMAND_PAGES", "page_of", "command_page"]
 
-#: Where the documentation's pages are: the built site's pages are named by their source file under
-#: ``docs/`` (``make docs`` builds them into ``out/site/``, ``checks.md`` becoming ``checks.html``).
 DOCS = "docs"
-#: The page of this table, relative to :data:`DOCS`.
-CHECKS_PAGE = "checks.md"
+"""Where the documentation's pages are: the built site's pages are named by their source file under ``docs/``
+(``make docs`` builds them into ``out/site/``, ``checks.md`` becoming ``checks.html``)."""
 
-#: The checks of a calibration (calib.json ``checks``, the end of ``dualcal calibrate``'s output, the top of
-#: the report), keyed by their name in calib.json.
+CHECKS_PAGE = "checks.md"
+"""The page of this table, relative to :data:`DOCS`."""
+
 CHECKS = {
     "converged": {
         "title": "the adjustment converged",
@@ -135,9 +134,9 @@ CHECKS = {
         "examples": ["no loop of three cameras can be checked", "do not fit one rigid relation"],
     },
 }
+"""The checks of a calibration (calib.json ``checks``, the end of ``dualcal calibrate``'s output, the top of the
+report), keyed by their name in calib.json."""
 
-#: The errors: every failure the input can cause is one of these (``dualcal.errors``, and the detector's
-#: own); the command prints ``dualcal: error: MESSAGE (see PAGE)`` and exits with code 2.
 ERRORS = {
     "DualcalError": {
         "title": "any error the input causes",
@@ -203,8 +202,9 @@ ERRORS = {
         "examples": ["disk is full"],
     },
 }
+"""The errors: every failure the input can cause is one of these (``dualcal.errors``, and the detector's own);
+the command prints ``dualcal: error: MESSAGE (see PAGE)`` and exits with code 2."""
 
-#: The lines the command prints besides its results, keyed by their prefix after ``dualcal: ``.
 LINES = {
     "warning": {
         "title": "dualcal: warning: ...",
@@ -237,9 +237,8 @@ LINES = {
         "action": "Run it again: `dualcal batch` skips the devices it had finished.",
     },
 }
+"""The lines the command prints besides its results, keyed by their prefix after ``dualcal: ``."""
 
-#: The page each command's ``--help`` ends with, relative to :data:`DOCS`; a command not listed here gets
-#: its entry of the command-line reference (:func:`command_page`).
 COMMAND_PAGES = {
     "advise": "how-to/advise.md",
     "batch": "how-to/fleet.md",
@@ -256,6 +255,8 @@ COMMAND_PAGES = {
     "synth": "getting-started.md",
     "undistort": "how-to/rectify.md",
 }
+"""The page each command's ``--help`` ends with, relative to :data:`DOCS`; a command not listed here gets its
+entry of the command-line reference (:func:`command_page`)."""
 
 
 def _anchor(name: str) -> str:
@@ -287,7 +288,18 @@ def page_of(name: str) -> str:
 
 
 def command_page(command: str) -> str:
-    """The documentation's page to read for ``dualcal COMMAND`` (:data:`COMMAND_PAGES`, else its entry of the
-    command-line reference), as ``docs/how-to/measure.md``."""
+    """The documentation's page to read for ``dualcal COMMAND``.
+
+    Parameters
+    ----------
+    command : str
+        The command's name, e.g. ``measure``.
+
+    Returns
+    -------
+    str
+        Its page (:data:`COMMAND_PAGES`, else its entry of the command-line reference), e.g.
+        ``docs/how-to/measure.md``.
+    """
     page = COMMAND_PAGES.get(command)
     return f"{DOCS}/{page}" if page else f"{DOCS}/reference/cli.md#dualcal-{command}"
