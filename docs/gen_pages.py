@@ -3,6 +3,7 @@
 * *Checks and messages* (``checks.md``): its entries, from the one table in the code, :mod:`dualcal.messages`.
 * *File formats* (``reference/formats/NAME.md``): the keys of every JSON Schema of ``src/dualcal/files/schemas``,
   appended to the page written by hand where there is one.
+* *Command line* (``reference/cli.md``): every command's ``--help``, as click formats it, appended to the page.
 * *Python API* (``reference/api.md``): every name of ``dualcal.__all__`` and the modules the how-to pages use,
   rendered by mkdocstrings from the docstrings. A public name without a numpydoc docstring (a summary, and
   ``Parameters`` / ``Returns`` where it has them) is a warning, and so fails the strict build.
@@ -128,11 +129,33 @@ def format_pages() -> None:
                   "keys are admitted: a file written by a newer dualcal still reads.", ""]
         lines += _key_table(schema)
         for def_name, definition in schema.get("$defs", {}).items():
-            lines += ["", f"### `{def_name}`", ""] + _key_table(definition)
+            if len(list(_rows(definition, "", True))) > 1:          # an object with keys, not a number's rule
+                lines += ["", f"### `{def_name}`", ""] + _key_table(definition)
         lines += ["", f'??? note "The JSON Schema of {name}.json"', "", "    ```json"]
         lines += ["    " + line for line in json.dumps(schema, indent=1).splitlines()] + ["    ```", ""]
         with _open(page, "a") as f:
             f.write("\n".join(lines))
+
+
+# ------------------------------------------------------------------ the command line
+
+def cli_page() -> None:
+    """Every command's ``--help`` (80 columns, as a terminal shows it), under a heading ``dualcal NAME``."""
+    import click
+
+    from dualcal.cli import cli
+
+    def help_text(command, name, parent=None):
+        ctx = click.Context(command, info_name=name, parent=parent, terminal_width=80, max_content_width=80)
+        return command.get_help(ctx), ctx
+
+    top, root = help_text(cli, "dualcal")
+    parts = ["", "## dualcal", "", "```text", top, "```", ""]
+    for name in sorted(cli.commands):
+        text, _ = help_text(cli.commands[name], name, root)
+        parts += [f"## dualcal {name}", "", "```text", text, "```", ""]
+    with _open("reference/cli.md", "a") as f:
+        f.write("\n".join(parts))
 
 
 # ------------------------------------------------------------------ the Python API
@@ -234,5 +257,6 @@ def figures() -> None:
 
 checks_page()
 format_pages()
+cli_page()
 api_page()
 figures()
