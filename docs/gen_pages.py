@@ -189,8 +189,11 @@ def _docstring_problems(name: str, obj) -> list[str]:
         doc = None
     if not doc or not doc.strip():
         return [f"{name} has no docstring"]
-    if not inspect.isroutine(obj):
-        return []
+    if inspect.isclass(obj):               # its public methods and properties, which the page shows too
+        return [f"{name}.{member} has no docstring" for member, value in vars(obj).items()
+                if not member.startswith("_") and (callable(value) or isinstance(value, property))
+                and not ((value.fget if isinstance(value, property) else getattr(value, "__func__", value))
+                         .__doc__ or "").strip()]
     doc = inspect.cleandoc(doc)
     signature = inspect.signature(obj)
     params = [p for p in signature.parameters if p not in ("self", "cls")]

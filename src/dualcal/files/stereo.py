@@ -71,6 +71,7 @@ class StereoRectification:
 
     @property
     def image_size(self) -> tuple[int, int]:
+        """``(W, H)`` of both rectified images, px."""
         return self.camera.image_size
 
     @property
