@@ -258,8 +258,13 @@ def figures() -> None:
             f.write(data)
 
 
-checks_page()
-format_pages()
-cli_page()
-api_page()
-figures()
+def main() -> None:
+    checks_page()
+    format_pages()
+    cli_page()
+    api_page()
+    figures()
+
+
+if __name__ == "<run_path>":            # run by mkdocs-gen-files (runpy.run_path); a test may import it
+    main()

@@ -62,3 +62,46 @@ def test_the_site_works_offline(site):
     assert [str(p.relative_to(out)) for p in pages if remote.search(p.read_text(encoding="utf-8"))] == []
     assert (out / "search" / "search_index.js").is_file()          # the offline plugin's index, for file://
     assert (out / "figures" / "practice-roll.jpg").is_file() and (out / "examples" / "advise.html").is_file()
+
+
+def test_a_public_function_without_its_numpydoc_docstring_is_a_warning():
+    """What the build warns of (and so fails on): no docstring, no Parameters, no Returns, an undocumented method."""
+    pytest.importorskip("mkdocs_gen_files", reason="the docs extra")
+    sys.path.insert(0, str(ROOT / "docs"))
+    try:
+        import gen_pages
+    finally:
+        sys.path.remove(str(ROOT / "docs"))
+
+    def bare(x):
+        return x
+
+    def summary_only(x: int) -> int:
+        """Twice x."""
+        return 2 * x
+
+    def documented(x: int) -> int:
+        """Twice x.
+
+        Parameters
+        ----------
+        x : int
+            A number.
+
+        Returns
+        -------
+        int
+            Twice it.
+        """
+        return 2 * x
+
+    class Thing:
+        """A thing."""
+
+        def method(self):
+            return 1
+
+    assert gen_pages._docstring_problems("bare", bare) == ["bare has no docstring"]
+    assert len(gen_pages._docstring_problems("summary_only", summary_only)) == 2
+    assert gen_pages._docstring_problems("documented", documented) == []
+    assert gen_pages._docstring_problems("Thing", Thing) == ["Thing.method has no docstring"]
