@@ -127,9 +127,15 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
 
 def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant_gap_s, reference, exclude,
             jobs, hints_path, overlays_dir, progress) -> CornerSet:
-    """A dataset's corners: open it, refuse cameras that pair with nothing, detect."""
+    """A dataset's corners: open it, refuse cameras that pair with nothing, detect (clips: their frames
+    chosen and measured, :func:`dualcal.files.video.video_corners`)."""
     from .files.dataset import check_pairs, open_dataset
     from .files.detect import detect_dataset, load_hints
+    from .files.video import find_clips, video_corners
+
+    clips = find_clips(source, cameras)
+    if clips is not None:
+        return video_corners(clips, board, reference=reference, progress=progress)
 
     dataset = open_dataset(source, cameras, pair_by=pair_by, reference=reference,
                            time_tolerance_s=time_tolerance_s, instant_gap_s=instant_gap_s, exclude=exclude)

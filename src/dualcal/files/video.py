@@ -1,0 +1,433 @@
+"""Video clips as input: decoded once, the board tracked in every frame, the still moments measured.
+
+A clip stands where a camera's folder of photos would (CONTRACT.md, "Input", "Video"): ``clips/wide.mp4``
+(the stem names the camera) or ``--camera NAME=FILE.mp4``. This module is the files layer's part:
+
+1. :func:`read_frames` decodes a clip with PyAV (FFmpeg: H.264, HEVC, ...; the ``video`` extra), one
+   frame in memory at a time, each with its time from the clip's first frame (its presentation
+   timestamp). The phone's rotation metadata is reported (``rotation_deg``), never applied: like a
+   photo's EXIF orientation (the sensor does not turn when the phone does), every coordinate is in the
+   stored frame.
+2. :func:`track_clip` finds the board in every frame on a reduced image (OpenCV's classic detector with
+   its fast check, then a sub-pixel fit there: a few milliseconds), puts it in the contract's corner
+   order (the squares' colours, :mod:`dualcal.files.detect.order`), and, in a frame where it barely moved
+   since the frame before, measures it as a photo's corners are measured: sub-pixel refinement at full
+   resolution, each corner checked against its neighbours, the grid's checks
+   (:func:`dualcal.files.detect.refine.measure_grid`, :func:`dualcal.geometry.grid.validate_grid`). Only corners
+   are kept, so memory does not grow with the clip.
+3. :func:`video_corners` turns the clips of a rig into a :class:`~dualcal.geometry.model.CornerSet`: each
+   camera's offset from the reference (:mod:`dualcal.estimation.time_offset`), its moments of the board held
+   still and the ones chosen (:mod:`dualcal.estimation.moments`), every camera's view of a moment being its
+   frame nearest that moment, keyed ``f`` and the reference's frame index (``f000123``). What was read,
+   found still and chosen, and why the rest was not, is said on stderr and kept in corners.json
+   (each camera's ``video``).
+"""
+
+from __future__ import annotations
+
+import glob as globmod
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import DetectionError, InputError
+from ..extras import require
+from ..geometry.board import Board
+from ..geometry.grid import min_corners, validate_grid
+from ..geometry.model import CameraCorners, CornerSet, choose_reference
+from ..progress import progress_bar, warn
+from .detect.coarse import reduce_image, to_full_resolution
+from .detect.order import check_colours, order_grid, square_colours
+from .detect.refine import refine_corners
+
+__all__ = ["VIDEO_SUFFIXES", "ClipInfo", "ClipTrack", "find_clips", "is_video", "probe_clip", "read_frames",
+           "track_clip", "video_corners"]
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".3gp", ".mts")
+
+#: The reduced image the board is searched in every frame has its long side at least this (px).
+TRACK_LONG_SIDE_PX = 640
+#: A frame is measured at full resolution when its corners moved less than this since the frame before
+#: (full-resolution px per frame, RMS over the corners; the coarse corners' own noise is well below it).
+MEASURE_BELOW_PX = 2.0
+#: ... unless they moved less than this since the frame before it that was measured: then it shows the same
+#: view, and shares that frame's measurement (a board held still is measured once per change, not per frame).
+SAME_VIEW_PX = 0.1
+
+
+def _rms_px(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+
+def is_video(path) -> bool:
+    """A video file by its name (:data:`VIDEO_SUFFIXES`)."""
+    return Path(path).suffix.lower() in VIDEO_SUFFIXES and not Path(path).name.startswith(".")
+
+
+def find_clips(source=None, cameras=()) -> dict[str, Path] | None:
+    """The clips of an input, ``{camera: path}``, or None when the input holds no video.
+
+    A folder whose files are clips (``clips/wide.mp4``, ``clips/tele.mov``: each stem a camera), or cameras
+    given as ``NAME=FILE.mp4`` (every ``--camera`` a clip). A folder of clips beside photos or camera
+    folders, or clips mixed with globs of photos, is refused: which to use would be a guess.
+    """
+    if cameras:
+        specs = [c.partition("=")[::2] if isinstance(c, str) else tuple(c) for c in cameras]
+        clips = {n.strip(): p.strip() for n, p in specs}
+        videos = {n for n, p in clips.items() if is_video(p)}
+        if not videos:
+            return None
+        if len(videos) < len(clips):
+            raise InputError(f"--camera: {', '.join(sorted(videos))} are clips and {', '.join(sorted(set(clips) - videos))} "
+                             "photos: give every camera as a clip, or every camera as photos")
+        base = Path(source) if source is not None else None
+        out = {}
+        for name, pattern in clips.items():
+            full = pattern if base is None or Path(pattern).is_absolute() else str(base / pattern)
+            matched = sorted(globmod.glob(full))
+            if len(matched) != 1 or not Path(matched[0]).is_file():
+                raise InputError(f"--camera {name}={pattern}: " + ("no such clip" if not matched else
+                                 f"matches {len(matched)} files; give one clip per camera"))
+            out[name] = Path(matched[0])
+        return out
+    if source is None or not Path(source).is_dir():
+        return None
+    entries = sorted(p for p in Path(source).iterdir() if not p.name.startswith("."))
+    clips = [p for p in entries if p.is_file() and is_video(p)]
+    if not clips:
+        return None
+    from .photos import PHOTO_SUFFIXES
+
+    others = [p.name for p in entries if p.is_dir() or (p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)]
+    if others:
+        raise InputError(f"{source} holds clips ({clips[0].name}, ...) and photos or camera folders ({others[0]}, ...): "
+                         "put the clips of one recording in a folder of their own")
+    names = {}
+    for p in clips:
+        if p.stem in names:
+            raise InputError(f"{names[p.stem]} and {p} name the same camera {p.stem!r}: rename or remove one")
+        names[p.stem] = p
+    return names
+
+
+# ---------------------------------------------------------------------------- decoding
+
+
+@dataclass
+class ClipInfo:
+    """What a clip's header says: its stored frame size ``(W, H)``, frame rate, frame count (an estimate
+    where the container does not say), codec, the rotation a player applies (degrees; reported only) and
+    its duration (s)."""
+
+    path: Path
+    size: tuple[int, int]
+    fps: float
+    frames: int
+    codec: str
+    rotation_deg: int
+    duration_s: float
+
+    def to_dict(self) -> dict:
+        return {"file": str(self.path), "image_size": list(self.size), "fps": self.fps, "codec": self.codec,
+                "rotation_deg": self.rotation_deg, "duration_s": self.duration_s}
+
+
+def _open(path):
+    require("video")
+    import av
+
+    try:
+        container = av.open(str(path))
+    except (av.error.FFmpegError, OSError) as exc:
+        raise InputError(f"{path}: not a readable video ({' '.join(str(exc).split())})") from None
+    if not container.streams.video:
+        container.close()
+        raise InputError(f"{path}: holds no video stream")
+    return container
+
+
+def _rotation(stream, first_frame=None) -> int:
+    """The display rotation of a stream (degrees, counter-clockwise as FFmpeg says it), 0 if none."""
+    angle = None
+    if first_frame is not None:
+        angle = getattr(first_frame, "rotation", None)
+    if not angle:
+        angle = (stream.metadata or {}).get("rotate")
+    try:
+        return int(round(float(angle or 0))) % 360
+    except ValueError:
+        return 0
+
+
+def probe_clip(path) -> ClipInfo:
+    """The :class:`ClipInfo` of a clip (its first frame decoded for the rotation).
+
+    Raises
+    ------
+    InputError
+        Not a video, no video stream, the ``video`` extra not installed.
+    """
+    import av
+
+    with _open(path) as container:
+        stream = container.streams.video[0]
+        rate = stream.average_rate or stream.guessed_rate or 30
+        duration = float(stream.duration * stream.time_base) if stream.duration else (
+            container.duration / 1e6 if container.duration else 0.0)
+        try:
+            first = next(container.decode(stream))
+        except (StopIteration, av.error.FFmpegError):
+            raise InputError(f"{path}: no frame could be decoded") from None
+        frames = stream.frames or int(round(duration * float(rate)))
+        return ClipInfo(Path(path), (first.width, first.height), float(rate), frames, stream.codec_context.name,
+                        _rotation(stream, first), duration)
+
+
+def _gray(frame) -> np.ndarray:
+    """The luma of a decoded frame as (H, W) uint8 (the Y plane itself for the usual 8-bit YUV formats)."""
+    if frame.format.name in ("yuv420p", "yuvj420p", "nv12", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p"):
+        plane = frame.planes[0]
+        rows = np.frombuffer(plane, np.uint8).reshape(plane.height, plane.line_size)
+        return rows[:, :plane.width]
+    return frame.to_ndarray(format="gray")
+
+
+def read_frames(path):
+    """Decode a clip: yields ``(index, t_s, gray)`` per frame, ``t_s`` seconds from its first frame (from
+    the presentation timestamps, so a variable frame rate is followed), ``gray`` (H, W) uint8 in the stored
+    frame. One frame at a time; a frame FFmpeg cannot decode ends the clip there with a warning."""
+    import av
+
+    with _open(path) as container:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        t0 = None
+        index = 0
+        try:
+            for frame in container.decode(stream):
+                t = float(frame.pts * stream.time_base) if frame.pts is not None else index / float(
+                    stream.average_rate or 30)
+                t0 = t if t0 is None else t0
+                yield index, t - t0, _gray(frame)
+                index += 1
+        except av.error.FFmpegError as exc:
+            warn(f"{path}: decoding stopped at frame {index} ({' '.join(str(exc).split())})")
+
+
+# ---------------------------------------------------------------------------- tracking
+
+
+@dataclass
+class ClipTrack:
+    """The board through one clip.
+
+    ``times_s`` (F,) each frame's time from the clip's first; ``coarse_px`` (F, N, 2) the board's corners
+    found on the reduced frame (full-resolution pixels, the contract's order; NaN rows where it was not
+    found); ``measured`` ``{frame: (N, 2)}`` the corners measured at full resolution, in the frames where
+    the board barely moved (:data:`MEASURE_BELOW_PX`); ``symmetric``: frames whose board looks the same
+    turned by 180 degrees (its numbering a guess).
+    """
+
+    info: ClipInfo
+    times_s: np.ndarray
+    coarse_px: np.ndarray
+    measured: dict[int, np.ndarray] = field(default_factory=dict)
+    rejected: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def frames_read(self) -> int:
+        return len(self.times_s)
+
+    @property
+    def frames_found(self) -> int:
+        return int(np.isfinite(self.coarse_px[:, 0, 0]).sum())
+
+
+_SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 20, 0.01)
+#: A grid followed from the frame before is kept while every corner is within this share of its spacing
+#: from its neighbours' prediction (else the board is searched afresh).
+FOLLOW_TOLERANCE = 0.15
+
+
+def _found_board(small: np.ndarray, factor: int, board: Board) -> np.ndarray | None:
+    """(N, 2) the board's corners found afresh on a reduced frame (full-resolution px, contract order), or None."""
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    found, corners = cv2.findChessboardCorners(small, (board.cols, board.rows), flags=flags)
+    if not found or corners is None or len(corners) != board.n_corners:
+        return None
+    corners = cv2.cornerSubPix(small, corners.reshape(-1, 1, 2), (3, 3), (-1, -1), _SUBPIX)
+    grid = to_full_resolution(corners.reshape(board.rows, board.cols, 2).astype(float), factor)
+    colours = square_colours(small, grid, factor)
+    try:
+        check_colours(colours, board.cols, board.rows)
+    except DetectionError:
+        return None
+    ordered, _, _ = order_grid(grid, colours, board)
+    return ordered.reshape(-1, 2)
+
+
+def _followed_board(before: np.ndarray, small: np.ndarray, uv: np.ndarray, factor: int,
+                    board: Board) -> np.ndarray | None:
+    """The corners ``uv`` of the frame before (full-resolution px) followed into this one by pyramidal
+    Lucas-Kanade optical flow on the reduced frames, then fitted there to the sub-pixel; None when a corner
+    is lost or the grid no longer looks like one (:data:`FOLLOW_TOLERANCE`)."""
+    start = ((uv + 0.5) / factor - 0.5).astype(np.float32).reshape(-1, 1, 2)
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(before, small, start, None, winSize=(15, 15), maxLevel=3)
+    if moved is None or not status.all():
+        return None
+    h, w = small.shape
+    if np.any(moved < 2) or np.any(moved[..., 0] > w - 3) or np.any(moved[..., 1] > h - 3):
+        return None
+    moved = cv2.cornerSubPix(small, moved, (3, 3), (-1, -1), _SUBPIX)
+    out = to_full_resolution(moved.reshape(-1, 2).astype(float), factor)
+    return out if _grid_like(out.reshape(board.rows, board.cols, 2)) else None
+
+
+def _grid_like(grid: np.ndarray) -> bool:
+    """Whether a (rows, cols, 2) grid still looks like a board's: along every row and column each corner is
+    within :data:`FOLLOW_TOLERANCE` of the spacing from the middle of its two neighbours (a board's image
+    bends that little between neighbouring corners; a corner that slid to the next one does not)."""
+    spacing = np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2))
+    bend = np.concatenate([np.linalg.norm(grid[:, 2:] - 2 * grid[:, 1:-1] + grid[:, :-2], axis=2).ravel(),
+                           np.linalg.norm(grid[2:] - 2 * grid[1:-1] + grid[:-2], axis=2).ravel()])
+    return bool(spacing > 0 and np.all(bend <= 2 * FOLLOW_TOLERANCE * spacing))
+
+
+def track_clip(path, board: Board, progress: bool = True, name: str | None = None) -> ClipTrack:
+    """Decode ``path`` once and follow the board through it (module docstring, step 2): found afresh where
+    it was not in the frame before, else followed (:func:`_followed_board`); measured at full resolution
+    where it moved less than :data:`MEASURE_BELOW_PX` since the frame before.
+
+    Raises
+    ------
+    InputError
+        The clip cannot be read (:func:`probe_clip`), or a ChArUco board (not tracked in clips).
+    """
+    if board.charuco is not None:
+        raise InputError(f"{path}: clips are read with a chessboard; a ChArUco board is not tracked in video yet")
+    info = probe_clip(path)
+    W, H = info.size
+    factor = max(1, min(8, int(max(W, H) // TRACK_LONG_SIDE_PX)))
+    times, coarse = [], []
+    measured: dict[int, np.ndarray] = {}
+    rejected = {"board not found": 0}
+    previous, before, last = None, None, None
+    with progress_bar(f"reading {name or Path(path).name}", info.frames, enabled=progress) as advance:
+        for index, t, gray in read_frames(path):
+            if gray.shape != (H, W):
+                raise InputError(f"{path}: frame {index} is {gray.shape[1]}x{gray.shape[0]}, the first {W}x{H}")
+            times.append(t)
+            small = np.ascontiguousarray(reduce_image(gray, factor))
+            uv = None if previous is None else _followed_board(before, small, previous, factor, board)
+            if uv is None:
+                uv = _found_board(small, factor, board)
+            if uv is None:
+                rejected["board not found"] += 1
+                coarse.append(np.full((board.n_corners, 2), np.nan))
+                last = None
+            else:
+                coarse.append(uv)
+                if previous is not None and _rms_px(uv, previous) < MEASURE_BELOW_PX:
+                    if last is not None and last[0] == index - 1 and _rms_px(uv, last[1]) < SAME_VIEW_PX:
+                        measured[index] = measured[last[0]]     # the same view as the frame before
+                        last = (index, last[1])
+                    else:
+                        fine, ok = refine_corners(gray, uv, (board.rows, board.cols))
+                        fine[~ok] = np.nan
+                        if ok.sum() >= min_corners(board):
+                            measured[index] = fine
+                            last = (index, uv)
+                        else:
+                            last = None
+                else:
+                    last = None
+            previous, before = uv, small
+            advance()
+    if not times:
+        raise InputError(f"{path}: no frame could be decoded")
+    return ClipTrack(info, np.asarray(times), np.asarray(coarse), measured, rejected)
+
+
+# ---------------------------------------------------------------------------- a rig's clips
+
+
+def video_corners(clips: dict[str, Path], board: Board, reference: str | None = None, progress: bool = True,
+                  max_instants: int | None = None) -> CornerSet:
+    """The corners of a rig's clips (module docstring, step 3).
+
+    Parameters
+    ----------
+    clips : ``{camera: path}`` (:func:`find_clips`).
+    board : the chessboard.
+    reference : the reference camera (default: ``wide`` if there is one, else the first name).
+    max_instants : at most this many moments are chosen (default
+        :data:`dualcal.estimation.moments.MAX_INSTANTS`).
+
+    Raises
+    ------
+    InputError
+        A clip that cannot be read, or in which the board is never measured held still.
+    """
+    from ..estimation import moments as moments_mod
+    from ..estimation.time_offset import estimate_offsets
+
+    ref = choose_reference(clips, reference)
+    tracks = {name: track_clip(path, board, progress, name) for name, path in clips.items()}
+    for name, tr in tracks.items():
+        if not tr.measured:
+            raise InputError(f"{clips[name]}: the board ({board.spec()}) was never found held still in its "
+                             f"{tr.frames_read} frames (found in {tr.frames_found}): hold it still for a moment "
+                             "at each position, and check --board (inner corners, COLSxROWS)")
+    offsets = estimate_offsets({n: (t.times_s, t.coarse_px, t.info.size) for n, t in tracks.items()}, board, ref)
+    for name, off in offsets.items():
+        if name != ref and off is None:
+            warn(f"camera {name!r}: the board is never seen moving by it and by {ref!r} at once, so its clock "
+                 f"cannot be matched to {ref!r}'s: its lens is calibrated alone")
+    choice = moments_mod.choose_moments({n: (t.times_s, t.measured) for n, t in tracks.items()}, board, ref,
+                                        {n: (o.offset_s if o is not None else None) for n, o in offsets.items()},
+                                        {n: t.info.size for n, t in tracks.items()},
+                                        max_instants=max_instants or moments_mod.MAX_INSTANTS)
+    cameras = {}
+    for name, tr in tracks.items():
+        views = {}
+        for key, j in choice.frames[name].items():
+            reason = validate_grid(tr.measured[j], board)
+            if reason:
+                warn(f"{clips[name]}: frame {j} ({key}) skipped: {reason}")
+            views[key] = None if reason else tr.measured[j]
+        record = {**tr.info.to_dict(), "frames_read": tr.frames_read, "board_found": tr.frames_found,
+                  "still": choice.still_frames[name],
+                  "moments": choice.moment_count[name], "chosen": sum(v is not None for v in views.values()),
+                  "frame_of_view": dict(choice.frames[name]),
+                  "moment_of_view": {k: choice.moment_of[k] for k in views},
+                  "not_used": {**tr.rejected, "board moving": tr.frames_found - choice.still_frames[name],
+                               **choice.not_used[name]}}
+        if name != ref and offsets.get(name) is not None:
+            record["offset_s"] = offsets[name].offset_s
+            record["offset_sigma_s"] = offsets[name].sigma_s
+        if tr.info.rotation_deg:
+            warn(f"{clips[name]}: the clip says to turn it by {tr.info.rotation_deg} degrees for display; the "
+                 "frames are used as stored (the sensor does not turn when the phone does)")
+        cameras[name] = CameraCorners(tr.info.size, views, {"video": record})
+    return CornerSet(board, cameras, ref)
+
+
+def describe_video(corners: CornerSet) -> list[str]:
+    """Lines for the terminal: what became of each clip's frames (read, board found, held still, chosen,
+    and why the others were not) and each camera's offset from the reference; none without clips."""
+    lines = []
+    for name, cam in corners.cameras.items():
+        record = cam.meta.get("video")
+        if not record:
+            continue
+        why = ", ".join(f"{what} {n}" for what, n in record["not_used"].items() if n)
+        lines.append(f"{name}: {record['frames_read']} frames read, board found in {record['board_found']}, "
+                     f"held still in {record['still']} ({record['moments']} moments), {record['chosen']} chosen"
+                     + (f"; not chosen: {why}" if why else ""))
+        if "offset_s" in record:
+            fps = record["fps"]
+            lines.append(f"{name}: first frame at {record['offset_s']:+.4f} s +- {record['offset_sigma_s']:.4f} s on "
+                         f"{corners.reference}'s clock ({record['offset_s'] * fps:+.2f} frames)")
+    return lines
