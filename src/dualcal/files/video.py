@@ -35,12 +35,12 @@ import numpy as np
 from ..errors import DetectionError, InputError
 from ..extras import require
 from ..geometry.board import Board
-from ..geometry.grid import min_corners, validate_grid
+from ..geometry.grid import local_spacing_px, validate_grid
 from ..geometry.model import CameraCorners, CornerSet, choose_reference
 from ..progress import progress_bar, warn
 from .detect.coarse import reduce_image, to_full_resolution
 from .detect.order import check_colours, order_grid, square_colours
-from .detect.refine import refine_corners
+from .detect.refine import refine_corners, window_half_size
 
 __all__ = ["VIDEO_SUFFIXES", "ClipInfo", "ClipTrack", "find_clips", "is_video", "probe_clip", "read_frames",
            "track_clip", "video_corners"]
@@ -52,9 +52,9 @@ TRACK_LONG_SIDE_PX = 640
 #: A frame is measured at full resolution when its corners moved less than this since the frame before
 #: (full-resolution px per frame, RMS over the corners; the coarse corners' own noise is well below it).
 MEASURE_BELOW_PX = 2.0
-#: ... unless they moved less than this since the frame before it that was measured: then it shows the same
-#: view, and shares that frame's measurement (a board held still is measured once per change, not per frame).
-SAME_VIEW_PX = 0.1
+#: The windows kept around each corner reach this far (px) beyond the refinement's own window
+#: (:func:`dualcal.files.detect.refine.window_half_size`): its fit may move the corner a little.
+WINDOW_MARGIN_PX = 4
 
 
 def _rms_px(a: np.ndarray, b: np.ndarray) -> float:
@@ -220,20 +220,53 @@ def read_frames(path):
 
 
 @dataclass
+class CornerWindows:
+    """The pixels of one frame that the refinement of its corners reads: a square window around each
+    coarse corner (``start`` (N, 2), full-resolution px), ``patches`` (N, n, n) uint8 whose top-left
+    pixels are ``origin`` (N, 2) [col, row]. A frame held still keeps these instead of the whole frame, so
+    the frames chosen at the end are measured as photos are (:meth:`measure`) with memory that does not
+    grow with the frame size."""
+
+    start: np.ndarray
+    origin: np.ndarray
+    patches: np.ndarray
+
+    @classmethod
+    def cut(cls, gray: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int]) -> "CornerWindows":
+        half = int(window_half_size(local_spacing_px(uv, grid_shape)).max()) + WINDOW_MARGIN_PX
+        H, W = gray.shape
+        n = 2 * half + 1
+        origin = np.clip(np.rint(uv).astype(int) - half, 0, [W - n, H - n])
+        patches = np.stack([gray[r:r + n, c:c + n] for c, r in origin])
+        return cls(uv, origin, patches)
+
+    def measure(self, image_size: tuple[int, int], board: Board) -> np.ndarray:
+        """(N, 2) the corners refined at full resolution as a photo's are
+        (:func:`dualcal.files.detect.refine.refine_corners`); NaN rows where a fit failed."""
+        W, H = image_size
+        canvas = np.zeros((H, W), np.uint8)
+        n = self.patches.shape[1]
+        for (c, r), patch in zip(self.origin, self.patches):
+            canvas[r:r + n, c:c + n] = patch
+        uv, ok = refine_corners(canvas, self.start, (board.rows, board.cols))
+        uv[~ok] = np.nan
+        return uv
+
+
+@dataclass
 class ClipTrack:
     """The board through one clip.
 
     ``times_s`` (F,) each frame's time from the clip's first; ``coarse_px`` (F, N, 2) the board's corners
     found on the reduced frame (full-resolution pixels, the contract's order; NaN rows where it was not
-    found); ``measured`` ``{frame: (N, 2)}`` the corners measured at full resolution, in the frames where
-    the board barely moved (:data:`MEASURE_BELOW_PX`); ``symmetric``: frames whose board looks the same
-    turned by 180 degrees (its numbering a guess).
+    found); ``windows`` ``{frame: CornerWindows}`` in the frames where the board barely moved
+    (:data:`MEASURE_BELOW_PX`), to measure those chosen; ``rejected`` counts frames by why they were not.
     """
 
     info: ClipInfo
     times_s: np.ndarray
     coarse_px: np.ndarray
-    measured: dict[int, np.ndarray] = field(default_factory=dict)
+    windows: dict[int, CornerWindows] = field(default_factory=dict)
     rejected: dict[str, int] = field(default_factory=dict)
 
     @property
@@ -311,9 +344,9 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
     W, H = info.size
     factor = max(1, min(8, int(max(W, H) // TRACK_LONG_SIDE_PX)))
     times, coarse = [], []
-    measured: dict[int, np.ndarray] = {}
+    windows: dict[int, CornerWindows] = {}
     rejected = {"board not found": 0}
-    previous, before, last = None, None, None
+    previous, before = None, None
     with progress_bar(f"reading {name or Path(path).name}", info.frames, enabled=progress) as advance:
         for index, t, gray in read_frames(path):
             if gray.shape != (H, W):
@@ -326,28 +359,15 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
             if uv is None:
                 rejected["board not found"] += 1
                 coarse.append(np.full((board.n_corners, 2), np.nan))
-                last = None
             else:
                 coarse.append(uv)
                 if previous is not None and _rms_px(uv, previous) < MEASURE_BELOW_PX:
-                    if last is not None and last[0] == index - 1 and _rms_px(uv, last[1]) < SAME_VIEW_PX:
-                        measured[index] = measured[last[0]]     # the same view as the frame before
-                        last = (index, last[1])
-                    else:
-                        fine, ok = refine_corners(gray, uv, (board.rows, board.cols))
-                        fine[~ok] = np.nan
-                        if ok.sum() >= min_corners(board):
-                            measured[index] = fine
-                            last = (index, uv)
-                        else:
-                            last = None
-                else:
-                    last = None
+                    windows[index] = CornerWindows.cut(gray, uv, (board.rows, board.cols))
             previous, before = uv, small
             advance()
     if not times:
         raise InputError(f"{path}: no frame could be decoded")
-    return ClipTrack(info, np.asarray(times), np.asarray(coarse), measured, rejected)
+    return ClipTrack(info, np.asarray(times), np.asarray(coarse), windows, rejected)
 
 
 # ---------------------------------------------------------------------------- a rig's clips
@@ -376,7 +396,7 @@ def video_corners(clips: dict[str, Path], board: Board, reference: str | None = 
     ref = choose_reference(clips, reference)
     tracks = {name: track_clip(path, board, progress, name) for name, path in clips.items()}
     for name, tr in tracks.items():
-        if not tr.measured:
+        if not tr.windows:
             raise InputError(f"{clips[name]}: the board ({board.spec()}) was never found held still in its "
                              f"{tr.frames_read} frames (found in {tr.frames_found}): hold it still for a moment "
                              "at each position, and check --board (inner corners, COLSxROWS)")
@@ -385,7 +405,8 @@ def video_corners(clips: dict[str, Path], board: Board, reference: str | None = 
         if name != ref and off is None:
             warn(f"camera {name!r}: the board is never seen moving by it and by {ref!r} at once, so its clock "
                  f"cannot be matched to {ref!r}'s: its lens is calibrated alone")
-    choice = moments_mod.choose_moments({n: (t.times_s, t.measured) for n, t in tracks.items()}, board, ref,
+    choice = moments_mod.choose_moments({n: (t.times_s, {j: t.coarse_px[j] for j in t.windows})
+                                         for n, t in tracks.items()}, board, ref,
                                         {n: (o.offset_s if o is not None else None) for n, o in offsets.items()},
                                         {n: t.info.size for n, t in tracks.items()},
                                         max_instants=max_instants or moments_mod.MAX_INSTANTS)
@@ -393,10 +414,11 @@ def video_corners(clips: dict[str, Path], board: Board, reference: str | None = 
     for name, tr in tracks.items():
         views = {}
         for key, j in choice.frames[name].items():
-            reason = validate_grid(tr.measured[j], board)
+            uv = tr.windows[j].measure(tr.info.size, board)
+            reason = validate_grid(uv, board)
             if reason:
                 warn(f"{clips[name]}: frame {j} ({key}) skipped: {reason}")
-            views[key] = None if reason else tr.measured[j]
+            views[key] = None if reason else uv
         record = {**tr.info.to_dict(), "frames_read": tr.frames_read, "board_found": tr.frames_found,
                   "still": choice.still_frames[name],
                   "moments": choice.moment_count[name], "chosen": sum(v is not None for v in views.values()),
@@ -404,7 +426,7 @@ def video_corners(clips: dict[str, Path], board: Board, reference: str | None = 
                   "moment_of_view": {k: choice.moment_of[k] for k in views},
                   "not_used": {**tr.rejected, "board moving": tr.frames_found - choice.still_frames[name],
                                **choice.not_used[name]}}
-        if name != ref and offsets.get(name) is not None:
+        if offsets.get(name) is not None:
             record["offset_s"] = offsets[name].offset_s
             record["offset_sigma_s"] = offsets[name].sigma_s
         if tr.info.rotation_deg:
@@ -426,7 +448,7 @@ def describe_video(corners: CornerSet) -> list[str]:
         lines.append(f"{name}: {record['frames_read']} frames read, board found in {record['board_found']}, "
                      f"held still in {record['still']} ({record['moments']} moments), {record['chosen']} chosen"
                      + (f"; not chosen: {why}" if why else ""))
-        if "offset_s" in record:
+        if "offset_s" in record and name != corners.reference:
             fps = record["fps"]
             lines.append(f"{name}: first frame at {record['offset_s']:+.4f} s +- {record['offset_sigma_s']:.4f} s on "
                          f"{corners.reference}'s clock ({record['offset_s'] * fps:+.2f} frames)")
