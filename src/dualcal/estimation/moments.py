@@ -11,7 +11,8 @@ one moment are one).
    before and until the frame after. A run of at least :data:`MIN_RUN` such frames is a hold.
 2. **Moments.** On the reference's clock (each camera's offset added), the holds of the cameras that
    overlap are one moment; its time is the middle of their common part (of the longest hold where
-   they do not overlap), and each camera's view of it is its still frame nearest that time. A camera
+   they do not overlap), snapped to the reference's frame nearest it, and each camera's view of it is its
+   frame nearest that time, where that frame is still (else the camera has no view of it). A camera
    whose clock is not matched (no offset) has moments of its own.
 3. **The choice.** Greedily, the moment whose corners shrink the key sigmas most (the information
    measure of :mod:`dualcal.estimation.advise`: a new instant's information, its pose eliminated, on a
@@ -183,10 +184,18 @@ def choose_moments(tracks: dict[str, tuple[np.ndarray, dict[int, np.ndarray]]], 
     for g, on_reference_clock in groups:
         t = _moment_time(g)
         views = {}
+        if reference in g:                   # the moment is the reference's frame nearest it
+            run = runs[reference][g[reference][2]]
+            t = float(times_ref[run[np.argmin(np.abs(times_ref[run] - t))]])
         for name, (_, _, k) in g.items():
             times = tracks[name][0]
             run = runs[name][k]
-            views[name] = int(run[np.argmin(np.abs(times[run] + (offsets.get(name) or 0.0) - t))])
+            gap = np.abs(times[run] + (offsets.get(name) or 0.0) - t)
+            # its frame nearest the moment, where it held the board still then (not before or after)
+            if gap.min() <= 0.5 * np.median(np.diff(times)) + 1e-6:
+                views[name] = int(run[np.argmin(gap)])
+        if not views:
+            continue
         if on_reference_clock:
             i = int(np.argmin(np.abs(times_ref - t))) if times_ref[0] <= t <= times_ref[-1] else int(round(t * fps_ref))
             key = f"f{i:06d}"
@@ -194,7 +203,7 @@ def choose_moments(tracks: dict[str, tuple[np.ndarray, dict[int, np.ndarray]]], 
             (name, j), = views.items()
             key = f"{name}:f{j:06d}"
         candidates.append({n: tracks[n][1][j] for n, j in views.items()})
-        keys.append((key, views, {n: len(runs[n][k]) for n, (_, _, k) in g.items()}))
+        keys.append((key, views, {n: len(runs[n][k]) for n, (_, _, k) in g.items() if n in views}))
     count = {n: sum(n in c for c in candidates) for n in tracks}
     if len(candidates) > 3:
         try:

@@ -14,15 +14,16 @@ on the board tracked in every frame (no file is read here):
 2. **Refined**, from the rig's rigidity. With each camera's lens from Zhang's closed form on its tracked
    corners (:func:`dualcal.geometry.zhang.initial_camera`) and the board's pose in every frame (space
    resection), camera ``c``'s frame at ``t`` must show the board where the reference's pose at ``t + d``,
-   interpolated between its two frames around that moment (rotation along the geodesic, translation
-   linearly), carried by the rig's relative pose ``T``, puts it. ``d`` and ``T`` are adjusted together
+   interpolated through its three frames nearest that moment (a parabola: the board accelerates),
+   carried by the rig's relative pose ``T``, puts it. ``d`` and ``T`` are adjusted together
    (Gauss-Newton on the pixel residuals of every corner of every frame where both saw the board), frames
    that do not fit dropped (3 x the median misfit). Only frames where the board moves inform ``d``; the
    still ones fix ``T``.
 
-The sigma of ``d`` is the larger of the textbook one and the one clustered by runs of consecutive frames
-(the sandwich of :mod:`dualcal.estimation.uncertainty`'s idea, here for one parameter): a run's corners share
-the errors of its poses and its blur, so its residuals are not independent.
+The sigma of ``d`` is the larger of the textbook one and the one clustered by the board's motions from one
+hold to the next (the sandwich of :mod:`dualcal.estimation.uncertainty`'s idea, here for one parameter, with
+the small-sample factor ``G / (G - 1)``): the frames of one motion share the errors of its poses, its blur
+and the lens model's error where it passes, so their residuals are not independent.
 """
 
 from __future__ import annotations
@@ -144,16 +145,22 @@ def frame_poses(cam: CameraModel, uv_px: np.ndarray, board: Board) -> tuple[np.n
 
 
 def _interpolated(times_s, R, t, ok, at_s):
-    """The reference's pose at times ``at_s``, between its two frames around each (geodesic rotation,
-    linear translation); valid only where both frames have a pose and are at most 1.5 frames apart."""
-    i = np.clip(np.searchsorted(times_s, at_s) - 1, 0, len(times_s) - 2)
-    gap = times_s[i + 1] - times_s[i]
-    s = (at_s - times_s[i]) / gap
+    """The reference's pose at times ``at_s``, by the parabola through its three frames nearest each
+    (rotations as rotation vectors relative to the middle frame's, which stay small); valid only where the
+    three have a pose and are evenly spaced (no frame dropped between them)."""
+    m = np.clip(np.searchsorted(times_s, at_s - 0.5 * np.median(np.diff(times_s))), 1, len(times_s) - 2)
+    t0, t1, t2 = times_s[m - 1], times_s[m], times_s[m + 1]
     typical = np.median(np.diff(times_s))
-    valid = ok[i] & ok[i + 1] & (s >= 0) & (s <= 1) & (gap < 1.5 * typical)
-    step = rotvec_from_rotation(R[i + 1] @ np.swapaxes(R[i], 1, 2))
-    Ri = rotation_from_rotvec(s[:, None] * step) @ R[i]
-    ti = (1 - s)[:, None] * t[i] + s[:, None] * t[i + 1]
+    valid = (ok[m - 1] & ok[m] & ok[m + 1] & (np.abs(at_s - t1) <= 0.75 * typical)
+             & (t2 - t0 < 2.5 * typical))
+    # Lagrange weights of the three frames at at_s
+    w0 = (at_s - t1) * (at_s - t2) / ((t0 - t1) * (t0 - t2))
+    w1 = (at_s - t0) * (at_s - t2) / ((t1 - t0) * (t1 - t2))
+    w2 = (at_s - t0) * (at_s - t1) / ((t2 - t0) * (t2 - t1))
+    Rm_T = np.swapaxes(R[m], 1, 2)
+    v = (w0[:, None] * rotvec_from_rotation(R[m - 1] @ Rm_T) + w2[:, None] * rotvec_from_rotation(R[m + 1] @ Rm_T))
+    Ri = rotation_from_rotvec(v) @ R[m]
+    ti = w0[:, None] * t[m - 1] + w1[:, None] * t[m] + w2[:, None] * t[m + 1]
     return Ri, ti, valid
 
 
@@ -172,6 +179,16 @@ def _residuals(params, ref, other, cam, X, frames):
     r = (uv - uv_o[frames]).reshape(len(frames), -1)
     r[~valid] = np.nan
     return r
+
+
+def _motions(frames: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
+    """Cluster numbers of ``frames``: one per motion of the board from one hold to the next (a new one
+    after every frame where it is still, moving less than a pixel, or after a frame it was not seen in)."""
+    moved = np.full(len(uv_px), np.inf)
+    moved[1:] = np.sqrt(np.mean(np.sum(np.diff(uv_px, axis=0) ** 2, axis=2), axis=1))
+    calm = ~(moved > 1.0)                                              # still, or not seen (NaN)
+    starts = np.cumsum(calm[:-1] & ~calm[1:])                          # motions begun up to each frame
+    return np.r_[0, starts][frames]
 
 
 def refine_offset(ref, other, cam_other: CameraModel, board: Board, start_s: float, fps: float,
@@ -230,9 +247,10 @@ def refine_offset(ref, other, cam_other: CameraModel, board: Board, start_s: flo
     redundancy = max(r.size - 7 - 6 * len(r), 1)
     formal = np.sqrt(float(np.sum(r ** 2)) / redundancy * Ninv[0, 0])
     scores = np.einsum("fmi,fm->fi", J, r)                             # per frame
-    runs = np.cumsum(np.r_[True, np.diff(used) > 1])                   # clusters: runs of consecutive frames
-    meat = sum(np.outer(g, g) for g in (scores[runs == k].sum(axis=0) for k in np.unique(runs)))
-    clustered = np.sqrt((Ninv @ meat @ Ninv)[0, 0])
+    clusters = _motions(used, uv_o)
+    G = len(np.unique(clusters))
+    meat = sum(np.outer(g, g) for g in (scores[clusters == k].sum(axis=0) for k in np.unique(clusters)))
+    clustered = np.sqrt(G / max(G - 1, 1) * (Ninv @ meat @ Ninv)[0, 0])
     return float(params[0]), float(max(formal, clustered)), int(len(used))
 
 

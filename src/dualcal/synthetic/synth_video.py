@@ -35,7 +35,8 @@ from ..progress import progress_bar
 from .render import _board_support, _clutter, _reflectance
 from .synth import SynthTruth, make_truth
 
-__all__ = ["VideoTruth", "make_video_truth", "render_frame", "write_clips", "encode_clip"]
+__all__ = ["VideoTruth", "encode_clip", "make_video_truth", "render_frame", "tracked_corners", "video_truth_doc",
+           "write_clips"]
 
 
 def _min_jerk(s: np.ndarray) -> np.ndarray:
@@ -284,8 +285,22 @@ def write_clips(video: VideoTruth, clip_dir, seed: int = 0, progress: bool = Tru
     return paths
 
 
+def tracked_corners(video: VideoTruth, camera: str, noise_px: float = 0.0, seed: int = 0):
+    """A camera's board as a tracker would follow it, without rendering: ``(times_s, uv_px)``, each frame's
+    time from the clip's first frame (F,) and the exact corners at its exposure's middle (F, N, 2) plus
+    Gaussian noise of ``noise_px`` per coordinate; NaN where the camera does not see the whole board."""
+    from .synth import seen_pixels
+
+    rng = np.random.default_rng([seed, 5])
+    times = video.frame_times(camera)
+    X = video.truth.board.object_points_mm()
+    uv = np.array([seen_pixels(video.truth.cameras[camera], video.camera_pose(camera, t), X) for t in times])
+    uv[~np.isfinite(uv).all(axis=(1, 2))] = np.nan
+    return times - video.offset_s[camera], uv + rng.normal(0.0, noise_px, uv.shape)
+
+
 def video_truth_doc(video: VideoTruth) -> dict:
     """truth.json's ``video``: the true offsets and the motion's timing, as calib.json's ``video`` says them."""
     return {"reference": video.truth.reference, "fps": dict(video.fps),
-            "offset_s": dict(video.offset_s), "exposure_s": video.exposure_s, "readout_s": video.readout_s,
+            "offset_s": dict(video.offset_s), "offset_sigma_s": dict.fromkeys(video.offset_s, 0.0), "exposure_s": video.exposure_s, "readout_s": video.readout_s,
             "holds_s": [list(h) for h in video.holds], "duration_s": video.duration_s}
