@@ -47,8 +47,11 @@ __all__ = ["VIDEO_SUFFIXES", "ClipInfo", "ClipTrack", "find_clips", "is_video", 
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".3gp", ".mts")
 
-#: The reduced image the board is searched in every frame has its long side at least this (px).
-TRACK_LONG_SIDE_PX = 640
+#: The reduced image the board is followed in every frame has its long side at least this (px).
+TRACK_LONG_SIDE_PX = 320
+#: Lucas-Kanade's window and pyramid levels (on the reduced frame).
+FLOW_WINDOW = (11, 11)
+FLOW_LEVELS = 2
 #: A frame is measured at full resolution when its corners moved less than this since the frame before
 #: (full-resolution px per frame, RMS over the corners; the coarse corners' own noise is well below it).
 MEASURE_BELOW_PX = 2.0
@@ -303,11 +306,12 @@ def _found_board(small: np.ndarray, factor: int, board: Board) -> np.ndarray | N
 
 def _followed_board(before: np.ndarray, small: np.ndarray, uv: np.ndarray, factor: int,
                     board: Board) -> np.ndarray | None:
-    """The corners ``uv`` of the frame before (full-resolution px) followed into this one by pyramidal
-    Lucas-Kanade optical flow on the reduced frames, then fitted there to the sub-pixel; None when a corner
+    """The corners ``uv`` of the frame before (full-resolution px; ``before`` its reduced image) followed
+    into this one by pyramidal Lucas-Kanade optical flow on the reduced frames, then fitted there to the sub-pixel; None when a corner
     is lost or the grid no longer looks like one (:data:`FOLLOW_TOLERANCE`)."""
     start = ((uv + 0.5) / factor - 0.5).astype(np.float32).reshape(-1, 1, 2)
-    moved, status, _ = cv2.calcOpticalFlowPyrLK(before, small, start, None, winSize=(15, 15), maxLevel=3)
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(before, small, start, None, winSize=FLOW_WINDOW,
+                                                maxLevel=FLOW_LEVELS)
     if moved is None or not status.all():
         return None
     h, w = small.shape
@@ -342,7 +346,7 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
         raise InputError(f"{path}: clips are read with a chessboard; a ChArUco board is not tracked in video yet")
     info = probe_clip(path)
     W, H = info.size
-    factor = max(1, min(8, int(max(W, H) // TRACK_LONG_SIDE_PX)))
+    factor = max(1, int(max(W, H) // TRACK_LONG_SIDE_PX))
     times, coarse = [], []
     windows: dict[int, CornerWindows] = {}
     rejected = {"board not found": 0}
