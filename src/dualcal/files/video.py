@@ -172,9 +172,9 @@ def probe_clip(path) -> ClipInfo:
     InputError
         Not a video, no video stream, the ``video`` extra not installed.
     """
-    import av
-
     with _open(path) as container:
+        import av               # (after _open: it says in one line which extra installs it)
+
         stream = container.streams.video[0]
         rate = stream.average_rate or stream.guessed_rate or 30
         duration = float(stream.duration * stream.time_base) if stream.duration else (
@@ -201,9 +201,9 @@ def read_frames(path):
     """Decode a clip: yields ``(index, t_s, gray)`` per frame, ``t_s`` seconds from its first frame (from
     the presentation timestamps, so a variable frame rate is followed), ``gray`` (H, W) uint8 in the stored
     frame. One frame at a time; a frame FFmpeg cannot decode ends the clip there with a warning."""
-    import av
-
     with _open(path) as container:
+        import av
+
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"
         t0 = None

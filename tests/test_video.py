@@ -1,0 +1,86 @@
+"""Calibrating from clips end to end: rendered, encoded (H.264 .mp4), decoded, tracked, aligned in time,
+the held moments chosen, measured and calibrated (``dualcal calibrate clips/``), against the known truth."""
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("av", reason="the video extra (PyAV)")
+
+from dualcal.synthetic.synth_video import make_video_truth, write_clips  # noqa: E402
+
+PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2")
+
+
+@pytest.fixture(scope="module")
+def clips(tmp_path_factory):
+    """Two 320x240 clips of 7 holds (about 10 s at 30 fps), the right camera 3.4 frames late."""
+    video = make_video_truth("stereo", holds=7, seed=5, scale=0.5, offset_frames=3.4)
+    folder = tmp_path_factory.mktemp("clips")
+    write_clips(video, folder, seed=5, progress=False)
+    return video, folder
+
+
+def test_a_rig_from_two_clips(clips, run_cli, tmp_path):
+    video, folder = clips
+    out = tmp_path / "calib.json"
+    res = run_cli("calibrate", folder, "--board", "9x6", "--square", "30", "-o", out)
+    assert res.code == 0, res.err
+    doc = json.loads(out.read_text())
+    truth = video.truth
+    for name, cam in doc["cameras"].items():
+        for p in PARAMS:
+            z = (cam[p] - getattr(truth.cameras[name], p)) / cam["sigma"][p]
+            assert abs(z) < 4, (name, p, z)
+    rel = doc["rig"]["right"]
+    true = truth.rig["right"]
+    z_t = (np.array(rel["t_mm"]) - true.t_mm) / np.array(rel["sigma"]["t_mm"])
+    z_a = (np.array(rel["opk_arcmin"]) - true.opk_arcmin) / np.array(rel["sigma"]["opk_arcmin"])
+    assert np.all(np.abs(z_t) < 4) and np.all(np.abs(z_a) < 4), (z_t, z_a)
+    offset, sigma = doc["video"]["offset_s"]["right"], doc["video"]["offset_sigma_s"]["right"]
+    assert abs(offset - video.offset_s["right"]) < 0.002
+    assert abs(offset - video.offset_s["right"]) < 4 * sigma
+    assert doc["video"]["offset_s"]["left"] == 0.0 and doc["video"]["unmatched"] == []
+    # one instant per hold, keyed by the reference's frame; what became of the frames is said
+    keys = list(doc["views"])
+    assert 5 <= len(keys) <= 7 and all(k.startswith("f") and len(k) == 7 for k in keys)
+    frames = doc["video"]["frames"]["left"]
+    assert frames["chosen"] == len(keys) and frames["frames_read"] == len(video.frame_times("left"))
+    assert sum(frames["not_used"].values()) + frames["chosen"] == frames["frames_read"]
+    assert "frames read" in res.out and "held still" in res.out and "+3.40 frames" in res.out
+
+
+def test_one_clip_calibrates_its_camera(clips, run_cli, tmp_path):
+    video, folder = clips
+    out = tmp_path / "calib.json"
+    res = run_cli("calibrate", "--camera", f"left={folder / 'left.mp4'}", "--board", "9x6", "--square", "30",
+                  "-o", out, "--no-compare-models")
+    assert res.code == 0, res.err
+    doc = json.loads(out.read_text())
+    assert list(doc["cameras"]) == ["left"] and doc["video"]["offset_s"] == {"left": 0.0}
+    for p in PARAMS:
+        z = (doc["cameras"]["left"][p] - getattr(video.truth.cameras["left"], p)) / doc["cameras"]["left"]["sigma"][p]
+        assert abs(z) < 4, (p, z)
+
+
+def test_a_file_that_is_no_video_is_one_line(tmp_path, run_cli):
+    (tmp_path / "wide.mp4").write_bytes(b"not a video at all" * 100)
+    res = run_cli("calibrate", tmp_path, "--board", "9x6", "--square", "30", "-o", tmp_path / "c.json")
+    assert res.code == 2 and len(res.err_lines) == 1 and "wide.mp4: not a readable video" in res.err, res.err
+
+
+def test_clips_beside_photos_are_refused(tmp_path, run_cli):
+    (tmp_path / "wide.mp4").write_bytes(b"x")
+    (tmp_path / "tele").mkdir()
+    (tmp_path / "tele" / "IMG_01.jpg").write_bytes(b"x")
+    res = run_cli("calibrate", tmp_path, "--board", "9x6", "--square", "30", "-o", tmp_path / "c.json")
+    assert res.code == 2 and "holds clips" in res.err and len(res.err_lines) == 1, res.err
+
+
+def test_without_the_video_extra_one_line_says_what_to_install(monkeypatch, tmp_path, run_cli):
+    (tmp_path / "wide.mp4").write_bytes(b"x")
+    monkeypatch.setitem(sys.modules, "av", None)
+    res = run_cli("calibrate", tmp_path, "--board", "9x6", "--square", "30", "-o", tmp_path / "c.json")
+    assert res.code == 2 and "pip install 'dualcal[video]'" in res.err and len(res.err_lines) == 1, res.err
