@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import EstimationError
 from ..geometry.board import Board
-from ..geometry.model import Pose, mean_pose, observed_mask
+from ..geometry.model import mean_pose, observed_mask
 from ..geometry.resection import planar_pose
 from ..geometry.zhang import initial_camera
 

@@ -35,7 +35,6 @@ import numpy as np
 from ..errors import EstimationError
 from ..geometry.board import Board
 from ..geometry.camera import CameraModel, ideal_normalized_from_pixel, project_points
-from ..geometry.model import Pose
 from ..geometry.rotation import nearest_rotation, rotation_from_rotvec, rotvec_from_rotation
 from ..geometry.zhang import initial_camera
 
