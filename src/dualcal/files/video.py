@@ -8,13 +8,14 @@ A clip stands where a camera's folder of photos would (CONTRACT.md, "Input", "Vi
    timestamp). The phone's rotation metadata is reported (``rotation_deg``), never applied: like a
    photo's EXIF orientation (the sensor does not turn when the phone does), every coordinate is in the
    stored frame.
-2. :func:`track_clip` finds the board in every frame on a reduced image (OpenCV's classic detector with
-   its fast check, then a sub-pixel fit there: a few milliseconds), puts it in the contract's corner
-   order (the squares' colours, :mod:`dualcal.files.detect.order`), and, in a frame where it barely moved
-   since the frame before, measures it as a photo's corners are measured: sub-pixel refinement at full
-   resolution, each corner checked against its neighbours, the grid's checks
-   (:func:`dualcal.files.detect.refine.measure_grid`, :func:`dualcal.geometry.grid.validate_grid`). Only corners
-   are kept, so memory does not grow with the clip.
+2. :func:`track_clip` follows the board through every frame on a reduced image (OpenCV's classic
+   detector where it was not in the frame before, else Lucas-Kanade optical flow from that frame; a
+   sub-pixel fit there), in the contract's corner order (the squares' colours,
+   :mod:`dualcal.files.detect.order`). Where it barely moved since the frame before, the pixels that the
+   refinement of its corners reads are kept (:class:`CornerWindows`: a window around each corner, not the
+   frame), so that the frames chosen at the end are measured as a photo's corners are measured
+   (:func:`dualcal.files.detect.refine.refine_corners`, then the grid's checks,
+   :func:`dualcal.geometry.grid.validate_grid`) with memory that does not grow with the frame size.
 3. :func:`video_corners` turns the clips of a rig into a :class:`~dualcal.geometry.model.CornerSet`: each
    camera's offset from the reference (:mod:`dualcal.estimation.time_offset`), its moments of the board held
    still and the ones chosen (:mod:`dualcal.estimation.moments`), every camera's view of a moment being its
