@@ -74,3 +74,19 @@ def test_frames_of_one_moment_are_one_instant():
     assert sorted((r["kept"], tuple(r["merged"])) for r in records) == [(v, (f"{v}_b",)) for v in sorted(truth.view_poses)]
     untagged = CornerSet(both.board, {n: CameraCorners(c.image_size, c.views) for n, c in both.cameras.items()})
     assert find_duplicate_instants(untagged) == []                  # 2 px apart: not the same view by the corners
+
+
+def test_lenses_whose_clocks_are_not_matched_are_calibrated_alone():
+    from dualcal.geometry.model import CameraCorners, CornerSet
+    from dualcal.synthetic import synth
+    from dualcal.workflow import calibrate_corners
+
+    truth = synth.make_truth("stereo", views=6, seed=0, scale=0.5)
+    corners = synth.noisy_corner_set(truth, 0.05)
+    left, right = corners.cameras["left"], corners.cameras["right"]
+    clips = CornerSet(corners.board, {
+        "left": CameraCorners(left.image_size, left.views, {"video": {"offset_s": 0.0}}),
+        "right": CameraCorners(right.image_size, {f"right:{k}": v for k, v in right.views.items()}, {"video": {}})})
+    rig = calibrate_corners(clips, model="k1k2", compare_lens=False)
+    assert rig.rig_mode == "none" and rig.rig == {}
+    assert abs(rig.cameras["right"].fx - truth.cameras["right"].fx) < 4 * rig.camera_sigma["right"]["fx"]

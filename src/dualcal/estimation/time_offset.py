@@ -190,7 +190,7 @@ def _motions(frames: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
     return np.r_[0, starts][frames]
 
 
-def refine_offset(ref, other, cam_other: CameraModel, board: Board, start_s: float, fps: float,
+def refine_offset(ref, other, cam_other: CameraModel, board: Board, start_s: float,
                   iterations: int = 12) -> tuple[float, float, int]:
     """Offset (s), its sigma (s) and the frames used (module docstring, step 2).
 
@@ -276,7 +276,7 @@ def estimate_offsets(tracks: dict[str, tuple[np.ndarray, np.ndarray, tuple[int, 
                 ref_poses = (times_r, *frame_poses(rough_camera(uv_r, board, size_r), uv_r, board))
             cam_o = rough_camera(uv_o, board, size_o)
             offset, sigma, used = refine_offset(ref_poses, (times_o, uv_o, *frame_poses(cam_o, uv_o, board)),
-                                                cam_o, board, lag, fps)
+                                                cam_o, board, lag)
         except EstimationError:
             out[name] = None
             continue
