@@ -27,6 +27,7 @@ A clip stands where a camera's folder of photos would (CONTRACT.md, "Input", "Vi
 from __future__ import annotations
 
 import glob as globmod
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,6 +39,7 @@ from ..extras import require
 from ..geometry.board import Board
 from ..geometry.grid import local_spacing_px, validate_grid
 from ..geometry.model import CameraCorners, CornerSet, choose_reference
+from ..parallel import interruptible_map
 from ..progress import progress_bar, warn
 from .detect.coarse import reduce_image, to_full_resolution
 from .detect.order import check_colours, order_grid, square_colours
@@ -333,10 +335,11 @@ def _grid_like(grid: np.ndarray) -> bool:
     return bool(spacing > 0 and np.all(bend <= 2 * FOLLOW_TOLERANCE * spacing))
 
 
-def track_clip(path, board: Board, progress: bool = True, name: str | None = None) -> ClipTrack:
+def track_clip(path, board: Board, progress: bool = True, name: str | None = None, advance=None) -> ClipTrack:
     """Decode ``path`` once and follow the board through it (module docstring, step 2): found afresh where
-    it was not in the frame before, else followed (:func:`_followed_board`); measured at full resolution
-    where it moved less than :data:`MEASURE_BELOW_PX` since the frame before.
+    it was not in the frame before, else followed (:func:`_followed_board`); the windows of its corners kept
+    where it moved less than :data:`MEASURE_BELOW_PX` since the frame before. ``advance(n=1)``: called once
+    per frame (a shared progress bar); without it, the clip's own bar (``progress``).
 
     Raises
     ------
@@ -352,7 +355,9 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
     windows: dict[int, CornerWindows] = {}
     rejected = {"board not found": 0}
     previous, before = None, None
-    with progress_bar(f"reading {name or Path(path).name}", info.frames, enabled=progress) as advance:
+    with progress_bar(f"reading {name or Path(path).name}", info.frames,
+                      enabled=progress and advance is None) as own:
+        advance = advance or own
         for index, t, gray in read_frames(path):
             if gray.shape != (H, W):
                 raise InputError(f"{path}: frame {index} is {gray.shape[1]}x{gray.shape[0]}, the first {W}x{H}")
@@ -399,7 +404,12 @@ def video_corners(clips: dict[str, Path], board: Board, reference: str | None = 
     from ..estimation.time_offset import estimate_offsets
 
     ref = choose_reference(clips, reference)
-    tracks = {name: track_clip(path, board, progress, name) for name, path in clips.items()}
+    total = sum(probe_clip(p).frames for p in clips.values())
+    with progress_bar("reading clips", total, enabled=progress) as advance:
+        # one thread per clip: decoding, OpenCV and most of numpy release the GIL
+        found = interruptible_map(lambda item: track_clip(item[1], board, name=item[0], advance=advance),
+                                  list(clips.items()), max(1, min(len(clips), os.cpu_count() or 1)))
+        tracks = dict(zip(clips, found))
     for name, tr in tracks.items():
         if not tr.windows:
             raise InputError(f"{clips[name]}: the board ({board.spec()}) was never found held still in its "
