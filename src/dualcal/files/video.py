@@ -37,7 +37,7 @@ import numpy as np
 from ..errors import DetectionError, InputError
 from ..extras import require
 from ..geometry.board import Board
-from ..geometry.grid import local_spacing_px, validate_grid
+from ..geometry.grid import validate_grid
 from ..geometry.model import CameraCorners, CornerSet, choose_reference
 from ..parallel import interruptible_map
 from ..progress import progress_bar, warn
@@ -50,8 +50,11 @@ __all__ = ["VIDEO_SUFFIXES", "ClipInfo", "ClipTrack", "find_clips", "is_video", 
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".3gp", ".mts")
 
-#: The reduced image the board is followed in every frame has its long side at least this (px).
-TRACK_LONG_SIDE_PX = 320
+#: The reduced image the board is searched in (where it was not in the frame before) has its long side at
+#: least this (px).
+SEARCH_LONG_SIDE_PX = 640
+#: The board is followed on a frame reduced so that its squares keep at least this many pixels.
+FOLLOW_SQUARE_PX = 8
 #: Lucas-Kanade's window and pyramid levels (on the reduced frame).
 FLOW_WINDOW = (11, 11)
 FLOW_LEVELS = 2
@@ -239,7 +242,11 @@ class CornerWindows:
 
     @classmethod
     def cut(cls, gray: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int]) -> "CornerWindows":
-        half = int(window_half_size(local_spacing_px(uv, grid_shape)).max()) + WINDOW_MARGIN_PX
+        grid = uv.reshape(*grid_shape, 2)
+        # the refinement's windows follow each corner's nearest neighbour, never farther than the farthest
+        # neighbour along a row or column: windows of that size hold them all
+        reach = max(np.linalg.norm(np.diff(grid, axis=0), axis=2).max(), np.linalg.norm(np.diff(grid, axis=1), axis=2).max())
+        half = int(window_half_size(reach)) + WINDOW_MARGIN_PX
         H, W = gray.shape
         n = 2 * half + 1
         origin = np.clip(np.rint(uv).astype(int) - half, 0, [W - n, H - n])
@@ -350,7 +357,8 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
         raise InputError(f"{path}: clips are read with a chessboard; a ChArUco board is not tracked in video yet")
     info = probe_clip(path)
     W, H = info.size
-    factor = max(1, int(max(W, H) // TRACK_LONG_SIDE_PX))
+    search = max(1, int(max(W, H) // SEARCH_LONG_SIDE_PX))
+    factor = search                           # of the frame the board is followed in, set by its squares
     times, coarse = [], []
     windows: dict[int, CornerWindows] = {}
     rejected = {"board not found": 0}
@@ -365,7 +373,12 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
             small = np.ascontiguousarray(reduce_image(gray, factor))
             uv = None if previous is None else _followed_board(before, small, previous, factor, board)
             if uv is None:
-                uv = _found_board(small, factor, board)
+                uv = _found_board(np.ascontiguousarray(reduce_image(gray, search)), search, board)
+                if uv is not None:
+                    grid = uv.reshape(board.rows, board.cols, 2)
+                    square = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2)))
+                    factor = int(np.clip(square // FOLLOW_SQUARE_PX, 1, 2 * search))
+                    small = np.ascontiguousarray(reduce_image(gray, factor))
             if uv is None:
                 rejected["board not found"] += 1
                 coarse.append(np.full((board.n_corners, 2), np.nan))
