@@ -194,13 +194,19 @@ def probe_clip(path) -> ClipInfo:
                         _rotation(stream, first), duration)
 
 
+#: Limited-range ("TV") luma 16-235 to full-range grey 0-255.
+_FULL_RANGE = np.clip(np.rint((np.arange(256) - 16) * (255 / 219)), 0, 255).astype(np.uint8)
+
+
 def _gray(frame) -> np.ndarray:
-    """The luma of a decoded frame as (H, W) uint8 (the Y plane itself for the usual 8-bit YUV formats)."""
-    if frame.format.name in ("yuv420p", "yuvj420p", "nv12", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p"):
-        plane = frame.planes[0]
-        rows = np.frombuffer(plane, np.uint8).reshape(plane.height, plane.line_size)
-        return rows[:, :plane.width]
-    return frame.to_ndarray(format="gray")
+    """The luma of a decoded frame as (H, W) uint8 grey, full range (the Y plane itself for the usual 8-bit
+    YUV formats, stretched from 16-235 where the clip is limited-range, as phones record)."""
+    if frame.format.name not in ("yuv420p", "yuvj420p", "nv12", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p"):
+        return frame.to_ndarray(format="gray")
+    plane = frame.planes[0]
+    luma = np.frombuffer(plane, np.uint8).reshape(plane.height, plane.line_size)[:, :plane.width]
+    full = frame.format.name.startswith("yuvj") or getattr(frame, "color_range", 0) == 2     # 2: JPEG range
+    return luma if full else cv2.LUT(luma, _FULL_RANGE)
 
 
 def read_frames(path):

@@ -240,17 +240,23 @@ def _exposure_poses(video: VideoTruth, camera: str, t_s: float) -> list:
     return [(video.camera_pose(camera, t - r / 2), video.camera_pose(camera, t + r / 2)) for t in times]
 
 
-def encode_clip(frames, size: tuple[int, int], fps: float, crf: int = 18) -> bytes:
-    """H.264 in an .mp4 (yuv420p, as a phone records) of grey ``frames`` (an iterable of (H, W) uint8)."""
+def encode_clip(frames, size: tuple[int, int], fps: float, crf: int = 18, codec: str = "libx264",
+                rotation_deg: int = 0) -> bytes:
+    """An .mp4 of grey ``frames`` (an iterable of (H, W) uint8) as a phone records it: H.264 (``codec``
+    ``"libx265"``: HEVC), yuv420p, with the display rotation a phone held upright writes (``rotation_deg``)."""
     require("video")
     import av
 
     buffer = io.BytesIO()
     with av.open(buffer, "w", format="mp4") as container:
-        stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
+        stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1001))
         stream.width, stream.height = size
         stream.pix_fmt = "yuv420p"
         stream.options = {"crf": str(crf), "preset": "veryfast"}
+        if codec == "libx265":
+            stream.options["x265-params"] = "log-level=error"
+        if rotation_deg:
+            stream.set_display_rotation(rotation_deg)
         for img in frames:
             frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="gray").reformat(format="yuv420p")
             for packet in stream.encode(frame):
