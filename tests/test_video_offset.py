@@ -90,3 +90,23 @@ def test_lenses_whose_clocks_are_not_matched_are_calibrated_alone():
     rig = calibrate_corners(clips, model="k1k2", compare_lens=False)
     assert rig.rig_mode == "none" and rig.rig == {}
     assert abs(rig.cameras["right"].fx - truth.cameras["right"].fx) < 4 * rig.camera_sigma["right"]["fx"]
+
+
+def test_split_half_keeps_the_frames_of_a_moment_in_one_half():
+    from dualcal.estimation.validation import split_half_z
+    from dualcal.synthetic import synth
+
+    truth = synth.make_truth("stereo", views=8, seed=0, scale=0.5)
+    corners = synth.noisy_corner_set(truth, 0.05)
+    groups = {v: i // 2 for i, v in enumerate(sorted(truth.view_poses))}      # two frames per moment
+    halves = []
+
+    def calibrate(half):                       # no calibration needed to check how the instants were split
+        halves.append(sorted(half.cameras["left"].views))
+        return synth.truth_rig_model(truth, half)
+
+    with np.errstate(invalid="ignore", divide="ignore"):       # the truth's sigmas are 0
+        split_half_z(corners, splits=3, groups=groups, calibrate=calibrate)
+    for keys in halves:
+        moments = {groups[k] for k in keys}
+        assert len(keys) == 2 * len(moments)                        # every moment whole in one half
