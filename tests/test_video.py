@@ -71,12 +71,15 @@ def test_a_file_that_is_no_video_is_one_line(tmp_path, run_cli):
     assert res.code == 2 and len(res.err_lines) == 1 and "wide.mp4: not a readable video" in res.err, res.err
 
 
-def test_clips_beside_photos_are_refused(tmp_path, run_cli):
-    (tmp_path / "wide.mp4").write_bytes(b"x")
-    (tmp_path / "tele").mkdir()
-    (tmp_path / "tele" / "IMG_01.jpg").write_bytes(b"x")
-    res = run_cli("calibrate", tmp_path, "--board", "9x6", "--square", "30", "-o", tmp_path / "c.json")
-    assert res.code == 2 and "holds clips" in res.err and len(res.err_lines) == 1, res.err
+def test_clips_beside_photos_are_a_camera_rolls_live_photos(tmp_path, run_cli):
+    from dualcal.files.video import find_clips
+
+    (tmp_path / "IMG_0101.MOV").write_bytes(b"x")
+    (tmp_path / "IMG_0101.HEIC").write_bytes(b"x")
+    assert find_clips(tmp_path) is None                            # photos: the dataset skips the .MOV
+    res = run_cli("calibrate", "--camera", "wide=a.mp4", "--camera", "tele=b*.jpg", "--board", "9x6",
+                  "--square", "30", "-o", tmp_path / "c.json")
+    assert res.code == 2 and "give every camera as a clip" in res.err and len(res.err_lines) == 1, res.err
 
 
 def test_without_the_video_extra_one_line_says_what_to_install(monkeypatch, tmp_path, run_cli):

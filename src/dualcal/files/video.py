@@ -79,8 +79,9 @@ def find_clips(source=None, cameras=()) -> dict[str, Path] | None:
     """The clips of an input, ``{camera: path}``, or None when the input holds no video.
 
     A folder whose files are clips (``clips/wide.mp4``, ``clips/tele.mov``: each stem a camera), or cameras
-    given as ``NAME=FILE.mp4`` (every ``--camera`` a clip). A folder of clips beside photos or camera
-    folders, or clips mixed with globs of photos, is refused: which to use would be a guess.
+    given as ``NAME=FILE.mp4`` (every ``--camera`` a clip). A folder that also holds photos or camera folders
+    is a dataset of photos (a phone's camera roll keeps its Live Photos as ``.MOV`` beside the photos; the
+    dataset skips them with a warning); clips mixed with globs of photos are refused.
     """
     if cameras:
         specs = [c.partition("=")[::2] if isinstance(c, str) else tuple(c) for c in cameras]
@@ -109,10 +110,8 @@ def find_clips(source=None, cameras=()) -> dict[str, Path] | None:
         return None
     from .photos import PHOTO_SUFFIXES
 
-    others = [p.name for p in entries if p.is_dir() or (p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)]
-    if others:
-        raise InputError(f"{source} holds clips ({clips[0].name}, ...) and photos or camera folders ({others[0]}, ...): "
-                         "put the clips of one recording in a folder of their own")
+    if any(p.is_dir() or p.suffix.lower() in PHOTO_SUFFIXES for p in entries):
+        return None          # photos (a camera roll's Live Photos are .MOV beside them): the clips are not used
     names = {}
     for p in clips:
         if p.stem in names:
