@@ -101,11 +101,12 @@ class VideoTruth:
         return Pose(turn @ base.R, base.t_mm + self.tremor_mm * wave[3:])
 
     def frame_times(self, camera: str) -> np.ndarray:
-        """Reference clock times of camera ``camera``'s frames within the clip."""
+        """Reference clock times of camera ``camera``'s frames, from its first (exposed at its ``offset_s``:
+        before the reference's first where that is negative, the board then held at its first pose) to the
+        end of the motion."""
         start = self.offset_s[camera]
-        first = int(np.ceil(-start * self.fps[camera])) if start < 0 else 0
         last = int(np.floor((self.duration_s - start) * self.fps[camera]))
-        return start + np.arange(first, last + 1) / self.fps[camera]
+        return start + np.arange(last + 1) / self.fps[camera]
 
     def camera_pose(self, camera: str, t_s: float) -> Pose:
         return self.truth.seen_by(camera, self.board_pose(t_s))
