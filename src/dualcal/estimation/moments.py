@@ -163,8 +163,8 @@ def choose_moments(tracks: dict[str, tuple[np.ndarray, dict[int, np.ndarray]]], 
 
     Parameters
     ----------
-    tracks : ``{camera: (times_s (F,), measured {frame: (N, 2)})}``: each frame's time from its clip's first
-        and the corners measured at full resolution.
+    tracks : ``{camera: (times_s (F,), corners {frame: (N, 2)})}``: each frame's time from its clip's first,
+        and the board's corners as tracked in the frames that can be chosen (where it barely moved).
     reference : the reference camera; its clock is the common one.
     offsets : each camera's offset (s, :mod:`dualcal.estimation.time_offset`), None where its clock is not matched.
     sizes : each camera's image size.
@@ -173,7 +173,7 @@ def choose_moments(tracks: dict[str, tuple[np.ndarray, dict[int, np.ndarray]]], 
     fps_ref = 1.0 / float(np.median(np.diff(times_ref))) if len(times_ref) > 1 else 30.0
     runs, holds, still = {}, {}, {}
     for name, (times, measured) in tracks.items():
-        runs[name], motion = still_runs(measured, still_px)
+        runs[name], _ = still_runs(measured, still_px)
         still[name] = int(sum(len(r) for r in runs[name]))
         off = offsets.get(name)
         holds[name] = [(times[r[0]] + (off or 0.0), times[r[-1]] + (off or 0.0)) for r in runs[name]]
@@ -208,7 +208,7 @@ def choose_moments(tracks: dict[str, tuple[np.ndarray, dict[int, np.ndarray]]], 
     if len(candidates) > 3:
         try:
             order = rank_by_information(candidates, board, sizes, reference, max_instants)
-        except EstimationError:
+        except (EstimationError, np.linalg.LinAlgError):        # no prior to rank by: the first ones
             order = list(range(min(len(candidates), max_instants)))
     else:
         order = list(range(len(candidates)))

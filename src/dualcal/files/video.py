@@ -44,6 +44,7 @@ from ..progress import progress_bar, warn
 from .detect.coarse import reduce_image, to_full_resolution
 from .detect.order import check_colours, order_grid, square_colours
 from .detect.refine import refine_corners, window_half_size
+from .detect.symmetry import align_symmetric_numbering
 
 __all__ = ["VIDEO_SUFFIXES", "ClipInfo", "ClipTrack", "find_clips", "is_video", "probe_clip", "read_frames",
            "track_clip", "video_corners"]
@@ -466,4 +467,12 @@ def video_corners(clips: dict[str, Path], board: Board, reference: str | None = 
             warn(f"{clips[name]}: the clip says to turn it by {tr.info.rotation_deg} degrees for display; the "
                  "frames are used as stored (the sensor does not turn when the phone does)")
         cameras[name] = CameraCorners(tr.info.size, views, {"video": record})
-    return CornerSet(board, cameras, ref)
+    corners = CornerSet(board, cameras, ref)
+    if board.is_symmetric() and len(cameras) > 1:
+        # each frame numbered by the top-left rule (as photos are): every other camera's views renumbered to
+        # fit the rig, as detection does (dualcal.files.detect.symmetry)
+        corners, turned = align_symmetric_numbering(corners, ref)
+        warn(f"board {board.spec()} looks the same turned by 180 degrees: corner 0 taken as the candidate nearest "
+             f"the image's top-left in {ref!r} and as fits the rig in the other cameras ({turned} view(s) "
+             "renumbered); a board with an odd COLS+ROWS has no such doubt")
+    return corners
