@@ -468,7 +468,7 @@ def video_corners(clips: dict[str, Path], board: Board, reference: str | None = 
                  "frames are used as stored (the sensor does not turn when the phone does)")
         cameras[name] = CameraCorners(tr.info.size, views, {"video": record})
     corners = CornerSet(board, cameras, ref)
-    if board.is_symmetric() and len(cameras) > 1:
+    if board.is_symmetric and len(cameras) > 1:
         # each frame numbered by the top-left rule (as photos are): every other camera's views renumbered to
         # fit the rig, as detection does (dualcal.files.detect.symmetry)
         corners, turned = align_symmetric_numbering(corners, ref)
