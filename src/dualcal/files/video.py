@@ -54,6 +54,9 @@ VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".3gp", ".mts
 #: The reduced image the board is searched in (where it was not in the frame before) has its long side at
 #: least this (px).
 SEARCH_LONG_SIDE_PX = 640
+#: Where the board was lost and not found again, it is searched for in every this many frames only (a
+#: search costs tens of milliseconds; the board is mostly moving fast or out of view then).
+SEARCH_EVERY = 3
 #: The board is followed on a frame reduced so that its squares keep at least this many pixels.
 FOLLOW_SQUARE_PX = 8
 #: Lucas-Kanade's window and pyramid levels (on the reduced frame).
@@ -198,21 +201,23 @@ def probe_clip(path) -> ClipInfo:
 _FULL_RANGE = np.clip(np.rint((np.arange(256) - 16) * (255 / 219)), 0, 255).astype(np.uint8)
 
 
-def _gray(frame) -> np.ndarray:
-    """The luma of a decoded frame as (H, W) uint8 grey, full range (the Y plane itself for the usual 8-bit
-    YUV formats, stretched from 16-235 where the clip is limited-range, as phones record)."""
+def _gray(frame, full_range: bool) -> np.ndarray:
+    """The luma of a decoded frame as (H, W) uint8: the Y plane itself for the usual 8-bit YUV formats, with
+    ``full_range`` stretched from 16-235 where the clip is limited-range (as phones record; corners do not
+    care: the detectors and the refinement's fit take any gain and offset of the grey levels)."""
     if frame.format.name not in ("yuv420p", "yuvj420p", "nv12", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p"):
         return frame.to_ndarray(format="gray")
     plane = frame.planes[0]
     luma = np.frombuffer(plane, np.uint8).reshape(plane.height, plane.line_size)[:, :plane.width]
     full = frame.format.name.startswith("yuvj") or getattr(frame, "color_range", 0) == 2     # 2: JPEG range
-    return luma if full else cv2.LUT(luma, _FULL_RANGE)
+    return luma if full or not full_range else cv2.LUT(luma, _FULL_RANGE)
 
 
-def read_frames(path):
+def read_frames(path, full_range: bool = True):
     """Decode a clip: yields ``(index, t_s, gray)`` per frame, ``t_s`` seconds from its first frame (from
     the presentation timestamps, so a variable frame rate is followed), ``gray`` (H, W) uint8 in the stored
-    frame. One frame at a time; a frame FFmpeg cannot decode ends the clip there with a warning."""
+    frame (``full_range``: grey levels 0-255, else the luma as stored, :func:`_gray`). One frame at a time; a
+    frame FFmpeg cannot decode ends the clip there with a warning."""
     with _open(path) as container:
         import av
 
@@ -225,7 +230,7 @@ def read_frames(path):
                 t = float(frame.pts * stream.time_base) if frame.pts is not None else index / float(
                     stream.average_rate or 30)
                 t0 = t if t0 is None else t0
-                yield index, t - t0, _gray(frame)
+                yield index, t - t0, _gray(frame, full_range)
                 index += 1
         except av.error.FFmpegError as exc:
             warn(f"{path}: decoding stopped at frame {index} ({' '.join(str(exc).split())})")
@@ -256,7 +261,7 @@ class CornerWindows:
         H, W = gray.shape
         n = 2 * half + 1
         origin = np.clip(np.rint(uv).astype(int) - half, 0, [W - n, H - n])
-        patches = np.stack([gray[r:r + n, c:c + n] for c, r in origin])
+        patches = np.lib.stride_tricks.sliding_window_view(gray, (n, n))[origin[:, 1], origin[:, 0]]
         return cls(uv, origin, patches)
 
     def measure(self, image_size: tuple[int, int], board: Board) -> np.ndarray:
@@ -298,6 +303,9 @@ class ClipTrack:
 
 
 _SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 20, 0.01)
+#: The board is followed within this share of its extent in the image around where it was (the rest of the
+#: frame is not looked at: a board that moved farther is found afresh).
+FOLLOW_REACH = 0.3
 #: A grid followed from the frame before is kept while every corner is within this share of its spacing
 #: from its neighbours' prediction (else the board is searched afresh).
 FOLLOW_TOLERANCE = 0.15
@@ -322,19 +330,28 @@ def _found_board(small: np.ndarray, factor: int, board: Board) -> np.ndarray | N
 
 def _followed_board(before: np.ndarray, small: np.ndarray, uv: np.ndarray, factor: int,
                     board: Board) -> np.ndarray | None:
-    """The corners ``uv`` of the frame before (full-resolution px; ``before`` its reduced image) followed
-    into this one by pyramidal Lucas-Kanade optical flow on the reduced frames, then fitted there to the sub-pixel; None when a corner
+    """The corners ``uv`` of the frame before (full-resolution px) followed into this frame by pyramidal
+    Lucas-Kanade optical flow, then fitted to the sub-pixel, on the two frames reduced by ``factor``
+    (``before``, ``small``) and cut to the board's surroundings (:data:`FOLLOW_REACH`); None when a corner
     is lost or the grid no longer looks like one (:data:`FOLLOW_TOLERANCE`)."""
-    start = ((uv + 0.5) / factor - 0.5).astype(np.float32).reshape(-1, 1, 2)
-    moved, status, _ = cv2.calcOpticalFlowPyrLK(before, small, start, None, winSize=FLOW_WINDOW,
-                                                maxLevel=FLOW_LEVELS)
+    h, w = small.shape
+    start = (uv + 0.5) / factor - 0.5
+    lo, hi = start.min(axis=0), start.max(axis=0)
+    reach = FOLLOW_REACH * float(np.max(hi - lo)) + 8
+    x0, y0 = np.maximum(lo - reach, 0).astype(int)
+    x1, y1 = np.minimum(hi + reach + 1, [w, h]).astype(int)
+    if x1 - x0 < 16 or y1 - y0 < 16:
+        return None
+    a, b = (np.ascontiguousarray(img[y0:y1, x0:x1]) for img in (before, small))
+    origin = np.array([x0, y0], float)
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(a, b, (start - origin).astype(np.float32).reshape(-1, 1, 2), None,
+                                                winSize=FLOW_WINDOW, maxLevel=FLOW_LEVELS)
     if moved is None or not status.all():
         return None
-    h, w = small.shape
-    if np.any(moved < 2) or np.any(moved[..., 0] > w - 3) or np.any(moved[..., 1] > h - 3):
+    if np.any(moved < 2) or np.any(moved[..., 0] > b.shape[1] - 3) or np.any(moved[..., 1] > b.shape[0] - 3):
         return None
-    moved = cv2.cornerSubPix(small, moved, (3, 3), (-1, -1), _SUBPIX)
-    out = to_full_resolution(moved.reshape(-1, 2).astype(float), factor)
+    moved = cv2.cornerSubPix(b, moved, (3, 3), (-1, -1), _SUBPIX)
+    out = to_full_resolution(moved.reshape(-1, 2).astype(float) + origin, factor)
     return out if _grid_like(out.reshape(board.rows, board.cols, 2)) else None
 
 
@@ -342,10 +359,12 @@ def _grid_like(grid: np.ndarray) -> bool:
     """Whether a (rows, cols, 2) grid still looks like a board's: along every row and column each corner is
     within :data:`FOLLOW_TOLERANCE` of the spacing from the middle of its two neighbours (a board's image
     bends that little between neighbouring corners; a corner that slid to the next one does not)."""
-    spacing = np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2))
-    bend = np.concatenate([np.linalg.norm(grid[:, 2:] - 2 * grid[:, 1:-1] + grid[:, :-2], axis=2).ravel(),
-                           np.linalg.norm(grid[2:] - 2 * grid[1:-1] + grid[:-2], axis=2).ravel()])
-    return bool(spacing > 0 and np.all(bend <= 2 * FOLLOW_TOLERANCE * spacing))
+    step = np.diff(grid, axis=1)
+    spacing2 = float(np.mean(np.sum(step * step, axis=2)))
+    bend_r = grid[:, 2:] - 2 * grid[:, 1:-1] + grid[:, :-2]
+    bend_c = grid[2:] - 2 * grid[1:-1] + grid[:-2]
+    worst = max(float(np.max(np.sum(bend_r * bend_r, axis=2))), float(np.max(np.sum(bend_c * bend_c, axis=2))))
+    return spacing2 > 0 and worst <= (2 * FOLLOW_TOLERANCE) ** 2 * spacing2
 
 
 def track_clip(path, board: Board, progress: bool = True, name: str | None = None, advance=None) -> ClipTrack:
@@ -368,23 +387,27 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
     times, coarse = [], []
     windows: dict[int, CornerWindows] = {}
     rejected = {"board not found": 0}
-    previous, before = None, None
+    previous, before, searched = None, None, -SEARCH_EVERY
     with progress_bar(f"reading {name or Path(path).name}", info.frames,
                       enabled=progress and advance is None) as own:
         advance = advance or own
-        for index, t, gray in read_frames(path):
+        for index, t, gray in read_frames(path, full_range=False):
             if gray.shape != (H, W):
                 raise InputError(f"{path}: frame {index} is {gray.shape[1]}x{gray.shape[0]}, the first {W}x{H}")
             times.append(t)
             small = np.ascontiguousarray(reduce_image(gray, factor))
             uv = None if previous is None else _followed_board(before, small, previous, factor, board)
-            if uv is None:
-                uv = _found_board(np.ascontiguousarray(reduce_image(gray, search)), search, board)
+            if uv is None and (previous is not None or index - searched >= SEARCH_EVERY):
+                # where it was lost while followed, its squares' size says how far the frame can be reduced
+                reduced = max(search, factor // 2) if previous is not None else search
+                searched = index
+                uv = _found_board(np.ascontiguousarray(reduce_image(gray, reduced)), reduced, board)
                 if uv is not None:
                     grid = uv.reshape(board.rows, board.cols, 2)
                     square = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2)))
-                    factor = int(np.clip(square // FOLLOW_SQUARE_PX, 1, 2 * search))
-                    small = np.ascontiguousarray(reduce_image(gray, factor))
+                    renewed = int(np.clip(square // FOLLOW_SQUARE_PX, 1, 4 * search))
+                    if renewed != factor:
+                        factor, small = renewed, np.ascontiguousarray(reduce_image(gray, renewed))
             if uv is None:
                 rejected["board not found"] += 1
                 coarse.append(np.full((board.n_corners, 2), np.nan))
