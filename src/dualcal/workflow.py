@@ -153,8 +153,8 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
 
     ``options`` are those of :func:`dualcal.estimation.calibrate.calibrate_rig` (``skew``, ``rig_mode``,
     ``reference``, ``drop_outliers``, ``outlier_factor``, ``board_shape``); corners from clips whose clocks
-    could not all be matched (:mod:`dualcal.files.video`) are calibrated with every lens alone. ``model`` is as there, but
-    ``"auto"`` by default, as for the commands: each camera's lens model chosen by its held-out instants
+    could not all be matched (:mod:`dualcal.files.video`) are calibrated with every lens alone. ``model`` is as
+    there, but ``"auto"`` by default, as for the commands: each camera's lens model chosen by its held-out instants
     (:func:`dualcal.estimation.model_selection.calibrate_auto`, which records its comparison). With one lens model
     for every camera and ``compare_lens``, every other model is scored on instants left out of the
     calibration (:func:`dualcal.estimation.model_selection.compare_lens_models`) and the scores are recorded in
@@ -163,8 +163,9 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
     from .estimation.calibrate import calibrate_rig
     from .estimation.model_selection import compare_lens_models
 
-    unmatched = [n for n, c in corners.cameras.items() if isinstance(c.meta.get("video"), dict)
-                 and "offset_s" not in c.meta["video"]]
+    from .files.io import video_record
+
+    unmatched = (video_record(corners) or {}).get("unmatched")
     if unmatched and options.get("rig_mode", "rigid") != "none":
         warn(f"the clocks of {', '.join(unmatched)} could not be matched to the reference's (the board was never "
              "seen moving by both at once): every lens is calibrated alone (rig mode none)")
