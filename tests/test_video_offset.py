@@ -15,9 +15,11 @@ def _tracks(video, noise_px=0.05):
             for i, (n, c) in enumerate(video.truth.cameras.items())}
 
 
-@pytest.mark.parametrize("offset_frames, fps, seed", [(3.4, 30.0, 0), (-2.73, 30.0, 1), (0.2, 24.0, 2)])
-def test_the_offset_is_found_within_2_ms_and_its_sigma(offset_frames, fps, seed):
+@pytest.mark.parametrize("offset_frames, fps, other_fps, seed", [(3.4, 30.0, 30.0, 0), (-2.73, 30.0, 30.0, 1),
+                                                                 (0.2, 30.0, 24.0, 2)])
+def test_the_offset_is_found_within_2_ms_and_its_sigma(offset_frames, fps, other_fps, seed):
     video = make_video_truth("stereo", holds=6, seed=seed, scale=0.5, fps=fps, offset_frames=offset_frames)
+    video.fps["right"] = other_fps                                  # a stream at another frame rate
     found = estimate_offsets(_tracks(video), video.truth.board, "left")
     true = video.offset_s["right"]
     error = found["right"].offset_s - true
