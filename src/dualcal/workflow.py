@@ -138,9 +138,15 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
 
 def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant_gap_s, reference, exclude,
             jobs, hints_path, overlays_dir, progress) -> CornerSet:
-    """A dataset's corners: open it, refuse cameras that pair with nothing, detect."""
+    """A dataset's corners: open it, refuse cameras that pair with nothing, detect (clips: their frames
+    chosen and measured, :func:`dualcal.files.video.video_corners`)."""
     from .files.dataset import check_pairs, open_dataset
     from .files.detect import detect_dataset, load_hints
+    from .files.video import find_clips, video_corners
+
+    clips = find_clips(source, cameras)
+    if clips is not None:
+        return video_corners(clips, board, reference=reference, progress=progress)
 
     dataset = open_dataset(source, cameras, pair_by=pair_by, reference=reference,
                            time_tolerance_s=time_tolerance_s, instant_gap_s=instant_gap_s, exclude=exclude)
@@ -157,8 +163,9 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
     """Calibrate a rig from its corners, with the lens models compared by held-out instants.
 
     ``options`` are those of :func:`dualcal.estimation.calibrate.calibrate_rig` (``skew``, ``rig_mode``,
-    ``reference``, ``drop_outliers``, ``outlier_factor``, ``board_shape``). ``model`` is as there, but
-    ``"auto"`` by default, as for the commands: each camera's lens model chosen by its held-out instants
+    ``reference``, ``drop_outliers``, ``outlier_factor``, ``board_shape``); corners from clips whose clocks
+    could not all be matched (:mod:`dualcal.files.video`) are calibrated with every lens alone. ``model`` is as
+    there, but ``"auto"`` by default, as for the commands: each camera's lens model chosen by its held-out instants
     (:func:`dualcal.estimation.model_selection.calibrate_auto`, which records its comparison). With one lens model
     for every camera and ``compare_lens``, every other model is scored on instants left out of the
     calibration (:func:`dualcal.estimation.model_selection.compare_lens_models`) and the scores are recorded in
@@ -190,6 +197,13 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
     from .estimation.calibrate import calibrate_rig
     from .estimation.model_selection import compare_lens_models
 
+    from .files.io import video_record
+
+    unmatched = (video_record(corners) or {}).get("unmatched")
+    if unmatched and options.get("rig_mode", "rigid") != "none":
+        warn(f"the clocks of {', '.join(unmatched)} could not be matched to the reference's (the board was never "
+             "seen moving by both at once): every lens is calibrated alone (rig mode none)")
+        options["rig_mode"] = "none"
     rig = calibrate_rig(corners, model=model, **options)
     if compare_lens and model != "auto" and rig.model != "mixed":
         try:

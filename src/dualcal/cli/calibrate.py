@@ -59,7 +59,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     from ..messages import CHECKS, page_of
     from ..progress import warn
     from .tables import (lens_model_advice, lens_model_choice_table, lens_model_table, photo_table,
-                                result_tables, roll_tables)
+                                result_tables, roll_tables, video_lines)
     from ..workflow import calibrate_corners, lens_scores, other_skew_model
 
     if input_path is None and not dataset_opts.get("cameras"):
@@ -85,6 +85,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     console = stdout_console()
     for table in roll_tables(corners.roll) if corners.roll else ():
         console.print(table)
+    for line in video_lines(corners):
+        console.print(line)
     console.print(photo_table(rig))
     for table in result_tables(models):
         console.print(table)

@@ -102,6 +102,10 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square
         console = SafeConsole(stderr=True, soft_wrap=True, highlight=False)
         for table in roll_tables(corners.roll):
             console.print(table)
+    from .tables import video_lines
+
+    for line in video_lines(corners):
+        echo(line, err=True)
     found = {c: sum(v is not None for v in cc.views.values()) for c, cc in corners.cameras.items()}
     summary = ", ".join(f"{c} {n}/{len(corners.cameras[c].views)}" for c, n in found.items())
     excluded = sum(len(cc.meta.get("excluded", {})) for cc in corners.cameras.values())

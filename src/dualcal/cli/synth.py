@@ -42,6 +42,14 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @click.option("--roll", is_flag=True,
               help="Write the photos as a phone's camera roll instead: one folder OUTDIR/roll, every lens mixed in "
                    "shooting order with EXIF, a retake, a photo without the board and sidecar files.")
+@click.option("--video", is_flag=True,
+              help="Write clips instead: OUTDIR/clips/<camera>.mp4 (H.264), the board carried by hand and held still "
+                   "--views times, every other camera starting --offset-frames after the reference.")
+@click.option("--fps", type=float, default=30.0, show_default=True, help="With --video: the clips' frame rate.")
+@click.option("--offset-frames", type=float, default=3.4, show_default=True,
+              help="With --video: how many frames after the reference the other cameras start (a fraction too).")
+@click.option("--readout-ms", type=float, default=0.0, show_default=True,
+              help="With --video: a rolling shutter's readout time, top row to bottom row (0: global shutter).")
 @click.option("--jobs", type=click.IntRange(min=1), default=None, help="Photos rendered in parallel (default: all cores).")
 @board_options(required=False, dictionary_default="the smallest DICT_5X5 that holds the markers")
 @click.option("--coverage", metavar="LO:HI", default=None,
@@ -50,8 +58,8 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @click.option("--marks", type=LazyChoice("dualcal.synthetic.render_marks:MARK_KINDS"), default=None,
               help="Print marks in the chessboard's white squares: a binary code in each (as ECoCheck), a dot in "
                    "each, a logo in two, or a serial number along the first row.")
-def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jobs, board_spec, square_mm, marker_mm,
-                  dictionary, coverage, marks):
+def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, video, fps, offset_frames, readout_ms,
+                  jobs, board_spec, square_mm, marker_mm, dictionary, coverage, marks):
     """Write a synthetic rig with known truth to OUTDIR.
 
     \b
@@ -59,6 +67,7 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jo
     OUTDIR/truth.json          the true calibration, in calib.json format
     OUTDIR/photos/<cam>/*.jpg  photo-like renders of the board (a dataset for 'dualcal detect')
     OUTDIR/roll/IMG_*.JPG      with --roll: the same photos as a phone's camera roll
+    OUTDIR/clips/<cam>.mp4     with --video: clips instead (truth.json's "video" has the true offsets)
 
     --board replaces the preset's board. With a ChArUco board (--board charuco:11x8 --square 25
     --marker 18) the narrowest camera (the tele) sees only part of the board in most views
@@ -77,6 +86,8 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jo
     if marks is not None and board is not None and board.charuco is not None:
         raise InputError("--marks is for chessboards: a ChArUco board has its markers in its white squares")
     share = _coverage(coverage, board)
+    if video:
+        return _synth_video(outdir, preset, views, seed, scale, fps, offset_frames, readout_ms, board, marks or roll)
     out = make_output_folder(outdir)
     truth = synth.make_truth(preset, views, seed, scale, board=board, coverage=share)
     corners = synth.noisy_corner_set(truth, noise_px, seed)
@@ -91,3 +102,33 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, jo
     n = len(truth.view_poses) * len(truth.cameras)
     echo(f"{preset}: {len(truth.cameras)} cameras x {len(truth.view_poses)} views "
          f"({n} {'photos' if photos or roll else 'corner sets'}{' in a camera roll' if roll else ''}) written to {out}")
+
+
+def _synth_video(outdir, preset, holds, seed, scale, fps, offset_frames, readout_ms, board, other) -> None:
+    """``synth --video``: the clips, truth.json with the true offsets (its ``video``) and the held instants."""
+    from ..files.io import make_output_folder, rig_to_dict, write_json_atomic
+    from ..synthetic import synth
+    from ..synthetic.synth_video import make_video_truth, video_truth_doc, write_clips
+
+    if other:
+        raise InputError("--video writes clips of a chessboard: --roll and --marks do not apply to it")
+    if board is not None and board.charuco is not None:
+        raise InputError("--video needs a chessboard (a ChArUco board is not tracked in clips)")
+    if holds < 3:
+        raise InputError("--video needs --views 3 or more (the times the board is held still)")
+    if not 1 <= fps <= 240:
+        raise InputError(f"--fps {fps}: must be within 1-240")
+    if readout_ms < 0:
+        raise InputError(f"--readout-ms {readout_ms}: must be >= 0")
+    truth = make_video_truth(preset, holds, seed, scale, fps=fps, offset_frames=offset_frames,
+                             readout_s=readout_ms / 1000, board=board)
+    odd = [n for n, c in truth.truth.cameras.items() if c.image_size[0] % 2 or c.image_size[1] % 2]
+    if odd:
+        raise InputError(f"--scale {scale}: camera {odd[0]!r} would be {truth.truth.cameras[odd[0]].image_size}, "
+                         "and H.264 needs even sizes: choose another --scale")
+    out = make_output_folder(outdir)
+    doc = rig_to_dict(synth.truth_rig_model(truth.truth))
+    write_json_atomic(out / "truth.json", {**doc, "video": video_truth_doc(truth)})
+    write_clips(truth, make_output_folder(out / "clips"), seed=seed)
+    echo(f"{preset}: {len(truth.truth.cameras)} clips of {truth.duration_s:.1f} s at {fps:g} fps, the board held "
+         f"{holds} times, written to {out / 'clips'}")

@@ -192,3 +192,22 @@ def roll_tables(roll: dict) -> list[Table]:
             out.add_row(file_name, why)
         tables.append(out)
     return tables
+
+
+def video_lines(corners) -> list[str]:
+    """Lines for the terminal: what became of each clip's frames (read, board found, held still, chosen,
+    and why the others were not) and each camera's offset from the reference; none without clips."""
+    lines = []
+    for name, cam in corners.cameras.items():
+        record = cam.meta.get("video")
+        if not record:
+            continue
+        why = ", ".join(f"{what} {n}" for what, n in record["not_used"].items() if n)
+        lines.append(f"{name}: {record['frames_read']} frames read, board found in {record['board_found']}, "
+                     f"held still in {record['still']} ({record['moments']} moments), {record['chosen']} chosen"
+                     + (f"; not chosen: {why}" if why else ""))
+        if "offset_s" in record and name != corners.reference:
+            fps = record["fps"]
+            lines.append(f"{name}: first frame at {record['offset_s']:+.4f} s +- {record['offset_sigma_s']:.4f} s on "
+                         f"{corners.reference}'s clock ({record['offset_s'] * fps:+.2f} frames)")
+    return lines

@@ -15,6 +15,11 @@ of a pixel. Groups are closed transitively; the first key of a group (in sorted 
 noise is taken between :data:`MIN_NOISE_PX` and :data:`MAX_NOISE_PX`; a camera none of whose instants
 come within the limit of the largest is spared estimating it.)
 
+The same holds, more generally, for frames of one clip taken while the board was held still: whatever
+their corners, they are one moment, and the instants of one moment (each camera's ``video`` record in the
+corners says which moment an instant's frame belongs to: ``moment_of_view``, :mod:`dualcal.files.video`) are
+one instant too, so that using more frames of a moment cannot shrink a sigma.
+
 Identical files are found where a dataset lists its photos (:func:`dualcal.files.dataset.duplicate_files`).
 """
 
@@ -79,8 +84,18 @@ def _rms_differences(stack: np.ndarray, a: int) -> tuple[np.ndarray, np.ndarray]
     return np.where(n > 0, rms, np.inf), share
 
 
+def same_moment(corners: CornerSet, keys: list[str]) -> np.ndarray:
+    """(V, V) bool: the instants ``keys`` whose frames some camera's clip records as one moment."""
+    from .validation import moments_of
+
+    moment = moments_of(corners)
+    ids = np.array([moment.get(k, -1 - i) for i, k in enumerate(keys)])
+    return ids[:, None] == ids[None, :]
+
+
 def find_duplicate_instants(corners: CornerSet, sigmas: float = DUPLICATE_SIGMAS) -> list[dict]:
-    """Groups of instants whose views are the same within the noise (module docstring).
+    """Groups of instants whose views are the same within the noise, or frames of one moment of a clip
+    (module docstring).
 
     Returns
     -------
@@ -116,10 +131,11 @@ def find_duplicate_instants(corners: CornerSet, sigmas: float = DUPLICATE_SIGMAS
         limit_of[name] = limit
         close &= ~both | (rms <= limit)
     records = []
-    for group in _connected_groups(close):
+    for group in _connected_groups(close | (same_moment(corners, keys) & ~np.eye(len(keys), dtype=bool))):
         first, cams = group[0], [n for c, n in enumerate(names) if seen[group[0], c]]
         records.append({"kept": keys[first], "merged": [keys[i] for i in group[1:]],
-                        "rms_px": {n: float(max(rms_of[n][first, i] for i in group[1:])) for n in cams},
+                        "rms_px": {n: float(max(r)) for n in cams if (r := [rms_of[n][first, i] for i in group[1:]
+                                                                            if np.isfinite(rms_of[n][first, i])])},
                         "limit_px": {n: float(limit_of[n]) for n in cams}})
     return records
 
@@ -163,5 +179,5 @@ def describe_duplicates(records: list[dict]) -> str:
     pairs = "; ".join(f"{', '.join(r['merged'])} = {r['kept']}" for r in records[:8])
     more = f"; and {len(records) - 8} more groups" if len(records) > 8 else ""
     return (f"{n} instant(s) repeat another's view (the same corners within {DUPLICATE_SIGMAS:g} sigma of their "
-            f"noise: a copied photo or a burst) and count once, so that the sigmas come from distinct "
-            f"instants: {pairs}{more}")
+            f"noise: a copied photo or a burst; or frames of one moment a clip held the board still) and count "
+            f"once, so that the sigmas come from distinct instants: {pairs}{more}")

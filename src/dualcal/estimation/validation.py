@@ -21,7 +21,7 @@ import numpy as np
 
 from ..geometry.model import CornerSet, RigModel
 
-__all__ = ["GROUPS", "split_half_z", "pooled_spread", "instants_of"]
+__all__ = ["GROUPS", "split_half_z", "pooled_spread", "instants_of", "moments_of"]
 
 GROUPS = {"f": ("fx", "fy"), "c": ("cx", "cy"), "k": ("k1", "k2")}
 
@@ -29,6 +29,17 @@ GROUPS = {"f": ("fx", "fy"), "c": ("cx", "cy"), "k": ("k1", "k2")}
 def instants_of(corners: CornerSet) -> list[str]:
     """The view keys where at least one camera found the board."""
     return sorted({v for cc in corners.cameras.values() for v in cc.found()})
+
+
+def moments_of(corners: CornerSet) -> dict[str, int]:
+    """``{instant: moment}`` of corners from clips (each camera's ``video`` record, :mod:`dualcal.files.video`);
+    empty for photos."""
+    out = {}
+    for cam in corners.cameras.values():
+        record = cam.meta.get("video")
+        if isinstance(record, dict):
+            out.update(record.get("moment_of_view", {}))
+    return out
 
 
 def _values(rig: RigModel) -> dict[tuple[str, str], tuple[float, float, float]]:
@@ -48,13 +59,15 @@ def _values(rig: RigModel) -> dict[tuple[str, str], tuple[float, float, float]]:
     return out
 
 
-def split_half_z(corners: CornerSet, splits: int = 20, seed: int = 0, calibrate=None, **kwargs):
+def split_half_z(corners: CornerSet, splits: int = 20, seed: int = 0, calibrate=None, groups=None, **kwargs):
     """``z`` scores of ``splits`` random splits of the instants into two halves.
 
     Parameters
     ----------
     corners : the corner set (all instants).
     splits, seed : how many random splits, from which random seed.
+    groups : ``{instant: group}``: instants of one group go to the same half (the frames of one held moment
+        of a clip, whose errors are not independent: :func:`moments_of`); default: every instant its own.
     calibrate : the calibration function (default :func:`dualcal.estimation.calibrate.calibrate_rig`), called
         as ``calibrate(half, **kwargs)``.
 
@@ -65,13 +78,16 @@ def split_half_z(corners: CornerSet, splits: int = 20, seed: int = 0, calibrate=
     if calibrate is None:
         from .calibrate import calibrate_rig as calibrate
     keys = instants_of(corners)
+    groups = groups or {}
+    units = sorted({groups.get(k, k) for k in keys}, key=str)
     rng = np.random.default_rng(seed)
     z = {"sigma": {}, "sigma_formal": {}}
     for _ in range(splits):
-        order = rng.permutation(keys)
-        half = len(keys) // 2
+        order = [units[i] for i in rng.permutation(len(units))]
+        first = set(order[:len(units) // 2])
+        halves = ([k for k in keys if groups.get(k, k) in first], [k for k in keys if groups.get(k, k) not in first])
         a, b = (_values(calibrate(corners.with_views(lambda _, v, part=set(part): v in part), **kwargs))
-                for part in (order[:half], order[half:]))
+                for part in halves)
         for key in a.keys() & b.keys():
             (va, sa, fa), (vb, sb, fb) = a[key], b[key]
             diff = va - vb

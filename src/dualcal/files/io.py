@@ -476,7 +476,23 @@ def rig_to_dict(rig: RigModel) -> dict:
     }
     if rig.covariance is not None:
         doc["covariance"] = rig.covariance
+    video = video_record(rig.corners)
+    if video is not None:
+        doc["video"] = video
     return doc
+
+
+def video_record(cs: CornerSet) -> dict | None:
+    """calib.json's ``video`` (CONTRACT.md, "Video") from the clips' records in each camera's corners
+    (:mod:`dualcal.files.video`), or None when the corners are not from clips."""
+    clips = {name: cam.meta["video"] for name, cam in cs.cameras.items() if isinstance(cam.meta.get("video"), dict)}
+    if not clips:
+        return None
+    offset = {n: r["offset_s"] for n, r in clips.items() if "offset_s" in r}
+    sigma = {n: r["offset_sigma_s"] for n, r in clips.items() if "offset_sigma_s" in r}
+    keys = ("frames_read", "board_found", "still", "moments", "chosen", "not_used")
+    return {"offset_s": offset, "offset_sigma_s": sigma, "unmatched": sorted(set(clips) - set(offset)),
+            "frames": {n: {k: r[k] for k in keys if k in r} for n, r in clips.items()}}
 
 
 def checks_digest(checks: dict) -> str:
