@@ -1,9 +1,9 @@
 """The optional parts of dualcal and the packages they need (``pip install 'dualcal[NAME]'``).
 
 The core (detect, calibrate, evaluate, measure, rectify, undistort, export) needs numpy, fastjsonschema,
-OpenCV, Pillow, rich and click. Two parts need more and are extras of the package: ``report`` (the
-HTML report's figures, the printable board and the manual mode's window: matplotlib) and ``fleet``
-(``batch``: Dask, pandas, pyarrow). :func:`require` imports what a part needs, or says in one line
+OpenCV, Pillow, rich and click. Three parts need more and are extras of the package: ``report`` (the
+HTML report's figures, the printable board and the manual mode's window: matplotlib), ``fleet``
+(``batch``: Dask, pandas, pyarrow) and ``app`` (``dualcal app``: Starlette, uvicorn, python-multipart, segno). :func:`require` imports what a part needs, or says in one line
 which extra installs it.
 """
 
@@ -19,6 +19,7 @@ __all__ = ["EXTRAS", "require"]
 EXTRAS = {
     "report": ("the report, the printable board and the manual mode", ("matplotlib",)),
     "fleet": ("batch (a fleet of devices on a Dask cluster)", ("dask.distributed", "pandas", "pyarrow")),
+    "app": ("the local web app (dualcal app)", ("starlette", "uvicorn", "python_multipart", "segno", "anyio")),
 }
 
 
