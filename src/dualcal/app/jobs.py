@@ -39,9 +39,17 @@ WORKER_NICENESS = 10
 
 
 def _lower_priority() -> None:
+    """A worker's start: a lower priority than the server's, and (Linux) killed when its parent, the fork
+    server, ends, which it does when the server ends: no worker outlives a server killed with SIGKILL."""
     try:
         os.nice(WORKER_NICENESS)
     except OSError:  # pragma: no cover - not permitted: same priority
+        pass
+    try:
+        import ctypes
+        import signal
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))      # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # pragma: no cover - not Linux
         pass
 
 

@@ -101,8 +101,8 @@ def create_app(config: AppConfig) -> Starlette:
     templates = Environment(loader=FileSystemLoader(HERE / "templates"), autoescape=select_autoescape(("html",)))
     templates.filters.update(anchor=_anchor, num=_number)
 
-    def page(name: str, **context) -> HTMLResponse:
-        html = templates.get_template(name).render(version=__version__, **context)
+    def page(template: str, **context) -> HTMLResponse:
+        html = templates.get_template(template).render(version=__version__, **context)
         return HTMLResponse(html, headers={"content-security-policy": PAGE_POLICY, "cache-control": "no-store"})
 
     async def state_of(request: Request) -> ProjectState:

@@ -88,7 +88,8 @@ def calibration_summary(rig, calib: dict, version: int) -> dict:
     checks = [{"name": n, "ok": bool(c.get("ok", True)), "message": str(c.get("message", "")),
                "blames": _blamed(c, photos)} for n, c in rig.checks.items()]
     cameras = []
-    for name, cam in calib["cameras"].items():
+    for name in rig.camera_order():
+        cam = calib["cameras"][name]
         names = [p for p in intrinsic_names(cam.get("model", "k1k2")) if p in cam and (p != "skew" or calib["skew"])]
         cameras.append({"name": name, "model": cam.get("model", calib.get("model")), "image_size": cam["image_size"],
                         "rms_px": cam.get("rms_px"),

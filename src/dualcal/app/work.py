@@ -170,9 +170,13 @@ def run_job(folder: str, version: int, settings: dict, left_out: list[str], conn
     says it (``error``) and the files of the last complete calibration stay as they were."""
     from ..errors import DualcalError
 
+    import fcntl
+
     project = Project(Path(folder))
     project.app_dir.mkdir(exist_ok=True)
     os.chdir(project.folder)          # a process of its own: corners.json names photos/..., as the commands do
+    lock = open(project.app_file("job.lock"), "w")
+    fcntl.flock(lock, fcntl.LOCK_EX)  # one job in a folder at a time, even one a killed server left behind
     with collect_warnings() as warnings:
         try:
             _calibrate(project, version, Settings(**settings), left_out, conn, warnings)
