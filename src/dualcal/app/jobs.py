@@ -53,10 +53,10 @@ def _lower_priority() -> None:
         pass
 
 
-def _job_main(folder, version, settings, left_out, conn) -> None:
+def _job_main(folder, version, settings, left_out, conn, recompute) -> None:
     _lower_priority()
     from .work import run_job
-    run_job(folder, version, settings, left_out, conn)
+    run_job(folder, version, settings, left_out, conn, recompute)
 
 
 @dataclass
@@ -79,6 +79,8 @@ class ProjectState:
     summary: dict | None = None
     failed_version: int = -1
     has_calibration: bool = False
+    adopted_version: int = -1
+    report: object = None
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     _changed: asyncio.Event = field(default_factory=asyncio.Event)
     ticks: int = 0
@@ -181,6 +183,8 @@ class Runner:
         # a folder the commands made has no results.json: its job makes the summary (from its photos, or
         # from calib.json alone where there are none), and the files come out as the commands wrote them
         state.has_calibration = (state.project.folder / "calib.json").exists()
+        if state.has_calibration and not state.results:
+            state.adopted_version = state.version          # its first job takes calib.json as it is
 
     def _known_detections(self, state: ProjectState) -> dict[str, dict]:
         from .work import RememberedDetection
@@ -229,6 +233,19 @@ class Runner:
             self._detect(state, photo)
         state.changed()
 
+    async def report(self, state: ProjectState) -> None:
+        """report.html of the calibration on disk, made now where it is not of it (:func:`.work.make_report`)."""
+        files = state.results.get("files", {})
+        if (state.project.folder / "report.html").exists() and files.get("report.html", -2) == files.get("calib.json"):
+            return
+        from .work import make_report
+        if state.report is None or state.report.done():
+            state.report = asyncio.wrap_future(self._pool.submit(make_report, str(state.project.folder)))
+        try:
+            state.results = await asyncio.shield(state.report) or state.results
+        finally:
+            state.changed()
+
     # -- calibration jobs
     def schedule(self, state: ProjectState) -> None:
         """Start (or queue) the job that brings the files to the version, once nothing is arriving; a job of
@@ -253,7 +270,8 @@ class Runner:
         ctx = self._context
         receive, send = ctx.Pipe(duplex=False)
         process = ctx.Process(target=_job_main, daemon=True, args=(
-            str(state.project.folder), state.version, state.settings.to_dict(), sorted(state.left_out), send))
+            str(state.project.folder), state.version, state.settings.to_dict(), sorted(state.left_out), send,
+            state.version != state.adopted_version))
         process.start()
         send.close()
         state.job, state.job_version = (process, receive), state.version

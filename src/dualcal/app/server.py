@@ -279,6 +279,8 @@ def create_app(config: AppConfig) -> Starlette:
     @project_route
     async def get_file(request: Request, state: ProjectState):
         name = request.path_params["name"]
+        if name == "report.html" and (state.project.folder / "calib.json").is_file():
+            await runner.report(state)
         path = _project_file(state, name)
         if path is None:
             return _error(404, f"{name}: no such file of this project (one of {', '.join(FILES)}, exports/...)")
@@ -348,7 +350,8 @@ def create_app(config: AppConfig) -> Starlette:
                 "flags": state.settings.flags() if state.settings else None,
                 "work": {"uploads": state.uploads, "detecting": len(state.detecting),
                          "calibrating": state.job is not None},
-                "files": sorted(n for n in FILES if (state.project.folder / n).is_file())}
+                "files": sorted(n for n in FILES if (state.project.folder / n).is_file()
+                                or (n == "report.html" and (state.project.folder / "calib.json").is_file()))}
 
     routes = [
         Route("/", index, name="index"),

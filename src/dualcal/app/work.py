@@ -8,11 +8,12 @@ the server).
       cd PROJECT && dualcal detect photos BOARD-FLAGS [--exclude ...] -o corners.json
       dualcal calibrate photos BOARD-FLAGS [--exclude ...] -o calib.json
       dualcal evaluate calib.json -o eval.json && dualcal advise calib.json -o advise.json
-      dualcal export calib.json --format F -o exports/... && dualcal report calib.json --eval eval.json -o report.html
+      dualcal export calib.json --format F -o exports/...
 
   compute (:mod:`dualcal.workflow`: every dataset-level step, the camera roll's split, identical files,
   a ChArUco board's dictionary, as the commands run them), with each photo's detection taken from
   where its upload left it. It tells the server each step done through ``conn``.
+* :func:`make_report`: ``dualcal report calib.json --eval eval.json -o report.html``, when it is asked for.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from ..progress import collect_warnings
 from .store import EXPORTS, Project, Settings, exclude_pattern
 from .summary import advice_summary, calibration_summary
 
-__all__ = ["CALIBRATE_OPTIONS", "RememberedDetection", "detect_upload", "run_job"]
+__all__ = ["CALIBRATE_OPTIONS", "RememberedDetection", "detect_upload", "make_report", "run_job"]
 
 #: ``dualcal calibrate``'s defaults, as :func:`dualcal.workflow.calibrate_corners` keywords (the app has no
 #: flags for them; the test of the app's calib.json against the command's holds them equal).
@@ -165,21 +166,30 @@ def _file_done(project: Project, name: str, version: int, conn) -> None:
         conn.send(("file", name))
 
 
-def run_job(folder: str, version: int, settings: dict, left_out: list[str], conn=None) -> None:
-    """Bring the project's files to ``version`` (module docstring); on an error a user can cause, results.json
-    says it (``error``) and the files of the last complete calibration stay as they were."""
-    from ..errors import DualcalError
-
+def _locked(project: Project):
+    """The folder's job lock: one job (or report) in a folder at a time, even one a killed server left behind."""
     import fcntl
 
-    project = Project(Path(folder))
     project.app_dir.mkdir(exist_ok=True)
-    os.chdir(project.folder)          # a process of its own: corners.json names photos/..., as the commands do
     lock = open(project.app_file("job.lock"), "w")
-    fcntl.flock(lock, fcntl.LOCK_EX)  # one job in a folder at a time, even one a killed server left behind
-    with collect_warnings() as warnings:
+    fcntl.flock(lock, fcntl.LOCK_EX)
+    return lock
+
+
+def run_job(folder: str, version: int, settings: dict, left_out: list[str], conn=None, recompute: bool = True) -> None:
+    """Bring the project's files to ``version`` (module docstring); on an error a user can cause, results.json
+    says it (``error``) and the files of the last complete calibration stay as they were.
+
+    ``recompute`` False takes the calib.json there as it is (a folder the commands made, opened the first time):
+    only what the page shows is made from it, and the files missing beside it.
+    """
+    from ..errors import DualcalError
+
+    project = Project(Path(folder))
+    os.chdir(project.folder)          # a process of its own: corners.json names photos/..., as the commands do
+    with _locked(project), collect_warnings() as warnings:
         try:
-            _calibrate(project, version, Settings(**settings), left_out, conn, warnings)
+            _calibrate(project, version, Settings(**settings), left_out, conn, warnings, recompute)
         except DualcalError as exc:
             _results(project, version=version, error=str(exc), warnings=list(warnings))
             if conn is not None:
@@ -189,13 +199,14 @@ def run_job(folder: str, version: int, settings: dict, left_out: list[str], conn
         conn.send(("done", version))
 
 
-def _calibrate(project: Project, version: int, settings: Settings, left_out, conn, warnings) -> None:
+def _calibrate(project: Project, version: int, settings: Settings, left_out, conn, warnings, recompute) -> None:
     from ..estimation.advise import advice_to_dict, advise, prior_from_rig
     from ..files.io import rig_to_dict, save_corners, save_rig, write_text_atomic
     from ..workflow import calibrate_corners, evaluate_calibration, read_calibration, read_corners
 
     present = set(project.photo_names())
-    if present:
+    fresh = recompute and bool(present)
+    if fresh:
         patterns = [exclude_pattern(p) for p in sorted(set(left_out) & present)]
         corners = read_corners("photos", settings.make_board(), square_sigma_mm=settings.square_sigma_mm,
                                exclude=patterns, detect=_detector(project), progress=False)
@@ -203,10 +214,9 @@ def _calibrate(project: Project, version: int, settings: Settings, left_out, con
         _file_done(project, "corners.json", version, conn)
         rig = calibrate_corners(corners, **CALIBRATE_OPTIONS)
         save_rig("calib.json", rig)
-    else:                                   # a calib.json the commands made, without its photos
+    else:                                   # a calib.json the commands made, taken as it is
         rig = read_calibration("calib.json")
-    calib = rig_to_dict(rig)
-    summary = calibration_summary(rig, calib, version)
+    summary = calibration_summary(rig, rig_to_dict(rig), version)
     summary["warnings"] = list(warnings)
     write_json_atomic(project.app_file("summary.json"), summary)
     _results(project, version=version, error=None, warnings=list(warnings))
@@ -214,13 +224,15 @@ def _calibrate(project: Project, version: int, settings: Settings, left_out, con
     if conn is not None:
         conn.send(("calibrated", version))
 
-    write_json_atomic("eval.json", evaluate_calibration(rig, progress=False))
+    if fresh or not Path("eval.json").exists():
+        write_json_atomic("eval.json", evaluate_calibration(rig, progress=False))
     _file_done(project, "eval.json", version, conn)
     advice = advise(prior_from_rig(rig), 5, {}, seed=0)
     advice_doc = advice_to_dict(advice)
-    write_json_atomic("advise.json", advice_doc)
-    from ..pages.report.advice import render_advice_page
-    write_text_atomic("advise.html", render_advice_page(advice, {n: c.image_size for n, c in rig.cameras.items()}))
+    if fresh or not Path("advise.json").exists():
+        from ..pages.report.advice import render_advice_page
+        write_json_atomic("advise.json", advice_doc)
+        write_text_atomic("advise.html", render_advice_page(advice, {n: c.image_size for n, c in rig.cameras.items()}))
     _file_done(project, "advise.json", version, conn)
     previous = project.read_app_json("predicted.json")
     if previous and previous.get("instants", 0) >= len(rig.reference_poses()):
@@ -240,12 +252,30 @@ def _calibrate(project: Project, version: int, settings: Settings, left_out, con
         except DualcalError as exc:
             warnings.append(f"export {fmt}: {exc}")
     _file_done(project, "exports", version, conn)
-    try:
-        from ..pages.report import render_report
-        write_text_atomic("report.html", render_report(rig, read_json("eval.json"), progress=False))
-        _file_done(project, "report.html", version, conn)
-    except DualcalError as exc:           # the report's extra (matplotlib) missing: the rest stands
-        warnings.append(f"report.html: {exc}")
     summary["warnings"] = list(warnings)
     write_json_atomic(project.app_file("summary.json"), summary)
     _results(project, version=version, error=None, warnings=list(warnings), complete=version)
+
+
+def make_report(folder: str) -> dict:
+    """report.html of the calib.json there (and its eval.json, where it belongs to it), as ``dualcal report
+    calib.json --eval eval.json`` writes it: made when it is asked for, since it is the slowest file (its
+    figures: two thirds of a recalibration's time on a small set) and the one least needed while photos are
+    added and left out. Returns results.json."""
+    from ..errors import InputError
+    from ..files.io import check_evaluation_belongs, load_evaluation, write_text_atomic
+    from ..pages.report import render_report
+    from ..workflow import read_calibration
+
+    project = Project(Path(folder))
+    with _locked(project):
+        version = (project.read_app_json("results.json") or {}).get("files", {}).get("calib.json", -1)
+        rig = read_calibration(project.folder / "calib.json")
+        try:
+            evaluation = load_evaluation(project.folder / "eval.json")
+            check_evaluation_belongs(rig, evaluation, "calib.json", "eval.json")
+        except InputError:
+            evaluation = None
+        write_text_atomic(project.folder / "report.html", render_report(rig, evaluation, progress=False))
+        _file_done(project, "report.html", version, None)
+    return project.read_app_json("results.json")
