@@ -177,6 +177,8 @@ class Runner:
             return state
 
     def _load_files(self, state: ProjectState) -> None:
+        for partial in state.project.photos_dir.glob(".upload-*.part"):   # an upload a killed server was receiving
+            partial.unlink(missing_ok=True)
         state.photos = state.project.photo_names()
         state.results = state.project.read_app_json("results.json") or {}
         state.summary = state.project.read_app_json("summary.json")
