@@ -105,7 +105,7 @@ def test_the_whole_flow_in_a_browser(device, server, chromium, roll):
     page.get_by_text(re.compile(r"^Added \d+ photos")).wait_for(timeout=60_000)
     shot(3, "uploaded")
     status = page.get_by_role("status")
-    sync_api.expect(status).to_have_text(re.compile(r"^(Good|Use with care): "), timeout=120_000)
+    sync_api.expect(status).to_have_text(re.compile(r"^(Good: all|Use with care: )"), timeout=120_000)
     verdict = _status(page)
     shot(4, "verdict")
     first = json.loads((folder / "calib.json").read_text())
@@ -120,7 +120,7 @@ def test_the_whole_flow_in_a_browser(device, server, chromium, roll):
     else:
         tap(page.get_by_role("checkbox", name=left))
     sync_api.expect(page.get_by_role("checkbox", name=left)).not_to_be_checked(timeout=30_000)
-    sync_api.expect(status).to_have_text(re.compile(r"^(Good|Use with care): "), timeout=120_000)
+    sync_api.expect(status).to_have_text(re.compile(r"^(Good: all|Use with care: )"), timeout=120_000)
     page.wait_for_function("() => !document.getElementById('work').textContent.includes('calibrating')")
     shot(5, "left-out")
     second = json.loads((folder / "calib.json").read_text())

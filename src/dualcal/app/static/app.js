@@ -22,8 +22,9 @@ function workText(s) {
 function verdictText(s) {
   const c = s.calibration;
   if (s.error) return "Not calibrated: " + s.error;
-  if (c && c.current) return (c.ok ? "Good: " : "Use with care: ") + c.verdict;
-  if (c) return "Recalculating… (shown: the calibration before the last change) " + c.verdict;
+  const said = c ? c.verdict.charAt(0).toUpperCase() + c.verdict.slice(1) : "";
+  if (c && c.current) return c.ok ? "Good: " + c.verdict : said;
+  if (c) return "Recalculating… (shown: the calibration before the last change) " + said;
   if (!s.photos.length) return "Add the photos of your board.";
   return s.state === "busy" ? "Working on the photos…" : "More photos are needed to calibrate.";
 }
