@@ -40,6 +40,7 @@ DUALCAL = [sys.executable, "-m", "dualcal"]
 def synth_roll(views: int) -> Path:
     folder = ROOT / "out" / "bench-app" / f"note8-{views}"
     if not (folder / "roll").is_dir():
+        folder.parent.mkdir(parents=True, exist_ok=True)
         print(f"rendering the roll ({views} positions, 12 MP) into {folder} ...", flush=True)
         subprocess.run([*DUALCAL, "synth", str(folder), "--preset", "note8", "--views", str(views), "--roll"],
                        env=ENV, check=True, capture_output=True)
