@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import DualcalError
 from ..files.detect.pipeline import PhotoResult, detect_photo
 from ..files.io import read_json, write_json_atomic
 from ..progress import collect_warnings
@@ -183,8 +184,6 @@ def run_job(folder: str, version: int, settings: dict, left_out: list[str], conn
     ``recompute`` False takes the calib.json there as it is (a folder the commands made, opened the first time):
     only what the page shows is made from it, and the files missing beside it.
     """
-    from ..errors import DualcalError
-
     project = Project(Path(folder))
     os.chdir(project.folder)          # a process of its own: corners.json names photos/..., as the commands do
     with _locked(project), collect_warnings() as warnings:
