@@ -20,7 +20,11 @@ import pytest
 pytest.importorskip("starlette", reason="the app extra (starlette, uvicorn, python-multipart, segno)")
 pytest.importorskip("httpx", reason="Starlette's test client needs httpx")
 
-from starlette.testclient import TestClient  # noqa: E402
+import warnings  # noqa: E402
+
+with warnings.catch_warnings():        # Starlette 1.x would rather have httpx2; httpx is what the test extra installs
+    warnings.simplefilter("ignore", DeprecationWarning)
+    from starlette.testclient import TestClient  # noqa: E402
 
 from dualcal.app.security import HostRule, same_origin  # noqa: E402
 from dualcal.app.server import AppConfig, create_app  # noqa: E402
@@ -374,3 +378,31 @@ def test_a_roll_without_exif_as_a_phones_browser_sends_it(client, workspace, tmp
         true = truth.cameras[name]
         for key in ("fx", "fy", "cx", "cy"):
             assert abs(cam[key] - getattr(true, key)) < 4 * cam["sigma"][key], (name, key)
+
+
+def test_the_pages_the_route_list_the_qr_code_and_the_event_stream(client):
+    pid = new_project(client)
+    routes = client.get("/api", headers=AUTH).json()["routes"]
+    for route in ("/api/projects", "/api/projects/{id}/photos", "/api/projects/{id}/use", "/api/projects/{id}/events",
+                  "/api/projects/{id}/files/NAME", "/api/projects/{id}/measure", "/api/qr.svg"):
+        assert route in routes, route
+    qr = client.get("/api/qr.svg", headers=AUTH)
+    assert qr.headers["content-type"].startswith("image/svg+xml") and qr.text.startswith("<svg")
+    cookies = {"dualcal_token": TOKEN}
+    index = client.get("/", cookies=cookies)
+    assert index.status_code == 200 and "script-src 'self'" in index.headers["content-security-policy"]
+    assert 'href="/projects/' + pid + '"' in index.text and "<script src=\"/static/index.js\">" in index.text
+    page = client.get(f"/projects/{pid}", cookies=cookies).text
+    assert '<label class="button" for="add-photos">Add photos</label>' in page and 'role="status"' in page
+    assert "http" not in page.split("<body>")[1].replace(f"{BASE}/?token", "")      # nothing from elsewhere
+    part = client.get(f"/projects/{pid}/part", cookies=cookies)
+    assert part.status_code == 200 and 'id="photo-list"' in part.text
+    assert client.get(f"/projects/{pid}/part").status_code == 401
+    with client.stream("GET", f"/api/projects/{pid}/events", headers=AUTH) as events:
+        assert events.headers["content-type"].startswith("text/event-stream")
+        lines = events.iter_lines()
+        data = next(line for line in lines if line.startswith("data: "))
+    state = json.loads(data[len("data: "):])
+    assert state["id"] == pid and state["state"] == "idle" and state["photos"] == [] and state["calibration"] is None
+    assert client.get(f"/api/projects/{pid}/files/calib.json", headers=AUTH).status_code == 404
+    assert client.post(f"/api/projects/{pid}/measure", json={}, headers=AUTH).status_code == 409
