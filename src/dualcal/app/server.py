@@ -75,6 +75,10 @@ class AppConfig:
     workers: int | None = None
 
 
+class NoProject(LookupError):
+    """The id names no project of the workspace (404)."""
+
+
 def _error(status: int, message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
@@ -97,6 +101,7 @@ def create_app(config: AppConfig) -> Starlette:
     from jinja2 import Environment, FileSystemLoader, select_autoescape
 
     workspace = Workspace(config.workspace)
+    phone_url = config.url if HostRule(config.host).wildcard else ""      # a QR code only where a phone can reach it
     runner = Runner(workspace, config.workers)
     templates = Environment(loader=FileSystemLoader(HERE / "templates"), autoescape=select_autoescape(("html",)))
     templates.filters.update(anchor=_anchor, num=_number)
@@ -108,14 +113,14 @@ def create_app(config: AppConfig) -> Starlette:
     async def state_of(request: Request) -> ProjectState:
         project = workspace.get(request.path_params["project_id"])
         if project is None:
-            raise LookupError("no such project")
+            raise NoProject("no such project")
         return await runner.open(project)
 
     def project_route(handler):
         async def wrapped(request: Request):
             try:
                 return await handler(request, await state_of(request))
-            except LookupError as exc:
+            except NoProject as exc:
                 return _error(404, str(exc))
             except DualcalError as exc:
                 return _error(400, str(exc))
@@ -124,20 +129,20 @@ def create_app(config: AppConfig) -> Starlette:
     # -- pages
     async def index(request: Request):
         projects = [{"id": p.id, "name": (await runner.open(p)).name} for p in workspace.projects()]
-        return page("index.html", projects=projects, url=config.url)
+        return page("index.html", projects=projects, url=phone_url)
 
     async def project_page(request: Request):
         try:
             state = await state_of(request)
-        except LookupError:
+        except NoProject:
             return HTMLResponse("no such project", status_code=404)
-        return page("project.html", project=state.project, name=state.name, url=config.url,
+        return page("project.html", project=state.project, name=state.name, url=phone_url,
                     settings=state.settings, exports=EXPORTS)
 
     async def project_part(request: Request):
         try:
             state = await state_of(request)
-        except LookupError:
+        except NoProject:
             return HTMLResponse("no such project", status_code=404)
         described = describe(state)
         summary = state.summary or {}

@@ -271,16 +271,19 @@ class Workspace:
         """Every project folder, by id: a folder with project.json, or with ``photos/``, calib.json or corners.json."""
         out = []
         for p in sorted(self.root.iterdir()) if self.root.is_dir() else ():
-            if p.is_dir() and is_project_id(p.name) and any(
-                    (p / n).exists() for n in (PROJECT_FILE, "photos", "calib.json", "corners.json")):
-                out.append(Project(p))
+            project = self.get(p.name)
+            if project is not None:
+                out.append(project)
         return out
 
     def get(self, project_id: str) -> Project | None:
+        """The project of that id, or None (an id that is not one, or no such project folder)."""
         if not is_project_id(project_id):
             return None
         folder = self.root / project_id
-        return Project(folder) if folder.is_dir() and any(p.id == project_id for p in self.projects()) else None
+        if folder.is_dir() and any((folder / n).exists() for n in (PROJECT_FILE, "photos", "calib.json", "corners.json")):
+            return Project(folder)
+        return None
 
     def create(self, name: str, settings: Settings) -> Project:
         """A new project folder named after ``name`` (a slug and a random suffix: the name itself is data)."""
