@@ -397,7 +397,7 @@ def test_the_pages_the_route_list_the_qr_code_and_the_event_stream(client):
     assert "http" not in page.split("<body>")[1].replace(f"{BASE}/?token", "")      # nothing from elsewhere
     part = client.get(f"/projects/{pid}/part", cookies=cookies)
     assert part.status_code == 200 and 'id="photo-list"' in part.text
-    assert client.get(f"/projects/{pid}/part").status_code == 401
+    assert TestClient(client.app, base_url=BASE).get(f"/projects/{pid}/part").status_code == 401
     with client.stream("GET", f"/api/projects/{pid}/events", headers=AUTH) as events:
         assert events.headers["content-type"].startswith("text/event-stream")
         lines = events.iter_lines()
