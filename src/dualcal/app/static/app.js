@@ -65,6 +65,9 @@ function swap(html) {
     else if (current.outerHTML !== section.outerHTML) current.replaceWith(section);
   }
   for (const old of Array.from(live.children)) if (!seen.has(old.id)) old.remove();
+  const order = Array.from(next.children, (section) => section.id);
+  if (Array.from(live.children, (section) => section.id).join() !== order.join())
+    for (const key of order) live.appendChild(document.getElementById(key));   // the server's order
   if (focused && document.activeElement !== document.getElementById(focused) && document.getElementById(focused))
     document.getElementById(focused).focus();
 }
