@@ -7,8 +7,10 @@
   process is killed: every file is written atomically, so the last complete ones stay). One job per
   project at a time, at most one per core over all projects; waiting projects go first come, first served.
 * The processes come from a fork server that has imported the library once (a job starts in about
-  10 ms) and run at a lower priority than the server, so the event loop, which never computes,
-  answers at once while they work; one project's work never holds another's page.
+  10 ms); the event loop never computes, and wakes ahead of them when a request comes (the kernel's
+  scheduler favours a task that slept), so one project's work never holds another's page. (A lower
+  priority for the workers was tried: on a machine shared with other work it made them 2-3 x slower
+  than the command, for no gain in latency.)
 * **Restart**: :meth:`Runner.open` compares project.json's version with the version the files are of
   (``results.json``) and queues what is missing, photos not yet detected first: the version is the journal.
 
@@ -34,17 +36,9 @@ _PRELOAD = ["dualcal.app.work", "dualcal.workflow", "dualcal.files.detect.pipeli
             "dualcal.estimation.calibrate", "dualcal.estimation.model_selection", "dualcal.estimation.evaluation",
             "dualcal.estimation.advise", "dualcal.files.export", "dualcal.pages.report.advice",
             "dualcal.pages.report.html"]
-#: How much lower the workers' priority is than the server's (``nice``).
-WORKER_NICENESS = 10
-
-
-def _lower_priority() -> None:
-    """A worker's start: a lower priority than the server's, and (Linux) killed when its parent, the fork
-    server, ends, which it does when the server ends: no worker outlives a server killed with SIGKILL."""
-    try:
-        os.nice(WORKER_NICENESS)
-    except OSError:  # pragma: no cover - not permitted: same priority
-        pass
+def _die_with_server() -> None:
+    """A worker's start (Linux): killed when its parent, the fork server, ends, which it does when the server
+    ends: no worker outlives a server killed with SIGKILL."""
     try:
         import ctypes
         import signal
@@ -54,7 +48,7 @@ def _lower_priority() -> None:
 
 
 def _job_main(folder, version, settings, left_out, conn, recompute) -> None:
-    _lower_priority()
+    _die_with_server()
     from .work import run_job
     run_job(folder, version, settings, left_out, conn, recompute)
 
@@ -139,7 +133,7 @@ class Runner:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")     # as the commands run (dualcal.cli.main)
         self._context = multiprocessing.get_context("forkserver")
         self._context.set_forkserver_preload(_PRELOAD)
-        self._pool = ProcessPoolExecutor(self.workers, mp_context=self._context, initializer=_lower_priority)
+        self._pool = ProcessPoolExecutor(self.workers, mp_context=self._context, initializer=_die_with_server)
 
     async def resume_all(self) -> None:
         """Open every project of the workspace: queued work resumes (module docstring, "Restart")."""
