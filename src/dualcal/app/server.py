@@ -15,8 +15,8 @@ GET      /api/projects/{id}/result               the calibration as the page sho
 POST     /api/projects/{id}/photos               multipart ``photos`` -> ``{"added", "skipped", "renamed", "version"}``
 POST     /api/projects/{id}/use                  ``{"photos": {NAME: bool}, "version"?}`` -> ``{"version"}``;
                                                  409 when ``version`` is not the project's (a stale page)
-POST     /api/projects/{id}/measure              ``{"view", "points": {P: {camera: [u, v]}}, "lengths"?,
-                                                 "pixel_sigma"?}`` -> measure.json's content
+POST     /api/projects/{id}/measure              a points.json (``{"points": {P: {camera: [u, v]}}, "lengths"?,
+                                                 "pixel_sigma"?}``, pixels of one instant) -> measure.json's content
 GET      /api/projects/{id}/files/NAME           corners.json, calib.json, eval.json, report.html, advise.json,
                                                  advise.html, exports/...
 GET      /api/projects/{id}/archive.zip          every file of the project
@@ -263,8 +263,8 @@ def create_app(config: AppConfig) -> Starlette:
                 return JSONResponse({"error": f"the project changed (version {state.version}, the page had "
                                               f"{doc['version']}): reload it and try again", "version": state.version},
                                     status_code=409)
-            left_out = {n for n in state.left_out if photos.get(n, False) is False}
-            left_out |= {n for n, used in photos.items() if not used}
+            left_out = (state.left_out - {n for n, used in photos.items() if used}) | \
+                       {n for n, used in photos.items() if not used}
             if left_out != state.left_out:
                 state.left_out = left_out
                 state.version += 1
