@@ -77,11 +77,9 @@ class ProjectState:
     report: object = None
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     _changed: asyncio.Event = field(default_factory=asyncio.Event)
-    ticks: int = 0
 
     def changed(self) -> None:
         """Wake every listener."""
-        self.ticks += 1
         self._changed.set()
         self._changed = asyncio.Event()
 
