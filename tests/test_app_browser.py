@@ -73,8 +73,13 @@ def _status(page) -> str:
     return page.get_by_role("status").inner_text()
 
 
-@pytest.mark.parametrize("device", list(DEVICES))
-def test_the_whole_flow_in_a_browser(device, server, chromium, roll):
+def test_the_whole_flow_on_an_iphone_a_pixel_and_a_desktop(server, chromium, roll):
+    """One test for the three screens (one server and one browser, however the tests are spread over workers)."""
+    for device in DEVICES:
+        whole_flow(device, server, chromium, roll)
+
+
+def whole_flow(device, server, chromium, roll):
     url, workspace = server
     devices, browser = chromium
     screens = SCREENS / device
