@@ -49,11 +49,43 @@ class Server:
         raise AssertionError(f"not reached in {timeout} s: {doc}")
 
     def kill(self) -> None:
+        """SIGKILL the server; every process it started (fork server, workers, a calibration) ends with it."""
         self.client.close()
+        before = descendants(self.process.pid)
+        assert before, "the server runs its work in processes of its own"
         self.process.send_signal(signal.SIGKILL)
         self.process.wait()
         self.process.stdout.close()
         self.process.stderr.close()
+        end = time.monotonic() + 20
+        while (alive := [p for p in before if Path(f"/proc/{p}").exists() and not _zombie(p)]) and time.monotonic() < end:
+            time.sleep(0.1)
+        assert not alive, f"processes of the killed server still run: {alive}"
+
+
+def descendants(pid: int) -> list[int]:
+    """Every process under ``pid`` (Linux /proc)."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except OSError:
+                continue
+            children.setdefault(ppid, []).append(int(entry.name))
+    out, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            out.append(child)
+            todo.append(child)
+    return out
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
 
 
 @pytest.fixture(scope="module")

@@ -36,19 +36,34 @@ _PRELOAD = ["dualcal.app.work", "dualcal.workflow", "dualcal.files.detect.pipeli
             "dualcal.estimation.calibrate", "dualcal.estimation.model_selection", "dualcal.estimation.evaluation",
             "dualcal.estimation.advise", "dualcal.files.export", "dualcal.pages.report.advice",
             "dualcal.pages.report.html"]
-def _die_with_server() -> None:
-    """A worker's start (Linux): killed when its parent, the fork server, ends, which it does when the server
-    ends: no worker outlives a server killed with SIGKILL."""
-    try:
-        import ctypes
-        import signal
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))      # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):  # pragma: no cover - not Linux
-        pass
+def _die_with_server(server_pid: int) -> None:
+    """A worker's start: it ends when the server does, even one killed with SIGKILL (a thread waits on the
+    server's process; its queues would not tell, as the worker holds both of their ends, and neither would the
+    fork server, which lives as long as any process it made)."""
+    import threading
+
+    def watch():
+        try:
+            import select
+            fd = os.pidfd_open(server_pid)
+            select.select([fd], [], [])
+        except (AttributeError, OSError):          # no pidfd (not Linux, or the server is gone already): poll
+            import time
+            while True:
+                try:
+                    os.kill(server_pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:
+                    pass
+                time.sleep(1)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="dualcal-server-watch", daemon=True).start()
 
 
-def _job_main(folder, version, settings, left_out, conn, recompute) -> None:
-    _die_with_server()
+def _job_main(server_pid, folder, version, settings, left_out, conn, recompute) -> None:
+    _die_with_server(server_pid)
     from .work import run_job
     run_job(folder, version, settings, left_out, conn, recompute)
 
@@ -131,7 +146,8 @@ class Runner:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")     # as the commands run (dualcal.cli.main)
         self._context = multiprocessing.get_context("forkserver")
         self._context.set_forkserver_preload(_PRELOAD)
-        self._pool = ProcessPoolExecutor(self.workers, mp_context=self._context, initializer=_die_with_server)
+        self._pool = ProcessPoolExecutor(self.workers, mp_context=self._context, initializer=_die_with_server,
+                                         initargs=(os.getpid(),))
 
     async def resume_all(self) -> None:
         """Open every project of the workspace: queued work resumes (module docstring, "Restart")."""
@@ -144,7 +160,7 @@ class Runner:
             if state.job is not None:
                 self._end_job(state, kill=True)
         if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool.shutdown(wait=True, cancel_futures=True)     # a detection running ends first (seconds)
 
     # -- a project's state
     async def open(self, project: Project) -> ProjectState:
@@ -264,7 +280,7 @@ class Runner:
         ctx = self._context
         receive, send = ctx.Pipe(duplex=False)
         process = ctx.Process(target=_job_main, daemon=True, args=(
-            str(state.project.folder), state.version, state.settings.to_dict(), sorted(state.left_out), send,
+            os.getpid(), str(state.project.folder), state.version, state.settings.to_dict(), sorted(state.left_out), send,
             state.version != state.adopted_version))
         process.start()
         send.close()
