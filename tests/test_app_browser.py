@@ -89,7 +89,8 @@ def whole_flow(device, server, chromium, roll):
     context = browser.new_context(**options, accept_downloads=True)
     page = context.new_page()
     touch = bool(options.get("has_touch"))
-    shot = lambda n, name: page.screenshot(path=screens / f"{n:02d}-{name}.png", full_page=True)  # noqa: E731
+    shot = lambda n, name: page.screenshot(path=screens / f"{n:02d}-{name}.png", full_page=True,  # noqa: E731
+                                           scale="css")
 
     def tap(locator):
         (locator.tap if touch else locator.click)()
@@ -138,7 +139,7 @@ def whole_flow(device, server, chromium, roll):
     advice.scroll_into_view_if_needed()
     sync_api.expect(advice.locator("polygon.board-outline").first).to_be_visible()
     assert advice.locator("svg").count() >= 2
-    advice.screenshot(path=screens / "06-advice.png")
+    advice.screenshot(path=screens / "06-advice.png", scale="css")
 
     # measure: board corners 0 and 7 (210 mm apart) tapped in each photo of one instant
     measure = page.locator("#measure")
@@ -165,7 +166,7 @@ def whole_flow(device, server, chromium, roll):
     text = result.inner_text()
     length, sigma = (float(x) for x in re.match(r"A.B: ([\d.]+) ± ([\d.]+) mm", text).groups())
     assert abs(length - 210.0) < max(4 * sigma, 0.5), text
-    measure.screenshot(path=screens / "07-measure.png")
+    measure.screenshot(path=screens / "07-measure.png", scale="css")
 
     # a download is the file on disk
     link = page.locator("#downloads").get_by_role("link", name="calib.json", exact=True)
