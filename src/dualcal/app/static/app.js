@@ -57,6 +57,7 @@ function swap(html) {
   const next = document.createElement("div");
   next.innerHTML = html;
   const focused = document.activeElement && document.activeElement.id;
+  const order = Array.from(next.children, (section) => section.id);       // the server's order
   const seen = new Set();
   for (const section of Array.from(next.children)) {
     seen.add(section.id);
@@ -65,9 +66,8 @@ function swap(html) {
     else if (current.outerHTML !== section.outerHTML) current.replaceWith(section);
   }
   for (const old of Array.from(live.children)) if (!seen.has(old.id)) old.remove();
-  const order = Array.from(next.children, (section) => section.id);
   if (Array.from(live.children, (section) => section.id).join() !== order.join())
-    for (const key of order) live.appendChild(document.getElementById(key));   // the server's order
+    for (const key of order) live.appendChild(document.getElementById(key));
   if (focused && document.activeElement !== document.getElementById(focused) && document.getElementById(focused))
     document.getElementById(focused).focus();
 }
