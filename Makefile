@@ -4,12 +4,12 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test docs bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[report,fleet,test,app]'
+	$(BIN)/python -m pip install --quiet -e '.[report,fleet,test,docs,app]'
 	$(BIN)/python -m compileall -q src    # as a non-editable install would: start-up without compiling
 	touch $(STAMP)
 
@@ -24,6 +24,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n auto    # one worker per core (pytest-xdist)
+
+# The documentation site, static HTML that works offline (open out/site/index.html); strict: a warning fails it.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 DISABLE_MKDOCS_2_WARNING=true OPENBLAS_NUM_THREADS=1 $(BIN)/mkdocs build --strict
+	@echo "documentation written to out/site/ (open out/site/index.html)"
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_calibrate.py

@@ -427,7 +427,8 @@ def test_cli_batch_photos_need_a_board(run_cli, tmp_path):
     (tmp_path / "root" / "unit" / "wide").mkdir(parents=True)
     res = run_cli("batch", tmp_path / "root", "-o", tmp_path / "o")
     assert res.code == 2 and res.err_lines == [
-        "dualcal: error: device(s) unit have photos and no corners.json: give --board COLSxROWS and --square MM"]
+        "dualcal: error: device(s) unit have photos and no corners.json: give --board COLSxROWS and --square MM "
+        "(see docs/checks.md#inputerror)"]
 
 
 def test_cli_batch_help_lists_the_options_of_calibrate(run_cli):

@@ -17,7 +17,7 @@ __version__ = "0.1.0"
 #: The layers of the library, in order: a module imports only from its own layer, those before it and
 #: the cross-cutting modules beside this file (README, "Architecture"; tests/test_layout.py).
 _LAYERS = ("geometry", "estimation", "files", "synthetic", "pages")
-_CROSS_CUTTING = ("errors", "extras", "parallel", "progress", "terminal")
+_CROSS_CUTTING = ("errors", "extras", "messages", "parallel", "progress", "terminal")
 
 _API = {
     # data and models

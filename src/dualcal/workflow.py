@@ -74,17 +74,23 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
 
     Parameters
     ----------
-    source : a corners.json, a dataset folder (:func:`dualcal.files.dataset.open_dataset`; a camera roll too),
+    source
+        a corners.json, a dataset folder (:func:`dualcal.files.dataset.open_dataset`; a camera roll too),
         or None when ``cameras`` are given.
-    board : the board; needed for photos, checked against a corners.json's (:func:`check_board`).
-    square_sigma_mm : the 1-sigma of the printed square's size (:attr:`Board.square_sigma_mm`), recorded
+    board : Board or None
+        the board; needed for photos, checked against a corners.json's (:func:`check_board`).
+    square_sigma_mm : float or None
+        the 1-sigma of the printed square's size (:attr:`Board.square_sigma_mm`), recorded
         with the board; None keeps what the board or the corners.json says.
-    cameras, pair_by, time_tolerance_s, instant_gap_s, reference : how a dataset's photos are found and
+    cameras, pair_by, time_tolerance_s, instant_gap_s, reference
+        how a dataset's photos are found and
         grouped into instants (:func:`dualcal.files.dataset.open_dataset`).
-    exclude : glob patterns of photos to leave out (:func:`dualcal.files.dataset.is_excluded`), for a
+    exclude
+        glob patterns of photos to leave out (:func:`dualcal.files.dataset.is_excluded`), for a
         dataset and a corners.json alike; they are listed in each camera's ``excluded``.
-    jobs, hints_path, overlays_dir, progress, detect : detection (:func:`dualcal.files.detect.detect_dataset`);
-        for a corners.json they do not apply (a warning says so).
+    jobs, hints_path, overlays_dir, progress, detect
+        detection (:func:`dualcal.files.detect.detect_dataset`); for a
+        corners.json they do not apply (a warning says so).
 
     Raises
     ------
@@ -92,6 +98,11 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
         A missing input, a file given with cameras from globs, photos without a board, a board that
         disagrees with the corners.json, and every refusal of :func:`~dualcal.files.dataset.open_dataset`,
         :func:`~dualcal.files.dataset.check_pairs` and :func:`~dualcal.files.io.load_corners`.
+
+    Returns
+    -------
+    CornerSet
+        corners.json's content: the board and every camera's corners per view.
     """
     if _is_corners_file(source) and cameras:
         raise InputError(f"{source} is a file, but cameras given by globs take photos: give a dataset folder "
@@ -153,6 +164,29 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
     for every camera and ``compare_lens``, every other model is scored on instants left out of the
     calibration (:func:`dualcal.estimation.model_selection.compare_lens_models`) and the scores are recorded in
     ``rig.adjustment["lens_models"]`` (calib.json); a comparison that cannot be made is a warning.
+
+    Parameters
+    ----------
+    corners : CornerSet
+        The corners (:func:`read_corners`).
+    compare_lens : bool
+        With one lens model for every camera: score every other model on instants left out.
+    model : str or Mapping[str, str]
+        ``"auto"``, a lens model's name for every camera, or ``{camera: name}``.
+    **options
+        Those of :func:`dualcal.estimation.calibrate.calibrate_rig`.
+
+    Returns
+    -------
+    RigModel
+        The calibration, calib.json's content.
+
+    Raises
+    ------
+    InputError
+        An unknown lens model or option.
+    EstimationError
+        Too few usable views, degenerate views, no view shared by the cameras of a rig.
     """
     from .estimation.calibrate import calibrate_rig
     from .estimation.model_selection import compare_lens_models
@@ -190,7 +224,23 @@ def lens_scores(rig: RigModel) -> list:
 
 def evaluate_calibration(rig: RigModel, holdout: bool = False, progress: bool = True) -> dict:
     """eval.json's content: the paper's stereo-intersection check (:func:`dualcal.estimation.evaluation.evaluate`)
-    with the fingerprint of the calibration it checked (``calibration_fingerprint``)."""
+    with the fingerprint of the calibration it checked (``calibration_fingerprint``).
+
+    Parameters
+    ----------
+    rig : RigModel
+        The calibration.
+    holdout : bool
+        Orient each view with a calibration that left it out.
+    progress : bool
+        Draw a progress bar on stderr.
+
+    Returns
+    -------
+    dict
+        eval.json's content: ``cases`` (``dual`` and one per camera, each ``rmse_mm`` and ``pairs``), the
+        pose-free length check and ``calibration_fingerprint``.
+    """
     from .estimation.evaluation import evaluate
     from .files.io import calibration_fingerprint
 
@@ -199,7 +249,23 @@ def evaluate_calibration(rig: RigModel, holdout: bool = False, progress: bool = 
 
 def read_calibration(path) -> RigModel:
     """A calib.json (:func:`dualcal.files.io.load_rig`), refused when its corners do not fit its parameters
-    (:func:`dualcal.files.io.check_corners_fit`: corners of another calibration pasted in)."""
+    (:func:`dualcal.files.io.check_corners_fit`: corners of another calibration pasted in).
+
+    Parameters
+    ----------
+    path : str or Path
+        The calib.json to read.
+
+    Returns
+    -------
+    RigModel
+        The calibration.
+
+    Raises
+    ------
+    InputError
+        A file that breaks a rule of calib.json, or corners that do not fit its parameters.
+    """
     from .files.io import check_corners_fit, load_rig
 
     rig = load_rig(path)

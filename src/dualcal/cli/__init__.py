@@ -6,7 +6,8 @@ without numpy, OpenCV, scipy or matplotlib. Errors the user can cause
 (:class:`~dualcal.errors.DualcalError`, bad flags) become one line on stderr and exit code 2;
 Ctrl-C ends the command with one line and exit code 130 (worker pools stop at once, earlier
 outputs stay as they were); an unexpected error says so in one line (the traceback only with
-``--debug``) and exits 1.
+``--debug``) and exits 1. Every ``--help`` ends with the documentation's page to read, and an error's line
+with the entry of its kind in *Checks and messages* (:mod:`dualcal.messages`).
 """
 
 from __future__ import annotations
@@ -20,10 +21,29 @@ import click
 
 from .. import __version__
 from ..errors import DualcalError
+from ..messages import DOCS, ERRORS, command_page, page_of
 from ..terminal import printable
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class DocumentedGroup(click.Group):
+    """A group whose every command's ``--help`` ends with the documentation's page for it
+    (:func:`dualcal.messages.command_page`), whichever module registers the command."""
+
+    def add_command(self, cmd: click.Command, name: str | None = None) -> None:
+        super().add_command(cmd, name)
+        read = f"Documentation: {command_page(name or cmd.name)}"
+        cmd.epilog = f"{cmd.epilog}\n\n{read}" if cmd.epilog else read
+
+
+def error_line(exc: DualcalError) -> str:
+    """``dualcal: error: MESSAGE (see docs/checks.md#inputerror)``: the error's entry is that of the nearest
+    class of its kind that *Checks and messages* explains."""
+    kind = next(c.__name__ for c in type(exc).__mro__ if c.__name__ in ERRORS)
+    return f"dualcal: error: {printable(exc)} (see {page_of(kind)})"
+
+
+@click.group(cls=DocumentedGroup, context_settings={"help_option_names": ["-h", "--help"]},
+             epilog=f"Documentation: {DOCS}/index.md (make docs builds the site into out/site/)")
 @click.version_option(__version__, prog_name="dualcal")
 @click.option("--debug", is_flag=True, help="Show the full traceback of unexpected errors.")
 def cli(debug: bool) -> None:
@@ -79,7 +99,7 @@ def main(argv=None) -> None:
         exc.show()
         sys.exit(2)
     except DualcalError as exc:
-        click.echo(f"dualcal: error: {printable(exc)}", err=True)
+        click.echo(error_line(exc), err=True)
         sys.exit(2)
     except BrokenPipeError:                 # e.g. `dualcal calibrate ... | head`: the reader left
         sys.stderr.close()

@@ -56,6 +56,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     from ..estimation.checks import failed_checks, scale_note, verdict
     from ..errors import EstimationError
     from ..files.io import check_output_file, save_rig
+    from ..messages import CHECKS, page_of
     from ..progress import warn
     from .tables import (lens_model_advice, lens_model_choice_table, lens_model_table, photo_table,
                                 result_tables, roll_tables)
@@ -99,7 +100,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
         console.print(lens_model_choice_table(rig.adjustment))
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
-        console.print(f"  {name}: {rig.checks[name]['message']}")
+        page = f" (see {page_of(name)})" if name in CHECKS else ""
+        console.print(f"  {name}: {rig.checks[name]['message']}{page}")
     if "scale_plausible" not in rig.checks:
         console.print(f"  note: {scale_note(rig)}; check --square")
 

@@ -163,6 +163,16 @@ def photo_distance_range(rig: RigModel) -> tuple[float, float]:
 def prior_from_rig(rig: RigModel) -> Prior:
     """The :class:`Prior` of a calibration: its values, both covariances and its ``s0``.
 
+    Parameters
+    ----------
+    rig : RigModel
+        A calibration (calib.json), with its joint covariance.
+
+    Returns
+    -------
+    Prior
+        Where the calibration stands, for :func:`advise`.
+
     Raises
     ------
     InputError
@@ -206,7 +216,25 @@ def nominal_prior(cameras: dict[str, CameraModel], board: Board, reference: str,
                   rig: dict[str, Pose], noise_px: float = PLAN_NOISE_PX) -> Prior:
     """A :class:`Prior` before any photo: nominal ``cameras`` and ``rig`` (reference to camera),
     independent sigmas from :data:`PLAN_PRIOR`, distances where the board spans :data:`PLAN_FILL`
-    of the cameras' frames (the nearest of the widest camera to the farthest of the narrowest)."""
+    of the cameras' frames (the nearest of the widest camera to the farthest of the narrowest).
+
+    Parameters
+    ----------
+    cameras : dict[str, CameraModel]
+        Nominal cameras (:func:`nominal_camera`).
+    board : Board
+        The board to be photographed.
+    reference : str
+        The reference camera.
+    rig : dict[str, Pose]
+        Each other camera's nominal pose relative to the reference.
+    noise_px : float
+        The corner noise assumed, pixels per coordinate.
+
+    Returns
+    -------
+    Prior
+        Where a calibration would start, for :func:`advise`."""
     names, sd = [], []
     for name, cam in cameras.items():
         w, h = cam.image_size
@@ -540,10 +568,22 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
 
     Parameters
     ----------
-    prior : where the calibration stands (:func:`prior_from_rig`, or a nominal one for a plan)
-    count : how many poses
-    goals : ``{target: sigma}``; default: the key targets relative to their current sigmas
-    candidates : ``[(pose, seen)]`` to choose from (default :func:`candidate_poses`)
+    prior : Prior
+        where the calibration stands (:func:`prior_from_rig`, or a nominal one for a plan)
+    count : int
+        how many poses
+    goals : dict[str, float] or None
+        ``{target: sigma}``; default: the key targets relative to their current sigmas
+    candidates
+        ``[(pose, seen)]`` to choose from (default :func:`candidate_poses`)
+    seed : int
+        Seed of the candidate poses drawn.
+
+    Returns
+    -------
+    Advice
+        The poses, best first, each with the sigmas predicted once it and those before it are taken,
+        and whether the goals are met (advise.json's content, :func:`advice_to_dict`).
 
     Raises
     ------
@@ -600,7 +640,17 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
 
 def describe(pose: AdvisedPose) -> str:
     """The pose in words: distance, and which side of the board (as the reference camera's image shows
-    it: top, bottom, left, right) is farther away."""
+    it: top, bottom, left, right) is farther away.
+
+    Parameters
+    ----------
+    pose : AdvisedPose
+        One of :attr:`Advice.poses`.
+
+    Returns
+    -------
+    str
+        E.g. ``64 cm from the camera, tilted 35 degrees, its top side farther away``."""
     normal = pose.pose.R[:, 2]
     view = pose.centre_mm / pose.distance_mm
     tilt = pose.tilt_deg

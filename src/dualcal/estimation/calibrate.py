@@ -438,26 +438,39 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
 
     Parameters
     ----------
-    corners : the detected corners (corners.json content). Instants that repeat another's view (a copied
+    corners : CornerSet
+        the detected corners (corners.json content). Instants that repeat another's view (a copied
         photo, a burst: :mod:`dualcal.estimation.duplicates`) count once, with a warning; calib.json records them
         (``adjustment.duplicates``, and ``duplicates`` in each camera's entry of its corners).
-    skew : False fixes skew = 0 (the paper's Model 1), True estimates it (Model 2)
-    rig_mode : ``rigid``, ``paper`` or ``none`` (see :mod:`dualcal.estimation.adjust`)
-    reference : name of the reference camera (default: the one recorded in ``corners``, else ``wide``,
+    skew : bool
+        False fixes skew = 0 (the paper's Model 1), True estimates it (Model 2)
+    rig_mode : str
+        ``rigid``, ``paper`` or ``none`` (see :mod:`dualcal.estimation.adjust`)
+    reference : str or None
+        name of the reference camera (default: the one recorded in ``corners``, else ``wide``,
         else the first name)
-    drop_outliers : leave out corners whose residual exceeds ``outlier_factor`` x the median of
+    drop_outliers : bool
+        leave out corners whose residual exceeds ``outlier_factor`` x the median of
         their camera (:func:`outlier_limit_px`), and photos where most corners are outliers.
         Outliers are looked for first with every camera adjusted alone (so that a bad photo shows
         in its own camera's residuals, not spread over the rig), then in ``rig_mode`` (which
         also reveals a board moved between the shots of one instant).
-    board_shape : ``auto`` estimates the board's out-of-plane shape and keeps it where the photos
+    board_shape : str
+        ``auto`` estimates the board's out-of-plane shape and keeps it where the photos
         show it beyond their noise (:func:`board_shape_test`), ``fit`` always keeps it, ``flat``
         takes the board as flat.
-    model : the lens model of every camera, a key of :data:`dualcal.geometry.camera.LENS_MODELS`:
+    model : str or Mapping[str, str]
+        the lens model of every camera, a key of :data:`dualcal.geometry.camera.LENS_MODELS`:
         ``k1k2`` (the paper's), ``k1k2k3``, ``k1k2p1p2``, ``k1k2p1p2k3`` (OpenCV's five coefficients) or
         ``kb4`` (OpenCV's fisheye); or ``{camera: model}`` (cameras not named: ``k1k2``); or ``"auto"``:
         each camera's chosen by its held-out instants (:func:`dualcal.estimation.model_selection.calibrate_auto`,
         which records the comparison in ``adjustment["lens_models"]``)
+
+    Returns
+    -------
+    RigModel
+        calib.json's content: every camera's intrinsics and lens, the rig, the board's poses, every value's
+        1-sigma (``sigma``, and the textbook ``sigma_formal``), the joint covariance and the checks.
 
     Raises
     ------

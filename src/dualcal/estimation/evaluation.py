@@ -273,18 +273,21 @@ def evaluate(rig: RigModel, holdout: bool = False, progress: bool = True) -> dic
 
     Parameters
     ----------
-    rig : a calibration (calib.json content).
-    holdout : orient each view by resection with a calibration that left it out.
-    progress : progress bar over the hold-out folds on stderr.
+    rig : RigModel
+        a calibration (calib.json content).
+    holdout : bool
+        orient each view by resection with a calibration that left it out.
+    progress : bool
+        progress bar over the hold-out folds on stderr.
 
     Returns
     -------
-    The eval.json document: ``{"cases": {name: {"rmse_mm": [x, y, z], "pairs": N,
-    "points": n}}, "per_pair": [...], "holdout": bool}`` and the pose-free check
-    (:func:`pose_free_check`: ``pose_free``, ``pose_free_per_instant``).
-
-    A pair whose intersection is degenerate (parallel rays: two photos from one spot) is left
-    out with a warning.
+    dict
+        The eval.json document: ``{"cases": {name: {"rmse_mm": [x, y, z], "pairs": N,
+        "points": n}}, "per_pair": [...], "holdout": bool}`` and the pose-free check
+        (:func:`pose_free_check`: ``pose_free``, ``pose_free_per_instant``). A pair whose
+        intersection is degenerate (parallel rays: two photos from one spot) is left out with a
+        warning.
 
     Raises
     ------

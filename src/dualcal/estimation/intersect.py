@@ -95,13 +95,16 @@ def triangulate(cameras: Sequence[CameraModel], poses: Sequence[Pose], uv_px: Se
 
     Parameters
     ----------
-    cameras, poses, uv_px : per photo its camera, its pose (common frame -> camera) and its
+    cameras, poses, uv_px
+        per photo its camera, its pose (common frame -> camera) and its
         (N, 2) observed pixels of the same N points (all measured: no NaN rows).
-    max_iter, tol_mm : Gauss-Newton stops when no point moves more than ``tol_mm``.
+    max_iter, tol_mm
+        Gauss-Newton stops when no point moves more than ``tol_mm``.
 
     Returns
     -------
-    (N, 3) points in the common frame, mm.
+    (N, 3) ndarray
+        The points in the common frame, mm.
 
     Raises
     ------

@@ -312,22 +312,25 @@ def measure(rig: RigModel, points: dict) -> dict:
 
     Parameters
     ----------
-    rig : the calibration (calib.json content), with its joint covariance.
-    points : a points.json document (contract, "measure"): ``{"points": {name: {camera: [u, v]}},
+    rig : RigModel
+        the calibration (calib.json content), with its joint covariance.
+    points : dict
+        a points.json document (contract, "measure"): ``{"points": {name: {camera: [u, v]}},
         "lengths": [[from, to], ...], "pixel_sigma": px}`` (``lengths`` and ``pixel_sigma``
         optional; ``pixel_sigma`` may also be ``{camera: px}``). Pixels are in the stored frame of
         photos of one instant.
 
     Returns
     -------
-    The measure.json document: ``{"frame": reference camera, "points": {name: {"xyz_mm", "sigma_mm",
-    "cameras", "distance_mm", "depth_sigma_mm", "residual_px", "consistent"}}, "lengths": [{"from",
-    "to", "length_mm", "sigma_mm", "sigma_percent", "sigma_pixels_mm", "sigma_calibration_mm",
-    "bias_mm", "meaningless", "warning"}], "pixel_sigma": {camera: px}, "pixel_sigma_source"}``.
-    ``depth_sigma_mm`` is the sigma along the line of sight from the reference camera, ``bias_mm``
-    a length's second-order bias, ``sigma_pixels_mm`` and ``sigma_calibration_mm`` the parts of its
-    sigma from the pixels and the calibration, ``sigma_scale_mm`` (points and lengths) the part from the
-    tolerance of the printed squares (:mod:`dualcal.geometry.scale`), which every sigma includes.
+    dict
+        The measure.json document: ``{"frame": reference camera, "points": {name: {"xyz_mm", "sigma_mm",
+        "cameras", "distance_mm", "depth_sigma_mm", "residual_px", "consistent"}}, "lengths": [{"from",
+        "to", "length_mm", "sigma_mm", "sigma_percent", "sigma_pixels_mm", "sigma_calibration_mm",
+        "bias_mm", "meaningless", "warning"}], "pixel_sigma": {camera: px}, "pixel_sigma_source"}``.
+        ``depth_sigma_mm`` is the sigma along the line of sight from the reference camera, ``bias_mm``
+        a length's second-order bias, ``sigma_pixels_mm`` and ``sigma_calibration_mm`` the parts of its
+        sigma from the pixels and the calibration, ``sigma_scale_mm`` (points and lengths) the part from
+        the tolerance of the printed squares (:mod:`dualcal.geometry.scale`), which every sigma includes.
 
     Raises
     ------

@@ -410,17 +410,29 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
 
     Parameters
     ----------
-    path : dataset folder (see the module docstring), or None when ``cameras`` are given.
-    cameras : ``NAME=GLOB`` strings or ``(name, glob)`` pairs; they take precedence over ``path``
+    path
+        dataset folder (see the module docstring), or None when ``cameras`` are given.
+    cameras
+        ``NAME=GLOB`` strings or ``(name, glob)`` pairs; they take precedence over ``path``
         (a relative glob is taken relative to ``path`` when given, else to the working folder).
-    pair_by : ``"stem"`` (file stem, or the glob's wildcard text) or ``"time"`` (EXIF capture time).
-    reference : the reference camera (default: ``wide`` if present, else the first sorted name);
+    pair_by : str
+        ``"stem"`` (file stem, or the glob's wildcard text) or ``"time"`` (EXIF capture time).
+    reference : str or None
+        the reference camera (default: ``wide`` if present, else the first sorted name);
         with ``pair_by="time"`` its stems are the view keys.
-    time_tolerance_s : largest capture-time difference of two photos of the same instant.
-    instant_gap_s : a camera roll (a folder of photos of several cameras, :mod:`dualcal.files.roll`): photos
+    time_tolerance_s : float
+        largest capture-time difference of two photos of the same instant.
+    instant_gap_s : float or None
+        a camera roll (a folder of photos of several cameras, :mod:`dualcal.files.roll`): photos
         taken less than this apart are one board position (default: found from the capture times).
-    exclude : glob patterns of photos to leave out (:func:`is_excluded`; with ``pair_by="time"``
+    exclude
+        glob patterns of photos to leave out (:func:`is_excluded`; with ``pair_by="time"``
         the view key is the photo's own stem); they are listed in :attr:`Dataset.excluded`.
+
+    Returns
+    -------
+    Dataset
+        Every camera's photos keyed by view (instant), and what was left out and why.
 
     Raises
     ------

@@ -359,6 +359,27 @@ def write_export(rig: RigModel, fmt: str, output: str | Path) -> list[Path]:
     """Write :func:`export_files` atomically; warn once if a non-zero skew had to be dropped.
 
     Every path is checked (:func:`dualcal.files.io.check_output_file`) before any file is written.
+
+    Parameters
+    ----------
+    rig : RigModel
+        The calibration.
+    fmt : str
+        ``opencv``, ``kalibr``, ``colmap`` or ``mrcal`` (:data:`FORMATS`).
+    output : str or Path
+        The file to write; for ``mrcal`` a folder (one ``NAME.cameramodel`` per camera) or a stem.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+
+    Raises
+    ------
+    InputError
+        An unknown format, or a lens model the format cannot hold (the message names those that can).
+    OutputError
+        A file cannot be written; nothing was replaced.
     """
     files = export_files(rig, fmt, output)
     for path in files:

@@ -378,10 +378,42 @@ def _load(path, kind: str) -> dict:
 
 
 def load_corners(path) -> CornerSet:
+    """Read a corners.json, checked against its schema and beyond it (every number finite, views of the
+    board's size).
+
+    Parameters
+    ----------
+    path : str or Path
+        The corners.json to read.
+
+    Returns
+    -------
+    CornerSet
+        The board and every camera's corners per view (``None`` for a photo without the board).
+
+    Raises
+    ------
+    InputError
+        A missing or unreadable file, or one that breaks a rule (the message names the key).
+    """
     return corners_from_dict(_load(path, "corners"), str(path))
 
 
 def save_corners(path, cs: CornerSet) -> None:
+    """Write ``cs`` as corners.json, atomically (a temporary file beside it, checked, then renamed).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to write; its folder must exist.
+    cs : CornerSet
+        The corners to write.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (a full disk, a read-only folder); nothing was replaced.
+    """
     write_json_atomic(path, corners_to_dict(cs))
 
 
@@ -604,10 +636,42 @@ def _check_consistent(rig: RigModel, source: str) -> None:
 
 
 def load_rig(path) -> RigModel:
+    """Read a calib.json, checked against its schema and beyond it (finite numbers, rotations that are
+    rotations, a lens that does not fold over inside its corners, the checks as the calibration wrote them).
+
+    Parameters
+    ----------
+    path : str or Path
+        The calib.json to read.
+
+    Returns
+    -------
+    RigModel
+        The calibration, with the corners it was computed from.
+
+    Raises
+    ------
+    InputError
+        A missing or unreadable file, or one that breaks a rule (the message names the key).
+    """
     return rig_from_dict(_load(path, "calib"), str(path))
 
 
 def save_rig(path, rig: RigModel) -> None:
+    """Write ``rig`` as calib.json, atomically (a temporary file beside it, checked, then renamed).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to write; its folder must exist.
+    rig : RigModel
+        The calibration to write.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (a full disk, a read-only folder); nothing was replaced.
+    """
     write_json_atomic(path, rig_to_dict(rig))
 
 

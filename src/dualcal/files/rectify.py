@@ -68,13 +68,20 @@ def rectified_camera(cam: CameraModel, keep: str = "same") -> CameraModel:
 
     Parameters
     ----------
-    cam : the calibrated camera.
-    keep : ``"same"``: the camera's own matrix ``A`` (a distorted pixel and its rectified
+    cam : CameraModel
+        the calibrated camera.
+    keep : str
+        ``"same"``: the camera's own matrix ``A`` (a distorted pixel and its rectified
         position describe the same ray through the same ``A``); ``"all"``: every source pixel
         stays inside the output (a black border appears where the source has no pixels);
         ``"valid"``: every output pixel has a source pixel (no border, the rim is cut).
         ``"all"`` and ``"valid"`` trace the source's outer pixel centres through the model,
         keep ``fx / fy`` of the camera, set skew to 0 and centre the traced border.
+
+    Returns
+    -------
+    CameraModel
+        A camera without lens distortion, of ``cam``'s image size.
 
     Raises
     ------
@@ -170,18 +177,24 @@ def undistort_image(image: np.ndarray, cam: CameraModel, new_cam: CameraModel | 
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array (uint8, uint16 or float32; C <= 4) taken by ``cam``.
-    cam : the calibrated camera; ``cam.image_size`` must be ``(W, H)``.
-    new_cam : pinhole camera of the output (default: :func:`rectified_camera` ``(cam, "same")``);
+    image : ndarray
+        (H, W) or (H, W, C) array (uint8, uint16 or float32; C <= 4) taken by ``cam``.
+    cam : CameraModel
+        the calibrated camera; ``cam.image_size`` must be ``(W, H)``.
+    new_cam : CameraModel or None
+        pinhole camera of the output (default: :func:`rectified_camera` ``(cam, "same")``);
         its ``image_size`` is the output's.
-    band_rows : rows per band; the result does not depend on it.
-    interpolation : a ``cv2.INTER_*`` flag.
-    R : (3, 3) rotation of the output camera, ``X_out = R X_cam`` (see :func:`rectify_map`).
+    band_rows : int
+        rows per band; the result does not depend on it.
+    interpolation : int
+        a ``cv2.INTER_*`` flag.
+    R : ndarray or None
+        (3, 3) rotation of the output camera, ``X_out = R X_cam`` (see :func:`rectify_map`).
 
     Returns
     -------
-    (H', W'[, C]) array of the input's dtype, ``(W', H') = new_cam.image_size``; pixels with no
-    source are 0.
+    (H', W'[, C]) ndarray
+        Of the input's dtype, ``(W', H') = new_cam.image_size``; pixels with no source are 0.
 
     Raises
     ------

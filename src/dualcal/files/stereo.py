@@ -71,6 +71,7 @@ class StereoRectification:
 
     @property
     def image_size(self) -> tuple[int, int]:
+        """``(W, H)`` of both rectified images, px."""
         return self.camera.image_size
 
     @property
@@ -135,11 +136,19 @@ def stereo_rectify(rig: RigModel, first: str, second: str, keep: str = "valid") 
 
     Parameters
     ----------
-    rig : the calibration.
-    first, second : camera names; any two cameras with a pose relative to the reference.
-    keep : ``"valid"``: the rectified images show the region both photos fill, with no empty
+    rig : RigModel
+        the calibration.
+    first, second : str
+        camera names; any two cameras with a pose relative to the reference.
+    keep : str
+        ``"valid"``: the rectified images show the region both photos fill, with no empty
         border (OpenCV's ``alpha = 0``); ``"all"``: every pixel of both photos is kept (empty
         borders appear where a photo has no pixels, OpenCV's ``alpha = 1``).
+
+    Returns
+    -------
+    StereoRectification
+        OpenCV's ``R1 R2 P1 P2 Q``, the common camera and whether the rig is vertical.
 
     Raises
     ------
@@ -191,6 +200,22 @@ def rectify_points(rect: StereoRectification, name: str, cam: CameraModel, uv_px
     """Observed pixels (N, 2) of camera ``name`` -> their pixels (N, 2) in its rectified image.
 
     NaN rows (corners not measured) stay NaN.
+
+    Parameters
+    ----------
+    rect : StereoRectification
+        The rectification (:func:`stereo_rectify`).
+    name : str
+        The camera, one of ``rect.names``.
+    cam : CameraModel
+        That camera's model (``rig.cameras[name]``).
+    uv_px : (N, 2) ndarray
+        Pixels as the camera observed them.
+
+    Returns
+    -------
+    (N, 2) ndarray
+        Their pixels in the rectified image: corresponding points share a row (a column for a vertical rig).
     """
     uv_px = np.asarray(uv_px, float)
     out = np.full(uv_px.shape, np.nan)

@@ -160,6 +160,7 @@ class Board:
 
     @property
     def n_corners(self) -> int:
+        """Number of inner corners, ``cols * rows``."""
         return self.cols * self.rows
 
     @property

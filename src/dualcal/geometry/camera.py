@@ -657,7 +657,19 @@ def normalized_from_pixel(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
 
 def project_points(cam: CameraModel, X_cam: np.ndarray) -> np.ndarray:
     """Camera-frame points (N, 3) -> distorted pixels (N, 2). A fisheye projects points at and behind
-    90 degrees from the axis too (the angle ``atan2(sqrt(X^2 + Y^2), Z)``); a pinhole lens divides by Z."""
+    90 degrees from the axis too (the angle ``atan2(sqrt(X^2 + Y^2), Z)``); a pinhole lens divides by Z.
+
+    Parameters
+    ----------
+    cam : CameraModel
+        The camera and its lens (the projection of the Conventions).
+    X_cam : (N, 3) ndarray
+        Points in the camera's frame, mm (x right, y down, z forward).
+
+    Returns
+    -------
+    (N, 2) ndarray
+        Their pixels ``(u, v)``, as the camera observes them (distorted)."""
     X_cam = np.asarray(X_cam, dtype=float)
     if not cam.fisheye:
         xy = X_cam[..., :2] / X_cam[..., 2:3]
@@ -730,12 +742,43 @@ def ideal_normalized_from_pixel(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
 
 
 def undistort_points(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
-    """Observed (distorted) pixels -> ideal pinhole pixels of the same matrix A."""
+    """Observed (distorted) pixels -> ideal pinhole pixels of the same matrix A.
+
+    Parameters
+    ----------
+    cam : CameraModel
+        The camera and its lens.
+    uv : (N, 2) ndarray
+        Pixels as the camera observed them.
+
+    Returns
+    -------
+    (N, 2) ndarray
+        Where a lens without distortion, of the same ``fx, fy, skew, cx, cy``, would have put them.
+
+    Raises
+    ------
+    NotInvertibleError
+        A pixel where the lens model folds over (no single ray).
+    """
     return pixel_from_normalized(cam, ideal_normalized_from_pixel(cam, uv))
 
 
 def distort_points(cam: CameraModel, uv_ideal: np.ndarray) -> np.ndarray:
-    """Ideal pinhole pixels -> observed (distorted) pixels; inverse of :func:`undistort_points`."""
+    """Ideal pinhole pixels -> observed (distorted) pixels; inverse of :func:`undistort_points`.
+
+    Parameters
+    ----------
+    cam : CameraModel
+        The camera and its lens.
+    uv_ideal : (N, 2) ndarray
+        Pixels of a lens without distortion, of the same ``fx, fy, skew, cx, cy``.
+
+    Returns
+    -------
+    (N, 2) ndarray
+        Where the camera observes them.
+    """
     return pixel_from_normalized(cam, distort(cam, normalized_from_pixel(cam, uv_ideal)))
 
 

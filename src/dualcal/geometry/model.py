@@ -37,6 +37,7 @@ class Pose:
         return Pose(self.R @ first.R, self.R @ first.t_mm + self.t_mm)
 
     def inverse(self) -> "Pose":
+        """The pose the other way: ``X_from = R^T X_to - R^T t_mm``."""
         return Pose(self.R.T, -self.R.T @ self.t_mm)
 
     @property
@@ -46,9 +47,11 @@ class Pose:
 
     @property
     def opk_arcmin(self) -> np.ndarray:
+        """(3,) omega, phi, kappa of ``R = Rz(kappa) Ry(phi) Rx(omega)``, minutes of arc."""
         return opk_from_rotation(self.R) * ARCMIN_PER_RAD
 
     def to_dict(self) -> dict:
+        """``{"R": 3 x 3 list, "t_mm": 3 list}``, as calib.json holds a pose."""
         return {"R": self.R.tolist(), "t_mm": self.t_mm.tolist()}
 
 

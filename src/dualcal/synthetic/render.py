@@ -317,20 +317,29 @@ def write_photo_set(truth, photo_dir, seed: int = 0, jobs: int | None = None, qu
 
     Parameters
     ----------
-    truth : :class:`~dualcal.synthetic.synth.SynthTruth`.
-    photo_dir : output folder (created with one subfolder per camera).
-    seed : seed of the photos' randomness (lighting, background, noise); photo ``(c, v)`` uses
+    truth
+        :class:`~dualcal.synthetic.synth.SynthTruth`.
+    photo_dir
+        output folder (created with one subfolder per camera).
+    seed : int
+        seed of the photos' randomness (lighting, background, noise); photo ``(c, v)`` uses
         :func:`photo_seed` ``(seed, c, v)``, so the result does not depend on ``jobs``.
-    jobs : photos rendered at once, in threads (default: all cores).
-    quality : JPEG quality (0-100).
-    progress : draw a progress bar on stderr.
-    marks : marks printed in the chessboard's white squares (:mod:`dualcal.synthetic.render_marks`: ``code``,
+    jobs : int or None
+        photos rendered at once, in threads (default: all cores).
+    quality : int
+        JPEG quality (0-100).
+    progress : bool
+        draw a progress bar on stderr.
+    marks : str or None
+        marks printed in the chessboard's white squares (:mod:`dualcal.synthetic.render_marks`: ``code``,
         ``dots``, ``logo``, ``text``), the same board in every photo; None: plain squares.
-    **render_kwargs : passed on to :func:`render_view` (``blur_px``, ``noise``, ``inverted``, ...).
+    **render_kwargs
+        passed on to :func:`render_view` (``blur_px``, ``noise``, ``inverted``, ...).
 
     Returns
     -------
-    ``{camera: {view: path}}`` of the written files.
+    dict[str, dict[str, Path]]
+        ``{camera: {view: path}}`` of the written files.
     """
     photo_dir = Path(photo_dir)
     tasks, paths = [], {}

@@ -183,6 +183,39 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     (inside its frame, :func:`in_frame`), looking at a random point of the whole board from
     nearer (the board fills up to ``1.1 / sqrt(lo)`` of its frame); every other camera sees at
     least :data:`OTHERS_COVERAGE` of them.
+
+    Parameters
+    ----------
+    preset : str
+        The rig: ``note8`` (wide + tele, 12 MP), ``stereo`` (a 640x480 pair), ``triple`` (wide + tele +
+        ultra-wide), ``phone3`` (wide + 3x tele + a fisheye ultra-wide), ``stereo5`` (the pair with OpenCV's
+        five-coefficient lenses).
+    views : int
+        Number of board poses.
+    seed : int
+        Seed of the poses.
+    scale : float
+        Resample every sensor by this factor (0.25: small, fast photos).
+    max_tilt_deg, min_tilt_deg : float
+        The range of the board's tilt from facing the camera.
+    fill : tuple of float or None
+        The range of the share of the narrowest camera's frame the board fills.
+    board : Board or None
+        Another board than the preset's.
+    coverage : tuple of float or None
+        Partial views of a ChArUco board, as above.
+
+    Returns
+    -------
+    SynthTruth
+        The board, the cameras, the rig and the board's pose in every view.
+
+    Raises
+    ------
+    InputError
+        An unknown preset, or fewer than one view.
+    EstimationError
+        No poses could be placed as asked.
     """
     if preset not in PRESETS:
         raise InputError(f"--preset {preset!r} is unknown (choose from {', '.join(PRESETS)})")
@@ -298,7 +331,22 @@ def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
 
 
 def noisy_corner_set(truth: SynthTruth, noise_px: float, seed: int = 0) -> CornerSet:
-    """Exact corners plus isotropic Gaussian noise of ``noise_px`` per coordinate."""
+    """Exact corners plus isotropic Gaussian noise of ``noise_px`` per coordinate.
+
+    Parameters
+    ----------
+    truth : SynthTruth
+        The synthetic rig (:func:`make_truth`).
+    noise_px : float
+        Standard deviation of the noise, pixels per coordinate (0: the exact corners).
+    seed : int
+        Seed of the noise.
+
+    Returns
+    -------
+    CornerSet
+        Every camera's corners in every view, as detection would give them (a view a camera misses is None).
+    """
     rng = np.random.default_rng(seed)
     cams = {}
     for cam, views in true_corners(truth).items():
@@ -309,7 +357,20 @@ def noisy_corner_set(truth: SynthTruth, noise_px: float, seed: int = 0) -> Corne
 
 
 def truth_rig_model(truth: SynthTruth, corners: CornerSet | None = None) -> RigModel:
-    """The truth as a :class:`RigModel` (zero sigmas), e.g. to write truth.json or to evaluate."""
+    """The truth as a :class:`RigModel` (zero sigmas), e.g. to write truth.json or to evaluate.
+
+    Parameters
+    ----------
+    truth : SynthTruth
+        The synthetic rig (:func:`make_truth`).
+    corners : CornerSet or None
+        The corners the model carries (default: the exact ones).
+
+    Returns
+    -------
+    RigModel
+        The true cameras, rig and poses, in calib.json's form.
+    """
     corners = corners if corners is not None else noisy_corner_set(truth, 0.0)
     zero3 = np.zeros(3)
     rig = {n: RigRelation(p, zero3, 0.0, zero3) for n, p in truth.rig.items()}

@@ -70,8 +70,32 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
     """Write the photos of ``truth`` (:class:`~dualcal.synthetic.synth.SynthTruth`) as one camera-roll folder
     (``render_kwargs``: :func:`dualcal.synthetic.render.write_photo_set`'s, e.g. ``marks``).
 
-    Returns the roll as it was shot: ``{"photos": {file name: (camera, view)}, "retake": (first, second),
-    "stray": file name, "sidecars": [file names]}`` (camera None for the photo without the board).
+    Parameters
+    ----------
+    truth : SynthTruth
+        The synthetic rig (:func:`dualcal.synthetic.synth.make_truth`).
+    folder : str or Path
+        The camera roll's folder (created).
+    seed : int
+        Seed of the photos and of the times between the shots.
+    device : str
+        The EXIF model of the phone.
+    first_number : int
+        The number of the first photo, ``IMG_0101.JPG``.
+    retake, stray_photo, sidecars : bool
+        Add a retake of one photo, a photo without the board, and an ``.AAE`` and a ``.MOV`` file.
+    jobs : int or None
+        Photos rendered at once (default: all cores).
+    progress : bool
+        Draw a progress bar on stderr.
+    **render_kwargs
+        Passed on to :func:`dualcal.synthetic.render.write_photo_set`.
+
+    Returns
+    -------
+    dict
+        The roll as it was shot: ``{"photos": {file name: (camera, view)}, "retake": (first, second),
+        "stray": file name, "sidecars": [file names]}`` (camera None for the photo without the board).
     """
     from .render import write_photo_set
 

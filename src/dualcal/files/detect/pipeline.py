@@ -98,20 +98,24 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
 
     Parameters
     ----------
-    path : photo file (JPEG, PNG, TIFF, HEIC).
-    board : the expected board; a board of another size is not accepted. A ChArUco board whose
+    path
+        photo file (JPEG, PNG, TIFF, HEIC).
+    board : Board
+        the expected board; a board of another size is not accepted. A ChArUco board whose
         dictionary or layout is not given gets them from this photo.
-    hint_uv : (4, 2) clicked corners 0, cols-1, N-1, N-cols (manual mode), used when the
+    hint_uv : ndarray or None
+        (4, 2) clicked corners 0, cols-1, N-1, N-cols (manual mode), used when the
         automatic search fails (chessboards only).
-    overlay_path : where to write a small JPEG with the corners and their numbers drawn.
+    overlay_path : Path or None
+        where to write a small JPEG with the corners and their numbers drawn.
 
     Returns
     -------
-    :class:`PhotoResult`; ``uv is None`` with a one-line ``reason`` when the photo cannot be
-    read or the board is not found or fails its checks. A failure that one photo can cause in
-    OpenCV, the file system or Pillow (``cv2.error``, ``OSError``, ``ValueError``) is reported
-    the same way, so one odd photo never stops a dataset; any other exception is a bug and
-    propagates.
+    PhotoResult
+        ``uv is None`` with a one-line ``reason`` when the photo cannot be read or the board is not
+        found or fails its checks. A failure that one photo can cause in OpenCV, the file system or
+        Pillow (``cv2.error``, ``OSError``, ``ValueError``) is reported the same way, so one odd photo
+        never stops a dataset; any other exception is a bug and propagates.
     """
     try:
         full = read_gray(path)
@@ -281,24 +285,32 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
 
     Parameters
     ----------
-    dataset : from :func:`dualcal.files.dataset.open_dataset`.
-    board : the chessboard (``--board``, ``--square``).
-    jobs : photos processed at once, in threads; each holds one photo (default: all cores, fewer
+    dataset : Dataset
+        from :func:`dualcal.files.dataset.open_dataset`.
+    board : Board
+        the chessboard (``--board``, ``--square``).
+    jobs : int or None
+        photos processed at once, in threads; each holds one photo (default: all cores, fewer
         where the photos are so large that the memory they take would pass 1.2 GB,
         :func:`dualcal.files.photos.jobs_within_memory`).
-    hints : ``{camera: {view: (4, 2)}}`` clicked corners (manual mode) for photos where the
+    hints : dict[str, dict[str, ndarray]] or None
+        ``{camera: {view: (4, 2)}}`` clicked corners (manual mode) for photos where the
         automatic search fails (see :mod:`dualcal.files.detect.manual`).
-    overlays_dir : write ``overlays_dir/<camera>/<view>.jpg`` with the detected corners drawn
+    overlays_dir
+        write ``overlays_dir/<camera>/<view>.jpg`` with the detected corners drawn
         (``overlays_dir`` is created if its parent exists).
-    progress : draw a progress bar on stderr.
-    detect : ``detect(path, board, hint_uv, overlay_path) -> PhotoResult``, called from several threads
-        at once in place of :func:`detect_photo` for each photo (the app's, which remembers the photos it
-        detected as they were uploaded); everything else, dataset-wide, is done here as without it.
+    progress : bool
+        draw a progress bar on stderr.
+    detect : callable or None
+        ``detect(path, board, hint_uv, overlay_path) -> PhotoResult``, called from several threads at once in
+        place of :func:`detect_photo` for each photo (the app's, which remembers the photos it detected as they
+        were uploaded); everything else, dataset-wide, is done here as without it.
 
     Returns
     -------
-    :class:`~dualcal.geometry.model.CornerSet`; a view is None where no board was found (each such
-    photo is named in a warning).
+    CornerSet
+        Every camera's corners per view; a view is None where no board was found (each such photo is
+        named in a warning).
 
     Raises
     ------

@@ -350,11 +350,20 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
 
     Parameters
     ----------
-    rig : the calibration (content of calib.json); residuals are recomputed from its corners
+    rig : RigModel
+        the calibration (content of calib.json); residuals are recomputed from its corners
         and poses
-    evaluation : the content of an eval.json, or None to leave the evaluation section out
-    title : page title; default names the cameras
-    progress : draw a progress bar on stderr while the figures are rendered
+    evaluation : dict or None
+        the content of an eval.json, or None to leave the evaluation section out
+    title : str or None
+        page title; default names the cameras
+    progress : bool
+        draw a progress bar on stderr while the figures are rendered
+
+    Returns
+    -------
+    str
+        The page's HTML, with every figure inline: it needs no other file.
     """
     names = rig.camera_order()
     found = analysis.camera_findings(rig)
