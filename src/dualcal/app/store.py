@@ -31,7 +31,8 @@ from pathlib import Path
 from ..errors import InputError
 from ..files.io import read_json, write_json_atomic
 
-__all__ = ["APP_DIR", "EXPORTS", "FILES", "Project", "Settings", "Workspace", "exclude_pattern", "is_project_id"]
+__all__ = ["APP_DIR", "EXPORTS", "FILES", "Project", "Settings", "Workspace", "exclude_pattern", "is_project_id",
+           "photo_of"]
 
 APP_DIR = ".dualcal-app"
 PROJECT_FILE = "project.json"
@@ -117,9 +118,9 @@ class Settings:
         return settings
 
     def checked(self) -> "Settings":
-        from dataclasses import replace
-        board = self.make_board()
-        replace(board, square_sigma_mm=self.square_sigma_mm or 0.0)     # its checks (a tenth of the square at most)
+        """These settings, after the board's own checks (:class:`InputError` says what is wrong)."""
+        from ..geometry.board import board_from_spec
+        board_from_spec(self.board, self.square_mm, self.marker_mm, self.dictionary, self.square_sigma_mm or 0.0)
         return self
 
     @classmethod
@@ -145,6 +146,16 @@ def _printed_options(text: str) -> dict:
             raise InputError(f"printed {text!r}: {flag!r} is not one of {', '.join(keys)} with its value")
         out[keys[flag]] = words.pop(0)
     return out
+
+
+def photo_of(path: str) -> str:
+    """A corners.json photo path (``photos/IMG_01.JPG``, ``photos/tele/IMG_01.jpg``) as the app names the
+    photo (``IMG_01.JPG``, ``tele/IMG_01.jpg``): what follows ``photos/``."""
+    parts = Path(path).parts
+    if "photos" in parts:
+        i = len(parts) - 1 - parts[::-1].index("photos")
+        return "/".join(parts[i + 1:])
+    return Path(path).name
 
 
 def _slug(name: str) -> str:
@@ -203,17 +214,9 @@ class Project:
         out = []
         for cam in (doc.get("cameras") or {}).values():
             for path in (cam.get("excluded") or {}).values():
-                if path:
-                    relative = self._relative(path)
-                    if relative:
-                        out.append(relative)
+                if path and "photos" in Path(path).parts:
+                    out.append(photo_of(path))
         return out
-
-    def _relative(self, path: str) -> str | None:
-        parts = Path(path).parts
-        if "photos" in parts:
-            return "/".join(parts[len(parts) - 1 - parts[::-1].index("photos") + 1:])
-        return None
 
     # -- photos
     def photo_names(self) -> list[str]:

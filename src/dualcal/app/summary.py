@@ -10,21 +10,11 @@ each camera's frame, the sigmas now and predicted).
 
 from __future__ import annotations
 
-from pathlib import Path
 
 from ..geometry.camera import intrinsic_names
+from .store import photo_of
 
-__all__ = ["advice_summary", "calibration_summary", "photo_of"]
-
-
-def photo_of(path: str) -> str:
-    """A corners.json photo path (``photos/IMG_01.JPG``, ``photos/tele/IMG_01.jpg``) as the app names the
-    photo (``IMG_01.JPG``, ``tele/IMG_01.jpg``): what follows ``photos/``."""
-    parts = Path(path).parts
-    if "photos" in parts:
-        i = len(parts) - 1 - parts[::-1].index("photos")
-        return "/".join(parts[i + 1:])
-    return Path(path).name
+__all__ = ["advice_summary", "calibration_summary"]
 
 
 def _photo_map(corners) -> dict[tuple[str, str], str]:
