@@ -406,3 +406,21 @@ def test_the_pages_the_route_list_the_qr_code_and_the_event_stream(client):
     assert state["id"] == pid and state["state"] == "idle" and state["photos"] == [] and state["calibration"] is None
     assert client.get(f"/api/projects/{pid}/files/calib.json", headers=AUTH).status_code == 404
     assert client.post(f"/api/projects/{pid}/measure", json={}, headers=AUTH).status_code == 409
+
+
+def test_the_command_says_in_one_line_what_is_wrong(run_cli, tmp_path, monkeypatch):
+    import socket
+
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen()
+    cases = [(["--port", busy.getsockname()[1]], "give another --port"), (["--host", "10.9.9.9"], "not an address"),
+             (["--certfile", __file__], "--keyfile"), ([], "DUALCAL_APP_TOKEN")]
+    for args, needle in cases:
+        if needle == "DUALCAL_APP_TOKEN":
+            monkeypatch.setenv("DUALCAL_APP_TOKEN", "no spaces please")
+        code, out, err = run_cli("app", tmp_path, "--no-browser", *args)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and needle in err, (args, err)
+    code, _, err = run_cli("app", tmp_path / "no" / "such", "--no-browser")
+    assert code == 2 and "no such folder" in err
+    busy.close()

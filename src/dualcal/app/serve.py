@@ -6,6 +6,7 @@ this machine's address on its network, and a QR code of it follows, for a phone'
 
 from __future__ import annotations
 
+import errno
 import socket
 import sys
 from pathlib import Path
@@ -26,8 +27,10 @@ def bind(host: str, port: int) -> socket.socket:
         sock.bind((host, port))
     except OSError as exc:
         sock.close()
-        raise InputError(f"cannot serve on {host}:{port} ({exc.strerror}): give another --port (0: any free one)"
-                         if exc.errno != socket.EAI_NONAME else f"--host {host}: not an address of this machine") \
+        if isinstance(exc, socket.gaierror) or exc.errno == errno.EADDRNOTAVAIL:
+            raise InputError(f"--host {host}: not an address of this machine (127.0.0.1, or 0.0.0.0 for every "
+                             "network)") from None
+        raise InputError(f"cannot serve on {host}:{port} ({exc.strerror}): give another --port (0: any free one)") \
             from None
     sock.listen(128)
     sock.set_inheritable(True)
