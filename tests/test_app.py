@@ -424,3 +424,12 @@ def test_the_command_says_in_one_line_what_is_wrong(run_cli, tmp_path, monkeypat
     code, _, err = run_cli("app", tmp_path / "no" / "such", "--no-browser")
     assert code == 2 and "no such folder" in err
     busy.close()
+
+
+def test_on_the_local_network_the_pages_show_the_qr_code(tmp_path):
+    lan = "http://192.168.1.20:8765"
+    app = create_app(AppConfig(workspace=tmp_path, token=TOKEN, host="0.0.0.0", url=f"{lan}/?token={TOKEN}", workers=1))
+    with TestClient(app, base_url=lan) as c:
+        page = c.get("/", cookies={"dualcal_token": TOKEN}).text
+        assert '<img class="qr" src="/api/qr.svg"' in page
+        assert c.get("/api/projects", headers={**AUTH, "host": "attacker.example:8765"}).status_code == 400
