@@ -52,11 +52,11 @@ def imported_modules(source: str, module: str, is_package: bool, package_dir: Pa
 
 
 def place(module: str) -> str:
-    """``cli``, a layer's name, ``cross-cutting``, ``package`` (dualcal itself) or ``above`` (the workflow)."""
+    """``cli``, ``app``, a layer's name, ``cross-cutting``, ``package`` (dualcal itself) or ``above`` (the workflow)."""
     parts = module.split(".")
     if len(parts) == 1:
         return "package"
-    if parts[1] in LAYERS or parts[1] == "cli":
+    if parts[1] in LAYERS or parts[1] in ("cli", "app"):
         return parts[1]
     return "cross-cutting" if parts[1] in CROSS_CUTTING else "above"
 
@@ -73,6 +73,8 @@ def violations(package_dir: Path) -> list[str]:
                 continue                     # the commands and the package's API table stand above everything
             if there == "cli":
                 found.append(f"{module} -> {target} (a library module imports the commands)")
+            elif there == "app" and here != "app":
+                found.append(f"{module} -> {target} (a library module imports the web app)")
             elif here == "cross-cutting" and there != "cross-cutting":
                 found.append(f"{module} -> {target} (a cross-cutting module imports from {there})")
             elif here in LAYERS and there == "above":
@@ -86,9 +88,10 @@ def test_every_import_goes_down_the_layers():
     assert violations(PACKAGE_DIR) == []
 
 
-def test_every_sub_package_of_dualcal_is_a_layer_or_the_commands():
+def test_every_sub_package_of_dualcal_is_a_layer_or_above_them():
+    """The layers, and above them the commands (``cli``) and the web app (``app``, which no layer imports)."""
     sub_packages = {p.name for p in PACKAGE_DIR.iterdir() if (p / "__init__.py").is_file()}
-    assert sub_packages == set(LAYERS) | {"cli"}
+    assert sub_packages == set(LAYERS) | {"cli", "app"}
     assert {p.stem for p in PACKAGE_DIR.glob("*.py")} >= set(CROSS_CUTTING)
 
 
@@ -106,7 +109,8 @@ def test_the_check_finds_an_import_that_goes_up(tmp_path):
     files = {
         "__init__.py": "", "cli/__init__.py": "", f"{low}/__init__.py": "", f"{high}/__init__.py": "",
         "errors.py": f"from .{low} import camera\n",
-        "workflow.py": f"from .{high} import tables\n",                            # allowed: above the layers
+        "workflow.py": f"from .{high} import tables\nfrom .app import server\n",   # the first allowed: above the layers
+        "app/__init__.py": "", "app/server.py": f"from ..{low} import camera\nfrom ..workflow import x\n",  # allowed
         f"{low}/camera.py": f"from ..errors import InputError\n\n\ndef f():\n    from ..{high}.tables import t\n",
         f"{high}/tables.py": f"from ..{low} import camera\nimport dualcal.cli\nfrom dualcal import workflow\n",
     }
@@ -118,4 +122,5 @@ def test_the_check_finds_an_import_that_goes_up(tmp_path):
         f"dualcal.{low}.camera -> dualcal.{high}.tables ({low} imports from {high}, a layer after it)",
         f"dualcal.{high}.tables -> dualcal.cli (a library module imports the commands)",
         f"dualcal.{high}.tables -> dualcal.workflow ({high} imports from the workflow above the layers)",
+        "dualcal.workflow -> dualcal.app.server (a library module imports the web app)",
     ]

@@ -241,6 +241,7 @@ LINES = {
 
 COMMAND_PAGES = {
     "advise": "how-to/advise.md",
+    "app": "how-to/app.md",
     "batch": "how-to/fleet.md",
     "board": "how-to-shoot.md",
     "calibrate": "getting-started.md",

@@ -31,7 +31,7 @@ __all__ = ["DETECTION_OPTIONS", "calibrate_corners", "check_board", "evaluate_ca
            "read_calibration", "read_corners"]
 
 #: Options of :func:`read_corners` that only apply to a dataset of photos (detection).
-DETECTION_OPTIONS = ("jobs", "hints_path", "overlays_dir")
+DETECTION_OPTIONS = ("jobs", "hints_path", "overlays_dir", "detect")
 
 
 def check_board(given: Board | None, found: Board, source: str) -> Board:
@@ -69,7 +69,7 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
                  cameras=(), pair_by: str = "stem",
                  time_tolerance_s: float = 2.0, instant_gap_s: float | None = None, reference: str | None = None,
                  exclude=(), jobs: int | None = None, hints_path=None, overlays_dir=None,
-                 progress: bool = True) -> CornerSet:
+                 progress: bool = True, detect=None) -> CornerSet:
     """The corners of an input: a corners.json, a dataset folder, or cameras given as ``NAME=GLOB``.
 
     Parameters
@@ -88,7 +88,7 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
     exclude
         glob patterns of photos to leave out (:func:`dualcal.files.dataset.is_excluded`), for a
         dataset and a corners.json alike; they are listed in each camera's ``excluded``.
-    jobs, hints_path, overlays_dir, progress
+    jobs, hints_path, overlays_dir, progress, detect
         detection (:func:`dualcal.files.detect.detect_dataset`); for a
         corners.json they do not apply (a warning says so).
 
@@ -117,11 +117,11 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
                              "COLSxROWS, or charuco:SXxSY with the marker size) and the square size")
         corners = _detect(source, board, cameras=cameras, pair_by=pair_by, time_tolerance_s=time_tolerance_s,
                           instant_gap_s=instant_gap_s, reference=reference, exclude=exclude, jobs=jobs,
-                          hints_path=hints_path, overlays_dir=overlays_dir, progress=progress)
+                          hints_path=hints_path, overlays_dir=overlays_dir, progress=progress, detect=detect)
     else:
         from .files.io import load_corners
 
-        ignored = [name for name, value in zip(DETECTION_OPTIONS, (jobs, hints_path, overlays_dir)) if value]
+        ignored = [name for name, value in zip(DETECTION_OPTIONS, (jobs, hints_path, overlays_dir, detect)) if value]
         if ignored:
             warn(f"{source} is a corners.json: the detection options ({', '.join(ignored)}) do not apply to it")
         corners = load_corners(source)
@@ -137,7 +137,7 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
 
 
 def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant_gap_s, reference, exclude,
-            jobs, hints_path, overlays_dir, progress) -> CornerSet:
+            jobs, hints_path, overlays_dir, progress, detect) -> CornerSet:
     """A dataset's corners: open it, refuse cameras that pair with nothing, detect (clips: their frames
     chosen and measured, :func:`dualcal.files.video.video_corners`)."""
     from .files.dataset import check_pairs, open_dataset
@@ -152,7 +152,8 @@ def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant
                            time_tolerance_s=time_tolerance_s, instant_gap_s=instant_gap_s, exclude=exclude)
     check_pairs(dataset, pair_by)
     hints = load_hints(hints_path) if hints_path else None
-    corners = detect_dataset(dataset, board, jobs=jobs, hints=hints, overlays_dir=overlays_dir, progress=progress)
+    corners = detect_dataset(dataset, board, jobs=jobs, hints=hints, overlays_dir=overlays_dir, progress=progress,
+                             detect=detect)
     if dataset.roll is not None:
         from .files.roll import with_detection
         corners = replace(corners, roll=with_detection(dataset.roll, corners))

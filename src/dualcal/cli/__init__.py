@@ -59,6 +59,7 @@ def cli(debug: bool) -> None:
 
 # Command modules register themselves on `cli` when imported.
 from . import advise as _advise  # noqa: E402,F401
+from . import app as _app  # noqa: E402,F401
 from . import batch as _batch  # noqa: E402,F401
 from . import board as _board  # noqa: E402,F401
 from . import calibrate as _calibrate  # noqa: E402,F401

@@ -278,14 +278,9 @@ def find_board_markers(dataset: Dataset, board: Board) -> Board:
     return found
 
 
-def _work(task) -> PhotoResult:
-    path, board, hint, overlay = task
-    return detect_photo(path, board, hint, overlay)
-
-
 def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
                    hints: dict[str, dict[str, np.ndarray]] | None = None,
-                   overlays_dir=None, progress: bool = True) -> CornerSet:
+                   overlays_dir=None, progress: bool = True, detect=None) -> CornerSet:
     """Detect the board in every photo of a dataset.
 
     Parameters
@@ -306,6 +301,10 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         (``overlays_dir`` is created if its parent exists).
     progress : bool
         draw a progress bar on stderr.
+    detect : callable or None
+        ``detect(path, board, hint_uv, overlay_path) -> PhotoResult``, called from several threads at once in
+        place of :func:`detect_photo` for each photo (the app's, which remembers the photos it detected as they
+        were uploaded); everything else, dataset-wide, is done here as without it.
 
     Returns
     -------
@@ -343,7 +342,7 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         # threads, not processes: decoding, OpenCV's detectors and numpy's array loops release
         # the GIL, and threads start at once, share the board and need no picklable state;
         # a Ctrl-C cancels the photos not yet started (dualcal.parallel)
-        for r in interruptible_map(_work, tasks, jobs):
+        for r in interruptible_map(lambda task: (detect or detect_photo)(*task), tasks, jobs):
             results.append(r)
             advance()
             if len(results) == EARLY_CHECK_PHOTOS < len(tasks):

@@ -1,0 +1,244 @@
+"""dualcal app against dualcal calibrate, on a 12 MP camera roll uploaded through the API.
+
+    .venv/bin/python benchmarks/bench_app.py [--rounds 2] [--views 13]
+
+The roll is ``dualcal synth DIR --preset note8 --views 13 --roll`` (26 photos of 12 MP, cached under
+out/bench-app/). Printed, each with the issue's aim:
+
+* the time from the upload's last byte (its response) to the verdict (``calibration.current``) against
+  ``dualcal calibrate ROLL`` as a process on the same photos, the two taking turns (a ratio: this machine's
+  speed drifts);
+* the time from leaving a photo out (``POST /use``) to the new verdict, 13 instants;
+* the server's peak memory: its processes and every worker's, RSS and PSS (shared pages counted once);
+* the API's latency (``GET /api/projects/{id}``, every 50 ms) while the photos are detected: median, p95;
+* two clients uploading halves of the roll into one project at once: every photo there, byte for byte.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import httpx
+
+ROOT = Path(__file__).resolve().parents[1]
+TOKEN = "bench-token-0123456789"
+AUTH = {"authorization": f"Bearer {TOKEN}"}
+ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "DUALCAL_APP_TOKEN": TOKEN}
+DUALCAL = [sys.executable, "-m", "dualcal"]
+
+
+def synth_roll(views: int) -> Path:
+    folder = ROOT / "out" / "bench-app" / f"note8-{views}"
+    if not (folder / "roll").is_dir():
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        print(f"rendering the roll ({views} positions, 12 MP) into {folder} ...", flush=True)
+        subprocess.run([*DUALCAL, "synth", str(folder), "--preset", "note8", "--views", str(views), "--roll"],
+                       env=ENV, check=True, capture_output=True)
+    return folder / "roll"
+
+
+def tree_memory(pid: int) -> tuple[float, float]:
+    """RSS and PSS (MB) of ``pid`` and all its descendants."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                ppid = int(open(f"/proc/{entry}/stat").read().rsplit(")", 1)[1].split()[1])
+            except OSError:
+                continue
+            children.setdefault(ppid, []).append(int(entry))
+    todo, rss, pss = [pid], 0.0, 0.0
+    while todo:
+        p = todo.pop()
+        todo += children.get(p, [])
+        try:
+            for line in open(f"/proc/{p}/smaps_rollup"):
+                if line.startswith("Rss:"):
+                    rss += int(line.split()[1]) / 1024
+                elif line.startswith("Pss:"):
+                    pss += int(line.split()[1]) / 1024
+        except OSError:
+            pass
+    return rss, pss
+
+
+class Server:
+    def __init__(self, workspace: Path):
+        self.process = subprocess.Popen([*DUALCAL, "app", str(workspace), "--port", "0", "--no-browser"], env=ENV,
+                                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        self.url = self.process.stdout.readline().split(": ", 1)[1].strip().split("/?")[0]
+        self.client = httpx.Client(base_url=self.url, headers=AUTH, timeout=600)
+        self.peak = (0.0, 0.0)
+        self._stop = threading.Event()
+        threading.Thread(target=self._sample, daemon=True).start()
+
+    def _sample(self):
+        while not self._stop.is_set():
+            rss, pss = tree_memory(self.process.pid)
+            self.peak = (max(self.peak[0], rss), max(self.peak[1], pss))
+            time.sleep(0.1)
+
+    def project(self, name: str) -> str:
+        return self.client.post("/api/projects", json={"name": name, "board": "8x5", "square_mm": 30}).json()["id"]
+
+    def state(self, pid: str) -> dict:
+        return self.client.get(f"/api/projects/{pid}").json()
+
+    def wait_verdict(self, pid: str, version: int, every: float = 0.02) -> dict:
+        while True:
+            doc = self.state(pid)
+            c = doc["calibration"]
+            if c and c["current"] and doc["version"] >= version:
+                return doc
+            if doc["error"]:
+                raise RuntimeError(doc["error"])
+            time.sleep(every)
+
+    def wait_idle(self, pid: str) -> dict:
+        while (doc := self.state(pid))["state"] != "idle":
+            time.sleep(0.2)
+        return doc
+
+    def stop(self):
+        self._stop.set()
+        self.client.close()
+        self.process.send_signal(signal.SIGINT)
+        try:
+            self.process.wait(30)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+
+
+def upload(server: Server, pid: str, photos: list[Path]) -> dict:
+    handles = [open(p, "rb") for p in photos]
+    try:
+        r = server.client.post(f"/api/projects/{pid}/photos",
+                               files=[("photos", (p.name, h, "image/jpeg")) for p, h in zip(photos, handles)])
+    finally:
+        for h in handles:
+            h.close()
+    r.raise_for_status()
+    return r.json()
+
+
+def app_round(server: Server, photos: list[Path], latencies: list[float]) -> tuple[float, float]:
+    pid = server.project("bench")
+    done = threading.Event()
+
+    def ping():                     # the API's latency while the photos arrive and are detected
+        with httpx.Client(base_url=server.url, headers=AUTH, timeout=60) as c:
+            while not done.is_set():
+                t = time.perf_counter()
+                doc = c.get(f"/api/projects/{pid}").json()
+                if doc["work"]["detecting"] or doc["work"]["uploads"]:
+                    latencies.append(time.perf_counter() - t)
+                time.sleep(0.05)
+
+    pinger = threading.Thread(target=ping, daemon=True)
+    pinger.start()
+    t0 = time.perf_counter()
+    sent = upload(server, pid, photos)
+    last_byte = time.perf_counter()
+    server.wait_verdict(pid, sent["version"])
+    verdict = time.perf_counter()
+    done.set()
+    pinger.join()
+    print(f"  app: upload {last_byte - t0:.1f} s, last byte to verdict {verdict - last_byte:.1f} s", flush=True)
+    server.wait_idle(pid)
+    return verdict - last_byte, pid
+
+
+def cli_round(roll: Path, out: Path) -> float:
+    t = time.perf_counter()
+    subprocess.run([*DUALCAL, "calibrate", str(roll), "--board", "8x5", "--square", "30", "-o", str(out)],
+                   env=ENV, check=True, capture_output=True)
+    elapsed = time.perf_counter() - t
+    print(f"  dualcal calibrate: {elapsed:.1f} s", flush=True)
+    return elapsed
+
+
+def leave_out(server: Server, pid: str, times: int = 3) -> list[float]:
+    doc = server.state(pid)
+    kept = [p["name"] for p in doc["photos"] if p["status"] == "kept" and p["camera"] == "tele"]
+    out = []
+    for name in kept[:times]:
+        version = server.state(pid)["version"]
+        t = time.perf_counter()
+        r = server.client.post(f"/api/projects/{pid}/use", json={"photos": {name: False}, "version": version}).json()
+        server.wait_verdict(pid, r["version"])
+        out.append(time.perf_counter() - t)
+        server.wait_idle(pid)
+        server.client.post(f"/api/projects/{pid}/use", json={"photos": {name: True}})
+        server.wait_idle(pid)
+    return out
+
+
+def two_clients(server: Server, photos: list[Path], workspace: Path) -> str:
+    pid = server.project("two clients")
+    results = []
+    threads = [threading.Thread(target=lambda half: results.append(upload(server, pid, half)), args=(h,))
+               for h in (photos[0::2], photos[1::2])]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    added = sorted(n for r in results for n in r["added"])
+    listed = sorted(p["name"] for p in server.state(pid)["photos"])
+    same = all(hashlib.sha256((workspace / pid / "photos" / p.name).read_bytes()).digest()
+               == hashlib.sha256(p.read_bytes()).digest() for p in photos)
+    server.wait_idle(pid)
+    ok = added == listed == sorted(p.name for p in photos) and same
+    return f"{len(listed)} of {len(photos)} photos there, byte for byte: {'yes' if ok else 'NO'}"
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--views", type=int, default=13)
+    args = parser.parse_args()
+    roll = synth_roll(args.views)
+    photos = sorted(roll.glob("*.JPG"))
+    print(f"{len(photos)} photos of {roll} ({sum(p.stat().st_size for p in photos) / 1e6:.0f} MB)")
+    with tempfile.TemporaryDirectory(prefix="bench-app-") as tmp:
+        workspace = Path(tmp) / "ws"
+        workspace.mkdir()
+        server = Server(workspace)
+        try:
+            latencies, app_times, cli_times, pid = [], [], [], None
+            for _ in range(args.rounds):              # the two take turns
+                cli_times.append(cli_round(roll, Path(tmp) / "cli.json"))
+                t, pid = app_round(server, photos, latencies)
+                app_times.append(t)
+            left = leave_out(server, pid)
+            both = two_clients(server, photos, workspace)
+            rss, pss = server.peak
+        finally:
+            server.stop()
+    p95 = statistics.quantiles(latencies, n=20)[18] if len(latencies) >= 20 else max(latencies, default=float("nan"))
+    app, cli = statistics.median(app_times), statistics.median(cli_times)
+    rows = [("last byte to verdict (app) / dualcal calibrate", f"{app:.1f} s / {cli:.1f} s = {app / cli:.2f} x",
+             "<= 1.2 x"),
+            (f"leave a photo out to the new verdict ({args.views} instants)",
+             f"median {statistics.median(left):.2f} s ({', '.join(f'{x:.2f}' for x in left)})", "< 1 s"),
+            ("server's peak memory (with its workers)", f"RSS {rss / 1024:.2f} GB, PSS {pss / 1024:.2f} GB", "< 1.5 GB"),
+            ("API latency while detecting", f"median {1e3 * statistics.median(latencies):.0f} ms, p95 {1e3 * p95:.0f} ms "
+                                            f"({len(latencies)} requests)", "< 200 ms"),
+            ("two clients uploading at once", both, "nothing lost")]
+    width = max(len(r[0]) for r in rows)
+    print()
+    for what, got, aim in rows:
+        print(f"{what:<{width}}  {got:<48}  aim {aim}")
+
+
+if __name__ == "__main__":
+    main()

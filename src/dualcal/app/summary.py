@@ -1,0 +1,118 @@
+"""What the project page shows of a calibration, as one JSON document (``.dualcal-app/summary.json``).
+
+Made in the worker from the files the job wrote (the calibration, its corners, the advice), so that
+the server only reads it: the verdict and every check in words with the photos or instants it
+blames, every camera's parameters with sigma, the rig's baseline and angles with sigma, every
+photo's camera, instant, RMS and status (the per-photo chart), the camera roll's split and the
+clues it used, the instants a length can be measured in, and the advice (the board's outline in
+each camera's frame, the sigmas now and predicted).
+"""
+
+from __future__ import annotations
+
+
+from ..geometry.camera import intrinsic_names
+from .store import photo_of
+
+__all__ = ["advice_summary", "calibration_summary"]
+
+
+def _photo_map(corners) -> dict[tuple[str, str], str]:
+    """``(camera, view) -> photo`` for every photo of the corners, left out ones too."""
+    out = {}
+    for cam, cc in corners.cameras.items():
+        for view, path in {**cc.meta.get("photos", {}), **cc.meta.get("excluded", {})}.items():
+            if path:
+                out[(cam, view)] = photo_of(path)
+    return out
+
+
+def _blamed(check: dict, photos: dict[tuple[str, str], str]) -> list[str]:
+    """The photos a check names (in ``flagged``, ``views`` or ``instants`` lists): an instant stands for
+    every photo of it."""
+    names = []
+    for key in ("flagged", "views"):
+        for item in check.get(key) or ():
+            if isinstance(item, dict):
+                cam, view = item.get("camera"), item.get("view") or item.get("instant")
+            else:
+                cam, view = None, str(item)
+            names += [p for (c, v), p in photos.items() if v == view and cam in (None, c)]
+    return sorted(set(names))
+
+
+def _roll_clues(roll: dict | None) -> dict | None:
+    """Which clues split the camera roll into cameras and instants, in words."""
+    if not roll:
+        return None
+    cams = roll.get("cameras", {})
+    by = roll.get("split_by") or {}
+    camera_clues = by.get("cameras")
+    instant_clues = by.get("instants")
+    if camera_clues is None:
+        camera_clues = ("EXIF lens model" if any(c.get("lens_model") for c in cams.values()) else
+                        "EXIF focal length") + " and image size"
+    if instant_clues is None:
+        gap = roll.get("instant_gap_s")
+        instant_clues = ("EXIF capture time" + (f" (a new board position after more than {gap:.1f} s)" if gap else ""))
+    return {"cameras": camera_clues, "instants": instant_clues,
+            "found": [{"camera": n, "lens": c.get("lens_model") or "", "focal_35mm": c.get("focal_length_35mm_mm"),
+                       "image_size": c.get("image_size"), "photos": c.get("photos")} for n, c in cams.items()],
+            "left_out": roll.get("left_out", {})}
+
+
+def calibration_summary(rig, calib: dict, version: int) -> dict:
+    """The page's view of a calibration: ``rig`` (:class:`~dualcal.geometry.model.RigModel`) and its calib.json
+    document ``calib``, made for the project's ``version``."""
+    from ..estimation.checks import failed_checks, verdict
+    from ..pages.photos import photo_status
+
+    photos = _photo_map(rig.corners)
+    status = photo_status(rig)
+    per_photo = {}
+    for view, per in status.items():
+        for cam, (rms, what) in per.items():
+            name = photos.get((cam, view))
+            if name:
+                per_photo[name] = {"camera": cam, "view": view, "rms_px": rms, "status": what}
+    checks = [{"name": n, "ok": bool(c.get("ok", True)), "message": str(c.get("message", "")),
+               "blames": _blamed(c, photos)} for n, c in rig.checks.items()]
+    cameras = []
+    for name in rig.camera_order():
+        cam = calib["cameras"][name]
+        names = [p for p in intrinsic_names(cam.get("model", "k1k2")) if p in cam and (p != "skew" or calib["skew"])]
+        cameras.append({"name": name, "model": cam.get("model", calib.get("model")), "image_size": cam["image_size"],
+                        "rms_px": cam.get("rms_px"),
+                        "parameters": [{"name": p, "value": cam[p], "sigma": cam["sigma"].get(p)} for p in names]})
+    relations = [{"camera": name, "baseline_mm": r["baseline_mm"], "baseline_sigma_mm": r["sigma"]["baseline_mm"],
+                  "opk_arcmin": r["opk_arcmin"], "opk_sigma_arcmin": r["sigma"]["opk_arcmin"], "t_mm": r["t_mm"]}
+                 for name, r in calib.get("rig", {}).items()]
+    instants = {}
+    for (cam, view), name in photos.items():
+        if view in rig.camera_poses.get(cam, {}):
+            instants.setdefault(view, {})[cam] = name
+    failed = failed_checks(rig.checks)
+    return {"version": version, "verdict": verdict(rig.checks).removeprefix("verdict: "), "ok": not failed,
+            "checks": checks, "cameras": cameras, "rig": relations, "reference": rig.reference,
+            "rms_px": rig.rms_px, "photos": per_photo, "roll": _roll_clues(rig.corners.roll),
+            "instants": {v: c for v, c in sorted(instants.items()) if len(c) >= 2},
+            "image_sizes": {n: list(c.image_size) for n, c in rig.corners.cameras.items()}}
+
+
+def advice_summary(advice_doc: dict, previous: dict | None, current_sigma: dict) -> dict:
+    """The advice as the page shows it: advise.json's poses (description, cameras, gain, outline in each
+    camera's frame, predicted sigmas) and, where an earlier advice predicted the sigmas after one more
+    photo (``previous``: ``{"version", "predicted_sigma"}``), that prediction against the sigmas now."""
+    from ..estimation.advise import key_targets
+
+    shown = [n for group in key_targets(current_sigma).values() for n in group]
+    poses = [{"description": p.get("description", ""), "cameras": p["cameras"], "gain": p.get("gain"),
+              "outline_px": p.get("outline_px", {}), "predicted_sigma": {n: p["predicted_sigma"].get(n) for n in shown}}
+             for p in advice_doc["poses"]]
+    out = {"done": advice_doc["done"], "next_gain": advice_doc.get("next_gain"), "poses": poses,
+           "current_sigma": {n: current_sigma[n] for n in shown}, "goals": advice_doc.get("goals", {})}
+    if previous and previous.get("predicted_sigma"):
+        out["predicted_vs_actual"] = [{"name": n, "predicted": previous["predicted_sigma"].get(n), "actual": current_sigma[n]}
+                                      for n in shown if n in previous["predicted_sigma"]]
+        out["predicted_from_version"] = previous.get("version")
+    return out
