@@ -36,7 +36,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ...geometry.grid import local_spacing_px, outlier_limit_px, predict_from_neighbours, worst_outlier
+from ...geometry.grid import (local_spacing_px, outlier_limit_px, predict_from_neighbours, typical_residual_px,
+                              worst_outlier)
 
 __all__ = ["refine_corners", "fit_saddles", "window_half_size", "drop_outliers", "measure_grid"]
 
@@ -349,8 +350,7 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
     retry = lost & np.all(np.isfinite(pred), axis=1)
     if retry.any():
         again, ok = refine_corners(img, np.where(retry[:, None], pred, uv), grid_shape, spacing, only=retry)
-        res = np.linalg.norm(uv - pred, axis=1)
-        typical = float(np.nanmedian(res)) if np.isfinite(res).any() else 0.0
+        typical = typical_residual_px(np.linalg.norm(uv - pred, axis=1), grid_shape)
         keep = retry & ok & (np.linalg.norm(again - pred, axis=1) <= outlier_limit_px(spacing, typical, gain))
         uv[keep] = again[keep]
         uv = drop_outliers(uv, grid_shape, spacing)
