@@ -25,8 +25,8 @@ import numpy as np
 from ...parallel import raise_if_cancelled
 from ...geometry.grid import local_spacing_px, neighbour_residuals_px
 
-__all__ = ["reduction_factor", "reduce_image", "classic_grid", "sb_grid", "find_grid", "largest_grid",
-           "consistent_part", "to_full_resolution"]
+__all__ = ["reduction_factor", "reduce_image", "classic_grid", "shows_a_chessboard", "sb_grid", "find_grid",
+           "largest_grid", "consistent_part", "to_full_resolution"]
 
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
 _SB_ATTEMPTS = (cv2.CALIB_CB_NORMALIZE_IMAGE, cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
@@ -42,11 +42,19 @@ def reduction_factor(image_size: tuple[int, int], min_long_side: int = 1000) -> 
 
 
 def reduce_image(gray: np.ndarray, factor: int) -> np.ndarray:
-    """Average ``factor x factor`` blocks; pixel centres map as in :func:`to_full_resolution`."""
-    if factor == 1:
-        return gray
+    """Average ``factor x factor`` blocks (``factor`` 1, 2, 4 or 8); pixel centres map as in
+    :func:`to_full_resolution`.
+
+    By halving the image ``log2(factor)`` times (OpenCV's vectorised 2 x 2 average: 2.3 ms for a 12 MP
+    photo to 1/4, against 8.6 ms for one 4 x 4 average), which is the same average but for the rounding
+    of the intermediate images to whole grey levels.
+    """
     h, w = gray.shape[0] // factor, gray.shape[1] // factor
-    return cv2.resize(gray[: h * factor, : w * factor], (w, h), interpolation=cv2.INTER_AREA)
+    small = gray[: h * factor, : w * factor]
+    while factor > 1:
+        factor //= 2
+        small = cv2.resize(small, (small.shape[1] // 2, small.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    return small
 
 
 def _grid(found: bool, corners, cols: int, rows: int) -> np.ndarray | None:
@@ -61,6 +69,13 @@ def classic_grid(gray: np.ndarray, cols: int, rows: int) -> np.ndarray | None:
     corners per row; which end is corner 0 is decided later by :mod:`dualcal.files.detect.order`), or None."""
     raise_if_cancelled()
     return _grid(*cv2.findChessboardCorners(gray, (cols, rows), flags=_CLASSIC_FLAGS), cols, rows)
+
+
+def shows_a_chessboard(gray: np.ndarray, cols: int, rows: int) -> bool:
+    """OpenCV's quick look for a ``cols x rows`` chessboard (``checkChessboard``, the classic detector's fast
+    check: dark and light quads at a few thresholds; 3-30 ms on a reduced photo)."""
+    raise_if_cancelled()
+    return bool(cv2.checkChessboard(gray, (cols, rows)))
 
 
 def sb_grid(gray: np.ndarray, cols: int, rows: int, upsampled: bool = False) -> np.ndarray | None:

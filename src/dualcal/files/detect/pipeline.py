@@ -42,7 +42,7 @@ from ...parallel import interruptible_map
 from ...progress import progress_bar, warn
 from .charuco import detect_charuco, resolve_board
 from .coarse import (classic_grid, consistent_part, largest_grid, reduce_image, reduction_factor, sb_grid,
-                     to_full_resolution)
+                     shows_a_chessboard, to_full_resolution)
 from ...geometry.grid import local_spacing_px, validate_grid
 from .manual import grid_from_hints
 from .order import (PartialBoard, check_colours, filled_grid, looks_like_part_of_a_board, order_grid, place_partial_grid,
@@ -106,7 +106,8 @@ def locate_board(full: np.ndarray, board: Board, partial: bool = True):
     agree, OpenCV's SB detector is asked for the whole board (its growth from 3 x 3 corners can stop
     short of a board it finds when asked for the board's size), if what was grown may be part of the
     board in full view (:func:`.order.looks_like_part_of_a_board`: not stripes of a carpet, not a
-    board cut by the frame). Only a grid whose squares are below :data:`SMALL_SQUARE_PX`
+    board cut by the frame) or OpenCV's quick look sees a board (:func:`.coarse.shows_a_chessboard`).
+    Only a grid whose squares are below :data:`SMALL_SQUARE_PX`
     sends the search to twice the resolution (at full resolution: SB on OpenCV's upsampled image).
 
     Raises
@@ -137,9 +138,10 @@ def locate_board(full: np.ndarray, board: Board, partial: bool = True):
             except DetectionError as exc:
                 unplaced = exc
         # SB's growth can stop short of a board it finds whole when asked for it: ask it, where what it
-        # grew may be part of the board in full view
+        # grew may be part of the board in full view, or the classic detector's quick look saw a board
         seen = grown if part is None else part
-        if looks_like_part_of_a_board(to_full_resolution(seen, f), small, f, board):
+        if (looks_like_part_of_a_board(to_full_resolution(seen, f), small, f, board)
+                or shows_a_chessboard(small, board.cols, board.rows)):
             grid = sb_grid(small, board.cols, board.rows)
             if grid is not None:
                 return small, f, to_full_resolution(grid, f), False
