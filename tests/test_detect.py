@@ -640,3 +640,31 @@ def test_every_curled_sheet_opencv_finds_is_found_with_its_corners_and_as_precis
 def _matched(uv: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """``uv - nearest true corner`` for OpenCV's corners, whose order differs from the contract's."""
     return uv - truth[np.argmin(np.linalg.norm(uv[:, None] - truth[None], axis=2), axis=1)]
+
+
+def test_a_photo_without_the_whole_board_is_given_up_on_the_reduced_image(tmp_path, monkeypatch):
+    """A 3 MP photo of the room without the board, and one where the frame cuts the board: OpenCV's detectors
+    run on the reduced image only (at full resolution each takes seconds on a cluttered photo), the classic one
+    and SB's largest grid, and no more where nothing of a board is seen; the cut board's part in view (SB's
+    grid runs on into its margin: a row more than the board has) is placed on it by its colours."""
+    truth = make_truth("note8", views=1, seed=4, scale=0.5)
+    cam, pose = truth.cameras["wide"], truth.camera_pose("wide", "IMG_01")
+    calls = []
+    for name in ("findChessboardCorners", "findChessboardCornersSB", "findChessboardCornersSBWithMeta"):
+        def spy(img, *args, _f=getattr(cv2, name), _name=name, **kwargs):
+            calls.append((_name, img.shape))
+            return _f(img, *args, **kwargs)
+        monkeypatch.setattr(cv2, name, spy)
+    for shift, expected in ((3.0, "no 8x5 chessboard found"), (0.3, None)):
+        moved = Pose(pose.R, pose.t_mm + np.array([shift * cam.image_size[0] / cam.fx * pose.t_mm[2], 0.0, 0.0]))
+        path = tmp_path / f"shift_{shift}.jpg"
+        cv2.imwrite(str(path), render_view(cam, moved, truth.board, np.random.default_rng(1)), [cv2.IMWRITE_JPEG_QUALITY, 92])
+        calls.clear()
+        res = detect_photo(path, truth.board)
+        assert {shape for _, shape in calls} == {(1008, 756)}, calls
+        if expected:
+            assert res.uv is None and res.reason == expected and len(calls) == 2, (res.reason, calls)
+        else:                       # 39 of its 40 corners in view: numbered by its colours, each in its place
+            uv_true = project_points(cam, moved.apply(truth.board.object_points_mm()))
+            assert res.uv is not None and observed_mask(res.uv).sum() >= 36, res.reason
+            assert np.nanmax(np.linalg.norm(res.uv - uv_true, axis=1)) < 0.1

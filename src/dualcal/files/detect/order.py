@@ -246,9 +246,9 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
     h, w = gray.shape
     size = np.array([w, h]) * factor
     fits, off_image = [], False
-    for part in (part_px, np.swapaxes(part_px, 0, 1)):
+    for part in _windows_within(part_px, R, C):
         r, c = part.shape[:2]
-        if r > R or c > C or r * c < 9:
+        if r * c < 9:
             continue
         extend = _extension(part)
         if extend is None:
@@ -281,6 +281,16 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
         raise DetectionError(f"no {board.spec()} chessboard found" + (
             " (a part of one was, but not where it lies on the board)" if fits else ""))
     return fits[0][0]
+
+
+def _windows_within(part: np.ndarray, R: int, C: int):
+    """The (r, c, 2) part either way round, and where it has more rows or columns than the board's ``R x C``
+    (SB's grid run on into the board's margin), each run of ``R`` rows or ``C`` columns of it."""
+    for grid in (part, np.swapaxes(part, 0, 1)):
+        r, c = grid.shape[:2]
+        for i in range(max(r - R, 0) + 1):
+            for j in range(max(c - C, 0) + 1):
+                yield grid[i:i + min(r, R), j:j + min(c, C)]
 
 
 def _extension(part: np.ndarray):
