@@ -163,28 +163,16 @@ def _alternates(grid_px: np.ndarray, gray: np.ndarray, factor: int) -> bool:
 def looks_like_part_of_a_board(grid_px: np.ndarray, gray: np.ndarray, factor: int, board: Board) -> bool:
     """Whether a (r, c, 2) grid found by a detector (full-resolution pixels) may be part of ``board`` in full
     view: the squares between its corners alternate like a chessboard's (:func:`check_colours`' inner
-    squares), and some placement of it on the board keeps the whole board within the image, give or take a
-    square (the grid extended by its perspective, :func:`place_partial_grid`). A grid on other stripes or
-    checks (a carpet, tiles), or a board cut by the frame, is no such part: no detector asked for the
-    whole board will find it there."""
+    squares), and some placement of it on the board (:func:`place_partial_grid`'s) keeps every inner corner
+    at least half a square inside the image, where the outer ring of squares, a square wide, must be seen.
+    A grid on other stripes or checks (a carpet, tiles), or a board cut by the frame, is no such part: no
+    detector asked for the whole board will find it there."""
     if not _alternates(grid_px, gray, factor):
         return False
-    h, w = gray.shape
-    size = np.array([w, h]) * factor
-    R, C = board.rows, board.cols
-    for part in (grid_px, np.swapaxes(grid_px, 0, 1)):
-        r, c = part.shape[:2]
-        extend = _extension(part) if r <= R and c <= C else None
-        if extend is None:
-            continue
-        step = float(np.median(np.linalg.norm(np.diff(part, axis=1), axis=2)))
-        for i0 in range(R - r + 1):
-            for j0 in range(C - c + 1):
-                J, I = np.meshgrid(np.arange(C) - j0, np.arange(R) - i0)
-                grid = extend(J, I)
-                if np.all(np.isfinite(grid)) and np.all((grid >= 0.5 * step) & (grid <= size - 1 - 0.5 * step)):
-                    return True
-    return False
+    size = np.array(gray.shape[::-1]) * factor
+    step = float(np.median(np.linalg.norm(np.diff(grid_px, axis=1), axis=2)))
+    return any(np.all(np.isfinite(grid)) and np.all((grid >= 0.5 * step) & (grid <= size - 1 - 0.5 * step))
+               for grid in _placements(grid_px, board))
 
 
 def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = 8.0,
@@ -233,8 +221,9 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
     Raises
     ------
     PartialBoard
-        When the part's squares alternate like a chessboard's, no placement fits, the part reaches to within 1.5 of its squares of the image's edge
-        and some placement runs off the image: the board is cut off by the frame.
+        When the part's squares alternate like a chessboard's, no placement fits, the part reaches to
+        within 1.5 of its squares of the image's edge and some placement runs off the image: the board is
+        cut off by the frame.
     DetectionError
         When no placement, or more than one, fits.
     """
@@ -246,28 +235,18 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
     h, w = gray.shape
     size = np.array([w, h]) * factor
     fits, off_image = [], False
-    for part in _windows_within(part_px, R, C):
-        r, c = part.shape[:2]
-        if r * c < 9:
+    for grid in _placements(part_px, board):
+        inside = np.all((grid >= 0) & (grid <= size - 1), axis=2)
+        if not inside.all():
+            off_image = True
+            # a board cut off by the frame, judged on the squares in view where most of it is
+            if 2 * inside.sum() <= R * C or not np.all(np.isfinite(grid)):
+                continue
+        try:
+            check_colours(square_colours(gray, grid, factor), C, R)
+        except DetectionError:
             continue
-        extend = _extension(part)
-        if extend is None:
-            continue
-        for i0 in range(R - r + 1):
-            for j0 in range(C - c + 1):
-                J, I = np.meshgrid(np.arange(C) - j0, np.arange(R) - i0)
-                grid = extend(J, I)
-                inside = np.all((grid >= 0) & (grid <= size - 1), axis=2)
-                if not inside.all():
-                    off_image = True
-                    # a board cut off by the frame, judged on the squares in view where most of it is
-                    if 2 * inside.sum() <= R * C or not np.all(np.isfinite(grid)):
-                        continue
-                try:
-                    check_colours(square_colours(gray, grid, factor), C, R)
-                except DetectionError:
-                    continue
-                fits.append((grid, bool(inside.all())))
+        fits.append((grid, bool(inside.all())))
     cut = any(not whole for _, whole in fits)
     if (not fits and off_image) or (cut and (board.is_symmetric or len(fits) > 1)):
         step = np.median(np.linalg.norm(np.diff(part_px, axis=1), axis=2))
@@ -283,14 +262,23 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
     return fits[0][0]
 
 
-def _windows_within(part: np.ndarray, R: int, C: int):
-    """The (r, c, 2) part either way round, and where it has more rows or columns than the board's ``R x C``
-    (SB's grid run on into the board's margin), each run of ``R`` rows or ``C`` columns of it."""
-    for grid in (part, np.swapaxes(part, 0, 1)):
-        r, c = grid.shape[:2]
-        for i in range(max(r - R, 0) + 1):
-            for j in range(max(c - C, 0) + 1):
-                yield grid[i:i + min(r, R), j:j + min(c, C)]
+def _placements(part_px: np.ndarray, board: Board):
+    """Every placement of a (r, c, 2) part (either way round) inside the board, as the (rows, cols, 2) grid
+    of the whole board it extends to (:func:`_extension`). Where the part has more rows or columns than the
+    board (SB's grid run on into the board's margin), each run of the board's rows or columns of it."""
+    R, C = board.rows, board.cols
+    for grid in (part_px, np.swapaxes(part_px, 0, 1)):
+        for i in range(max(grid.shape[0] - R, 0) + 1):
+            for j in range(max(grid.shape[1] - C, 0) + 1):
+                part = grid[i:i + R, j:j + C]
+                r, c = part.shape[:2]
+                extend = _extension(part) if r * c >= 9 else None
+                if extend is None:
+                    continue
+                for i0 in range(R - r + 1):
+                    for j0 in range(C - c + 1):
+                        J, I = np.meshgrid(np.arange(C) - j0, np.arange(R) - i0)
+                        yield extend(J, I)
 
 
 def _extension(part: np.ndarray):
