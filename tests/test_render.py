@@ -9,7 +9,9 @@ import pytest
 from dualcal.geometry.board import Board
 from dualcal.geometry.camera import project_points
 from dualcal.files.detect.refine import fit_saddles
-from dualcal.synthetic.render import _box_mean, _square_wave_integral, board_coordinates, render_view, write_photo_set
+from dualcal.geometry.board import shaped_points_mm
+from dualcal.synthetic.render import (_box_mean, _square_wave_integral, board_coordinates, board_height_mm, render_view,
+                                     shaped_corners_mm, write_photo_set)
 from dualcal.synthetic.synth import make_truth, true_corners
 
 
@@ -77,6 +79,41 @@ def test_a_lens_with_tangential_terms_renders_its_corners_where_the_model_projec
         fit, ok = _fit_from_near(img, uv_true, truth.board, half=8)
         assert ok.all()
         assert np.sqrt(np.mean(np.sum((fit - uv_true) ** 2, axis=1))) < 0.01
+
+
+def _edge_curl(board: Board, lift_mm: float):
+    """A sheet flat on a table but for its last 40 % along X, which curls up to ``lift_mm`` at its far edge."""
+    x0, x1 = 0.6 * (board.cols - 1) * board.square_mm, (board.cols - 1) * board.square_mm
+    return lambda X, Y: lift_mm * (np.clip(X - x0, 0.0, None) / (x1 - x0)) ** 2
+
+
+@pytest.mark.parametrize("shape", ["model", "edge"])
+def test_a_curled_sheet_renders_its_corners_where_the_model_projects_them(shape):
+    """A board that is not flat, seen 55-65 degrees off frontal at 960 x 720: every pixel sees the surface point
+    that projects back to it, and a noise-free render's corners are the shaped corners' projections (to the
+    0.01-0.02 px the blurred-corner fit reaches in windows of 5 px on flat boards too)."""
+    board = Board(9, 6, 25.0)
+    truth = make_truth("stereo", views=1, seed=2, scale=1.5, min_tilt_deg=55, max_tilt_deg=65, board=board)
+    cam, pose = truth.cameras["left"], truth.camera_pose("left", "IMG_01")
+    shape_mm = np.array([6.0, -4.0, 2.0]) if shape == "model" else _edge_curl(board, 12.0)
+    X = shaped_corners_mm(board, shape_mm)
+    if shape == "model":
+        np.testing.assert_allclose(X, shaped_points_mm(board.object_points_mm(), shape_mm), atol=1e-12)
+    else:
+        assert X[:, 2].max() == pytest.approx(12.0) and X[:, 2].min() == 0.0
+    u, v = np.arange(0.0, 960.0, 11.3), np.arange(0.0, 720.0, 9.7)
+    Xs, Ys, front = board_coordinates(cam, pose, u, v, board, shape_mm)
+    seen = pose.apply(np.stack([Xs, Ys, board_height_mm(board, Xs, Ys, shape_mm)], axis=-1)[front])
+    uu, vv = np.meshgrid(u, v)
+    assert front.mean() > 0.3
+    np.testing.assert_allclose(project_points(cam, seen), np.stack([uu, vv], axis=-1)[front], atol=1e-6)
+    img = render_view(cam, pose, board, np.random.default_rng(1), noise=0.0, blur_px=0.6, shape_mm=shape_mm)
+    uv_true = project_points(cam, pose.apply(X))
+    flat = project_points(cam, pose.apply(board.object_points_mm()))
+    assert np.max(np.linalg.norm(uv_true - flat, axis=1)) > 3.0          # the shape moves corners by pixels
+    fit, ok = _fit_from_near(img, uv_true, board, half=5)
+    assert ok.all()
+    assert np.sqrt(np.mean(np.sum((fit - uv_true) ** 2, axis=1))) < 0.02
 
 
 def test_bands_do_not_change_the_image(truth):

@@ -23,19 +23,27 @@ from .board import Board
 from .model import observed_mask
 
 __all__ = ["local_spacing_px", "neighbour_predictions", "predict_from_neighbours", "neighbour_residuals_px",
-           "outlier_limit_px", "worst_outlier", "min_corners", "validate_grid"]
+           "typical_residual_px", "outlier_limit_px", "worst_outlier", "min_corners", "validate_grid"]
 
-#: An accepted corner lies within ``OUTLIER_TIMES`` the photo's median neighbour residual of its
-#: neighbours' prediction (:func:`outlier_limit_px`), but the limit is never below
-#: ``OUTLIER_FLOOR_PX`` (on clean photos the median is a few hundredths of a pixel, and
-#: rejecting at that scale would only thin the grid) and never above the larger of
-#: ``OUTLIER_CEIL_PX`` and ``OUTLIER_CEIL_FRACTION`` of the corner's spacing (the fraction
-#: admits home-made boards, whose printed squares are off a true grid by a few tenths of a
-#: pixel on an 8 MP photo, and stops there: a corner more than 0.8 % of a square off is wrong).
+#: An accepted corner lies within ``OUTLIER_TIMES`` the typical neighbour residual around it
+#: (:func:`typical_residual_px`: the larger of its neighbours' median and the photo's) of its neighbours'
+#: prediction (:func:`outlier_limit_px`), but the limit is never below ``OUTLIER_FLOOR_PX`` (on clean
+#: photos the median is a few hundredths of a pixel, and rejecting at that scale would only thin the
+#: grid) and never above the larger of ``OUTLIER_CEIL_PX`` and ``OUTLIER_CEIL_FRACTION`` of the corner's
+#: spacing (the fraction admits home-made boards, whose printed squares are off a true grid by a few
+#: tenths of a pixel on an 8 MP photo, and stops there: a corner more than 0.8 % of a square off is
+#: wrong). The typical residual is local because what the prediction cannot follow of a board that is
+#: not flat (a sheet curled on a table) is shared by the corners around, and raises their limit with
+#: them, where the rest of the board is flat: on steep 960 x 720 renders of a sheet whose far end curls up
+#: by 10 mm, 23 of 2592 exact corners (0.05 px of noise) were off their limit with the photo's median,
+#: none with the local one. What such a board's corners keep of its shape is the adjustment's to judge.
 OUTLIER_TIMES = 4.0
 OUTLIER_FLOOR_PX = 0.3
 OUTLIER_CEIL_PX = 0.5
 OUTLIER_CEIL_FRACTION = 0.008
+#: Fewest measured neighbours for which :func:`predict_from_neighbours` fits a cubic, not a quadratic,
+#: to what the homography leaves (its 10 coefficients with 4 to spare).
+CUBIC_NEIGHBOURS = 14
 #: The gain (:func:`predict_from_neighbours`) of an inner corner's prediction from its full
 #: 5 x 5 patch; a corner whose prediction carries more noise (the board's edge, 0.65-0.8, and
 #: its four corners, about 2) gets a limit larger by sqrt(1 + gain^2) / sqrt(1 + INNER_GAIN^2).
@@ -110,12 +118,16 @@ def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int]):
     The neighbours are the measured corners of the 5 x 5 patch around the corner (cut at the
     board's edge). A homography from their board offsets ``(dc, dr)`` to the image is fitted by
     the direct linear transform (on coordinates centred on their mean and scaled by their
-    spread); a quadratic in ``(dc, dr)`` is then fitted to what the homography leaves, and both
+    spread); a polynomial in ``(dc, dr)`` is then fitted to what the homography leaves, and both
     are evaluated at offset ``(0, 0)``. The homography follows perspective exactly; the
-    quadratic takes up the bending of the grid lines by the lens, which over two squares of a
+    polynomial takes up the bending of the grid lines by the lens, which over two squares of a
     640 x 480 photo with k1 = -0.29 leaves the true corners of the real stereo set 0.5-0.8 px off
-    a homography alone (and only odd-order, 3rd-degree bending, which cancels at an inner corner
-    whose patch is symmetric, is left).
+    a homography alone, and by a board that is not flat (a sheet of paper curled on a table). It is
+    cubic where at least :data:`CUBIC_NEIGHBOURS` neighbours are measured, else quadratic: at an
+    inner corner whose patch is symmetric the cubic terms cancel, but near the board's edge, where
+    the patch is cut, they do not (measured on exact corners of 960 x 720 renders 50-70 degrees off
+    frontal through k1 = -0.29: the largest residual near the edge 0.18 px with a quadratic, 0.04 with
+    a cubic; 0.23 and 0.07 on a sheet whose edges rise 10 mm over 200 mm).
     """
     uv = np.asarray(uv, float)
     use = observed_mask(uv)
@@ -144,11 +156,13 @@ def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int]):
                            (h[:, None, 3] * x + h[:, None, 4] * y + h[:, None, 5]) / den], axis=-1)
         at_zero = np.stack([h[:, 2], h[:, 5]], axis=1) / h[:, 8:9]
     left = np.where(valid[..., None], p - fitted, 0.0)                       # (N, M, 2)
-    Q = np.stack([o, x, y, x * x, x * y, y * y], axis=-1) * w[..., None]     # (N, M, 6)
+    cubic = (valid.sum(axis=1) >= CUBIC_NEIGHBOURS).astype(float)[:, None]
+    Q = np.stack([o, x, y, x * x, x * y, y * y] + [t * cubic for t in (x**3, x * x * y, x * y * y, y**3)],
+                 axis=-1) * w[..., None]                                     # (N, M, 10)
     with np.errstate(invalid="ignore"):
         Qt = np.swapaxes(Q, 1, 2)
-        Qinv = np.linalg.solve(Qt @ Q + 1e-9 * np.eye(6), Qt)               # (N, 6, M)
-        coef = Qinv @ left                                                   # (N, 6, 2)
+        Qinv = np.linalg.solve(Qt @ Q + 1e-9 * np.eye(10), Qt)              # (N, 10, M)
+        coef = Qinv @ left                                                   # (N, 10, 2)
     with np.errstate(invalid="ignore"):      # corners with too few neighbours: NaN below
         pred = (at_zero + coef[:, 0, :]) * spread[:, None] + mean
     pred[~enough | ~np.all(np.isfinite(pred), axis=1)] = np.nan
@@ -160,16 +174,34 @@ def neighbour_residuals_px(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray
     return np.linalg.norm(np.asarray(uv, float) - neighbour_predictions(uv, shape), axis=1)
 
 
-def outlier_limit_px(spacing_px: np.ndarray, typical_px: float, gain=INNER_GAIN) -> np.ndarray:
+def typical_residual_px(residual_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(N,) the typical neighbour residual around each corner: the larger of the median residual of its
+    neighbours within two rows and columns (itself left out; at least 4 of them judged) and the photo's
+    median. ``residual_px`` (N,): each corner's distance from its neighbours' prediction, NaN where it
+    cannot be judged."""
+    res = np.asarray(residual_px, float)
+    finite = np.isfinite(res)
+    if not finite.any():
+        return np.zeros(len(res))
+    idx, _ = _neighbourhoods(shape)
+    around = np.where(idx >= 0, res[np.maximum(idx, 0)], np.nan)
+    enough = np.sum(np.isfinite(around), axis=1) >= 4
+    local = np.full(len(res), -np.inf)
+    if enough.any():
+        local[enough] = np.nanmedian(around[enough], axis=1)
+    return np.maximum(local, float(np.median(res[finite])))
+
+
+def outlier_limit_px(spacing_px: np.ndarray, typical_px, gain=INNER_GAIN) -> np.ndarray:
     """Largest accepted neighbour residual of corners ``spacing_px`` from their nearest neighbour.
 
-    ``typical_px`` is the photo's median neighbour residual (its corner noise and the board's
-    own departures from a true grid), ``gain`` that of each corner's prediction; see
-    :data:`OUTLIER_TIMES` and :data:`INNER_GAIN` for the rule.
+    ``typical_px`` is the typical neighbour residual around each corner (:func:`typical_residual_px`:
+    the corner noise and what the prediction cannot follow of the board's shape), ``gain`` that of
+    each corner's prediction; see :data:`OUTLIER_TIMES` and :data:`INNER_GAIN` for the rule.
     """
     ceil = np.maximum(OUTLIER_CEIL_PX, OUTLIER_CEIL_FRACTION * np.asarray(spacing_px, float))
     noise = np.sqrt((1.0 + np.asarray(gain, float) ** 2) / (1.0 + INNER_GAIN**2))
-    return np.clip(OUTLIER_TIMES * typical_px, OUTLIER_FLOOR_PX, ceil) * np.maximum(noise, 1.0)
+    return np.clip(OUTLIER_TIMES * np.asarray(typical_px, float), OUTLIER_FLOOR_PX, ceil) * np.maximum(noise, 1.0)
 
 
 def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray | None = None,
@@ -209,7 +241,7 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
         return None
     if spacing_px is None:
         spacing_px = local_spacing_px(uv, shape)
-    limit = outlier_limit_px(spacing_px, float(np.median(res[finite])), gain)
+    limit = outlier_limit_px(spacing_px, typical_residual_px(res, shape), gain)
     over = finite & (res > limit)
     if not over.any():
         return None

@@ -47,7 +47,7 @@ from ..progress import progress_bar
 from .render_charuco import MarkerTexture, marker_darkness, marker_texture
 from .render_marks import marks_texture
 
-__all__ = ["render_view", "write_photo_set", "photo_seed"]
+__all__ = ["board_height_mm", "shaped_corners_mm", "render_view", "write_photo_set", "photo_seed"]
 
 
 # ---------------------------------------------------------------------- 1-D box averages
@@ -93,22 +93,44 @@ def _reflectance(X: np.ndarray, Y: np.ndarray, hX: np.ndarray, hY: np.ndarray, b
 
 # ---------------------------------------------------------------------- pixels -> board
 
-def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray):
-    """Board-plane point seen by each pixel centre.
+def board_height_mm(board: Board, X: np.ndarray, Y: np.ndarray, shape_mm) -> np.ndarray:
+    """Height ``Z`` (mm) of a shaped board at board points ``(X, Y)`` mm.
+
+    ``shape_mm``: the three coefficients of the model of :data:`~dualcal.geometry.board.SHAPE_TERMS`,
+    with :func:`~dualcal.geometry.board.shape_basis`'s scaling over the corner grid (``x' = -1 .. 1`` from
+    corner column 0 to ``cols - 1``), extended beyond it over the outer squares and the margin; or any
+    smooth function ``(X, Y) -> Z`` of board millimetres (a sheet whose edge curls up, which that model
+    does not hold)."""
+    if callable(shape_mm):
+        return np.asarray(shape_mm(X, Y), float)
+    w_xx, w_yy, w_xy = np.asarray(shape_mm, float)
+    half_x = 0.5 * max(board.cols - 1, 1) * board.square_mm
+    half_y = 0.5 * max(board.rows - 1, 1) * board.square_mm
+    x, y = (X - half_x) / half_x, (Y - half_y) / half_y
+    return w_xx * x * x + w_yy * y * y + w_xy * x * y
+
+
+def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray, board: Board | None = None,
+                      shape_mm=None):
+    """Board point seen by each pixel centre.
 
     Parameters
     ----------
     cam, pose : the camera and its board-to-camera pose (``X_cam = R X_board + t``).
     u, v : (W,) and (B,) pixel coordinates of the columns and rows of a band.
+    board, shape_mm : a board that is not flat: its shape coefficients (:func:`board_height_mm`), or None
+        for a plane.
 
     Returns
     -------
-    X, Y : (B, W) board coordinates, mm.
-    front : (B, W) bool, True where the ray meets the plane in front of the camera.
+    X, Y : (B, W) board coordinates, mm (for a shaped board, of the surface point the ray meets).
+    front : (B, W) bool, True where the ray meets the board in front of the camera.
     """
     yd = ((v - cam.cy) / cam.fy)[:, None]
     xd = (u[None, :] - cam.cx - cam.skew * yd) / cam.fx
     ray = ray_directions(cam, np.stack(np.broadcast_arrays(xd, yd), axis=-1))   # (B, W, 3): (x, y, 1) or a fisheye's
+    if shape_mm is not None:
+        return _surface_coordinates(pose, ray, board, shape_mm)
     x, y, z = ray[..., 0], ray[..., 1], ray[..., 2]
     Hinv = np.linalg.inv(np.column_stack([pose.R[:, 0], pose.R[:, 1], pose.t_mm]))
     w = Hinv[2, 0] * x + Hinv[2, 1] * y + Hinv[2, 2] * z      # = 1 / (distance along the ray)
@@ -116,6 +138,50 @@ def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray
     w = np.where(front, w, 1.0)
     X = (Hinv[0, 0] * x + Hinv[0, 1] * y + Hinv[0, 2] * z) / w
     Y = (Hinv[1, 0] * x + Hinv[1, 1] * y + Hinv[1, 2] * z) / w
+    return X, Y, front
+
+
+def shaped_corners_mm(board: Board, shape_mm=None) -> np.ndarray:
+    """(N, 3) the board's inner corners, mm, raised to the height :func:`board_height_mm` gives them
+    (``shape_mm`` None: flat); for the model's coefficients the same as
+    :func:`~dualcal.geometry.board.shaped_points_mm`."""
+    X = board.object_points_mm()
+    if shape_mm is not None:
+        X[:, 2] = board_height_mm(board, X[:, 0], X[:, 1], shape_mm)
+    return X
+
+
+def _surface_coordinates(pose: Pose, ray: np.ndarray, board: Board, shape_mm, tol_mm: float = 1e-7,
+                         iterations: int = 100):
+    """:func:`board_coordinates` on the shaped board ``Z = h(X, Y)`` (:func:`board_height_mm`).
+
+    In the board's frame each ray is ``O + lam d`` (``O = -R^T t``, ``d = R^T ray``); it meets the level
+    ``Z = h`` at ``lam = (h - O_z) / d_z``. Fixed point: start on the plane ``h = 0``, take the height of
+    the surface under the point found, meet that level, again. It contracts while the surface's slope
+    along the ray, times ``|d_xy| / |d_z|``, is below 1 (a sheet curled by a few mm over a square or
+    two, seen up to 70 degrees off frontal); a ray that grazes the surface (no fixed point in
+    ``iterations``) is taken as not meeting it.
+    """
+    origin = -pose.R.T @ pose.t_mm
+    d = (ray @ pose.R).reshape(-1, 3)                      # R^T ray, one row per pixel
+    dz = np.where(np.abs(d[:, 2]) > 1e-12, d[:, 2], 1e-12)
+    h = np.zeros(len(d))
+    converged = np.zeros(len(d), bool)
+    active = np.arange(len(d))
+    with np.errstate(over="ignore", invalid="ignore"):
+        for _ in range(iterations):
+            lam = (h[active] - origin[2]) / dz[active]
+            h_new = board_height_mm(board, origin[0] + lam * d[active, 0], origin[1] + lam * d[active, 1], shape_mm)
+            done = np.abs(h_new - h[active]) < tol_mm
+            h[active] = h_new
+            converged[active[done]] = True
+            active = active[~done & np.isfinite(h_new)]
+            if len(active) == 0:
+                break
+    lam = (h - origin[2]) / dz
+    front = (converged & (lam > 0)).reshape(ray.shape[:-1])
+    X = np.where(front, (origin[0] + lam * d[:, 0]).reshape(front.shape), 0.0)
+    Y = np.where(front, (origin[1] + lam * d[:, 1]).reshape(front.shape), 0.0)
     return X, Y, front
 
 
@@ -129,7 +195,7 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
                 shadow: tuple[float, float, float, float] | None = None,
                 outliers: Sequence[tuple[int, float, float]] = (),
                 swapped_markers: Sequence[tuple[int, int]] = (), marks: str | None = None,
-                inverted: bool = False) -> np.ndarray:
+                inverted: bool = False, shape_mm: Sequence[float] | None = None) -> np.ndarray:
     """Render the board as photographed by ``cam`` at ``pose``.
 
     Parameters
@@ -170,11 +236,16 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
     inverted : a chessboard printed with the other squares black: square ``(-1, -1)`` is white
         (as on BoofCV's ECoCheck boards); where ``cols + rows`` is even no corner then has a black
         square diagonally outside it with the frame right-handed into the board.
+    shape_mm : a board that is not flat (a sheet of paper curled on a table, a sagging card): the three
+        coefficients of :data:`~dualcal.geometry.board.SHAPE_TERMS`, mm, or a function ``(X, Y) -> Z`` mm
+        (:func:`board_height_mm`); the sheet's outer squares and margin follow the same surface. The
+        surface must not hide part of itself from the camera (no fold seen edge-on).
 
     Returns
     -------
     (H, W) uint8 image. Corner ``k`` of the board sits at ``project_points(cam, pose.apply(X_k))``
-    (except the ``outliers``).
+    (except the ``outliers``), where for a shaped board ``X_k`` is raised to the height
+    :func:`board_height_mm` gives it (:func:`shaped_corners_mm`).
     """
     check_invertible_in_image(cam)
     rng = np.random.default_rng(0) if rng is None else rng
@@ -186,7 +257,7 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
     bg_freq = rng.uniform(1.0, 3.0, 3) * 2 * np.pi / max(W, H)
     margin_mm = margin_squares * board.square_mm
     halo = int(np.ceil(4 * blur_px)) + 1 if blur_px > 0 else 0
-    c0, c1, b0, b1 = _board_support(cam, pose, board, margin_mm)
+    c0, c1, b0, b1 = _board_support(cam, pose, board, margin_mm, shape_mm)
     u = np.arange(W, dtype=float)
     du = (u - cam.cx).astype(np.float32)
     bg_u = [np.sin(bg_freq[0] * u + bg_phase[0]), np.sin(bg_freq[2] * u + bg_phase[2]),
@@ -209,7 +280,7 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
         refl = shading * (scene[a0:a1] * (1.0 / 255.0))
         rows = slice(max(a0, b0) - a0, min(a1, b1) - a0)
         if rows.stop - rows.start > 1 and c1 - c0 > 1:    # (a single row or column: the margin's edge)
-            X, Y, front = board_coordinates(cam, pose, u[c0:c1], v[rows])
+            X, Y, front = board_coordinates(cam, pose, u[c0:c1], v[rows], board, shape_mm)
             X, Y = _plant_outliers(X, Y, board, outliers)
             # footprint of one pixel in board mm (axis-aligned, centred: symmetric)
             hX = 0.5 * (np.abs(np.gradient(X, axis=1)) + np.abs(np.gradient(X, axis=0))) + 1e-9
@@ -270,7 +341,7 @@ def _clutter(size: tuple[int, int], rng: np.random.Generator, shapes: int, level
     return scene
 
 
-def _board_support(cam: CameraModel, pose: Pose, board: Board, margin_mm: float):
+def _board_support(cam: CameraModel, pose: Pose, board: Board, margin_mm: float, shape_mm=None):
     """Columns ``[c0, c1)`` and rows ``[r0, r1)`` of the image that can see the board's paper.
 
     The paper's outline, densely sampled and projected, bounds its image (the board lies in
@@ -287,7 +358,12 @@ def _board_support(cam: CameraModel, pose: Pose, board: Board, margin_mm: float)
         np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y1)]),
         np.column_stack([np.full_like(t, x0), y0 + (y1 - y0) * t]),
         np.column_stack([np.full_like(t, x1), y0 + (y1 - y0) * t])])
-    Xc = pose.apply(np.column_stack([edges, np.zeros(len(edges))]))
+    Z = np.zeros(len(edges))
+    if shape_mm is not None:        # a curved sheet's image may bulge past its outline's: sample it all
+        gx, gy = np.meshgrid(x0 + (x1 - x0) * t[::10], y0 + (y1 - y0) * t[::10])
+        edges = np.concatenate([edges, np.column_stack([gx.ravel(), gy.ravel()])])
+        Z = board_height_mm(board, edges[:, 0], edges[:, 1], shape_mm)
+    Xc = pose.apply(np.column_stack([edges, Z]))
     if np.any(Xc[:, 2] <= 0):
         return 0, W, 0, H
     uv = project_points(cam, Xc)

@@ -21,9 +21,11 @@ import cv2
 import numpy as np
 
 from ...geometry.board import Board
+from ...geometry.grid import predict_from_neighbours
 from ...errors import DetectionError
 
-__all__ = ["PartialBoard", "SquareColours", "square_colours", "check_colours", "order_grid", "place_partial_grid", "right_handed"]
+__all__ = ["PartialBoard", "SquareColours", "square_colours", "check_colours", "filled_grid", "looks_like_part_of_a_board",
+           "order_grid", "place_partial_grid", "right_handed"]
 
 
 #: Samples per square along each side (:func:`square_colours`).
@@ -126,17 +128,10 @@ def _neighbour_mean(values: np.ndarray) -> np.ndarray:
     return np.where(n > 0, total / np.maximum(n, 1), np.nan)
 
 
-def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = 8.0,
-                  max_odd_share: float = 0.1) -> None:
-    """Raise :class:`DetectionError` unless the squares look like exactly a ``cols x rows`` board.
-
-    Each square is compared with its four neighbours (local contrast, so a shadow across the
-    board or uneven light does not matter): it must be darker than them where the chessboard
-    has a dark square and lighter where it has a light one. Up to ``max_odd_share`` of the inner
-    squares (at least one) may disagree, for glare on a dark square or a smudge; the outer ring
-    must agree in 80 % of its squares, and the squares one further out must not continue the
-    pattern (else the photo shows a larger board and the detector found part of it).
-    """
+def _alternation(col: SquareColours, cols: int, rows: int, min_contrast: float, max_odd_share: float):
+    """The inner squares' part of :func:`check_colours` (raises :class:`DetectionError`); returns the square
+    indices, which are dark, the sign expected of each against its neighbours, the inner and ring masks and
+    each square's local contrast (about +1 as a chessboard predicts)."""
     if not col.contrast >= min_contrast:
         raise DetectionError(f"squares show too little contrast ({col.contrast:.1f} grey levels)")
     a, b = np.meshgrid(np.arange(-2, cols + 1), np.arange(-2, rows + 1))
@@ -152,6 +147,46 @@ def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float 
     if odd > max(1, int(max_odd_share * seen.sum())):
         raise DetectionError(f"the squares between the corners do not alternate like a chessboard "
                              f"({odd} of {int(seen.sum())} do not)")
+    return a, b, dark, sign, inner, ring, local
+
+
+def _alternates(grid_px: np.ndarray, gray: np.ndarray, factor: int) -> bool:
+    """Whether the squares between the corners of a (r, c, 2) grid alternate like a chessboard's."""
+    r, c = grid_px.shape[:2]
+    try:
+        _alternation(square_colours(gray, grid_px, factor), c, r, 8.0, 0.1)
+    except DetectionError:
+        return False
+    return True
+
+
+def looks_like_part_of_a_board(grid_px: np.ndarray, gray: np.ndarray, factor: int, board: Board) -> bool:
+    """Whether a (r, c, 2) grid found by a detector (full-resolution pixels) may be part of ``board`` in full
+    view: the squares between its corners alternate like a chessboard's (:func:`check_colours`' inner
+    squares), and some placement of it on the board (:func:`place_partial_grid`'s) keeps every inner corner
+    at least half a square inside the image, where the outer ring of squares, a square wide, must be seen.
+    A grid on other stripes or checks (a carpet, tiles), or a board cut by the frame, is no such part: no
+    detector asked for the whole board will find it there."""
+    if not _alternates(grid_px, gray, factor):
+        return False
+    size = np.array(gray.shape[::-1]) * factor
+    step = float(np.median(np.linalg.norm(np.diff(grid_px, axis=1), axis=2)))
+    return any(np.all(np.isfinite(grid)) and np.all((grid >= 0.5 * step) & (grid <= size - 1 - 0.5 * step))
+               for grid in _placements(grid_px, board))
+
+
+def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = 8.0,
+                  max_odd_share: float = 0.1) -> None:
+    """Raise :class:`DetectionError` unless the squares look like exactly a ``cols x rows`` board.
+
+    Each square is compared with its four neighbours (local contrast, so a shadow across the
+    board or uneven light does not matter): it must be darker than them where the chessboard
+    has a dark square and lighter where it has a light one. Up to ``max_odd_share`` of the inner
+    squares (at least one) may disagree, for glare on a dark square or a smudge; the outer ring
+    must agree in 80 % of its squares, and the squares one further out must not continue the
+    pattern (else the photo shows a larger board and the detector found part of it).
+    """
+    a, b, dark, sign, inner, ring, local = _alternation(col, cols, rows, min_contrast, max_odd_share)
     seen = ring & np.isfinite(local)
     if seen.sum() < 4 or np.mean(local[seen] > 0.2) < 0.8:
         raise DetectionError("the outer ring of squares does not continue the chessboard "
@@ -186,40 +221,32 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
     Raises
     ------
     PartialBoard
-        When no placement fits, the part reaches to within 1.5 of its squares of the image's edge
-        and some placement runs off the image: the board is cut off by the frame.
+        When the part's squares alternate like a chessboard's, no placement fits, the part reaches to
+        within 1.5 of its squares of the image's edge and some placement runs off the image: the board is
+        cut off by the frame.
     DetectionError
         When no placement, or more than one, fits.
     """
     R, C = board.rows, board.cols
+    if part_px.shape[:2] in ((R, C), (C, R)):        # the whole board: the detector's own corners
+        return part_px if part_px.shape[:2] == (R, C) else np.swapaxes(part_px, 0, 1)
+    if not _alternates(part_px, gray, factor):         # stripes of a carpet, a grid of tiles
+        raise DetectionError(f"no {board.spec()} chessboard found")
     h, w = gray.shape
     size = np.array([w, h]) * factor
     fits, off_image = [], False
-    for part in (part_px, np.swapaxes(part_px, 0, 1)):
-        r, c = part.shape[:2]
-        if r > R or c > C or r * c < 9:
+    for grid in _placements(part_px, board):
+        inside = np.all((grid >= 0) & (grid <= size - 1), axis=2)
+        if not inside.all():
+            off_image = True
+            # a board cut off by the frame, judged on the squares in view where most of it is
+            if 2 * inside.sum() <= R * C or not np.all(np.isfinite(grid)):
+                continue
+        try:
+            check_colours(square_colours(gray, grid, factor), C, R)
+        except DetectionError:
             continue
-        jj, ii = np.meshgrid(np.arange(c), np.arange(r))
-        src = np.column_stack([jj.ravel(), ii.ravel()]).astype(np.float32)
-        H, _ = cv2.findHomography(src, part.reshape(-1, 2).astype(np.float32), 0)
-        if H is None:
-            continue
-        for i0 in range(R - r + 1):
-            for j0 in range(C - c + 1):
-                J, I = np.meshgrid(np.arange(C) - j0, np.arange(R) - i0)
-                pts = cv2.perspectiveTransform(np.column_stack([J.ravel(), I.ravel()]).astype(np.float32)[None], H)[0]
-                grid = pts.reshape(R, C, 2).astype(float)
-                inside = np.all((grid >= 0) & (grid <= size - 1), axis=2)
-                if not inside.all():
-                    off_image = True
-                    # a board cut off by the frame, judged on the squares in view where most of it is
-                    if 2 * inside.sum() <= R * C or not np.all(np.isfinite(grid)):
-                        continue
-                try:
-                    check_colours(square_colours(gray, grid, factor), C, R)
-                except DetectionError:
-                    continue
-                fits.append((grid, bool(inside.all())))
+        fits.append((grid, bool(inside.all())))
     cut = any(not whole for _, whole in fits)
     if (not fits and off_image) or (cut and (board.is_symmetric or len(fits) > 1)):
         step = np.median(np.linalg.norm(np.diff(part_px, axis=1), axis=2))
@@ -233,6 +260,72 @@ def place_partial_grid(part_px: np.ndarray, gray: np.ndarray, factor: int, board
         raise DetectionError(f"no {board.spec()} chessboard found" + (
             " (a part of one was, but not where it lies on the board)" if fits else ""))
     return fits[0][0]
+
+
+def _placements(part_px: np.ndarray, board: Board):
+    """Every placement of a (r, c, 2) part (either way round) inside the board, as the (rows, cols, 2) grid
+    of the whole board it extends to (:func:`_extension`). Where the part has more rows or columns than the
+    board (SB's grid run on into the board's margin), each run of the board's rows or columns of it."""
+    R, C = board.rows, board.cols
+    for grid in (part_px, np.swapaxes(part_px, 0, 1)):
+        for i in range(max(grid.shape[0] - R, 0) + 1):
+            for j in range(max(grid.shape[1] - C, 0) + 1):
+                part = grid[i:i + R, j:j + C]
+                r, c = part.shape[:2]
+                extend = _extension(part) if r * c >= 9 else None
+                if extend is None:
+                    continue
+                for i0 in range(R - r + 1):
+                    for j0 in range(C - c + 1):
+                        J, I = np.meshgrid(np.arange(C) - j0, np.arange(R) - i0)
+                        yield extend(J, I)
+
+
+def _extension(part: np.ndarray):
+    """A function ``(J, I) -> (..., 2)`` pixels of grid position ``(column J, row I)`` of a (r, c, 2) part of a
+    board, or None: the part's homography, and where the part is at least 4 x 4 a quadratic in ``(J, I)``
+    fitted to what the homography leaves of it (the bending of the grid by the lens and by a board that is
+    not flat, a curled sheet: over a few squares, the homography alone puts the corners beyond the part
+    several pixels off, enough to sample the wrong squares)."""
+    r, c = part.shape[:2]
+    jj, ii = np.meshgrid(np.arange(c, dtype=float), np.arange(r, dtype=float))
+    src = np.column_stack([jj.ravel(), ii.ravel()])
+    H, _ = cv2.findHomography(src.astype(np.float32), part.reshape(-1, 2).astype(np.float32), 0)
+    if H is None:
+        return None
+
+    def homography(J, I):
+        q = np.stack([J, I, np.ones_like(J)], axis=-1) @ H.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return q[..., :2] / q[..., 2:]
+
+    if min(r, c) < 4:
+        return homography
+
+    def basis(J, I):
+        J, I = np.asarray(J, float), np.asarray(I, float)
+        return np.stack([np.ones_like(J), J, I, J * J, J * I, I * I], axis=-1)
+
+    coef = np.linalg.lstsq(basis(src[:, 0], src[:, 1]), part.reshape(-1, 2) - homography(src[:, 0], src[:, 1]),
+                           rcond=None)[0]
+    return lambda J, I: homography(J, I) + basis(J, I) @ coef
+
+
+def filled_grid(uv: np.ndarray, coarse_uv: np.ndarray, board: Board) -> np.ndarray:
+    """(rows, cols, 2) corners: the measured ``uv`` (N, 2, NaN rows unmeasured), each unmeasured corner where
+    its measured neighbours put it (:func:`~dualcal.geometry.grid.predict_from_neighbours`, repeated as the
+    filled corners give others enough neighbours), else at its ``coarse_uv`` start."""
+    shape = (board.rows, board.cols)
+    g = np.array(uv, float)
+    while True:
+        missing = ~np.all(np.isfinite(g), axis=1)
+        pred = predict_from_neighbours(g, shape)[0]
+        fill = missing & np.all(np.isfinite(pred), axis=1)
+        if not fill.any():
+            break
+        g[fill] = pred[fill]
+    g = np.where(np.all(np.isfinite(g), axis=1)[:, None], g, coarse_uv)
+    return g.reshape(board.rows, board.cols, 2)
 
 
 def right_handed(grid: np.ndarray) -> bool:

@@ -5,9 +5,9 @@ Per photo (:func:`detect_photo`), one photo in memory at a time (a ChArUco board
 
 1. decode the photo once, reduce it to 1/2-1/8 size and find the grid there (:mod:`.coarse`),
    or, where that fails and the user clicked four corners, predict the grid from them
-   (:mod:`.manual`); failing that, find the largest part of the board the detector can and
+   (:mod:`.manual`); failing that, take the largest part of the board the detector found and
    place it on the board by the colours of the squares around it (glare on a square, a
-   shadow);
+   shadow, the frame's edge); a photo that shows no part of a board is given up on there;
 2. sample the squares: they must alternate like a chessboard, the outer ring too, and the
    board must not continue beyond it (:mod:`.order`); put the corners in the contract's order;
 3. refine each corner at full resolution in a window fitted to its own squares, check it
@@ -41,14 +41,16 @@ from ...geometry.model import CameraCorners, CornerSet
 from ...parallel import interruptible_map
 from ...progress import progress_bar, warn
 from .charuco import detect_charuco, resolve_board
-from .coarse import find_grid, find_partial_grid, reduce_image, reduction_factor, to_full_resolution
-from ...geometry.grid import validate_grid
+from .coarse import (classic_grid, consistent_part, largest_grid, reduce_image, reduction_factor, sb_grid,
+                     shows_a_chessboard, to_full_resolution)
+from ...geometry.grid import local_spacing_px, validate_grid
 from .manual import grid_from_hints
-from .order import PartialBoard, check_colours, order_grid, place_partial_grid, square_colours
+from .order import (PartialBoard, check_colours, filled_grid, looks_like_part_of_a_board, order_grid, place_partial_grid,
+                    square_colours)
 from .refine import measure_grid
 from .symmetry import align_symmetric_numbering
 
-__all__ = ["PhotoResult", "detect_photo", "detect_dataset", "likely_boards", "suggest_board"]
+__all__ = ["PhotoResult", "detect_photo", "detect_dataset", "likely_boards", "locate_board", "suggest_board"]
 
 
 @dataclass
@@ -80,16 +82,82 @@ class _CheckFailed(DetectionError):
         self.check = check
 
 
-def _coarse(full: np.ndarray, board: Board):
-    """Find the grid on a reduced image; retry at twice the resolution before giving up."""
+#: Squares (corner spacing, reduced pixels) below which a part of a board found on the reduced image, but
+#: not the board, is searched for again at twice the resolution (OpenCV's detectors need about 10 pixels a
+#: square, and a steep view makes one side of the squares short).
+SMALL_SQUARE_PX = 16.0
+
+
+def locate_board(full: np.ndarray, board: Board, partial: bool = True):
+    """Where the board is in a photo: ``(small, factor, grid, placed)``.
+
+    ``small`` is the reduced image searched (:func:`.coarse.reduce_image` by ``factor``), ``grid`` the
+    board's (rows, cols, 2) inner corners in full-resolution pixels, in the detector's order, ``placed``
+    whether it was extended from a part of the board found (:func:`.order.place_partial_grid`; only where
+    ``partial``).
+
+    What a photo without the whole board costs matters as much as what a photo with it does: a phone's
+    camera roll has many (the tele sees part of a board placed for the ultra-wide's edges, or none). So,
+    on the reduced image: OpenCV's classic detector (milliseconds where the board is in view); then the
+    largest chessboard grid SB can grow (:func:`.coarse.largest_grid`): where there is none, the photo is
+    given up on there; its corners that agree with each other (:func:`.coarse.consistent_part`) are
+    placed on the board by the squares' colours (the whole board, or a board cut by the frame, which
+    raises :class:`.order.PartialBoard` where it cannot be numbered); where they cannot be, or none
+    agree, OpenCV's SB detector is asked for the whole board (its growth from 3 x 3 corners can stop
+    short of a board it finds when asked for the board's size), if what was grown may be part of the
+    board in full view (:func:`.order.looks_like_part_of_a_board`: not stripes of a carpet, not a
+    board cut by the frame) or OpenCV's quick look sees a board (:func:`.coarse.shows_a_chessboard`).
+    Only a grid whose squares are below :data:`SMALL_SQUARE_PX` sends the search to twice the
+    resolution (at full resolution: SB on OpenCV's upsampled image). Measured on 3 MP photos without
+    the whole board, taking turns on one thread each (``benchmarks/bench_detect.py``, a loaded machine):
+    0.4-0.9 of the time of OpenCV's ``findChessboardCornersSB`` alone on the same photos, per kind
+    (a board cut by the frame or absent; synthetic, and real photos cropped), where the search at both
+    resolutions took several times SB's.
+
+    Raises
+    ------
+    DetectionError
+        (or :class:`.order.PartialBoard`) when the board is not found.
+    """
     size = full.shape[::-1]
     f = reduction_factor(size)
     while True:
         small = reduce_image(full, f)
-        grid = find_grid(small, board.cols, board.rows)
-        if grid is not None or f == 1 or max(size) / f >= 2000:
-            return small, f, (None if grid is None else to_full_resolution(grid, f))
-        f //= 2
+        grid = classic_grid(small, board.cols, board.rows)
+        if grid is not None:
+            return small, f, to_full_resolution(grid, f), False
+        grown = largest_grid(small)
+        if grown is None:
+            raise DetectionError(f"no {board.spec()} chessboard found")
+        part = consistent_part(grown)
+        unplaced = DetectionError(f"no {board.spec()} chessboard found")
+        if partial:
+            # where no part agrees (a 3 x 3 grid's corners predict each other poorly), what was grown is
+            # placed as it is: the colours of the squares judge it, and the measured corners again
+            try:
+                return small, f, place_partial_grid(to_full_resolution(grown if part is None else part, f),
+                                                    small, f, board), True
+            except PartialBoard:
+                raise
+            except DetectionError as exc:
+                unplaced = exc
+        # SB's growth can stop short of a board it finds whole when asked for it: ask it, where what it
+        # grew may be part of the board in full view, or the classic detector's quick look saw a board
+        seen = grown if part is None else part
+        if (looks_like_part_of_a_board(to_full_resolution(seen, f), small, f, board)
+                or shows_a_chessboard(small, board.cols, board.rows)):
+            grid = sb_grid(small, board.cols, board.rows)
+            if grid is not None:
+                return small, f, to_full_resolution(grid, f), False
+        if np.median(local_spacing_px(seen.reshape(-1, 2), seen.shape[:2])) >= SMALL_SQUARE_PX:
+            raise unplaced
+        if f > 1 and max(size) / f < 2000:
+            f //= 2
+            continue
+        grid = sb_grid(small, board.cols, board.rows, upsampled=True)
+        if grid is None:
+            raise unplaced
+        return small, f, to_full_resolution(grid, f), False
 
 
 def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
@@ -127,17 +195,15 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
                 f = reduction_factor(size)
                 write_overlay(overlay_path, reduce_image(full, f), uv, f)
             return PhotoResult(uv, size)
-        small, f, grid = _coarse(full, board)
-        manual = grid is None and hint_uv is not None
-        if manual:
-            grid = grid_from_hints(hint_uv, board)
-        elif grid is None:
-            # glare, a shadow or blur can hide a square: find the part of the board on one
-            # side of it and place it on the board by the squares' colours
-            part = find_partial_grid(small)
-            if part is None:
-                raise DetectionError(f"no {board.spec()} chessboard found")
-            grid = place_partial_grid(to_full_resolution(part, f), small, f, board)
+        manual = False
+        try:
+            # clicked corners stand in for a board not found whole: no part of it is placed then
+            small, f, grid, placed = locate_board(full, board, partial=hint_uv is None)
+        except DetectionError:
+            if hint_uv is None:
+                raise
+            f = reduction_factor(size)
+            small, grid, placed, manual = reduce_image(full, f), grid_from_hints(hint_uv, board), False, True
         colours = square_colours(small, grid, f)
         try:
             check_colours(colours, board.cols, board.rows)
@@ -149,6 +215,13 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
         reason = validate_grid(uv, board)
         if reason:
             raise _CheckFailed("corners", reason)
+        if placed:
+            # extended from a part by its perspective: the squares around the measured corners must
+            # still be those of exactly this board (a curled sheet bends the extension)
+            try:
+                check_colours(square_colours(small, filled_grid(uv, coarse, board), f), board.cols, board.rows)
+            except DetectionError as exc:
+                raise _CheckFailed("colours", f"a part of the board was found but not placed on it ({exc})") from None
         if overlay_path is not None:
             write_overlay(overlay_path, small, uv, f)
         return PhotoResult(uv, size, symmetric=symmetric, manual=manual, mirrored=mirrored)

@@ -36,7 +36,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ...geometry.grid import local_spacing_px, outlier_limit_px, predict_from_neighbours, worst_outlier
+from ...geometry.grid import (local_spacing_px, outlier_limit_px, predict_from_neighbours, typical_residual_px,
+                              worst_outlier)
 
 __all__ = ["refine_corners", "fit_saddles", "window_half_size", "drop_outliers", "measure_grid"]
 
@@ -115,8 +116,8 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
     p[:, 3] = np.arctan2(normals[:, 1, 1], normals[:, 1, 0])
     p[:, 4] = 1.5
     # linear start for the photometric terms (m, g, a) given the geometry
-    _, E1E2, _ = _model(p, qx, qy)
-    A = np.stack(np.broadcast_arrays(1.0, qx[None, :], qy[None, :], E1E2), axis=-1)  # (K, P, 4)
+    E1, E2 = _model(p, qx, qy)[:2]
+    A = np.stack(np.broadcast_arrays(1.0, qx[None, :], qy[None, :], E1 * E2), axis=-1)  # (K, P, 4)
     At = np.swapaxes(A, 1, 2)
     p[:, 5:9] = np.linalg.solve((At @ A).astype(float) + 1e-9 * np.eye(4),
                                 (At @ z[..., None]).astype(float))[..., 0]
@@ -128,8 +129,9 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
     # fit by over OUTLIER_MADS robust sigmas and OUTLIER_CONTRAST of the corner's half-contrast a (a
     # dark mark on white is off by about 2a; a real edge's profile, which tanh only approximates, by
     # far less), the fit is done again without them
-    res = _predict(p, qx, qy) - z
-    mad = 1.4826 * np.median(np.abs(res - np.median(res, axis=1, keepdims=True)), axis=1, keepdims=True)
+    res = _predict(p, _model(p, qx, qy), qx, qy) - z
+    sample = res[:, ::3]                   # a robust scale needs no more pixels than a third of a window's
+    mad = 1.4826 * np.median(np.abs(sample - np.median(sample, axis=1, keepdims=True)), axis=1, keepdims=True)
     keep = np.abs(res) <= np.maximum(OUTLIER_MADS * np.maximum(mad, 1.0), OUTLIER_CONTRAST * np.abs(p[:, 8:9]))
     again = np.flatnonzero(valid & (np.mean(~keep, axis=1) > OUTLIER_SHARE))
     if len(again):
@@ -146,13 +148,15 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
 
 def _lm(p, qx, qy, z, wt, active, iterations):
     """Levenberg-Marquardt on the corners ``active`` of ``p`` (K, 9), in place; ``wt`` (K, P) 0/1 pixel
-    weights or None. Returns the (K,) costs."""
+    weights or None. Returns the (K,) costs. The model evaluated at a trial that is kept is the one the
+    next step's Jacobian is taken at (:func:`_model` once a step, not twice)."""
     lam = np.full(len(p), 1e-3)
-    cost = _cost(p, qx, qy, z, wt)
+    model = list(_model(p, qx, qy))
+    cost = _cost(p, model, qx, qy, z, wt)
     for _ in range(iterations):
         pa, za = p[active], z[active]
         wa = None if wt is None else wt[active]
-        Jt, res = _jacobian(pa, qx, qy, za)
+        Jt, res = _jacobian(pa, [m[active] for m in model], qx, qy, za)
         if wa is not None:
             Jt, res = Jt * wa[:, None, :], res * wa
         JtJ = (Jt @ np.swapaxes(Jt, 1, 2)).astype(float)
@@ -161,9 +165,13 @@ def _lm(p, qx, qy, z, wt, active, iterations):
         la = lam[active]
         step = np.linalg.solve(JtJ + la[:, None, None] * D[:, :, None] * np.eye(9), -Jtr[..., None])[..., 0]
         trial = pa + step
-        new_cost = _cost(trial, qx, qy, za, wa)
+        trial_model = _model(trial, qx, qy)
+        new_cost = _cost(trial, trial_model, qx, qy, za, wa)
         better = new_cost < cost[active]
-        p[active[better]], cost[active[better]] = trial[better], new_cost[better]
+        kept = active[better]
+        p[kept], cost[kept] = trial[better], new_cost[better]
+        for m, t in zip(model, trial_model):
+            m[kept] = t[better]
         lam[active] = np.where(better, la * 0.3, la * 10.0)
         done = (np.max(np.abs(step[:, :2]), axis=1) < 1e-4) | (lam[active] > 1e4)
         active = active[~done]
@@ -173,6 +181,8 @@ def _lm(p, qx, qy, z, wt, active, iterations):
 
 
 def _model(p, qx, qy):
+    """The pieces of the model at ``p`` (K, 9): ``(E1, E2, t1, t2, dx, dy)`` (K, P) and ``(c, s)`` (K, 2),
+    the cosines and sines of the edges' normals."""
     p = p.astype(np.float32)          # pixel-scale arithmetic: float32 is ample and twice as fast
     c, s = np.cos(p[:, 2:4]), np.sin(p[:, 2:4])                # (K, 2)
     dx = qx[None, :] - p[:, 0:1]
@@ -180,29 +190,29 @@ def _model(p, qx, qy):
     t1 = c[:, 0:1] * dx + s[:, 0:1] * dy
     t2 = c[:, 1:2] * dx + s[:, 1:2] * dy
     k = 1.0 / p[:, 4:5]
-    E1, E2 = np.tanh(t1 * k), np.tanh(t2 * k)
-    return (E1, E2), E1 * E2, (t1, t2, dx, dy, c, s)
+    return np.tanh(t1 * k), np.tanh(t2 * k), t1, t2, dx, dy, c, s
 
 
-def _predict(p, qx, qy):
-    _, E1E2, _ = _model(p, qx, qy)
+def _predict(p, model, qx, qy):
+    E1, E2 = model[:2]
     p = p.astype(np.float32)
-    return p[:, 5:6] + p[:, 6:7] * qx + p[:, 7:8] * qy + p[:, 8:9] * E1E2
+    return p[:, 5:6] + p[:, 6:7] * qx + p[:, 7:8] * qy + p[:, 8:9] * (E1 * E2)
 
 
-def _cost(p, qx, qy, z, wt=None):
-    r = _predict(p, qx, qy) - z
+def _cost(p, model, qx, qy, z, wt=None):
+    r = _predict(p, model, qx, qy) - z
     if wt is not None:
         r = r * wt
     cost = np.sum(r * r, axis=1, dtype=np.float64)
     return np.where(np.isfinite(cost), cost, np.inf)
 
 
-def _jacobian(p, qx, qy, z):
-    """``(Jt, res)``: the transposed Jacobian (K, 9, P) of the model at ``p`` (K, 9) by its parameters
-    (one contiguous row of pixels per parameter, which the products ``Jt Jt^T`` and ``Jt res`` want) and
-    the residuals (K, P) against ``z``."""
-    (E1, E2), E1E2, (t1, t2, dx, dy, c, s) = _model(p, qx, qy)
+def _jacobian(p, model, qx, qy, z):
+    """``(Jt, res)``: the transposed Jacobian (K, 9, P) of the model (:func:`_model`'s pieces ``model`` at
+    ``p`` (K, 9)) by its parameters (one contiguous row of pixels per parameter, which the products
+    ``Jt Jt^T`` and ``Jt res`` want) and the residuals (K, P) against ``z``."""
+    E1, E2, t1, t2, dx, dy, c, s = model
+    E1E2 = E1 * E2
     p = p.astype(np.float32)
     w = p[:, 4:5]
     a = p[:, 8:9]
@@ -349,8 +359,7 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
     retry = lost & np.all(np.isfinite(pred), axis=1)
     if retry.any():
         again, ok = refine_corners(img, np.where(retry[:, None], pred, uv), grid_shape, spacing, only=retry)
-        res = np.linalg.norm(uv - pred, axis=1)
-        typical = float(np.nanmedian(res)) if np.isfinite(res).any() else 0.0
+        typical = typical_residual_px(np.linalg.norm(uv - pred, axis=1), grid_shape)
         keep = retry & ok & (np.linalg.norm(again - pred, axis=1) <= outlier_limit_px(spacing, typical, gain))
         uv[keep] = again[keep]
         uv = drop_outliers(uv, grid_shape, spacing)
