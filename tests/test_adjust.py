@@ -10,7 +10,7 @@ from scipy.optimize import least_squares
 
 from dualcal.estimation.adjust import Problem, cost, initial_state, instant_rows, linearise, residuals
 from dualcal.estimation.rig_relations import rig_relation
-from dualcal.estimation.calibrate import solve, usable_photos
+from dualcal.estimation.fitting import solve, usable_photos
 from dualcal.geometry.camera import CameraModel, project_points
 from dualcal.geometry.model import Pose, choose_reference
 from dualcal.geometry.poses import relative_pose
@@ -33,7 +33,7 @@ def _corners(preset, views, seed, noise, missing=0.3, absent=()):
 
 
 def _setup(corners, mode="rigid", skew=False):
-    """The arguments of :func:`dualcal.estimation.calibrate.solve` for ``corners``."""
+    """The arguments of :func:`dualcal.estimation.fitting.solve` for ``corners``."""
     names = sorted(corners.cameras)
     X = corners.board.object_points_mm()
     sizes = [corners.cameras[n].image_size for n in names]

@@ -408,7 +408,7 @@ def test_a_solve_that_does_not_converge_says_so(tmp_path, run_cli, monkeypatch):
 
     def two_iterations(problem, state, options=None):
         return adjust_module.adjust(problem, state, LMOptions(max_iter=2))
-    monkeypatch.setattr("dualcal.estimation.calibrate.adjust", two_iterations)
+    monkeypatch.setattr("dualcal.estimation.fitting.adjust", two_iterations)
     save_corners(tmp_path / "corners.json", noisy_corner_set(make_truth("note8", 6, seed=3), 0.2, seed=4))
     res = run_cli("calibrate", tmp_path / "corners.json", "-o", tmp_path / "calib.json", "--no-compare-models",
                   "--keep-outliers")
@@ -485,7 +485,7 @@ def test_a_refit_is_the_full_calibration_of_the_other_model():
     """Issue 23: comparing models by one adjustment from the calibration's values (``refit``) gives what a
     full calibration of that model on the same corners gives (outliers not looked for), to 1e-3 of a
     sigma: for a richer lens model, for the other skew model and for the cameras alone."""
-    from dualcal.estimation.calibrate import refit
+    from dualcal.estimation.fitting import refit
     from dualcal.geometry.camera import intrinsic_names
 
     corners = noisy_corner_set(make_truth("note8", 10, seed=5), 0.15, seed=6)
@@ -506,7 +506,7 @@ def test_a_start_from_a_solution_needs_fewer_iterations_with_little_damping():
     """A 12 MP phone's normal matrix, scaled to a unit diagonal, has eigenvalues near 2e-6: the far
     start's damping of 1e-6 made every refit converge linearly. From a solution the damping starts at
     ``NEAR_START``'s 1e-9 (:mod:`dualcal.estimation.lm`): fewer iterations, to the same minimum."""
-    from dualcal.estimation.calibrate import refit
+    from dualcal.estimation.fitting import refit
     from dualcal.estimation.lm import LMOptions
 
     corners = noisy_corner_set(make_truth("note8", 10, seed=5), 0.15, seed=6)

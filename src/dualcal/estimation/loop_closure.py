@@ -76,7 +76,7 @@ def loop_closure(names: list[str], ref: int, pair_solutions, rig_rigid) -> dict 
     names : the cameras; ``ref`` the index of the reference.
     pair_solutions : ``(x, y) -> (tied, alone, instants)``, cameras ``x`` and ``y`` as a rigid two-camera
         rig (``x`` its reference) and alone, over the instants both saw
-        (:func:`dualcal.estimation.calibrate.pair_solutions`); raises :class:`EstimationError` when they cannot be.
+        (:func:`dualcal.estimation.fitting.pair_solutions`); raises :class:`EstimationError` when they cannot be.
     rig_rigid : ``(tied, alone) -> dict | None``, :func:`dualcal.estimation.checks.rig_rigid` of a pair (the
         calibration passes the rig's design effect, so that every pair is judged against the same noise).
 

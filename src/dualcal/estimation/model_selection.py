@@ -12,7 +12,7 @@ eigen-decomposition per instant, no re-adjustment). calib.json records them in `
 
 :func:`compare_lens_models` adjusts the same corners with every lens model (those the calibration
 used: its outliers stay out, so every model is scored on the same corners; each adjustment starts
-from the calibration's values, :func:`dualcal.estimation.calibrate.refit`, and stops within 0.05 sigma of its
+from the calibration's values, :func:`dualcal.estimation.fitting.refit`, and stops within 0.05 sigma of its
 minimum, :data:`COMPARISON_LM`) and compares the models instant by instant: ``d_v = SS_v(model) -
 SS_v(best)``, the held-out sum of squares (px^2) of instant ``v`` minus that of the model with the
 least held-out error; its mean over the instants in units of its standard error says how many
@@ -21,7 +21,7 @@ the model with the fewest coefficients that is within :data:`RECOMMEND_WITHIN_SE
 the best: a richer model must earn its coefficients by predicting the unseen instants clearly
 better.
 
-:func:`calibrate_auto` (``calibrate_rig(model="auto")``) makes that choice for every camera, from
+``calibrate_rig(model="auto")`` (:func:`preferred_lens_models`, :func:`choose_lens_models`) makes that choice for every camera, from
 its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera``). The candidates
 of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the camera's field
 of view makes one plausible: Zhang's closed form (no lens) puts the image's corner more than
@@ -31,7 +31,7 @@ others: a polynomial in the pinhole radius must then predict clearly better to b
 test over instants is weak when, as here, the difference lies in the few instants that put the board
 near the image's edge). A first calibration gives each camera its preferred model and finds the
 outliers; then one adjustment per lens model, on the corners the first used and started from its
-values (:func:`dualcal.estimation.calibrate.refit`), with every camera alone (rig mode ``none``, so that no
+values (:func:`dualcal.estimation.fitting.refit`), with every camera alone (rig mode ``none``, so that no
 camera's lens changes another's held-out error through the shared poses), gives that model to every
 camera it is a candidate of (the others keep their preferred model): one solve per model scores
 every camera. Each camera then gets the model of the rule above among its candidates, and the rig is
@@ -39,14 +39,15 @@ calibrated once more with them."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from ..geometry.camera import DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraModel, image_corner_radius
 from ..errors import EstimationError
+from .fitting import fit_summary, refit, usable_photos
 from ..geometry.model import CornerSet, RigModel
+from ..geometry.zhang import closed_form_camera
 from ..progress import warn
 from .lm import NEAR_START
 
@@ -57,7 +58,7 @@ from .lm import NEAR_START
 #: models, and saves one or two of each refit's three to five iterations.
 COMPARISON_LM = replace(NEAR_START, xtol=0.05, verify_sigma=0.05)
 
-__all__ = ["FISHEYE_HALF_DIAGONAL_DEG", "LensModelScore", "RECOMMEND_WITHIN_SE", "calibrate_auto",
+__all__ = ["FISHEYE_HALF_DIAGONAL_DEG", "LensModelScore", "RECOMMEND_WITHIN_SE", "choose_lens_models",
            "compare_lens_models", "lens_model_candidates", "score_lens_models"]
 
 #: A camera whose image corner lies more than this far from its axis (Zhang's closed form, no lens)
@@ -84,7 +85,7 @@ class LensModelScore:
 
 def rig_fit(rig: RigModel) -> dict:
     """A calibration's fit and held-out errors as :func:`score_lens_models` takes them (the keys of
-    :func:`dualcal.estimation.calibrate.fit_summary`)."""
+    :func:`dualcal.estimation.fitting.fit_summary`)."""
     return {"rms_px": rig.rms_px, "camera_rms_px": rig.camera_rms_px,
             **{k: rig.adjustment[k] for k in ("held_out_per_instant", "held_out_per_camera")}}
 
@@ -96,7 +97,7 @@ def score_lens_models(fits: dict[str, dict], camera: str | None = None,
     Parameters
     ----------
     fits : ``{model: fit}``, each with ``held_out_per_instant`` and ``rms_px`` (and
-        ``held_out_per_camera``, ``camera_rms_px`` for a ``camera``): :func:`dualcal.estimation.calibrate.fit_summary`
+        ``held_out_per_camera``, ``camera_rms_px`` for a ``camera``): :func:`dualcal.estimation.fitting.fit_summary`
         of a solution, or :func:`rig_fit` of a calibration.
     camera : score one camera's corners only (its fit RMS, its held-out errors), else the whole rig's.
     first : a model preferred to all others (a fisheye's ``kb4``): it comes first in the order in which
@@ -143,11 +144,9 @@ def score_lens_models(fits: dict[str, dict], camera: str | None = None,
 
 
 def _refits(rig: RigModel, mappings: dict[str, object], rig_mode: str | None = None) -> dict[str, dict]:
-    """:func:`dualcal.estimation.calibrate.fit_summary` of ``rig``'s corners refitted with each lens model mapping
-    ``{name: model or {camera: model}}`` (:func:`dualcal.estimation.calibrate.refit`); one that cannot be solved
+    """:func:`dualcal.estimation.fitting.fit_summary` of ``rig``'s corners refitted with each lens model mapping
+    ``{name: model or {camera: model}}`` (:func:`dualcal.estimation.fitting.refit`); one that cannot be solved
     is left out with a warning."""
-    from .calibrate import fit_summary, refit
-
     fits = {}
     for name, mapping in mappings.items():
         try:
@@ -161,7 +160,7 @@ def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m 
                         ) -> list[LensModelScore]:
     """Score every lens model of ``models`` on the corners ``rig`` used (:meth:`RigModel.used_corners`):
     each is adjusted from ``rig``'s values in ``rig``'s settings (skew, rig mode, reference, board shape),
-    without looking for outliers again (:func:`dualcal.estimation.calibrate.refit`), so that every model is judged
+    without looking for outliers again (:func:`dualcal.estimation.fitting.refit`), so that every model is judged
     on the same corners; ``rig`` itself stands for its own model."""
     fits = {rig.model: rig_fit(rig)} if rig.model in LENS_MODELS else {}
     fits.update(_refits(rig, {m: m for m in models if m not in fits}))
@@ -190,7 +189,7 @@ def _camera_entry(score: LensModelScore | None) -> dict:
 
 
 def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
-    """The lens models :func:`calibrate_auto` tries for a camera whose closed-form intrinsics are
+    """The lens models ``calibrate_rig(model="auto")`` tries for a camera whose closed-form intrinsics are
     ``cam`` (its matrix A): the radial-tangential ones, and the fisheyes where the image's corner lies
     more than :data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis through a pinhole of that A."""
     wide = np.degrees(np.arctan(image_corner_radius(cam.pinhole()))) > FISHEYE_HALF_DIAGONAL_DEG
@@ -200,9 +199,6 @@ def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
 def _closed_form_cameras(corners: CornerSet, skew: bool) -> dict[str, CameraModel]:
     """Every camera's intrinsics by Zhang's closed form (no lens), from its usable photos (the
     calibration that follows warns about the others)."""
-    from .calibrate import usable_photos
-    from ..geometry.zhang import closed_form_camera
-
     names = sorted(corners.cameras)
     xy = corners.board.object_points_mm()[:, :2]
     blocks = usable_photos(corners, names, xy, quiet=True)
@@ -215,23 +211,25 @@ def _closed_form_cameras(corners: CornerSet, skew: bool) -> dict[str, CameraMode
     return out
 
 
-def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None = None, **options) -> RigModel:
-    """Calibrate with every camera's lens model chosen by its held-out instants (module docstring).
+def preferred_lens_models(corners: CornerSet, skew: bool) -> tuple[dict[str, tuple[str, ...]], dict[str, str]]:
+    """Every camera's candidate lens models (:func:`lens_model_candidates`, from Zhang's closed form) and its
+    preferred one: the fisheye ``kb4`` where it is a candidate, else :data:`dualcal.geometry.camera.DEFAULT_LENS_MODEL`."""
+    candidates = {n: lens_model_candidates(cam) for n, cam in _closed_form_cameras(corners, skew).items()}
+    preferred = {n: next((m for m in c if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n, c in candidates.items()}
+    return candidates, preferred
 
-    ``options`` are :func:`dualcal.estimation.calibrate.calibrate_rig`'s (not ``model``). The result is the
-    calibration with the chosen models; ``adjustment["lens_models"]`` holds the comparison: one entry
-    per model (the whole rig's scores, every camera alone; for a model that is not every camera's
+
+def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], preferred: dict[str, str]
+                       ) -> tuple[dict[str, str], list[dict]]:
+    """Every camera's lens model chosen by its held-out instants (module docstring), from ``base``, a
+    calibration with every camera's ``preferred`` model (:func:`preferred_lens_models`).
+
+    Returns ``{camera: model}`` and the comparison as calib.json keeps it (``adjustment["lens_models"]``):
+    one entry per model (the whole rig's scores, every camera alone; for a model that is not every camera's
     candidate, the others keep their preferred model), each with ``per_camera``
-    ``{camera: {"candidate", "fit_rms_px", "held_out_rms_px", "worse_se", "recommended"}}``; and
-    ``adjustment["lens_models_chosen"]`` ``{camera: model}``.
+    ``{camera: {"candidate", "fit_rms_px", "held_out_rms_px", "worse_se", "recommended"}}``.
     """
-    if calibrate is None:
-        from .calibrate import calibrate_rig as calibrate
-    names = sorted(corners.cameras)
-    candidates = {n: lens_model_candidates(cam)
-                  for n, cam in _closed_form_cameras(corners, options.get("skew", False)).items()}
-    preferred = {n: next((m for m in candidates[n] if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n in names}
-    base = calibrate(corners, model=preferred, **options)
+    names = sorted(candidates)
     fits = _refits(base, {m: {n: m if m in candidates[n] else preferred[n] for n in names}
                           for m in LENS_MODELS if any(m in c for c in candidates.values())}, rig_mode="none")
     per_camera, chosen = {}, dict(preferred)
@@ -243,13 +241,9 @@ def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None
             continue
         per_camera[n] = {s.model: s for s in scores}
         chosen[n] = next(s.model for s in scores if s.recommended)
-    final = base if chosen == preferred else calibrate(corners, **{**options, "model": chosen})
     try:
         overall = {s.model: asdict(s) for s in score_lens_models(fits)}
     except EstimationError:         # no model, or too few instants: the per-camera entries say it
         overall = {}
-    final.adjustment["lens_models"] = [
-        {**overall.get(m, {"model": m, "coefficients": len(LENS_MODELS[m])}),
-         "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in fits]
-    final.adjustment["lens_models_chosen"] = chosen
-    return final
+    return chosen, [{**overall.get(m, {"model": m, "coefficients": len(LENS_MODELS[m])}),
+                     "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in fits]
