@@ -53,9 +53,9 @@ from ..geometry.camera import (DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS,
 from ..errors import EstimationError, InputError
 from .lm import LMOptions, levenberg_marquardt
 from ..geometry.model import Pose, mean_pose, observed_mask
-from .normal_equations import Factorization, NormalEquations
+from .normal_equations import Factorization, NormalEquations, PhotoNormals
 from ..geometry.poses import moved_on_sphere, relative_pose, rotated, tangent_basis
-from .uncertainty import cluster_scores, cluster_shifts, clustered_covariance, held_out_residuals
+from .uncertainty import InstantLeverage, held_out_squares, instant_leverage
 
 RIG_MODES = ("rigid", "paper", "none")
 COVARIANCE_KINDS = ("clustered", "formal")
@@ -416,15 +416,19 @@ def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
     ne = NormalEquations.zeros(lay.n_global, lay.local_used)
     total = 0.0
     for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
-        total += float(np.sum(r * r))
+        squares = np.sum(r * r, axis=1)
+        total += float(squares.sum())
         v = batch.views[:, None, None]              # one photo per instant in a camera: no index repeats
         J_gT, J_lT = np.swapaxes(J_g, 1, 2), np.swapaxes(J_l, 1, 2)
-        ne.gg[v, cg[:, None], cg[None, :]] += J_gT @ J_g
-        ne.gl[v, cg[:, None], sl[None, :]] += J_gT @ J_l
-        ne.ll[v, sl[:, None], sl[None, :]] += J_lT @ J_l
+        gg, gl, ll = J_gT @ J_g, J_gT @ J_l, J_lT @ J_l
         g_g, g_l = np.einsum("bki,bk->bi", J_g, r), np.einsum("bki,bk->bi", J_l, r)
+        ne.gg[v, cg[:, None], cg[None, :]] += gg
+        ne.gl[v, cg[:, None], sl[None, :]] += gl
+        ne.ll[v, sl[:, None], sl[None, :]] += ll
         ne.grad_g[batch.views[:, None], cg] += g_g
         ne.grad_l[batch.views[:, None], sl] += g_l
+        ne.photos.append(PhotoNormals(batch.camera, batch.blocks, batch.views, cg, sl, gg, gl, ll, g_g, g_l, squares,
+                                      batch.observed.sum(axis=1)))
         if problem.mode == "paper" and problem.tied(batch.camera):
             _add_sphere_curvature(problem, state, ne, batch, g_g[:, cg == lay.baseline[batch.camera][0]][:, 0],
                                   g_l[:, np.isin(sl, lay.direction[batch.camera])])
@@ -539,17 +543,21 @@ class Solution:
             return self.s0_px ** 2 * self.factorization.inverse_block(columns)
         if kind != "clustered":
             raise ValueError(f"covariance kind {kind!r} is not one of {COVARIANCE_KINDS}")
-        return clustered_covariance(self._cluster_scores, self.factorization.inverse_block, columns)
+        shifts = self._shifts(columns)
+        return shifts @ shifts.T
 
     def instant_shifts(self, columns) -> dict[str, np.ndarray]:
         """``{view: (k,)}``: each instant's shift of the flat parameters ``columns`` (its adjusted score
         through ``N^-1``), whose outer products sum to the ``clustered`` covariance."""
-        shifts = cluster_shifts(self._cluster_scores, self.factorization.inverse_block, columns)
-        return {rows.view: shifts[:, i] for i, rows in enumerate(self.instant_rows)}
+        return dict(zip(self.problem.views, self._shifts(columns).T))
+
+    def _shifts(self, columns) -> np.ndarray:
+        """(k, V): every instant's shift of the flat parameters ``columns`` (:func:`dualcal.estimation.uncertainty.instant_leverage`)."""
+        return self.factorization.global_combination(columns) @ self._leverage.shifts
 
     @cached_property
-    def _cluster_scores(self):
-        return cluster_scores(self.instant_rows, self.factorization.inverse_block)
+    def _leverage(self) -> InstantLeverage:
+        return instant_leverage(self.factorization)
 
     def intrinsic_sigma(self, c: int, kind: str = "formal") -> dict[str, float]:
         """1-sigma of every intrinsic of camera ``c`` (0 for a fixed one), of covariance ``kind``."""
@@ -563,18 +571,23 @@ class Solution:
 
     @cached_property
     def instant_rows(self) -> list[InstantRows]:
-        """:func:`instant_rows` at the solution (for a covariance clustered by instant; ``N^-1``
-        on any columns from :meth:`covariance` over ``s0^2``)."""
+        """:func:`instant_rows` at the solution."""
         return instant_rows(self.problem, self.state)
 
-    def held_out_residuals(self) -> dict[str, np.ndarray | None]:
-        """Every instant's residuals (px, as :class:`InstantRows`) predicted by the adjustment
-        without it, its own poses fitted to it again: a linearised leave-one-instant-out
-        (:func:`dualcal.estimation.uncertainty.held_out_residuals`); None for an instant the others cannot
-        do without (the only one to show some parameter)."""
-        G, inverse = self.problem.layout.n_global, self.factorization.inverse_block
-        return {ir.view: held_out_residuals(ir.J, ir.r, inverse(ir.columns), int(np.sum(ir.columns >= G)))
-                for ir in self.instant_rows}
+    def held_out_squares(self) -> dict[str, dict[int, tuple[float, int]] | None]:
+        """``{view: {camera: (px^2, corners)}}``: the sum of squares of each photo's residuals as the
+        adjustment without its instant predicts them, the instant's own poses fitted to it again, and how
+        many corners it has (a linearised leave-one-instant-out, :mod:`dualcal.estimation.uncertainty`);
+        None for an instant the others cannot do without (the only one to show some parameter)."""
+        p = self.problem
+        out: dict[str, dict[int, tuple[float, int]] | None] = {v: {} for v in p.views}
+        counts = {b: int(n) for ph in self.factorization.ne.photos for b, n in zip(ph.blocks, ph.corners)}
+        for c, blocks, squares in held_out_squares(self.factorization, self._leverage.held_out):
+            for b, sq in zip(blocks, squares):
+                view = p.blocks[b][1]
+                if out[view] is not None:
+                    out[view] = None if np.isnan(sq) else {**out[view], c: (float(sq), counts[b])}
+        return out
 
 
 def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> Solution:

@@ -250,20 +250,18 @@ def fit_summary(sol: Solution) -> dict:
 
 
 def held_out_error(sol: Solution) -> dict:
-    """The error on instants the calibration did not see (:meth:`Solution.held_out_residuals`):
+    """The error on instants the calibration did not see (:meth:`Solution.held_out_squares`):
     ``held_out_rms_px``, the RMS length of the 2-D held-out residual per corner over the instants
     that can be left out, ``held_out_per_instant`` ``{view: {"rms_px", "corners"}}`` and the same of
     each camera's own corners, ``held_out_per_camera`` ``{camera: {view: {"rms_px", "corners"}}}``."""
     per_instant, per_camera = {}, {name: {} for name in sol.problem.cameras}
-    row_cameras = {ir.view: ir.row_cameras for ir in sol.instant_rows}
-    for view, e in sol.held_out_residuals().items():
-        if e is None:
+    for view, photos in sol.held_out_squares().items():
+        if photos is None:
             continue
-        per_instant[view] = {"rms_px": float(np.sqrt(2 * np.mean(e ** 2))), "corners": len(e) // 2}
-        for c in np.unique(row_cameras[view]):
-            ec = e[row_cameras[view] == c]
-            per_camera[sol.problem.cameras[c]][view] = {"rms_px": float(np.sqrt(2 * np.mean(ec ** 2))),
-                                                        "corners": len(ec) // 2}
+        for c, (sq, n) in sorted(photos.items()):
+            per_camera[sol.problem.cameras[c]][view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
+        sq, n = (sum(x) for x in zip(*photos.values()))
+        per_instant[view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
     squares = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
     corners = sum(d["corners"] for d in per_instant.values())
     return {"held_out_rms_px": float(np.sqrt(squares / corners)) if corners else None,
