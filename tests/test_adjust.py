@@ -126,21 +126,23 @@ def test_the_instants_leverage_from_the_normal_equations_is_that_of_their_rows(p
     """Each instant's CR2 shift of the globals and its held-out sums of squares per photo, found from the normal
     equations kept photo by photo (:mod:`dualcal.estimation.uncertainty`), are those of its Jacobian rows: the
     eigen-decomposition of its hat block ``H = J N^-1 J^T`` (the directions of leverage 1, its own poses, left
-    out of the score and kept in the held-out residuals ``(I - H)^-1 r``)."""
+    out of the score and kept in the held-out residuals ``(I - H)^-1 r``), ``r`` the residuals at the linearised
+    minimum (plus ``J`` times the remaining Gauss-Newton step)."""
     truth, corners = _corners(preset, 9, seed=5, noise=0.2, absent=absent)
     X, names, sizes, blocks, ref, skew, _ = _setup(corners, mode)
     sol = solve(X, names, sizes, blocks, ref, skew, mode, board_shape=board_shape)
     G, inverse = sol.problem.layout.n_global, sol.factorization.inverse_block
-    held = sol.held_out_squares()
+    held, step = sol.held_out_squares(), sol.factorization.step()
     for inst in instant_rows(sol.problem, sol.state):
+        r = inst.r + inst.J @ step[inst.columns]
         Q, R = np.linalg.qr(inst.J)
         lam, V = np.linalg.eigh(R @ inverse(inst.columns) @ R.T)
         U, own = Q @ V, 1 - lam <= 1e-9
-        w = U @ (np.where(own, 0.0, 1 / np.sqrt(np.where(own, 1.0, 1 - lam))) * (U.T @ inst.r))
+        w = U @ (np.where(own, 0.0, 1 / np.sqrt(np.where(own, 1.0, 1 - lam))) * (U.T @ r))
         both = inverse(np.concatenate([np.arange(G), inst.columns]))
         np.testing.assert_allclose(sol.instant_shifts(np.arange(G))[inst.view], both[:G, G:] @ (inst.J.T @ w),
                                    rtol=1e-6, atol=1e-9 * np.abs(both[:G, G:] @ (inst.J.T @ w)).max())
-        e = inst.r + U @ (np.where(own, 0.0, lam / np.where(own, 1.0, 1 - lam)) * (U.T @ inst.r))
+        e = r + U @ (np.where(own, 0.0, lam / np.where(own, 1.0, 1 - lam)) * (U.T @ r))
         for c, (squares, n) in held[inst.view].items():
             mine = inst.row_cameras == c
             assert 2 * n == mine.sum() and squares == pytest.approx(float(e[mine] @ e[mine]), rel=1e-7)

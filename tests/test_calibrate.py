@@ -431,9 +431,9 @@ def _fisheye_pair(views=12, seed=5):
 
 def test_a_fisheye_calibrates_as_cv2_fisheye_calibrate_does():
     """The same noisy corners of phone3's ultra-wide (145 degrees on the diagonal) through
-    cv2.fisheye.calibrate and dualcal (kb4, one camera, flat board): the same camera, to 1e-5 of its
-    sigma (both minimise the same pixel error; dualcal stops within 1e-3 sigma of the minimum, and is
-    seen 3e-6 from OpenCV's), near the truth within 4 sigma."""
+    cv2.fisheye.calibrate and dualcal (kb4, one camera, flat board): the same camera, to 1e-3 of its
+    sigma (both minimise the same pixel error; dualcal stops within 1e-3 sigma of the minimum, OpenCV is
+    run to 1e-14), near the truth within 4 sigma."""
     truth = make_truth("phone3", 12, seed=3)
     corners = noisy_corner_set(truth, 0.1, seed=4)
     one = CornerSet(corners.board, {"ultra": corners.cameras["ultra"]})
@@ -448,7 +448,7 @@ def test_a_fisheye_calibrates_as_cv2_fisheye_calibrate_does():
         criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-14))
     theirs = dict(zip(("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"), (K[0, 0], K[1, 1], K[0, 2], K[1, 2], *D.ravel())))
     for p, value in theirs.items():
-        assert abs(getattr(cam, p) - value) < 1e-5 * sigma[p], p
+        assert abs(getattr(cam, p) - value) < 1e-3 * sigma[p], p
         assert abs(getattr(cam, p) - getattr(truth.cameras["ultra"], p)) < 4 * sigma[p], p
     assert rms == pytest.approx(rig.rms_px, rel=1e-6)                 # both of the 2-D residual per corner
 

@@ -363,51 +363,76 @@ def residuals(problem: Problem, state: State) -> np.ndarray:
     return out
 
 
-def _jacobian_pieces(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, J_X, J_K):
-    """d residual / d unknowns of one camera's photos, as ``(columns, (B, N, 2, k))`` pieces:
-    a list of global pieces (columns in the flat vector) and one of local ones (slots)."""
+def _cross(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``a x b`` along the last axis, written into ``out`` (numpy's ``cross`` moves axes and copies)."""
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def _columns(problem: Problem, c: int) -> tuple[np.ndarray, np.ndarray]:
+    """The global columns and the local slots that camera ``c``'s photos touch, in the order of
+    :func:`_jacobian`."""
+    lay = problem.layout
+    glob = [lay.intrinsics[c]]
+    loc = [lay.pose[problem.pose_slot(c)]]
+    if problem.tied(c):
+        glob += [lay.rig_rotation[c], lay.rig_translation[c] if problem.mode == "rigid" else lay.baseline[c]]
+        if problem.mode == "paper":
+            loc.append(lay.direction[c])
+    return np.concatenate(glob + [lay.board_shape]), np.concatenate(loc)
+
+
+def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, J_X, J_K, n_global: int):
+    """d residual / d unknowns of one camera's photos, (B, N, 2, k): the global columns of
+    :func:`_columns` (the first ``n_global``), then its local slots; the rows of unmeasured corners zero."""
     lay, c = problem.layout, batch.camera
-    glob = [(lay.intrinsics[c], J_K[..., lay.free_intrinsics[c]])]
-    loc = []
+    J = np.empty(J_X.shape[:3] + (n_global + len(_columns(problem, c)[1]),))
+    k = int(lay.free_intrinsics[c].sum())
+    J[..., :k] = J_K[..., lay.free_intrinsics[c]]
     M = J_X                                                              # d res / d (R_v X + t_v)
     if problem.tied(c):
         M = J_X @ state.rig_R[c]
-        glob.append((lay.rig_rotation[c], -np.cross(J_X, (Xc - rel_t[:, None, :])[:, :, None, :])))
+        _cross((Xc - rel_t[:, None, :])[:, :, None, :], J_X, J[..., k:k + 3])          # -J_X [p]x
+        k += 3
         if problem.mode == "rigid":
-            glob.append((lay.rig_translation[c], J_X))
+            J[..., k:k + 3] = J_X
+            k += 3
         else:
             u = state.direction[batch.views, c]
-            glob.append((lay.baseline[c], np.einsum("bnij,bj->bni", J_X, u)[..., None]))
-            free = lay.local_used[batch.views][:, lay.direction[c][0]]
-            d_dir = state.baseline_mm[c] * np.einsum("bnij,bjk->bnik", J_X, tangent_basis(u))
-            loc.append((lay.direction[c], d_dir * free[:, None, None, None]))
-    loc.insert(0, (lay.pose[problem.pose_slot(c)], np.concatenate([-np.cross(M, W[:, :, None, :]), M], axis=-1)))
+            J[..., k] = np.einsum("bnij,bj->bni", J_X, u)
+            k += 1
     if problem.board_shape:       # d X_board / d w = basis e_z, seen through R_v: its third column
         normal = state.pose_R[batch.views, problem.pose_slot(c)][:, :, 2]                # (B, 3)
         along = np.einsum("bnij,bj->bni", M, normal)                                      # (B, N, 2)
-        glob.append((lay.board_shape, along[..., None] * problem.shape_basis[None, :, None, :]))
-    return glob, loc
+        J[..., k:k + 3] = along[..., None] * problem.shape_basis[None, :, None, :]
+        k += 3
+    _cross(W[:, :, None, :], M, J[..., k:k + 3])                                          # -M [W]x
+    J[..., k + 3:k + 6] = M
+    k += 6
+    if problem.mode == "paper" and problem.tied(c):
+        u = state.direction[batch.views, c]
+        free = lay.local_used[batch.views][:, lay.direction[c][0]]
+        J[..., k:k + 2] = (state.baseline_mm[c] * free)[:, None, None, None] * np.einsum(
+            "bnij,bjk->bnik", J_X, tangent_basis(u))
+    J[~batch.observed] = 0.0
+    return J
 
 
 def _linearised_batches(problem: Problem, state: State):
-    """Per camera: ``(batch, r (B, 2N), J_g (B, 2N, k_g), global columns, J_l (B, 2N, k_l), local
-    slots)``, with the rows of unmeasured corners zero."""
+    """Per camera: ``(batch, r (B, 2N), J (B, 2N, k_g + k_l), global columns (k_g,), local slots (k_l,))``,
+    the Jacobian's global columns first; the rows of unmeasured corners zero."""
     for batch in problem.batches:
         W, Xc, rel_t = _camera_points(problem, state, batch)
         B, n = batch.observed.shape
         with np.errstate(divide="ignore", invalid="ignore"):      # unmeasured corners may sit anywhere
             uv, J_X, J_K = project_with_jacobians(state.camera(problem, batch.camera), Xc.reshape(-1, 3))
-        obs = batch.observed[:, :, None]
-        r = np.where(obs, uv.reshape(B, n, 2) - batch.uv_px, 0.0).reshape(B, 2 * n)
-        glob, loc = _jacobian_pieces(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3),
-                                     J_K.reshape(B, n, 2, -1))
-
-        def stacked(pieces):
-            J = np.concatenate([p for _, p in pieces], axis=-1)
-            return np.where(obs[..., None], J, 0.0).reshape(B, 2 * n, -1), np.concatenate([cols for cols, _ in pieces])
-        J_g, cols_g = stacked(glob)
-        J_l, slots_l = stacked(loc)
-        yield batch, r, J_g, cols_g, J_l, slots_l
+        r = np.where(batch.observed[:, :, None], uv.reshape(B, n, 2) - batch.uv_px, 0.0).reshape(B, 2 * n)
+        cols_g, slots_l = _columns(problem, batch.camera)
+        J = _jacobian(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3), J_K.reshape(B, n, 2, -1),
+                      len(cols_g)).reshape(B, 2 * n, -1)
+        yield batch, r, J, cols_g, slots_l
 
 
 def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
@@ -415,13 +440,15 @@ def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
     lay = problem.layout
     ne = NormalEquations.zeros(lay.n_global, lay.local_used)
     total = 0.0
-    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
+    for batch, r, J, cg, sl in _linearised_batches(problem, state):
         squares = np.sum(r * r, axis=1)
         total += float(squares.sum())
         v = batch.views[:, None, None]              # one photo per instant in a camera: no index repeats
-        J_gT, J_lT = np.swapaxes(J_g, 1, 2), np.swapaxes(J_l, 1, 2)
-        gg, gl, ll = J_gT @ J_g, J_gT @ J_l, J_lT @ J_l
-        g_g, g_l = np.einsum("bki,bk->bi", J_g, r), np.einsum("bki,bk->bi", J_l, r)
+        kg = len(cg)
+        JtJ = np.swapaxes(J, 1, 2) @ J
+        gg, gl, ll = JtJ[:, :kg, :kg], JtJ[:, :kg, kg:], JtJ[:, kg:, kg:]
+        grad = np.einsum("bki,bk->bi", J, r)
+        g_g, g_l = grad[:, :kg], grad[:, kg:]
         ne.gg[v, cg[:, None], cg[None, :]] += gg
         ne.gl[v, cg[:, None], sl[None, :]] += gl
         ne.ll[v, sl[:, None], sl[None, :]] += ll
@@ -472,12 +499,12 @@ def photo_rows(problem: Problem, state: State) -> list[PhotoRows]:
     """The Jacobian rows of every photo's measured corners, in the order of ``problem.blocks``."""
     lay = problem.layout
     out = []
-    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
+    for batch, r, J, cg, sl in _linearised_batches(problem, state):
         rows = np.repeat(batch.observed, 2, axis=1)
         for i, (b, v) in enumerate(zip(batch.blocks, batch.views)):
-            used = lay.local_used[v, sl]
-            J = np.concatenate([J_g[i], J_l[i][:, used]], axis=1)[rows[i]]
-            out.append(PhotoRows(int(b), np.concatenate([cg, lay.local_columns(v, sl[used])]), J, r[i][rows[i]]))
+            used = np.concatenate([np.ones(len(cg), bool), lay.local_used[v, sl]])
+            out.append(PhotoRows(int(b), np.concatenate([cg, lay.local_columns(v, sl[used[len(cg):]])]),
+                                 J[i][rows[i]][:, used], r[i][rows[i]]))
     return sorted(out, key=lambda pr: pr.block)
 
 
@@ -556,8 +583,15 @@ class Solution:
         return self.factorization.global_combination(columns) @ self._leverage.shifts
 
     @cached_property
+    def _at_minimum(self) -> NormalEquations:
+        """The normal equations with the gradients of the linearised minimum: the residuals plus the Jacobian
+        times the remaining Gauss-Newton step, so that where within its tolerance the solver stopped does not
+        move the sigmas and the held-out errors to first order."""
+        return self.factorization.ne.moved(self.factorization.step())
+
+    @cached_property
     def _leverage(self) -> InstantLeverage:
-        return instant_leverage(self.factorization)
+        return instant_leverage(self.factorization, self._at_minimum)
 
     def intrinsic_sigma(self, c: int, kind: str = "formal") -> dict[str, float]:
         """1-sigma of every intrinsic of camera ``c`` (0 for a fixed one), of covariance ``kind``."""
@@ -582,7 +616,7 @@ class Solution:
         p = self.problem
         out: dict[str, dict[int, tuple[float, int]] | None] = {v: {} for v in p.views}
         counts = {b: int(n) for ph in self.factorization.ne.photos for b, n in zip(ph.blocks, ph.corners)}
-        for c, blocks, squares in held_out_squares(self.factorization, self._leverage.held_out):
+        for c, blocks, squares in held_out_squares(self.factorization, self._leverage.held_out, self._at_minimum):
             for b, sq in zip(blocks, squares):
                 view = p.blocks[b][1]
                 if out[view] is not None:

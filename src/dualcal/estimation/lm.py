@@ -111,7 +111,7 @@ def levenberg_marquardt(x: Any, linearise: Callable[[Any], tuple[float, NormalEq
     F, ne = linearise(x)
     mu, nu, it = o.mu0, 2.0, 0
     checked = None                  # (ne, distance, factorization) of the last undamped check
-    stop = _gradient_test(ne, F, o)
+    stop = _gradient_test(ne, F, o) or _near_minimum(o)
     while True:
         if stop is not None:        # a test says "done": believe it only if the undamped step agrees
             try:
@@ -152,7 +152,7 @@ def levenberg_marquardt(x: Any, linearise: Callable[[Any], tuple[float, NormalEq
             elif F_old - F <= o.ftol * F_old and predicted <= o.ftol * F_old:
                 stop = f"relative cost change below {o.ftol:g}"
             else:
-                stop = _gradient_test(ne, F, o)
+                stop = _gradient_test(ne, F, o) or _near_minimum(o)
         else:
             mu, nu = mu * nu, 2.0 * nu
             if small_step:                          # at the rounding level of the cost
@@ -164,6 +164,13 @@ def levenberg_marquardt(x: Any, linearise: Callable[[Any], tuple[float, NormalEq
     if not converged:
         stop += f"; the estimate is still {distance:.2g} sigma from the minimum"
     return LMResult(x, float(F), factorization, it, converged, stop, float(distance))
+
+
+def _near_minimum(o: LMOptions) -> str:
+    """The test that every start and every accepted step gets: the undamped check itself (a factorization,
+    no new residuals), so that a start already at its minimum, or a step that lands there, ends the run
+    without another linearisation to find it out."""
+    return f"Gauss-Newton step below {o.verify_sigma:g} sigma"
 
 
 def _gradient_test(ne: NormalEquations, F: float, o: LMOptions) -> str | None:

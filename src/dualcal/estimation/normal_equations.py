@@ -26,7 +26,7 @@ have no Jacobian column, are held at zero step and never enter a covariance.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -89,6 +89,24 @@ class NormalEquations:
     @property
     def n_global(self) -> int:
         return self.gg.shape[1]
+
+    def moved(self, h: np.ndarray) -> "NormalEquations":
+        """The same matrices with the gradients (and each photo's gradients and ``r^T r``) of the linearised
+        residuals ``r + J h`` after a flat step ``h``: at ``h = -N^-1 g``, those of the linearised minimum."""
+        G, (V, L) = self.n_global, self.ll.shape[:2]
+        h_g, h_l = h[:G], h[G:].reshape(V, L)
+        photos = []
+        for ph in self.photos:
+            hg, hl = h_g[ph.global_columns], h_l[ph.views][:, ph.local_slots]
+            grad_g = ph.grad_g + ph.gg @ hg + np.einsum("pij,pj->pi", ph.gl, hl)
+            grad_l = ph.grad_l + np.einsum("pji,pj->pi", ph.gl, np.broadcast_to(hg, ph.grad_g.shape)) + np.einsum(
+                "pij,pj->pi", ph.ll, hl)
+            squares = ph.squares + np.einsum("pi,pi->p", ph.grad_g + grad_g, np.broadcast_to(hg, grad_g.shape)) + \
+                np.einsum("pi,pi->p", ph.grad_l + grad_l, hl)
+            photos.append(replace(ph, grad_g=grad_g, grad_l=grad_l, squares=squares))
+        return replace(self, grad_g=self.grad_g + self.gg @ h_g + np.einsum("vgl,vl->vg", self.gl, h_l),
+                       grad_l=self.grad_l + np.einsum("vgl,g->vl", self.gl, h_g) + np.einsum("vij,vj->vi", self.ll, h_l),
+                       photos=photos)
 
     def gradient(self) -> np.ndarray:
         """``J^T r`` as one flat vector (module docstring)."""

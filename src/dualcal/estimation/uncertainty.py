@@ -64,7 +64,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .normal_equations import Factorization
+from .normal_equations import Factorization, NormalEquations
 
 __all__ = ["InstantLeverage", "held_out_squares", "instant_leverage"]
 
@@ -93,10 +93,12 @@ def _sums_without_each(S_c: np.ndarray) -> np.ndarray:
     return before + after
 
 
-def instant_leverage(factorization: Factorization) -> InstantLeverage:
+def instant_leverage(factorization: Factorization, ne: NormalEquations | None = None) -> InstantLeverage:
     """:class:`InstantLeverage` from the factorization of the undamped normal equations at the optimum
-    (``mu = 0``), whose locals are each instant's own unknowns."""
-    ne, W = factorization.ne, factorization.W
+    (``mu = 0``), whose locals are each instant's own unknowns; the gradients those of ``ne`` (default:
+    the factorization's own; :meth:`NormalEquations.moved` gives those of the linearised minimum)."""
+    W = factorization.W
+    ne = factorization.ne if ne is None else ne
     S_c = ne.gg - factorization.gl @ W                                                       # (V, G, G)
     b = ne.grad_g - np.einsum("vgl,vl->vg", factorization.gl, np.einsum("vij,vj->vi", factorization.ll_inv,
                                                                           ne.grad_l))
@@ -112,18 +114,19 @@ def instant_leverage(factorization: Factorization) -> InstantLeverage:
     return InstantLeverage(shifts, np.where(known[:, None], held, np.nan))
 
 
-def held_out_squares(factorization: Factorization, held_out: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:
+def held_out_squares(factorization: Factorization, held_out: np.ndarray, ne: NormalEquations | None = None
+                     ) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """Each photo's held-out sum of squares ``|r + J~ z|^2`` (px^2), ``z`` its instant's row of
     ``held_out`` (:attr:`InstantLeverage.held_out`): ``(camera, blocks (P,), squares (P,))`` per camera's
     photos (:attr:`dualcal.estimation.normal_equations.NormalEquations.photos`), NaN where the instant
-    cannot be left out.
+    cannot be left out. The photos' pieces are those of ``ne`` (default: the factorization's own).
 
     With ``y = N_ll^-1 N_lg z`` (the instant's own unknowns fitted again) and the photo's pieces, the sum
     is ``r^T r + 2 (g_g^T z - g_l^T y) + z^T N_gg z - 2 z^T N_gl y + y^T N_ll y``.
     """
     y = np.einsum("vlg,vg->vl", factorization.W, np.nan_to_num(held_out))
     out = []
-    for ph in factorization.ne.photos:
+    for ph in (factorization.ne if ne is None else ne).photos:
         z = held_out[ph.views][:, ph.global_columns]
         yl = y[ph.views][:, ph.local_slots]
         squares = (ph.squares + 2 * (np.einsum("pi,pi->p", ph.grad_g, z) - np.einsum("pi,pi->p", ph.grad_l, yl))
