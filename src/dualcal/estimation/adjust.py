@@ -624,6 +624,31 @@ class Solution:
         return out
 
 
+def linearised_at(problem: Problem, state: State) -> Solution:
+    """The adjustment linearised at ``state`` and not iterated (``iterations`` 0): its residuals and the
+    factorization of its normal equations there, whose Gauss-Newton step ``factorization.step()`` gives the
+    one-step estimate and whose covariances are those of that estimate (the linearised minimum).
+
+    Raises
+    ------
+    EstimationError
+        Fewer observations than unknowns, or a singular normal matrix.
+    """
+    redundancy = problem.n_observations - problem.n_parameters
+    if redundancy <= 0:
+        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
+    F, ne = linearise(problem, state)
+    try:
+        factorization = ne.factor(0.0)
+    except np.linalg.LinAlgError:
+        raise EstimationError("the normal equations are singular: the photos do not determine every "
+                              "parameter (too few views, or views all alike)") from None
+    r = residuals(problem, state)
+    return Solution(problem, state, r, float(np.sqrt(F / redundancy)), redundancy, 0, False,
+                    "linearised, not adjusted", factorization,
+                    np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1)).tolist())
+
+
 def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> Solution:
     """Levenberg-Marquardt from ``state`` (:func:`dualcal.estimation.lm.levenberg_marquardt`).
 

@@ -41,6 +41,10 @@ from ..progress import warn
 BOARD_SHAPES = ("auto", "flat", "fit")
 #: The board's shape is kept where its coefficients differ from zero at this significance level.
 SHAPE_SIGNIFICANCE = 0.01
+#: The shape is tested first at its one-step estimate from the flat board's solution; where that test's
+#: ``T^2`` exceeds this share of its limit, the shape is adjusted in full and the test made there, so
+#: that a decision near the limit is the full adjustment's.
+SHAPE_FULL_TEST = 0.5
 
 
 OUTLIER_FLOOR_PX = 0.05
@@ -243,10 +247,13 @@ def board_shape_test(sol: Solution) -> dict:
     ``T2 = w^T Cov^-1 w`` is compared with ``p (G-1) / (G-p) F(p, G-p)`` at
     :data:`SHAPE_SIGNIFICANCE`. Returns ``{"t2", "limit", "significant", "coefficients_mm",
     "sigma_mm"}``; with too few instants to judge (``G <= p + 1``) ``limit`` is None and the shape
-    is not significant.
+    is not significant. ``w`` and its covariance are those of the linearised minimum (``sol`` moved by its
+    Gauss-Newton step): of the adjusted shape, or from a flat board's solution linearised with the shape
+    free (:func:`dualcal.estimation.adjust.linearised_at`), the one-step estimate (Wald's test at the
+    one-step estimator, which differs from the adjusted one's by terms of second order in the shape).
     """
     cols = sol.problem.layout.board_shape
-    w = sol.state.board_shape_mm
+    w = sol.state.board_shape_mm + sol.factorization.step()[cols]                # at the linearised minimum
     cov = sol.covariance(cols, "clustered")
     p, G = len(cols), len(sol.problem.views)
     doc = {"coefficients_mm": dict(zip(SHAPE_TERMS, map(float, w))),
@@ -345,7 +352,11 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
             alone = setup.solve(rig_blocks, sol, mode="none")
     flat = sol
     shape_test = None
-    if board_shape != "flat":
+    if board_shape == "auto":            # the one-step estimate first: the full adjustment only near the limit
+        shape_test = board_shape_test(setup.linearised(sol, board_shape=True))
+        if shape_test["limit"] is not None and shape_test["t2"] > SHAPE_FULL_TEST * shape_test["limit"]:
+            shape_test = None
+    if board_shape != "flat" and shape_test is None:
         shaped = setup.solve(sol.problem.blocks, sol, board_shape=True)
         shape_test = board_shape_test(shaped)
         if board_shape == "fit" or shape_test["significant"]:

@@ -17,9 +17,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .adjust import COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state
+from .adjust import COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state, linearised_at
 from ..geometry.board import SHAPE_TERMS
-from ..geometry.camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, LENS_MODELS
+from ..geometry.camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, LENS_MODELS,
+                               CameraModel)
 from .covariance import JointCovariance, intrinsic_name
 from ..errors import EstimationError, InputError
 from .lm import NEAR_START, LMOptions
@@ -102,6 +103,13 @@ class Setup:
         """:func:`solve` with these settings (``mode`` overrides the rig mode)."""
         return solve(self.X_board, self.names, self.sizes, blocks, self.reference, self.skew, mode or self.mode,
                      start, board_shape, self.model)
+
+    def linearised(self, sol: "Solution", board_shape: bool) -> "Solution":
+        """``sol``'s photos and state linearised (:func:`dualcal.estimation.adjust.linearised_at`), the board's
+        shape free or not."""
+        p = sol.problem
+        return linearised_at(Problem(self.X_board, list(self.names), list(self.sizes), p.blocks, p.mode, self.skew,
+                                     self.reference, board_shape, p.model), sol.state)
 
 
 def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
@@ -202,9 +210,10 @@ def lens_models_for(model: str | Mapping[str, str], names: list[str]) -> tuple[s
 
 
 def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
-          rig_mode: str | None = None, options: LMOptions = NEAR_START) -> Solution:
+          rig_mode: str | None = None, options: LMOptions = NEAR_START, cameras=None) -> Solution:
     """The corners ``rig`` used (:meth:`RigModel.used_corners`), adjusted again with another lens model,
-    skew model or rig mode (None: ``rig``'s), started from ``rig``'s values.
+    skew model or rig mode (None: ``rig``'s), started from ``rig``'s values; those of the ``cameras`` named
+    alone, where given (then the first named is the reference).
 
     No outliers are looked for and the board keeps ``rig``'s treatment (its shape estimated again where
     ``rig`` kept one): the same corners, so that the solutions compare. A lens model of ``rig``'s family
@@ -215,27 +224,43 @@ def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: boo
     the adjustment's tolerances (a comparison needs fewer digits than a result).
     """
     corners = rig.used_corners()
-    names = sorted(corners.cameras)
-    models = lens_models_for(rig.models if model is None else model, names)
+    names = sorted(corners.cameras if cameras is None else cameras)
+    model = rig.models if model is None else model
+    models = lens_models_for(model if isinstance(model, str) else
+                             {k: m for k, m in model.items() if k in names or k == "*"}, names)
     skew = rig.skew if skew is None else skew
     X = corners.board.object_points_mm()
     blocks = usable_photos(corners, names, X[:, :2], quiet=True)
     _check_enough_views(blocks, names)
     sizes = [corners.cameras[n].image_size for n in names]
     poses = [dict(rig.camera_poses[n]) for n in names]
-    cams = []
-    for c, n in enumerate(names):
-        cam = rig.cameras[n]
-        if (models[c] in FISHEYE_MODELS) == cam.fisheye:
-            cams.append(replace(cam, model=models[c], skew=cam.skew if skew else 0.0,
-                                **{k: 0.0 for k in DISTORTION_NAMES if k not in LENS_MODELS[models[c]]}))
-        else:
-            cams.append(initial_camera(X[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew,
-                                       models[c])[0])
-    ref = names.index(rig.reference)
+    cams = [_start_camera(rig.cameras[n], models[c], skew, X, {v: uv for cc, v, uv in blocks if cc == c})
+            for c, n in enumerate(names)]
+    ref = names.index(rig.reference) if rig.reference in names else 0
     problem = Problem(X, names, sizes, blocks, rig_mode or rig.rig_mode, skew, ref, rig.board_shape_mm is not None,
                       models)
     return adjust(problem, initial_state(problem, cams, poses, rig.board_shape_mm), options)
+
+
+def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray, views: dict) -> CameraModel:
+    """``cam`` as the start of an adjustment with lens ``model``: ``cam``'s coefficients where ``model`` is
+    of its family (a new coefficient at 0, a dropped one let go), else Zhang's closed form of ``views``."""
+    if (model in FISHEYE_MODELS) == cam.fisheye:
+        return replace(cam, model=model, skew=cam.skew if skew else 0.0,
+                       **{k: 0.0 for k in DISTORTION_NAMES if k not in LENS_MODELS[model]})
+    return initial_camera(X_board[:, :2], views, cam.image_size, skew, model)[0]
+
+
+def refit_alone(sol: Solution, model: str, options: LMOptions = NEAR_START) -> Solution:
+    """``sol``, a solution of one camera alone with a flat board, adjusted again with lens ``model`` from its
+    values (:func:`refit`'s start)."""
+    p = sol.problem
+    if len(p.cameras) != 1 or p.board_shape:
+        raise ValueError("refit_alone takes a solution of one camera with a flat board")
+    cams, poses = _starting_values(sol)
+    cam = _start_camera(cams[0], model, p.skew, p.X_board, {v: uv for _, v, uv in p.blocks})
+    problem = Problem(p.X_board, p.cameras, p.image_sizes, p.blocks, "none", p.skew, 0, False, (model,))
+    return adjust(problem, initial_state(problem, [cam], poses), options)
 
 
 def fit_summary(sol: Solution) -> dict:

@@ -45,7 +45,8 @@ import numpy as np
 
 from ..geometry.camera import DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraModel, image_corner_radius
 from ..errors import EstimationError
-from .fitting import fit_summary, refit, usable_photos
+from .adjust import Solution
+from .fitting import fit_summary, refit, refit_alone, usable_photos
 from ..geometry.model import CornerSet, RigModel
 from ..geometry.zhang import closed_form_camera
 from ..progress import warn
@@ -230,8 +231,9 @@ def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], p
     ``{camera: {"candidate", "fit_rms_px", "held_out_rms_px", "worse_se", "recommended"}}``.
     """
     names = sorted(candidates)
-    fits = _refits(base, {m: {n: m if m in candidates[n] else preferred[n] for n in names}
-                          for m in LENS_MODELS if any(m in c for c in candidates.values())}, rig_mode="none")
+    mappings = {m: {n: m if m in candidates[n] else preferred[n] for n in names}
+                for m in LENS_MODELS if any(m in c for c in candidates.values())}
+    fits = _camera_fits(base, candidates, preferred, mappings)
     per_camera, chosen = {}, dict(preferred)
     for n in names:
         try:
@@ -247,3 +249,80 @@ def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], p
         overall = {}
     return chosen, [{**overall.get(m, {"model": m, "coefficients": len(LENS_MODELS[m])}),
                      "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in fits]
+
+
+def _camera_fits(base: RigModel, candidates, preferred, mappings: dict[str, dict[str, str]]) -> dict[str, dict]:
+    """``{model: fit}`` (:func:`dualcal.estimation.fitting.fit_summary`'s keys) of ``base``'s corners with every
+    camera alone and the lens models of each mapping ``{model: {camera: model}}``.
+
+    With every camera alone and a flat board no camera's fit depends on another's: each camera is adjusted
+    alone once per candidate model (its preferred from ``base``'s values, every other from the solution of
+    the camera's richest model nested in it that has been solved, or from Zhang's closed form for another
+    family), and a mapping's fit is put together from its cameras' (an instant is left out of every camera
+    where one camera cannot do without it, as in one adjustment of them all). A board whose shape ``base``
+    estimated ties the cameras together: one adjustment per distinct mapping. One that cannot be solved is
+    left out with a warning."""
+    if base.board_shape_mm is not None:
+        solved = {}
+        for key in {tuple(sorted(mp.items())) for mp in mappings.values()}:
+            try:
+                sol = refit(base, model=dict(key), rig_mode="none", options=COMPARISON_LM)
+                solved[key] = {n: _camera_piece(sol, c) for c, n in enumerate(sol.problem.cameras)}
+            except EstimationError as exc:
+                warn(f"lens models {dict(key)} could not be calibrated for the comparison: {exc}")
+        return {m: _joint_fit({n: solved[key][n] for n in mp}) for m, mp in mappings.items()
+                if (key := tuple(sorted(mp.items()))) in solved}
+    pieces = {}
+    for n in sorted(candidates):
+        solutions = {}
+        try:
+            solutions[preferred[n]] = refit(base, model=preferred[n], rig_mode="none", options=COMPARISON_LM,
+                                            cameras=[n])
+        except EstimationError as exc:
+            warn(f"the lens models of {n!r} could not be calibrated for the comparison: {exc}")
+            continue
+        for m in sorted(candidates[n], key=lambda m: len(LENS_MODELS[m])):
+            if m in solutions:
+                continue
+            nested = [k for k in solutions if (k in FISHEYE_MODELS) == (m in FISHEYE_MODELS)
+                      and set(LENS_MODELS[k]) <= set(LENS_MODELS[m])]
+            start = solutions[max(nested, key=lambda k: len(LENS_MODELS[k]))] if nested else solutions[preferred[n]]
+            try:
+                solutions[m] = refit_alone(start, m, COMPARISON_LM)
+            except EstimationError as exc:
+                warn(f"lens model {m} of {n!r} could not be calibrated for the comparison: {exc}")
+        pieces.update({(n, m): _camera_piece(sol, 0) for m, sol in solutions.items()})
+    return {m: _joint_fit({n: pieces[n, k] for n, k in mp.items()}) for m, mp in mappings.items()
+            if all((n, k) in pieces for n, k in mp.items())}
+
+
+def _camera_piece(sol: Solution, c: int) -> dict:
+    """Camera ``c``'s part of a fit: its corners' sum of squares (px^2) and count, and per instant its
+    held-out ``(px^2, corners)`` (:meth:`dualcal.estimation.adjust.Solution.held_out_squares`), None where the
+    instant cannot be left out."""
+    sq = np.sum(sol.residuals ** 2, axis=2)[[b for b, (cc, _, _) in enumerate(sol.problem.blocks) if cc == c]]
+    held = {v: None if photos is None else photos[c] for v, photos in sol.held_out_squares().items()
+            if photos is None or c in photos}
+    return {"squares": float(np.nansum(sq)), "corners": int(np.isfinite(sq).sum()), "held_out": held}
+
+
+def _joint_fit(pieces: dict[str, dict]) -> dict:
+    """The fit of cameras alone, ``{camera: piece}`` (:func:`_camera_piece`), as
+    :func:`dualcal.estimation.fitting.fit_summary` gives that of one adjustment of them all."""
+    views = sorted({v for p in pieces.values() for v in p["held_out"]})
+    per_instant, per_camera = {}, {n: {} for n in pieces}
+    for v in views:
+        parts = {n: p["held_out"][v] for n, p in pieces.items() if v in p["held_out"]}
+        if any(part is None for part in parts.values()):
+            continue
+        for n, (sq, k) in parts.items():
+            per_camera[n][v] = {"rms_px": float(np.sqrt(max(sq, 0.0) / k)), "corners": k}
+        sq, k = (sum(x) for x in zip(*parts.values()))
+        per_instant[v] = {"rms_px": float(np.sqrt(max(sq, 0.0) / k)), "corners": k}
+    squares = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
+    corners = sum(d["corners"] for d in per_instant.values())
+    return {"rms_px": float(np.sqrt(sum(p["squares"] for p in pieces.values())
+                                    / sum(p["corners"] for p in pieces.values()))),
+            "camera_rms_px": {n: float(np.sqrt(p["squares"] / p["corners"])) for n, p in pieces.items()},
+            "held_out_rms_px": float(np.sqrt(squares / corners)) if corners else None,
+            "held_out_per_instant": per_instant, "held_out_per_camera": per_camera}
