@@ -173,7 +173,7 @@ def test_the_paper_parametrisation_solves_the_constrained_form():
     p = sol.problem
     free = Problem(*args[:4], mode="none", reference=args[4])
     cams = [sol.state.camera(p, c) for c in range(2)]
-    poses = [{v: sol.state.photo_pose(p, c, p.view_index[v]) for cc, v, _ in p.blocks if cc == c} for c in range(2)]
+    poses = [{v: sol.photo_poses[c, v] for cc, v, _ in p.blocks if cc == c} for c in range(2)]
     x = initial_state(free, cams, poses)
     F, ne = linearise(free, x)
     assert F == pytest.approx(sol.s0_px ** 2 * sol.redundancy, rel=1e-12)

@@ -260,13 +260,13 @@ class State:
             return np.broadcast_to(self.rig_t[c], (len(views), 3))
         return self.baseline_mm[c] * self.direction[views, c]
 
-    def photo_pose(self, problem: Problem, c: int, view: int) -> Pose:
-        """Board-to-camera ``c`` pose in instant ``view``."""
+    def photo_poses(self, problem: Problem, c: int, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Board-to-camera ``c`` poses in the instants ``views`` (B,): ``R`` (B, 3, 3), ``t`` (B, 3) mm."""
         k = problem.pose_slot(c)
-        pose = Pose(self.pose_R[view, k].copy(), self.pose_t[view, k].copy())
+        R, t = self.pose_R[views, k], self.pose_t[views, k]
         if not problem.tied(c):
-            return pose
-        return Pose(self.rig_R[c], self.relative_t(problem, c, np.array([view]))[0]).compose(pose)
+            return R.copy(), t.copy()
+        return self.rig_R[c] @ R, t @ self.rig_R[c].T + self.relative_t(problem, c, views)
 
 
 def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict[str, Pose]],
@@ -324,7 +324,7 @@ def _camera_points(problem: Problem, state: State, batch: CameraBatch):
     translation (B, 3) (None for an untied camera)."""
     k = problem.pose_slot(batch.camera)
     X = shaped_points_mm(problem.X_board, state.board_shape_mm) if problem.board_shape else problem.X_board
-    W = np.einsum("bij,nj->bni", state.pose_R[batch.views, k], X)
+    W = X @ np.swapaxes(state.pose_R[batch.views, k], 1, 2)                                  # (B, N, 3)
     Y = W + state.pose_t[batch.views, k][:, None, :]
     if not problem.tied(batch.camera):
         return W, Y, None
@@ -401,11 +401,11 @@ def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, 
             k += 3
         else:
             u = state.direction[batch.views, c]
-            J[..., k] = np.einsum("bnij,bj->bni", J_X, u)
+            J[..., k] = (J_X @ u[:, None, :, None])[..., 0]
             k += 1
     if problem.board_shape:       # d X_board / d w = basis e_z, seen through R_v: its third column
         normal = state.pose_R[batch.views, problem.pose_slot(c)][:, :, 2]                # (B, 3)
-        along = np.einsum("bnij,bj->bni", M, normal)                                      # (B, N, 2)
+        along = (M @ normal[:, None, :, None])[..., 0]                                     # (B, N, 2)
         J[..., k:k + 3] = along[..., None] * problem.shape_basis[None, :, None, :]
         k += 3
     _cross(W[:, :, None, :], M, J[..., k:k + 3])                                          # -M [W]x
@@ -414,8 +414,7 @@ def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, 
     if problem.mode == "paper" and problem.tied(c):
         u = state.direction[batch.views, c]
         free = lay.local_used[batch.views][:, lay.direction[c][0]]
-        J[..., k:k + 2] = (state.baseline_mm[c] * free)[:, None, None, None] * np.einsum(
-            "bnij,bjk->bnik", J_X, tangent_basis(u))
+        J[..., k:k + 2] = (state.baseline_mm[c] * free)[:, None, None, None] * (J_X @ tangent_basis(u)[:, None])
     J[~batch.observed] = 0.0
     return J
 
@@ -447,7 +446,7 @@ def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
         kg = len(cg)
         JtJ = np.swapaxes(J, 1, 2) @ J
         gg, gl, ll = JtJ[:, :kg, :kg], JtJ[:, :kg, kg:], JtJ[:, kg:, kg:]
-        grad = np.einsum("bki,bk->bi", J, r)
+        grad = (r[:, None, :] @ J)[:, 0]
         g_g, g_l = grad[:, :kg], grad[:, kg:]
         ne.gg[v, cg[:, None], cg[None, :]] += gg
         ne.gl[v, cg[:, None], sl[None, :]] += gl
@@ -602,6 +601,15 @@ class Solution:
         for name, s in zip(np.array(INTRINSIC_NAMES)[lay.free_intrinsics[c]], values):
             sig[str(name)] = float(s)
         return sig
+
+    @cached_property
+    def photo_poses(self) -> dict[tuple[int, str], Pose]:
+        """The board-to-camera pose of every photo, ``{(camera, view): Pose}``."""
+        p, out = self.problem, {}
+        for batch in p.batches:
+            for b, R, t in zip(batch.blocks, *self.state.photo_poses(p, batch.camera, batch.views)):
+                out[p.blocks[b][0], p.blocks[b][1]] = Pose(R, t)
+        return out
 
     @cached_property
     def instant_rows(self) -> list[InstantRows]:

@@ -311,7 +311,7 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     if isinstance(model, str) and model == AUTO_MODEL:
         rig = _calibrate_auto(corners, **options)
     else:
-        rig = _calibrate_distinct(corners, model=model, **options)
+        rig = _calibrate_distinct(corners, model=model, **options)[0]
     if duplicates:
         rig.adjustment["duplicates"] = duplicates
     return rig
@@ -323,17 +323,20 @@ def _calibrate_auto(corners: CornerSet, **options) -> RigModel:
     comparison of the models on its corners, and a calibration with the models chosen where they differ.
     ``adjustment["lens_models"]`` holds the comparison, ``adjustment["lens_models_chosen"]`` ``{camera: model}``."""
     candidates, preferred = preferred_lens_models(corners, options["skew"])
-    base = _calibrate_distinct(corners, model=preferred, **options)
-    chosen, comparison = choose_lens_models(base, candidates, preferred)
-    final = base if chosen == preferred else _calibrate_distinct(corners, model=chosen, **options)
+    base, alone = _calibrate_distinct(corners, model=preferred, **options)
+    chosen, comparison = choose_lens_models(base, candidates, preferred, alone)
+    final = base if chosen == preferred else _calibrate_distinct(corners, model=chosen, start=alone, **options)[0]
     final.adjustment["lens_models"] = comparison
     final.adjustment["lens_models_chosen"] = chosen
     return final
 
 
 def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference: str | None, drop_outliers: bool,
-                        outlier_factor: float, board_shape: str, model: str | Mapping[str, str]) -> RigModel:
-    """:func:`calibrate_rig` with given lens models, of corners whose duplicate instants are merged."""
+                        outlier_factor: float, board_shape: str, model: str | Mapping[str, str],
+                        start: Solution | None = None) -> tuple[RigModel, Solution]:
+    """:func:`calibrate_rig` with given lens models, of corners whose duplicate instants are merged, and its
+    solution with every camera alone (flat board) over the photos it kept. The cameras alone start from
+    Zhang's closed form, or from ``start``, such a solution with other lens models."""
     names = sorted(corners.cameras)
     models = lens_models_for(model, names)
     ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
@@ -344,7 +347,8 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
     dropped_corners: list[dict] = []
     factor = outlier_factor if drop_outliers else None
     setup = Setup(X, names, sizes, ref, skew, rig_mode, models)
-    alone, blocks = _adjust_dropping_outliers(replace(setup, mode="none"), blocks, factor, dropped, dropped_corners)
+    alone, blocks = _adjust_dropping_outliers(replace(setup, mode="none"), blocks, factor, dropped, dropped_corners,
+                                              start)
     sol = alone
     if rig_mode != "none":
         sol, rig_blocks = _adjust_dropping_outliers(setup, blocks, factor, dropped, dropped_corners, alone)
@@ -378,7 +382,7 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
                             lambda tied, alone: rig_rigid(tied, alone, None if kappa2 is None else {0: kappa2}))
         if loop is not None:
             rig.checks["loop_closure"] = loop
-    return rig
+    return rig, alone
 
 
 def attribution_checks(setup: Setup, tied: Solution, alone: Solution, kappa2) -> tuple[dict, dict | None]:

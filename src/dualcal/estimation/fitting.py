@@ -69,15 +69,9 @@ def _check_enough_views(blocks, names) -> None:
                                   "(take more photos, or check that the board is found in them)")
 
 
-def _block_poses(sol: Solution) -> dict[tuple[int, str], Pose]:
-    """Board-to-camera pose of every observed (camera, view)."""
-    p = sol.problem
-    return {(c, v): sol.state.photo_pose(p, c, p.view_index[v]) for c, v, _ in p.blocks}
-
-
 def _starting_values(sol: Solution):
     """Per-camera intrinsics and board-to-camera poses of a solution, to start another adjustment."""
-    bp = _block_poses(sol)
+    bp = sol.photo_poses
     n = len(sol.problem.cameras)
     cams = [sol.state.camera(sol.problem, c) for c in range(n)]
     poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c and (c, v) in bp} for c in range(n)]
@@ -120,7 +114,8 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
 
     Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
     solution over the same photos (or a superset of them: photos it did not see start from
-    Zhang's), whose board shape is kept as the start too. The paper's model starts from the
+    Zhang's), whose board shape is kept as the start too; a camera of another lens model there starts
+    from its values as :func:`refit` converts them. The paper's model starts from the
     better (lower cost) of the rigid solution (every instant's baseline direction the same) and
     the cameras-alone solution (each instant's own relative pose): the first is the nearer when
     the rig is rigid, the second when the direction moves between instants. With
@@ -133,6 +128,9 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
     shape = start.state.board_shape_mm if start is not None else None
     if start is not None:
         cams, poses = _starting_values(start)
+        cams = [cam if cam.model == models[c] else
+                _start_camera(cam, models[c], skew, X_board, {v: uv for cc, v, uv in blocks if cc == c})
+                for c, cam in enumerate(cams)]
         views = {v for _, v, _ in blocks}
         poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
         missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
@@ -251,16 +249,17 @@ def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray,
     return initial_camera(X_board[:, :2], views, cam.image_size, skew, model)[0]
 
 
-def refit_alone(sol: Solution, model: str, options: LMOptions = NEAR_START) -> Solution:
-    """``sol``, a solution of one camera alone with a flat board, adjusted again with lens ``model`` from its
-    values (:func:`refit`'s start)."""
+def refit_alone(sol: Solution, c: int, model: str, options: LMOptions = NEAR_START) -> Solution:
+    """Camera ``c`` of ``sol`` (a solution of every camera alone with a flat board, where no camera's fit
+    depends on another's) adjusted alone with lens ``model``, from its values there (:func:`refit`'s start)."""
     p = sol.problem
-    if len(p.cameras) != 1 or p.board_shape:
-        raise ValueError("refit_alone takes a solution of one camera with a flat board")
+    if p.mode != "none" or p.board_shape:
+        raise ValueError("refit_alone takes a solution of every camera alone with a flat board")
     cams, poses = _starting_values(sol)
-    cam = _start_camera(cams[0], model, p.skew, p.X_board, {v: uv for _, v, uv in p.blocks})
-    problem = Problem(p.X_board, p.cameras, p.image_sizes, p.blocks, "none", p.skew, 0, False, (model,))
-    return adjust(problem, initial_state(problem, [cam], poses), options)
+    blocks = [(0, v, uv) for cc, v, uv in p.blocks if cc == c]
+    cam = _start_camera(cams[c], model, p.skew, p.X_board, {v: uv for _, v, uv in blocks})
+    problem = Problem(p.X_board, [p.cameras[c]], [p.image_sizes[c]], blocks, "none", p.skew, 0, False, (model,))
+    return adjust(problem, initial_state(problem, [cam], [poses[c]]), options)
 
 
 def fit_summary(sol: Solution) -> dict:
@@ -310,7 +309,7 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
     for b, (c, v, _) in enumerate(p.blocks):
         view_rms.setdefault(v, {})[names[c]] = sol.block_rms_px[b]
     poses: dict[str, dict[str, Pose]] = {name: {} for name in names}
-    for (c, v), pose in sorted(_block_poses(sol).items(), key=lambda kv: kv[0][1]):
+    for (c, v), pose in sorted(sol.photo_poses.items(), key=lambda kv: kv[0][1]):
         poses[names[c]][v] = pose
     rig = {}
     for c, name in enumerate(names):

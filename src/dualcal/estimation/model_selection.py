@@ -220,10 +220,11 @@ def preferred_lens_models(corners: CornerSet, skew: bool) -> tuple[dict[str, tup
     return candidates, preferred
 
 
-def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], preferred: dict[str, str]
-                       ) -> tuple[dict[str, str], list[dict]]:
+def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], preferred: dict[str, str],
+                       alone: Solution | None = None) -> tuple[dict[str, str], list[dict]]:
     """Every camera's lens model chosen by its held-out instants (module docstring), from ``base``, a
-    calibration with every camera's ``preferred`` model (:func:`preferred_lens_models`).
+    calibration with every camera's ``preferred`` model (:func:`preferred_lens_models`), and ``alone``, its
+    solution with every camera alone (flat board) over the photos it kept, where there is one.
 
     Returns ``{camera: model}`` and the comparison as calib.json keeps it (``adjustment["lens_models"]``):
     one entry per model (the whole rig's scores, every camera alone; for a model that is not every camera's
@@ -233,7 +234,7 @@ def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], p
     names = sorted(candidates)
     mappings = {m: {n: m if m in candidates[n] else preferred[n] for n in names}
                 for m in LENS_MODELS if any(m in c for c in candidates.values())}
-    fits = _camera_fits(base, candidates, preferred, mappings)
+    fits = _camera_fits(base, candidates, preferred, mappings, alone)
     per_camera, chosen = {}, dict(preferred)
     for n in names:
         try:
@@ -251,17 +252,18 @@ def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], p
                      "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in fits]
 
 
-def _camera_fits(base: RigModel, candidates, preferred, mappings: dict[str, dict[str, str]]) -> dict[str, dict]:
+def _camera_fits(base: RigModel, candidates, preferred, mappings: dict[str, dict[str, str]],
+                 alone: Solution | None) -> dict[str, dict]:
     """``{model: fit}`` (:func:`dualcal.estimation.fitting.fit_summary`'s keys) of ``base``'s corners with every
     camera alone and the lens models of each mapping ``{model: {camera: model}}``.
 
     With every camera alone and a flat board no camera's fit depends on another's: each camera is adjusted
-    alone once per candidate model (its preferred from ``base``'s values, every other from the solution of
-    the camera's richest model nested in it that has been solved, or from Zhang's closed form for another
-    family), and a mapping's fit is put together from its cameras' (an instant is left out of every camera
-    where one camera cannot do without it, as in one adjustment of them all). A board whose shape ``base``
-    estimated ties the cameras together: one adjustment per distinct mapping. One that cannot be solved is
-    left out with a warning."""
+    alone once per candidate model (its preferred one is ``alone``'s, or adjusted from ``base``'s values;
+    every other from the solution of the camera's richest model nested in it that has been solved, or from
+    Zhang's closed form for another family), and a mapping's fit is put together from its cameras' (an
+    instant is left out of every camera where one camera cannot do without it, as in one adjustment of them
+    all). A board whose shape ``base`` estimated ties the cameras together: one adjustment per distinct
+    mapping. One that cannot be solved is left out with a warning."""
     if base.board_shape_mm is not None:
         solved = {}
         for key in {tuple(sorted(mp.items())) for mp in mappings.values()}:
@@ -274,10 +276,11 @@ def _camera_fits(base: RigModel, candidates, preferred, mappings: dict[str, dict
                 if (key := tuple(sorted(mp.items()))) in solved}
     pieces = {}
     for n in sorted(candidates):
-        solutions = {}
+        solutions = {}                                   # model -> (solution, the camera's index in it)
         try:
-            solutions[preferred[n]] = refit(base, model=preferred[n], rig_mode="none", options=COMPARISON_LM,
-                                            cameras=[n])
+            solutions[preferred[n]] = ((alone, alone.problem.cameras.index(n)) if alone is not None else
+                                       (refit(base, model=preferred[n], rig_mode="none", options=COMPARISON_LM,
+                                              cameras=[n]), 0))
         except EstimationError as exc:
             warn(f"the lens models of {n!r} could not be calibrated for the comparison: {exc}")
             continue
@@ -288,10 +291,10 @@ def _camera_fits(base: RigModel, candidates, preferred, mappings: dict[str, dict
                       and set(LENS_MODELS[k]) <= set(LENS_MODELS[m])]
             start = solutions[max(nested, key=lambda k: len(LENS_MODELS[k]))] if nested else solutions[preferred[n]]
             try:
-                solutions[m] = refit_alone(start, m, COMPARISON_LM)
+                solutions[m] = (refit_alone(*start, m, COMPARISON_LM), 0)
             except EstimationError as exc:
                 warn(f"lens model {m} of {n!r} could not be calibrated for the comparison: {exc}")
-        pieces.update({(n, m): _camera_piece(sol, 0) for m, sol in solutions.items()})
+        pieces.update({(n, m): _camera_piece(*solved) for m, solved in solutions.items()})
     return {m: _joint_fit({n: pieces[n, k] for n, k in mp.items()}) for m, mp in mappings.items()
             if all((n, k) in pieces for n, k in mp.items())}
 
