@@ -23,7 +23,7 @@ from ..geometry.camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MOD
                                CameraModel)
 from .covariance import JointCovariance, intrinsic_name
 from ..errors import EstimationError, InputError
-from .lm import NEAR_START, LMOptions
+from .lm import COMPARISON_LM, NEAR_START, LMOptions
 from ..geometry.model import CornerSet, Pose, RigModel, RigRelation, observed_mask
 from ..progress import warn
 from .rig_relations import parameter_covariance, rig_relation, shared_views
@@ -160,7 +160,8 @@ def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
 def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int) -> tuple[Solution, Solution, int]:
     """Cameras ``x`` and ``y`` of ``sol`` as a rigid two-camera rig (``x`` its reference) and alone, from
     the instants both saw there, started from ``sol``'s values (the tied pair) and ``alone``'s (the
-    cameras alone: where the pair's photos are all those ``alone`` had, it is already their solution)."""
+    cameras alone: where the pair's photos are all those ``alone`` had, it is already their solution),
+    each adjusted to a comparison's tolerance (:data:`dualcal.estimation.lm.COMPARISON_LM`)."""
     cams, poses = _starting_values(sol)
     views = set(poses[x]) & set(poses[y])
     blocks = [(int(c == y), v, uv) for c, v, uv in sol.problem.blocks if c in (x, y) and v in views]
@@ -174,7 +175,7 @@ def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int)
         start_cams, start_poses = _starting_values(start)
         return adjust(problem, initial_state(problem, [start_cams[x], start_cams[y]],
                                              [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)]),
-                      NEAR_START)
+                      COMPARISON_LM)
 
     return adjusted("rigid", sol), adjusted("none", alone), len(views)
 

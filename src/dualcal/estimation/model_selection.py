@@ -13,7 +13,7 @@ eigen-decomposition per instant, no re-adjustment). calib.json records them in `
 :func:`compare_lens_models` adjusts the same corners with every lens model (those the calibration
 used: its outliers stay out, so every model is scored on the same corners; each adjustment starts
 from the calibration's values, :func:`dualcal.estimation.fitting.refit`, and stops within 0.05 sigma of its
-minimum, :data:`COMPARISON_LM`) and compares the models instant by instant: ``d_v = SS_v(model) -
+minimum, :data:`dualcal.estimation.lm.COMPARISON_LM`) and compares the models instant by instant: ``d_v = SS_v(model) -
 SS_v(best)``, the held-out sum of squares (px^2) of instant ``v`` minus that of the model with the
 least held-out error; its mean over the instants in units of its standard error says how many
 standard errors the model is worse than the best. The recommendation is
@@ -39,7 +39,7 @@ calibrated once more with them."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -50,14 +50,7 @@ from .fitting import fit_summary, refit, refit_alone, usable_photos
 from ..geometry.model import CornerSet, RigModel
 from ..geometry.zhang import closed_form_camera
 from ..progress import warn
-from .lm import NEAR_START
-
-#: Where the comparison's refits stop: within 0.05 sigma of their minimum (the LM's undamped check),
-#: not the 1e-3 of a calibration. What is compared, the fit and held-out RMS, is flat at the minimum
-#: (the cost moves by the square of the distance); 0.05 sigma moved ``worse_se`` by at most 1.4e-3 SE
-#: (the choice is at 2) and a held-out RMS by 1e-4 relative on the three real sets, chose the same
-#: models, and saves one or two of each refit's three to five iterations.
-COMPARISON_LM = replace(NEAR_START, xtol=0.05, verify_sigma=0.05)
+from .lm import COMPARISON_LM
 
 __all__ = ["FISHEYE_HALF_DIAGONAL_DEG", "LensModelScore", "RECOMMEND_WITHIN_SE", "choose_lens_models",
            "compare_lens_models", "lens_model_candidates", "score_lens_models"]
