@@ -166,6 +166,39 @@ def test_a_bent_board_is_found_and_costs_little():
     assert np.all(ratio < 1.3), np.round(ratio, 2)
 
 
+def test_the_shape_test_at_the_one_step_estimate_is_that_of_the_adjusted_shape():
+    """The board-shape test is made first at the one-step (linearised) estimate from the flat board's
+    solution; the shape is adjusted in full only where that T^2 exceeds half its limit
+    (``calibrate.SHAPE_FULL_TEST``). On boards bent from not at all to twice what the photos show (13 note8
+    instants, 0.2 px), the one-step T^2 is within 3 % of the adjusted shape's, so that no decision can differ
+    (it would take a factor of 2), and calibrate_rig decides as the full test does."""
+    from dualcal.estimation.calibrate import board_shape_test
+    from dualcal.estimation.fitting import Setup, usable_photos
+
+    truth = make_truth("note8", 13, seed=5)
+    X = truth.board.object_points_mm()
+    rng = np.random.default_rng(41)
+    decisions = set()
+    for scale in (0.0, 0.04, 0.08, 0.3):
+        points = shaped_points_mm(X, scale * np.array([0.9, -0.6, 0.6]))
+        cams = {n: CameraCorners(cam.image_size, {v: project_points(cam, truth.camera_pose(n, v).apply(points))
+                                                  + rng.normal(0, 0.2, X[:, :2].shape) for v in truth.view_poses})
+                for n, cam in truth.cameras.items()}
+        corners = CornerSet(truth.board, cams)
+        names = sorted(cams)
+        setup = Setup(X, names, [cams[n].image_size for n in names], names.index("wide"), False, "rigid",
+                      ("k1k2", "k1k2"))
+        blocks = usable_photos(corners, names, X[:, :2])
+        flat = setup.solve(blocks, setup.solve(blocks, mode="none"))
+        one_step = board_shape_test(setup.linearised(flat, board_shape=True))
+        full = board_shape_test(setup.solve(blocks, flat, board_shape=True))
+        assert one_step["t2"] == pytest.approx(full["t2"], rel=0.03), scale
+        rig = calibrate_rig(corners, model="k1k2", drop_outliers=False)
+        assert rig.adjustment["board_shape_test"]["significant"] == full["significant"], scale
+        decisions.add(full["significant"])
+    assert decisions == {False, True}
+
+
 @pytest.mark.parametrize("mode", ["rigid", "paper", "none"])
 def test_exact_corners_give_the_exact_lens_of_every_coefficient(mode):
     """OpenCV's five-coefficient lens (synth preset stereo5: k3 = 0.238, p1 = 0.0018 on the left)

@@ -42,6 +42,7 @@ Two covariances of the unknowns (``kind``): ``formal``, the textbook ``N^-1 s0^2
 from __future__ import annotations
 
 from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -611,11 +612,6 @@ class Solution:
                 out[p.blocks[b][0], p.blocks[b][1]] = Pose(R, t)
         return out
 
-    @cached_property
-    def instant_rows(self) -> list[InstantRows]:
-        """:func:`instant_rows` at the solution."""
-        return instant_rows(self.problem, self.state)
-
     def held_out_squares(self) -> dict[str, dict[int, tuple[float, int]] | None]:
         """``{view: {camera: (px^2, corners)}}``: the sum of squares of each photo's residuals as the
         adjustment without its instant predicts them, the instant's own poses fitted to it again, and how
@@ -642,19 +638,11 @@ def linearised_at(problem: Problem, state: State) -> Solution:
     EstimationError
         Fewer observations than unknowns, or a singular normal matrix.
     """
-    redundancy = problem.n_observations - problem.n_parameters
-    if redundancy <= 0:
-        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
+    redundancy = _redundancy(problem)
     F, ne = linearise(problem, state)
-    try:
+    with _determined():
         factorization = ne.factor(0.0)
-    except np.linalg.LinAlgError:
-        raise EstimationError("the normal equations are singular: the photos do not determine every "
-                              "parameter (too few views, or views all alike)") from None
-    r = residuals(problem, state)
-    return Solution(problem, state, r, float(np.sqrt(F / redundancy)), redundancy, 0, False,
-                    "linearised, not adjusted", factorization,
-                    np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1)).tolist())
+    return _solution(problem, state, F, redundancy, 0, False, "linearised, not adjusted", factorization)
 
 
 def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> Solution:
@@ -666,17 +654,34 @@ def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> 
         Fewer observations than unknowns, or a singular normal matrix (the data do not determine
         the parameters).
     """
-    redundancy = problem.n_observations - problem.n_parameters
-    if redundancy <= 0:
-        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
-    try:
+    redundancy = _redundancy(problem)
+    with _determined():
         behind = corners_behind(problem, state)       # a poor start may have some: none may be added
         res = levenberg_marquardt(state, lambda s: linearise(problem, s), lambda s: cost(problem, s, behind),
                                   lambda s, h: s.updated(problem.layout, h), redundancy, options)
+    return _solution(problem, res.x, res.cost, redundancy, res.iterations, res.converged, res.termination,
+                     res.factorization)
+
+
+def _redundancy(problem: Problem) -> int:
+    redundancy = problem.n_observations - problem.n_parameters
+    if redundancy <= 0:
+        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
+    return redundancy
+
+
+@contextmanager
+def _determined():
+    """A singular normal matrix as the :class:`EstimationError` a user can act on."""
+    try:
+        yield
     except np.linalg.LinAlgError:
         raise EstimationError("the normal equations are singular: the photos do not determine every "
                               "parameter (too few views, or views all alike)") from None
-    r = residuals(problem, res.x)
-    block_rms = np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1))
-    return Solution(problem, res.x, r, float(np.sqrt(res.cost / redundancy)), redundancy, res.iterations,
-                    res.converged, res.termination, res.factorization, block_rms.tolist())
+
+
+def _solution(problem: Problem, state: State, F: float, redundancy: int, iterations: int, converged: bool,
+              termination: str, factorization: Factorization) -> Solution:
+    r = residuals(problem, state)
+    return Solution(problem, state, r, float(np.sqrt(F / redundancy)), redundancy, iterations, converged,
+                    termination, factorization, np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1)).tolist())

@@ -4,7 +4,8 @@ What a calibration (:mod:`dualcal.estimation.calibrate`), the comparison of lens
 (:mod:`dualcal.estimation.model_selection`) and the checks share: which photos can be used
 (:func:`usable_photos`), one adjustment of a rig from Zhang's closed form or from an earlier solution
 (:class:`Setup`, :func:`solve`), a calibration's corners adjusted again with another lens, skew or rig
-model (:func:`refit`), two cameras of a rig as a rig of their own (:func:`pair_solutions`), the fit and
+model (:func:`refit`; one camera alone, :func:`refit_alone`), two cameras of a rig as a rig of their own
+(:func:`pair_solutions`), the fit and
 the error on instants left out (:func:`fit_summary`, :func:`held_out_error`), and a solution packaged as
 the :class:`~dualcal.geometry.model.RigModel` that calib.json holds (:func:`rig_model_from_solution`).
 No outliers are looked for here and nothing is decided: that is the calibration's part.
