@@ -239,15 +239,16 @@ def _without_corners(setup: Setup, sol: Solution, blocks, bad, limit, dropped, d
     return out
 
 
-def board_shape_test(sol: Solution) -> dict:
+def board_shape_test(sol: Solution, one_step: bool = False) -> dict:
     """Whether the board's shape estimated in ``sol`` differs from flat beyond the photos' noise.
 
     Hotelling's test of the three shape coefficients against the covariance clustered by instant
     (so that noise correlated within photos does not pass for a bent board): with ``G`` instants,
     ``T2 = w^T Cov^-1 w`` is compared with ``p (G-1) / (G-p) F(p, G-p)`` at
     :data:`SHAPE_SIGNIFICANCE`. Returns ``{"t2", "limit", "significant", "coefficients_mm",
-    "sigma_mm"}``; with too few instants to judge (``G <= p + 1``) ``limit`` is None and the shape
-    is not significant. ``w`` and its covariance are those of the linearised minimum (``sol`` moved by its
+    "sigma_mm", "estimate"}`` (``estimate``: ``"adjusted"``, or ``"one-step"`` where ``sol`` is a flat board's
+    solution linearised with the shape free); with too few instants to judge (``G <= p + 1``) ``limit`` is
+    None and the shape is not significant. ``w`` and its covariance are those of the linearised minimum (``sol`` moved by its
     Gauss-Newton step): of the adjusted shape, or from a flat board's solution linearised with the shape
     free (:func:`dualcal.estimation.adjust.linearised_at`), the one-step estimate (Wald's test at the
     one-step estimator, which differs from the adjusted one's by terms of second order in the shape).
@@ -257,7 +258,8 @@ def board_shape_test(sol: Solution) -> dict:
     cov = sol.covariance(cols, "clustered")
     p, G = len(cols), len(sol.problem.views)
     doc = {"coefficients_mm": dict(zip(SHAPE_TERMS, map(float, w))),
-           "sigma_mm": dict(zip(SHAPE_TERMS, map(float, np.sqrt(np.maximum(np.diag(cov), 0.0)))))}
+           "sigma_mm": dict(zip(SHAPE_TERMS, map(float, np.sqrt(np.maximum(np.diag(cov), 0.0))))),
+           "estimate": "one-step" if one_step else "adjusted"}
     if G <= p + 1:
         return {**doc, "t2": None, "limit": None, "significant": False}
     t2 = float(w @ np.linalg.lstsq(cov, w, rcond=None)[0])
@@ -357,7 +359,7 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
     flat = sol
     shape_test = None
     if board_shape == "auto":            # the one-step estimate first: the full adjustment only near the limit
-        shape_test = board_shape_test(setup.linearised(sol, board_shape=True))
+        shape_test = board_shape_test(setup.linearised(sol, board_shape=True), one_step=True)
         if shape_test["limit"] is not None and shape_test["t2"] > SHAPE_FULL_TEST * shape_test["limit"]:
             shape_test = None
     if board_shape != "flat" and shape_test is None:
