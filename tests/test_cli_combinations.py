@@ -2,16 +2,17 @@
 
 Every combination of ``--rig`` (rigid, paper, none) x ``--skew`` (on, off) x ``--model`` (auto, one model for
 every camera, one per camera) x ``--board-shape`` (auto, flat, fit) x ``--keep-outliers`` (on, off), 108 in
-all, runs in-process (``dualcal.cli.main``) on the three shared real sets (their corners detected once per
-module), and ends either in exit code 0 with ``adjustment.converged`` true and the options it was given
+all, runs in-process (``dualcal.cli.main``) on each of the three shared real sets
+(``tests/test_real_data.py::test_every_combination_of_options_on_a_real_set``, on the corners that module
+detects once), and ends either in exit code 0 with ``adjustment.converged`` true and the options it was given
 recorded in calib.json, or in exit code 2 with one line on stderr (an input the combination cannot solve);
 never in exit code 1 (an internal error). On one camera the rig modes have no rig to tie: every one
 calibrates the camera alone.
 
-All 108 on each synthetic preset do not fit the suite's time (90 CPU-seconds for this module with the real
-sets): there a covering design runs, 13 combinations in which every pair of values of any two options occurs
-(:data:`ALL_PAIRS`), on ``note8`` (wide + tele), ``triple`` (a fisheye ultra-wide beside them) and
-``stereo5`` (OpenCV's five-coefficient lenses), one fixed seed each.
+All 108 on each synthetic preset do not fit the suite's time as well: here a covering design runs, 13
+combinations in which every pair of values of any two options occurs (:data:`ALL_PAIRS`), on ``note8``
+(wide + tele), ``triple`` (a fisheye ultra-wide beside them) and ``stereo5`` (OpenCV's five-coefficient
+lenses), one fixed seed each.
 """
 
 import itertools
@@ -21,14 +22,7 @@ from pathlib import Path
 import pytest
 
 from dualcal.files.io import save_corners
-from dualcal.geometry.board import Board
 from dualcal.synthetic.synth import make_truth, noisy_corner_set
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-#: set -> (folder, cameras as NAME=GLOB (none: the folder is one camera), board)
-REAL_SETS = {"stereo": ("opencv-samples-stereo", ["left=left*.jpg", "right=right*.jpg"], Board(9, 6, 25.0)),
-             "bouguet": ("bouguet-calib-example", ["cam=Image*.tif"], Board(12, 13, 30.0)),
-             "huawei": ("huawei-y5-2017", [], Board(7, 9, 30.0))}
 
 RIGS = ("rigid", "paper", "none")
 SKEWS = (False, True)
@@ -57,7 +51,7 @@ def _flags(names, rig, skew, model, shape, keep_outliers) -> list[str]:
     return flags
 
 
-def _run_every(run_cli, corners_path: Path, out: Path, names: list[str], combinations) -> dict[str, int]:
+def run_every(run_cli, corners_path: Path, out: Path, names: list[str], combinations) -> dict[str, int]:
     """Run each combination; return how many ended in exit 0 and in exit 2 (one line each)."""
     ends = {"solved": 0, "refused": 0}
     for rig, skew, model, shape, keep in combinations:
@@ -87,36 +81,9 @@ def _run_every(run_cli, corners_path: Path, out: Path, names: list[str], combina
     return ends
 
 
-@pytest.fixture(scope="module")
-def real_corners(tmp_path_factory):
-    """``set -> (corners.json, camera names)``: a set's corners, detected the first time a test asks for them
-    (once per module and process: a test run on several workers detects each set where it is used)."""
-    from dualcal.workflow import read_corners
-
-    folder, done = tmp_path_factory.mktemp("real-corners"), {}
-
-    def corners_of(name):
-        if name not in done:
-            sub, cameras, board = REAL_SETS[name]
-            if not (DATA / sub).is_dir():
-                pytest.skip(f"real data set {sub} is not present under {DATA}")
-            corners = read_corners(None if cameras else DATA / sub, board, progress=False,
-                                   cameras=[f"{c.split('=')[0]}={DATA / sub / c.split('=')[1]}" for c in cameras])
-            save_corners(folder / f"{name}.json", corners)
-            done[name] = (folder / f"{name}.json", sorted(corners.cameras))
-        return done[name]
-    return corners_of
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(REAL_SETS))
-def test_every_combination_of_options_on_a_real_set(name, real_corners, run_cli, tmp_path):
-    """All 108 combinations on one real set: each solved (exit 0, converged, its options recorded) or refused in
-    one line (exit 2); none ends in an internal error."""
-    path, names = real_corners(name)
-    ends = _run_every(run_cli, path, tmp_path / "calib.json", names,
-                      itertools.product(RIGS, SKEWS, MODELS, SHAPES, OUTLIERS))
-    assert ends["solved"] + ends["refused"] == 108
+def every_combination():
+    """All 108 combinations of the five options' values (the order of :func:`run_every`'s arguments)."""
+    return itertools.product(RIGS, SKEWS, MODELS, SHAPES, OUTLIERS)
 
 
 @pytest.mark.parametrize("preset", ["note8", "triple", "stereo5"])
@@ -125,7 +92,7 @@ def test_a_covering_design_of_options_on_a_synthetic_rig(preset, run_cli, tmp_pa
     refused in one line, none an internal error; on these rigs of two and three cameras every one is solved."""
     corners = noisy_corner_set(make_truth(preset, 8, seed=3), 0.2, seed=4)
     save_corners(tmp_path / "corners.json", corners)
-    ends = _run_every(run_cli, tmp_path / "corners.json", tmp_path / "calib.json", sorted(corners.cameras),
+    ends = run_every(run_cli, tmp_path / "corners.json", tmp_path / "calib.json", sorted(corners.cameras),
                       [tuple(levels[i] for levels, i in zip((RIGS, SKEWS, MODELS, SHAPES, OUTLIERS), row))
                        for row in ALL_PAIRS])
     assert ends == {"solved": len(ALL_PAIRS), "refused": 0}
