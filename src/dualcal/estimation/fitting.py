@@ -276,21 +276,29 @@ def fit_summary(sol: Solution) -> dict:
 
 
 def held_out_error(sol: Solution) -> dict:
-    """The error on instants the calibration did not see (:meth:`Solution.held_out_squares`):
+    """The error on instants the calibration did not see (:meth:`Solution.held_out_squares`), as
+    :func:`held_out_summary` gives it."""
+    names = sol.problem.cameras
+    return held_out_summary({view: None if photos is None else {names[c]: sq for c, sq in sorted(photos.items())}
+                             for view, photos in sol.held_out_squares().items()}, names)
+
+
+def held_out_summary(squares: dict[str, dict[str, tuple[float, int]] | None], names) -> dict:
+    """From each instant's held-out ``{camera: (px^2, corners)}`` (None: it cannot be left out):
     ``held_out_rms_px``, the RMS length of the 2-D held-out residual per corner over the instants
     that can be left out, ``held_out_per_instant`` ``{view: {"rms_px", "corners"}}`` and the same of
-    each camera's own corners, ``held_out_per_camera`` ``{camera: {view: {"rms_px", "corners"}}}``."""
-    per_instant, per_camera = {}, {name: {} for name in sol.problem.cameras}
-    for view, photos in sol.held_out_squares().items():
+    each camera of ``names``' own corners, ``held_out_per_camera`` ``{camera: {view: {"rms_px", "corners"}}}``."""
+    per_instant, per_camera = {}, {name: {} for name in names}
+    for view, photos in squares.items():
         if photos is None:
             continue
-        for c, (sq, n) in sorted(photos.items()):
-            per_camera[sol.problem.cameras[c]][view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
+        for name, (sq, n) in photos.items():
+            per_camera[name][view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
         sq, n = (sum(x) for x in zip(*photos.values()))
         per_instant[view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
-    squares = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
+    total = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
     corners = sum(d["corners"] for d in per_instant.values())
-    return {"held_out_rms_px": float(np.sqrt(squares / corners)) if corners else None,
+    return {"held_out_rms_px": float(np.sqrt(total / corners)) if corners else None,
             "held_out_per_instant": per_instant, "held_out_per_camera": per_camera}
 
 

@@ -46,7 +46,7 @@ import numpy as np
 from ..geometry.camera import DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraModel, image_corner_radius
 from ..errors import EstimationError
 from .adjust import Solution
-from .fitting import fit_summary, refit, refit_alone, usable_photos
+from .fitting import fit_summary, held_out_summary, refit, refit_alone, usable_photos
 from ..geometry.model import CornerSet, RigModel
 from ..geometry.zhang import closed_form_camera
 from ..progress import warn
@@ -304,21 +304,12 @@ def _camera_piece(sol: Solution, c: int) -> dict:
 
 def _joint_fit(pieces: dict[str, dict]) -> dict:
     """The fit of cameras alone, ``{camera: piece}`` (:func:`_camera_piece`), as
-    :func:`dualcal.estimation.fitting.fit_summary` gives that of one adjustment of them all."""
+    :func:`dualcal.estimation.fitting.fit_summary` gives that of one adjustment of them all (an instant that one
+    camera cannot do without is left out of all)."""
     views = sorted({v for p in pieces.values() for v in p["held_out"]})
-    per_instant, per_camera = {}, {n: {} for n in pieces}
-    for v in views:
-        parts = {n: p["held_out"][v] for n, p in pieces.items() if v in p["held_out"]}
-        if any(part is None for part in parts.values()):
-            continue
-        for n, (sq, k) in parts.items():
-            per_camera[n][v] = {"rms_px": float(np.sqrt(max(sq, 0.0) / k)), "corners": k}
-        sq, k = (sum(x) for x in zip(*parts.values()))
-        per_instant[v] = {"rms_px": float(np.sqrt(max(sq, 0.0) / k)), "corners": k}
-    squares = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
-    corners = sum(d["corners"] for d in per_instant.values())
+    squares = {v: None if any(p["held_out"].get(v, ()) is None for p in pieces.values()) else
+               {n: p["held_out"][v] for n, p in pieces.items() if v in p["held_out"]} for v in views}
     return {"rms_px": float(np.sqrt(sum(p["squares"] for p in pieces.values())
                                     / sum(p["corners"] for p in pieces.values()))),
             "camera_rms_px": {n: float(np.sqrt(p["squares"] / p["corners"])) for n, p in pieces.items()},
-            "held_out_rms_px": float(np.sqrt(squares / corners)) if corners else None,
-            "held_out_per_instant": per_instant, "held_out_per_camera": per_camera}
+            **held_out_summary(squares, list(pieces))}
