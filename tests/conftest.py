@@ -68,13 +68,14 @@ def every_calibration_converges(request, monkeypatch):
     solve not to converge says so with ``@pytest.mark.not_converged``."""
     if request.node.get_closest_marker("not_converged"):
         return
-    from dualcal.estimation import calibrate
+    from dualcal.estimation import calibrate, fitting
 
-    package = calibrate.rig_model_from_solution
+    package = fitting.rig_model_from_solution
 
     def checked(sol, *args, **kwargs):
         rig = package(sol, *args, **kwargs)
         assert rig.adjustment["converged"], f"a calibration did not converge: {rig.adjustment['termination']}"
         return rig
 
-    monkeypatch.setattr(calibrate, "rig_model_from_solution", checked)
+    for module in (calibrate, fitting):                 # a calibration, and a solution packaged alone
+        monkeypatch.setattr(module, "rig_model_from_solution", checked)

@@ -10,7 +10,7 @@ from scipy.optimize import least_squares
 
 from dualcal.estimation.adjust import Problem, cost, initial_state, instant_rows, linearise, residuals
 from dualcal.estimation.rig_relations import rig_relation
-from dualcal.estimation.calibrate import solve, usable_photos
+from dualcal.estimation.fitting import solve, usable_photos
 from dualcal.geometry.camera import CameraModel, project_points
 from dualcal.geometry.model import Pose, choose_reference
 from dualcal.geometry.poses import relative_pose
@@ -33,7 +33,7 @@ def _corners(preset, views, seed, noise, missing=0.3, absent=()):
 
 
 def _setup(corners, mode="rigid", skew=False):
-    """The arguments of :func:`dualcal.estimation.calibrate.solve` for ``corners``."""
+    """The arguments of :func:`dualcal.estimation.fitting.solve` for ``corners``."""
     names = sorted(corners.cameras)
     X = corners.board.object_points_mm()
     sizes = [corners.cameras[n].image_size for n in names]
@@ -121,6 +121,33 @@ def test_jacobian_rows_of_every_instant_match_central_differences(preset, mode, 
     assert F == pytest.approx(r @ r, rel=1e-12) and cost(problem, state) == pytest.approx(F, rel=1e-12)
 
 
+@pytest.mark.parametrize("preset,mode,absent,board_shape", PARTIAL_CASES[1:])
+def test_the_instants_leverage_from_the_normal_equations_is_that_of_their_rows(preset, mode, absent, board_shape):
+    """Each instant's CR2 shift of the globals and its held-out sums of squares per photo, found from the normal
+    equations kept photo by photo (:mod:`dualcal.estimation.uncertainty`), are those of its Jacobian rows: the
+    eigen-decomposition of its hat block ``H = J N^-1 J^T`` (the directions of leverage 1, its own poses, left
+    out of the score and kept in the held-out residuals ``(I - H)^-1 r``), ``r`` the residuals at the linearised
+    minimum (plus ``J`` times the remaining Gauss-Newton step)."""
+    truth, corners = _corners(preset, 9, seed=5, noise=0.2, absent=absent)
+    X, names, sizes, blocks, ref, skew, _ = _setup(corners, mode)
+    sol = solve(X, names, sizes, blocks, ref, skew, mode, board_shape=board_shape)
+    G, inverse = sol.problem.layout.n_global, sol.factorization.inverse_block
+    held, step = sol.held_out_squares(), sol.factorization.step()
+    for inst in instant_rows(sol.problem, sol.state):
+        r = inst.r + inst.J @ step[inst.columns]
+        Q, R = np.linalg.qr(inst.J)
+        lam, V = np.linalg.eigh(R @ inverse(inst.columns) @ R.T)
+        U, own = Q @ V, 1 - lam <= 1e-9
+        w = U @ (np.where(own, 0.0, 1 / np.sqrt(np.where(own, 1.0, 1 - lam))) * (U.T @ r))
+        both = inverse(np.concatenate([np.arange(G), inst.columns]))
+        np.testing.assert_allclose(sol.instant_shifts(np.arange(G))[inst.view], both[:G, G:] @ (inst.J.T @ w),
+                                   rtol=1e-6, atol=1e-9 * np.abs(both[:G, G:] @ (inst.J.T @ w)).max())
+        e = r + U @ (np.where(own, 0.0, lam / np.where(own, 1.0, 1 - lam)) * (U.T @ r))
+        for c, (squares, n) in held[inst.view].items():
+            mine = inst.row_cameras == c
+            assert 2 * n == mine.sum() and squares == pytest.approx(float(e[mine] @ e[mine]), rel=1e-7)
+
+
 def _relative_values(problem, state):
     """``[D, omega, phi, kappa]`` of every instant the reference and the other camera of a
     two-camera rig share, from each camera's own pose (mode ``none``): the quantities of the
@@ -146,7 +173,7 @@ def test_the_paper_parametrisation_solves_the_constrained_form():
     p = sol.problem
     free = Problem(*args[:4], mode="none", reference=args[4])
     cams = [sol.state.camera(p, c) for c in range(2)]
-    poses = [{v: sol.state.photo_pose(p, c, p.view_index[v]) for cc, v, _ in p.blocks if cc == c} for c in range(2)]
+    poses = [{v: sol.photo_poses[c, v] for cc, v, _ in p.blocks if cc == c} for c in range(2)]
     x = initial_state(free, cams, poses)
     F, ne = linearise(free, x)
     assert F == pytest.approx(sol.s0_px ** 2 * sol.redundancy, rel=1e-12)

@@ -6,7 +6,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dualcal.estimation.calibrate import calibrate_rig, solve, usable_photos
+from dualcal.estimation.calibrate import calibrate_rig
+from dualcal.estimation.fitting import solve, usable_photos
 from dualcal.geometry.camera import project_points
 from dualcal.estimation.checks import failed_checks, lens_model_fit, verdict
 from dualcal.geometry.model import CameraCorners, CornerSet, Pose

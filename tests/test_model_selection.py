@@ -143,3 +143,33 @@ def test_an_instant_one_model_cannot_predict_is_left_out_of_every_score_and_said
     assert len(warnings) == 1 and "3 instants" in warnings[0] and "D (k1k2k3)" in warnings[0]
     by_model = {s.model: s for s in scores}
     assert by_model["k1k2"].held_out_rms_px == pytest.approx(np.sqrt((0.04 + 0.09 + 0.0625) / 3))   # A, B, C only
+
+
+def test_models_compared_camera_by_camera_are_those_of_one_adjustment_of_every_camera_alone():
+    """With a flat board no camera's fit depends on another's: the comparison's one-camera adjustments, put
+    together (a fisheye ultra-wide's radial models from Zhang's closed form, the others from their nested
+    models' solutions), give every camera's fit and held-out errors as one adjustment of every camera alone
+    per model gives them (how each model was refitted before issue 32), to the comparison's tolerance, and
+    the same scores and choice."""
+    from dualcal.estimation.calibrate import _calibrate_distinct
+    from dualcal.estimation.model_selection import _camera_fits, _refits, preferred_lens_models
+    from dualcal.geometry.camera import LENS_MODELS
+
+    corners = noisy_corner_set(make_truth("triple", 10, seed=2), 0.2, seed=3)
+    candidates, preferred = preferred_lens_models(corners, False)
+    assert preferred["ultra"] == "kb4"
+    base, alone = _calibrate_distinct(corners, False, "rigid", None, True, 6.0, "flat", preferred)
+    mappings = {m: {n: m if m in candidates[n] else preferred[n] for n in candidates} for m in LENS_MODELS}
+    apart, joint = _camera_fits(base, candidates, preferred, mappings, alone), _refits(base, mappings, "none")
+    assert set(apart) == set(joint) == set(LENS_MODELS)
+    for m in mappings:
+        for n in candidates:
+            assert apart[m]["camera_rms_px"][n] == pytest.approx(joint[m]["camera_rms_px"][n], rel=1e-4), (m, n)
+            a, j = apart[m]["held_out_per_camera"][n], joint[m]["held_out_per_camera"][n]
+            assert set(a) == set(j)
+            assert all(a[v]["rms_px"] == pytest.approx(j[v]["rms_px"], rel=5e-3) for v in a), (m, n)
+    for n in candidates:
+        ours = score_lens_models({m: f for m, f in apart.items() if m in candidates[n]}, n, first=preferred[n])
+        theirs = score_lens_models({m: f for m, f in joint.items() if m in candidates[n]}, n, first=preferred[n])
+        assert [s.recommended for s in ours] == [s.recommended for s in theirs]
+        assert np.allclose([s.worse_se for s in ours], [s.worse_se for s in theirs], atol=0.02), n

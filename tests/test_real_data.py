@@ -227,3 +227,18 @@ def test_distinct_real_instants_are_never_merged_as_duplicates(fixture, request)
     for c in copied.cameras.values():
         c.views[f"{key}-copy"] = c.views.get(key)
     assert [(r["kept"], r["merged"]) for r in find_duplicate_instants(copied)] == [(key, [f"{key}-copy"])]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fixture", ["stereo_corners", "bouguet_corners", "huawei_corners"])
+def test_every_combination_of_options_on_a_real_set(fixture, request, run_cli, tmp_path):
+    """Issue 33: all 108 combinations of --rig, --skew, --model, --board-shape and --keep-outliers
+    (tests/test_cli_combinations.py) on one real set, on this module's corners: each solved (exit 0, converged,
+    its options recorded in calib.json) or refused in one line (exit 2); none ends in an internal error."""
+    from test_cli_combinations import every_combination, run_every
+
+    corners = request.getfixturevalue(fixture)
+    save_corners(tmp_path / "corners.json", corners)
+    ends = run_every(run_cli, tmp_path / "corners.json", tmp_path / "calib.json", sorted(corners.cameras),
+                     every_combination())
+    assert ends["solved"] + ends["refused"] == 108

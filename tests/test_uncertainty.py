@@ -1,14 +1,15 @@
-"""The clustered (CR2) covariance on linear models with known truth.
+"""The clustered (CR2) covariance and the held-out errors on linear models with known truth.
 
 A linear model with clusters like a calibration's instants: global parameters shared by every
-cluster (like the intrinsics) and one local parameter per cluster (like its board pose).
+cluster (like the intrinsics) and one local parameter per cluster (like its board pose), given to
+:mod:`dualcal.estimation.uncertainty` as a calibration gives it: normal equations kept cluster by cluster.
 """
 
 import numpy as np
 import pytest
 
-from dualcal.estimation.uncertainty import (ClusterRows, cluster_scores, clustered_covariance, held_out_residuals,
-                                            leverage_adjusted_residuals)
+from dualcal.estimation.normal_equations import Factorization, NormalEquations, PhotoNormals
+from dualcal.estimation.uncertainty import held_out_squares, instant_leverage
 
 G, M, P = 10, 30, 3          # clusters, rows per cluster, global parameters
 
@@ -19,7 +20,8 @@ def _design(rng):
 
 
 def _fit(X_blocks, y_blocks):
-    """Least squares of the whole problem; returns the estimate, N^-1, clusters and s0^2."""
+    """Least squares of the whole problem: the estimate, ``N^-1``, ``s0^2`` and the factorization of
+    its normal equations kept cluster by cluster (each cluster one photo)."""
     n = P + G
     J = np.zeros((G * M, n))
     for c, Xc in enumerate(X_blocks):
@@ -28,10 +30,14 @@ def _fit(X_blocks, y_blocks):
     y = np.concatenate(y_blocks)
     N_inv = np.linalg.inv(J.T @ J)
     beta = N_inv @ J.T @ y
-    r = J @ beta - y
-    clusters = [ClusterRows(np.r_[np.arange(P), P + c], J[c * M:(c + 1) * M][:, np.r_[np.arange(P), P + c]],
-                            r[c * M:(c + 1) * M]) for c in range(G)]
-    return beta, N_inv, clusters, float(r @ r) / (len(y) - n)
+    r = (J @ beta - y).reshape(G, M)                        # predicted - observed, as the adjustment's
+    X = np.array(X_blocks)
+    gg, gl, ll = X.transpose(0, 2, 1) @ X, X.sum(axis=1)[:, :, None], np.full((G, 1, 1), float(M))
+    grad_g, grad_l = np.einsum("cmp,cm->cp", X, r), r.sum(axis=1)[:, None]
+    photo = PhotoNormals(0, np.arange(G), np.arange(G), np.arange(P), np.array([0]), gg, gl, ll, grad_g, grad_l,
+                         np.sum(r ** 2, axis=1), np.full(G, M))
+    ne = NormalEquations(gg, gl, ll, grad_g, grad_l, np.ones((G, 1), bool), photos=[photo])
+    return beta, N_inv, Factorization(ne, 0.0), float(np.sum(r ** 2)) / (len(y) - n)
 
 
 def _draws(correlated: bool, n_draws: int, seed: int):
@@ -46,11 +52,11 @@ def _draws(correlated: bool, n_draws: int, seed: int):
             if correlated:                    # a per-cluster error along the regressors (like a bent board)
                 e = e + Xc @ rng.normal(0.0, 0.2, P)
             y_blocks.append(Xc @ truth + rng.normal() + e)
-        beta, N_inv, clusters, s0sq = _fit(X_blocks, y_blocks)
+        beta, N_inv, factorization, s0sq = _fit(X_blocks, y_blocks)
+        shifts = instant_leverage(factorization).shifts
         est.append(beta[:P] - truth)
         var_formal.append(np.diag(N_inv)[:P] * s0sq)
-        block = lambda cols: N_inv[np.ix_(cols, cols)]          # noqa: E731
-        var_cr2.append(np.diag(clustered_covariance(cluster_scores(clusters, block), block, np.arange(P))))
+        var_cr2.append(np.sum(shifts ** 2, axis=1))
     return np.array(est), np.array(var_formal), np.array(var_cr2)
 
 
@@ -72,41 +78,62 @@ def test_cr2_stays_honest_where_the_textbook_sigma_does_not():
     assert np.all(z_formal > 1.8), z_formal
 
 
-def test_self_determined_directions_are_projected_out():
-    """A cluster that alone determines a parameter (leverage 1 there) gives no score along it."""
-    rng = np.random.default_rng(3)
-    x = rng.normal(size=5)
-    J = np.column_stack([np.ones(5), x - x.mean()])
-    M = np.diag([1 / 5.0, 0.01])                      # the intercept's leverage is 1
-    r = rng.normal(size=5)
-    r -= r.mean()                                      # optimum: no residual along the intercept
-    adj = leverage_adjusted_residuals(J, r, M)
-    assert np.all(np.isfinite(adj))
-    assert abs(adj.sum()) < 1e-9
-    with pytest.raises(ValueError):
-        leverage_adjusted_residuals(J, r[:4], M)
+def _sandwich_of_rows(X_blocks, y_blocks, beta, N_inv, c):
+    """Cluster ``c``'s CR2 shift of the globals from its rows: ``N^-1 J_c^T (I - H_cc)^-1/2 r_c``, the
+    directions it determines alone (leverage 1) left out."""
+    cols = np.r_[np.arange(P), P + c]
+    Jc = np.column_stack([X_blocks[c], np.ones(M)])
+    rc = Jc @ beta[cols] - y_blocks[c]
+    lam, U = np.linalg.eigh(Jc @ N_inv[np.ix_(cols, cols)] @ Jc.T)
+    f = np.where(1 - lam > 1e-9, 1 / np.sqrt(np.maximum(1 - lam, 1e-300)), 0.0)
+    return (N_inv[:, cols] @ (Jc.T @ (U @ (f * (U.T @ rc)))))[:P]
 
 
-def test_held_out_residuals_are_those_of_the_fit_without_the_cluster():
-    """Linear model: ``(I - H)^-1 r`` is exactly the residual of a cluster predicted by the fit of the
-    others, its own intercept fitted to it again; a cluster without which the others cannot
-    determine a parameter has none."""
+def test_cr2_equals_the_sandwich_of_the_rows():
+    """The shifts from the normal equations are those of the rows (:func:`_sandwich_of_rows`)."""
+    rng = np.random.default_rng(5)
+    X_blocks = _design(rng)
+    y_blocks = [Xc @ np.array([1.0, -2.0, 0.5]) + rng.normal() + rng.normal(0, 0.3, M) for Xc in X_blocks]
+    beta, N_inv, factorization, _ = _fit(X_blocks, y_blocks)
+    shifts = instant_leverage(factorization).shifts
+    for c in (0, 4):
+        np.testing.assert_allclose(shifts[:, c], _sandwich_of_rows(X_blocks, y_blocks, beta, N_inv, c), rtol=1e-9,
+                                   atol=1e-12)
+
+
+def test_held_out_errors_are_those_of_the_fit_without_the_cluster():
+    """Linear model: the globals without a cluster and the cluster's sum of squares as that fit predicts it,
+    its own intercept fitted to it again, are exactly those of the fit of the others."""
     rng = np.random.default_rng(4)
     X_blocks = _design(rng)
     y_blocks = [Xc @ np.array([1.0, -2.0, 0.5]) + rng.normal() + rng.normal(0, 0.3, M) for Xc in X_blocks]
-    _, N_inv, clusters, _ = _fit(X_blocks, y_blocks)
-    block = lambda cols: N_inv[np.ix_(cols, cols)]          # noqa: E731
+    beta, _, factorization, _ = _fit(X_blocks, y_blocks)
+    held = instant_leverage(factorization).held_out
+    (_, blocks, squares), = held_out_squares(factorization, held)
     for c in (0, 7):
         others = [i for i in range(G) if i != c]
         J = np.zeros(((G - 1) * M, P + G - 1))
         for k, i in enumerate(others):
             J[k * M:(k + 1) * M, :P] = X_blocks[i]
             J[k * M:(k + 1) * M, P + k] = 1.0
-        beta = np.linalg.lstsq(J, np.concatenate([y_blocks[i] for i in others]), rcond=None)[0]
-        pred = X_blocks[c] @ beta[:P]
+        beta_c = np.linalg.lstsq(J, np.concatenate([y_blocks[i] for i in others]), rcond=None)[0]
+        pred = X_blocks[c] @ beta_c[:P]
         expected = pred - np.mean(pred - y_blocks[c]) - y_blocks[c]        # its intercept refitted
-        cl = clusters[c]
-        np.testing.assert_allclose(held_out_residuals(cl.J, cl.r, block(cl.columns), 1), expected, atol=1e-10)
-    J = np.column_stack([np.ones(5), np.arange(5.0)])       # the only cluster to see the slope
-    r = rng.normal(size=5)
-    assert held_out_residuals(J, r - r.mean(), np.linalg.inv(J.T @ J), 1) is None
+        np.testing.assert_allclose(held[c], beta_c[:P] - beta[:P], rtol=1e-9, atol=1e-12)
+        assert squares[list(blocks).index(c)] == pytest.approx(np.sum(expected ** 2), rel=1e-9)
+
+
+def test_a_parameter_one_cluster_alone_determines():
+    """A global that one cluster alone sees: that cluster cannot be left out (NaN), and its CR2 shift leaves
+    the direction it determines alone out, as the rows' sandwich does."""
+    rng = np.random.default_rng(3)
+    X_blocks = _design(rng)
+    for Xc in X_blocks[1:]:
+        Xc[:, 2] = 0.0                                 # the third regressor: in cluster 0 alone
+    y_blocks = [Xc @ np.array([1.0, -2.0, 0.5]) + rng.normal() + rng.normal(0, 0.3, M) for Xc in X_blocks]
+    beta, N_inv, factorization, _ = _fit(X_blocks, y_blocks)
+    lev = instant_leverage(factorization)
+    assert np.all(np.isnan(lev.held_out[0])) and np.all(np.isfinite(lev.held_out[1:]))
+    for c in (0, 1):
+        np.testing.assert_allclose(lev.shifts[:, c], _sandwich_of_rows(X_blocks, y_blocks, beta, N_inv, c),
+                                   rtol=1e-6, atol=1e-9 * np.abs(lev.shifts).max())

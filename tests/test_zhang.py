@@ -201,13 +201,12 @@ def test_a_pose_with_corners_behind_the_camera_is_replaced_by_resection(monkeypa
     truth = make_truth("note8", 5, seed=15)
     cam, xy, views = _pinhole_views(truth, "wide")
     from dualcal.geometry import zhang
-    original = zhang.extrinsics_from_homography
+    original = zhang.extrinsics_from_homographies
 
-    def mirrored_first(K, H, calls=[]):
-        calls.append(1)
-        pose = original(K, H)
-        return Pose(pose.R, -pose.t_mm) if len(calls) == 1 else pose
-    monkeypatch.setattr("dualcal.geometry.zhang.extrinsics_from_homography", mirrored_first)
+    def mirrored_first(K, Hs):
+        first, *rest = original(K, Hs)
+        return [Pose(first.R, -first.t_mm), *rest]
+    monkeypatch.setattr("dualcal.geometry.zhang.extrinsics_from_homographies", mirrored_first)
     _, poses = initial_camera(xy, views, cam.image_size)
     np.testing.assert_allclose(poses["IMG_01"].t_mm, truth.camera_pose("wide", "IMG_01").t_mm, atol=1e-6)
 

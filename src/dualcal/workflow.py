@@ -167,7 +167,7 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
     ``reference``, ``drop_outliers``, ``outlier_factor``, ``board_shape``); corners from clips whose clocks
     could not all be matched (:mod:`dualcal.files.video`) are calibrated with every lens alone. ``model`` is as
     there, but ``"auto"`` by default, as for the commands: each camera's lens model chosen by its held-out instants
-    (:func:`dualcal.estimation.model_selection.calibrate_auto`, which records its comparison). With one lens model
+    (:func:`dualcal.estimation.model_selection.choose_lens_models`, recorded in the calibration). With one lens model
     for every camera and ``compare_lens``, every other model is scored on instants left out of the
     calibration (:func:`dualcal.estimation.model_selection.compare_lens_models`) and the scores are recorded in
     ``rig.adjustment["lens_models"]`` (calib.json); a comparison that cannot be made is a warning.
@@ -217,8 +217,8 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
 def other_skew_model(rig: RigModel) -> RigModel:
     """``rig`` with the other skew model (the paper's Model 2 beside Model 1, or back), to show them side by
     side: the same corners, lens models, rig mode and board shape, adjusted from ``rig``'s values
-    (:func:`dualcal.estimation.calibrate.refit`), with its sigmas and no checks of its own."""
-    from .estimation.calibrate import refit, rig_model_from_solution
+    (:func:`dualcal.estimation.fitting.refit`), with its sigmas and no checks of its own."""
+    from .estimation.fitting import refit, rig_model_from_solution
 
     return rig_model_from_solution(refit(rig, skew=not rig.skew), rig.corners, rig.dropped_views, rig.dropped_corners)
 

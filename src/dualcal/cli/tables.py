@@ -143,7 +143,7 @@ def lens_model_advice(scores, used: str) -> str:
 
 def lens_model_choice_table(adjustment: dict) -> Table:
     """Each camera's lens models by their held-out RMS (px) and how many standard errors worse than
-    that camera's best (:func:`dualcal.estimation.model_selection.calibrate_auto`: ``adjustment["lens_models"]``),
+    that camera's best (:func:`dualcal.estimation.model_selection.choose_lens_models`: ``adjustment["lens_models"]``),
     the one chosen marked; ``-`` where a model is no candidate of the camera."""
     from ..estimation.model_selection import lens_model_grid
 

@@ -42,6 +42,7 @@ Two covariances of the unknowns (``kind``): ``formal``, the textbook ``N^-1 s0^2
 from __future__ import annotations
 
 from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -53,9 +54,9 @@ from ..geometry.camera import (DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS,
 from ..errors import EstimationError, InputError
 from .lm import LMOptions, levenberg_marquardt
 from ..geometry.model import Pose, mean_pose, observed_mask
-from .normal_equations import Factorization, NormalEquations
+from .normal_equations import Factorization, NormalEquations, PhotoNormals
 from ..geometry.poses import moved_on_sphere, relative_pose, rotated, tangent_basis
-from .uncertainty import cluster_scores, cluster_shifts, clustered_covariance, held_out_residuals
+from .uncertainty import InstantLeverage, held_out_squares, instant_leverage
 
 RIG_MODES = ("rigid", "paper", "none")
 COVARIANCE_KINDS = ("clustered", "formal")
@@ -260,13 +261,13 @@ class State:
             return np.broadcast_to(self.rig_t[c], (len(views), 3))
         return self.baseline_mm[c] * self.direction[views, c]
 
-    def photo_pose(self, problem: Problem, c: int, view: int) -> Pose:
-        """Board-to-camera ``c`` pose in instant ``view``."""
+    def photo_poses(self, problem: Problem, c: int, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Board-to-camera ``c`` poses in the instants ``views`` (B,): ``R`` (B, 3, 3), ``t`` (B, 3) mm."""
         k = problem.pose_slot(c)
-        pose = Pose(self.pose_R[view, k].copy(), self.pose_t[view, k].copy())
+        R, t = self.pose_R[views, k], self.pose_t[views, k]
         if not problem.tied(c):
-            return pose
-        return Pose(self.rig_R[c], self.relative_t(problem, c, np.array([view]))[0]).compose(pose)
+            return R.copy(), t.copy()
+        return self.rig_R[c] @ R, t @ self.rig_R[c].T + self.relative_t(problem, c, views)
 
 
 def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict[str, Pose]],
@@ -324,7 +325,7 @@ def _camera_points(problem: Problem, state: State, batch: CameraBatch):
     translation (B, 3) (None for an untied camera)."""
     k = problem.pose_slot(batch.camera)
     X = shaped_points_mm(problem.X_board, state.board_shape_mm) if problem.board_shape else problem.X_board
-    W = np.einsum("bij,nj->bni", state.pose_R[batch.views, k], X)
+    W = X @ np.swapaxes(state.pose_R[batch.views, k], 1, 2)                                  # (B, N, 3)
     Y = W + state.pose_t[batch.views, k][:, None, :]
     if not problem.tied(batch.camera):
         return W, Y, None
@@ -363,51 +364,75 @@ def residuals(problem: Problem, state: State) -> np.ndarray:
     return out
 
 
-def _jacobian_pieces(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, J_X, J_K):
-    """d residual / d unknowns of one camera's photos, as ``(columns, (B, N, 2, k))`` pieces:
-    a list of global pieces (columns in the flat vector) and one of local ones (slots)."""
+def _cross(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``a x b`` along the last axis, written into ``out`` (numpy's ``cross`` moves axes and copies)."""
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def _columns(problem: Problem, c: int) -> tuple[np.ndarray, np.ndarray]:
+    """The global columns and the local slots that camera ``c``'s photos touch, in the order of
+    :func:`_jacobian`."""
+    lay = problem.layout
+    glob = [lay.intrinsics[c]]
+    loc = [lay.pose[problem.pose_slot(c)]]
+    if problem.tied(c):
+        glob += [lay.rig_rotation[c], lay.rig_translation[c] if problem.mode == "rigid" else lay.baseline[c]]
+        if problem.mode == "paper":
+            loc.append(lay.direction[c])
+    return np.concatenate(glob + [lay.board_shape]), np.concatenate(loc)
+
+
+def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, J_X, J_K, n_global: int):
+    """d residual / d unknowns of one camera's photos, (B, N, 2, k): the global columns of
+    :func:`_columns` (the first ``n_global``), then its local slots; the rows of unmeasured corners zero."""
     lay, c = problem.layout, batch.camera
-    glob = [(lay.intrinsics[c], J_K[..., lay.free_intrinsics[c]])]
-    loc = []
+    J = np.empty(J_X.shape[:3] + (n_global + len(_columns(problem, c)[1]),))
+    k = int(lay.free_intrinsics[c].sum())
+    J[..., :k] = J_K[..., lay.free_intrinsics[c]]
     M = J_X                                                              # d res / d (R_v X + t_v)
     if problem.tied(c):
         M = J_X @ state.rig_R[c]
-        glob.append((lay.rig_rotation[c], -np.cross(J_X, (Xc - rel_t[:, None, :])[:, :, None, :])))
+        _cross((Xc - rel_t[:, None, :])[:, :, None, :], J_X, J[..., k:k + 3])          # -J_X [p]x
+        k += 3
         if problem.mode == "rigid":
-            glob.append((lay.rig_translation[c], J_X))
+            J[..., k:k + 3] = J_X
+            k += 3
         else:
             u = state.direction[batch.views, c]
-            glob.append((lay.baseline[c], np.einsum("bnij,bj->bni", J_X, u)[..., None]))
-            free = lay.local_used[batch.views][:, lay.direction[c][0]]
-            d_dir = state.baseline_mm[c] * np.einsum("bnij,bjk->bnik", J_X, tangent_basis(u))
-            loc.append((lay.direction[c], d_dir * free[:, None, None, None]))
-    loc.insert(0, (lay.pose[problem.pose_slot(c)], np.concatenate([-np.cross(M, W[:, :, None, :]), M], axis=-1)))
+            J[..., k] = (J_X @ u[:, None, :, None])[..., 0]
+            k += 1
     if problem.board_shape:       # d X_board / d w = basis e_z, seen through R_v: its third column
         normal = state.pose_R[batch.views, problem.pose_slot(c)][:, :, 2]                # (B, 3)
-        along = np.einsum("bnij,bj->bni", M, normal)                                      # (B, N, 2)
-        glob.append((lay.board_shape, along[..., None] * problem.shape_basis[None, :, None, :]))
-    return glob, loc
+        along = (M @ normal[:, None, :, None])[..., 0]                                     # (B, N, 2)
+        J[..., k:k + 3] = along[..., None] * problem.shape_basis[None, :, None, :]
+        k += 3
+    _cross(W[:, :, None, :], M, J[..., k:k + 3])                                          # -M [W]x
+    J[..., k + 3:k + 6] = M
+    k += 6
+    if problem.mode == "paper" and problem.tied(c):
+        u = state.direction[batch.views, c]
+        free = lay.local_used[batch.views][:, lay.direction[c][0]]
+        J[..., k:k + 2] = (state.baseline_mm[c] * free)[:, None, None, None] * (J_X @ tangent_basis(u)[:, None])
+    J[~batch.observed] = 0.0
+    return J
 
 
 def _linearised_batches(problem: Problem, state: State):
-    """Per camera: ``(batch, r (B, 2N), J_g (B, 2N, k_g), global columns, J_l (B, 2N, k_l), local
-    slots)``, with the rows of unmeasured corners zero."""
+    """Per camera: ``(batch, r (B, 2N), J (B, 2N, k_g + k_l), global columns (k_g,), local slots (k_l,))``,
+    the Jacobian's global columns first; the rows of unmeasured corners zero."""
     for batch in problem.batches:
         W, Xc, rel_t = _camera_points(problem, state, batch)
         B, n = batch.observed.shape
         with np.errstate(divide="ignore", invalid="ignore"):      # unmeasured corners may sit anywhere
             uv, J_X, J_K = project_with_jacobians(state.camera(problem, batch.camera), Xc.reshape(-1, 3))
-        obs = batch.observed[:, :, None]
-        r = np.where(obs, uv.reshape(B, n, 2) - batch.uv_px, 0.0).reshape(B, 2 * n)
-        glob, loc = _jacobian_pieces(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3),
-                                     J_K.reshape(B, n, 2, -1))
-
-        def stacked(pieces):
-            J = np.concatenate([p for _, p in pieces], axis=-1)
-            return np.where(obs[..., None], J, 0.0).reshape(B, 2 * n, -1), np.concatenate([cols for cols, _ in pieces])
-        J_g, cols_g = stacked(glob)
-        J_l, slots_l = stacked(loc)
-        yield batch, r, J_g, cols_g, J_l, slots_l
+        r = np.where(batch.observed[:, :, None], uv.reshape(B, n, 2) - batch.uv_px, 0.0).reshape(B, 2 * n)
+        cols_g, slots_l = _columns(problem, batch.camera)
+        J = _jacobian(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3), J_K.reshape(B, n, 2, -1),
+                      len(cols_g)).reshape(B, 2 * n, -1)
+        yield batch, r, J, cols_g, slots_l
 
 
 def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
@@ -415,16 +440,22 @@ def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
     lay = problem.layout
     ne = NormalEquations.zeros(lay.n_global, lay.local_used)
     total = 0.0
-    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
-        total += float(np.sum(r * r))
+    for batch, r, J, cg, sl in _linearised_batches(problem, state):
+        squares = np.sum(r * r, axis=1)
+        total += float(squares.sum())
         v = batch.views[:, None, None]              # one photo per instant in a camera: no index repeats
-        J_gT, J_lT = np.swapaxes(J_g, 1, 2), np.swapaxes(J_l, 1, 2)
-        ne.gg[v, cg[:, None], cg[None, :]] += J_gT @ J_g
-        ne.gl[v, cg[:, None], sl[None, :]] += J_gT @ J_l
-        ne.ll[v, sl[:, None], sl[None, :]] += J_lT @ J_l
-        g_g, g_l = np.einsum("bki,bk->bi", J_g, r), np.einsum("bki,bk->bi", J_l, r)
+        kg = len(cg)
+        JtJ = np.swapaxes(J, 1, 2) @ J
+        gg, gl, ll = JtJ[:, :kg, :kg], JtJ[:, :kg, kg:], JtJ[:, kg:, kg:]
+        grad = (r[:, None, :] @ J)[:, 0]
+        g_g, g_l = grad[:, :kg], grad[:, kg:]
+        ne.gg[v, cg[:, None], cg[None, :]] += gg
+        ne.gl[v, cg[:, None], sl[None, :]] += gl
+        ne.ll[v, sl[:, None], sl[None, :]] += ll
         ne.grad_g[batch.views[:, None], cg] += g_g
         ne.grad_l[batch.views[:, None], sl] += g_l
+        ne.photos.append(PhotoNormals(batch.camera, batch.blocks, batch.views, cg, sl, gg, gl, ll, g_g, g_l, squares,
+                                      batch.observed.sum(axis=1)))
         if problem.mode == "paper" and problem.tied(batch.camera):
             _add_sphere_curvature(problem, state, ne, batch, g_g[:, cg == lay.baseline[batch.camera][0]][:, 0],
                                   g_l[:, np.isin(sl, lay.direction[batch.camera])])
@@ -468,12 +499,12 @@ def photo_rows(problem: Problem, state: State) -> list[PhotoRows]:
     """The Jacobian rows of every photo's measured corners, in the order of ``problem.blocks``."""
     lay = problem.layout
     out = []
-    for batch, r, J_g, cg, J_l, sl in _linearised_batches(problem, state):
+    for batch, r, J, cg, sl in _linearised_batches(problem, state):
         rows = np.repeat(batch.observed, 2, axis=1)
         for i, (b, v) in enumerate(zip(batch.blocks, batch.views)):
-            used = lay.local_used[v, sl]
-            J = np.concatenate([J_g[i], J_l[i][:, used]], axis=1)[rows[i]]
-            out.append(PhotoRows(int(b), np.concatenate([cg, lay.local_columns(v, sl[used])]), J, r[i][rows[i]]))
+            used = np.concatenate([np.ones(len(cg), bool), lay.local_used[v, sl]])
+            out.append(PhotoRows(int(b), np.concatenate([cg, lay.local_columns(v, sl[used[len(cg):]])]),
+                                 J[i][rows[i]][:, used], r[i][rows[i]]))
     return sorted(out, key=lambda pr: pr.block)
 
 
@@ -539,17 +570,28 @@ class Solution:
             return self.s0_px ** 2 * self.factorization.inverse_block(columns)
         if kind != "clustered":
             raise ValueError(f"covariance kind {kind!r} is not one of {COVARIANCE_KINDS}")
-        return clustered_covariance(self._cluster_scores, self.factorization.inverse_block, columns)
+        shifts = self._shifts(columns)
+        return shifts @ shifts.T
 
     def instant_shifts(self, columns) -> dict[str, np.ndarray]:
         """``{view: (k,)}``: each instant's shift of the flat parameters ``columns`` (its adjusted score
         through ``N^-1``), whose outer products sum to the ``clustered`` covariance."""
-        shifts = cluster_shifts(self._cluster_scores, self.factorization.inverse_block, columns)
-        return {rows.view: shifts[:, i] for i, rows in enumerate(self.instant_rows)}
+        return dict(zip(self.problem.views, self._shifts(columns).T))
+
+    def _shifts(self, columns) -> np.ndarray:
+        """(k, V): every instant's shift of the flat parameters ``columns`` (:func:`dualcal.estimation.uncertainty.instant_leverage`)."""
+        return self.factorization.global_combination(columns) @ self._leverage.shifts
 
     @cached_property
-    def _cluster_scores(self):
-        return cluster_scores(self.instant_rows, self.factorization.inverse_block)
+    def _at_minimum(self) -> NormalEquations:
+        """The normal equations with the gradients of the linearised minimum: the residuals plus the Jacobian
+        times the remaining Gauss-Newton step, so that where within its tolerance the solver stopped does not
+        move the sigmas and the held-out errors to first order."""
+        return self.factorization.ne.moved(self.factorization.step())
+
+    @cached_property
+    def _leverage(self) -> InstantLeverage:
+        return instant_leverage(self.factorization, self._at_minimum)
 
     def intrinsic_sigma(self, c: int, kind: str = "formal") -> dict[str, float]:
         """1-sigma of every intrinsic of camera ``c`` (0 for a fixed one), of covariance ``kind``."""
@@ -562,19 +604,45 @@ class Solution:
         return sig
 
     @cached_property
-    def instant_rows(self) -> list[InstantRows]:
-        """:func:`instant_rows` at the solution (for a covariance clustered by instant; ``N^-1``
-        on any columns from :meth:`covariance` over ``s0^2``)."""
-        return instant_rows(self.problem, self.state)
+    def photo_poses(self) -> dict[tuple[int, str], Pose]:
+        """The board-to-camera pose of every photo, ``{(camera, view): Pose}``."""
+        p, out = self.problem, {}
+        for batch in p.batches:
+            for b, R, t in zip(batch.blocks, *self.state.photo_poses(p, batch.camera, batch.views)):
+                out[p.blocks[b][0], p.blocks[b][1]] = Pose(R, t)
+        return out
 
-    def held_out_residuals(self) -> dict[str, np.ndarray | None]:
-        """Every instant's residuals (px, as :class:`InstantRows`) predicted by the adjustment
-        without it, its own poses fitted to it again: a linearised leave-one-instant-out
-        (:func:`dualcal.estimation.uncertainty.held_out_residuals`); None for an instant the others cannot
-        do without (the only one to show some parameter)."""
-        G, inverse = self.problem.layout.n_global, self.factorization.inverse_block
-        return {ir.view: held_out_residuals(ir.J, ir.r, inverse(ir.columns), int(np.sum(ir.columns >= G)))
-                for ir in self.instant_rows}
+    def held_out_squares(self) -> dict[str, dict[int, tuple[float, int]] | None]:
+        """``{view: {camera: (px^2, corners)}}``: the sum of squares of each photo's residuals as the
+        adjustment without its instant predicts them, the instant's own poses fitted to it again, and how
+        many corners it has (a linearised leave-one-instant-out, :mod:`dualcal.estimation.uncertainty`);
+        None for an instant the others cannot do without (the only one to show some parameter)."""
+        p = self.problem
+        out: dict[str, dict[int, tuple[float, int]] | None] = {v: {} for v in p.views}
+        counts = {b: int(n) for ph in self.factorization.ne.photos for b, n in zip(ph.blocks, ph.corners)}
+        for c, blocks, squares in held_out_squares(self.factorization, self._leverage.held_out, self._at_minimum):
+            for b, sq in zip(blocks, squares):
+                view = p.blocks[b][1]
+                if out[view] is not None:
+                    out[view] = None if np.isnan(sq) else {**out[view], c: (float(sq), counts[b])}
+        return out
+
+
+def linearised_at(problem: Problem, state: State) -> Solution:
+    """The adjustment linearised at ``state`` and not iterated (``iterations`` 0): its residuals and the
+    factorization of its normal equations there, whose Gauss-Newton step ``factorization.step()`` gives the
+    one-step estimate and whose covariances are those of that estimate (the linearised minimum).
+
+    Raises
+    ------
+    EstimationError
+        Fewer observations than unknowns, or a singular normal matrix.
+    """
+    redundancy = _redundancy(problem)
+    F, ne = linearise(problem, state)
+    with _determined():
+        factorization = ne.factor(0.0)
+    return _solution(problem, state, F, redundancy, 0, False, "linearised, not adjusted", factorization)
 
 
 def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> Solution:
@@ -586,17 +654,34 @@ def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> 
         Fewer observations than unknowns, or a singular normal matrix (the data do not determine
         the parameters).
     """
-    redundancy = problem.n_observations - problem.n_parameters
-    if redundancy <= 0:
-        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
-    try:
+    redundancy = _redundancy(problem)
+    with _determined():
         behind = corners_behind(problem, state)       # a poor start may have some: none may be added
         res = levenberg_marquardt(state, lambda s: linearise(problem, s), lambda s: cost(problem, s, behind),
                                   lambda s, h: s.updated(problem.layout, h), redundancy, options)
+    return _solution(problem, res.x, res.cost, redundancy, res.iterations, res.converged, res.termination,
+                     res.factorization)
+
+
+def _redundancy(problem: Problem) -> int:
+    redundancy = problem.n_observations - problem.n_parameters
+    if redundancy <= 0:
+        raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
+    return redundancy
+
+
+@contextmanager
+def _determined():
+    """A singular normal matrix as the :class:`EstimationError` a user can act on."""
+    try:
+        yield
     except np.linalg.LinAlgError:
         raise EstimationError("the normal equations are singular: the photos do not determine every "
                               "parameter (too few views, or views all alike)") from None
-    r = residuals(problem, res.x)
-    block_rms = np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1))
-    return Solution(problem, res.x, r, float(np.sqrt(res.cost / redundancy)), redundancy, res.iterations,
-                    res.converged, res.termination, res.factorization, block_rms.tolist())
+
+
+def _solution(problem: Problem, state: State, F: float, redundancy: int, iterations: int, converged: bool,
+              termination: str, factorization: Factorization) -> Solution:
+    r = residuals(problem, state)
+    return Solution(problem, state, r, float(np.sqrt(F / redundancy)), redundancy, iterations, converged,
+                    termination, factorization, np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1)).tolist())

@@ -19,172 +19,32 @@ result. A final adjustment that did not converge is said so, on stderr and in ca
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from functools import partial
 
 import numpy as np
 
-from .adjust import COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state
-from ..geometry.board import SHAPE_TERMS
-from ..geometry.camera import DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, LENS_MODELS
+from .adjust import Solution
 from .checks import REFOCUS_SHARE, design_effect, focal_scale_fits, focus_drift, rig_rigid, run_checks, tie_costs
-from .covariance import JointCovariance, intrinsic_name
 from .distributions import f_quantile
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import EstimationError, InputError
+from .fitting import (AUTO_MODEL, MIN_VIEWS, Setup, lens_models_for, pair_solutions, rig_model_from_solution,
+                      unusable_reason, usable_photos)
 from .loop_closure import loop_closure
-from .lm import NEAR_START, LMOptions
-from ..geometry.model import CornerSet, Pose, RigModel, RigRelation, choose_reference, observed_mask
+from .model_selection import choose_lens_models, preferred_lens_models
+from ..geometry.board import SHAPE_TERMS
+from ..geometry.camera import DEFAULT_LENS_MODEL
+from ..geometry.model import CornerSet, RigModel, choose_reference
 from ..progress import warn
-from .rig_relations import parameter_covariance, rig_relation, shared_views
-from ..geometry.scale import relative_sigma, with_scale
-from ..geometry.zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
 
-MIN_VIEWS = 3
 BOARD_SHAPES = ("auto", "flat", "fit")
 #: The board's shape is kept where its coefficients differ from zero at this significance level.
 SHAPE_SIGNIFICANCE = 0.01
-
-
-def unusable_reason(uv: np.ndarray, xy_board: np.ndarray) -> str | None:
-    """Why a photo's measured corners cannot determine a homography (None if they can): fewer than
-    :data:`dualcal.geometry.zhang.MIN_HOMOGRAPHY_CORNERS`, or all on one line."""
-    seen = observed_mask(uv)
-    if seen.sum() >= MIN_HOMOGRAPHY_CORNERS and spans_a_plane(xy_board[seen]):
-        return None
-    return (f"its {int(seen.sum())} measured corner(s) "
-            f"{'lie on one line' if seen.sum() >= MIN_HOMOGRAPHY_CORNERS else 'are too few'}; "
-            f"a photo needs at least {MIN_HOMOGRAPHY_CORNERS} corners, not all on one line")
-
-
-def usable_photos(corners: CornerSet, names: list[str], xy_board: np.ndarray,
-                  quiet: bool = False) -> list[tuple[int, str, np.ndarray]]:
-    """``(camera index, view, (N, 2) corners)`` of every photo whose measured corners determine a
-    homography (:func:`unusable_reason`). Every other photo where the board was found is skipped
-    with a warning naming it (unless ``quiet``: a calibration already said so)."""
-    blocks = []
-    for c, name in enumerate(names):
-        for v, uv in sorted(corners.cameras[name].found().items()):
-            reason = unusable_reason(uv, xy_board)
-            if reason:
-                if not quiet:
-                    warn(f"{name}/{v} skipped: {reason}")
-                continue
-            blocks.append((c, v, uv))
-    return blocks
-
-
-def _check_enough_views(blocks, names) -> None:
-    for c, name in enumerate(names):
-        n = sum(1 for cam, _, _ in blocks if cam == c)
-        if n < MIN_VIEWS:
-            raise EstimationError(f"camera {name!r} has {n} usable view(s); at least {MIN_VIEWS} are needed "
-                                  "(take more photos, or check that the board is found in them)")
-
-
-def _block_poses(sol: Solution) -> dict[tuple[int, str], Pose]:
-    """Board-to-camera pose of every observed (camera, view)."""
-    p = sol.problem
-    return {(c, v): sol.state.photo_pose(p, c, p.view_index[v]) for c, v, _ in p.blocks}
-
-
-def _starting_values(sol: Solution):
-    """Per-camera intrinsics and board-to-camera poses of a solution, to start another adjustment."""
-    bp = _block_poses(sol)
-    n = len(sol.problem.cameras)
-    cams = [sol.state.camera(sol.problem, c) for c in range(n)]
-    poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c and (c, v) in bp} for c in range(n)]
-    return cams, poses
-
-
-@dataclass(frozen=True)
-class Setup:
-    """What every adjustment of one calibration shares: the board's corners ``X_board`` (N, 3), the
-    camera names and image sizes, the reference's index, the skew model, the rig mode and the lens
-    model of every camera (one name, or one per camera)."""
-
-    X_board: np.ndarray
-    names: list[str]
-    sizes: list[tuple[int, int]]
-    reference: int
-    skew: bool
-    mode: str
-    model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
-
-    def solve(self, blocks, start: "Solution | None" = None, mode: str | None = None,
-              board_shape: bool = False) -> "Solution":
-        """:func:`solve` with these settings (``mode`` overrides the rig mode)."""
-        return solve(self.X_board, self.names, self.sizes, blocks, self.reference, self.skew, mode or self.mode,
-                     start, board_shape, self.model)
-
-
-def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
-          start: Solution | None = None, board_shape: bool = False,
-          model: str | tuple[str, ...] = DEFAULT_LENS_MODEL) -> Solution:
-    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples;
-    ``model``: the lens model (:data:`dualcal.geometry.camera.LENS_MODELS`) of every camera, or one per camera.
-
-    Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
-    solution over the same photos (or a superset of them: photos it did not see start from
-    Zhang's), whose board shape is kept as the start too. The paper's model starts from the
-    better (lower cost) of the rigid solution (every instant's baseline direction the same) and
-    the cameras-alone solution (each instant's own relative pose): the first is the nearer when
-    the rig is rigid, the second when the direction moves between instants. With
-    ``board_shape`` the board's out-of-plane shape is estimated too.
-    """
-    _check_enough_views(blocks, names)
-    models = (model,) * len(names) if isinstance(model, str) else tuple(model)
-    if mode == "paper" and start is None:
-        start = solve(X_board, names, sizes, blocks, reference, skew, "none", board_shape=board_shape, model=model)
-    shape = start.state.board_shape_mm if start is not None else None
-    if start is not None:
-        cams, poses = _starting_values(start)
-        views = {v for _, v, _ in blocks}
-        poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
-        missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
-        if missing:
-            zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew,
-                                       models[c])[1]
-                     for c in {c for c, _ in missing}}
-            for c, v in missing:
-                poses[c][v] = zhang[c][v]
-    else:
-        cams, poses = [], []
-        for c, size in enumerate(sizes):
-            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew,
-                                    models[c])
-            cams.append(cam)
-            poses.append(p)
-    first_mode = "rigid" if mode == "paper" else mode
-    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape, models)
-    sol = adjust(problem, initial_state(problem, cams, poses, shape), LMOptions() if start is None else NEAR_START)
-    if mode != "paper":
-        return sol
-    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape, models)
-    starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
-    return adjust(problem, min(starts, key=lambda state: cost(problem, state)), NEAR_START)
-
-
-def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int) -> tuple[Solution, Solution, int]:
-    """Cameras ``x`` and ``y`` of ``sol`` as a rigid two-camera rig (``x`` its reference) and alone, from
-    the instants both saw there, started from ``sol``'s values (the tied pair) and ``alone``'s (the
-    cameras alone: where the pair's photos are all those ``alone`` had, it is already their solution)."""
-    cams, poses = _starting_values(sol)
-    views = set(poses[x]) & set(poses[y])
-    blocks = [(int(c == y), v, uv) for c, v, uv in sol.problem.blocks if c in (x, y) and v in views]
-    model = setup.model if isinstance(setup.model, str) else (setup.model[x], setup.model[y])
-    pair = replace(setup, names=[setup.names[x], setup.names[y]], sizes=[setup.sizes[x], setup.sizes[y]],
-                   reference=0, mode="rigid", model=model)
-    _check_enough_views(blocks, pair.names)
-
-    def adjusted(mode: str, start: Solution) -> Solution:
-        problem = Problem(pair.X_board, pair.names, pair.sizes, blocks, mode, pair.skew, 0, False, pair.model)
-        start_cams, start_poses = _starting_values(start)
-        return adjust(problem, initial_state(problem, [start_cams[x], start_cams[y]],
-                                             [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)]),
-                      NEAR_START)
-
-    return adjusted("rigid", sol), adjusted("none", alone), len(views)
+#: The shape is tested first at its one-step estimate from the flat board's solution; where that test's
+#: ``T^2`` exceeds this share of its limit, the shape is adjusted in full and the test made there, so
+#: that a decision near the limit is the full adjustment's.
+SHAPE_FULL_TEST = 0.5
 
 
 OUTLIER_FLOOR_PX = 0.05
@@ -379,55 +239,32 @@ def _without_corners(setup: Setup, sol: Solution, blocks, bad, limit, dropped, d
     return out
 
 
-def board_shape_test(sol: Solution) -> dict:
+def board_shape_test(sol: Solution, one_step: bool = False) -> dict:
     """Whether the board's shape estimated in ``sol`` differs from flat beyond the photos' noise.
 
     Hotelling's test of the three shape coefficients against the covariance clustered by instant
     (so that noise correlated within photos does not pass for a bent board): with ``G`` instants,
     ``T2 = w^T Cov^-1 w`` is compared with ``p (G-1) / (G-p) F(p, G-p)`` at
     :data:`SHAPE_SIGNIFICANCE`. Returns ``{"t2", "limit", "significant", "coefficients_mm",
-    "sigma_mm"}``; with too few instants to judge (``G <= p + 1``) ``limit`` is None and the shape
-    is not significant.
+    "sigma_mm", "estimate"}`` (``estimate``: ``"adjusted"``, or ``"one-step"`` where ``sol`` is a flat board's
+    solution linearised with the shape free); with too few instants to judge (``G <= p + 1``) ``limit`` is
+    None and the shape is not significant. ``w`` and its covariance are those of the linearised minimum (``sol`` moved by its
+    Gauss-Newton step): of the adjusted shape, or from a flat board's solution linearised with the shape
+    free (:func:`dualcal.estimation.adjust.linearised_at`), the one-step estimate (Wald's test at the
+    one-step estimator, which differs from the adjusted one's by terms of second order in the shape).
     """
     cols = sol.problem.layout.board_shape
-    w = sol.state.board_shape_mm
+    w = sol.state.board_shape_mm + sol.factorization.step()[cols]                # at the linearised minimum
     cov = sol.covariance(cols, "clustered")
     p, G = len(cols), len(sol.problem.views)
     doc = {"coefficients_mm": dict(zip(SHAPE_TERMS, map(float, w))),
-           "sigma_mm": dict(zip(SHAPE_TERMS, map(float, np.sqrt(np.maximum(np.diag(cov), 0.0)))))}
+           "sigma_mm": dict(zip(SHAPE_TERMS, map(float, np.sqrt(np.maximum(np.diag(cov), 0.0))))),
+           "estimate": "one-step" if one_step else "adjusted"}
     if G <= p + 1:
         return {**doc, "t2": None, "limit": None, "significant": False}
     t2 = float(w @ np.linalg.lstsq(cov, w, rcond=None)[0])
     limit = float(p * (G - 1) / (G - p) * f_quantile(p, G - p, 1.0 - SHAPE_SIGNIFICANCE))
     return {**doc, "t2": t2, "limit": limit, "significant": bool(t2 > limit)}
-
-
-#: ``model="auto"``: every camera's lens model chosen by its held-out instants (:mod:`dualcal.estimation.model_selection`).
-AUTO_MODEL = "auto"
-
-
-def lens_models_for(model: str | Mapping[str, str], names: list[str]) -> tuple[str, ...]:
-    """One lens model per camera of ``names`` from a model name (every camera) or a mapping
-    ``{camera: model}`` (cameras not named get the mapping's ``"*"``, else
-    :data:`dualcal.geometry.camera.DEFAULT_LENS_MODEL`).
-
-    Raises
-    ------
-    InputError
-        An unknown model name, or a mapping naming a camera that is not there.
-    """
-    if isinstance(model, str):
-        model = dict.fromkeys(names, model)
-    model = dict(model)
-    default = model.pop("*", DEFAULT_LENS_MODEL)
-    unknown_cameras = sorted(set(model) - set(names))
-    if unknown_cameras:
-        raise InputError(f"lens model given for camera {unknown_cameras[0]!r}, which is not one of the rig's "
-                         f"({', '.join(names)})")
-    for m in [default, *model.values()]:
-        if m not in LENS_MODELS:
-            raise InputError(f"lens model {m!r} is unknown (choose from {', '.join(LENS_MODELS)}, or {AUTO_MODEL})")
-    return tuple(model.get(n, default) for n in names)
 
 
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
@@ -463,8 +300,8 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         the lens model of every camera, a key of :data:`dualcal.geometry.camera.LENS_MODELS`:
         ``k1k2`` (the paper's), ``k1k2k3``, ``k1k2p1p2``, ``k1k2p1p2k3`` (OpenCV's five coefficients) or
         ``kb4`` (OpenCV's fisheye); or ``{camera: model}`` (cameras not named: ``k1k2``); or ``"auto"``:
-        each camera's chosen by its held-out instants (:func:`dualcal.estimation.model_selection.calibrate_auto`,
-        which records the comparison in ``adjustment["lens_models"]``)
+        each camera's chosen by its held-out instants (:func:`_calibrate_auto`, which records the comparison in
+        ``adjustment["lens_models"]``)
 
     Returns
     -------
@@ -487,18 +324,34 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     options = dict(skew=skew, rig_mode=rig_mode, reference=reference, drop_outliers=drop_outliers,
                    outlier_factor=outlier_factor, board_shape=board_shape)
     if isinstance(model, str) and model == AUTO_MODEL:
-        from .model_selection import calibrate_auto
-        rig = calibrate_auto(corners, calibrate=_calibrate_distinct, **options)
+        rig = _calibrate_auto(corners, **options)
     else:
-        rig = _calibrate_distinct(corners, model=model, **options)
+        rig = _calibrate_distinct(corners, model=model, **options)[0]
     if duplicates:
         rig.adjustment["duplicates"] = duplicates
     return rig
 
 
+def _calibrate_auto(corners: CornerSet, **options) -> RigModel:
+    """:func:`calibrate_rig` with every camera's lens model chosen by its held-out instants
+    (:mod:`dualcal.estimation.model_selection`): a calibration with every camera's preferred model, the
+    comparison of the models on its corners, and a calibration with the models chosen where they differ.
+    ``adjustment["lens_models"]`` holds the comparison, ``adjustment["lens_models_chosen"]`` ``{camera: model}``."""
+    candidates, preferred = preferred_lens_models(corners, options["skew"])
+    base, alone = _calibrate_distinct(corners, model=preferred, **options)
+    chosen, comparison = choose_lens_models(base, candidates, preferred, alone)
+    final = base if chosen == preferred else _calibrate_distinct(corners, model=chosen, start=alone, **options)[0]
+    final.adjustment["lens_models"] = comparison
+    final.adjustment["lens_models_chosen"] = chosen
+    return final
+
+
 def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference: str | None, drop_outliers: bool,
-                        outlier_factor: float, board_shape: str, model: str | Mapping[str, str]) -> RigModel:
-    """:func:`calibrate_rig` with given lens models, of corners whose duplicate instants are merged."""
+                        outlier_factor: float, board_shape: str, model: str | Mapping[str, str],
+                        start: Solution | None = None) -> tuple[RigModel, Solution]:
+    """:func:`calibrate_rig` with given lens models, of corners whose duplicate instants are merged, and its
+    solution with every camera alone (flat board) over the photos it kept. The cameras alone start from
+    Zhang's closed form, or from ``start``, such a solution with other lens models."""
     names = sorted(corners.cameras)
     models = lens_models_for(model, names)
     ref = names.index(choose_reference(names, reference if reference is not None else corners.reference))
@@ -509,7 +362,8 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
     dropped_corners: list[dict] = []
     factor = outlier_factor if drop_outliers else None
     setup = Setup(X, names, sizes, ref, skew, rig_mode, models)
-    alone, blocks = _adjust_dropping_outliers(replace(setup, mode="none"), blocks, factor, dropped, dropped_corners)
+    alone, blocks = _adjust_dropping_outliers(replace(setup, mode="none"), blocks, factor, dropped, dropped_corners,
+                                              start)
     sol = alone
     if rig_mode != "none":
         sol, rig_blocks = _adjust_dropping_outliers(setup, blocks, factor, dropped, dropped_corners, alone)
@@ -517,7 +371,11 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
             alone = setup.solve(rig_blocks, sol, mode="none")
     flat = sol
     shape_test = None
-    if board_shape != "flat":
+    if board_shape == "auto":            # the one-step estimate first: the full adjustment only near the limit
+        shape_test = board_shape_test(setup.linearised(sol, board_shape=True), one_step=True)
+        if shape_test["limit"] is not None and shape_test["t2"] > SHAPE_FULL_TEST * shape_test["limit"]:
+            shape_test = None
+    if board_shape != "flat" and shape_test is None:
         shaped = setup.solve(sol.problem.blocks, sol, board_shape=True)
         shape_test = board_shape_test(shaped)
         if board_shape == "fit" or shape_test["significant"]:
@@ -539,55 +397,7 @@ def _calibrate_distinct(corners: CornerSet, skew: bool, rig_mode: str, reference
                             lambda tied, alone: rig_rigid(tied, alone, None if kappa2 is None else {0: kappa2}))
         if loop is not None:
             rig.checks["loop_closure"] = loop
-    return rig
-
-
-def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
-          rig_mode: str | None = None, options: LMOptions = NEAR_START) -> Solution:
-    """The corners ``rig`` used (:meth:`RigModel.used_corners`), adjusted again with another lens model,
-    skew model or rig mode (None: ``rig``'s), started from ``rig``'s values.
-
-    No outliers are looked for and the board keeps ``rig``'s treatment (its shape estimated again where
-    ``rig`` kept one): the same corners, so that the solutions compare. A lens model of ``rig``'s family
-    starts from ``rig``'s coefficients (a new coefficient at 0, a dropped one let go); one of another
-    family (a fisheye for a radial lens, or back) from Zhang's closed form with ``rig``'s poses.
-    This is what comparing lens or skew models costs: one adjustment from a near start, where a full
-    calibration (closed form, outliers alone and tied, the board-shape test) takes several. ``options``:
-    the adjustment's tolerances (a comparison needs fewer digits than a result).
-    """
-    corners = rig.used_corners()
-    names = sorted(corners.cameras)
-    models = lens_models_for(rig.models if model is None else model, names)
-    skew = rig.skew if skew is None else skew
-    X = corners.board.object_points_mm()
-    blocks = usable_photos(corners, names, X[:, :2], quiet=True)
-    _check_enough_views(blocks, names)
-    sizes = [corners.cameras[n].image_size for n in names]
-    poses = [dict(rig.camera_poses[n]) for n in names]
-    cams = []
-    for c, n in enumerate(names):
-        cam = rig.cameras[n]
-        if (models[c] in FISHEYE_MODELS) == cam.fisheye:
-            cams.append(replace(cam, model=models[c], skew=cam.skew if skew else 0.0,
-                                **{k: 0.0 for k in DISTORTION_NAMES if k not in LENS_MODELS[models[c]]}))
-        else:
-            cams.append(initial_camera(X[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew,
-                                       models[c])[0])
-    ref = names.index(rig.reference)
-    problem = Problem(X, names, sizes, blocks, rig_mode or rig.rig_mode, skew, ref, rig.board_shape_mm is not None,
-                      models)
-    return adjust(problem, initial_state(problem, cams, poses, rig.board_shape_mm), options)
-
-
-def fit_summary(sol: Solution) -> dict:
-    """What comparing models needs of a solution: ``rms_px`` (2-D, per corner), ``camera_rms_px``
-    ``{camera: px}`` and the held-out errors of :func:`held_out_error`."""
-    sq = np.sum(sol.residuals ** 2, axis=2)
-    cams = np.array([c for c, _, _ in sol.problem.blocks])
-    return {"rms_px": float(np.sqrt(np.nanmean(sq))),
-            "camera_rms_px": {name: float(np.sqrt(np.nanmean(sq[cams == c])))
-                              for c, name in enumerate(sol.problem.cameras)},
-            **held_out_error(sol)}
+    return rig, alone
 
 
 def attribution_checks(setup: Setup, tied: Solution, alone: Solution, kappa2) -> tuple[dict, dict | None]:
@@ -643,71 +453,3 @@ def _refocused_camera(alone: Solution, view: str, kappa2) -> int | None:
         return None
     z = [abs(f["s"]) / np.sqrt(max(kappa2[f["camera"]] * alone.s0_px ** 2, 1e-12) * f["var_s"]) for f in fits]
     return fits[int(np.argmax(z))]["camera"]
-
-
-def held_out_error(sol: Solution) -> dict:
-    """The error on instants the calibration did not see (:meth:`Solution.held_out_residuals`):
-    ``held_out_rms_px``, the RMS length of the 2-D held-out residual per corner over the instants
-    that can be left out, ``held_out_per_instant`` ``{view: {"rms_px", "corners"}}`` and the same of
-    each camera's own corners, ``held_out_per_camera`` ``{camera: {view: {"rms_px", "corners"}}}``."""
-    per_instant, per_camera = {}, {name: {} for name in sol.problem.cameras}
-    row_cameras = {ir.view: ir.row_cameras for ir in sol.instant_rows}
-    for view, e in sol.held_out_residuals().items():
-        if e is None:
-            continue
-        per_instant[view] = {"rms_px": float(np.sqrt(2 * np.mean(e ** 2))), "corners": len(e) // 2}
-        for c in np.unique(row_cameras[view]):
-            ec = e[row_cameras[view] == c]
-            per_camera[sol.problem.cameras[c]][view] = {"rms_px": float(np.sqrt(2 * np.mean(ec ** 2))),
-                                                        "corners": len(ec) // 2}
-    squares = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
-    corners = sum(d["corners"] for d in per_instant.values())
-    return {"held_out_rms_px": float(np.sqrt(squares / corners)) if corners else None,
-            "held_out_per_instant": per_instant, "held_out_per_camera": per_camera}
-
-
-def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict],
-                            dropped_corners: list[dict] = ()) -> RigModel:
-    """Package an adjustment result as the :class:`RigModel` written to calib.json (no checks)."""
-    p, st = sol.problem, sol.state
-    names = p.cameras
-    cams = {name: st.camera(p, c) for c, name in enumerate(names)}
-    names_cov, covs = parameter_covariance(sol, COVARIANCE_KINDS)
-    sd = {kind: dict(zip(names_cov, np.sqrt(np.maximum(np.diag(cov), 0.0)))) for kind, cov in covs.items()}
-    sigma_formal = {name: {n: sd["formal"].get(intrinsic_name(name, n), 0.0) for n in INTRINSIC_NAMES}
-                    for name in names}
-    sigma = {name: {n: max(sd["clustered"].get(intrinsic_name(name, n), 0.0), s)
-                    for n, s in sigma_formal[name].items()} for name in names}
-    fit = fit_summary(sol)
-    view_rms: dict[str, dict[str, float]] = {}
-    for b, (c, v, _) in enumerate(p.blocks):
-        view_rms.setdefault(v, {})[names[c]] = sol.block_rms_px[b]
-    poses: dict[str, dict[str, Pose]] = {name: {} for name in names}
-    for (c, v), pose in sorted(_block_poses(sol).items(), key=lambda kv: kv[0][1]):
-        poses[names[c]][v] = pose
-    rig = {}
-    for c, name in enumerate(names):
-        if c == p.reference:
-            continue
-        if p.mode == "none" and not shared_views(p, c):
-            warn(f"camera {name!r} shares no view with {names[p.reference]!r}: no rig relation for it")
-            continue
-        pose, *clustered = rig_relation(sol, c, "clustered")
-        _, *formal = rig_relation(sol, c, "formal", warn_gimbal=False)
-        sigma_t, sigma_d, sigma_opk = (np.maximum(a, b) for a, b in zip(clustered, formal))
-        rel = relative_sigma(corners.board)          # the printed squares' tolerance: every length scales
-        rig[name] = RigRelation(pose, with_scale(sigma_t, pose.t_mm, rel),
-                                float(with_scale(sigma_d, np.linalg.norm(pose.t_mm), rel)), sigma_opk,
-                                dict(zip(("t_mm", "baseline_mm", "opk_arcmin"), formal)))
-    adjustment = {"s0_px": sol.s0_px, "redundancy": sol.redundancy, "iterations": sol.iterations,
-                  "converged": sol.converged, "termination": sol.termination,
-                  "n_observations": p.n_observations, "n_parameters": p.n_parameters,
-                  **{k: fit[k] for k in ("held_out_rms_px", "held_out_per_instant", "held_out_per_camera")}}
-    shape = shape_sigma = None
-    if p.board_shape:
-        shape = st.board_shape_mm.copy()
-        shape_sigma = np.array([max(sd[kind][f"board.shape_mm.{t}"] for kind in COVARIANCE_KINDS) for t in SHAPE_TERMS])
-    covariance = JointCovariance(tuple(names_cov), covs).to_dict()
-    return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, fit["camera_rms_px"], rig, poses,
-                    dict(sorted(view_rms.items())), fit["rms_px"], corners, adjustment, dropped,
-                    sigma_formal, shape, shape_sigma, list(dropped_corners), {}, covariance)

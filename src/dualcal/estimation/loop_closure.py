@@ -38,6 +38,7 @@ import numpy as np
 from .adjust import Solution
 from .distributions import f_quantile
 from ..errors import EstimationError
+from ..geometry.poses import rotated
 from .rig_relations import rig_linearisation
 from ..geometry.rotation import ARCMIN_PER_RAD, cross_matrix, rotvec_from_rotation
 
@@ -48,11 +49,13 @@ LOOP_FALSE_ALARM = 1e-3
 
 
 def _pair_relation(sol: Solution):
-    """Camera 1's rigid relation to camera 0 in a two-camera solution: R, t and each instant's shift of
-    (rotation increment rad, t mm), ``{view: (6,)}``."""
+    """Camera 1's rigid relation to camera 0 in a two-camera solution at its linearised minimum (moved by the
+    remaining Gauss-Newton step, so that where the solve stopped matters only to second order): R, t and
+    each instant's shift of (rotation increment rad, t mm), ``{view: (6,)}``."""
     lin = rig_linearisation(sol, 1)
     J = np.vstack([lin.J_rot, lin.J_t])
-    return lin.R, lin.t, {v: J @ d for v, d in sol.instant_shifts(lin.columns).items()}
+    step = J @ sol.factorization.step()[lin.columns]
+    return rotated(lin.R, step[:3]), lin.t + step[3:], {v: J @ d for v, d in sol.instant_shifts(lin.columns).items()}
 
 
 def _misclosure(rB, rC, BC):
@@ -76,7 +79,7 @@ def loop_closure(names: list[str], ref: int, pair_solutions, rig_rigid) -> dict 
     names : the cameras; ``ref`` the index of the reference.
     pair_solutions : ``(x, y) -> (tied, alone, instants)``, cameras ``x`` and ``y`` as a rigid two-camera
         rig (``x`` its reference) and alone, over the instants both saw
-        (:func:`dualcal.estimation.calibrate.pair_solutions`); raises :class:`EstimationError` when they cannot be.
+        (:func:`dualcal.estimation.fitting.pair_solutions`); raises :class:`EstimationError` when they cannot be.
     rig_rigid : ``(tied, alone) -> dict | None``, :func:`dualcal.estimation.checks.rig_rigid` of a pair (the
         calibration passes the rig's design effect, so that every pair is judged against the same noise).
 

@@ -12,8 +12,8 @@ eigen-decomposition per instant, no re-adjustment). calib.json records them in `
 
 :func:`compare_lens_models` adjusts the same corners with every lens model (those the calibration
 used: its outliers stay out, so every model is scored on the same corners; each adjustment starts
-from the calibration's values, :func:`dualcal.estimation.calibrate.refit`, and stops within 0.05 sigma of its
-minimum, :data:`COMPARISON_LM`) and compares the models instant by instant: ``d_v = SS_v(model) -
+from the calibration's values, :func:`dualcal.estimation.fitting.refit`, and stops within 0.05 sigma of its
+minimum, :data:`dualcal.estimation.lm.COMPARISON_LM`) and compares the models instant by instant: ``d_v = SS_v(model) -
 SS_v(best)``, the held-out sum of squares (px^2) of instant ``v`` minus that of the model with the
 least held-out error; its mean over the instants in units of its standard error says how many
 standard errors the model is worse than the best. The recommendation is
@@ -21,7 +21,7 @@ the model with the fewest coefficients that is within :data:`RECOMMEND_WITHIN_SE
 the best: a richer model must earn its coefficients by predicting the unseen instants clearly
 better.
 
-:func:`calibrate_auto` (``calibrate_rig(model="auto")``) makes that choice for every camera, from
+``calibrate_rig(model="auto")`` (:func:`preferred_lens_models`, :func:`choose_lens_models`) makes that choice for every camera, from
 its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera``). The candidates
 of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the camera's field
 of view makes one plausible: Zhang's closed form (no lens) puts the image's corner more than
@@ -31,7 +31,7 @@ others: a polynomial in the pinhole radius must then predict clearly better to b
 test over instants is weak when, as here, the difference lies in the few instants that put the board
 near the image's edge). A first calibration gives each camera its preferred model and finds the
 outliers; then one adjustment per lens model, on the corners the first used and started from its
-values (:func:`dualcal.estimation.calibrate.refit`), with every camera alone (rig mode ``none``, so that no
+values (:func:`dualcal.estimation.fitting.refit`), with every camera alone (rig mode ``none``, so that no
 camera's lens changes another's held-out error through the shared poses), gives that model to every
 camera it is a candidate of (the others keep their preferred model): one solve per model scores
 every camera. Each camera then gets the model of the rule above among its candidates, and the rig is
@@ -39,25 +39,20 @@ calibrated once more with them."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from ..geometry.camera import DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraModel, image_corner_radius
 from ..errors import EstimationError
+from .adjust import Solution
+from .fitting import fit_summary, held_out_summary, refit, refit_alone, usable_photos
 from ..geometry.model import CornerSet, RigModel
+from ..geometry.zhang import closed_form_camera
 from ..progress import warn
-from .lm import NEAR_START
+from .lm import COMPARISON_LM
 
-#: Where the comparison's refits stop: within 0.05 sigma of their minimum (the LM's undamped check),
-#: not the 1e-3 of a calibration. What is compared, the fit and held-out RMS, is flat at the minimum
-#: (the cost moves by the square of the distance); 0.05 sigma moved ``worse_se`` by at most 1.4e-3 SE
-#: (the choice is at 2) and a held-out RMS by 1e-4 relative on the three real sets, chose the same
-#: models, and saves one or two of each refit's three to five iterations.
-COMPARISON_LM = replace(NEAR_START, xtol=0.05, verify_sigma=0.05)
-
-__all__ = ["FISHEYE_HALF_DIAGONAL_DEG", "LensModelScore", "RECOMMEND_WITHIN_SE", "calibrate_auto",
+__all__ = ["FISHEYE_HALF_DIAGONAL_DEG", "LensModelScore", "RECOMMEND_WITHIN_SE", "choose_lens_models",
            "compare_lens_models", "lens_model_candidates", "score_lens_models"]
 
 #: A camera whose image corner lies more than this far from its axis (Zhang's closed form, no lens)
@@ -84,7 +79,7 @@ class LensModelScore:
 
 def rig_fit(rig: RigModel) -> dict:
     """A calibration's fit and held-out errors as :func:`score_lens_models` takes them (the keys of
-    :func:`dualcal.estimation.calibrate.fit_summary`)."""
+    :func:`dualcal.estimation.fitting.fit_summary`)."""
     return {"rms_px": rig.rms_px, "camera_rms_px": rig.camera_rms_px,
             **{k: rig.adjustment[k] for k in ("held_out_per_instant", "held_out_per_camera")}}
 
@@ -96,7 +91,7 @@ def score_lens_models(fits: dict[str, dict], camera: str | None = None,
     Parameters
     ----------
     fits : ``{model: fit}``, each with ``held_out_per_instant`` and ``rms_px`` (and
-        ``held_out_per_camera``, ``camera_rms_px`` for a ``camera``): :func:`dualcal.estimation.calibrate.fit_summary`
+        ``held_out_per_camera``, ``camera_rms_px`` for a ``camera``): :func:`dualcal.estimation.fitting.fit_summary`
         of a solution, or :func:`rig_fit` of a calibration.
     camera : score one camera's corners only (its fit RMS, its held-out errors), else the whole rig's.
     first : a model preferred to all others (a fisheye's ``kb4``): it comes first in the order in which
@@ -143,11 +138,9 @@ def score_lens_models(fits: dict[str, dict], camera: str | None = None,
 
 
 def _refits(rig: RigModel, mappings: dict[str, object], rig_mode: str | None = None) -> dict[str, dict]:
-    """:func:`dualcal.estimation.calibrate.fit_summary` of ``rig``'s corners refitted with each lens model mapping
-    ``{name: model or {camera: model}}`` (:func:`dualcal.estimation.calibrate.refit`); one that cannot be solved
+    """:func:`dualcal.estimation.fitting.fit_summary` of ``rig``'s corners refitted with each lens model mapping
+    ``{name: model or {camera: model}}`` (:func:`dualcal.estimation.fitting.refit`); one that cannot be solved
     is left out with a warning."""
-    from .calibrate import fit_summary, refit
-
     fits = {}
     for name, mapping in mappings.items():
         try:
@@ -161,7 +154,7 @@ def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m 
                         ) -> list[LensModelScore]:
     """Score every lens model of ``models`` on the corners ``rig`` used (:meth:`RigModel.used_corners`):
     each is adjusted from ``rig``'s values in ``rig``'s settings (skew, rig mode, reference, board shape),
-    without looking for outliers again (:func:`dualcal.estimation.calibrate.refit`), so that every model is judged
+    without looking for outliers again (:func:`dualcal.estimation.fitting.refit`), so that every model is judged
     on the same corners; ``rig`` itself stands for its own model."""
     fits = {rig.model: rig_fit(rig)} if rig.model in LENS_MODELS else {}
     fits.update(_refits(rig, {m: m for m in models if m not in fits}))
@@ -190,7 +183,7 @@ def _camera_entry(score: LensModelScore | None) -> dict:
 
 
 def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
-    """The lens models :func:`calibrate_auto` tries for a camera whose closed-form intrinsics are
+    """The lens models ``calibrate_rig(model="auto")`` tries for a camera whose closed-form intrinsics are
     ``cam`` (its matrix A): the radial-tangential ones, and the fisheyes where the image's corner lies
     more than :data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis through a pinhole of that A."""
     wide = np.degrees(np.arctan(image_corner_radius(cam.pinhole()))) > FISHEYE_HALF_DIAGONAL_DEG
@@ -200,9 +193,6 @@ def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
 def _closed_form_cameras(corners: CornerSet, skew: bool) -> dict[str, CameraModel]:
     """Every camera's intrinsics by Zhang's closed form (no lens), from its usable photos (the
     calibration that follows warns about the others)."""
-    from .calibrate import usable_photos
-    from ..geometry.zhang import closed_form_camera
-
     names = sorted(corners.cameras)
     xy = corners.board.object_points_mm()[:, :2]
     blocks = usable_photos(corners, names, xy, quiet=True)
@@ -215,25 +205,29 @@ def _closed_form_cameras(corners: CornerSet, skew: bool) -> dict[str, CameraMode
     return out
 
 
-def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None = None, **options) -> RigModel:
-    """Calibrate with every camera's lens model chosen by its held-out instants (module docstring).
+def preferred_lens_models(corners: CornerSet, skew: bool) -> tuple[dict[str, tuple[str, ...]], dict[str, str]]:
+    """Every camera's candidate lens models (:func:`lens_model_candidates`, from Zhang's closed form) and its
+    preferred one: the fisheye ``kb4`` where it is a candidate, else :data:`dualcal.geometry.camera.DEFAULT_LENS_MODEL`."""
+    candidates = {n: lens_model_candidates(cam) for n, cam in _closed_form_cameras(corners, skew).items()}
+    preferred = {n: next((m for m in c if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n, c in candidates.items()}
+    return candidates, preferred
 
-    ``options`` are :func:`dualcal.estimation.calibrate.calibrate_rig`'s (not ``model``). The result is the
-    calibration with the chosen models; ``adjustment["lens_models"]`` holds the comparison: one entry
-    per model (the whole rig's scores, every camera alone; for a model that is not every camera's
+
+def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], preferred: dict[str, str],
+                       alone: Solution | None = None) -> tuple[dict[str, str], list[dict]]:
+    """Every camera's lens model chosen by its held-out instants (module docstring), from ``base``, a
+    calibration with every camera's ``preferred`` model (:func:`preferred_lens_models`), and ``alone``, its
+    solution with every camera alone (flat board) over the photos it kept, where there is one.
+
+    Returns ``{camera: model}`` and the comparison as calib.json keeps it (``adjustment["lens_models"]``):
+    one entry per model (the whole rig's scores, every camera alone; for a model that is not every camera's
     candidate, the others keep their preferred model), each with ``per_camera``
-    ``{camera: {"candidate", "fit_rms_px", "held_out_rms_px", "worse_se", "recommended"}}``; and
-    ``adjustment["lens_models_chosen"]`` ``{camera: model}``.
+    ``{camera: {"candidate", "fit_rms_px", "held_out_rms_px", "worse_se", "recommended"}}``.
     """
-    if calibrate is None:
-        from .calibrate import calibrate_rig as calibrate
-    names = sorted(corners.cameras)
-    candidates = {n: lens_model_candidates(cam)
-                  for n, cam in _closed_form_cameras(corners, options.get("skew", False)).items()}
-    preferred = {n: next((m for m in candidates[n] if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n in names}
-    base = calibrate(corners, model=preferred, **options)
-    fits = _refits(base, {m: {n: m if m in candidates[n] else preferred[n] for n in names}
-                          for m in LENS_MODELS if any(m in c for c in candidates.values())}, rig_mode="none")
+    names = sorted(candidates)
+    mappings = {m: {n: m if m in candidates[n] else preferred[n] for n in names}
+                for m in LENS_MODELS if any(m in c for c in candidates.values())}
+    fits = _camera_fits(base, candidates, preferred, mappings, alone)
     per_camera, chosen = {}, dict(preferred)
     for n in names:
         try:
@@ -243,13 +237,79 @@ def calibrate_auto(corners: CornerSet, calibrate: Callable[..., RigModel] | None
             continue
         per_camera[n] = {s.model: s for s in scores}
         chosen[n] = next(s.model for s in scores if s.recommended)
-    final = base if chosen == preferred else calibrate(corners, **{**options, "model": chosen})
     try:
         overall = {s.model: asdict(s) for s in score_lens_models(fits)}
     except EstimationError:         # no model, or too few instants: the per-camera entries say it
         overall = {}
-    final.adjustment["lens_models"] = [
-        {**overall.get(m, {"model": m, "coefficients": len(LENS_MODELS[m])}),
-         "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in fits]
-    final.adjustment["lens_models_chosen"] = chosen
-    return final
+    return chosen, [{**overall.get(m, {"model": m, "coefficients": len(LENS_MODELS[m])}),
+                     "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in fits]
+
+
+def _camera_fits(base: RigModel, candidates, preferred, mappings: dict[str, dict[str, str]],
+                 alone: Solution | None) -> dict[str, dict]:
+    """``{model: fit}`` (:func:`dualcal.estimation.fitting.fit_summary`'s keys) of ``base``'s corners with every
+    camera alone and the lens models of each mapping ``{model: {camera: model}}``.
+
+    With every camera alone and a flat board no camera's fit depends on another's: each camera is adjusted
+    alone once per candidate model (its preferred one is ``alone``'s, or adjusted from ``base``'s values;
+    every other from the solution of the camera's richest model nested in it that has been solved, or from
+    Zhang's closed form for another family), and a mapping's fit is put together from its cameras' (an
+    instant is left out of every camera where one camera cannot do without it, as in one adjustment of them
+    all). A board whose shape ``base`` estimated ties the cameras together: one adjustment per distinct
+    mapping. One that cannot be solved is left out with a warning."""
+    if base.board_shape_mm is not None:
+        solved = {}
+        for key in {tuple(sorted(mp.items())) for mp in mappings.values()}:
+            try:
+                sol = refit(base, model=dict(key), rig_mode="none", options=COMPARISON_LM)
+                solved[key] = {n: _camera_piece(sol, c) for c, n in enumerate(sol.problem.cameras)}
+            except EstimationError as exc:
+                warn(f"lens models {dict(key)} could not be calibrated for the comparison: {exc}")
+        return {m: _joint_fit({n: solved[key][n] for n in mp}) for m, mp in mappings.items()
+                if (key := tuple(sorted(mp.items()))) in solved}
+    pieces = {}
+    for n in sorted(candidates):
+        solutions = {}                                   # model -> (solution, the camera's index in it)
+        try:
+            solutions[preferred[n]] = ((alone, alone.problem.cameras.index(n)) if alone is not None else
+                                       (refit(base, model=preferred[n], rig_mode="none", options=COMPARISON_LM,
+                                              cameras=[n]), 0))
+        except EstimationError as exc:
+            warn(f"the lens models of {n!r} could not be calibrated for the comparison: {exc}")
+            continue
+        for m in sorted(candidates[n], key=lambda m: len(LENS_MODELS[m])):
+            if m in solutions:
+                continue
+            nested = [k for k in solutions if (k in FISHEYE_MODELS) == (m in FISHEYE_MODELS)
+                      and set(LENS_MODELS[k]) <= set(LENS_MODELS[m])]
+            start = solutions[max(nested, key=lambda k: len(LENS_MODELS[k]))] if nested else solutions[preferred[n]]
+            try:
+                solutions[m] = (refit_alone(*start, m, COMPARISON_LM), 0)
+            except EstimationError as exc:
+                warn(f"lens model {m} of {n!r} could not be calibrated for the comparison: {exc}")
+        pieces.update({(n, m): _camera_piece(*solved) for m, solved in solutions.items()})
+    return {m: _joint_fit({n: pieces[n, k] for n, k in mp.items()}) for m, mp in mappings.items()
+            if all((n, k) in pieces for n, k in mp.items())}
+
+
+def _camera_piece(sol: Solution, c: int) -> dict:
+    """Camera ``c``'s part of a fit: its corners' sum of squares (px^2) and count, and per instant its
+    held-out ``(px^2, corners)`` (:meth:`dualcal.estimation.adjust.Solution.held_out_squares`), None where the
+    instant cannot be left out."""
+    sq = np.sum(sol.residuals ** 2, axis=2)[[b for b, (cc, _, _) in enumerate(sol.problem.blocks) if cc == c]]
+    held = {v: None if photos is None else photos[c] for v, photos in sol.held_out_squares().items()
+            if photos is None or c in photos}
+    return {"squares": float(np.nansum(sq)), "corners": int(np.isfinite(sq).sum()), "held_out": held}
+
+
+def _joint_fit(pieces: dict[str, dict]) -> dict:
+    """The fit of cameras alone, ``{camera: piece}`` (:func:`_camera_piece`), as
+    :func:`dualcal.estimation.fitting.fit_summary` gives that of one adjustment of them all (an instant that one
+    camera cannot do without is left out of all)."""
+    views = sorted({v for p in pieces.values() for v in p["held_out"]})
+    squares = {v: None if any(p["held_out"].get(v, ()) is None for p in pieces.values()) else
+               {n: p["held_out"][v] for n, p in pieces.items() if v in p["held_out"]} for v in views}
+    return {"rms_px": float(np.sqrt(sum(p["squares"] for p in pieces.values())
+                                    / sum(p["corners"] for p in pieces.values()))),
+            "camera_rms_px": {n: float(np.sqrt(p["squares"] / p["corners"])) for n, p in pieces.items()},
+            **held_out_summary(squares, list(pieces))}

@@ -10,7 +10,9 @@ so ``N = J^T J`` is an arrow matrix::
          [ Nlg_1,        Nll_1,  0,     ...],
          [ Nlg_2,        0,      Nll_2, ...], ...]
 
-and :class:`NormalEquations` keeps exactly those pieces, instant by instant.
+and :class:`NormalEquations` keeps exactly those pieces, instant by instant (and, where they are
+assembled from photos, each photo's own part: :class:`PhotoNormals`, from which the error an instant's
+photos would have if the fit had not seen them is found without their rows).
 The damped system ``(N + mu D) h = -g`` (``D = diag N``, Marquardt's scaling) is solved by
 eliminating the locals first (:class:`Factorization`): with ``W_v = A_ll,v^-1 A_lg,v`` the reduced
 matrix ``S = A_gg - sum_v A_gl,v W_v`` has only ``G`` rows, so the cost grows linearly with the
@@ -24,9 +26,30 @@ have no Jacobian column, are held at zero step and never enter a covariance.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+
+@dataclass(frozen=True)
+class PhotoNormals:
+    """Each photo's own part of the normal equations, for the photos of one camera (``P`` photos):
+    ``views`` (P,) their instants, ``global_columns`` (kg,) and ``local_slots`` (kl,) where their pieces
+    sit, ``gg`` (P, kg, kg), ``gl`` (P, kg, kl), ``ll`` (P, kl, kl), ``grad_g`` (P, kg), ``grad_l`` (P, kl),
+    ``squares`` (P,) ``r^T r`` and ``corners`` (P,) how many corners each measured."""
+
+    camera: int
+    blocks: np.ndarray
+    views: np.ndarray
+    global_columns: np.ndarray
+    local_slots: np.ndarray
+    gg: np.ndarray
+    gl: np.ndarray
+    ll: np.ndarray
+    grad_g: np.ndarray
+    grad_l: np.ndarray
+    squares: np.ndarray
+    corners: np.ndarray
 
 
 @dataclass
@@ -44,6 +67,7 @@ class NormalEquations:
     curvature_gl, curvature_ll : None, or (V, G, L) and (V, L, L) second-order terms
         ``sum r d2r / dp dq`` of the Hessian that a curved model adds to ``J^T J`` (used for the
         steps with ``second_order=True``, never for a covariance).
+    photos : each camera's photos' own parts (:class:`PhotoNormals`), where they were kept.
     """
 
     gg: np.ndarray
@@ -54,6 +78,7 @@ class NormalEquations:
     local_used: np.ndarray
     curvature_gl: np.ndarray | None = None
     curvature_ll: np.ndarray | None = None
+    photos: list[PhotoNormals] = field(default_factory=list)
 
     @classmethod
     def zeros(cls, n_global: int, local_used: np.ndarray) -> "NormalEquations":
@@ -64,6 +89,24 @@ class NormalEquations:
     @property
     def n_global(self) -> int:
         return self.gg.shape[1]
+
+    def moved(self, h: np.ndarray) -> "NormalEquations":
+        """The same matrices with the gradients (and each photo's gradients and ``r^T r``) of the linearised
+        residuals ``r + J h`` after a flat step ``h``: at ``h = -N^-1 g``, those of the linearised minimum."""
+        G, (V, L) = self.n_global, self.ll.shape[:2]
+        h_g, h_l = h[:G], h[G:].reshape(V, L)
+        photos = []
+        for ph in self.photos:
+            hg, hl = h_g[ph.global_columns], h_l[ph.views][:, ph.local_slots]
+            grad_g = ph.grad_g + ph.gg @ hg + np.einsum("pij,pj->pi", ph.gl, hl)
+            grad_l = ph.grad_l + np.einsum("pji,pj->pi", ph.gl, np.broadcast_to(hg, ph.grad_g.shape)) + np.einsum(
+                "pij,pj->pi", ph.ll, hl)
+            squares = ph.squares + np.einsum("pi,pi->p", ph.grad_g + grad_g, np.broadcast_to(hg, grad_g.shape)) + \
+                np.einsum("pi,pi->p", ph.grad_l + grad_l, hl)
+            photos.append(replace(ph, grad_g=grad_g, grad_l=grad_l, squares=squares))
+        return replace(self, grad_g=self.grad_g + self.gg @ h_g + np.einsum("vgl,vl->vg", self.gl, h_l),
+                       grad_l=self.grad_l + np.einsum("vgl,g->vl", self.gl, h_g) + np.einsum("vij,vj->vi", self.ll, h_l),
+                       photos=photos)
 
     def gradient(self) -> np.ndarray:
         """``J^T r`` as one flat vector (module docstring)."""
@@ -129,6 +172,19 @@ class Factorization:
         triangular one costs a third of a second to import for systems of a few dozen unknowns)."""
         return np.linalg.solve(self.chol_S.T, np.linalg.solve(self.chol_S, b))
 
+    def global_combination(self, columns: np.ndarray) -> np.ndarray:
+        """(k, G): each flat parameter of ``columns`` (k,) as the combination of globals through which a step
+        of the globals moves it once the locals are fitted again: ``e_g`` for a global, ``-W_v[j]`` for
+        local ``j`` of instant ``v``."""
+        columns = np.asarray(columns, int)
+        G, L = self.ne.n_global, self.ne.ll.shape[1]
+        is_local = columns >= G
+        v, j = np.divmod(columns - G, L)
+        E = np.zeros((len(columns), G))
+        E[np.flatnonzero(~is_local), columns[~is_local]] = 1.0
+        E[is_local] = -self.W[v[is_local], j[is_local]]
+        return E
+
     def inverse_block(self, columns: np.ndarray) -> np.ndarray:
         """``A^-1`` restricted to the flat parameter indices ``columns`` (k,), as a (k, k) matrix.
 
@@ -137,14 +193,10 @@ class Factorization:
         """
         columns = np.asarray(columns, int)
         G, L = self.ne.n_global, self.ne.ll.shape[1]
-        is_local = columns >= G
-        v, j = np.divmod(columns - G, L)
-        # each column as the combination of globals it stands for: e_g, or -W_v[j] for a local
-        E = np.zeros((len(columns), G))
-        E[np.flatnonzero(~is_local), columns[~is_local]] = 1.0
-        E[is_local] = -self.W[v[is_local], j[is_local]]
+        E = self.global_combination(columns)
         out = E @ self.global_inverse() @ E.T
-        loc = np.flatnonzero(is_local)
+        v, j = np.divmod(columns - G, L)
+        loc = np.flatnonzero(columns >= G)
         same = v[loc][:, None] == v[loc][None, :]
         out[np.ix_(loc, loc)] += np.where(same, self.ll_inv[v[loc][:, None], j[loc][:, None], j[loc][None, :]], 0.0)
         return out

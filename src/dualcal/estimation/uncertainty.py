@@ -1,4 +1,4 @@
-"""Uncertainty that holds on real photos: the covariance clustered by instant.
+"""Uncertainty that holds on real photos: the covariance clustered by instant, and the error on instants left out.
 
 The adjustment's textbook covariance ``s0^2 N^-1`` (``sigma_formal``) assumes that every corner's
 error is independent of every other's. On real photos it is not: a board that is not flat or not
@@ -28,112 +28,109 @@ alone (its own poses, in the paper's model the per-instant baseline direction); 
 value is the floor there. On white noise the two agree to within that uncertainty, so the
 larger one is honest too (error / sigma spreads 0.84-1.03 over the tests' Monte Carlo draws).
 
-``H_cc`` has the rank of the cluster's columns (its instant's poses and the global parameters it
-touches), so its eigen-decomposition is taken in that small space: with ``J_c = Q R`` (thin QR),
-``H_cc = Q (R M R^T) Q^T`` where ``M`` is ``N^-1`` restricted to the cluster's columns. Directions
-that the cluster alone determines (its own board pose: eigenvalue 1) carry no residual at the
-optimum and are left out.
+The same leverage gives the error on an instant the calibration did not see (a leave-one-instant-out
+cross-validation, which compares lens models): for a linear model, leaving cluster ``c`` out and
+fitting its own unknowns (its board poses) to it again leaves it the residuals ``(I - H_cc)^-1 r_c``
+(the grouped form of the PRESS residuals), exactly, with no new adjustment.
+
+*In the space of the global unknowns.* Neither needs the cluster's rows. Cluster ``c``'s own unknowns
+(those of its instant alone) are eliminated: with its normal-equation pieces ``N_gg,c``, ``N_gl,c``,
+``N_ll,c`` and gradients ``g_g,c``, ``g_l,c`` (:class:`dualcal.estimation.normal_equations.NormalEquations`),
+its reduced information is ``S_c = N_gg,c - N_gl,c N_ll,c^-1 N_lg,c`` and its reduced score
+``b_c = g_g,c - N_gl,c N_ll,c^-1 g_l,c``, ``S = sum_c S_c`` is the reduced camera system, and the rows
+``J~_c = J_g,c - J_l,c N_ll,c^-1 N_lg,c`` are those of the globals with the cluster's own unknowns fitted
+out. ``H_cc`` is the projector on the own unknowns' columns (eigenvalue 1: the directions a cluster
+determines alone, which carry no residual at the optimum and are left out) plus ``J~_c S^-1 J~_c^T``,
+whose non-zero eigenvalues ``1 - mu`` are those of ``S_c`` against ``S``: with ``S^-1 = T^T T``
+(a Cholesky factor of ``S`` scaled to a unit diagonal, for its precision), ``mu`` and ``U`` are the
+eigenvalues and eigenvectors of ``T K_c T^T``, where ``K_c = sum_{d != c} S_d`` is what the other
+clusters know (summed without ``c``, so that ``mu`` near 0, an instant that alone determines something,
+keeps its digits). Then, with ``q_c = U^T T b_c``, since ``J~^T f(J~ S^-1 J~^T) = T^-1 f(T S_c T^T) T J~^T``:
+
+* the cluster's CR2 shift of the globals, ``N^-1 J_c^T W_c r_c = T^T U mu^-1/2 q_c`` (0 where
+  ``mu <= 1e-9``: determined by the cluster alone), and of a local unknown its combination of globals;
+* the globals without the cluster, moved by ``z_c = (S - S_c)^-1 b_c = T^T U q_c / mu`` (none where some
+  ``mu <= 1e-6``: the others do not determine everything the cluster touches), and its held-out
+  residuals ``r_c + J~_c z_c``, whose sum of squares over any of its photos is a quadratic form in the
+  photo's own normal-equation pieces (:func:`held_out_squares`).
+
+One eigen-decomposition of size ``G`` per instant, batched, where the rows would need one QR of the
+instant's ``2 N`` rows by their columns each.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ClusterRows", "cluster_scores", "clustered_covariance", "held_out_residuals", "leverage_adjusted_residuals"]
+from .normal_equations import Factorization, NormalEquations
+
+__all__ = ["InstantLeverage", "held_out_squares", "instant_leverage"]
 
 _SELF_DETERMINED = 1e-9    # 1 - eigenvalue below which a direction is fixed by its cluster alone
 _HELD_OUT_OWN = 1e-6       # the same, for asking whether the other clusters determine a direction
 
 
 @dataclass(frozen=True)
-class ClusterRows:
-    """The rows of one cluster (one instant): ``J`` (m, k) over parameter ``columns`` (k,), residuals ``r`` (m,)."""
+class InstantLeverage:
+    """Every instant's leverage on the global unknowns (module docstring), for ``V`` instants, ``G`` globals.
 
-    columns: np.ndarray
-    J: np.ndarray
-    r: np.ndarray
-
-
-def _hat_eigen(J: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalues ``lam`` and row-space eigenvectors ``U`` of the cluster's hat block ``H = J M J^T``."""
-    Q, R = np.linalg.qr(J)
-    lam, V = np.linalg.eigh(R @ M @ R.T)
-    return lam, Q @ V
-
-
-def leverage_adjusted_residuals(J: np.ndarray, r: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """``(I - H)^-1/2 r`` with ``H = J M J^T`` (Bell & McCaffrey's CR2 adjustment).
-
-    Parameters
-    ----------
-    J : (m, k) the cluster's Jacobian rows over its k columns.
-    r : (m,) its residuals.
-    M : (k, k) the inverse normal matrix restricted to those columns.
+    ``shifts`` (G, V): each instant's CR2 shift of the globals (its leverage-adjusted score through
+    ``N^-1``); their outer products summed are the clustered covariance of the globals. ``held_out`` (V, G):
+    the globals' change when the instant is left out, a row of NaN where the others cannot do without it.
     """
-    lam, U = _hat_eigen(J, M)
-    keep = 1.0 - lam > _SELF_DETERMINED
-    factor = np.where(keep, 1.0 / np.sqrt(np.where(keep, 1.0 - lam, 1.0)), 0.0) - 1.0
-    # r + U (f - 1) U^T r: (I - H)^-1/2 on the span of J, identity outside it; the self-determined
-    # directions (f = 0) are projected out, their residual is zero at the optimum anyway
-    return r + U @ (factor * (U.T @ r))
+
+    shifts: np.ndarray
+    held_out: np.ndarray
 
 
-def held_out_residuals(J: np.ndarray, r: np.ndarray, M: np.ndarray, n_own: int) -> np.ndarray | None:
-    """The cluster's residuals as the fit without it predicts them: ``(I - H)^-1 r``, or None.
+def _sums_without_each(S_c: np.ndarray) -> np.ndarray:
+    """(V, G, G): ``sum_{d != c} S_d`` for every ``c``, summed, not subtracted from the total."""
+    zero = np.zeros((1,) + S_c.shape[1:])
+    before = np.concatenate([zero, np.cumsum(S_c, axis=0)[:-1]])
+    after = np.concatenate([np.cumsum(S_c[::-1], axis=0)[::-1][1:], zero])
+    return before + after
 
-    For a linear least-squares problem this is exact: leaving the cluster out moves the shared
-    parameters so that its residuals become ``(I - H)^-1 r`` once its ``n_own`` own columns (the
-    parameters no other cluster has, e.g. its board poses) are fitted to it again (the grouped form
-    of the PRESS residuals). At the optimum ``r`` has no component along those own columns, the
-    directions where ``H`` has eigenvalue 1, so they are left as they are. ``None`` when more than
-    ``n_own`` eigenvalues are 1: without the cluster the others do not determine everything it
-    touches, and no prediction exists. Arguments as :func:`leverage_adjusted_residuals`.
+
+def instant_leverage(factorization: Factorization, ne: NormalEquations | None = None) -> InstantLeverage:
+    """:class:`InstantLeverage` from the factorization of the undamped normal equations at the optimum
+    (``mu = 0``), whose locals are each instant's own unknowns; the gradients those of ``ne`` (default:
+    the factorization's own; :meth:`NormalEquations.moved` gives those of the linearised minimum)."""
+    W = factorization.W
+    ne = factorization.ne if ne is None else ne
+    S_c = ne.gg - factorization.gl @ W                                                       # (V, G, G)
+    b = ne.grad_g - np.einsum("vgl,vl->vg", factorization.gl, np.einsum("vij,vj->vi", factorization.ll_inv,
+                                                                          ne.grad_l))
+    S = S_c.sum(axis=0)
+    d = 1.0 / np.sqrt(np.diag(S))
+    T = np.linalg.inv(np.linalg.cholesky(S * d[:, None] * d[None, :])) * d[None, :]        # S^-1 = T^T T
+    mu, U = np.linalg.eigh(T @ _sums_without_each(S_c) @ T.T)
+    q = np.einsum("vgk,vg->vk", U, b @ T.T)                                                  # U^T T b
+    keep = mu > _SELF_DETERMINED
+    shifts = T.T @ np.einsum("vgk,vk->gv", U, np.where(keep, q / np.sqrt(np.where(keep, mu, 1.0)), 0.0))
+    known = np.all(mu > _HELD_OUT_OWN, axis=1)
+    held = np.einsum("vgk,vk->vg", U, q / np.where(known[:, None], mu, 1.0)) @ T
+    return InstantLeverage(shifts, np.where(known[:, None], held, np.nan))
+
+
+def held_out_squares(factorization: Factorization, held_out: np.ndarray, ne: NormalEquations | None = None
+                     ) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """Each photo's held-out sum of squares ``|r + J~ z|^2`` (px^2), ``z`` its instant's row of
+    ``held_out`` (:attr:`InstantLeverage.held_out`): ``(camera, blocks (P,), squares (P,))`` per camera's
+    photos (:attr:`dualcal.estimation.normal_equations.NormalEquations.photos`), NaN where the instant
+    cannot be left out. The photos' pieces are those of ``ne`` (default: the factorization's own).
+
+    With ``y = N_ll^-1 N_lg z`` (the instant's own unknowns fitted again) and the photo's pieces, the sum
+    is ``r^T r + 2 (g_g^T z - g_l^T y) + z^T N_gg z - 2 z^T N_gl y + y^T N_ll y``.
     """
-    lam, U = _hat_eigen(J, M)
-    own = 1.0 - lam <= _HELD_OUT_OWN
-    if own.sum() > n_own:
-        return None
-    factor = np.where(own, 1.0, 1.0 / np.where(own, 1.0, 1.0 - lam)) - 1.0
-    return r + U @ (factor * (U.T @ r))
-
-
-def cluster_scores(clusters: Iterable[ClusterRows], inverse_block: Callable[[np.ndarray], np.ndarray]):
-    """Each cluster's leverage-adjusted score ``J_c^T (I - H_cc)^-1/2 r_c``, as ``(columns, score)``.
-
-    Parameters
-    ----------
-    clusters : the rows of every cluster (instant): objects with ``columns``, ``J`` and ``r`` like
-        :class:`ClusterRows` (e.g. :class:`dualcal.estimation.adjust.InstantRows`); together all rows of the problem.
-    inverse_block : ``columns -> N^-1[columns, columns]``, the unscaled inverse normal matrix (no ``s0^2``).
-    """
+    y = np.einsum("vlg,vg->vl", factorization.W, np.nan_to_num(held_out))
     out = []
-    for cl in clusters:
-        cols = np.asarray(cl.columns)
-        out.append((cols, cl.J.T @ leverage_adjusted_residuals(cl.J, cl.r, inverse_block(cols))))
+    for ph in (factorization.ne if ne is None else ne).photos:
+        z = held_out[ph.views][:, ph.global_columns]
+        yl = y[ph.views][:, ph.local_slots]
+        squares = (ph.squares + 2 * (np.einsum("pi,pi->p", ph.grad_g, z) - np.einsum("pi,pi->p", ph.grad_l, yl))
+                   + np.einsum("pi,pij,pj->p", z, ph.gg, z) - 2 * np.einsum("pi,pij,pj->p", z, ph.gl, yl)
+                   + np.einsum("pi,pij,pj->p", yl, ph.ll, yl))
+        out.append((ph.camera, ph.blocks, squares))
     return out
-
-
-def cluster_shifts(scores, inverse_block: Callable[[np.ndarray], np.ndarray], columns) -> np.ndarray:
-    """(k, clusters): each cluster's shift ``N^-1 s_c`` of the parameters ``columns`` (k,), from its
-    adjusted score ``s_c`` (:func:`cluster_scores`)."""
-    columns = np.asarray(columns, int)
-    k = len(columns)
-    shifts = np.zeros((k, len(scores)))
-    for i, (cols, s) in enumerate(scores):
-        both = inverse_block(np.concatenate([columns, cols]))
-        shifts[:, i] = both[:k, k:] @ s
-    return shifts
-
-
-def clustered_covariance(scores, inverse_block: Callable[[np.ndarray], np.ndarray], columns) -> np.ndarray:
-    """The CR2 cluster-robust covariance (module docstring) of the parameters ``columns`` (k,).
-
-    ``Cov = sum_c (N^-1 s_c)(N^-1 s_c)^T`` over the clusters' adjusted scores ``s_c``
-    (:func:`cluster_scores`, :func:`cluster_shifts`), restricted to ``columns``: a (k, k) matrix in
-    the units of the residuals squared (pixels^2) times those of ``N^-1``.
-    """
-    shifts = cluster_shifts(scores, inverse_block, columns)
-    return shifts @ shifts.T

@@ -70,10 +70,11 @@ def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
 
 
 def nearest_rotation(M: np.ndarray) -> np.ndarray:
-    """The rotation closest to ``M`` in the Frobenius norm (SVD; the sign fix keeps det = +1)."""
+    """The rotation closest to ``M`` (3, 3), or to each of a stack (..., 3, 3), in the Frobenius norm (SVD;
+    the sign fix keeps det = +1)."""
     U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
+    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]
+    return U @ Vt
 
 
 def rotation_from_opk(opk_rad) -> np.ndarray:

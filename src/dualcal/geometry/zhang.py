@@ -78,7 +78,7 @@ def _homographies_dlt(xy_board: np.ndarray, uvs: np.ndarray, seen: np.ndarray) -
     A[:, 1::2, 3:5], A[:, 1::2, 5] = b, on
     A[:, 1::2, 6:8] = -i[..., 1:2] * b
     A[:, 1::2, 8] = -i[..., 1]
-    _, s, Vt = np.linalg.svd(A, full_matrices=False)
+    _, s, Vt = np.linalg.svd(np.linalg.qr(A, mode="r"))             # A's singular values and vectors, from its R
     if np.any(s[:, -2] < 1e-9 * s[:, 0]):
         raise EstimationError("homography is degenerate: board points are (nearly) collinear")
     H = np.linalg.inv(Ti) @ Vt[:, -1].reshape(V, 3, 3) @ Tb
@@ -93,10 +93,8 @@ def estimate_homographies(xy_board: np.ndarray, uvs, seen, refine: bool = True) 
     seen = np.asarray(seen, bool).reshape(len(uvs), len(xy_board))
     if np.any(seen.sum(axis=1) < MIN_HOMOGRAPHY_CORNERS):
         raise EstimationError(f"a homography needs at least {MIN_HOMOGRAPHY_CORNERS} points")
-    Hs = list(_homographies_dlt(xy_board, uvs, seen))
-    if refine:
-        Hs = [_refine_homography(H, xy_board[m], uv[m]) for H, uv, m in zip(Hs, uvs, seen)]
-    return Hs
+    Hs = _homographies_dlt(xy_board, uvs, seen)
+    return list(_refine_homographies(Hs, xy_board, uvs, seen) if refine else Hs)
 
 
 def estimate_homography(xy_board: np.ndarray, uv: np.ndarray, refine: bool = True) -> np.ndarray:
@@ -108,44 +106,59 @@ def estimate_homography(xy_board: np.ndarray, uv: np.ndarray, refine: bool = Tru
     return estimate_homographies(xy_board, [uv], [np.ones(len(uv), bool)], refine)[0]
 
 
-def _refine_homography(H: np.ndarray, xy_board: np.ndarray, uv: np.ndarray, max_iter: int = 20) -> np.ndarray:
-    """Gauss-Newton on the pixel reprojection error from the DLT's ``H`` (its start is close, so
-    no damping is needed: a step that does not lower the error ends the iteration)."""
+def _refine_homographies(Hs: np.ndarray, xy_board: np.ndarray, uvs: np.ndarray, seen: np.ndarray,
+                         max_iter: int = 20) -> np.ndarray:
+    """Gauss-Newton on the pixel reprojection error of every view from its DLT's ``H`` ((V, 3, 3); views
+    ``uvs`` (V, N, 2) over their corners ``seen`` (V, N)), all views in one batch. Each start is close, so
+    no damping is needed: a view whose step does not lower its error stops there, as does one whose step
+    is below 1e-12 of its parameters."""
     X, Y = xy_board[:, 0], xy_board[:, 1]
-    ones = np.ones_like(X)
+    on = seen[..., None].astype(float)
+    uv = np.where(seen[..., None], uvs, 0.0)
 
-    def residuals(h):
-        return (apply_homography(np.append(h, 1.0).reshape(3, 3), xy_board) - uv).ravel()
+    def project(h):                                             # (V, 8) -> (V, N, 2), w (V, N)
+        w = h[:, 6, None] * X + h[:, 7, None] * Y + 1.0
+        p = np.stack([h[:, 0, None] * X + h[:, 1, None] * Y + h[:, 2, None],
+                      h[:, 3, None] * X + h[:, 4, None] * Y + h[:, 5, None]], axis=-1) / w[..., None]
+        return p, w
 
-    h = H.ravel()[:8] / H[2, 2]
-    r = residuals(h)
-    cost = r @ r
+    def residuals(h, views):
+        return ((project(h)[0] - uv[views]) * on[views]).reshape(len(views), -1)
+
+    h = (Hs.reshape(-1, 9)[:, :8] / Hs[:, 2, 2, None]).copy()
+    r = residuals(h, np.arange(len(h)))
+    cost = np.einsum("vi,vi->v", r, r)
+    active = np.arange(len(h))
     for _ in range(max_iter):
-        Hm = np.append(h, 1.0).reshape(3, 3)
-        w = Hm[2, 0] * X + Hm[2, 1] * Y + 1.0
-        p = apply_homography(Hm, xy_board)
-        J = np.zeros((len(X), 2, 8))
-        J[:, 0, 0:3] = np.column_stack([X, Y, ones]) / w[:, None]
-        J[:, 1, 3:6] = J[:, 0, 0:3]
-        J[:, :, 6] = -p * (X / w)[:, None]
-        J[:, :, 7] = -p * (Y / w)[:, None]
-        step = np.linalg.lstsq(J.reshape(-1, 8), -r, rcond=None)[0]
-        trial = h + step
-        r_trial = residuals(trial)
-        cost_trial = r_trial @ r_trial
-        if not cost_trial < cost:
+        if not len(active):
             break
-        h, r, cost = trial, r_trial, cost_trial
-        if np.max(np.abs(step) / (np.abs(h) + 1e-12)) < 1e-12:
-            break
-    return np.append(h, 1.0).reshape(3, 3)
+        ha = h[active]
+        p, w = project(ha)
+        J = np.zeros(p.shape + (8,))
+        J[:, :, 0, 0], J[:, :, 0, 1], J[:, :, 0, 2] = X / w, Y / w, 1.0 / w
+        J[:, :, 1, 3:6] = J[:, :, 0, 0:3]
+        J[:, :, :, 6] = -p * (X / w)[..., None]
+        J[:, :, :, 7] = -p * (Y / w)[..., None]
+        Q, R = np.linalg.qr((J * on[active][..., None]).reshape(len(active), -1, 8))
+        step = np.linalg.solve(R, -np.einsum("vmk,vm->vk", Q, r[active])[..., None])[..., 0]
+        trial = ha + step
+        r_trial = residuals(trial, active)
+        cost_trial = np.einsum("vi,vi->v", r_trial, r_trial)
+        better = cost_trial < cost[active]
+        done = active[better]
+        h[done], r[done], cost[done] = trial[better], r_trial[better], cost_trial[better]
+        small = np.max(np.abs(step) / (np.abs(trial) + 1e-12), axis=1) < 1e-12
+        active = active[better & ~small]
+    return np.concatenate([h, np.ones((len(h), 1))], axis=1).reshape(-1, 3, 3)
 
 
 def _v_row(H: np.ndarray, i: int, j: int) -> np.ndarray:
-    """Zhang's ``v_ij`` (paper eqs. 9, 10) for columns ``i, j`` of ``H``; b = [B11 B12 B22 B13 B23 B33]."""
-    hi, hj = H[:, i], H[:, j]
-    return np.array([hi[0] * hj[0], hi[0] * hj[1] + hi[1] * hj[0], hi[1] * hj[1],
-                     hi[2] * hj[0] + hi[0] * hj[2], hi[2] * hj[1] + hi[1] * hj[2], hi[2] * hj[2]])
+    """Zhang's ``v_ij`` (paper eqs. 9, 10) for columns ``i, j`` of ``H`` (3, 3), or of each of a stack
+    (..., 3, 3); b = [B11 B12 B22 B13 B23 B33]."""
+    hi, hj = H[..., :, i], H[..., :, j]
+    return np.stack([hi[..., 0] * hj[..., 0], hi[..., 0] * hj[..., 1] + hi[..., 1] * hj[..., 0], hi[..., 1] * hj[..., 1],
+                     hi[..., 2] * hj[..., 0] + hi[..., 0] * hj[..., 2], hi[..., 2] * hj[..., 1] + hi[..., 1] * hj[..., 2],
+                     hi[..., 2] * hj[..., 2]], axis=-1)
 
 
 def intrinsics_from_homographies(homographies, image_size, skew: bool = False, weights=None) -> CameraModel:
@@ -170,13 +183,12 @@ def intrinsics_from_homographies(homographies, image_size, skew: bool = False, w
     # Condition: work in centred, scaled pixels (an upper-triangular similarity keeps A upper triangular).
     Nrm = np.array([[1.0 / s, 0.0, -0.5 * (w - 1) / s], [0.0, 1.0 / s, -0.5 * (h - 1) / s], [0.0, 0.0, 1.0]])
     weights = np.ones(len(homographies)) if weights is None else np.asarray(weights, float)
-    rows = []
-    for H, weight in zip(homographies, weights, strict=True):
-        if weight > 0:
-            Hn = Nrm @ H
-            Hn = Hn / np.linalg.norm(Hn[:, :2])
-            rows += [weight * _v_row(Hn, 0, 1), weight * (_v_row(Hn, 0, 0) - _v_row(Hn, 1, 1))]
-    V = np.array(rows).reshape(-1, 6)
+    if len(weights) != len(homographies):
+        raise ValueError(f"{len(weights)} weights for {len(homographies)} homographies")
+    Hn = Nrm @ np.asarray(homographies, float).reshape(-1, 3, 3)[weights > 0]
+    Hn = Hn / np.linalg.norm(Hn[:, :, :2], axis=(1, 2))[:, None, None]
+    w = weights[weights > 0, None]
+    V = np.stack([w * _v_row(Hn, 0, 1), w * (_v_row(Hn, 0, 0) - _v_row(Hn, 1, 1))], axis=1).reshape(-1, 6)
     free = [i for i in range(6) if skew or i != 1]
     V = V[:, free]                                  # b2 = 0  <=>  gamma = 0
     n = len(free)                                   # unknowns of b; b is found up to scale
@@ -221,14 +233,17 @@ def extrinsics_from_homography(K: np.ndarray, H: np.ndarray) -> Pose:
     ``t = lambda A^-1 h3``, ``r3 = r1 x r2``, then the nearest rotation. The sign of lambda is
     chosen so that the board lies in front of the camera (t_z > 0).
     """
-    Ki = np.linalg.inv(K)
-    a1, a2, a3 = Ki @ H[:, 0], Ki @ H[:, 1], Ki @ H[:, 2]
-    lam = 2.0 / (np.linalg.norm(a1) + np.linalg.norm(a2))
-    if a3[2] < 0:
-        lam = -lam
-    r1, r2, t = lam * a1, lam * a2, lam * a3
-    R = nearest_rotation(np.column_stack([r1, r2, np.cross(r1, r2)]))
-    return Pose(R, t)
+    return extrinsics_from_homographies(K, [H])[0]
+
+
+def extrinsics_from_homographies(K: np.ndarray, Hs) -> list[Pose]:
+    """:func:`extrinsics_from_homography` of every homography ``Hs`` (V, 3, 3), in one batch."""
+    a = np.linalg.inv(K) @ np.asarray(Hs, float)                                  # columns a1, a2, a3
+    lam = 2.0 / (np.linalg.norm(a[:, :, 0], axis=1) + np.linalg.norm(a[:, :, 1], axis=1))
+    lam = np.where(a[:, 2, 2] < 0, -lam, lam)
+    r1, r2, t = (lam[:, None] * a[:, :, i] for i in range(3))
+    Rs = nearest_rotation(np.stack([r1, r2, np.cross(r1, r2)], axis=-1))
+    return [Pose(R, tt) for R, tt in zip(Rs, t)]
 
 
 _RADIAL_POWER = {"k1": 1, "k2": 2, "k3": 3}     # coefficient of r^(2 n)
@@ -315,24 +330,30 @@ def closed_form_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool
     """Zhang's closed-form intrinsics alone (sections 1.3-1.4; no lens): from the DLT's homographies,
     not refined, which is enough to judge a lens's field of view."""
     uvs = [views[k] for k in sorted(views)]
-    return _closed_form(xy_board, uvs, [observed_mask(uv) for uv in uvs], image_size, skew, refine=False)[0]
+    return _closed_form_intrinsics(xy_board, uvs, [observed_mask(uv) for uv in uvs], image_size, skew, refine=False)[0]
 
 
 def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool,
                  refine: bool = True):
     """Homographies (``refine``: on the pixel error), Zhang's closed form and one pose per view, no
     lens (sections 1.3-1.5)."""
+    cam, Hs = _closed_form_intrinsics(xy_board, uvs, seen, image_size, skew, refine)
+    # a pose that puts a corner behind the camera (from a poor closed form) is replaced by IPPE's
+    X = np.column_stack([xy_board, np.zeros(len(xy_board))])
+    poses = extrinsics_from_homographies(cam.K, Hs)
+    poses = [pose if np.all(pose.apply(X[m])[:, 2] > 0) else planar_pose(X, cam, uv)
+             for uv, m, pose in zip(uvs, seen, poses)]
+    return cam, poses
+
+
+def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size,
+                            skew: bool, refine: bool = True) -> tuple[CameraModel, list[np.ndarray]]:
+    """Homographies and Zhang's closed form (sections 1.3-1.4): the camera and the homographies."""
     Hs = estimate_homographies(xy_board, uvs, seen, refine)
     # A homography of n corners has 2n - 8 redundant equations; one of 4 corners fits them
     # exactly, noise and all, and would pull the closed form as hard as one of 40.
     weights = [np.sqrt(2.0 * m.sum() - 2 * MIN_HOMOGRAPHY_CORNERS) for m in seen]
-    cam = intrinsics_from_homographies(Hs, image_size, skew, weights)
-    # a pose that puts a corner behind the camera (from a poor closed form) is replaced by IPPE's
-    X = np.column_stack([xy_board, np.zeros(len(xy_board))])
-    poses = [extrinsics_from_homography(cam.K, H) for H in Hs]
-    poses = [pose if np.all(pose.apply(X[m])[:, 2] > 0) else planar_pose(X, cam, uv)
-             for uv, m, pose in zip(uvs, seen, poses)]
-    return cam, poses
+    return intrinsics_from_homographies(Hs, image_size, skew, weights), Hs
 
 
 #: The fisheye start's ``k1`` values tried (0: equidistant; 1/3 is a pinhole's ``tan`` to third order)
@@ -401,7 +422,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
                 pins = _pinhole_pixels(guess, search_uvs)
             except NotInvertibleError:
                 break
-            cam = _closed_form(xy_board, pins, search_seen, image_size, skew, refine=False)[0]
+            cam = _closed_form_intrinsics(xy_board, pins, search_seen, image_size, skew, refine=False)[0]
             settled = abs(cam.fx / guess.fx - 1.0) < _FISHEYE_SETTLED
             guess, found = replace(cam, model=model, k1=float(k1)), guess
             if settled:

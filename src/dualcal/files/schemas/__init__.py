@@ -83,8 +83,43 @@ def key_path(parts) -> str:
     return out or "(top level)"
 
 
+def _all_finite(doc) -> bool:
+    """Whether every number in ``doc`` is finite (iterative: any depth; no key paths kept)."""
+    stack = [doc]
+    while stack:
+        value = stack.pop()
+        if isinstance(value, dict):
+            value = list(value.values())
+        if isinstance(value, list):
+            if not all(map(math.isfinite, (x for x in value if isinstance(x, float)))):
+                return False
+            stack.extend(x for x in value if isinstance(x, (dict, list)))
+        elif isinstance(value, float) and not math.isfinite(value):
+            return False
+    return True
+
+
+def _finite_corners(views) -> bool:
+    """Whether every number among a camera's views of corners is finite: the corners ``[u, v]`` in one pass,
+    anything else there (which the schema will refuse) by :func:`_all_finite`."""
+    finite, number, odd = math.isfinite, (int, float), []
+    for corners in views.values():
+        if type(corners) is not list:
+            odd.append(corners)
+            continue
+        for uv in corners:
+            if type(uv) is list and len(uv) == 2 and type(uv[0]) in number and type(uv[1]) in number:
+                if not (finite(uv[0]) and finite(uv[1])):
+                    return False
+            elif uv is not None:
+                odd.append(uv)
+    return _all_finite(odd)
+
+
 def non_finite_key(doc) -> str | None:
     """The key path of the first NaN or infinite number in ``doc``, or None (iterative: any depth)."""
+    if _all_finite(doc):
+        return None
     stack = [((), doc)]
     while stack:
         path, value = stack.pop()
@@ -105,9 +140,12 @@ def _corner_problem(views) -> tuple[tuple, str] | None:
     """The key path and the fault of the first view entry that is not ``null`` or a list of corners
     ``[u, v]`` / ``null`` (what the schema says of them, checked here in one pass: a generic
     validator takes ten times longer over thousands of corners)."""
+    number = (int, float)
     for key, corners in views.items():
-        if corners is None:
-            continue
+        if corners is None or (type(corners) is list and all(
+                uv is None or (type(uv) is list and len(uv) == 2 and type(uv[0]) in number and type(uv[1]) in number)
+                for uv in corners)):
+            continue                            # (the common case, in one pass; a fault is found below)
         if not isinstance(corners, list):
             return (key,), f"{corners!r:.40} must be array or null"
         for i, uv in enumerate(corners):
@@ -116,7 +154,7 @@ def _corner_problem(views) -> tuple[tuple, str] | None:
             if not (isinstance(uv, list) and len(uv) == 2):
                 return (key, i), f"{uv!r:.40} is not a corner [u, v] or null"
             for j, x in enumerate(uv):
-                if type(x) not in (int, float):
+                if type(x) not in number:
                     return (key, i, j), f"{x!r:.40} must be number"
     return None
 
@@ -148,10 +186,10 @@ def _split_corner_lists(doc, name: str):
 def validate(doc, name: str, source: str) -> None:
     """Raise :class:`InputError` unless ``doc`` is a valid ``NAME.json``: one line naming ``source``
     and the key that breaks the schema, or that holds NaN or an infinite number."""
-    bad = non_finite_key(doc)
-    if bad is not None:
-        raise InputError(f"{source}: {bad} is NaN or infinite: every number must be finite")
-    doc, corner_lists = _split_corner_lists(doc, name)
+    stripped, corner_lists = _split_corner_lists(doc, name)
+    if not (_all_finite(stripped) and all(_finite_corners(views) for _, views in corner_lists)):
+        raise InputError(f"{source}: {non_finite_key(doc)} is NaN or infinite: every number must be finite")
+    doc = stripped
     for path, views in corner_lists:
         problem = _corner_problem(views)
         if problem is not None:

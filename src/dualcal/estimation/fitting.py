@@ -1,0 +1,349 @@
+"""One rig fitted to its corners: the solving core under every calibration, comparison and check.
+
+What a calibration (:mod:`dualcal.estimation.calibrate`), the comparison of lens models
+(:mod:`dualcal.estimation.model_selection`) and the checks share: which photos can be used
+(:func:`usable_photos`), one adjustment of a rig from Zhang's closed form or from an earlier solution
+(:class:`Setup`, :func:`solve`), a calibration's corners adjusted again with another lens, skew or rig
+model (:func:`refit`; one camera alone, :func:`refit_alone`), two cameras of a rig as a rig of their own
+(:func:`pair_solutions`), the fit and
+the error on instants left out (:func:`fit_summary`, :func:`held_out_error`), and a solution packaged as
+the :class:`~dualcal.geometry.model.RigModel` that calib.json holds (:func:`rig_model_from_solution`).
+No outliers are looked for here and nothing is decided: that is the calibration's part.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .adjust import COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state, linearised_at
+from ..geometry.board import SHAPE_TERMS
+from ..geometry.camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, LENS_MODELS,
+                               CameraModel)
+from .covariance import JointCovariance, intrinsic_name
+from ..errors import EstimationError, InputError
+from .lm import COMPARISON_LM, NEAR_START, LMOptions
+from ..geometry.model import CornerSet, Pose, RigModel, RigRelation, observed_mask
+from ..progress import warn
+from .rig_relations import parameter_covariance, rig_relation, shared_views
+from ..geometry.scale import relative_sigma, with_scale
+from ..geometry.zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
+
+MIN_VIEWS = 3
+
+
+def unusable_reason(uv: np.ndarray, xy_board: np.ndarray) -> str | None:
+    """Why a photo's measured corners cannot determine a homography (None if they can): fewer than
+    :data:`dualcal.geometry.zhang.MIN_HOMOGRAPHY_CORNERS`, or all on one line."""
+    seen = observed_mask(uv)
+    if seen.sum() >= MIN_HOMOGRAPHY_CORNERS and spans_a_plane(xy_board[seen]):
+        return None
+    return (f"its {int(seen.sum())} measured corner(s) "
+            f"{'lie on one line' if seen.sum() >= MIN_HOMOGRAPHY_CORNERS else 'are too few'}; "
+            f"a photo needs at least {MIN_HOMOGRAPHY_CORNERS} corners, not all on one line")
+
+
+def usable_photos(corners: CornerSet, names: list[str], xy_board: np.ndarray,
+                  quiet: bool = False) -> list[tuple[int, str, np.ndarray]]:
+    """``(camera index, view, (N, 2) corners)`` of every photo whose measured corners determine a
+    homography (:func:`unusable_reason`). Every other photo where the board was found is skipped
+    with a warning naming it (unless ``quiet``: a calibration already said so)."""
+    blocks = []
+    for c, name in enumerate(names):
+        for v, uv in sorted(corners.cameras[name].found().items()):
+            reason = unusable_reason(uv, xy_board)
+            if reason:
+                if not quiet:
+                    warn(f"{name}/{v} skipped: {reason}")
+                continue
+            blocks.append((c, v, uv))
+    return blocks
+
+
+def _check_enough_views(blocks, names) -> None:
+    for c, name in enumerate(names):
+        n = sum(1 for cam, _, _ in blocks if cam == c)
+        if n < MIN_VIEWS:
+            raise EstimationError(f"camera {name!r} has {n} usable view(s); at least {MIN_VIEWS} are needed "
+                                  "(take more photos, or check that the board is found in them)")
+
+
+def _starting_values(sol: Solution):
+    """Per-camera intrinsics and board-to-camera poses of a solution, to start another adjustment."""
+    bp = sol.photo_poses
+    n = len(sol.problem.cameras)
+    cams = [sol.state.camera(sol.problem, c) for c in range(n)]
+    poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c and (c, v) in bp} for c in range(n)]
+    return cams, poses
+
+
+@dataclass(frozen=True)
+class Setup:
+    """What every adjustment of one calibration shares: the board's corners ``X_board`` (N, 3), the
+    camera names and image sizes, the reference's index, the skew model, the rig mode and the lens
+    model of every camera (one name, or one per camera)."""
+
+    X_board: np.ndarray
+    names: list[str]
+    sizes: list[tuple[int, int]]
+    reference: int
+    skew: bool
+    mode: str
+    model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
+
+    def solve(self, blocks, start: "Solution | None" = None, mode: str | None = None,
+              board_shape: bool = False) -> "Solution":
+        """:func:`solve` with these settings (``mode`` overrides the rig mode)."""
+        return solve(self.X_board, self.names, self.sizes, blocks, self.reference, self.skew, mode or self.mode,
+                     start, board_shape, self.model)
+
+    def linearised(self, sol: "Solution", board_shape: bool) -> "Solution":
+        """``sol``'s photos and state linearised (:func:`dualcal.estimation.adjust.linearised_at`), the board's
+        shape free or not."""
+        p = sol.problem
+        return linearised_at(Problem(self.X_board, list(self.names), list(self.sizes), p.blocks, p.mode, self.skew,
+                                     self.reference, board_shape, p.model), sol.state)
+
+
+def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
+          start: Solution | None = None, board_shape: bool = False,
+          model: str | tuple[str, ...] = DEFAULT_LENS_MODEL) -> Solution:
+    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples;
+    ``model``: the lens model (:data:`dualcal.geometry.camera.LENS_MODELS`) of every camera, or one per camera.
+
+    Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
+    solution over the same photos (or a superset of them: photos it did not see start from
+    Zhang's), whose board shape is kept as the start too; a camera of another lens model there starts
+    from its values as :func:`refit` converts them. The paper's model starts from the
+    better (lower cost) of the rigid solution (every instant's baseline direction the same) and
+    the cameras-alone solution (each instant's own relative pose): the first is the nearer when
+    the rig is rigid, the second when the direction moves between instants. With
+    ``board_shape`` the board's out-of-plane shape is estimated too.
+    """
+    _check_enough_views(blocks, names)
+    models = (model,) * len(names) if isinstance(model, str) else tuple(model)
+    if mode == "paper" and start is None:
+        start = solve(X_board, names, sizes, blocks, reference, skew, "none", board_shape=board_shape, model=model)
+    shape = start.state.board_shape_mm if start is not None else None
+    if start is not None:
+        cams, poses = _starting_values(start)
+        cams = [cam if cam.model == models[c] else
+                _start_camera(cam, models[c], skew, X_board, {v: uv for cc, v, uv in blocks if cc == c})
+                for c, cam in enumerate(cams)]
+        views = {v for _, v, _ in blocks}
+        poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
+        missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
+        if missing:
+            zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew,
+                                       models[c])[1]
+                     for c in {c for c, _ in missing}}
+            for c, v in missing:
+                poses[c][v] = zhang[c][v]
+    else:
+        cams, poses = [], []
+        for c, size in enumerate(sizes):
+            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew,
+                                    models[c])
+            cams.append(cam)
+            poses.append(p)
+    first_mode = "rigid" if mode == "paper" else mode
+    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape, models)
+    sol = adjust(problem, initial_state(problem, cams, poses, shape), LMOptions() if start is None else NEAR_START)
+    if mode != "paper":
+        return sol
+    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape, models)
+    starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
+    return adjust(problem, min(starts, key=lambda state: cost(problem, state)), NEAR_START)
+
+
+def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int) -> tuple[Solution, Solution, int]:
+    """Cameras ``x`` and ``y`` of ``sol`` as a rigid two-camera rig (``x`` its reference) and alone, from
+    the instants both saw there, started from ``sol``'s values (the tied pair) and ``alone``'s (the
+    cameras alone: where the pair's photos are all those ``alone`` had, it is already their solution),
+    each adjusted to a comparison's tolerance (:data:`dualcal.estimation.lm.COMPARISON_LM`)."""
+    cams, poses = _starting_values(sol)
+    views = set(poses[x]) & set(poses[y])
+    blocks = [(int(c == y), v, uv) for c, v, uv in sol.problem.blocks if c in (x, y) and v in views]
+    model = setup.model if isinstance(setup.model, str) else (setup.model[x], setup.model[y])
+    pair = replace(setup, names=[setup.names[x], setup.names[y]], sizes=[setup.sizes[x], setup.sizes[y]],
+                   reference=0, mode="rigid", model=model)
+    _check_enough_views(blocks, pair.names)
+
+    def adjusted(mode: str, start: Solution) -> Solution:
+        problem = Problem(pair.X_board, pair.names, pair.sizes, blocks, mode, pair.skew, 0, False, pair.model)
+        start_cams, start_poses = _starting_values(start)
+        return adjust(problem, initial_state(problem, [start_cams[x], start_cams[y]],
+                                             [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)]),
+                      COMPARISON_LM)
+
+    return adjusted("rigid", sol), adjusted("none", alone), len(views)
+
+
+#: ``model="auto"``: every camera's lens model chosen by its held-out instants (:mod:`dualcal.estimation.model_selection`).
+AUTO_MODEL = "auto"
+
+
+def lens_models_for(model: str | Mapping[str, str], names: list[str]) -> tuple[str, ...]:
+    """One lens model per camera of ``names`` from a model name (every camera) or a mapping
+    ``{camera: model}`` (cameras not named get the mapping's ``"*"``, else
+    :data:`dualcal.geometry.camera.DEFAULT_LENS_MODEL`).
+
+    Raises
+    ------
+    InputError
+        An unknown model name, or a mapping naming a camera that is not there.
+    """
+    if isinstance(model, str):
+        model = dict.fromkeys(names, model)
+    model = dict(model)
+    default = model.pop("*", DEFAULT_LENS_MODEL)
+    unknown_cameras = sorted(set(model) - set(names))
+    if unknown_cameras:
+        raise InputError(f"lens model given for camera {unknown_cameras[0]!r}, which is not one of the rig's "
+                         f"({', '.join(names)})")
+    for m in [default, *model.values()]:
+        if m not in LENS_MODELS:
+            raise InputError(f"lens model {m!r} is unknown (choose from {', '.join(LENS_MODELS)}, or {AUTO_MODEL})")
+    return tuple(model.get(n, default) for n in names)
+
+
+def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
+          rig_mode: str | None = None, options: LMOptions = NEAR_START, cameras=None) -> Solution:
+    """The corners ``rig`` used (:meth:`RigModel.used_corners`), adjusted again with another lens model,
+    skew model or rig mode (None: ``rig``'s), started from ``rig``'s values; those of the ``cameras`` named
+    alone, where given (then the first named is the reference).
+
+    No outliers are looked for and the board keeps ``rig``'s treatment (its shape estimated again where
+    ``rig`` kept one): the same corners, so that the solutions compare. A lens model of ``rig``'s family
+    starts from ``rig``'s coefficients (a new coefficient at 0, a dropped one let go); one of another
+    family (a fisheye for a radial lens, or back) from Zhang's closed form with ``rig``'s poses.
+    This is what comparing lens or skew models costs: one adjustment from a near start, where a full
+    calibration (closed form, outliers alone and tied, the board-shape test) takes several. ``options``:
+    the adjustment's tolerances (a comparison needs fewer digits than a result).
+    """
+    corners = rig.used_corners()
+    names = sorted(corners.cameras if cameras is None else cameras)
+    model = rig.models if model is None else model
+    models = lens_models_for(model if isinstance(model, str) else
+                             {k: m for k, m in model.items() if k in names or k == "*"}, names)
+    skew = rig.skew if skew is None else skew
+    X = corners.board.object_points_mm()
+    blocks = usable_photos(corners, names, X[:, :2], quiet=True)
+    _check_enough_views(blocks, names)
+    sizes = [corners.cameras[n].image_size for n in names]
+    poses = [dict(rig.camera_poses[n]) for n in names]
+    cams = [_start_camera(rig.cameras[n], models[c], skew, X, {v: uv for cc, v, uv in blocks if cc == c})
+            for c, n in enumerate(names)]
+    ref = names.index(rig.reference) if rig.reference in names else 0
+    problem = Problem(X, names, sizes, blocks, rig_mode or rig.rig_mode, skew, ref, rig.board_shape_mm is not None,
+                      models)
+    return adjust(problem, initial_state(problem, cams, poses, rig.board_shape_mm), options)
+
+
+def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray, views: dict) -> CameraModel:
+    """``cam`` as the start of an adjustment with lens ``model``: ``cam``'s coefficients where ``model`` is
+    of its family (a new coefficient at 0, a dropped one let go), else Zhang's closed form of ``views``."""
+    if (model in FISHEYE_MODELS) == cam.fisheye:
+        return replace(cam, model=model, skew=cam.skew if skew else 0.0,
+                       **{k: 0.0 for k in DISTORTION_NAMES if k not in LENS_MODELS[model]})
+    return initial_camera(X_board[:, :2], views, cam.image_size, skew, model)[0]
+
+
+def refit_alone(sol: Solution, c: int, model: str, options: LMOptions = NEAR_START) -> Solution:
+    """Camera ``c`` of ``sol`` (a solution of every camera alone with a flat board, where no camera's fit
+    depends on another's) adjusted alone with lens ``model``, from its values there (:func:`refit`'s start)."""
+    p = sol.problem
+    if p.mode != "none" or p.board_shape:
+        raise ValueError("refit_alone takes a solution of every camera alone with a flat board")
+    cams, poses = _starting_values(sol)
+    blocks = [(0, v, uv) for cc, v, uv in p.blocks if cc == c]
+    cam = _start_camera(cams[c], model, p.skew, p.X_board, {v: uv for _, v, uv in blocks})
+    problem = Problem(p.X_board, [p.cameras[c]], [p.image_sizes[c]], blocks, "none", p.skew, 0, False, (model,))
+    return adjust(problem, initial_state(problem, [cam], [poses[c]]), options)
+
+
+def fit_summary(sol: Solution) -> dict:
+    """What comparing models needs of a solution: ``rms_px`` (2-D, per corner), ``camera_rms_px``
+    ``{camera: px}`` and the held-out errors of :func:`held_out_error`."""
+    sq = np.sum(sol.residuals ** 2, axis=2)
+    cams = np.array([c for c, _, _ in sol.problem.blocks])
+    return {"rms_px": float(np.sqrt(np.nanmean(sq))),
+            "camera_rms_px": {name: float(np.sqrt(np.nanmean(sq[cams == c])))
+                              for c, name in enumerate(sol.problem.cameras)},
+            **held_out_error(sol)}
+
+
+def held_out_error(sol: Solution) -> dict:
+    """The error on instants the calibration did not see (:meth:`Solution.held_out_squares`), as
+    :func:`held_out_summary` gives it."""
+    names = sol.problem.cameras
+    return held_out_summary({view: None if photos is None else {names[c]: sq for c, sq in sorted(photos.items())}
+                             for view, photos in sol.held_out_squares().items()}, names)
+
+
+def held_out_summary(squares: dict[str, dict[str, tuple[float, int]] | None], names) -> dict:
+    """From each instant's held-out ``{camera: (px^2, corners)}`` (None: it cannot be left out):
+    ``held_out_rms_px``, the RMS length of the 2-D held-out residual per corner over the instants
+    that can be left out, ``held_out_per_instant`` ``{view: {"rms_px", "corners"}}`` and the same of
+    each camera of ``names``' own corners, ``held_out_per_camera`` ``{camera: {view: {"rms_px", "corners"}}}``."""
+    per_instant, per_camera = {}, {name: {} for name in names}
+    for view, photos in squares.items():
+        if photos is None:
+            continue
+        for name, (sq, n) in photos.items():
+            per_camera[name][view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
+        sq, n = (sum(x) for x in zip(*photos.values()))
+        per_instant[view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
+    total = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
+    corners = sum(d["corners"] for d in per_instant.values())
+    return {"held_out_rms_px": float(np.sqrt(total / corners)) if corners else None,
+            "held_out_per_instant": per_instant, "held_out_per_camera": per_camera}
+
+
+def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict],
+                            dropped_corners: list[dict] = ()) -> RigModel:
+    """Package an adjustment result as the :class:`RigModel` written to calib.json (no checks)."""
+    p, st = sol.problem, sol.state
+    names = p.cameras
+    cams = {name: st.camera(p, c) for c, name in enumerate(names)}
+    names_cov, covs = parameter_covariance(sol, COVARIANCE_KINDS)
+    sd = {kind: dict(zip(names_cov, np.sqrt(np.maximum(np.diag(cov), 0.0)))) for kind, cov in covs.items()}
+    sigma_formal = {name: {n: sd["formal"].get(intrinsic_name(name, n), 0.0) for n in INTRINSIC_NAMES}
+                    for name in names}
+    sigma = {name: {n: max(sd["clustered"].get(intrinsic_name(name, n), 0.0), s)
+                    for n, s in sigma_formal[name].items()} for name in names}
+    fit = fit_summary(sol)
+    view_rms: dict[str, dict[str, float]] = {}
+    for b, (c, v, _) in enumerate(p.blocks):
+        view_rms.setdefault(v, {})[names[c]] = sol.block_rms_px[b]
+    poses: dict[str, dict[str, Pose]] = {name: {} for name in names}
+    for (c, v), pose in sorted(sol.photo_poses.items(), key=lambda kv: kv[0][1]):
+        poses[names[c]][v] = pose
+    rig = {}
+    for c, name in enumerate(names):
+        if c == p.reference:
+            continue
+        if p.mode == "none" and not shared_views(p, c):
+            warn(f"camera {name!r} shares no view with {names[p.reference]!r}: no rig relation for it")
+            continue
+        pose, *clustered = rig_relation(sol, c, "clustered")
+        _, *formal = rig_relation(sol, c, "formal", warn_gimbal=False)
+        sigma_t, sigma_d, sigma_opk = (np.maximum(a, b) for a, b in zip(clustered, formal))
+        rel = relative_sigma(corners.board)          # the printed squares' tolerance: every length scales
+        rig[name] = RigRelation(pose, with_scale(sigma_t, pose.t_mm, rel),
+                                float(with_scale(sigma_d, np.linalg.norm(pose.t_mm), rel)), sigma_opk,
+                                dict(zip(("t_mm", "baseline_mm", "opk_arcmin"), formal)))
+    adjustment = {"s0_px": sol.s0_px, "redundancy": sol.redundancy, "iterations": sol.iterations,
+                  "converged": sol.converged, "termination": sol.termination,
+                  "n_observations": p.n_observations, "n_parameters": p.n_parameters,
+                  **{k: fit[k] for k in ("held_out_rms_px", "held_out_per_instant", "held_out_per_camera")}}
+    shape = shape_sigma = None
+    if p.board_shape:
+        shape = st.board_shape_mm.copy()
+        shape_sigma = np.array([max(sd[kind][f"board.shape_mm.{t}"] for kind in COVARIANCE_KINDS) for t in SHAPE_TERMS])
+    covariance = JointCovariance(tuple(names_cov), covs).to_dict()
+    return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, fit["camera_rms_px"], rig, poses,
+                    dict(sorted(view_rms.items())), fit["rms_px"], corners, adjustment, dropped,
+                    sigma_formal, shape, shape_sigma, list(dropped_corners), {}, covariance)
