@@ -127,18 +127,21 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
 
 def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant_gap_s, reference, exclude,
             jobs, hints_path, overlays_dir, progress) -> CornerSet:
-    """A dataset's corners: open it, refuse cameras that pair with nothing, detect."""
-    from .files.dataset import check_pairs, open_dataset
+    """A dataset's corners: open it, refuse cameras that pair with nothing, detect; a camera roll, or a folder
+    of photos without EXIF, is split into cameras and instants once its boards are detected (each photo is
+    detected once, before the split)."""
+    from .files.dataset import check_pairs, open_dataset, split_roll_dataset
     from .files.detect import detect_dataset, load_hints
 
     dataset = open_dataset(source, cameras, pair_by=pair_by, reference=reference,
                            time_tolerance_s=time_tolerance_s, instant_gap_s=instant_gap_s, exclude=exclude)
-    check_pairs(dataset, pair_by)
+    if not dataset.split_pending:
+        check_pairs(dataset, pair_by)
     hints = load_hints(hints_path) if hints_path else None
     corners = detect_dataset(dataset, board, jobs=jobs, hints=hints, overlays_dir=overlays_dir, progress=progress)
-    if dataset.roll is not None:
-        from .files.roll import with_detection
-        corners = replace(corners, roll=with_detection(dataset.roll, corners))
+    if dataset.split_pending:
+        dataset, corners = split_roll_dataset(dataset, corners)
+        check_pairs(dataset, pair_by)
     return replace(corners, reference=reference) if reference is not None else corners
 
 
