@@ -169,6 +169,19 @@ def test_a_roll_shot_as_people_shoot_splits_right_with_no_flag(phone, how, exif)
             assert cam["focal_length_35mm_mm"] == pytest.approx(equivalent_focal_of(phone.cameras[name]), rel=0.1)
 
 
+def test_a_board_that_looks_the_same_turned_splits_whichever_way_each_photo_is_numbered():
+    """An 8x6 board (9 x 7 squares) looks the same turned by 180 degrees: detection numbers each photo by the
+    top-left rule, so photos of one position may be numbered either way round; the split does not care."""
+    truth = synth.make_truth("triple", views=8, seed=2, scale=0.25, board=Board(8, 6, 30.0))
+    script, photos, uv = _shot(truth, MESSY["as the issue found it"], seed=2, exif=False)
+    rng = np.random.default_rng(2)
+    uv = {k: v if v is None or rng.random() < 0.5 else v[::-1].copy() for k, v in uv.items()}
+    xy = truth.board.object_points_mm()[:, :2]
+    cams, facts, _, left_out = roll.cameras_from_boards(photos, uv, xy, symmetric=True)
+    result, _ = roll.split_roll(cams, facts, uv, xy, "/roll", None, left_out, symmetric=True)
+    assert {k: i["photos"] for k, i in result.record["instants"].items()} == _as_shot(script, uv)
+
+
 def test_a_given_gap_decides_where_the_boards_allow(phone):
     script, photos, uv = _shot(phone, MESSY["as the issue found it"])
     result, _ = _split(phone, photos, uv, instant_gap_s=9.0)

@@ -5,7 +5,8 @@ the same input gives the same files whichever way it came in:
 
 * :func:`read_corners`: a ``corners.json`` as it is (less the views ``exclude`` leaves out) or a
   dataset of photos through detection: one loader, one board check (:func:`check_board`), the
-  dataset's pair check (:func:`dualcal.files.dataset.check_pairs`).
+  dataset's pair check (:func:`dualcal.files.dataset.check_pairs`); a camera roll (or a folder of photos
+  without EXIF) is split into cameras and instants after its photos are detected, each once.
 * :func:`calibrate_corners`: :func:`dualcal.estimation.calibrate.calibrate_rig` and the comparison of lens
   models by held-out instants, recorded in the calibration (calib.json ``adjustment.lens_models``).
 * :func:`evaluate_calibration`: the paper's stereo-intersection check as eval.json's content,
@@ -74,8 +75,9 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
 
     Parameters
     ----------
-    source : a corners.json, a dataset folder (:func:`dualcal.files.dataset.open_dataset`; a camera roll too),
-        or None when ``cameras`` are given.
+    source : a corners.json, a dataset folder (:func:`dualcal.files.dataset.open_dataset`; a camera roll too, and a
+        flat folder of photos without EXIF, as a phone's browser uploads them, whose cameras and instants the
+        detected boards tell: :func:`dualcal.files.dataset.split_roll_dataset`), or None when ``cameras`` are given.
     board : the board; needed for photos, checked against a corners.json's (:func:`check_board`).
     square_sigma_mm : the 1-sigma of the printed square's size (:attr:`Board.square_sigma_mm`), recorded
         with the board; None keeps what the board or the corners.json says.

@@ -199,7 +199,8 @@ def roll_tables(roll: dict) -> list[Table]:
     instants.add_column("sure")
     for key, inst in roll["instants"].items():
         taken = (inst.get("taken") or "-").replace("T", " ")[:21]
-        sure = f"{inst['sure']} ({inst['margin']:.1f})" if "sure" in inst else "-"
+        sure = "-" if "sure" not in inst else inst["sure"] if inst["sure"] == "certain" else \
+            f"{inst['sure']} ({inst['margin']:.1f})"
         instants.add_row(key, taken, *(inst["photos"].get(n, "-") for n in cams), sure)
     tables = [found, instants]
     if roll.get("left_out"):

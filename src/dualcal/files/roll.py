@@ -20,9 +20,13 @@ a board, never waits for the rest), then, once the boards are detected, the inst
   photos' transposed (1536 x 2048 among 2048 x 1536) is left out with a warning, not taken for a camera.
 * **cameras by what the photos show** (:func:`cameras_from_boards`), where the photos carry no EXIF (a
   phone's browser strips it on upload): by image size, then by the focal length each photo's board gives
-  alone (:mod:`dualcal.geometry.one_view`), grouped around the values many photos share; a photo whose
-  board gives no clear focal length (seen square-on) takes the camera that its board's scale beside the
-  photo before or after it says. Named by the same rule, from the focal length found.
+  alone (:mod:`dualcal.geometry.one_view`), grouped around the values many photos share. A board seen nearly
+  square-on gives a focal length that fits more than one camera; two more clues decide then, over the roll
+  in shooting order at once (the most likely labelling of a chain): successive photos of one position by two
+  lenses look alike but for the ratio of their focal lengths (:func:`looks_alike`), and each lens bends the
+  board as it does (its division model, fitted to the photos told so far: an ultra-wide's board near the
+  image's edge fits no other lens). A photo still unclear is left out, saying so. Named by the same rule,
+  from the focal length found.
 * **instants** (:func:`split_roll`): the photos in shooting order (capture time, else file name) are
   split into board positions by every clue the roll gives: the board's image and pose, the capture
   times, the lens order (:mod:`dualcal.files.roll_positions`), each decision with its margin (log-odds);
@@ -52,7 +56,7 @@ from .photos import Photo
 from .roll_positions import CERTAIN, MIN_MARGIN, SAME_IMAGE, Shot, image_change, split_positions
 
 __all__ = ["CameraRoll", "camera_class", "cameras_from_boards", "equivalent_focal_mm", "has_lens_exif",
-           "is_camera_roll", "shooting_order", "split_cameras", "split_roll", "turned_photos"]
+           "is_camera_roll", "looks_alike", "shooting_order", "split_cameras", "split_roll", "turned_photos"]
 
 #: The spread of one lens's focal lengths from single views beyond their measured noise: the principal
 #: point off the centre and the division model's misfit of the real lens (natural log).
@@ -224,7 +228,7 @@ def _log_focal_modes(x: np.ndarray, s: np.ndarray) -> np.ndarray:
     for i in sorted(peaks, key=lambda i: -density[i]):
         if all(abs(grid[i] - m) >= np.log(SAME_FOCAL_RATIO) for m in modes):
             modes.append(float(grid[i]))
-    mu = np.array(sorted(modes))
+    mu = np.array(sorted(modes) or [float(np.median(x))])
     for _ in range(10):
         r = _responsibilities(x, s, mu)
         mass = r.sum(axis=0)
@@ -296,7 +300,7 @@ def _chain_labels(views: list[OneView], unary: np.ndarray, modes: np.ndarray, xy
         for a in range(m):
             for b in range(m):
                 if a == b:
-                    alike = image_change(views[i], views[i - 1], xy_board) <= SAME_IMAGE
+                    alike = image_change(views[i], views[i - 1], xy_board, symmetric) <= SAME_IMAGE
                 else:
                     alike = looks_alike(views[i], views[i - 1], float(np.exp(modes[a] - modes[b])),
                                         float(np.exp(modes[a])), xy_board, symmetric)

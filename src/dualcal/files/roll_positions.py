@@ -121,14 +121,16 @@ def longest_run(n_cameras: int) -> int:
     return 2 * n_cameras + 2
 
 
-def image_change(a: OneView, b: OneView, xy_board: np.ndarray) -> float:
+def image_change(a: OneView, b: OneView, xy_board: np.ndarray, symmetric: bool = False) -> float:
     """How far the board's corners moved between two photos of one camera, as a share of the board's
-    size in the first (the RMS of the moves over the RMS distance of the corners from their centre)."""
+    size in the first (the RMS of the moves over the RMS distance of the corners from their centre); for a
+    board that looks the same turned by 180 degrees (``symmetric``), with either numbering of ``b``."""
     X = np.column_stack([xy_board, np.ones(len(xy_board))])
     pa, pb = X @ a.H.T, X @ b.H.T
     pa, pb = pa[:, :2] / pa[:, 2:], pb[:, :2] / pb[:, 2:]
     size = np.sqrt(np.mean(np.sum((pa - pa.mean(axis=0)) ** 2, axis=1)))
-    return float(np.sqrt(np.mean(np.sum((pa - pb) ** 2, axis=1))) / size)
+    return float(min(np.sqrt(np.mean(np.sum((pa - other) ** 2, axis=1)))
+                     for other in ([pb, pb[::-1]] if symmetric else [pb])) / size)
 
 
 def _angle_deg(R: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -324,7 +326,7 @@ def best_split(pair_log_odds: np.ndarray, gap_log_odds: np.ndarray, max_run: int
 
 
 def _pair_log_odds(shots: list[Shot], poses: list[BoardPose], xy_board: np.ndarray, relations, max_run: int,
-                   order: dict[tuple[str, str], float] | None) -> np.ndarray:
+                   order: dict[tuple[str, str], float] | None, symmetric: bool = False) -> np.ndarray:
     """(n, n) log-odds of each pair of shots at most ``max_run`` apart (upper triangle; module docstring)."""
     n = len(shots)
     P = np.zeros((n, n))
@@ -332,7 +334,7 @@ def _pair_log_odds(shots: list[Shot], poses: list[BoardPose], xy_board: np.ndarr
         for j in range(i + 1, min(n, i + max_run)):
             a, b = shots[i].camera, shots[j].camera
             if a == b:
-                d = image_change(shots[i].view, shots[j].view, xy_board)
+                d = image_change(shots[i].view, shots[j].view, xy_board, symmetric)
                 P[i, j] = (STILL_LOG_ODDS if d <= SAME_IMAGE else -np.inf if d >= MOVED_IMAGE else
                            STILL_LOG_ODDS * (1.0 - 2.0 * (d - SAME_IMAGE) / (MOVED_IMAGE - SAME_IMAGE)))
                 continue
@@ -385,7 +387,7 @@ def split_positions(shots: list[Shot], xy_board: np.ndarray, focal_px: dict[str,
     relations = rig_relations(cameras, poses, len(set(cameras)), symmetric)
     timed = all(s.taken_s is not None for s in shots)
     gaps = np.diff([s.taken_s for s in shots]) if timed else np.zeros(n - 1)
-    P = _pair_log_odds(shots, poses, xy_board, relations, max_run, None)
+    P = _pair_log_odds(shots, poses, xy_board, relations, max_run, None, symmetric)
     T, gap_s = time_log_odds(gaps, given_gap_s=given_gap_s) if timed else (np.zeros(n - 1), None)
     runs, margins = best_split(P, T, max_run)
     order = _lens_order(shots, runs)
@@ -394,7 +396,7 @@ def split_positions(shots: list[Shot], xy_board: np.ndarray, focal_px: dict[str,
         cut[[r[0] - 1 for r in runs[1:]]] = True
         T, gap_s = time_log_odds(gaps, gaps[~cut], gaps[cut])
     if order or timed:
-        P = _pair_log_odds(shots, poses, xy_board, relations, max_run, order)
+        P = _pair_log_odds(shots, poses, xy_board, relations, max_run, order, symmetric)
         runs, margins = best_split(P, T, max_run)
     clues = ["order"]
     if len(set(cameras)) < n:
