@@ -433,8 +433,9 @@ def _open_roll(photos: list[Photo], name: str, source: str, options: dict, skipp
     copies: dict = {}
     for p, kept in identical.items():
         copies.setdefault(names.get(kept), {})[p] = kept
-    return Dataset(cams, choose_reference(cams, options["reference"] if record is None else None), source, skipped,
-                   {}, record, {n: d for n, d in copies.items() if n is not None}, roll_options=options)
+    # photos without EXIF are named for now: a reference is checked against the cameras their boards tell
+    return Dataset(cams, choose_reference(cams, options["reference"] if record is not None else None), source,
+                   skipped, {}, record, {n: d for n, d in copies.items() if n is not None}, roll_options=options)
 
 
 def split_roll_dataset(dataset: Dataset, corners: CornerSet) -> tuple[Dataset, CornerSet]:
@@ -475,10 +476,10 @@ def split_roll_dataset(dataset: Dataset, corners: CornerSet) -> tuple[Dataset, C
     if dataset.roll is None:
         by_camera, facts, notes, unknown = cameras_from_boards(photos, corners_uv, xy_board, symmetric)
         if len(dataset.cameras) == 1 and len(by_camera) <= 1:        # one camera, as the folder was opened
-            one = replace(dataset, roll_options=None)
+            one = replace(dataset, reference=choose_reference(dataset.cameras, options["reference"]), roll_options=None)
             _exclude(one, options["exclude"])
             return one, _regrouped(one, corners, detected, None)
-        for note in notes:
+        for note in notes + [f"{name}: left out ({why})" for name, why in unknown.items()]:
             warn(note)
         left_out.update(unknown)
         clues = ("image size", "focal length from the board")

@@ -441,7 +441,7 @@ def split_roll(cameras: dict[str, list[Photo]], facts: dict[str, dict], corners_
     Returns
     -------
     ``(roll, warnings)``: a :class:`CameraRoll` keyed by view (the stem of an instant's first photo) and the
-    warnings to give (retakes, photos without the board, names by rank, unsure decisions).
+    warnings to give (retakes, photos without the board, unsure decisions; not those of ``left_out``).
 
     Raises
     ------
@@ -450,6 +450,7 @@ def split_roll(cameras: dict[str, list[Photo]], facts: dict[str, dict], corners_
         names the photos and what each clue says).
     """
     left_out = dict(left_out or {})
+    said = set(left_out)                              # left out before, and said so there
     views = _camera_views(cameras, corners_uv, xy_board)
     camera_of = {p.path: name for name, photos in cameras.items() for p in photos}
     order, timed = shooting_order([p for photos in cameras.values() for p in photos])
@@ -497,8 +498,7 @@ def split_roll(cameras: dict[str, list[Photo]], facts: dict[str, dict], corners_
         record_instants[key] = {"taken": photos[0].exif["taken"].isoformat() if timed else None,
                                 "photos": {name: p.path.name for name, p in chosen.items()},
                                 "margin": round(margin, 1), "sure": _sureness(margin)}
-    for name, reason in left_out.items():
-        warnings.append(f"{name}: left out ({reason})")
+    warnings += [f"{name}: left out ({reason})" for name, reason in left_out.items() if name not in said]
     margins = [v["margin"] for v in record_instants.values()]
     record = {"folder": folder, "instant_gap_s": split.gap_s, "instant_gap_found": instant_gap_s is None,
               "cameras": facts,
