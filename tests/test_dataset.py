@@ -247,3 +247,30 @@ def test_exclude_leaves_photos_out_and_lists_them(tmp_path):
     assert sorted(ds.cameras["wide"]) == ["IMG_01", "IMG_03"] and sorted(ds.cameras["tele"]) == ["IMG_01"]
     assert sorted(ds.excluded["tele"]) == ["IMG_02", "IMG_03"]
     assert ds.meta("tele")["excluded"]["IMG_03"].endswith("IMG_03.jpg")
+
+
+def test_a_photo_stored_turned_is_left_out_with_a_warning_not_taken_for_a_camera(tmp_path, capsys):
+    """Issue 33: one phone's photos, one stored turned (its size the others' transposed), in a folder of photos
+    and in a camera's folder: that photo is left out, saying it is turned; the rest is one camera."""
+    for folder in (tmp_path / "phone", tmp_path / "set" / "wide"):
+        for k in range(4):
+            _photo(folder / f"IMG_0{k}.jpg", make=("Nokia", "N9"))
+        _photo(folder / "IMG_09.jpg", size=(48, 64), make=("Nokia", "N9"))
+    for path, name in ((tmp_path / "phone", "phone"), (tmp_path / "set", "wide")):
+        ds = open_dataset(path)
+        assert list(ds.cameras) == [name] and sorted(ds.cameras[name]) == [f"IMG_0{k}" for k in range(4)]
+        assert not ds.split_pending and ds.skipped[0][0].name == "IMG_09.jpg"
+        assert "IMG_09.jpg: left out (stored turned: 48x64, where 4 other photo(s) of the same camera are 64x48)" \
+            in capsys.readouterr().err
+
+
+def test_a_folder_of_photos_without_exif_awaits_its_boards_to_tell_its_cameras(tmp_path):
+    """Photos as a phone's browser uploads them: one camera per image size until the boards tell them apart
+    (dualcal.files.roll.cameras_from_boards); nothing is refused for its sizes."""
+    for k in range(3):
+        _photo(tmp_path / "upload" / f"image{k}.jpg")
+        _photo(tmp_path / "upload" / f"image{k + 3}.jpg", size=(40, 30))
+    ds = open_dataset(tmp_path / "upload", exclude=["image1"])
+    assert ds.split_pending and ds.roll is None and ds.roll_options["exclude"] == ("image1",)
+    assert {n: sorted(v) for n, v in ds.cameras.items()} == {"40x30": ["image3", "image4", "image5"],
+                                                              "64x48": ["image0", "image1", "image2"]}

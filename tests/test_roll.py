@@ -1,17 +1,21 @@
-"""A phone's camera roll (dualcal.files.roll): cameras by EXIF, instants by capture time, retakes, sidecars."""
+"""A phone's camera roll (dualcal.files.roll): cameras by EXIF or by what the photos show, photos stored turned,
+instants from every clue of the roll (shot in every messy way), retakes, sidecars, a roll without EXIF."""
 
+import contextlib
+import io
 import json
+from dataclasses import replace
 from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from dualcal.files import roll
+from dualcal.files import roll, roll_positions
 from dualcal.synthetic import synth
 from dualcal.errors import InputError
 from dualcal.files.photos import Photo
-from dualcal.synthetic.synth_roll import equivalent_focal_of, write_camera_roll
+from dualcal.synthetic.synth_roll import Shooting, equivalent_focal_of, shooting_script, strip_exif, write_camera_roll
 from dualcal.workflow import read_corners
 from dualcal.geometry.board import Board
 from dualcal.geometry.camera import LENS_MODELS
@@ -65,41 +69,155 @@ def test_equivalent_focal_length_is_derived_from_the_sensor_size():
     assert roll.equivalent_focal_mm(p) == pytest.approx(2.2 * np.hypot(36, 24) / 5.04, rel=1e-9)
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_instants_are_found_from_the_capture_times(seed):
-    photos = _session(positions=6, seed=seed)
+def test_the_lens_key_holds_the_equivalent_focal_length_so_a_crop_is_its_own_camera():
+    """An iPhone's "2x" is its main lens cropped: the same LensModel and size, another 35 mm equivalent."""
+    photos = _session(positions=2, lenses=(("main 6.86mm", 24.0),)) + \
+        [_photo(f"IMG_2{i}", 500 + i, "main 6.86mm", 48.0) for i in range(2)]
     cams, _, _ = roll.split_cameras(photos)
-    instants, gap, found = roll.split_instants(cams)
-    assert found and 7.0 < gap < 20.0
-    assert [len(i) for i in instants] == [3] * 6
-    assert all({name for name, _ in inst} == {"ultra", "wide", "tele"} for inst in instants)
+    assert {n: len(v) for n, v in cams.items()} == {"wide": 2, "tele": 2}
 
 
-def test_a_given_gap_overrides_and_no_break_is_refused():
-    photos = _session(positions=4, lens_gap=(3, 4), position_gap=(5, 6))     # no clear break
-    cams, _, _ = roll.split_cameras(photos)
-    with pytest.raises(InputError, match="no break between board positions"):
-        roll.split_instants(cams)
-    instants, gap, found = roll.split_instants(cams, 4.5)
-    assert not found and gap == 4.5 and [len(i) for i in instants] == [3] * 4
+def test_a_photo_stored_turned_is_left_out_not_taken_for_a_camera():
+    photos = [_photo(f"IMG_{i}", i, size=(2048, 1536)) for i in range(5)] + [_photo("IMG_9", 9, size=(1536, 2048))]
+    kept, turned = roll.turned_photos(photos)
+    assert len(kept) == 5 and not roll.is_camera_roll(kept)
+    assert list(turned) == [Path("/roll/IMG_9.HEIC")] and turned[Path("/roll/IMG_9.HEIC")].startswith(
+        "stored turned: 1536x2048, where 5 other photo(s) of the same camera are 2048x1536")
+    with pytest.raises(InputError, match="as many 1536x2048"):      # which is turned? neither can be told
+        roll.turned_photos(photos[:1] + photos[-1:])
 
 
-def test_a_retake_keeps_the_later_photo_and_says_so():
-    photos = _session(positions=3)
-    wide = photos[4]                                   # position 2's wide
-    retake = _photo("IMG_0199", (wide.exif["taken"] - T0).total_seconds() + 1.5, wide.exif["lens_model"], 24.0)
-    result, warnings = roll.open_camera_roll(photos + [retake], "/roll")
-    key = photos[3].path.stem
-    assert result.cameras["wide"][key].path.name == "IMG_0199.HEIC"
-    assert "retake" in result.record["left_out"][wide.path.name]
-    assert any(w.startswith(f"{wide.path.name}: left out (retake") for w in warnings)
+# ---------------------------------------------------------------------------- the split, on shooting scripts
+
+@pytest.fixture(scope="module")
+def phone():
+    """``phone3`` (a kb4 fisheye ultra-wide, a wide and a 3x tele) at quarter size, 12 board positions, some seen
+    by the ultra-wide alone."""
+    return synth.make_truth("phone3", views=12, seed=6, scale=0.25)
 
 
-def test_an_instant_one_lens_missed_is_kept():
-    photos = _session(positions=4)
-    del photos[5]                                      # position 2 has no tele
-    result, _ = roll.open_camera_roll(photos, "/roll")
-    assert len(result.cameras["wide"]) == 4 and len(result.cameras["tele"]) == 3
+def _shot(truth, shooting, seed=6, exif=True, noise_px=0.1):
+    """The script of a session, its photos' headers (as the phone writes them, or as a browser uploads them:
+    without EXIF) and their corners (the truth's, with noise; None where the photo shows no board)."""
+    rng = np.random.default_rng(seed)
+    corners = synth.true_corners(truth)
+    script = shooting_script(truth, shooting, seed)
+    photos, uv = [], {}
+    for s in script:
+        cam = truth.cameras[s.camera or truth.reference]
+        f35 = equivalent_focal_of(cam)
+        facts = {"make": "dualcal", "model": "phone", "lens_model": f"lens {round(f35)} mm", "focal_length_mm": f35 / 5,
+                 "focal_length_35mm_mm": float(round(f35)), "taken": s.taken} if exif else {}
+        photos.append(Photo(Path("/roll") / s.name, tuple(cam.image_size), facts))
+        seen = s.camera is not None and np.isfinite(corners[s.camera][s.view]).all()
+        uv[photos[-1].path] = corners[s.camera][s.view] + rng.normal(0, noise_px, (truth.board.n_corners, 2)) \
+            if seen else None
+    return script, photos, uv
+
+
+def _split(truth, photos, uv, exif=True, instant_gap_s=None):
+    xy = truth.board.object_points_mm()[:, :2]
+    if exif:
+        (cams, facts, _), left_out, clues = roll.split_cameras(photos), {}, ("EXIF lens", "image size")
+    else:
+        cams, facts, _, left_out = roll.cameras_from_boards(photos, uv, xy)
+        clues = ("image size", "focal length from the board")
+    return roll.split_roll(cams, facts, uv, xy, "/roll", instant_gap_s, left_out, clues)
+
+
+def _as_shot(script, uv):
+    """The instants as shot: per board position, each camera's last photo showing the board (a retake replaces
+    the first), keyed by the stem of the position's first photo with the board."""
+    out, keys = {}, {}
+    for s in script:
+        if s.camera is not None and uv[Path("/roll") / s.name] is not None:
+            out.setdefault(s.view, {})[s.camera] = s.name
+            keys.setdefault(s.view, Path(s.name).stem)
+    return {keys[v]: photos for v, photos in out.items()}
+
+
+MESSY = {
+    # one lens switch took 4.6 s, a retake, a stray photo 10 s after the last position, positions 20-40 s apart
+    "as the issue found it": Shooting(lens_gap_s=(0.4, 3.0), position_gap_s=(20.0, 40.0), slow_switch_s=4.6,
+                                      stray_after=(-1,), stray_gap_s=(10.0, 10.0)),
+    "positions shot quickly, strays between": Shooting(lens_gap_s=(1.5, 5.0), position_gap_s=(3.0, 6.0),
+                                                       stray_after=(0, 2, 4)),
+    "slow switches, lenses that missed": Shooting(lens_gap_s=(5.0, 15.0), position_gap_s=(15.0, 30.0),
+                                                  missed=(("tele", 2), ("ultra", 3), ("wide", 5), ("tele", 6))),
+}
+
+
+@pytest.mark.parametrize("exif", [True, False], ids=["EXIF", "no EXIF"])
+@pytest.mark.parametrize("how", list(MESSY))
+def test_a_roll_shot_as_people_shoot_splits_right_with_no_flag(phone, how, exif):
+    script, photos, uv = _shot(phone, MESSY[how], exif=exif)
+    result, warnings = _split(phone, photos, uv, exif)
+    record = result.record
+    assert {k: i["photos"] for k, i in record["instants"].items()} == _as_shot(script, uv)
+    assert all(i["margin"] >= roll_positions.MIN_MARGIN for i in record["instants"].values())
+    assert not [w for w in warnings if "unsure" in w]
+    first, second = next((a.name, b.name) for a, b in zip(script, script[1:])
+                         if a.camera is not None and (a.camera, a.view) == (b.camera, b.view))
+    assert record["left_out"][first].startswith(f"retake: {second}")
+    assert all(record["left_out"][s.name].startswith("no board found") for s in script if s.camera is None)
+    assert record["order"] == ("capture time" if exif else "file name")
+    assert set(record["clues"]["instants"]) == {"order", "board image", "board pose", "lens order"} | (
+        {"capture time"} if exif else set())
+    if not exif:                                  # the cameras told by field of view, named by the same rule
+        assert record["clues"]["cameras"] == ["image size", "focal length from the board"]
+        for name, cam in record["cameras"].items():
+            assert cam["focal_length_35mm_mm"] == pytest.approx(equivalent_focal_of(phone.cameras[name]), rel=0.1)
+
+
+def test_a_board_that_looks_the_same_turned_splits_whichever_way_each_photo_is_numbered():
+    """An 8x6 board (9 x 7 squares) looks the same turned by 180 degrees: detection numbers each photo by the
+    top-left rule, so photos of one position may be numbered either way round; the split does not care."""
+    truth = synth.make_truth("triple", views=8, seed=2, scale=0.25, board=Board(8, 6, 30.0))
+    script, photos, uv = _shot(truth, MESSY["as the issue found it"], seed=2, exif=False)
+    rng = np.random.default_rng(2)
+    uv = {k: v if v is None or rng.random() < 0.5 else v[::-1].copy() for k, v in uv.items()}
+    xy = truth.board.object_points_mm()[:, :2]
+    cams, facts, _, left_out = roll.cameras_from_boards(photos, uv, xy, symmetric=True)
+    result, _ = roll.split_roll(cams, facts, uv, xy, "/roll", None, left_out, symmetric=True)
+    assert {k: i["photos"] for k, i in result.record["instants"].items()} == _as_shot(script, uv)
+
+
+def test_a_given_gap_decides_where_the_boards_allow(phone):
+    script, photos, uv = _shot(phone, MESSY["as the issue found it"])
+    result, _ = _split(phone, photos, uv, instant_gap_s=9.0)
+    assert {k: i["photos"] for k, i in result.record["instants"].items()} == _as_shot(script, uv)
+    assert result.record["instant_gap_s"] == 9.0 and not result.record["instant_gap_found"]
+
+
+def test_a_position_whose_lenses_are_minutes_apart_follows_its_boards_less_surely(phone, monkeypatch):
+    """A two-lens roll whose wide and tele of one position are five minutes apart, where positions are half a
+    minute apart: the capture times say two positions, the boards one, and the boards are surer. Where the
+    clues disagree and neither is sure, the split is refused, naming the photos and what each clue says."""
+    two = replace(phone, cameras={n: c for n, c in phone.cameras.items() if n != "ultra"},
+                  rig={n: r for n, r in phone.rig.items() if n != "ultra"})
+    script, photos, uv = _shot(two, Shooting(lens_gap_s=(1.0, 2.0), position_gap_s=(25.0, 35.0), retake=False,
+                                             stray_after=()))
+    shown = [uv[p.path] is not None for p in photos]
+    late = next(i for i in range(5, len(script)) if shown[i - 1] and shown[i] and script[i - 1].view == script[i].view)
+    photos = photos[:late] + [replace(p, exif={**p.exif, "taken": p.exif["taken"] + timedelta(seconds=300)})
+                              for p in photos[late:]]
+    result, _ = _split(two, photos, uv)
+    assert {k: i["photos"] for k, i in result.record["instants"].items()} == _as_shot(script, uv)
+    slow = result.record["instants"][Path(script[late - 1].name).stem]
+    assert slow["sure"] == "likely" and slow["margin"] < min(i["margin"] for i in result.record["instants"].values()
+                                                              if i is not slow)
+    real = roll_positions.split_positions
+
+    def unsure(shots, *args):
+        split = real(shots, *args)
+        k = next(k for k in range(1, len(shots)) if shots[k].taken_s - shots[k - 1].taken_s > 200)
+        split.margins[k - 1], split.board_log_odds[k - 1] = 1.0, 1.5
+        return split
+
+    monkeypatch.setattr(roll, "split_positions", unsure)
+    with pytest.raises(InputError, match=rf"{script[late - 1].name} \(wide\) and {script[late].name} \(tele\) are one "
+                                         r"board position: the capture times say no \(a gap of 30\d\.\d s\), the boards yes"):
+        _split(two, photos, uv)
 
 
 @pytest.fixture(scope="module")
@@ -112,35 +230,39 @@ def rendered_roll(tmp_path_factory):
     return truth, folder, shot
 
 
-def test_a_rendered_roll_is_split_as_it_was_shot(rendered_roll, capsys):
-    truth, folder, shot = rendered_roll
-    from dualcal.files.dataset import open_dataset
+@pytest.fixture(scope="module")
+def calibrated_roll(rendered_roll, tmp_path_factory):
+    """``dualcal calibrate DCIM/`` on the rendered roll, with no flag but the board: its exit code, output and
+    calib.json."""
+    from dualcal.cli import main
 
-    ds = open_dataset(folder)
-    err = capsys.readouterr().err
-    assert set(ds.cameras) == {"ultra", "wide", "tele"} and ds.reference == "wide"
-    for name, views in ds.cameras.items():
-        assert all(shot["photos"][p.path.name][0] in (name, None) for p in views.values())   # None: the stray
-    assert shot["stray"] in {p.path.name for p in ds.cameras["wide"].values()}
-    # each instant holds the photos of one board position
-    for key, inst in ds.roll["instants"].items():
+    truth, folder, shot = rendered_roll
+    out = tmp_path_factory.mktemp("calibrated") / "calib.json"
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr), pytest.raises(SystemExit) as exc:
+        main(["calibrate", str(folder), "--board", "8x5", "--square", "30", "-o", str(out)])
+    return exc.value.code, stdout.getvalue(), stderr.getvalue(), (json.loads(out.read_text()) if out.exists() else None)
+
+
+def test_a_rendered_roll_is_split_as_it_was_shot(rendered_roll, calibrated_roll):
+    truth, folder, shot = rendered_roll
+    code, out, err, doc = calibrated_roll
+    assert code == 0, err
+    record = doc["corners"]["roll"]
+    assert set(record["cameras"]) == {"ultra", "wide", "tele"} and doc["reference"] == "wide"
+    for inst in record["instants"].values():       # each instant one board position, each photo its camera
         assert len({shot["photos"][f][1] for f in inst["photos"].values()}) == 1
+        assert all(shot["photos"][f][0] == name for name, f in inst["photos"].items())
     first, second = shot["retake"]
-    assert ds.cameras["wide"][next(k for k, p in ds.cameras["wide"].items() if p.path.name == second)]
-    assert "retake" in ds.roll["left_out"][first]
+    assert "retake" in record["left_out"][first] and second in json.dumps(record["instants"])
+    assert all(record["left_out"][s].startswith("no board found") for s in shot["stray"])
     assert all(s in err for s in shot["sidecars"]), err
+    assert "capture time" in record["clues"]["instants"] and record["split_margin"] >= roll_positions.MIN_MARGIN
 
 
-def test_a_rendered_roll_calibrates_with_no_flag_but_the_board(rendered_roll, tmp_path, run_cli):
-    truth, folder, shot = rendered_roll
-    res = run_cli("calibrate", folder, "--board", "8x5", "--square", "30", "-o", tmp_path / "calib.json")
-    assert res.code == 0, res.err
-    assert "Camera roll" in res.out and shot["retake"][0] in res.out
-    doc = json.loads((tmp_path / "calib.json").read_text())
-    assert doc["reference"] == "wide" and set(doc["cameras"]) == {"ultra", "wide", "tele"}
-    assert shot["stray"] in doc["corners"]["roll"]["left_out"]          # the photo without the board
-    assert doc["cameras"]["ultra"]["model"] == "kb4" and doc["cameras"]["tele"]["model"] == "k1k2"   # --model auto
-    assert doc["cameras"]["ultra"]["rms_px"] < 0.06                     # at the renders' corner noise
+def _assert_near_the_truth(doc, truth):
+    """Every intrinsic of every camera (of the true lens model's, where the chosen model is another) and every
+    baseline within 4 sigma of the truth."""
     for name, cam in doc["cameras"].items():
         true = truth.cameras[name]
         same_lens = cam["model"] == true.model or set(LENS_MODELS[cam["model"]]) <= set(LENS_MODELS[true.model])
@@ -151,12 +273,38 @@ def test_a_rendered_roll_calibrates_with_no_flag_but_the_board(rendered_roll, tm
         assert np.all(np.abs(np.array(rel["t_mm"]) - t_true) < 4 * np.array(rel["sigma"]["t_mm"])), name
 
 
-def test_exclude_works_on_the_roll(rendered_roll):
+def test_a_rendered_roll_calibrates_with_no_flag_but_the_board(rendered_roll, calibrated_roll):
     truth, folder, shot = rendered_roll
-    tele = next(f for f, (cam, view) in shot["photos"].items() if cam == "tele")
-    corners = read_corners(folder, Board(8, 5, 30.0), exclude=[tele], progress=False)
-    assert tele in json.dumps(corners.cameras["tele"].meta["excluded"])
+    code, out, err, doc = calibrated_roll
+    assert code == 0, err
+    assert "Camera roll" in out and shot["retake"][0] in out and "capture time" in out
+    assert doc["cameras"]["ultra"]["model"] == "kb4" and doc["cameras"]["tele"]["model"] == "k1k2"   # --model auto
+    assert doc["cameras"]["ultra"]["rms_px"] < 0.06                     # at the renders' corner noise
+    _assert_near_the_truth(doc, truth)
+
+
+def test_a_roll_without_exif_gives_the_same_cameras_and_instants_and_calibrates(rendered_roll, calibrated_roll,
+                                                                                  tmp_path):
+    """The roll as a phone's browser uploads it (JPEGs re-encoded without EXIF), a tele photo left out by name:
+    the cameras told by the boards' focal lengths, the instants by order and the boards, as with EXIF."""
+    from dualcal.files.io import save_rig
+    from dualcal.workflow import calibrate_corners
+
+    truth, folder, shot = rendered_roll
+    with_exif = calibrated_roll[3]["corners"]["roll"]
+    strip_exif(folder, tmp_path / "upload")
+    tele = sorted(f for f, (cam, view) in shot["photos"].items() if cam == "tele")[1]
+    corners = read_corners(tmp_path / "upload", Board(8, 5, 30.0), exclude=[tele], progress=False)
+    record = corners.roll
+    assert record["clues"] == {"cameras": ["image size", "focal length from the board"],
+                               "instants": ["order", "board image", "board pose", "lens order"]}
+    assert {k: i["photos"] for k, i in record["instants"].items()} == \
+        {k: i["photos"] for k, i in with_exif["instants"].items()}
+    assert tele in json.dumps(corners.cameras["tele"].meta["excluded"])       # --exclude works on the roll
     assert all(Path(p).name != tele for p in corners.cameras["tele"].meta["photos"].values())
+    rig = calibrate_corners(corners, model={"ultra": "kb4", "wide": "k1k2p1p2k3", "tele": "k1k2"}, compare_lens=False)
+    save_rig(tmp_path / "calib.json", rig)
+    _assert_near_the_truth(json.loads((tmp_path / "calib.json").read_text()), truth)
 
 
 @pytest.mark.parametrize("preset", ["triple", "phone3"])
@@ -177,6 +325,26 @@ def test_synth_writes_a_roll_and_board_suggests_a_board_for_its_cameras(tmp_path
     assert "the tele sees it whole" in res.err and (tmp_path / "board.pdf").stat().st_size > 1000
 
 
+def test_choosing_a_board_needs_the_cameras_only_not_the_instants(tmp_path, run_cli):
+    """``board --for`` on a roll whose capture times show no break between positions (and no boards): the
+    cameras come from the photos' headers; the instants, which need the boards, are not asked for."""
+    from PIL import Image
+
+    photos = _session(positions=4, lenses=(("main 6.9mm", 24.0), ("tele 9mm", 77.0)), lens_gap=(3.0, 4.0),
+                      position_gap=(5.0, 6.0))
+    for p in photos:
+        exif = Image.Exif()
+        exif[0x010F], exif[0x0110] = "Apple", "iPhone"
+        sub = exif.get_ifd(0x8769)
+        sub[0x9003] = p.exif["taken"].strftime("%Y:%m:%d %H:%M:%S")
+        sub[0x920A], sub[0xA405], sub[0xA434] = p.exif["focal_length_mm"], int(p.exif["focal_length_35mm_mm"]), \
+            p.exif["lens_model"]
+        Image.new("L", p.size, 128).save(tmp_path / f"{p.path.stem}.JPG", exif=exif.tobytes())
+    res = run_cli("board", "--for", tmp_path, "-o", tmp_path / "board.pdf")
+    assert res.code == 0, res.err
+    assert "for wide, tele" in res.err and (tmp_path / "board.pdf").stat().st_size > 1000
+
+
 def test_a_copied_photo_counts_once_in_a_roll_and_in_a_camera_folder(rendered_roll, tmp_path, capsys):
     import shutil
 
@@ -190,7 +358,7 @@ def test_a_copied_photo_counts_once_in_a_roll_and_in_a_camera_folder(rendered_ro
     ds = open_dataset(roll)
     assert "IMG_0999.JPG: the same file as" in capsys.readouterr().err
     assert all(p.path.name != "IMG_0999.JPG" for v in ds.cameras.values() for p in v.values())
-    assert ds.roll["left_out"]["IMG_0999.JPG"] == f"the same file as {first}"
+    assert ds.identical["tele"] == {roll / "IMG_0999.JPG": roll / first}
     assert ds.meta("tele")["identical_files"] == {str(roll / "IMG_0999.JPG"): str(roll / first)}
     # a camera folder of a dataset alike
     cam = tmp_path / "set" / "tele"

@@ -5,7 +5,8 @@ the same input gives the same files whichever way it came in:
 
 * :func:`read_corners`: a ``corners.json`` as it is (less the views ``exclude`` leaves out) or a
   dataset of photos through detection: one loader, one board check (:func:`check_board`), the
-  dataset's pair check (:func:`dualcal.files.dataset.check_pairs`).
+  dataset's pair check (:func:`dualcal.files.dataset.check_pairs`); a camera roll (or a folder of photos
+  without EXIF) is split into cameras and instants after its photos are detected, each once.
 * :func:`calibrate_corners`: :func:`dualcal.estimation.calibrate.calibrate_rig` and the comparison of lens
   models by held-out instants, recorded in the calibration (calib.json ``adjustment.lens_models``).
 * :func:`evaluate_calibration`: the paper's stereo-intersection check as eval.json's content,
@@ -75,8 +76,9 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
     Parameters
     ----------
     source
-        a corners.json, a dataset folder (:func:`dualcal.files.dataset.open_dataset`; a camera roll too),
-        or None when ``cameras`` are given.
+        a corners.json, a dataset folder (:func:`dualcal.files.dataset.open_dataset`; a camera roll too, and a
+        flat folder of photos without EXIF, as a phone's browser uploads them, whose cameras and instants the
+        detected boards tell: :func:`dualcal.files.dataset.split_roll_dataset`), or None when ``cameras`` are given.
     board : Board or None
         the board; needed for photos, checked against a corners.json's (:func:`check_board`).
     square_sigma_mm : float or None
@@ -138,9 +140,11 @@ def read_corners(source=None, board: Board | None = None, *, square_sigma_mm: fl
 
 def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant_gap_s, reference, exclude,
             jobs, hints_path, overlays_dir, progress, detect) -> CornerSet:
-    """A dataset's corners: open it, refuse cameras that pair with nothing, detect (clips: their frames
-    chosen and measured, :func:`dualcal.files.video.video_corners`)."""
-    from .files.dataset import check_pairs, open_dataset
+    """A dataset's corners: open it, refuse cameras that pair with nothing, detect; a camera roll, or a folder
+    of photos without EXIF, is split into cameras and instants once its boards are detected (each photo is
+    detected once, before the split); clips: their frames chosen and measured
+    (:func:`dualcal.files.video.video_corners`)."""
+    from .files.dataset import check_pairs, open_dataset, split_roll_dataset
     from .files.detect import detect_dataset, load_hints
     from .files.video import find_clips, video_corners
 
@@ -150,13 +154,14 @@ def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant
 
     dataset = open_dataset(source, cameras, pair_by=pair_by, reference=reference,
                            time_tolerance_s=time_tolerance_s, instant_gap_s=instant_gap_s, exclude=exclude)
-    check_pairs(dataset, pair_by)
+    if not dataset.split_pending:
+        check_pairs(dataset, pair_by)
     hints = load_hints(hints_path) if hints_path else None
     corners = detect_dataset(dataset, board, jobs=jobs, hints=hints, overlays_dir=overlays_dir, progress=progress,
                              detect=detect)
-    if dataset.roll is not None:
-        from .files.roll import with_detection
-        corners = replace(corners, roll=with_detection(dataset.roll, corners))
+    if dataset.split_pending:
+        dataset, corners = split_roll_dataset(dataset, corners)
+        check_pairs(dataset, pair_by)
     return replace(corners, reference=reference) if reference is not None else corners
 
 

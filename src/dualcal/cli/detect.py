@@ -28,8 +28,9 @@ _SELECTION_OPTIONS = [
     click.option("--time-tolerance", "time_tolerance_s", type=float, default=2.0, show_default=True,
                  metavar="SECONDS", help="Largest capture-time difference within a pair (--pair-by time)."),
     click.option("--instant-gap", "instant_gap_s", type=float, default=None, metavar="SECONDS",
-                 help="A camera roll (one folder, every lens mixed): photos taken less than this apart are one "
-                      "board position (default: found from the capture times)."),
+                 help="A camera roll (one folder, every lens mixed): photos taken up to this apart may be one board "
+                      "position, further apart never (default: the roll's own clues decide: the lens sequence, the "
+                      "boards' images and poses, the capture times)."),
     click.option("--reference", "reference", metavar="NAME", default=None,
                  help="Reference camera (default: 'wide' if present, else the first name)."),
     exclude_option,

@@ -162,27 +162,48 @@ def lens_model_choice_table(adjustment: dict) -> Table:
 
 
 def roll_tables(roll: dict) -> list[Table]:
-    """A camera roll's split (corners.json ``roll``, :mod:`dualcal.files.roll`) as two tables: the cameras found
-    (lens, focal length, image size, photos) and every instant with the photo of each camera, then the
-    photos left out and why."""
+    """A camera roll's split (corners.json ``roll``, :mod:`dualcal.files.roll`) as tables: the cameras found
+    (what told them, lens, focal length, image size, photos), every instant with the photo of each camera and how
+    sure its split is, then the photos left out and why. The titles say which clues told the cameras and the
+    instants apart."""
     cams = roll["cameras"]
-    gap = roll.get("instant_gap_s")
-    how = "found from the capture times" if roll.get("instant_gap_found") else "given"
-    found = Table(title=f"Camera roll {roll['folder']}: {len(cams)} cameras", box=box.SIMPLE_HEAD)
+    clues = roll.get("clues", {})
+    told = f" told apart by {', '.join(clues['cameras'])}" if clues.get("cameras") else ""
+    found = Table(title=f"Camera roll {roll['folder']}: {len(cams)} cameras{told}", box=box.SIMPLE_HEAD)
     for col in ("camera", "lens", "f (35 mm equiv.)", "image size", "photos"):
         found.add_column(col, justify="left" if col in ("camera", "lens") else "right")
     for name, c in cams.items():
         f35 = c.get("focal_length_35mm_mm")
-        found.add_row(name, c.get("lens_model") or f"{c.get('focal_length_mm') or '?'} mm",
-                      f"{f35:.0f} mm" if f35 else "?", "x".join(map(str, c["image_size"])), str(c["photos"]))
-    gap_text = f"a new board position after a gap of more than {gap:.1f} s ({how})" if gap else "one board position"
-    instants = Table(title=f"Instants: {gap_text}", box=box.SIMPLE_HEAD)
+        if c.get("told_by") == "focal length from the board":
+            lens = f"f {c['focal_length_board_px']:.0f} px from the boards"
+        else:
+            lens = c.get("lens_model") or f"{c.get('focal_length_mm') or '?'} mm"
+        found.add_row(name, lens, f"{f35:.0f} mm" if f35 else "?", "x".join(map(str, c["image_size"])), str(c["photos"]))
+    gap = roll.get("instant_gap_s")
+    if clues.get("instants"):
+        how = f"split by {', '.join(clues['instants'])}"
+        if gap and roll.get("instant_gap_found"):
+            how += f"; capture-time gaps beyond {gap:.1f} s point to a new position"
+        elif gap:
+            how += f"; capture-time gaps beyond {gap:.1f} s (given) make a new position"
+        how += f" ({roll['order']} order; the split is {roll['split_sure']}, margin {roll['split_margin']:.1f})"
+    else:
+        how = (f"a new board position after a gap of more than {gap:.1f} s "
+               f"({'found from the capture times' if roll.get('instant_gap_found') else 'given'})" if gap
+               else "one board position")
+    instants = Table(title=f"Instants: {how}", box=box.SIMPLE_HEAD)
     instants.add_column("instant")
-    instants.add_column("taken")
+    days = {inst["taken"][:10] for inst in roll["instants"].values() if inst.get("taken")}
+    instants.add_column(f"taken ({days.pop()})" if len(days) == 1 else "taken")
     for name in cams:
         instants.add_column(name)
+    instants.add_column("sure")
     for key, inst in roll["instants"].items():
-        instants.add_row(key, inst["taken"].replace("T", " ")[:21], *(inst["photos"].get(n, "-") for n in cams))
+        taken = (inst.get("taken") or "-").replace("T", " ")[:21]
+        taken = taken[11:] if len(days) == 0 and taken != "-" else taken
+        sure = "-" if "sure" not in inst else inst["sure"] if inst["sure"] == "certain" else \
+            f"{inst['sure']} ({inst['margin']:.1f})"
+        instants.add_row(key, taken, *(inst["photos"].get(n, "-") for n in cams), sure)
     tables = [found, instants]
     if roll.get("left_out"):
         out = Table(title="Left out", box=box.SIMPLE_HEAD)

@@ -13,6 +13,12 @@ its wildcards matched (``left*.jpg`` and ``right*.jpg`` pair ``left01`` with ``r
 ``01``), or, with ``pair_by="time"``, the reference camera's stem of the photo taken within
 ``time_tolerance_s`` of it (EXIF capture time).
 
+A camera roll is split in two steps: its cameras by EXIF when it is opened (:func:`open_dataset`), its
+instants once its boards are detected (:func:`split_roll_dataset`), which needs the boards' poses. A folder
+of photos without EXIF is one camera when it is opened, and may turn out a camera roll when its boards are
+detected: the focal lengths they give tell its cameras apart (:func:`dualcal.files.roll.cameras_from_boards`).
+A photo stored turned (its size its camera's other photos' transposed) is left out with a warning.
+
 Photos can be left out by ``exclude`` patterns (:func:`is_excluded`). A dataset that cannot be
 calibrated as it stands is refused with one clear error: a camera folder without photos, a folder
 holding photos and subfolders with photos; and ``detect`` and ``calibrate`` refuse cameras whose photos
@@ -35,19 +41,24 @@ from ..errors import InputError
 from ..geometry.model import CameraCorners, CornerSet, choose_reference
 from .photos import PHOTO_SUFFIXES, Photo, open_image, read_exif, read_gray, source_format
 from ..progress import warn
-from .roll import is_camera_roll, open_camera_roll
+from .roll import has_lens_exif, is_camera_roll, split_cameras, turned_photos
 
 __all__ = ["PHOTO_SUFFIXES", "Dataset", "Photo", "check_pairs", "exclude_views", "is_excluded", "open_dataset",
-           "open_image", "parse_camera_spec", "read_exif", "read_gray"]
+           "open_image", "parse_camera_spec", "read_exif", "read_gray", "split_roll_dataset"]
 
 @dataclass
 class Dataset:
     """Cameras and their photos, keyed by view: ``cameras[name][view] -> Photo``.
 
-    ``skipped`` lists ``(path, reason)`` of files that looked like photos but could not be read;
-    ``excluded[name][view]`` the photos left out by ``exclude`` patterns; ``roll`` is the record of a
-    camera roll's split into cameras and instants (:mod:`dualcal.files.roll`; corners.json's ``roll``), or None;
-    ``identical[name][path]`` the files left out as copies of another (the kept one).
+    ``skipped`` lists ``(path, reason)`` of files that looked like photos but could not be read, or were
+    stored turned; ``excluded[name][view]`` the photos left out by ``exclude`` patterns; ``roll`` is the
+    record of a camera roll's split into cameras and instants (:mod:`dualcal.files.roll`; corners.json's
+    ``roll``), or None; ``identical[name][path]`` the files left out as copies of another (the kept one).
+
+    ``roll_options`` is not None while a folder of photos awaits its split after detection
+    (:func:`split_roll_dataset`): a camera roll, whose ``cameras`` are then its EXIF cameras with their
+    photos keyed by file stem, or photos without EXIF (one camera, or one per image size), whose cameras
+    only their boards tell. It holds what the split takes (``exclude``, ``instant_gap_s``, ``reference``).
     """
 
     cameras: dict[str, dict[str, Photo]]
@@ -57,6 +68,12 @@ class Dataset:
     excluded: dict[str, dict[str, Path]] = field(default_factory=dict)
     roll: dict | None = None
     identical: dict[str, dict[str, Path]] = field(default_factory=dict)
+    roll_options: dict | None = None
+
+    @property
+    def split_pending(self) -> bool:
+        """Whether the photos await their split into cameras and instants (:func:`split_roll_dataset`)."""
+        return self.roll_options is not None
 
     def image_size(self, camera: str) -> tuple[int, int]:
         return next(iter(self.cameras[camera].values())).size
@@ -254,7 +271,10 @@ def exclude_views(corners: CornerSet, patterns) -> CornerSet:
 
 
 def unpaired_cameras(dataset: Dataset) -> list[str]:
-    """The cameras none of whose photos pairs with one of the reference camera's (no view key in common)."""
+    """The cameras none of whose photos pairs with one of the reference camera's (no view key in common);
+    none while a camera roll awaits its split (its instants pair them)."""
+    if dataset.split_pending:
+        return []
     ref_keys = set(dataset.cameras[dataset.reference])
     return [name for name, photos in dataset.cameras.items()
             if name != dataset.reference and not ref_keys & set(photos)]
@@ -308,12 +328,23 @@ def _read_headers(name: str, files: dict[str, Path], skipped: list,
     """:func:`_read_photos` of one camera, whose photos must have one size (``read``: headers already
     read, by key, which are taken as they are)."""
     photos = {k: read[k] for k in files} if read is not None else _read_photos(files, skipped)
+    photos = _without_turned(photos, skipped, f"camera {name!r}")
     sizes = {p.size for p in photos.values()}
     if len(sizes) > 1:
         listing = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))
         raise InputError(f"camera {name!r}: photos differ in size ({listing}); a camera's photos must all "
                          "have one size (put each camera's photos in its own folder or glob)")
     return photos
+
+
+def _without_turned(photos: dict[str, Photo], skipped: list, where: str) -> dict[str, Photo]:
+    """``photos`` (key -> Photo) less those stored turned (:func:`dualcal.files.roll.turned_photos`), each named
+    in a warning and added to ``skipped``."""
+    _, turned = turned_photos(list(photos.values()), where)
+    for path, why in turned.items():
+        warn(f"{path}: left out ({why})")
+        skipped.append((path, why))
+    return {k: p for k, p in photos.items() if p.path not in turned}
 
 
 def _pair_by_time(cams: dict[str, dict[str, Photo]], reference: str, tolerance_s: float):
@@ -382,26 +413,124 @@ def _without_copies(files: dict[str, Path]) -> dict[Path, Path]:
     return removed
 
 
-def _open_roll(photos: list[Photo], source: str, reference, exclude, instant_gap_s, skipped,
+def _open_roll(photos: list[Photo], name: str, source: str, options: dict, skipped,
                identical: dict[Path, Path]) -> Dataset:
-    """The dataset of a camera-roll folder (:func:`dualcal.files.roll.open_camera_roll`), less what ``exclude``
-    leaves out (matched against the instants' view keys, the file names and CAMERA/KEY); ``identical``
-    are the files left out as copies (their reason joins the roll's record)."""
-    roll, notes = open_camera_roll(photos, source, instant_gap_s)
-    roll.record["left_out"].update({p.name: f"the same file as {kept.name}" for p, kept in identical.items()})
-    for note in notes:
-        warn(note)
-    cams = roll.cameras
-    excluded = {}
-    if exclude:
-        keys = _excluded_keys({n: {k: p.path.name for k, p in v.items()} for n, v in cams.items()}, exclude)
-        excluded = {n: {k: cams[n].pop(k).path for k in ks} for n, ks in keys.items()}
+    """A folder of photos that awaits its split after detection (:attr:`Dataset.roll_options`): a camera roll by
+    EXIF (:func:`dualcal.files.roll.split_cameras`), or photos without EXIF as one camera ``name`` (one per
+    image size, ``WxH``, where they differ). ``identical`` are the files left out as copies."""
+    record = None
+    if all(has_lens_exif(p) for p in photos):
+        by_camera, facts, notes = split_cameras(photos)
+        for note in notes:
+            warn(note)
+        record = {"folder": source, "cameras": facts}
+    else:
+        sizes = sorted({p.size for p in photos})
+        by_camera = {name if len(sizes) == 1 else f"{w}x{h}": [p for p in photos if p.size == (w, h)]
+                     for w, h in sizes}
+    cams = {n: {p.path.stem: p for p in ps} for n, ps in by_camera.items()}
     names = {p.path: n for n, views in cams.items() for p in views.values()}
-    copies = {}
+    copies: dict = {}
     for p, kept in identical.items():
         copies.setdefault(names.get(kept), {})[p] = kept
-    return Dataset(cams, choose_reference(cams, reference), source, skipped, excluded, roll.record,
-                   {n: d for n, d in copies.items() if n is not None})
+    # photos without EXIF are named for now: a reference is checked against the cameras their boards tell
+    return Dataset(cams, choose_reference(cams, options["reference"] if record is not None else None), source,
+                   skipped, {}, record, {n: d for n, d in copies.items() if n is not None}, roll_options=options)
+
+
+def split_roll_dataset(dataset: Dataset, corners: CornerSet) -> tuple[Dataset, CornerSet]:
+    """Split a folder of photos that awaited its detected boards (:attr:`Dataset.split_pending`) into cameras
+    and instants (:func:`dualcal.files.roll.split_roll`; photos without EXIF: their cameras first, by
+    :func:`dualcal.files.roll.cameras_from_boards`), less what ``exclude`` leaves out (matched against the
+    instants' view keys, the file names and CAMERA/KEY).
+
+    Parameters
+    ----------
+    dataset : from :func:`open_dataset`, with ``split_pending``.
+    corners : its detected corners (:func:`dualcal.files.detect.detect_dataset`), keyed as ``dataset``.
+
+    Returns
+    -------
+    The dataset and its corners keyed by camera and instant, with the roll's record (corners.json ``roll``);
+    photos without EXIF that show one camera are returned as they are (one camera keyed by file stem).
+
+    Raises
+    ------
+    InputError
+        What :func:`dualcal.files.roll.split_roll` and ``exclude`` refuse.
+    """
+    from .roll import cameras_from_boards, split_roll
+
+    options = dataset.roll_options
+    xy_board = corners.board.object_points_mm()[:, :2]
+    detected = {}                                   # photo path -> (camera, key) of the detection
+    corners_uv = {}
+    for cam, photos in dataset.cameras.items():
+        for key, photo in photos.items():
+            detected[photo.path] = (cam, key)
+            corners_uv[photo.path] = corners.cameras[cam].views.get(key)
+    photos = [p for ps in dataset.cameras.values() for p in ps.values()]
+    left_out = {p.name: why for p, why in dataset.skipped}
+    left_out.update({p.name: f"the same file as {kept.name}" for d in dataset.identical.values() for p, kept in d.items()})
+    symmetric = corners.board.is_symmetric and corners.board.charuco is None
+    if dataset.roll is None:
+        by_camera, facts, notes, unknown = cameras_from_boards(photos, corners_uv, xy_board, symmetric)
+        if len(dataset.cameras) == 1 and len(by_camera) <= 1:        # one camera, as the folder was opened
+            one = replace(dataset, reference=choose_reference(dataset.cameras, options["reference"]), roll_options=None)
+            _exclude(one, options["exclude"])
+            return one, _regrouped(one, corners, detected, None)
+        for note in notes + [f"{name}: left out ({why})" for name, why in unknown.items()]:
+            warn(note)
+        left_out.update(unknown)
+        clues = ("image size", "focal length from the board")
+    else:
+        by_camera = {name: list(ps.values()) for name, ps in dataset.cameras.items()}
+        facts, clues = dataset.roll["cameras"], ("EXIF lens", "image size")
+    roll, notes = split_roll(by_camera, facts, corners_uv, xy_board, dataset.source, options["instant_gap_s"], left_out,
+                             clues, symmetric=symmetric)
+    for note in notes:
+        warn(note)
+    names = {p.path: n for n, ps in roll.cameras.items() for p in ps.values()}
+    identical: dict = {}
+    for p, kept in ((p, kept) for d in dataset.identical.values() for p, kept in d.items()):
+        if kept in names:
+            identical.setdefault(names[kept], {})[p] = kept
+    split = Dataset(roll.cameras, choose_reference(roll.cameras, options["reference"]), dataset.source,
+                    dataset.skipped, {}, roll.record, identical)
+    _exclude(split, options["exclude"])
+    out = _regrouped(split, corners, detected, roll.record)
+    if symmetric and len(out.cameras) > 1:
+        from .detect.symmetry import align_symmetric_numbering
+
+        out, turned = align_symmetric_numbering(out, split.reference)
+        if turned:
+            warn(f"board {corners.board.spec()} looks the same turned by 180 degrees: {turned} photo(s) of the "
+                 f"roll renumbered to fit the rig's relative pose to camera {split.reference!r}")
+    return split, out
+
+
+def _exclude(dataset: Dataset, patterns) -> None:
+    """Leave out of ``dataset`` the photos ``patterns`` match (:func:`is_excluded`), listing them in ``excluded``."""
+    if patterns:
+        keys = _excluded_keys({n: {k: p.path.name for k, p in v.items()} for n, v in dataset.cameras.items()},
+                              patterns)
+        dataset.excluded.update({n: {k: dataset.cameras[n].pop(k).path for k in ks} for n, ks in keys.items()})
+
+
+def _regrouped(dataset: Dataset, corners: CornerSet, detected: dict[Path, tuple[str, str]], roll) -> CornerSet:
+    """The corners of ``dataset``'s cameras and views, taken from ``corners`` by photo (``detected``: each photo's
+    camera and key there), with ``dataset``'s meta (and the manual and partial views the detection marked)."""
+    cameras = {}
+    for name, photos in dataset.cameras.items():
+        meta = dataset.meta(name)
+        for flag in ("manual_views", "partial_views"):
+            keys = sorted(k for k, p in photos.items()
+                          if detected[p.path][1] in corners.cameras[detected[p.path][0]].meta.get(flag, ()))
+            if keys:
+                meta[flag] = keys
+        uv = {k: corners.cameras[detected[p.path][0]].views[detected[p.path][1]] for k, p in photos.items()}
+        cameras[name] = CameraCorners(dataset.image_size(name), uv, meta)
+    return replace(corners, cameras=cameras, roll=roll)
 
 
 def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | None = None,
@@ -424,10 +553,12 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
         largest capture-time difference of two photos of the same instant.
     instant_gap_s : float or None
         a camera roll (a folder of photos of several cameras, :mod:`dualcal.files.roll`): photos
-        taken less than this apart are one board position (default: found from the capture times).
+        taken less than this apart are one board position, further apart two (default: found from every clue
+        of the roll); taken by :func:`split_roll_dataset`.
     exclude
         glob patterns of photos to leave out (:func:`is_excluded`; with ``pair_by="time"``
-        the view key is the photo's own stem); they are listed in :attr:`Dataset.excluded`.
+        the view key is the photo's own stem); they are listed in :attr:`Dataset.excluded`. For a folder of
+        photos that awaits its split (:attr:`Dataset.split_pending`), :func:`split_roll_dataset` applies them.
 
     Returns
     -------
@@ -470,10 +601,11 @@ def open_dataset(path=None, cameras=(), pair_by: str = "stem", reference: str | 
     read: dict[str, dict[str, Photo]] = {}
     if flat:                                # a folder of photos: one camera, or a camera roll
         (name, keyed), = files.items()
-        read[name] = _read_photos(keyed, skipped)
-        if is_camera_roll(list(read[name].values())):
-            return _open_roll(list(read[name].values()), source, reference, exclude, instant_gap_s, skipped,
-                              identical[name])
+        read[name] = _without_turned(_read_photos(keyed, skipped), skipped, source)
+        photos = list(read[name].values())
+        if photos and (is_camera_roll(photos) or not all(has_lens_exif(p) for p in photos)):
+            options = {"exclude": tuple(exclude), "instant_gap_s": instant_gap_s, "reference": reference}
+            return _open_roll(photos, name, source, options, skipped, identical[name])
         files = {name: {k: p for k, p in keyed.items() if k in read[name]}}
     excluded = {}
     if exclude:

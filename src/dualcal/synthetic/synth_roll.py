@@ -9,14 +9,22 @@ phone writes: ``Make``, ``Model``, ``LensModel``, ``FocalLength``, ``FocalLength
 holds what real ones do: a retake (one position's reference photo shot twice), a photo without the board,
 an ``.AAE`` sidecar file and a ``.MOV`` Live Photo clip.
 
+How the session is shot is a :class:`Shooting`: the gaps between lenses and between positions, a lens switch
+that takes longer, stray photos between or after the positions, lenses that miss a position. Its script
+(:func:`shooting_script`: which photo, when) is what tests of the roll's split use without rendering.
+:func:`strip_exif` does to a roll what a phone's browser does to the photos it uploads: JPEGs re-encoded
+without EXIF.
+
 The 35 mm-equivalent focal length of a camera is ``fx * 43.27 mm / image diagonal (px)``, its focal
 length in mm that divided by a phone sensor's typical crop factor (:data:`CROP_FACTOR`).
 """
 
 from __future__ import annotations
 
+import io
 import struct
 import tempfile
+from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
 
@@ -27,7 +35,8 @@ from ..files.io import encode_jpeg, write_bytes_atomic
 from ..geometry.camera import equivalent_focal_35mm
 from ..files.roll import camera_class
 
-__all__ = ["CROP_FACTOR", "equivalent_focal_of", "write_camera_roll"]
+__all__ = ["CROP_FACTOR", "ScriptedShot", "Shooting", "equivalent_focal_of", "shooting_script", "strip_exif",
+           "write_camera_roll"]
 
 #: A phone sensor's crop factor by camera class (an iPhone's ultra-wide 2.2 mm is 13 mm equivalent, its
 #: main camera 6.9 mm 24 mm, its tele 9 mm 77 mm): it sets only EXIF's focal length in mm.
@@ -64,11 +73,82 @@ def _with_exif(jpeg: bytes, payload: bytes) -> bytes:
     return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + jpeg[2:]
 
 
+@dataclass(frozen=True)
+class Shooting:
+    """How a tripod session is shot (times in seconds, drawn uniformly from each range).
+
+    ``lens_gap_s``: between two lenses of one position; ``position_gap_s``: before each position (the board
+    moved); ``slow_switch_s``: one lens switch (the middle position's last) takes this long instead; ``retake``:
+    the reference camera's photo of a middle position that shows the board is shot twice; ``stray_after``: a
+    photo without the board (the floor) is shot this long after these positions (index; -1 the last);
+    ``missed``: ``(camera, position index)`` photos not shot (a lens that missed a position).
+    """
+
+    lens_gap_s: tuple[float, float] = (2.0, 6.0)
+    position_gap_s: tuple[float, float] = (25.0, 90.0)
+    slow_switch_s: float | None = None
+    retake: bool = True
+    stray_after: tuple[int, ...] = (1,)
+    stray_gap_s: tuple[float, float] = (25.0, 90.0)
+    missed: tuple[tuple[str, int], ...] = ()
+
+
+@dataclass(frozen=True)
+class ScriptedShot:
+    """One photo of a session: its file name, camera and view (None for a stray photo), when it was taken."""
+
+    name: str
+    camera: str | None
+    view: str | None
+    taken: datetime
+
+
+def shooting_script(truth, shooting: Shooting = Shooting(), seed: int = 0, first_number: int = 101) -> list[ScriptedShot]:
+    """The photos of a session of ``truth`` (:class:`~dualcal.synthetic.synth.SynthTruth`) in shooting order:
+    the lenses widest first at each position (:class:`Shooting` says the rest)."""
+    from .synth import true_corners
+
+    rng = np.random.default_rng([int(seed), 2024])
+    order = sorted(truth.cameras, key=lambda name: equivalent_focal_of(truth.cameras[name]))
+    views = list(truth.view_poses)
+    corners = true_corners(truth)
+    shown = [v for v in views if np.isfinite(corners[truth.reference][v]).all()]
+    retake_view = shown[len(shown) // 2] if shooting.retake and shown else None
+    slow = views[len(views) // 2] if shooting.slow_switch_s is not None else None
+    stray = {len(views) - 1 if i < 0 else i for i in shooting.stray_after}
+    missed = set(shooting.missed)
+    script, taken, number = [], _START, first_number
+
+    def shoot(camera, view):
+        nonlocal number
+        script.append(ScriptedShot(f"IMG_{number:04d}.JPG", camera, view, taken))
+        number += 1
+
+    for vi, view in enumerate(views):
+        names = [n for n in order if (n, vi) not in missed]
+        for ci, name in enumerate(names):
+            if ci == 0:
+                gap = rng.uniform(*shooting.position_gap_s)
+            elif view == slow and ci == len(names) - 1:
+                gap = shooting.slow_switch_s
+            else:
+                gap = rng.uniform(*shooting.lens_gap_s)
+            taken += timedelta(seconds=float(gap))
+            shoot(name, view)
+            if view == retake_view and name == truth.reference:
+                taken += timedelta(seconds=float(rng.uniform(1.5, 3.0)))
+                shoot(name, view)
+        if vi in stray:                        # the floor, between two positions or after the last
+            taken += timedelta(seconds=float(rng.uniform(*shooting.stray_gap_s)))
+            shoot(None, None)
+    return script
+
+
 def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic phone", first_number: int = 101,
-                      retake: bool = True, stray_photo: bool = True, sidecars: bool = True, jobs: int | None = None,
+                      shooting: Shooting = Shooting(), sidecars: bool = True, jobs: int | None = None,
                       progress: bool = True, **render_kwargs) -> dict:
-    """Write the photos of ``truth`` (:class:`~dualcal.synthetic.synth.SynthTruth`) as one camera-roll folder
-    (``render_kwargs``: :func:`dualcal.synthetic.render.write_photo_set`'s, e.g. ``marks``).
+    """Write the photos of ``truth`` (:class:`~dualcal.synthetic.synth.SynthTruth`) as one camera-roll folder,
+    shot as ``shooting`` says (``render_kwargs``: :func:`dualcal.synthetic.render.write_photo_set`'s, e.g. ``marks``).
 
     Parameters
     ----------
@@ -82,8 +162,10 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
         The EXIF model of the phone.
     first_number : int
         The number of the first photo, ``IMG_0101.JPG``.
-    retake, stray_photo, sidecars : bool
-        Add a retake of one photo, a photo without the board, and an ``.AAE`` and a ``.MOV`` file.
+    shooting : Shooting
+        How the session is shot: the times between the shots, retakes, stray photos.
+    sidecars : bool
+        Add an ``.AAE`` and a ``.MOV`` file, as a phone's export does.
     jobs : int or None
         Photos rendered at once (default: all cores).
     progress : bool
@@ -95,44 +177,34 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
     -------
     dict
         The roll as it was shot: ``{"photos": {file name: (camera, view)}, "retake": (first, second),
-        "stray": file name, "sidecars": [file names]}`` (camera None for the photo without the board).
+        "stray": [file names], "sidecars": [file names]}`` (camera None for the photos without the board).
     """
     from .render import write_photo_set
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng([int(seed), 2024])
-    order = sorted(truth.cameras, key=lambda name: equivalent_focal_of(truth.cameras[name]))
-    views = list(truth.view_poses)
-    shot = {"photos": {}, "retake": None, "stray": None, "sidecars": []}
+    rng = np.random.default_rng([int(seed), 2025])
+    script = shooting_script(truth, shooting, seed, first_number)
+    shot = {"photos": {s.name: (s.camera, s.view) for s in script}, "retake": None,
+            "stray": [s.name for s in script if s.camera is None], "sidecars": []}
     with tempfile.TemporaryDirectory(dir=folder.parent) as tmp:
         rendered = write_photo_set(truth, tmp, seed=seed, jobs=jobs, progress=progress, **render_kwargs)
-        number, taken = first_number, _START
-
-        def put(data: bytes, cam, what) -> str:
-            nonlocal number
-            name = f"IMG_{number:04d}.JPG"
-            write_bytes_atomic(folder / name, _with_exif(data, _exif_bytes(cam, taken, device)))
-            shot["photos"][name] = what
-            number += 1
-            return name
-
-        retake_view = views[len(views) // 2] if retake else None
-        for vi, view in enumerate(views):
-            for ci, cam_name in enumerate(order):
-                taken += timedelta(seconds=float(rng.uniform(2.0, 6.0)) if ci else float(rng.uniform(25.0, 90.0)))
-                data = rendered[cam_name][view].read_bytes()
-                name = put(data, truth.cameras[cam_name], (cam_name, view))
-                if view == retake_view and cam_name == truth.reference:
-                    taken += timedelta(seconds=float(rng.uniform(1.5, 3.0)))
-                    shot["retake"] = (name, put(data, truth.cameras[cam_name], (cam_name, view)))
-            if stray_photo and vi == 1:                 # the floor, between two positions
-                taken += timedelta(seconds=float(rng.uniform(25.0, 90.0)))
-                cam = truth.cameras[truth.reference]
+        cam = truth.cameras[truth.reference]
+        for before, s in zip([None] + script, script):
+            if s.camera is not None:
+                data, exif_cam = rendered[s.camera][s.view].read_bytes(), truth.cameras[s.camera]
+                if before is not None and (before.camera, before.view) == (s.camera, s.view):
+                    shot["retake"] = (before.name, s.name)
+                    # a retake is another exposure, never the same file: encoded again, a little differently
+                    again = io.BytesIO()
+                    Image.open(io.BytesIO(data)).save(again, "JPEG", quality=90)
+                    data = again.getvalue()
+            else:
                 w, h = cam.image_size
                 pixels = (rng.normal(120, 25, (h // 8, w // 8)).clip(0, 255)).astype(np.uint8)
                 floor = np.asarray(Image.fromarray(pixels).resize((w, h), Image.BILINEAR))
-                shot["stray"] = put(encode_jpeg(floor, 85), cam, (None, None))
+                data, exif_cam = encode_jpeg(floor, 85), cam
+            write_bytes_atomic(folder / s.name, _with_exif(data, _exif_bytes(exif_cam, s.taken, device)))
         if sidecars:
             names = sorted(shot["photos"])
             aae, mov = Path(names[0]).with_suffix(".AAE").name, Path(names[1]).with_suffix(".MOV").name
@@ -141,3 +213,19 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
             write_bytes_atomic(folder / mov, b"\x00\x00\x00\x14ftypqt  \x00\x00\x00\x00qt  ")
             shot["sidecars"] = [aae, mov]
     return shot
+
+
+def strip_exif(folder, out_folder, quality: int = 92) -> list[Path]:
+    """Re-encode the JPEGs of ``folder`` into ``out_folder`` without EXIF (Pillow), as a phone's browser
+    uploads them; other files are not copied. Returns the written paths."""
+    out_folder = Path(out_folder)
+    out_folder.mkdir(parents=True, exist_ok=True)
+    written = []
+    for path in sorted(Path(folder).iterdir()):
+        if path.suffix.lower() in (".jpg", ".jpeg"):
+            buffer = io.BytesIO()
+            with Image.open(path) as img:
+                img.save(buffer, "JPEG", quality=quality)          # no exif= : Pillow writes none
+            write_bytes_atomic(out_folder / path.name, buffer.getvalue())
+            written.append(out_folder / path.name)
+    return written
