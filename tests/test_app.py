@@ -345,8 +345,6 @@ def two_clients_uploading_at_once_lose_nothing(client, workspace, roll):
         assert (workspace / pid / "photos" / name).read_bytes() == (roll / name).read_bytes()
 
 
-@pytest.mark.xfail(run=False, reason="needs camera rolls without EXIF (branch roll): today a folder of EXIF-less "
-                                     "photos of several lenses is one camera")
 def test_a_roll_without_exif_as_a_phones_browser_sends_it(client, workspace, tmp_path):
     """The roll with its EXIF stripped and re-encoded as JPEG (what iOS's upload of a HEIC photo gives): the same
     cameras, each photo in the same one, and every intrinsic within 4 sigma of the truth."""
