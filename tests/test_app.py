@@ -376,6 +376,11 @@ def test_a_roll_without_exif_as_a_phones_browser_sends_it(client, workspace, tmp
         true = truth.cameras[name]
         for key in ("fx", "fy", "cx", "cy"):
             assert abs(cam[key] - getattr(true, key)) < 4 * cam["sigma"][key], (name, key)
+    clues = {pid: client.get(f"/api/projects/{pid}/result", headers=AUTH).json()["summary"]["roll"]
+             for pid in (with_exif, without)}
+    assert clues[with_exif]["cameras"].startswith("EXIF lens")                 # the page says which clues were used
+    assert clues[without]["cameras"] == "image size, focal length from the board", clues[without]
+    assert {c["told_by"] for c in clues[without]["found"]} == {"focal length from the board"}
 
 
 def test_the_pages_the_route_list_the_qr_code_and_the_event_stream(client):

@@ -42,22 +42,18 @@ def _blamed(check: dict, photos: dict[tuple[str, str], str]) -> list[str]:
 
 
 def _roll_clues(roll: dict | None) -> dict | None:
-    """Which clues split the camera roll into cameras and instants, in words."""
+    """Which clues split the camera roll into cameras and instants (corners.json's ``roll``, as
+    :func:`dualcal.files.roll.split_roll` records them), in words, and how sure the split is."""
     if not roll:
         return None
     cams = roll.get("cameras", {})
-    by = roll.get("split_by") or {}
-    camera_clues = by.get("cameras")
-    instant_clues = by.get("instants")
-    if camera_clues is None:
-        camera_clues = ("EXIF lens model" if any(c.get("lens_model") for c in cams.values()) else
-                        "EXIF focal length") + " and image size"
-    if instant_clues is None:
-        gap = roll.get("instant_gap_s")
-        instant_clues = ("EXIF capture time" + (f" (a new board position after more than {gap:.1f} s)" if gap else ""))
-    return {"cameras": camera_clues, "instants": instant_clues,
+    clues = roll.get("clues") or {}
+    return {"cameras": ", ".join(clues.get("cameras") or ()) or "-",
+            "instants": ", ".join(clues.get("instants") or ()) or "-",
+            "sure": roll.get("split_sure"),
             "found": [{"camera": n, "lens": c.get("lens_model") or "", "focal_35mm": c.get("focal_length_35mm_mm"),
-                       "image_size": c.get("image_size"), "photos": c.get("photos")} for n, c in cams.items()],
+                       "told_by": c.get("told_by"), "image_size": c.get("image_size"), "photos": c.get("photos")}
+                      for n, c in cams.items()],
             "left_out": roll.get("left_out", {})}
 
 
