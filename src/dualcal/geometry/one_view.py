@@ -44,6 +44,9 @@ LAMBDA_SIGNIFICANCE = 25.0
 #: The spread of one view's log focal length never counts as less than this (the principal point is not
 #: exactly at the centre, and the division model is not the lens).
 MIN_F_LOG_SIGMA = 0.03
+#: A homography (normalised image coordinates, its 2x2 part of unit norm) whose columns are orthogonal and of
+#: equal length to within this is a similarity: the board seen square-on, which tells no focal length.
+SQUARE_ON = 1e-9
 
 
 @dataclass(frozen=True)
@@ -181,7 +184,9 @@ def focal_from_homography(H: np.ndarray, image_size) -> float:
     # eq. 9 (h1^T B h2 = 0) and eq. 10 (h1^T B h1 - h2^T B h2 = 0) as  a * (1/f^2) + b = 0
     a = np.array([h1[0] * h2[0] + h1[1] * h2[1], h1[0] ** 2 + h1[1] ** 2 - h2[0] ** 2 - h2[1] ** 2])
     b = np.array([h1[2] * h2[2], h1[2] ** 2 - h2[2] ** 2])
-    inv_f2 = -float(a @ b) / max(float(a @ a), 1e-300)
+    if float(a @ a) < SQUARE_ON ** 2:           # the image a similarity of the board: eqs. 9-10 tell no f
+        return float("nan")
+    inv_f2 = -float(a @ b) / float(a @ a)
     return s / np.sqrt(inv_f2) if inv_f2 > 0 else float("nan")
 
 
