@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
+import pickle
 import shutil
 from pathlib import Path
 
@@ -18,6 +21,28 @@ def shared_data():
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real photos not available: {SHARED_DATA} does not exist")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def computed_once(tmp_path_factory):
+    """``computed_once(key, compute)``: ``compute()`` once for the whole run, shared by the test workers
+    (pytest-xdist): the first worker to ask computes and pickles it under a lock, the others load it. For
+    fixtures that cost many seconds (real photos detected, Monte Carlo draws) and would otherwise be
+    computed again in every worker that runs one of their tests."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+    def once(key: str, compute):
+        path = shared / f"once-{key}.pickle"
+        with open(shared / f"once-{key}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not path.exists():
+                value = compute()
+                path.write_bytes(pickle.dumps(value))
+                return value
+        return pickle.loads(path.read_bytes())
+
+    return once
 
 
 class CliResult:

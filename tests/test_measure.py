@@ -64,14 +64,16 @@ def quiet_measure(rig, points):
 
 
 @pytest.fixture(scope="module")
-def draws():
+def draws(computed_once):
     """``{preset: (truth, [DRAWS calibrations, each from its own corner noise])}``, shared by the Monte Carlo tests."""
-    out = {}
-    for preset in SCENES:
-        truth = make_truth(preset, views=8, seed=1)
-        out[preset] = truth, [calibrate_rig(noisy_corner_set(truth, CORNER_NOISE_PX, seed=100 + k), board_shape="flat")
-                              for k in range(DRAWS)]
-    return out
+    def compute():
+        out = {}
+        for preset in SCENES:
+            truth = make_truth(preset, views=8, seed=1)
+            out[preset] = truth, [calibrate_rig(noisy_corner_set(truth, CORNER_NOISE_PX, seed=100 + k),
+                                                board_shape="flat") for k in range(DRAWS)]
+        return out
+    return computed_once("measure-draws", compute)
 
 
 # ---------------------------------------------------------------------------- Monte Carlo: the sigmas hold
