@@ -168,8 +168,8 @@ def test_the_advice_protects_the_key_target_it_would_leave_behind(monkeypatch):
 def test_followed_advice_leaves_no_key_sigma_behind_random_photos():
     """Simulated as a user follows it (bench_advise.py in small): 5 photos, then 3 advised ones, each calibrated
     again, against the same 5 and the next 3 drawn like them. Every key sigma of every camera and of the rig
-    ends at most 1.15 x the random photos' (one draw: the honest sigmas scatter by about 10 % from one noise
-    draw to the next), their geometric mean at most 0.6 x."""
+    ends at most the random photos' (here at most 0.90 x; with the geometric mean alone the tele's baseline
+    ended 1.07 x), their geometric mean at most 0.6 x (0.40)."""
     truth = synth.make_truth("note8", views=8, seed=0)
     corners = synth.noisy_corner_set(truth, 0.2, seed=0)
     first = sorted(corners.cameras["wide"].views)[:5]
@@ -185,7 +185,7 @@ def test_followed_advice_leaves_no_key_sigma_behind_random_photos():
     keys = [f"{c}.{p}" for c in ("wide", "tele") for p in ("fx", "fy", "cx", "cy", "k1")]
     keys += [f"tele.{t}" for t in A.RIG_TARGETS]
     ratios = {n: advised[n] / random[n] for n in keys}
-    assert max(ratios.values()) <= 1.15, ratios
+    assert max(ratios.values()) <= 1.0, ratios
     assert np.exp(np.mean(np.log(list(ratios.values())))) <= 0.6
 
 
