@@ -25,8 +25,8 @@ Printed, per preset:
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_advise.py                  # 8 seeds x 2 starts x 3 rigs, about 25 min on 2 cores
-    .venv/bin/python benchmarks/bench_advise.py --quick          # 2 seeds x 1 start of note8, no photos-to-goal: a minute
+    .venv/bin/python benchmarks/bench_advise.py                  # 8 seeds x 2 starts x 3 rigs, about 8 min on 2 cores
+    .venv/bin/python benchmarks/bench_advise.py --quick          # 2 seeds x 1 start of note8, no photos-to-goal: under a minute
     .venv/bin/python benchmarks/bench_advise.py --presets triple --seeds 4 --starts 1 --no-goal
 """
 
