@@ -47,7 +47,7 @@ from ..geometry.model import RigModel
 
 __all__ = ["design_effect", "rig_rigid", "rigidity_statistics", "focus_drift", "focal_scale_fits", "tie_costs",
            "determination", "fit_quality", "photo_count", "lens_model_fit", "convergence", "scale_plausibility",
-           "scale_note", "run_checks", "verdict",
+           "scale_note", "run_checks", "verdict", "check_limits", "instant_f_tests", "focal_t_tests", "dof_share",
            "failed_checks"]
 
 #: Fewer instants than this give unreliable sigmas (they come from the instants' scatter).
@@ -130,6 +130,31 @@ def rigidity_statistics(tied: Solution, alone: Solution, kappa2: dict[int, float
             "noise_px2": noise}
 
 
+#: The least share of an instant's degrees of freedom that :func:`instant_f_tests` gives its noise: one in
+#: six (a rigid pose's own six, moved by one smooth error of each photo).
+MIN_DOF_SHARE = 1.0 / 6.0
+
+
+def dof_share(values: list[float], dofs: list[int]) -> float:
+    """The share ``e`` of their degrees of freedom that tie costs ``T_u`` scatter with (Satterthwaite).
+
+    ``T_u / (k_u (1 - h_u))`` (``values``, each of ``k_u`` degrees of freedom, ``dofs``) have one mean
+    ``sigma^2``; with white noise on the corners ``T_u`` is ``sigma^2 chi^2(k_u)``, of variance ``2 / k_u``
+    relative to its mean squared. Noise correlated within the photos (a smooth error of each photo, the
+    lens model's error where the board lies) moves the poses along fewer directions, and the tie costs
+    scatter as with ``e k_u`` degrees of freedom, ``e < 1``: ``e = 2 m^2 (n - 1) / sum k_u (y_u - m)^2`` by
+    the moments of the ``n`` values ``y_u`` (mean ``m``), between :data:`MIN_DOF_SHARE` and 1.
+    """
+    y, k = np.asarray(values, float), np.asarray(dofs, float)
+    if len(y) < 3:
+        return 1.0
+    m = float(np.mean(y))
+    spread = float(np.sum(k * (y - m) ** 2))
+    if m <= 0 or spread <= 0:
+        return 1.0
+    return float(np.clip(2.0 * m * m * (len(y) - 1) / spread, MIN_DOF_SHARE, 1.0))
+
+
 def instant_f_tests(stats: dict[str, float], dofs: dict[str, int], leverage: dict[str, float], dof: int,
                     rate: float) -> dict[str, dict]:
     """Each instant's tie cost against the other instants' scatter: an F test per instant at ``rate``.
@@ -138,22 +163,28 @@ def instant_f_tests(stats: dict[str, float], dofs: dict[str, int], leverage: dic
     ``S`` over ``dof`` degrees of freedom, instant ``v`` left out of the shared relative poses would cost
     ``Q_v = T_v / (1 - h_v)`` (its deleted, or predicted, tie cost, exact for equal leverage ``h_v``), and
     the others ``S - Q_v`` over ``dof - k_v``. On a synchronised rig whose instants share one noise
-    level, ``F_v = (Q_v / k_v) / ((S - Q_v) / (dof - k_v))`` follows ``F(k_v, dof - k_v)`` (the
-    externally studentised outlier test): whatever that level is, lens-model error and noise correlated
-    within the photos included, the limit comes from the others. Returns ``{view: {"f", "d1", "d2",
-    "p", "limit"}}`` for the instants that can be judged (``dof - k_v > 0``); ``limit`` is the F quantile at
-    ``1 - rate``.
+    level, ``F_v = (Q_v / k_v) / ((S - Q_v) / (dof - k_v))`` follows ``F(k_v, dof - k_v)`` for white noise
+    (the externally studentised outlier test): whatever that level is, lens-model error and noise
+    correlated within the photos included, it comes from the others. Correlated noise scatters the tie
+    costs as with fewer degrees of freedom: both are taken times the others' share ``e``
+    (:func:`dof_share`, of the others alone, so that the instant judged does not widen its own limit),
+    ``F(e k_v, e (dof - k_v))``. Returns ``{view: {"f", "d1", "d2", "p", "limit"}}`` for the instants that
+    can be judged (``dof - k_v > 0``); ``limit`` is the F quantile at ``1 - rate``.
     """
     total = sum(stats.values())
+    scaled = {v: t / (dofs[v] * max(1.0 - leverage[v], 1e-9)) for v, t in stats.items()}
     out = {}
     for v, t in stats.items():
         d1, d2 = dofs[v], dof - dofs[v]
         if d2 <= 0:
             continue
+        others = [u for u in stats if u != v]
+        e = dof_share([scaled[u] for u in others], [dofs[u] for u in others])
         q = t / max(1.0 - leverage[v], 1e-9)
-        rest = total - q
-        f = float("inf") if rest <= 0 else (q / d1) / (rest / d2)
-        out[v] = {"f": f, "d1": d1, "d2": d2, "p": f_sf(f, d1, d2), "limit": f_quantile(d1, d2, 1.0 - rate)}
+        rest = max(total - q, 1e-12 * total, 1e-300)            # JSON has no inf: a huge F instead
+        f = (q / d1) / (rest / d2)
+        out[v] = {"f": f, "d1": e * d1, "d2": e * d2, "p": f_sf(f, e * d1, e * d2),
+                  "limit": f_quantile(e * d1, e * d2, 1.0 - rate)}
     return out
 
 
@@ -310,8 +341,8 @@ def focal_t_tests(z: list[float], rate: float) -> list[dict]:
     limit = float(np.sqrt(f_quantile(1, dof, 1.0 - rate)))
     out = []
     for zi in z:
-        rest = ss - zi ** 2 / (1.0 - h)
-        t = float("inf") if rest <= 0 else abs(zi) / np.sqrt((1.0 - h) * rest / dof)
+        rest = max(ss - zi ** 2 / (1.0 - h), 1e-12 * ss, 1e-300)   # JSON has no inf: a huge t instead
+        t = abs(zi) / np.sqrt((1.0 - h) * rest / dof)
         out.append({"t": float(t), "dof": dof, "p": f_sf(t * t, 1, dof), "limit": limit})
     return out
 
@@ -447,11 +478,14 @@ def determination(rig: RigModel) -> dict:
 def fit_quality(rig: RigModel) -> dict:
     """Every camera's RMS (2-D, per corner) below :data:`FIT_RMS_LIMIT_PX`."""
     bad = {n: r for n, r in rig.camera_rms_px.items() if r > FIT_RMS_LIMIT_PX}
+    fixed = {"test": "physical limit: the largest camera RMS (px, 2-D per corner) against what corner detection "
+                     "achieves", "statistic": max(rig.camera_rms_px.values(), default=0.0), "limit": FIT_RMS_LIMIT_PX,
+             "false_alarm_rate": None}
     if not bad:
-        return {"ok": True, "message": "every camera fits its corners to "
+        return {"ok": True, **fixed, "message": "every camera fits its corners to "
                                        f"{max(rig.camera_rms_px.values()):.3g} px RMS (2-D, per corner) or better"}
     worst = ", ".join(f"{n} {r:.2f} px" for n, r in bad.items())
-    return {"ok": False, "message": f"RMS (2-D, per corner) {worst}, far above what corner detection achieves on sharp "
+    return {"ok": False, **fixed, "message": f"RMS (2-D, per corner) {worst}, far above what corner detection achieves on sharp "
                                     "photos (0.02-0.3 px): a board that is not flat or not printed true, blurred or "
                                     "moving photos, or corners found wrongly; the sigmas account for it, but check "
                                     "the board and the photos"}
@@ -471,7 +505,7 @@ def photo_count(rig: RigModel) -> dict:
 def lens_model_fit(sol: Solution) -> dict:
     """Residuals that grow towards the image's edge: a model problem, reported, never a reason to drop."""
     p = sol.problem
-    bad, views = [], []
+    bad, views, ratios = [], [], []
     for c, name in enumerate(p.cameras):
         cam = sol.state.camera(p, c)
         w, h = cam.image_size
@@ -487,11 +521,15 @@ def lens_model_fit(sol: Solution) -> dict:
             if _edge_ratio(rho, length[seen]) > EDGE_RATIO:
                 views.append(f"{name}/{view}")
         ratio = _edge_ratio(np.concatenate(rho_all), np.concatenate(len_all)) if rho_all else np.nan
+        if np.isfinite(ratio):
+            ratios.append(float(ratio))
         if ratio > EDGE_RATIO:
             bad.append(f"{name} ({ratio:.1f} x)")
+    fixed = {"test": "fixed limit: the largest camera's RMS of its outermost third of corners over its innermost "
+                     "third", "statistic": max(ratios, default=None), "limit": EDGE_RATIO, "false_alarm_rate": None}
     if not bad:
-        return {"ok": True, "views": views, "message": "residuals do not grow towards the image's edge"}
-    return {"ok": False, "views": views,
+        return {"ok": True, "views": views, **fixed, "message": "residuals do not grow towards the image's edge"}
+    return {"ok": False, "views": views, **fixed,
             "message": f"residuals at the image's edge are far larger than at its centre: {', '.join(bad)}: the lens "
                        "model misses terms; try --model with more coefficients (k1k2p1p2k3), and see the report's "
                        "residual plots"}
@@ -588,6 +626,20 @@ def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solutio
     if scale is not None:
         checks["scale_plausible"] = scale
     return checks
+
+
+def check_limits(check: dict) -> dict[str, str]:
+    """A check's test, statistic, limit and false-alarm rate as text for a table (``""`` where it has none;
+    the rate ``"fixed"`` for a check whose limit is fixed, not statistical)."""
+    def number(x):
+        return "" if x is None else f"{x:.3g}"
+    stat, limit = check.get("statistic"), check.get("limit")
+    rate = check.get("false_alarm_rate")
+    if "test" not in check:
+        return {"test": "", "statistic": "", "limit": "", "rate": ""}
+    worst = f" ({check['worst']})" if check.get("worst") else ""
+    return {"test": check["test"], "statistic": number(stat) + (worst if stat is not None else ""),
+            "limit": number(limit), "rate": "fixed" if rate is None else f"{100 * rate:g} % per calibration"}
 
 
 def failed_checks(checks: dict) -> list[str]:
