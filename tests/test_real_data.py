@@ -155,7 +155,7 @@ def test_the_stereo_rig_names_08_and_03(stereo_corners, model):
     assert not check["ok"] and check["flagged"] == ["08", "03"], check["message"]
     f = check["instant_f"]
     assert f["08"]["p"] < check["instant_rate"] and f["03"]["p"] < 0.1 * check["instant_rate"]
-    assert all(t["f"] <= t["limit"] for v, t in f.items() if v not in ("08", "03"))
+    assert all(t["p"] >= check["instant_rate"] and t["f"] < 2.6 for v, t in f.items() if v not in ("08", "03"))
     assert check["ratio"] < 0.2 * check["limit_ratio"]                   # the instants together fit
     kept = calibrate_rig(_without(stereo_corners, {"08", "03"}), reference="left", model=model)
     assert kept.checks["rig_rigid"]["ok"] and kept.checks["focus"]["ok"], kept.checks["rig_rigid"]["message"]

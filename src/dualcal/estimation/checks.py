@@ -168,8 +168,9 @@ def instant_f_tests(stats: dict[str, float], dofs: dict[str, int], leverage: dic
     correlated within the photos included, it comes from the others. Correlated noise scatters the tie
     costs as with fewer degrees of freedom: both are taken times the others' share ``e``
     (:func:`dof_share`, of the others alone, so that the instant judged does not widen its own limit),
-    ``F(e k_v, e (dof - k_v))``. Returns ``{view: {"f", "d1", "d2", "p", "limit"}}`` for the instants that
-    can be judged (``dof - k_v > 0``); ``limit`` is the F quantile at ``1 - rate``.
+    ``F(e k_v, e (dof - k_v))``. Returns ``{view: {"f", "d1", "d2", "p"}}`` for the instants that can be
+    judged (``dof - k_v > 0``); an instant fails where ``p < rate``, and those, and the one of the smallest
+    ``p``, also have ``"limit"``, the F quantile at ``1 - rate`` (``f > limit`` where ``p < rate``).
     """
     total = sum(stats.values())
     scaled = {v: t / (dofs[v] * max(1.0 - leverage[v], 1e-9)) for v, t in stats.items()}
@@ -183,8 +184,11 @@ def instant_f_tests(stats: dict[str, float], dofs: dict[str, int], leverage: dic
         q = t / max(1.0 - leverage[v], 1e-9)
         rest = max(total - q, 1e-12 * total, 1e-300)            # JSON has no inf: a huge F instead
         f = (q / d1) / (rest / d2)
-        out[v] = {"f": f, "d1": e * d1, "d2": e * d2, "p": f_sf(f, e * d1, e * d2),
-                  "limit": f_quantile(e * d1, e * d2, 1.0 - rate)}
+        out[v] = {"f": f, "d1": e * d1, "d2": e * d2, "p": f_sf(f, e * d1, e * d2)}
+    worst = min(out, key=lambda v: out[v]["p"], default=None)
+    for v, t in out.items():            # a quantile costs a millisecond: only where it is shown
+        if t["p"] < rate or v == worst:
+            t["limit"] = f_quantile(t["d1"], t["d2"], 1.0 - rate)
     return out
 
 
@@ -216,8 +220,8 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
 
     The document: ``ok``, ``message``, ``test``, ``statistic`` (the worst instant's F, or a named one's),
     ``limit`` (its F quantile), ``p_value``, ``false_alarm_rate`` (``rate``, per calibration),
-    ``instant_rate`` (each test's), ``instants`` ``{view: T_v}``, ``instant_f`` ``{view: {"f", "p",
-    "limit"}}``, ``flagged``, ``ratio`` and ``limit_ratio`` (the instants together), ``design_effect``,
+    ``instant_rate`` (each test's), ``instants`` ``{view: T_v}``, ``instant_f`` ``{view: {"f", "p"}}`` (and
+    ``"limit"`` for the flagged and the worst; an instant fails where ``p < instant_rate``), ``flagged``, ``ratio`` and ``limit_ratio`` (the instants together), ``design_effect``,
     ``explained_by_refocus``.
     """
     found = rigidity_statistics(tied, alone, kappa2)
@@ -230,12 +234,12 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
     views = len(judged) + len(named)
     each = sidak(rate, views + 1)
     tests = instant_f_tests(judged, dofs, found["leverage"], dof, each) if dof > 0 else {}
-    flagged = list(named) + sorted((v for v, t in tests.items() if t["f"] > t["limit"]), key=lambda v: tests[v]["p"])
+    flagged = list(named) + sorted((v for v, t in tests.items() if t["p"] < each), key=lambda v: tests[v]["p"])
     ratio = float(sum(judged.values())) / dof if judged and dof > 0 else 0.0
     limit_ratio = f_quantile(max(dof, 1), max(views - 1, 1), 1.0 - each)
     ok = ratio <= limit_ratio and not flagged
-    all_tests = {**{v: {k: t[k] for k in ("f", "p", "limit")} for v, t in tests.items()},
-                 **{v: {k: t[k] for k in ("f", "p", "limit")} for v, t in named.items()}}
+    all_tests = {**{v: {k: t[k] for k in ("f", "p", "limit") if k in t} for v, t in tests.items()},
+                 **{v: {k: t[k] for k in ("f", "p", "limit") if k in t} for v, t in named.items()}}
     worst = flagged[0] if flagged else (min(tests, key=lambda v: tests[v]["p"]) if tests else None)
     doc = {"ok": ok, "test": RIGID_TEST, "false_alarm_rate": rate, "instant_rate": each,
            "statistic": all_tests[worst]["f"] if worst else None,
