@@ -130,8 +130,10 @@ def test_stereo_calibration_agrees_with_bouguet(stereo_corners):
         np.testing.assert_allclose([cam.fx, cam.fy], fc, atol=2.0)
         np.testing.assert_allclose([cam.cx, cam.cy], cc, atol=3.0)
     np.testing.assert_allclose(rig.rig["right"].pose.t_mm, [-99.80198, 1.12443, 0.05041], atol=1.0)
-    # every check passes but rig_rigid, which names instants 08 and 03 (test_the_stereo_rig_names_08_and_03)
-    assert {k for k, c in rig.checks.items() if not c["ok"]} == {"rig_rigid"}, rig.checks["rig_rigid"]["message"]
+    # with the paper's lens every instant fits one rigid relative pose, and every check passes (08 is at the edge:
+    # test_the_stereo_rigs_instant_08_is_at_the_edge)
+    assert rig.checks["rig_rigid"]["ok"], rig.checks["rig_rigid"]["message"]
+    assert all(c["ok"] for c in rig.checks.values()), {k: c["message"] for k, c in rig.checks.items() if not c["ok"]}
     # the textbook sigmas are several times too small on real photos (issue 11's split-half test)
     assert rig.camera_sigma["left"]["fx"] > 1.5 * rig.camera_sigma_formal["left"]["fx"]
 
@@ -143,22 +145,24 @@ def _without(corners, views):
 
 
 @pytest.mark.parametrize("model", ["k1k2", "auto"])
-def test_the_stereo_rig_names_08_and_03(stereo_corners, model):
-    """rig_rigid at its stated false-alarm rate (1 % per calibration) on the stereo sample: instant 08 does not
-    fit the rig's relative pose against the other instants' scatter (F 12.6-18.3 against limits of 6.3-11.1,
-    p 4e-7 to 4e-4 where each of the 14 tests has 7.2e-4, under every lens model; 03 among the others widens
-    08's limit), and once it is out 03 (F 6.3-8.4, limit 4.56, p 1e-6 to 4e-5); the other eleven lie at F
-    below 2.5, within their limits, and without 08 and 03 rig_rigid passes. The board is held by hand (a hand shows in
-    right03.jpg): the two cameras' shots of 08 and 03 saw it some 0.15 mm apart (the tie adds 0.2 px RMS to
-    08's corners, 0.01-0.05 px to the others'). See benchmarks/bench_false_alarms.py."""
+def test_the_stereo_rigs_instant_08_is_at_the_edge(stereo_corners, model):
+    """rig_rigid at its stated false-alarm rate (1 % per calibration, 14 tests of 7.2e-4 each) on the stereo
+    sample: each instant's tie cost in its own photos' noise against the other instants' scatter. Instant 08
+    stands out under every lens model, at the edge of the limit: p 2.6e-3 with the paper's lens (k1k2, which
+    passes), 1e-4 to 5e-4 with tangential terms (``auto`` gives the left camera k1k2p1p2: 08 is named, and
+    without it 03, p 2e-6). The other instants lie well within (p above 4e-3), and without 08 and 03 every
+    check passes. The board is held by hand (a hand shows in right03.jpg) and 08's photos are the least sharp:
+    see benchmarks/README.md (bench_false_alarms.py)."""
     check = calibrate_rig(stereo_corners, reference="left", model=model).checks["rig_rigid"]
-    assert not check["ok"] and check["flagged"] == ["08", "03"], check["message"]
     f = check["instant_f"]
-    assert f["08"]["p"] < check["instant_rate"] and f["03"]["p"] < 0.1 * check["instant_rate"]
-    assert all(t["p"] >= check["instant_rate"] and t["f"] < 2.6 for v, t in f.items() if v not in ("08", "03"))
-    assert check["ratio"] < 0.2 * check["limit_ratio"]                   # the instants together fit
+    assert 1e-5 < f["08"]["p"] < 1e-2, f["08"]                  # 08 named first, 03's p is that without 08
+    assert all(t["p"] > 4e-3 for v, t in f.items() if v not in ("08", "03"))
+    if model == "k1k2":
+        assert check["ok"] and check["worst"] == "08" and check["p_value"] > check["instant_rate"]
+    else:
+        assert not check["ok"] and check["flagged"] == ["08", "03"] and f["03"]["p"] < 1e-4, check["message"]
     kept = calibrate_rig(_without(stereo_corners, {"08", "03"}), reference="left", model=model)
-    assert kept.checks["rig_rigid"]["ok"] and kept.checks["focus"]["ok"], kept.checks["rig_rigid"]["message"]
+    assert all(c["ok"] for c in kept.checks.values()), {k: c["message"] for k, c in kept.checks.items() if not c["ok"]}
 
 
 def test_bouguet_calibration_agrees_with_bouguet_and_matlab(bouguet_corners):

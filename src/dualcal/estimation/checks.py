@@ -127,7 +127,21 @@ def rigidity_statistics(tied: Solution, alone: Solution, kappa2: dict[int, float
     if dof <= 0 or not stats:
         return None
     return {"stats": stats, "dofs": dofs, "leverage": leverage, "dof": dof, "design_effect": kappa2,
-            "noise_px2": noise}
+            "noise_px2": noise, "own_noise": own_noise(alone, stats)}
+
+
+def own_noise(alone: Solution, views) -> dict[str, float]:
+    """Per instant of ``views``, the noise of its photos relative to all photos': the mean square residual
+    of its photos with every camera alone (over their coordinates less six per photo, its own pose) over
+    ``s0^2``. Sharper photos have less, blurred ones more; their poses, and so the instant's tie cost,
+    scatter likewise."""
+    ss: dict[str, float] = {}
+    n: dict[str, int] = {}
+    for (c, v, _), r in zip(alone.problem.blocks, alone.residuals):
+        ss[v] = ss.get(v, 0.0) + float(np.nansum(r ** 2))
+        n[v] = n.get(v, 0) + int(np.isfinite(r).sum()) - 6
+    s02 = max(alone.s0_px ** 2, NOISE_FLOOR_PX ** 2)
+    return {v: max(ss[v] / max(n[v], 1), NOISE_FLOOR_PX ** 2) / s02 for v in views if v in ss}
 
 
 #: The least share of an instant's degrees of freedom that :func:`instant_f_tests` gives its noise: one in
@@ -207,8 +221,9 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
     noise ``kappa^2 s0^2`` of the cameras alone is ``T_v`` (:func:`rigidity_statistics`), with ``k_v``
     degrees of freedom. Two tests, the rate split over them by Sidak (``G`` instants: ``G + 1`` tests):
 
-    * each instant against the others (:func:`instant_f_tests`): an instant out of sync, or whose lens
-      moved, fails;
+    * each instant against the others (:func:`instant_f_tests`), its tie cost taken in its own photos'
+      noise (:func:`own_noise`: a blurred instant's poses scatter more, a sharp one's less): an instant out
+      of sync, or whose lens moved, fails;
     * the instants together: ``ratio = sum T_v / dof`` against ``F(dof, G - 1)`` (the photo-level noise is
       estimated from the intrinsics' scatter over the ``G`` instants, :func:`design_effect`, so about
       ``G - 1`` degrees of freedom): every instant out of sync, or a rig that is not rigid, fails.
@@ -233,7 +248,9 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
     dof -= sum(dofs[v] for v in stats if v not in judged)
     views = len(judged) + len(named)
     each = sidak(rate, views + 1)
-    tests = instant_f_tests(judged, dofs, found["leverage"], dof, each) if dof > 0 else {}
+    own = found["own_noise"]                  # each instant in its own photos' noise (sharp or blurred)
+    tests = instant_f_tests({v: t / own.get(v, 1.0) for v, t in judged.items()}, dofs, found["leverage"], dof,
+                            each) if dof > 0 else {}
     flagged = list(named) + sorted((v for v, t in tests.items() if t["p"] < each), key=lambda v: tests[v]["p"])
     ratio = float(sum(judged.values())) / dof if judged and dof > 0 else 0.0
     limit_ratio = f_quantile(max(dof, 1), max(views - 1, 1), 1.0 - each)
