@@ -2,9 +2,10 @@
 against scipy's."""
 
 import pytest
-from scipy.special import betainc, chdtri, fdtri, gammainc
+from scipy.special import betainc, chdtri, fdtrc, fdtri, gammainc
 
-from dualcal.estimation.distributions import chi2_quantile, f_quantile, regularized_beta, regularized_gamma
+from dualcal.estimation.distributions import (chi2_quantile, f_quantile, f_sf, regularized_beta, regularized_gamma,
+                                              sidak)
 
 
 @pytest.mark.parametrize("d1", [1, 2, 3, 6, 10])
@@ -12,6 +13,21 @@ def test_the_f_quantile_is_scipys(d1):
     for d2 in (1, 2, 3, 5, 10, 13, 47, 200, 5000):
         for q in (0.5, 0.9, 0.99, 0.999):
             assert f_quantile(d1, d2, q) == pytest.approx(fdtri(d1, d2, q), rel=1e-8), (d1, d2, q)
+
+
+@pytest.mark.parametrize("d1", [1, 2, 6, 12, 72])
+def test_the_f_tail_is_scipys(d1):
+    for d2 in (1, 3, 11, 66, 500):
+        for f in (0.0, 0.01, 0.5, 1.0, 3.0, 11.6, 80.0):
+            assert f_sf(f, d1, d2) == pytest.approx(fdtrc(d1, d2, f), rel=1e-9, abs=1e-300), (d1, d2, f)
+        assert f_sf(f_quantile(d1, d2, 0.999), d1, d2) == pytest.approx(0.001, rel=1e-7)
+
+
+def test_the_sidak_rate_makes_the_family_rate():
+    for rate in (0.01, 0.05):
+        for m in (1, 2, 13, 40):
+            assert 1 - (1 - sidak(rate, m)) ** m == pytest.approx(rate, rel=1e-12)
+            assert rate / m <= sidak(rate, m) <= -__import__("math").log1p(-rate) / m
 
 
 def test_the_incomplete_beta_is_scipys():

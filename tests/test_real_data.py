@@ -132,11 +132,39 @@ def test_stereo_calibration_agrees_with_bouguet(stereo_corners):
         np.testing.assert_allclose([cam.fx, cam.fy], fc, atol=2.0)
         np.testing.assert_allclose([cam.cx, cam.cy], cc, atol=3.0)
     np.testing.assert_allclose(rig.rig["right"].pose.t_mm, [-99.80198, 1.12443, 0.05041], atol=1.0)
-    # a synchronised rig: every instant fits one rigid relative pose, and every check passes
+    # with the paper's lens every instant fits one rigid relative pose, and every check passes (08 is at the edge:
+    # test_the_stereo_rigs_instant_08_is_at_the_edge)
     assert rig.checks["rig_rigid"]["ok"], rig.checks["rig_rigid"]["message"]
     assert all(c["ok"] for c in rig.checks.values()), {k: c["message"] for k, c in rig.checks.items() if not c["ok"]}
     # the textbook sigmas are several times too small on real photos (issue 11's split-half test)
     assert rig.camera_sigma["left"]["fx"] > 1.5 * rig.camera_sigma_formal["left"]["fx"]
+
+
+def _without(corners, views):
+    from dualcal.geometry.model import CameraCorners, CornerSet
+    return CornerSet(corners.board, {n: CameraCorners(c.image_size, {v: uv for v, uv in c.views.items() if v not in views},
+                                                      c.meta) for n, c in corners.cameras.items()}, corners.reference)
+
+
+@pytest.mark.parametrize("model", ["k1k2", "auto"])
+def test_the_stereo_rigs_instant_08_is_at_the_edge(stereo_corners, model):
+    """rig_rigid at its stated false-alarm rate (1 % per calibration, 14 tests of 7.2e-4 each) on the stereo
+    sample: each instant's tie cost in its own photos' noise against the other instants' scatter. Instant 08
+    stands out under every lens model, at the edge of the limit: p 2.6e-3 with the paper's lens (k1k2, which
+    passes), 1e-4 to 5e-4 with tangential terms (``auto`` gives the left camera k1k2p1p2: 08 is named, and
+    without it 03, p 2e-6). The other instants lie well within (p above 4e-3), and without 08 and 03 every
+    check passes. The board is held by hand (a hand shows in right03.jpg) and 08's photos are the least sharp:
+    see benchmarks/README.md (bench_false_alarms.py)."""
+    check = calibrate_rig(stereo_corners, reference="left", model=model).checks["rig_rigid"]
+    f = check["instant_f"]
+    assert 1e-5 < f["08"]["p"] < 1e-2, f["08"]                  # 08 named first, 03's p is that without 08
+    assert all(t["p"] > 4e-3 for v, t in f.items() if v not in ("08", "03"))
+    if model == "k1k2":
+        assert check["ok"] and check["worst"] == "08" and check["p_value"] > check["instant_rate"]
+    else:
+        assert not check["ok"] and check["flagged"] == ["08", "03"] and f["03"]["p"] < 1e-4, check["message"]
+    kept = calibrate_rig(_without(stereo_corners, {"08", "03"}), reference="left", model=model)
+    assert all(c["ok"] for c in kept.checks.values()), {k: c["message"] for k, c in kept.checks.items() if not c["ok"]}
 
 
 def test_bouguet_calibration_agrees_with_bouguet_and_matlab(bouguet_corners):

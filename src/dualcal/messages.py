@@ -31,7 +31,7 @@ CHECKS = {
         "title": "the adjustment converged",
         "meaning": "The joint adjustment (the least-squares fit of every camera, the rig and every board position "
                    "to the corners) reached its best fit. When it fails, the numbers in calib.json are not those of "
-                   "the best fit and their sigmas mean little.",
+                   "the best fit and their sigmas mean little. No statistical limit: the optimiser's own tests.",
         "cause": "Very few photos, photos that all show the board the same way (all square-on, or all at one "
                  "distance), a photo whose corners were found wrongly and pulls the fit, or a rig mode that does "
                  "not suit the photos (`--rig paper` on a few noisy instants needs many more iterations).",
@@ -65,33 +65,46 @@ CHECKS = {
     "rig_rigid": {
         "title": "the cameras kept their relative pose",
         "meaning": "The photos of every instant fit one fixed relative pose of the cameras (the rig's baseline and "
-                   "angles), judged against the photo-level noise: how much more the photos disagree than white "
-                   "noise on the corners would allow (calib.json `design_effect`). The message names the instants "
-                   "that do not fit, with how many times the noise they miss by.",
-        "cause": "The board or the phone moved between the shots of one position (not on a tripod, a board that "
-                 "slid, a tap on the screen), the lenses did not shoot at the same instant, a lens that moved "
-                 "(optical image stabilisation, a refocus), or photos of different positions put into one instant.",
+                   "angles). Two statistical tests, with a stated false-alarm rate: on a synchronised rig one "
+                   "calibration in a hundred fails by chance (`false_alarm_rate` 0.01, split over the tests). Each "
+                   "instant's tie cost (how much worse its photos fit when tied to the rig than alone) is judged "
+                   "against the other instants' by an F test, so the limit comes from the calibration's own noise, "
+                   "the lens model's error included (`statistic`: the worst instant's F, `limit`: its F quantile, "
+                   "`instant_f`: every instant's F, p-value and limit). The instants together are judged against the "
+                   "photo-level noise, how much more the photos disagree than white noise on the corners would allow "
+                   "(`ratio` against `limit_ratio`, an F quantile; calib.json `design_effect`). The message names "
+                   "the instants that do not fit, with their F and p-value.",
+        "cause": "The board or the phone moved between the shots of one position (not on a tripod, a board held "
+                 "by hand, a board that slid, a tap on the screen), the lenses did not shoot at the same instant, a "
+                 "lens that moved (optical image stabilisation, a refocus), or photos of different positions put "
+                 "into one instant. A board held by hand and cameras that are not triggered together show as an "
+                 "instant or two at small p-values, even where the misfit is a fraction of a pixel.",
         "action": "Leave out the instants it names with `--exclude INSTANT` (every camera's photo of it) and "
-                  "calibrate again, or shoot them again from a tripod with a remote or the timer. If every instant "
-                  "fails, the shots are not synchronised: use a tripod and shoot each position with every lens "
-                  "before moving the board.",
-        "examples": ["do not fit the rig's relative pose", "worse than the photo-level noise allows"],
+                  "calibrate again, or shoot them again from a tripod with a remote or the timer, the board still. "
+                  "If every instant fails, the shots are not synchronised: use a tripod and shoot each position "
+                  "with every lens before moving the board.",
+        "examples": ["do not fit the rig's relative pose", "worse than the photo-level noise allows",
+                     "against the other instants' scatter", "false-alarm rate"],
     },
     "focus": {
         "title": "no photo refocused",
-        "meaning": "No photo has a focal length of its own: each photo's focal length, fitted alone, agrees with its "
-                   "camera's within 5 sigma. A photo that fails was taken after the phone refocused or zoomed.",
+        "meaning": "No photo has a focal length of its own: each photo's focal scale, fitted with its board pose, "
+                   "is judged against those of its camera's other photos by a Student t test (`statistic`: the "
+                   "largest |t|, `limit`: the t quantile), at a stated false-alarm rate of one calibration in a "
+                   "hundred with a fixed focus (`false_alarm_rate` 0.01, split over the photos). A photo that fails "
+                   "was taken after the phone refocused or zoomed.",
         "cause": "Autofocus ran between the shots (the board at another distance, a tap on the screen), or a "
                  "digital zoom step (an iPhone's 2x) mixed with the lens's own.",
         "action": "Lock focus and exposure (AE/AF lock: a long press on the board in the stock camera app) and "
                   "shoot again, or leave the named photos out with `--exclude CAMERA/PHOTO`.",
-        "examples": ["have a focal length of their own"],
+        "examples": ["have a focal length of their own", "against its camera's other photos"],
     },
     "determination": {
         "title": "every parameter is known well enough",
         "meaning": "Each focal length is known to 1 %, each principal point to 1 % of the image, the lens "
                    "distortion at the outermost corner measured to 0.5 px, each baseline to 2 % and each relative "
-                   "angle to 30 minutes of arc (all 1-sigma). The message names what is not, with what would help.",
+                   "angle to 30 minutes of arc (all 1-sigma). The message names what is not, with what would help. These limits "
+                   "are what a calibration is used for, not statistical (no false-alarm rate).",
         "cause": "Photos that show the board only in the middle of the frame, all square-on, or all at one "
                  "distance; a tele that sees the board in few instants.",
         "action": "Do what the message says (tilt the board, bring it to the corners of the frame), or run "
@@ -101,7 +114,9 @@ CHECKS = {
     "lens_model": {
         "title": "the lens model has the terms the lens needs",
         "meaning": "The residuals (what the calibration cannot explain) at the image's edge are at most twice those "
-                   "at its centre. Where they grow towards the edge, the lens model lacks terms.",
+                   "at its centre. Where they grow towards the edge, the lens model lacks terms. The limit (2 x) is a fixed "
+                   "one, not statistical (no false-alarm rate): on sharp photos a model with the terms it needs keeps "
+                   "the ratio near 1.",
         "cause": "A lens with more distortion than the chosen model describes: an ultra-wide calibrated with two "
                  "radial terms, a lens with decentring (tangential) distortion, or a board that is not flat.",
         "action": "Let dualcal choose the model (`--model auto`, the default) or give a richer one: `--model "

@@ -58,7 +58,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     from ..files.io import check_output_file, save_rig
     from ..messages import CHECKS, page_of
     from ..progress import warn
-    from .tables import (lens_model_advice, lens_model_choice_table, lens_model_table, photo_table,
+    from .tables import (checks_table, lens_model_advice, lens_model_choice_table, lens_model_table, photo_table,
                                 result_tables, roll_tables, video_lines)
     from ..workflow import calibrate_corners, lens_scores, other_skew_model
 
@@ -100,6 +100,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
         console.print(lens_model_advice(scores, rig.model))
     if "lens_models_chosen" in rig.adjustment:
         console.print(lens_model_choice_table(rig.adjustment))
+    console.print(checks_table(rig))
     console.print(verdict(rig.checks))
     for name in failed_checks(rig.checks):
         page = f" (see {page_of(name)})" if name in CHECKS else ""

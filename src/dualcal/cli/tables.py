@@ -113,6 +113,21 @@ def photo_table(rig: RigModel) -> Table:
     return t
 
 
+def checks_table(rig: RigModel) -> Table:
+    """Every check: passed or not, its statistic, limit and false-alarm rate (calib.json ``checks``;
+    :func:`dualcal.estimation.checks.check_limits`)."""
+    from ..estimation.checks import check_limits
+
+    t = Table(title="Checks: statistic, limit and false-alarm rate", box=box.SIMPLE_HEAD)
+    for col, justify in (("check", "left"), ("", "left"), ("statistic", "right"), ("limit", "right"),
+                         ("false alarms", "left")):
+        t.add_column(col, justify=justify, no_wrap=True)
+    for name, check in rig.checks.items():
+        cells = check_limits(check)
+        t.add_row(name, "pass" if check.get("ok", True) else "FAIL", cells["statistic"], cells["limit"], cells["rate"])
+    return t
+
+
 def lens_model_table(scores, used: str) -> Table:
     """The lens models side by side (:func:`dualcal.estimation.model_selection.score_lens_models`): fit and
     held-out RMS (px), how many standard errors worse than the best held out, the one recommended

@@ -432,10 +432,10 @@ def attribution_checks(setup: Setup, tied: Solution, alone: Solution, kappa2) ->
         except EstimationError:
             break
     doc = rig_rigid(tied, alone, kappa2)
-    named: dict[str, float] = {}
+    named: dict[str, dict] = {}
     while doc is not None and doc["flagged"][len(named):] and len(named) < limit:
         worst = doc["flagged"][len(named)]
-        named[worst] = doc["instants"][worst]
+        named[worst] = {"statistic": doc["instants"][worst], **doc["instant_f"][worst]}
         blocks = [b for b in blocks if b[1] != worst]
         try:
             tied, alone = setup.solve(blocks, tied), setup.solve(blocks, alone, mode="none")

@@ -6,9 +6,11 @@ a message in plain words that says what is wrong and what would help:
 ``converged``      the adjustment reached its optimum.
 ``photos``         enough instants for sigmas that come from how the photos disagree.
 ``fit``            every camera's RMS (2-D, per corner) near what corner detection achieves.
-``rig_rigid``      the photos of every instant fit one rigid relative pose of the cameras, judged
-                   against the photo-level noise (an unsynchronised pair, a lens that moved).
-``focus``          no photo whose own focal length is off by many sigma (the phone refocused).
+``rig_rigid``      the photos of every instant fit one rigid relative pose of the cameras: each instant
+                   judged against the other instants' scatter (an F test), the instants together against
+                   the photo-level noise (an unsynchronised pair, a lens that moved).
+``focus``          no photo whose own focal length is off against the scatter of its camera's other
+                   photos (a Student t test: the phone refocused).
 ``determination``  every parameter determined well enough (focal length, principal point,
                    distortion as far out as corners were measured, baseline, angles).
 ``lens_model``     residuals that do not grow towards the image's edge (the lens model lacks terms).
@@ -18,6 +20,14 @@ a message in plain words that says what is wrong and what would help:
                    one passes every other check. Without those EXIF facts there is nothing to judge it by,
                    so there is no such check and :func:`scale_note` says that the scale rests on the square
                    (a check that always passes would only add to "all checks pass").
+
+*False alarms.* ``rig_rigid`` and ``focus`` take their limits from the distribution of their statistic
+on a synchronised rig with a fixed focus, at :data:`FALSE_ALARM_RATE` per calibration, split over their
+tests; the statistic of one instant (photo) is judged against the scatter of the others, so that the
+calibration's own noise, lens-model error included, sets the limit. Each gives ``test`` (its name),
+``statistic`` (the worst instant's or photo's), ``limit`` (that test's) and ``false_alarm_rate``.
+``benchmarks/bench_false_alarms.py`` measures the rates. The other checks have fixed limits: physical
+ones (what corner detection achieves, a sigma too large to use), said in their entries.
 
 *Photo-level noise.* Corner errors within one photo are correlated on real photos, so a test
 against white corner noise (``s0``) would fail every real rig. The checks measure noise in units of
@@ -31,27 +41,23 @@ from __future__ import annotations
 import numpy as np
 
 from .adjust import Solution, photo_rows
+from .distributions import f_quantile, f_sf, sidak
 from ..geometry.camera import FULL_FRAME_DIAGONAL_MM
 from ..geometry.model import RigModel
 
 __all__ = ["design_effect", "rig_rigid", "rigidity_statistics", "focus_drift", "focal_scale_fits", "tie_costs",
            "determination", "fit_quality", "photo_count", "lens_model_fit", "convergence", "scale_plausibility",
-           "scale_note", "run_checks", "verdict",
+           "scale_note", "run_checks", "verdict", "check_limits", "instant_f_tests", "focal_t_tests", "dof_share",
            "failed_checks"]
 
 #: Fewer instants than this give unreliable sigmas (they come from the instants' scatter).
 MIN_INSTANTS = 8
 #: A camera's RMS (2-D, per corner) above this is far beyond what corner detection achieves.
 FIT_RMS_LIMIT_PX = 1.0
-#: The instants together, or one instant, fail where they fit this many times worse than the
-#: photo-level noise allows per degree of freedom. That noise is estimated from the intrinsics'
-#: scatter, and the poses see more of an error that is smooth across one photo than the intrinsics do
-#: (a shift of 0.02 px common to one photo's corners, independent between the cameras, already fits a
-#: rigid rig 2-3 x worse than white noise of 0.05 px allows; the renders of ``make demo`` 1.6 x), while
-#: a shot out of sync or a lens that moved fits tens to hundreds of times worse.
-RIGID_RATIO = 10.0
-#: A photo's own focal length this many sigma from the others' is a refocus ...
-FOCUS_SIGMAS = 5.0
+#: The false-alarm rate of each check with a statistical limit (``rig_rigid``, ``focus``), per calibration:
+#: on a synchronised rig with a fixed focus, one calibration in a hundred fails the check by chance. It is
+#: split over the check's tests (one per instant, or per photo) by :func:`dualcal.estimation.distributions.sidak`.
+FALSE_ALARM_RATE = 0.01
 #: ... where that focal change takes away at least this share of its instant's extra cost of being tied
 #: to the rig (a desynchronised shot also pulls the focal lengths, but explains little of its misfit so).
 REFOCUS_SHARE = 0.6
@@ -91,73 +97,193 @@ def _block_costs(sol: Solution) -> np.ndarray:
 
 def rigidity_statistics(tied: Solution, alone: Solution, kappa2: dict[int, float] | None = None):
     """Per instant, the extra cost of tying its photos to one relative pose, in units of the photo-level
-    noise, and its degrees of freedom; and the noise ``kappa^2 s0^2`` (px^2). None for a rig of one
-    camera or mode ``none``. See :func:`rig_rigid`."""
+    noise, its degrees of freedom and its leverage; and the noise ``kappa^2 s0^2`` (px^2). None for a rig
+    of one camera or mode ``none``. See :func:`rig_rigid`.
+
+    Returns ``{"stats": {view: T_v}, "dofs": {view: k_v}, "leverage": {view: h_v}, "dof", "design_effect",
+    "noise_px2"}``: ``k_v`` is 6 per tied camera of the instant (4 in the paper's model, whose baseline
+    direction is free), ``dof`` their sum less the shared relative poses' own (6 or 4 per tied camera), and
+    ``h_v`` the share of the shared poses that the instant determines, ``1 / n_c`` for a camera tied in
+    ``n_c`` instants, averaged over the instant's tied cameras (equal information per instant).
+    """
     p = tied.problem
     if p.mode == "none" or len(p.cameras) < 2:
         return None
     kappa2 = max((design_effect(alone) if kappa2 is None else kappa2).values())
     noise = max(kappa2 * alone.s0_px ** 2, NOISE_FLOOR_PX ** 2)
     per = 6 if p.mode == "rigid" else 4
-    stats, dofs = {}, {}
+    cams_of: dict[str, set] = {}
+    for c, v, _ in p.blocks:
+        cams_of.setdefault(v, set()).add(c)
+    tied_in = {v: (cams - {p.reference}) if p.reference in cams else set() for v, cams in cams_of.items()}
+    n_tied = {c: sum(c in t for t in tied_in.values()) for c in range(len(p.cameras))}
+    stats, dofs, leverage = {}, {}, {}
     for view, extra in tie_costs(tied, alone).items():
-        cams = {c for c, v, _ in p.blocks if v == view}
-        k = per * len(cams - {p.reference}) if p.reference in cams else 0
-        if k:
-            stats[view], dofs[view] = float(extra / noise), k
+        if tied_in.get(view):
+            stats[view], dofs[view] = max(float(extra / noise), 0.0), per * len(tied_in[view])
+            leverage[view] = float(np.mean([1.0 / n_tied[c] for c in tied_in[view]]))
     tied_cams = {c for c, _, _ in p.blocks if c != p.reference}
     dof = sum(dofs.values()) - per * len(tied_cams)
     if dof <= 0 or not stats:
         return None
-    return {"stats": stats, "dofs": dofs, "dof": dof, "design_effect": kappa2}
+    return {"stats": stats, "dofs": dofs, "leverage": leverage, "dof": dof, "design_effect": kappa2,
+            "noise_px2": noise, "own_noise": own_noise(alone, stats)}
+
+
+def own_noise(alone: Solution, views) -> dict[str, float]:
+    """Per instant of ``views``, the noise of its photos relative to all photos': the mean square residual
+    of its photos with every camera alone (over their coordinates less six per photo, its own pose) over
+    ``s0^2``. Sharper photos have less, blurred ones more; their poses, and so the instant's tie cost,
+    scatter likewise."""
+    ss: dict[str, float] = {}
+    n: dict[str, int] = {}
+    for (c, v, _), r in zip(alone.problem.blocks, alone.residuals):
+        ss[v] = ss.get(v, 0.0) + float(np.nansum(r ** 2))
+        n[v] = n.get(v, 0) + int(np.isfinite(r).sum()) - 6
+    s02 = max(alone.s0_px ** 2, NOISE_FLOOR_PX ** 2)
+    return {v: max(ss[v] / max(n[v], 1), NOISE_FLOOR_PX ** 2) / s02 for v in views if v in ss}
+
+
+#: The least share of an instant's degrees of freedom that :func:`instant_f_tests` gives its noise: one in
+#: six (a rigid pose's own six, moved by one smooth error of each photo).
+MIN_DOF_SHARE = 1.0 / 6.0
+
+
+def dof_share(values: list[float], dofs: list[int]) -> float:
+    """The share ``e`` of their degrees of freedom that tie costs ``T_u`` scatter with (Satterthwaite).
+
+    ``T_u / (k_u (1 - h_u))`` (``values``, each of ``k_u`` degrees of freedom, ``dofs``) have one mean
+    ``sigma^2``; with white noise on the corners ``T_u`` is ``sigma^2 chi^2(k_u)``, of variance ``2 / k_u``
+    relative to its mean squared. Noise correlated within the photos (a smooth error of each photo, the
+    lens model's error where the board lies) moves the poses along fewer directions, and the tie costs
+    scatter as with ``e k_u`` degrees of freedom, ``e < 1``: ``e = 2 m^2 (n - 1) / sum k_u (y_u - m)^2`` by
+    the moments of the ``n`` values ``y_u`` (mean ``m``), between :data:`MIN_DOF_SHARE` and 1.
+    """
+    y, k = np.asarray(values, float), np.asarray(dofs, float)
+    if len(y) < 3:
+        return 1.0
+    m = float(np.mean(y))
+    spread = float(np.sum(k * (y - m) ** 2))
+    if m <= 0 or spread <= 0:
+        return 1.0
+    return float(np.clip(2.0 * m * m * (len(y) - 1) / spread, MIN_DOF_SHARE, 1.0))
+
+
+def instant_f_tests(stats: dict[str, float], dofs: dict[str, int], leverage: dict[str, float], dof: int,
+                    rate: float) -> dict[str, dict]:
+    """Each instant's tie cost against the other instants' scatter: an F test per instant at ``rate``.
+
+    With the instants' tie costs ``T_v`` (:func:`rigidity_statistics`, any unit: it cancels) summing to
+    ``S`` over ``dof`` degrees of freedom, instant ``v`` left out of the shared relative poses would cost
+    ``Q_v = T_v / (1 - h_v)`` (its deleted, or predicted, tie cost, exact for equal leverage ``h_v``), and
+    the others ``S - Q_v`` over ``dof - k_v``. On a synchronised rig whose instants share one noise
+    level, ``F_v = (Q_v / k_v) / ((S - Q_v) / (dof - k_v))`` follows ``F(k_v, dof - k_v)`` for white noise
+    (the externally studentised outlier test): whatever that level is, lens-model error and noise
+    correlated within the photos included, it comes from the others. Correlated noise scatters the tie
+    costs as with fewer degrees of freedom: both are taken times the others' share ``e``
+    (:func:`dof_share`, of the others alone, so that the instant judged does not widen its own limit),
+    ``F(e k_v, e (dof - k_v))``. Returns ``{view: {"f", "d1", "d2", "p"}}`` for the instants that can be
+    judged (``dof - k_v > 0``); an instant fails where ``p < rate``, and those, and the one of the smallest
+    ``p``, also have ``"limit"``, the F quantile at ``1 - rate`` (``f > limit`` where ``p < rate``).
+    """
+    total = sum(stats.values())
+    scaled = {v: t / (dofs[v] * max(1.0 - leverage[v], 1e-9)) for v, t in stats.items()}
+    out = {}
+    for v, t in stats.items():
+        d1, d2 = dofs[v], dof - dofs[v]
+        if d2 <= 0:
+            continue
+        others = [u for u in stats if u != v]
+        e = dof_share([scaled[u] for u in others], [dofs[u] for u in others])
+        q = t / max(1.0 - leverage[v], 1e-9)
+        rest = max(total - q, 1e-12 * total, 1e-300)            # JSON has no inf: a huge F instead
+        f = (q / d1) / (rest / d2)
+        out[v] = {"f": f, "d1": e * d1, "d2": e * d2, "p": f_sf(f, e * d1, e * d2)}
+    worst = min(out, key=lambda v: out[v]["p"], default=None)
+    for v, t in out.items():            # a quantile costs a millisecond: only where it is shown
+        if t["p"] < rate or v == worst:
+            t["limit"] = f_quantile(t["d1"], t["d2"], 1.0 - rate)
+    return out
+
+
+#: The name of ``rig_rigid``'s test (calib.json ``checks.rig_rigid.test``).
+RIGID_TEST = ("F test of each instant's tie cost against the other instants' (Sidak over the instants); "
+              "F test of the instants together against the photo-level noise")
 
 
 def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None = None,
-              explained=(), named: dict[str, float] | None = None) -> dict | None:
+              explained=(), named: dict[str, dict] | None = None, rate: float = FALSE_ALARM_RATE) -> dict | None:
     """Whether every instant's photos fit one rigid relative pose (None for a rig of one camera or
-    mode ``none``).
+    mode ``none``), at the false-alarm rate ``rate`` per calibration.
 
     Both solutions must be over the same photos: ``tied`` in rig mode ``rigid`` or ``paper``,
     ``alone`` with every camera alone. The extra cost of tying instant ``v`` in units of the photo-level
     noise ``kappa^2 s0^2`` of the cameras alone is ``T_v`` (:func:`rigidity_statistics`), with ``k_v``
-    degrees of freedom (6 per tied camera of the instant; 4 for the paper's model, whose baseline
-    direction is free). An instant fails where ``T_v > RIGID_RATIO k_v``, and the instants together
-    where ``sum T_v`` exceeds :data:`RIGID_RATIO` times their degrees of freedom (less one instant's worth
-    per tied camera): a synchronised rig fits about 1-3 x its photo-level noise per degree of freedom,
-    a desynchronised shot or a lens that moved tens to hundreds of times (the constant's comment).
-    ``explained`` are instants whose misfit a refocused photo explains (``focus``): they are not
-    flagged here. ``named`` are instants already found not to fit (:func:`dualcal.estimation.calibrate.attribution_checks`
-    takes the worst out and judges the others without it, so that a bad instant, which pulls the
-    shared pose, does not make the good ones look bad): their statistic as it was, flagged first.
+    degrees of freedom. Two tests, the rate split over them by Sidak (``G`` instants: ``G + 1`` tests):
+
+    * each instant against the others (:func:`instant_f_tests`), its tie cost taken in its own photos'
+      noise (:func:`own_noise`: a blurred instant's poses scatter more, a sharp one's less): an instant out
+      of sync, or whose lens moved, fails;
+    * the instants together: ``ratio = sum T_v / dof`` against ``F(dof, G - 1)`` (the photo-level noise is
+      estimated from the intrinsics' scatter over the ``G`` instants, :func:`design_effect`, so about
+      ``G - 1`` degrees of freedom): every instant out of sync, or a rig that is not rigid, fails.
+
+    ``explained`` are instants whose misfit a refocused photo explains (``focus``): they are not judged
+    here. ``named`` are instants already found not to fit (:func:`dualcal.estimation.calibrate.attribution_checks`
+    takes the worst out and judges the others without it, so that a bad instant, which pulls the shared
+    pose, does not make the good ones look bad): ``{view: its test}`` as it was, flagged first.
+
+    The document: ``ok``, ``message``, ``test``, ``statistic`` (the worst instant's F, or a named one's),
+    ``limit`` (its F quantile), ``p_value``, ``false_alarm_rate`` (``rate``, per calibration),
+    ``instant_rate`` (each test's), ``instants`` ``{view: T_v}``, ``instant_f`` ``{view: {"f", "p"}}`` (and
+    ``"limit"`` for the flagged and the worst; an instant fails where ``p < instant_rate``), ``flagged``, ``ratio`` and ``limit_ratio`` (the instants together), ``design_effect``,
+    ``explained_by_refocus``.
     """
     found = rigidity_statistics(tied, alone, kappa2)
     if found is None:
         return None
     stats, dofs, dof, kappa2 = found["stats"], found["dofs"], found["dof"], found["design_effect"]
     named = named or {}
-    flagged = list(named) + sorted((v for v in stats if v not in explained and stats[v] > RIGID_RATIO * dofs[v]),
-                                   key=lambda v: -stats[v])
-    kept = {v: t for v, t in stats.items() if v not in explained}
-    ratio = float(sum(kept.values())) / dof if kept else 0.0
-    ok = ratio <= RIGID_RATIO and not flagged
-    doc = {"ok": ok, "ratio": ratio, "limit_ratio": RIGID_RATIO, "design_effect": kappa2,
-           "instants": {v: round(t, 3) for v, t in {**stats, **named}.items()}, "flagged": flagged,
-           "explained_by_refocus": sorted(v for v in explained if v in stats)}
+    judged = {v: t for v, t in stats.items() if v not in explained}
+    dof -= sum(dofs[v] for v in stats if v not in judged)
+    views = len(judged) + len(named)
+    each = sidak(rate, views + 1)
+    own = found["own_noise"]                  # each instant in its own photos' noise (sharp or blurred)
+    tests = instant_f_tests({v: t / own.get(v, 1.0) for v, t in judged.items()}, dofs, found["leverage"], dof,
+                            each) if dof > 0 else {}
+    flagged = list(named) + sorted((v for v, t in tests.items() if t["p"] < each), key=lambda v: tests[v]["p"])
+    ratio = float(sum(judged.values())) / dof if judged and dof > 0 else 0.0
+    limit_ratio = f_quantile(max(dof, 1), max(views - 1, 1), 1.0 - each)
+    ok = ratio <= limit_ratio and not flagged
+    all_tests = {**{v: {k: t[k] for k in ("f", "p", "limit") if k in t} for v, t in tests.items()},
+                 **{v: {k: t[k] for k in ("f", "p", "limit") if k in t} for v, t in named.items()}}
+    worst = flagged[0] if flagged else (min(tests, key=lambda v: tests[v]["p"]) if tests else None)
+    doc = {"ok": ok, "test": RIGID_TEST, "false_alarm_rate": rate, "instant_rate": each,
+           "statistic": all_tests[worst]["f"] if worst else None,
+           "limit": all_tests[worst]["limit"] if worst else None,
+           "p_value": all_tests[worst]["p"] if worst else None, "worst": worst,
+           "ratio": ratio, "limit_ratio": limit_ratio, "design_effect": kappa2,
+           "instants": {v: round(t, 3) for v, t in {**stats, **{v: t["statistic"] for v, t in named.items()}}.items()},
+           "instant_f": {v: {k: round(x, 4) if k != "p" else x for k, x in t.items()} for v, t in all_tests.items()},
+           "flagged": flagged, "explained_by_refocus": sorted(v for v in explained if v in stats)}
+    rate_words = f"false-alarm rate {100 * rate:g} % per calibration"
     if ok:
-        doc["message"] = (f"the photos of every instant fit one rigid relative pose ({ratio:.2f} x the photo-level "
-                          f"noise on average, limit {RIGID_RATIO:.3g})")
+        worst_words = (f"the worst, {worst}, F = {all_tests[worst]['f']:.2f} against the others' scatter (limit "
+                       f"{all_tests[worst]['limit']:.2f}); ") if worst else ""
+        doc["message"] = (f"the photos of every instant fit one rigid relative pose: {worst_words}the instants together "
+                          f"{ratio:.2f} x the photo-level noise (limit {limit_ratio:.2f}; {rate_words})")
     elif flagged:
-        all_stats = {**stats, **named}
-        worst = ", ".join(f"{v} ({all_stats[v] / dofs.get(v, 6):.0f} x)" for v in flagged[:5])
-        doc["message"] = (f"the photos of {len(flagged)} instant(s) do not fit the rig's relative pose: {worst} the "
-                          "photo-level noise, the others fit: the cameras' shots of "
+        words = ", ".join(f"{v} (F = {all_tests[v]['f']:.1f}, limit {all_tests[v]['limit']:.2f}, p = "
+                          f"{all_tests[v]['p']:.2g})" for v in flagged[:5])
+        doc["message"] = (f"the photos of {len(flagged)} instant(s) do not fit the rig's relative pose: {words} against "
+                          "the other instants' scatter, the others fit: the cameras' shots of "
                           f"{'that instant' if len(flagged) == 1 else 'those instants'} disagree (not taken at the same "
                           "instant, a lens that moved, or a board that moved between the shots); drop them with "
-                          "--exclude or shoot them again")
+                          f"--exclude or shoot them again ({rate_words})")
     else:
         doc["message"] = (f"the instants fit one rigid relative pose {ratio:.1f} x worse than the photo-level noise "
-                          f"allows (limit {RIGID_RATIO:.3g}): the cameras' shots are not synchronised, or the "
-                          "rig is not rigid; its baseline and angles hold only on average")
+                          f"allows (limit {limit_ratio:.2f}; {rate_words}): the cameras' shots are not synchronised, "
+                          "or the rig is not rigid; its baseline and angles hold only on average")
     return doc
 
 
@@ -216,43 +342,101 @@ def tie_costs(tied: Solution, alone: Solution) -> dict[str, float]:
     return out
 
 
+def focal_t_tests(z: list[float], rate: float) -> list[dict]:
+    """Each of one camera's photos' focal scales against the scatter of the others: a Student t test at ``rate``
+    (two-sided).
+
+    ``z`` are the photos' focal scales in units of their own sigma up to one unknown factor (the
+    photo-level noise; it cancels). The camera's focal length is fitted to them all, so each is a residual
+    of a mean (leverage ``h = 1 / n`` for ``n`` photos); photo ``i`` left out leaves the others
+    ``SS - z_i^2 / (1 - h)`` over ``n - 2`` degrees of freedom, and ``t_i = z_i / sqrt((1 - h) (SS - z_i^2 /
+    (1 - h)) / (n - 2))`` follows Student's ``t(n - 2)`` for a camera whose focus stayed (the externally
+    studentised residual). Returns per photo ``{"t", "dof", "p", "limit"}`` (``limit`` the t quantile at
+    ``1 - rate / 2``); empty below 3 photos.
+    """
+    n = len(z)
+    if n < 3:
+        return []
+    h, dof = 1.0 / n, n - 2
+    ss = float(np.sum(np.square(z)))
+    limit = float(np.sqrt(f_quantile(1, dof, 1.0 - rate)))
+    out = []
+    for zi in z:
+        rest = max(ss - zi ** 2 / (1.0 - h), 1e-12 * ss, 1e-300)   # JSON has no inf: a huge t instead
+        t = abs(zi) / np.sqrt((1.0 - h) * rest / dof)
+        out.append({"t": float(t), "dof": dof, "p": f_sf(t * t, 1, dof), "limit": limit})
+    return out
+
+
+#: The name of ``focus``'s test (calib.json ``checks.focus.test``).
+FOCUS_TEST = "Student t test of each photo's focal scale against its camera's other photos (Sidak over the photos)"
+
+
 def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str, float] | None = None,
-                named: list[dict] = ()) -> dict:
+                named: list[dict] = (), rate: float = FALSE_ALARM_RATE) -> dict:
     """Photos whose own focal length is off: the phone refocused or zoomed between shots.
 
-    A photo's own focal scale ``s`` (:func:`focal_scale_fits`) against its sigma in photo-level noise
-    (``kappa2[c]`` for camera ``c``) beyond :data:`FOCUS_SIGMAS` is a candidate. In a rig, an instant
-    whose cameras' shots disagree (a desynchronised shot, a lens that moved) also pulls the focal
-    lengths of its photos, but a focal change explains only a small part of its misfit, where a refocus
-    explains most of it: with ``tie_cost_px2`` (:func:`tie_costs`), a candidate is a refocus only where
-    its focal scale takes away at least :data:`REFOCUS_SHARE` of its instant's extra cost of being tied
-    to the rig; the others are left to ``rig_rigid`` (``flagged`` lists them with ``"cause": "rig"``).
-    ``named`` are refocused photos already found (:func:`dualcal.estimation.calibrate.attribution_checks` takes each
-    out and judges the others without it): they are flagged first, as they were found.
+    A photo's own focal scale ``s`` (:func:`focal_scale_fits`) in units of its sigma in photo-level noise
+    (``sigmas``, ``kappa2[c]`` for camera ``c``) is judged against the other photos of its camera
+    (:func:`focal_t_tests`), the false-alarm rate ``rate`` per calibration split over the photos by Sidak.
+    In a rig, an instant whose cameras' shots disagree (a desynchronised shot, a lens that moved) also
+    pulls the focal lengths of its photos, but a focal change explains only a small part of its misfit,
+    where a refocus explains most of it: with ``tie_cost_px2`` (:func:`tie_costs`), a candidate is a
+    refocus only where its focal scale takes away at least :data:`REFOCUS_SHARE` of its instant's extra
+    cost of being tied to the rig; the others are left to ``rig_rigid`` (``flagged`` lists them with
+    ``"cause": "rig"``). ``named`` are refocused photos already found
+    (:func:`dualcal.estimation.calibrate.attribution_checks` takes each out and judges the others without it):
+    they are flagged first, as they were found.
+
+    The document: ``ok``, ``message``, ``flagged``, ``test``, ``statistic`` (the largest ``|t|``, or a named
+    photo's), ``limit``, ``p_value``, ``false_alarm_rate`` (``rate``), ``photo_rate`` (each test's).
     """
+    fits = focal_scale_fits(sol)
+    each = sidak(rate, len(fits) + len(named)) if fits or named else rate
+    by_camera: dict[int, list] = {}
+    for fit in fits:
+        c = fit["camera"]
+        fit["z"] = fit["s"] / np.sqrt(max(kappa2[c] * sol.s0_px ** 2, NOISE_FLOOR_PX ** 2) * fit["var_s"])
+        by_camera.setdefault(c, []).append(fit)
+    for group in by_camera.values():
+        for fit, test in zip(group, focal_t_tests([f["z"] for f in group], each)):
+            fit["test"] = test
     flagged = list(named)
-    for fit in focal_scale_fits(sol):
-        c, view = fit["camera"], fit["view"]
-        z = fit["s"] / np.sqrt(max(kappa2[c] * sol.s0_px ** 2, NOISE_FLOOR_PX ** 2) * fit["var_s"])
-        if abs(z) <= FOCUS_SIGMAS:
+    worst = max((f for f in fits if "test" in f), key=lambda f: f["test"]["t"], default=None)
+    for fit in fits:
+        test = fit.get("test")
+        if test is None or test["t"] <= test["limit"]:
             continue
+        view = fit["view"]
         tie = (tie_cost_px2 or {}).get(view)
         share = fit["explained_px2"] / tie if tie and tie > 0 else None
         cause = "refocus" if share is None or share >= REFOCUS_SHARE else "rig"
-        flagged.append({"camera": sol.problem.cameras[c], "view": view, "focal_change": fit["s"], "sigmas": float(z),
+        flagged.append({"camera": sol.problem.cameras[fit["camera"]], "view": view, "focal_change": fit["s"],
+                        "sigmas": float(fit["z"]), "t": test["t"], "p": test["p"], "limit": test["limit"],
                         "explained_share": share, "cause": cause})
-    flagged[len(named):] = sorted(flagged[len(named):], key=lambda f: -abs(f["sigmas"]))
+    flagged[len(named):] = sorted(flagged[len(named):], key=lambda f: -f["t"])
     refocused = [f for f in flagged if f["cause"] == "refocus"]
+    top = refocused[0] if refocused else None
+    doc = {"test": FOCUS_TEST, "false_alarm_rate": rate, "photo_rate": each,
+           "statistic": top["t"] if top else (worst["test"]["t"] if worst else None),
+           "limit": top["limit"] if top else (worst["test"]["limit"] if worst else None),
+           "p_value": top["p"] if top else (worst["test"]["p"] if worst else None),
+           "worst": (f"{top['camera']}/{top['view']}" if top else
+                     f"{sol.problem.cameras[worst['camera']]}/{worst['view']}" if worst else None)}
+    rate_words = f"false-alarm rate {100 * rate:g} % per calibration"
     if not refocused:
         rest = (f" (the focal lengths of {len(flagged)} photo(s) of instants that do not fit the rig move too, as a "
                 "pose error pulls them: see rig_rigid)") if flagged else ""
-        return {"ok": True, "flagged": flagged, "message": f"no photo's own focal length is off by more than "
-                                                            f"{FOCUS_SIGMAS:g} sigma{rest}"}
-    worst = ", ".join(f"{f['camera']}/{f['view']} ({100 * f['focal_change']:+.2f} %, {abs(f['sigmas']):.0f} sigma)"
-                      for f in refocused[:4])
-    return {"ok": False, "flagged": flagged,
-            "message": f"{len(refocused)} photo(s) have a focal length of their own: {worst}: the phone refocused or "
-                       "zoomed between shots; lock focus (AF/AE lock) and shoot again, or leave them out with --exclude"}
+        stat = (f"the worst, {doc['worst']}, |t| = {doc['statistic']:.2f} against its camera's other photos (limit "
+                f"{doc['limit']:.2f}; {rate_words})") if worst else "too few photos per camera to judge"
+        return {"ok": True, "flagged": flagged, **doc,
+                "message": f"no photo's own focal length is off: {stat}{rest}"}
+    words = ", ".join(f"{f['camera']}/{f['view']} ({100 * f['focal_change']:+.2f} %, |t| = {f['t']:.1f}, limit "
+                      f"{f['limit']:.2f})" for f in refocused[:4])
+    return {"ok": False, "flagged": flagged, **doc,
+            "message": f"{len(refocused)} photo(s) have a focal length of their own: {words}: the phone refocused or "
+                       "zoomed between shots; lock focus (AF/AE lock) and shoot again, or leave them out with --exclude "
+                       f"({rate_words})"}
 
 
 def _edge_distortion_sigma(rig: RigModel, name: str, uv: np.ndarray) -> float | None:
@@ -315,11 +499,14 @@ def determination(rig: RigModel) -> dict:
 def fit_quality(rig: RigModel) -> dict:
     """Every camera's RMS (2-D, per corner) below :data:`FIT_RMS_LIMIT_PX`."""
     bad = {n: r for n, r in rig.camera_rms_px.items() if r > FIT_RMS_LIMIT_PX}
+    fixed = {"test": "physical limit: the largest camera RMS (px, 2-D per corner) against what corner detection "
+                     "achieves", "statistic": max(rig.camera_rms_px.values(), default=0.0), "limit": FIT_RMS_LIMIT_PX,
+             "false_alarm_rate": None}
     if not bad:
-        return {"ok": True, "message": "every camera fits its corners to "
+        return {"ok": True, **fixed, "message": "every camera fits its corners to "
                                        f"{max(rig.camera_rms_px.values()):.3g} px RMS (2-D, per corner) or better"}
     worst = ", ".join(f"{n} {r:.2f} px" for n, r in bad.items())
-    return {"ok": False, "message": f"RMS (2-D, per corner) {worst}, far above what corner detection achieves on sharp "
+    return {"ok": False, **fixed, "message": f"RMS (2-D, per corner) {worst}, far above what corner detection achieves on sharp "
                                     "photos (0.02-0.3 px): a board that is not flat or not printed true, blurred or "
                                     "moving photos, or corners found wrongly; the sigmas account for it, but check "
                                     "the board and the photos"}
@@ -339,7 +526,7 @@ def photo_count(rig: RigModel) -> dict:
 def lens_model_fit(sol: Solution) -> dict:
     """Residuals that grow towards the image's edge: a model problem, reported, never a reason to drop."""
     p = sol.problem
-    bad, views = [], []
+    bad, views, ratios = [], [], []
     for c, name in enumerate(p.cameras):
         cam = sol.state.camera(p, c)
         w, h = cam.image_size
@@ -355,11 +542,15 @@ def lens_model_fit(sol: Solution) -> dict:
             if _edge_ratio(rho, length[seen]) > EDGE_RATIO:
                 views.append(f"{name}/{view}")
         ratio = _edge_ratio(np.concatenate(rho_all), np.concatenate(len_all)) if rho_all else np.nan
+        if np.isfinite(ratio):
+            ratios.append(float(ratio))
         if ratio > EDGE_RATIO:
             bad.append(f"{name} ({ratio:.1f} x)")
+    fixed = {"test": "fixed limit: the largest camera's RMS of its outermost third of corners over its innermost "
+                     "third", "statistic": max(ratios, default=None), "limit": EDGE_RATIO, "false_alarm_rate": None}
     if not bad:
-        return {"ok": True, "views": views, "message": "residuals do not grow towards the image's edge"}
-    return {"ok": False, "views": views,
+        return {"ok": True, "views": views, **fixed, "message": "residuals do not grow towards the image's edge"}
+    return {"ok": False, "views": views, **fixed,
             "message": f"residuals at the image's edge are far larger than at its centre: {', '.join(bad)}: the lens "
                        "model misses terms; try --model with more coefficients (k1k2p1p2k3), and see the report's "
                        "residual plots"}
@@ -456,6 +647,20 @@ def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solutio
     if scale is not None:
         checks["scale_plausible"] = scale
     return checks
+
+
+def check_limits(check: dict) -> dict[str, str]:
+    """A check's test, statistic, limit and false-alarm rate as text for a table (``""`` where it has none;
+    the rate ``"fixed"`` for a check whose limit is fixed, not statistical)."""
+    def number(x):
+        return "" if x is None else f"{x:.3g}"
+    stat, limit = check.get("statistic"), check.get("limit")
+    rate = check.get("false_alarm_rate")
+    if "test" not in check:
+        return {"test": "", "statistic": "", "limit": "", "rate": ""}
+    worst = f" ({check['worst']})" if check.get("worst") else ""
+    return {"test": check["test"], "statistic": number(stat) + (worst if stat is not None else ""),
+            "limit": number(limit), "rate": "fixed" if rate is None else f"{100 * rate:g} % per calibration"}
 
 
 def failed_checks(checks: dict) -> list[str]:

@@ -127,3 +127,26 @@ def chi2_quantile(dof: float, q: float) -> float:
     while regularized_gamma(a, 0.5 * hi) < q:     # P increases in x: bracket the quantile
         lo, hi = hi, 2.0 * hi
     return _bisect(lambda x: regularized_gamma(a, 0.5 * x), q, lo, hi, 1e-15)
+
+
+def f_sf(f: float, d1: float, d2: float) -> float:
+    """``P(F > f)`` for the F distribution with ``(d1, d2)`` degrees of freedom (``scipy.special.fdtrc``):
+    ``I_y(d2/2, d1/2)`` with ``y = d2 / (d2 + d1 f)``, the p-value of an observed ``f`` (1 for ``f <= 0``,
+    0 for ``f = inf``)."""
+    if not (d1 > 0 and d2 > 0):
+        raise ValueError(f"F tail: need d1, d2 > 0 (got {d1}, {d2})")
+    if f <= 0.0:
+        return 1.0
+    if math.isinf(f):
+        return 0.0
+    return regularized_beta(0.5 * d2, 0.5 * d1, d2 / (d2 + d1 * f))
+
+
+def sidak(rate: float, tests: int) -> float:
+    """The rate of each of ``tests`` independent tests that makes their family's false-alarm rate ``rate``
+    (Sidak: ``1 - (1 - rate)^(1/tests)``, a little above Bonferroni's ``rate / tests``). Whatever the tests'
+    dependence, the family's rate is at most ``tests`` times this (Boole), ``-log(1 - rate)``: ``rate`` to within
+    ``rate^2 / 2``."""
+    if not (0.0 < rate < 1.0 and tests >= 1):
+        raise ValueError(f"Sidak: need 0 < rate < 1 and tests >= 1 (got {rate}, {tests})")
+    return -math.expm1(math.log1p(-rate) / tests)

@@ -19,7 +19,7 @@ from ... import __version__
 from ...geometry.board import SHAPE_TERMS
 from ...estimation.calibrate import OUTLIER_FLOOR_PX
 from ...geometry.camera import INTRINSIC_NAMES, intrinsic_names
-from ...estimation.checks import verdict
+from ...estimation.checks import check_limits, verdict
 from ...geometry.model import RigModel
 from ...progress import track
 from ...geometry.scale import relative_sigma, scale_share
@@ -203,9 +203,10 @@ def source_formats(rig: RigModel, names: list[str]) -> dict[str, str] | None:
 
 
 def checks_table(rig: RigModel) -> list[dict]:
-    """The calibration's checks (calib.json ``checks``): name, passed or not, the message."""
-    return [{"name": name, "ok": bool(check.get("ok", True)), "message": check.get("message", "")}
-            for name, check in rig.checks.items()]
+    """The calibration's checks (calib.json ``checks``): name, passed or not, the message, and its statistic,
+    limit and false-alarm rate (:func:`dualcal.estimation.checks.check_limits`)."""
+    return [{"name": name, "ok": bool(check.get("ok", True)), "message": check.get("message", ""),
+             **check_limits(check)} for name, check in rig.checks.items()]
 
 
 def loops_table(rig: RigModel) -> list[dict]:
