@@ -109,24 +109,24 @@ def desynchronised(truth, corners: CornerSet, seed: int) -> tuple[CornerSet, str
 
 
 def synthetic(presets, models, seeds, base, varying) -> dict:
-    """Per (preset, model): false alarms of rig_rigid, focus and either; detections named alone."""
+    """Per (preset, model): false alarms of rig_rigid (named, failed) and focus; desynchronised instants named alone."""
     rows = {}
     for preset in presets:
         for model in models:
-            count = {"rig_rigid": 0, "focus": 0, "either": 0, "named": 0, "failed": 0, "n": 0}
+            count = {"alarm": 0, "rig_rigid": 0, "focus": 0, "named": 0, "failed": 0, "n": 0}
             t0 = time.perf_counter()
             for i in range(seeds):
                 truth = synth.make_truth(preset, 13, seed=base + i)
                 corners = photo_noise(truth, base + i, varying)
                 checks = calibrate_rig(corners, model=model, drop_outliers=False).checks
                 rigid, focus = not checks["rig_rigid"]["ok"], not checks["focus"]["ok"]
+                count["alarm"] += rigid or bool(checks["rig_rigid"]["flagged"])     # the test names an instant
                 count["rig_rigid"] += rigid
                 count["focus"] += focus
-                count["either"] += rigid or focus
                 bad, view = desynchronised(truth, corners, base + i)
                 check = calibrate_rig(bad, model=model, drop_outliers=False).checks["rig_rigid"]
-                count["failed"] += not check["ok"]
-                count["named"] += (not check["ok"]) and check["flagged"] == [view]
+                count["named"] += check["flagged"] == [view]
+                count["failed"] += (not check["ok"]) and check["flagged"] == [view]
                 count["n"] += 1
             count["seconds"] = time.perf_counter() - t0
             rows[(preset, model)] = count
@@ -143,14 +143,16 @@ def _share(k: int, n: int) -> str:
 def print_header():
     print(f"stated false-alarm rate: {100 * FALSE_ALARM_RATE:g} % per calibration and check; measured share with its "
           "95 % Wilson interval")
-    print(f"{'preset':8s} {'model':11s} {'seeds':>5s}  {'rig_rigid false alarms':24s} {'focus false alarms':24s} "
-          f"{'either':24s} {'desync named alone':24s} {'time':>6s}")
+    print("rig_rigid: 'names' = its test names an instant (the stated rate), 'fails' = the check fails (named "
+          "instants that move the rig by more than 1 sigma)")
+    print(f"{'preset':8s} {'model':11s} {'seeds':>5s}  {'rig_rigid names (sync)':24s} {'rig_rigid fails (sync)':24s} "
+          f"{'focus fails (sync)':24s} {'desync named alone':24s} {'desync fails, alone':24s} {'time':>6s}")
 
 
 def print_row(preset, model, c):
     n = c["n"]
-    print(f"{preset:8s} {model:11s} {n:5d}  {_share(c['rig_rigid'], n):24s} {_share(c['focus'], n):24s} "
-          f"{_share(c['either'], n):24s} {_share(c['named'], n):24s} {c['seconds']:5.0f}s")
+    print(f"{preset:8s} {model:11s} {n:5d}  {_share(c['alarm'], n):24s} {_share(c['rig_rigid'], n):24s} "
+          f"{_share(c['focus'], n):24s} {_share(c['named'], n):24s} {_share(c['failed'], n):24s} {c['seconds']:5.0f}s")
 
 
 def real_sets(models) -> None:

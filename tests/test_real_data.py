@@ -140,31 +140,27 @@ def test_stereo_calibration_agrees_with_bouguet(stereo_corners):
     assert rig.camera_sigma["left"]["fx"] > 1.5 * rig.camera_sigma_formal["left"]["fx"]
 
 
-def _without(corners, views):
-    from dualcal.geometry.model import CameraCorners, CornerSet
-    return CornerSet(corners.board, {n: CameraCorners(c.image_size, {v: uv for v, uv in c.views.items() if v not in views},
-                                                      c.meta) for n, c in corners.cameras.items()}, corners.reference)
-
-
-@pytest.mark.parametrize("model", ["k1k2", "auto"])
-def test_the_stereo_rigs_instant_08_is_at_the_edge(stereo_corners, model):
-    """rig_rigid at its stated false-alarm rate (1 % per calibration, 14 tests of 7.2e-4 each) on the stereo
-    sample: each instant's tie cost in its own photos' noise against the other instants' scatter. Instant 08
-    stands out under every lens model, at the edge of the limit: p 2.6e-3 with the paper's lens (k1k2, which
-    passes), 1e-4 to 5e-4 with tangential terms (``auto`` gives the left camera k1k2p1p2: 08 is named, and
-    without it 03, p 2e-6). The other instants lie well within (p above 4e-3), and without 08 and 03 every
-    check passes. The board is held by hand (a hand shows in right03.jpg) and 08's photos are the least sharp:
+@pytest.mark.parametrize("model,mode", [("k1k2", "rigid"), ("auto", "rigid"), ("k1k2p1p2", "paper")])
+def test_the_stereo_rigs_instants_08_and_03_are_named_and_kept(stereo_corners, model, mode):
+    """Issue 33: rig_rigid passes on the stereo sample under every lens model the comparison may choose, and
+    says the same of it under each. Its test (1 % per calibration, 14 tests of 7.2e-4 each: each instant's tie
+    cost in its own photos' noise against the other instants' scatter) finds instant 08 at the edge of its
+    limit: p 2.6e-3 with the paper's lens (k1k2, not named), 1e-4 to 5e-4 with tangential terms (``auto`` gives
+    the left camera k1k2p1p2: 08 is named, and without it 03). Leaving either out moves the rig's relation by
+    1.3-1.7 of its sigmas without it, within the limit of 2 (as a synthetic VGA rig's instant 1 mm off does), so
+    the check passes and names them. The other instants lie well within (p above 4e-3). The board is held by hand (a hand shows in right03.jpg) and 08's photos are the least sharp:
     see benchmarks/README.md (bench_false_alarms.py)."""
-    check = calibrate_rig(stereo_corners, reference="left", model=model).checks["rig_rigid"]
+    check = calibrate_rig(stereo_corners, reference="left", model=model, rig_mode=mode).checks["rig_rigid"]
     f = check["instant_f"]
-    assert 1e-5 < f["08"]["p"] < 1e-2, f["08"]                  # 08 named first, 03's p is that without 08
+    assert check["ok"], check["message"]
+    assert 1e-7 < f["08"]["p"] < 1e-2, f["08"]                  # 08 the worst, or named first
     assert all(t["p"] > 4e-3 for v, t in f.items() if v not in ("08", "03"))
-    if model == "k1k2":
-        assert check["ok"] and check["worst"] == "08" and check["p_value"] > check["instant_rate"]
+    if check["flagged"]:
+        assert check["flagged"][0] == "08" and set(check["flagged"]) <= {"08", "03"}
+        assert 1.0 < check["shift_sigma"] <= check["shift_limit_sigma"] == 2.0
+        assert "kept" in check["message"] and "08 (F = " in check["message"]
     else:
-        assert not check["ok"] and check["flagged"] == ["08", "03"] and f["03"]["p"] < 1e-4, check["message"]
-    kept = calibrate_rig(_without(stereo_corners, {"08", "03"}), reference="left", model=model)
-    assert all(c["ok"] for c in kept.checks.values()), {k: c["message"] for k, c in kept.checks.items() if not c["ok"]}
+        assert check["worst"] == "08" and check["p_value"] > check["instant_rate"]
 
 
 def test_bouguet_calibration_agrees_with_bouguet_and_matlab(bouguet_corners):

@@ -73,7 +73,9 @@ CHECKS = {
                    "`instant_f`: every instant's F, p-value and limit). The instants together are judged against the "
                    "photo-level noise, how much more the photos disagree than white noise on the corners would allow "
                    "(`ratio` against `limit_ratio`, an F quantile; calib.json `design_effect`). The message names "
-                   "the instants that do not fit, with their F and p-value.",
+                   "the instants that do not fit, with their F and p-value. A named instant fails the check only "
+                   "where leaving it out moves the rig's baseline or angles by more than twice their sigma "
+                   "(`shift_sigma` against `shift_limit_sigma`); a smaller misfit is named and kept.",
         "cause": "The board or the phone moved between the shots of one position (not on a tripod, a board held "
                  "by hand, a board that slid, a tap on the screen), the lenses did not shoot at the same instant, a "
                  "lens that moved (optical image stabilisation, a refocus), or photos of different positions put "

@@ -25,7 +25,8 @@ from functools import partial
 import numpy as np
 
 from .adjust import Solution
-from .checks import REFOCUS_SHARE, design_effect, focal_scale_fits, focus_drift, rig_rigid, run_checks, tie_costs
+from .checks import (REFOCUS_SHARE, design_effect, focal_scale_fits, focus_drift, relation_shift_sigma, rig_rigid,
+                     run_checks, tie_costs)
 from .distributions import f_quantile
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import EstimationError, InputError
@@ -438,10 +439,12 @@ def attribution_checks(setup: Setup, tied: Solution, alone: Solution, kappa2) ->
         named[worst] = {"statistic": doc["instants"][worst], **doc["instant_f"][worst]}
         blocks = [b for b in blocks if b[1] != worst]
         try:
-            tied, alone = setup.solve(blocks, tied), setup.solve(blocks, alone, mode="none")
+            before, (tied, alone) = tied, (setup.solve(blocks, tied), setup.solve(blocks, alone, mode="none"))
         except EstimationError:
             break
-        doc = rig_rigid(tied, alone, kappa2, named=named)
+        named[worst]["shift_sigma"] = relation_shift_sigma(before, tied)      # what it alone moves
+        shifts = [t["shift_sigma"] for t in named.values()]
+        doc = rig_rigid(tied, alone, kappa2, named=named, shift_sigma=None if None in shifts else max(shifts))
     return focus, doc
 
 
