@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from dualcal.estimation.calibrate import calibrate_rig
-from dualcal.estimation.checks import FALSE_ALARM_RATE
+from dualcal.estimation.checks import FALSE_ALARM_RATE, SHIFT_SIGMAS
 from dualcal.geometry.camera import project_points
 from dualcal.geometry.model import CameraCorners, CornerSet, Pose
 from dualcal.geometry.rotation import rotation_from_opk
@@ -144,7 +144,7 @@ def print_header():
     print(f"stated false-alarm rate: {100 * FALSE_ALARM_RATE:g} % per calibration and check; measured share with its "
           "95 % Wilson interval")
     print("rig_rigid: 'names' = its test names an instant (the stated rate), 'fails' = the check fails (named "
-          "instants that move the rig by more than 1 sigma)")
+          f"instants that move the rig by more than {SHIFT_SIGMAS:g} sigma)")
     print(f"{'preset':8s} {'model':11s} {'seeds':>5s}  {'rig_rigid names (sync)':24s} {'rig_rigid fails (sync)':24s} "
           f"{'focus fails (sync)':24s} {'desync named alone':24s} {'desync fails, alone':24s} {'time':>6s}")
 

@@ -15,6 +15,8 @@ import threading
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 pytest.importorskip("starlette", reason="the app extra (starlette, uvicorn, python-multipart, segno)")
@@ -274,6 +276,12 @@ def a_camera_roll_calibrates_as_the_command_does(client, workspace, roll, tmp_pa
     some = next(iter(photos))
     assert client.get(f"/api/projects/{pid}/photos/{some}", headers=AUTH).content == (folder / "photos" / some).read_bytes()
     assert client.get(f"/api/projects/{pid}/thumbs/{some}", headers=AUTH).headers["content-type"] == "image/jpeg"
+    # the preview for the screen is made when it is first asked for, the photo's long side 1600 px
+    screen = folder / ".dualcal-app" / "screen" / f"{some}.jpg"
+    assert not screen.exists()
+    got = client.get(f"/api/projects/{pid}/screen/{some}", headers=AUTH)
+    assert got.status_code == 200 and got.content == screen.read_bytes()
+    assert max(cv2.imdecode(np.frombuffer(got.content, np.uint8), cv2.IMREAD_COLOR).shape[:2]) <= 1600
     import io
     import zipfile
     archive = zipfile.ZipFile(io.BytesIO(client.get(f"/api/projects/{pid}/archive.zip", headers=AUTH).content))

@@ -311,6 +311,12 @@ def create_app(config: AppConfig) -> Starlette:
             if name not in state.photos:
                 return _error(404, "no such photo")
             path = state.project.photos_dir / name if kind == "photos" else state.project.preview(kind, name)
+            if kind == "screen" and not path.is_file() and (state.project.photos_dir / name).is_file():
+                from .work import write_screen_preview
+                try:
+                    path = await anyio.to_thread.run_sync(write_screen_preview, state.project, name)
+                except Exception:             # a photo that cannot be decoded has no preview
+                    return _error(404, "this photo cannot be shown")
             if not path.is_file():
                 return _error(404, "not there yet")
             return FileResponse(path, media_type=None if kind == "photos" else "image/jpeg",

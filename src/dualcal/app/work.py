@@ -2,7 +2,8 @@
 the server).
 
 * :func:`detect_upload`: one uploaded photo: its corners (through :class:`RememberedDetection`, the same
-  :func:`dualcal.files.detect.detect_photo` a command calls, remembered on disk) and its previews.
+  :func:`dualcal.files.detect.detect_photo` a command calls, remembered on disk) and its thumbnail; its
+  preview for the screen when it is first asked for (:func:`write_screen_preview`).
 * :func:`run_job`: bring a project's files up to a version: exactly what
 
       cd PROJECT && dualcal detect photos BOARD-FLAGS [--exclude ...] -o corners.json
@@ -32,7 +33,8 @@ from ..progress import collect_warnings
 from .store import EXPORTS, Project, Settings, exclude_pattern
 from .summary import advice_summary, calibration_summary
 
-__all__ = ["CALIBRATE_OPTIONS", "RememberedDetection", "detect_upload", "make_report", "run_job"]
+__all__ = ["CALIBRATE_OPTIONS", "RememberedDetection", "detect_upload", "make_report", "run_job",
+           "write_screen_preview"]
 
 #: ``dualcal calibrate``'s defaults, as :func:`dualcal.workflow.calibrate_corners` keywords (the app has no
 #: flags for them; the test of the app's calib.json against the command's holds them equal).
@@ -114,29 +116,40 @@ def _reduced(path: Path, long_side: int) -> np.ndarray:
     return cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else img
 
 
-def _write_previews(project: Project, photo: str, uv, image_size) -> None:
-    """``screen`` (the photo for measuring on a screen) and ``thumbs`` (small, the detected corners drawn)."""
+def _write_thumbnail(project: Project, photo: str, uv, image_size) -> None:
+    """``thumbs``: the photo small (decoded reduced), the detected corners drawn."""
     import cv2
 
     from ..files.io import write_jpeg_atomic
 
-    screen = _reduced(project.photos_dir / photo, SCREEN_PX)
-    thumb_scale = THUMB_PX / max(screen.shape[:2])
-    thumb = cv2.resize(screen, None, fx=thumb_scale, fy=thumb_scale, interpolation=cv2.INTER_AREA)
+    thumb = _reduced(project.photos_dir / photo, THUMB_PX)
     if uv is not None and image_size:
         s = thumb.shape[1] / image_size[0]
         for k, (u, v) in enumerate(np.asarray(uv)):
             if np.isfinite(u) and np.isfinite(v):
                 cv2.circle(thumb, (int(round((u + 0.5) * s - 0.5)), int(round((v + 0.5) * s - 0.5))),
                            4 if k == 0 else 2, (40, 40, 230) if k == 0 else (60, 200, 60), -1, cv2.LINE_AA)
-    for kind, img in (("screen", screen), ("thumbs", thumb)):
-        out = project.preview(kind, photo)
+    out = project.preview("thumbs", photo)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_jpeg_atomic(out, thumb, 85)
+
+
+def write_screen_preview(project: Project, photo: str) -> Path:
+    """``screen``: the photo for measuring on a screen (its long side about :data:`SCREEN_PX`), made when it is
+    first asked for: most photos are never opened, and making it with every upload's detection would hold the
+    verdict back (it costs two thirds of a 12 MP photo's detection)."""
+    from ..files.io import write_jpeg_atomic
+
+    out = project.preview("screen", photo)
+    if not out.is_file():
+        screen = _reduced(project.photos_dir / photo, SCREEN_PX)
         out.parent.mkdir(parents=True, exist_ok=True)
-        write_jpeg_atomic(out, img, 85)
+        write_jpeg_atomic(out, screen, 85)
+    return out
 
 
 def detect_upload(folder: str, photo: str, board) -> dict:
-    """Detect one uploaded photo (remembered for :func:`run_job`) and write its previews.
+    """Detect one uploaded photo (remembered for :func:`run_job`) and write its thumbnail.
 
     Returns ``{"photo", "found", "reason", "image_size"}``.
     """
@@ -144,7 +157,7 @@ def detect_upload(folder: str, photo: str, board) -> dict:
     path = project.photos_dir / photo
     result = _detector(project)(path, board)
     try:
-        _write_previews(project, photo, result.uv, result.image_size)
+        _write_thumbnail(project, photo, result.uv, result.image_size)
     except Exception as exc:              # a photo that cannot be shown is still one the dataset may read
         reason = result.reason or f"cannot be shown ({type(exc).__name__})"
         return {"photo": photo, "found": result.uv is not None, "reason": reason, "image_size": None}
