@@ -57,6 +57,12 @@ def reduce_image(gray: np.ndarray, factor: int) -> np.ndarray:
     return small
 
 
+#: OpenCV's SB detector draws from OpenCV's random number generator (one per thread), so what it finds in
+#: a photo depended on what that thread had drawn before (a board found in one run and missed in the next):
+#: the generator is seeded with this before each of its calls, and a photo's detection is the same every time.
+SB_SEED = 20241202
+
+
 def _grid(found: bool, corners, cols: int, rows: int) -> np.ndarray | None:
     if found and corners is not None and len(corners) == cols * rows:
         return corners.reshape(rows, cols, 2).astype(float)
@@ -86,6 +92,7 @@ def sb_grid(gray: np.ndarray, cols: int, rows: int, upsampled: bool = False) -> 
     attempts = (_SB_ATTEMPTS[1] | cv2.CALIB_CB_ACCURACY,) if upsampled else _SB_ATTEMPTS
     for flags in attempts:
         raise_if_cancelled()
+        cv2.setRNGSeed(SB_SEED)
         grid = _grid(*cv2.findChessboardCornersSB(gray, (cols, rows), flags=flags), cols, rows)
         if grid is not None:
             return grid
@@ -107,6 +114,7 @@ def largest_grid(gray: np.ndarray, min_size: int = 3) -> np.ndarray | None:
     """
     raise_if_cancelled()
     flags = _SB_ATTEMPTS[1] | cv2.CALIB_CB_LARGER
+    cv2.setRNGSeed(SB_SEED)
     found, corners, meta = cv2.findChessboardCornersSBWithMeta(gray, (min_size, min_size), flags)
     if not found or corners is None or meta is None:
         return None
