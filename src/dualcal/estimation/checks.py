@@ -227,24 +227,26 @@ def relation_shift_sigma(before: Solution, after: Solution) -> float | None:
     reports it): the uncertainty without the instants left out, which their own misfit would inflate.
     None where no camera's relation is in both."""
     p, q = before.problem, after.problem
+
+    def relation(sol: Solution, c: int, kind: str) -> tuple[np.ndarray, np.ndarray]:
+        """(t_mm, baseline, opk_arcmin) and their sigmas of ``kind``."""
+        pose, s_t, s_d, s_opk = rig_relation(sol, c, kind, warn_gimbal=False)
+        value = np.concatenate([pose.t_mm, [np.linalg.norm(pose.t_mm)], opk_from_rotation(pose.R) * ARCMIN_PER_RAD])
+        return value, np.concatenate([s_t, [s_d], s_opk])
+
     worst = None
     for c, name in enumerate(p.cameras):
         if c == p.reference or name not in q.cameras:
             continue
         try:
-            values, sigmas = [], []
-            for sol, cam in ((before, c), (after, q.cameras.index(name))):
-                pose, s_t, s_d, s_opk = rig_relation(sol, cam, "formal", warn_gimbal=False)
-                values.append(np.concatenate([pose.t_mm, [np.linalg.norm(pose.t_mm)],
-                                              opk_from_rotation(pose.R) * ARCMIN_PER_RAD]))
-                sigmas.append(np.concatenate([s_t, [s_d], s_opk]))
-            _, c_t, c_d, c_opk = rig_relation(after, q.cameras.index(name), "clustered", warn_gimbal=False)
+            was, _ = relation(before, c, "formal")
+            now, formal = relation(after, q.cameras.index(name), "formal")
+            _, clustered = relation(after, q.cameras.index(name), "clustered")
         except EstimationError:
             continue
-        sigma = np.maximum(sigmas[1], np.concatenate([c_t, [c_d], c_opk]))
-        change = values[1] - values[0]
+        change = now - was
         change[4:] = (change[4:] + 180 * 60) % (360 * 60) - 180 * 60          # angles across +-180 degrees
-        shift = float(np.max(np.abs(change) / np.maximum(sigma, 1e-300)))
+        shift = float(np.max(np.abs(change) / np.maximum(np.maximum(formal, clustered), 1e-300)))
         worst = shift if worst is None else max(worst, shift)
     return worst
 
