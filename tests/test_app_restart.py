@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -169,3 +170,32 @@ def test_killed_during_an_upload_a_detection_and_a_calibration(tmp_path, roll):
         assert any(left in json.dumps(c.get("excluded", {})) for c in corners["cameras"].values())
     finally:
         server.kill()
+
+
+def test_served_over_tls_with_a_certificate_and_its_key(tmp_path):
+    """``--certfile/--keyfile``: the app serves https (a self-signed certificate made here with openssl); the
+    printed URL says https, the API answers over TLS with the token, and plain http on that port gets no page."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not here to make a test certificate")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out", str(cert),
+                    "-days", "1", "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1"], check=True,
+                   capture_output=True)
+    env = {**os.environ, "DUALCAL_APP_TOKEN": TOKEN, "OPENBLAS_NUM_THREADS": "1"}
+    process = subprocess.Popen([sys.executable, "-m", "dualcal", "app", str(tmp_path / "ws"), "--port", "0",
+                                "--no-browser", "--certfile", str(cert), "--keyfile", str(key)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
+    try:
+        line = process.stdout.readline()
+        assert line.startswith("dualcal app: https://127.0.0.1:"), (line, process.stderr.read())
+        url = line.split(": ", 1)[1].strip().split("/?")[0]
+        with httpx.Client(base_url=url, headers=AUTH, timeout=30, verify=str(cert)) as client:
+            assert client.get("/api/projects").status_code == 200
+            assert client.get("/api/projects", headers={"authorization": "Bearer wrong"}).status_code == 401
+        with pytest.raises(httpx.HTTPError):
+            httpx.get(url.replace("https://", "http://") + "/api/projects", headers=AUTH, timeout=10)
+    finally:
+        process.kill()
+        process.wait()
+        process.stdout.close()
+        process.stderr.close()
