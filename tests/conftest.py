@@ -24,13 +24,19 @@ def shared_data():
 
 
 @pytest.fixture(scope="session")
-def computed_once(tmp_path_factory):
+def shared_tmp(tmp_path_factory) -> Path:
+    """A folder every test worker (pytest-xdist) sees: the parent of their base temporary folders."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+@pytest.fixture(scope="session")
+def computed_once(shared_tmp):
     """``computed_once(key, compute)``: ``compute()`` once for the whole run, shared by the test workers
     (pytest-xdist): the first worker to ask computes and pickles it under a lock, the others load it. For
-    fixtures that cost many seconds (real photos detected, Monte Carlo draws) and would otherwise be
-    computed again in every worker that runs one of their tests."""
-    base = tmp_path_factory.getbasetemp()
-    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    fixtures that cost many seconds (real photos detected, Monte Carlo draws, a page's commands run) and
+    would otherwise be computed again in every worker that runs one of their tests."""
+    shared = shared_tmp
 
     def once(key: str, compute):
         path = shared / f"once-{key}.pickle"

@@ -18,7 +18,6 @@ page's prose (inline ``dualcal ...``) are checked for their command and option n
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import io
 import json
 import os
@@ -305,25 +304,17 @@ def run_page_captured(page: str, folder: Path) -> Run:
             os.environ["COLUMNS"] = width
 
 
-def _shared_folder(tmp_path_factory) -> Path:
-    """A folder every test worker (pytest-xdist) sees: the parent of their base temporary folders."""
-    base = tmp_path_factory.getbasetemp()
-    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
-
-
 @pytest.fixture(scope="session")
-def getting_started(tmp_path_factory):
+def getting_started(shared_tmp, computed_once):
     """*Getting started* run once, in an empty folder (one worker runs it, the others wait for it and reuse it):
     the folder it leaves and what its run found."""
-    shared = _shared_folder(tmp_path_factory)
-    folder, record = shared / "docs-getting-started", shared / "docs-getting-started.json"
-    with open(shared / "docs-getting-started.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not record.exists():
-            folder.mkdir()
-            run = run_page_captured(FIRST, folder)
-            record.write_text(json.dumps(run.__dict__))
-    return folder, Run(**json.loads(record.read_text()))
+    folder = shared_tmp / "docs-getting-started"
+
+    def run() -> Run:
+        folder.mkdir()
+        return run_page_captured(FIRST, folder)
+
+    return folder, computed_once("docs-getting-started", run)
 
 
 def _runs_something(page: str) -> bool:
