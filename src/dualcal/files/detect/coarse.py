@@ -84,12 +84,14 @@ def shows_a_chessboard(gray: np.ndarray, cols: int, rows: int) -> bool:
     return bool(cv2.checkChessboard(gray, (cols, rows)))
 
 
-def sb_grid(gray: np.ndarray, cols: int, rows: int, upsampled: bool = False) -> np.ndarray | None:
+def sb_grid(gray: np.ndarray, cols: int, rows: int, upsampled: bool = False,
+            exhaustive: bool = True) -> np.ndarray | None:
     """``findChessboardCornersSB`` for a ``cols x rows`` board, as :func:`classic_grid` returns it: normalised,
-    then exhaustive; ``upsampled``: exhaustive on the image upsampled by OpenCV (``CALIB_CB_ACCURACY``), for
-    squares of a few pixels. Each attempt can take a second on a large image: an interrupted pool
-    (:func:`dualcal.parallel.raise_if_cancelled`) stops between them."""
-    attempts = (_SB_ATTEMPTS[1] | cv2.CALIB_CB_ACCURACY,) if upsampled else _SB_ATTEMPTS
+    then (``exhaustive``) exhaustive; ``upsampled``: exhaustive on the image upsampled by OpenCV
+    (``CALIB_CB_ACCURACY``), for squares of a few pixels. Each attempt can take a second on a large image: an
+    interrupted pool (:func:`dualcal.parallel.raise_if_cancelled`) stops between them."""
+    attempts = ((_SB_ATTEMPTS[1] | cv2.CALIB_CB_ACCURACY,) if upsampled else
+                _SB_ATTEMPTS if exhaustive else _SB_ATTEMPTS[:1])
     for flags in attempts:
         raise_if_cancelled()
         cv2.setRNGSeed(SB_SEED)
