@@ -29,13 +29,15 @@
    main branch before issue 32's speed work, exported from git and run in a process of its own on the
    same corners): the lens models chosen, the checks passed, and the largest ``|delta| / sigma`` of any
    parameter (intrinsics, rig, board shape) of the calibration and of the other skew model. Target: the
-   same models and checks, every parameter within 0.05 sigma.
+   same models, no check that passed then fails now, every parameter within 0.05 sigma. A check that failed
+   then and passes now is listed, not failed: issue 33 changed ``rig_rigid``'s test after that revision,
+   and the real stereo sample's instants, which it flagged, now pass it, as that issue asks.
 
 dualcal's sources are byte-compiled first, as an installed package's are (this machine sets
 ``PYTHONDONTWRITEBYTECODE``, which would otherwise make every run compile them again).
 
-    .venv/bin/python benchmarks/bench_calibrate_process.py              # the three parts (~5 min)
-    .venv/bin/python benchmarks/bench_calibrate_process.py --growth     # and 13, 50, 200 instants (~15 min)
+    .venv/bin/python benchmarks/bench_calibrate_process.py              # the three parts (~2 min)
+    .venv/bin/python benchmarks/bench_calibrate_process.py --growth     # and 13 and 200 instants, the paper's case (~4 min)
     .venv/bin/python benchmarks/bench_calibrate_process.py --quick      # one run each, note8 only
 """
 
@@ -236,21 +238,28 @@ def part_baseline(real: dict[str, Path], revision: str) -> list[list]:
                        env=env)
         old = json.loads(old_json.read_text())
     print(f"{'set':10} {'models (old -> new)':44} {'checks':>8} {'max |delta|/sigma':>18}  parameter")
-    rows, same, worst_all = [], True, 0.0
+    rows, same_models, worst_all, lost, gained = [], True, 0.0, [], []
     for name, path in real.items():
         new = summary(*defaults(load_corners(path)))
         before = old[str(path)]
         worst, key = largest_change(before, new)
         models = before["models"] == new["models"]
         checks = before["checks"] == new["checks"]
-        same &= models and checks
+        same_models &= models
         worst_all = max(worst_all, worst)
+        lost += [f"{name} {c}" for c, ok in before["checks"].items() if ok and not new["checks"].get(c, True)]
+        gained += [f"{name} {c}" for c, ok in before["checks"].items() if not ok and new["checks"].get(c, False)]
         print(f"{name:10} {str(new['models']) + ('' if models else ' (was ' + str(before['models']) + ')'):44} "
               f"{'same' if checks else 'DIFFER':>8} {worst:18.2g}  {key}")
         if not checks:
             print(f"{'':10} checks before {before['checks']}, now {new['checks']}")
-    rows.append([f"real sets vs {revision}: same models and checks", "yes" if same else "no", "yes",
-                 "PASS" if same else "FAIL"])
+    rows.append([f"real sets vs {revision}: same models", "yes" if same_models else "no", "yes",
+                 "PASS" if same_models else "FAIL"])
+    # a check that failed before and passes now is a change of the check itself (rig_rigid's test of issue 33
+    # passes on the real stereo sample, as that issue asks), not of the calibration: listed, not a failure
+    rows.append([f"real sets vs {revision}: checks passed before and failed now"
+                 + (f" (failed before, pass now: {', '.join(gained)})" if gained else ""),
+                 ", ".join(lost) or "none", "none", "FAIL" if lost else "PASS"])
     rows.append([f"real sets vs {revision}: max |delta| / sigma", f"{worst_all:.2g}", f"<= {BASELINE_TARGET_SIGMA:g}",
                  "PASS" if worst_all <= BASELINE_TARGET_SIGMA else "FAIL"])
     return rows

@@ -683,3 +683,24 @@ def test_a_photo_without_the_whole_board_is_given_up_on_the_reduced_image(tmp_pa
             uv_true = project_points(cam, moved.apply(truth.board.object_points_mm()))
             assert res.uv is not None and observed_mask(res.uv).sum() >= 36, res.reason
             assert np.nanmax(np.linalg.norm(res.uv - uv_true, axis=1)) < 0.1
+
+
+def test_stripes_that_fool_opencvs_quick_look_cost_one_sb_attempt(shared_data, tmp_path, monkeypatch):
+    """The striped carpet below the Huawei set's board (a real photo's bottom 1264 rows): SB grows a small grid
+    on the stripes, which is no part of a board, but OpenCV's quick look (checkChessboard) sees a chessboard
+    there. SB is then asked for the whole board once, normalised (its exhaustive attempt as well cost 1.06 x
+    SB's own time on such photos), and the photo is given up on."""
+    gray = cv2.imread(str(shared_data / "huawei-y5-2017" / "IMG_20210417_010334.jpg"), cv2.IMREAD_GRAYSCALE)
+    path = tmp_path / "carpet.jpg"
+    cv2.imwrite(str(path), gray[-1264:], [cv2.IMWRITE_JPEG_QUALITY, 92])
+    board = Board(7, 9, 30.0)
+    quick_looks, sb_flags = [], []
+    real_check, real_sb = cv2.checkChessboard, cv2.findChessboardCornersSB
+    monkeypatch.setattr(cv2, "checkChessboard", lambda img, size: quick_looks.append(real_check(img, size)) or
+                        quick_looks[-1])
+    monkeypatch.setattr(cv2, "findChessboardCornersSB", lambda img, size, flags=0: sb_flags.append(flags) or
+                        real_sb(img, size, flags=flags))
+    res = detect_photo(path, board)
+    assert res.uv is None and res.reason == "no 7x9 chessboard found", res.reason
+    assert quick_looks == [True]
+    assert sb_flags == [cv2.CALIB_CB_NORMALIZE_IMAGE]
