@@ -106,10 +106,10 @@ def locate_board(full: np.ndarray, board: Board, partial: bool = True):
     agree, OpenCV's SB detector is asked for the whole board (its growth from 3 x 3 corners can stop
     short of a board it finds when asked for the board's size), if what was grown may be part of the
     board in full view (:func:`.order.looks_like_part_of_a_board`: not stripes of a carpet, not a
-    board cut by the frame), or, its normalised attempt alone, where OpenCV's quick look sees a board
-    (:func:`.coarse.shows_a_chessboard`; stripes fool it, and the exhaustive attempt cost real photos of a
-    striped carpet 1.06 x SB's time, against 0.83 x without it; the boards of the real sets it found were
-    all found by the first attempt).
+    board cut by the frame); where OpenCV's quick look sees a board (:func:`.coarse.shows_a_chessboard`),
+    SB is asked too, but only its normalised attempt: stripes fool the quick look, and both attempts cost
+    real photos of a striped carpet 1.06 x SB's own time, against 0.83-0.90 x for the first alone (every
+    board of the real sets found this way was found by the first).
     Only a grid whose squares are below :data:`SMALL_SQUARE_PX` sends the search to twice the
     resolution (at full resolution: SB on OpenCV's upsampled image). Measured on 3 MP photos without
     the whole board, taking turns on one thread each (``benchmarks/bench_detect.py``, a loaded machine):
