@@ -25,8 +25,8 @@ from functools import partial
 import numpy as np
 
 from .adjust import Solution
-from .checks import (REFOCUS_SHARE, design_effect, focal_scale_fits, focus_drift, relation_shift_sigma, rig_rigid,
-                     run_checks, tie_costs)
+from .checks import (REFOCUS_SHARE, design_effect, focal_scale_fits, focal_scale_sigmas, focus_drift,
+                     relation_shift_sigma, rig_rigid, run_checks, tie_costs)
 from .distributions import f_quantile
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import EstimationError, InputError
@@ -454,5 +454,5 @@ def _refocused_camera(alone: Solution, view: str, kappa2) -> int | None:
     fits = focal_scale_fits(alone, {view})
     if not fits:
         return None
-    z = [abs(f["s"]) / np.sqrt(max(kappa2[f["camera"]] * alone.s0_px ** 2, 1e-12) * f["var_s"]) for f in fits]
+    z = [abs(focal_scale_sigmas(f, kappa2, alone.s0_px)) for f in fits]
     return fits[int(np.argmax(z))]["camera"]

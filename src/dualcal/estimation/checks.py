@@ -50,8 +50,8 @@ from ..geometry.rotation import ARCMIN_PER_RAD, opk_from_rotation
 
 __all__ = ["design_effect", "rig_rigid", "rigidity_statistics", "focus_drift", "focal_scale_fits", "tie_costs",
            "determination", "fit_quality", "photo_count", "lens_model_fit", "convergence", "scale_plausibility",
-           "scale_note", "run_checks", "verdict", "relation_shift_sigma", "check_limits", "instant_f_tests", "focal_t_tests", "dof_share",
-           "failed_checks"]
+           "scale_note", "run_checks", "verdict", "relation_shift_sigma", "check_limits", "instant_f_tests",
+           "focal_t_tests", "focal_scale_sigmas", "dof_share", "failed_checks"]
 
 #: Fewer instants than this give unreliable sigmas (they come from the instants' scatter).
 MIN_INSTANTS = 8
@@ -287,8 +287,8 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
     The document: ``ok``, ``message``, ``test``, ``statistic`` (the worst instant's F, or a named one's),
     ``limit`` (its F quantile), ``p_value``, ``false_alarm_rate`` (``rate``, per calibration),
     ``instant_rate`` (each test's), ``instants`` ``{view: T_v}``, ``instant_f`` ``{view: {"f", "p"}}`` (and
-    ``"limit"`` for the flagged and the worst; an instant fails where ``p < instant_rate``), ``flagged``, ``ratio`` and ``limit_ratio`` (the instants together), ``design_effect``,
-    ``explained_by_refocus``.
+    ``"limit"`` for the flagged and the worst; an instant fails where ``p < instant_rate``), ``flagged``,
+    ``ratio`` and ``limit_ratio`` (the instants together), ``design_effect``, ``explained_by_refocus``.
     """
     found = rigidity_statistics(tied, alone, kappa2)
     if found is None:
@@ -431,6 +431,12 @@ def focal_t_tests(z: list[float], rate: float) -> list[dict]:
     return out
 
 
+def focal_scale_sigmas(fit: dict, kappa2: dict[int, float], s0_px: float) -> float:
+    """A photo's own focal scale (a :func:`focal_scale_fits` entry) in units of its sigma in photo-level noise
+    (``kappa2[c] s0^2`` for its camera ``c``)."""
+    return fit["s"] / np.sqrt(max(kappa2[fit["camera"]] * s0_px ** 2, NOISE_FLOOR_PX ** 2) * fit["var_s"])
+
+
 #: The name of ``focus``'s test (calib.json ``checks.focus.test``).
 FOCUS_TEST = "Student t test of each photo's focal scale against its camera's other photos (Sidak over the photos)"
 
@@ -459,7 +465,7 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
     by_camera: dict[int, list] = {}
     for fit in fits:
         c = fit["camera"]
-        fit["z"] = fit["s"] / np.sqrt(max(kappa2[c] * sol.s0_px ** 2, NOISE_FLOOR_PX ** 2) * fit["var_s"])
+        fit["z"] = focal_scale_sigmas(fit, kappa2, sol.s0_px)
         by_camera.setdefault(c, []).append(fit)
     for group in by_camera.values():
         for fit, test in zip(group, focal_t_tests([f["z"] for f in group], each)):

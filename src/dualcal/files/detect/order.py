@@ -128,6 +128,12 @@ def _neighbour_mean(values: np.ndarray) -> np.ndarray:
     return np.where(n > 0, total / np.maximum(n, 1), np.nan)
 
 
+#: :func:`check_colours`' limits: a square's least contrast with its neighbours (grey levels) for its colour to
+#: count, and the largest share of the inner squares (at least one) whose colour may disagree with the board's.
+MIN_CONTRAST = 8.0
+MAX_ODD_SHARE = 0.1
+
+
 def _alternation(col: SquareColours, cols: int, rows: int, min_contrast: float, max_odd_share: float):
     """The inner squares' part of :func:`check_colours` (raises :class:`DetectionError`); returns the square
     indices, which are dark, the sign expected of each against its neighbours, the inner and ring masks and
@@ -154,7 +160,7 @@ def _alternates(grid_px: np.ndarray, gray: np.ndarray, factor: int) -> bool:
     """Whether the squares between the corners of a (r, c, 2) grid alternate like a chessboard's."""
     r, c = grid_px.shape[:2]
     try:
-        _alternation(square_colours(gray, grid_px, factor), c, r, 8.0, 0.1)
+        _alternation(square_colours(gray, grid_px, factor), c, r, MIN_CONTRAST, MAX_ODD_SHARE)
     except DetectionError:
         return False
     return True
@@ -175,8 +181,8 @@ def looks_like_part_of_a_board(grid_px: np.ndarray, gray: np.ndarray, factor: in
                for grid in _placements(grid_px, board))
 
 
-def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = 8.0,
-                  max_odd_share: float = 0.1) -> None:
+def check_colours(col: SquareColours, cols: int, rows: int, min_contrast: float = MIN_CONTRAST,
+                  max_odd_share: float = MAX_ODD_SHARE) -> None:
     """Raise :class:`DetectionError` unless the squares look like exactly a ``cols x rows`` board.
 
     Each square is compared with its four neighbours (local contrast, so a shadow across the

@@ -129,17 +129,18 @@ def locate_board(full: np.ndarray, board: Board, partial: bool = True):
         grid = classic_grid(small, board.cols, board.rows)
         if grid is not None:
             return small, f, to_full_resolution(grid, f), False
+        unplaced = DetectionError(f"no {board.spec()} chessboard found")
         grown = largest_grid(small)
         if grown is None:
-            raise DetectionError(f"no {board.spec()} chessboard found")
+            raise unplaced
+        # where no part agrees (a 3 x 3 grid's corners predict each other poorly), what was grown is
+        # placed as it is: the colours of the squares judge it, and the measured corners again
         part = consistent_part(grown)
-        unplaced = DetectionError(f"no {board.spec()} chessboard found")
+        seen = grown if part is None else part
+        seen_px = to_full_resolution(seen, f)
         if partial:
-            # where no part agrees (a 3 x 3 grid's corners predict each other poorly), what was grown is
-            # placed as it is: the colours of the squares judge it, and the measured corners again
             try:
-                return small, f, place_partial_grid(to_full_resolution(grown if part is None else part, f),
-                                                    small, f, board), True
+                return small, f, place_partial_grid(seen_px, small, f, board), True
             except PartialBoard:
                 raise
             except DetectionError as exc:
@@ -147,9 +148,8 @@ def locate_board(full: np.ndarray, board: Board, partial: bool = True):
         # SB's growth can stop short of a board it finds whole when asked for it: ask it, where what it
         # grew may be part of the board in full view, or (its normalised attempt alone: stripes of a carpet
         # fool the quick look) where the classic detector's quick look saw a board
-        seen = grown if part is None else part
         grid = None
-        if looks_like_part_of_a_board(to_full_resolution(seen, f), small, f, board):
+        if looks_like_part_of_a_board(seen_px, small, f, board):
             grid = sb_grid(small, board.cols, board.rows)
         elif shows_a_chessboard(small, board.cols, board.rows):
             grid = sb_grid(small, board.cols, board.rows, exhaustive=False)
