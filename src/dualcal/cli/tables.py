@@ -3,9 +3,10 @@
 Table 2/3: intrinsics and radial distortion of each camera, value +- sigma, Model 1 (skew = 0)
 next to Model 2 (skew free). ``sigma`` is the one that holds on real photos (from the scatter
 between the instants, never below the textbook one, which calib.json keeps as ``sigma_formal``):
-one standard deviation of the value, while RMS values are of the 2-D length of a corner's residual. Table 4: the rig, distance D between perspective centres (mm) and
-the relative angles (minutes of arc), for every non-reference camera. :func:`photo_table`: every
-photo of the calibration, its RMS per camera and whether it was kept, dropped or left out, and why.
+one standard deviation of the value, while RMS values are of the 2-D length of a corner's residual.
+Table 4: the rig, distance D between perspective centres (mm) and the relative angles (minutes of
+arc), for every non-reference camera. :func:`photo_table`: every photo of the calibration, its RMS
+per camera and whether it was kept, dropped or left out, and why.
 """
 
 from __future__ import annotations

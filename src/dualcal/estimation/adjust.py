@@ -579,7 +579,8 @@ class Solution:
         return dict(zip(self.problem.views, self._shifts(columns).T))
 
     def _shifts(self, columns) -> np.ndarray:
-        """(k, V): every instant's shift of the flat parameters ``columns`` (:func:`dualcal.estimation.uncertainty.instant_leverage`)."""
+        """(k, V): every instant's shift of the flat parameters ``columns``
+        (:func:`dualcal.estimation.uncertainty.instant_leverage`)."""
         return self.factorization.global_combination(columns) @ self._leverage.shifts
 
     @cached_property

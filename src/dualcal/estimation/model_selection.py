@@ -21,9 +21,9 @@ the model with the fewest coefficients that is within :data:`RECOMMEND_WITHIN_SE
 the best: a richer model must earn its coefficients by predicting the unseen instants clearly
 better.
 
-``calibrate_rig(model="auto")`` (:func:`preferred_lens_models`, :func:`choose_lens_models`) makes that choice for every camera, from
-its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera``). The candidates
-of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the camera's field
+``calibrate_rig(model="auto")`` (:func:`preferred_lens_models`, :func:`choose_lens_models`) makes that choice
+for every camera, from its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera``).
+The candidates of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the camera's field
 of view makes one plausible: Zhang's closed form (no lens) puts the image's corner more than
 :data:`FISHEYE_HALF_DIAGONAL_DEG` from the axis (a phone's main camera: about 40, its ultra-wide:
 55-60 and more). For such a camera ``kb4`` is also the preferred model, as ``k1k2`` is for the
