@@ -117,13 +117,30 @@ def opencv_sb(img, cols, rows):
     return c.reshape(-1, 2).astype(float) if found else None
 
 
+#: The detectors compared on one photo, as :func:`corner_errors` names them.
+DETECTORS = ("dualcal", "OpenCV classic", "OpenCV SB")
+
+
+def corner_errors(path: Path, board: Board, uv_true: np.ndarray):
+    """``(dualcal's result, {detector: corner errors against uv_true, or None where it found no board})`` of one
+    photo, for every detector of :data:`DETECTORS` (OpenCV's corners matched to the nearest true corner)."""
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    res = detect_photo(path, board)
+    seen = observed_mask(res.uv) if res.uv is not None else None
+    errors = {"dualcal": None if seen is None else res.uv[seen] - uv_true[seen]}
+    for name, fn in (("OpenCV classic", opencv_classic), ("OpenCV SB", opencv_sb)):
+        uv = fn(gray, board.cols, board.rows)
+        errors[name] = None if uv is None else matched(uv, uv_true)
+    return res, errors
+
+
 def steep_part(root: Path, n: int, seed: int) -> bool:
     board = Board(11, 8, 20.0)
     truth = make_truth("note8", views=n, seed=seed, scale=0.5, min_tilt_deg=45, max_tilt_deg=65, fill=(0.3, 0.6),
                        board=board)
     tc = true_corners(truth)
     rng = np.random.default_rng(seed)
-    names = ("dualcal", "OpenCV classic", "OpenCV SB")
+    names = DETECTORS
     errors = {m: {} for m in names}
     nulls = 0
     for i, view in enumerate(truth.view_poses):
@@ -137,16 +154,12 @@ def steep_part(root: Path, n: int, seed: int) -> bool:
                           shadow=(rng.uniform(0, 2 * np.pi), rng.uniform(-200, 200), 0.35, 15.0))
         path = root / f"steep_{i:02d}.jpg"
         cv2.imwrite(str(path), img, [cv2.IMWRITE_JPEG_QUALITY, 92])
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        res = detect_photo(path, board)
+        res, found = corner_errors(path, board, uv_true)
         if res.uv is not None:
-            seen = observed_mask(res.uv)
-            nulls += int((~seen).sum())
-            errors["dualcal"][view] = res.uv[seen] - uv_true[seen]
-        for name, fn in (("OpenCV classic", opencv_classic), ("OpenCV SB", opencv_sb)):
-            uv = fn(gray, board.cols, board.rows)
-            if uv is not None:
-                errors[name][view] = matched(uv, uv_true)
+            nulls += int((~observed_mask(res.uv)).sum())
+        for name, e in found.items():
+            if e is not None:
+                errors[name][view] = e
     common = set.intersection(*(set(e) for e in errors.values()))
     print(f"steep views: {n} photos 1512x2016, 45-65 deg, glare on a dark square, shadow, blur 1.5 px, "
           f"11x8 board, squares {int(square_px)}-ish px")
@@ -277,22 +290,18 @@ def curled_part(root: Path, n: int, seed: int) -> bool:
     from test_detect import _curled_photos                          # the renders the tests check
 
     board = Board(9, 6, 25.0)
-    names = ("dualcal", "OpenCV classic", "OpenCV SB")
+    names = DETECTORS
     errors = {m: {} for m in names}
     kept, missed = [], []
     for path, uv_true in _curled_photos(root, n, seed):
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        res = detect_photo(path, board)
+        res, found = corner_errors(path, board, uv_true)
         if res.uv is not None:
-            seen = observed_mask(res.uv)
-            kept.append(int(seen.sum()))
-            errors["dualcal"][path.name] = res.uv[seen] - uv_true[seen]
-        for name, fn in (("OpenCV classic", opencv_classic), ("OpenCV SB", opencv_sb)):
-            uv = fn(gray, board.cols, board.rows)
-            if uv is not None:
-                errors[name][path.name] = matched(uv, uv_true)
-                if res.uv is None:
-                    missed.append(path.name)
+            kept.append(int(observed_mask(res.uv).sum()))
+        elif any(e is not None for e in found.values()):
+            missed.append(path.name)
+        for name, e in found.items():
+            if e is not None:
+                errors[name][path.name] = e
     common = set.intersection(*(set(e) for e in errors.values()))
     print(f"\ncurled A4 sheets: {n} photos 960x720, 50-65 deg, curled as the shape model allows or the far end "
           "curling up 8-14 mm")
