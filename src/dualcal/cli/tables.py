@@ -210,13 +210,14 @@ def roll_tables(roll: dict) -> list[Table]:
     instants = Table(title=f"Instants: {how}", box=box.SIMPLE_HEAD)
     instants.add_column("instant")
     days = {inst["taken"][:10] for inst in roll["instants"].values() if inst.get("taken")}
-    instants.add_column(f"taken ({days.pop()})" if len(days) == 1 else "taken")
+    one_day = len(days) == 1                  # the date in the header, the times alone in the rows
+    instants.add_column(f"taken ({min(days)})" if one_day else "taken")
     for name in cams:
         instants.add_column(name)
     instants.add_column("sure")
     for key, inst in roll["instants"].items():
         taken = (inst.get("taken") or "-").replace("T", " ")[:21]
-        taken = taken[11:] if len(days) == 0 and taken != "-" else taken
+        taken = taken[11:] if one_day and taken != "-" else taken
         sure = "-" if "sure" not in inst else inst["sure"] if inst["sure"] == "certain" else \
             f"{inst['sure']} ({inst['margin']:.1f})"
         instants.add_row(key, taken, *(inst["photos"].get(n, "-") for n in cams), sure)
