@@ -51,7 +51,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.camera import equivalent_focal_35mm, focal_px_from_35mm
 from ..geometry.model import observed_mask
-from ..geometry.one_view import OneView, common_division, division_misfits, one_view
+from ..geometry.one_view import OneView, board_pixels, common_division, division_misfits, one_view, spread_px
 from .photos import Photo
 from .roll_positions import CERTAIN, MIN_MARGIN, SAME_IMAGE, Shot, image_change, split_positions
 
@@ -263,11 +263,6 @@ def _camera_log_odds(view: OneView, modes: np.ndarray) -> np.ndarray:
     return np.log(np.maximum(_responsibilities(np.array([np.log(view.f_px)]), np.array([spread]), modes)[0], 1e-300))
 
 
-def _board_pixels(view: OneView, xy_board: np.ndarray) -> np.ndarray:
-    q = np.column_stack([xy_board, np.ones(len(xy_board))]) @ view.H.T
-    return q[:, :2] / q[:, 2:]
-
-
 def looks_alike(a: OneView, b: OneView, ratio: float, f_px: float, xy_board: np.ndarray,
                 symmetric: bool = False) -> bool:
     """Whether photo ``b``'s board, scaled about the image centre by ``ratio`` (``a``'s camera's focal length,
@@ -275,10 +270,10 @@ def looks_alike(a: OneView, b: OneView, ratio: float, f_px: float, xy_board: np.
     their centres a few mm apart) see the board alike but for the scale, and for a shift by the small rotation
     between them and their parallax. The shapes must agree within :data:`ALIKE_SHAPE` of the board's size in
     ``a``, the shift within :data:`ALIKE_SHIFT_RAD` of ``f_px``."""
-    pa = _board_pixels(a, xy_board)
+    pa = board_pixels(a, xy_board)
     centre = (np.asarray(a.image_size, float) - 1.0) / 2.0
-    pb = centre + ratio * (_board_pixels(b, xy_board) - centre)
-    size = np.sqrt(np.mean(np.sum((pa - pa.mean(axis=0)) ** 2, axis=1)))
+    pb = centre + ratio * (board_pixels(b, xy_board) - centre)
+    size = spread_px(pa)
     for other in ([pb, pb[::-1]] if symmetric else [pb]):
         shift = pa.mean(axis=0) - other.mean(axis=0)
         shape = np.sqrt(np.mean(np.sum((pa - other - shift) ** 2, axis=1)))

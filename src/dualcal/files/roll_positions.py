@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.one_view import OneView, board_pose
+from ..geometry.one_view import OneView, board_pixels, board_pose, spread_px
 from ..geometry.rotation import nearest_rotation
 
 __all__ = ["MOVED_IMAGE", "SAME_IMAGE", "PositionSplit", "Shot", "best_split", "image_change", "longest_run",
@@ -125,10 +125,8 @@ def image_change(a: OneView, b: OneView, xy_board: np.ndarray, symmetric: bool =
     """How far the board's corners moved between two photos of one camera, as a share of the board's
     size in the first (the RMS of the moves over the RMS distance of the corners from their centre); for a
     board that looks the same turned by 180 degrees (``symmetric``), with either numbering of ``b``."""
-    X = np.column_stack([xy_board, np.ones(len(xy_board))])
-    pa, pb = X @ a.H.T, X @ b.H.T
-    pa, pb = pa[:, :2] / pa[:, 2:], pb[:, :2] / pb[:, 2:]
-    size = np.sqrt(np.mean(np.sum((pa - pa.mean(axis=0)) ** 2, axis=1)))
+    pa, pb = board_pixels(a, xy_board), board_pixels(b, xy_board)
+    size = spread_px(pa)
     return float(min(np.sqrt(np.mean(np.sum((pa - other) ** 2, axis=1)))
                      for other in ([pb, pb[::-1]] if symmetric else [pb])) / size)
 

@@ -30,9 +30,9 @@ import numpy as np
 
 from ..errors import EstimationError
 from .model import Pose, observed_mask
-from .zhang import MIN_HOMOGRAPHY_CORNERS, estimate_homographies, extrinsics_from_homography
+from .zhang import MIN_HOMOGRAPHY_CORNERS, apply_homography, estimate_homographies, extrinsics_from_homography
 
-__all__ = ["OneView", "board_pose", "common_division", "division_homography", "division_misfits",
+__all__ = ["OneView", "board_pixels", "board_pose", "spread_px", "common_division", "division_homography", "division_misfits",
            "focal_from_homography", "one_view", "undistort_division"]
 
 #: The division model's coefficient is searched in this range (per squared half-diagonal); ``1 + lam r^2``
@@ -71,6 +71,17 @@ class OneView:
     f_log_sigma: float
     tilt_deg: float
     image_size: tuple[int, int]
+
+
+def board_pixels(view: OneView, xy_board: np.ndarray) -> np.ndarray:
+    """(N, 2) where ``view``'s homography puts the board points ``xy_board`` (N, 2) mm: pixels undistorted by
+    its division model."""
+    return apply_homography(view.H, xy_board)
+
+
+def spread_px(points: np.ndarray) -> float:
+    """The size of a set of (N, 2) image points: the RMS distance of the points from their centre."""
+    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
 
 
 def _centre_and_scale(image_size) -> tuple[np.ndarray, float]:
