@@ -429,13 +429,20 @@ def _open_roll(photos: list[Photo], name: str, source: str, options: dict, skipp
         by_camera = {name if len(sizes) == 1 else f"{w}x{h}": [p for p in photos if p.size == (w, h)]
                      for w, h in sizes}
     cams = {n: {p.path.stem: p for p in ps} for n, ps in by_camera.items()}
-    names = {p.path: n for n, views in cams.items() for p in views.values()}
-    copies: dict = {}
-    for p, kept in identical.items():
-        copies.setdefault(names.get(kept), {})[p] = kept
     # photos without EXIF are named for now: a reference is checked against the cameras their boards tell
     return Dataset(cams, choose_reference(cams, options["reference"] if record is not None else None), source,
-                   skipped, {}, record, {n: d for n, d in copies.items() if n is not None}, roll_options=options)
+                   skipped, {}, record, _copies_by_camera(cams, identical), roll_options=options)
+
+
+def _copies_by_camera(cameras: dict[str, dict[str, Photo]], identical: dict[Path, Path]) -> dict:
+    """``identical`` ``{copy left out: the file kept}`` as :attr:`Dataset.identical` holds it, by the camera whose
+    photo the kept file is (copies of a file no camera holds are dropped)."""
+    names = {p.path: n for n, photos in cameras.items() for p in photos.values()}
+    copies: dict = {}
+    for p, kept in identical.items():
+        if kept in names:
+            copies.setdefault(names[kept], {})[p] = kept
+    return copies
 
 
 def split_roll_dataset(dataset: Dataset, corners: CornerSet) -> tuple[Dataset, CornerSet]:
@@ -471,7 +478,8 @@ def split_roll_dataset(dataset: Dataset, corners: CornerSet) -> tuple[Dataset, C
             corners_uv[photo.path] = corners.cameras[cam].views.get(key)
     photos = [p for ps in dataset.cameras.values() for p in ps.values()]
     left_out = {p.name: why for p, why in dataset.skipped}
-    left_out.update({p.name: f"the same file as {kept.name}" for d in dataset.identical.values() for p, kept in d.items()})
+    identical = {p: kept for d in dataset.identical.values() for p, kept in d.items()}
+    left_out.update({p.name: f"the same file as {kept.name}" for p, kept in identical.items()})
     symmetric = corners.board.is_symmetric and corners.board.charuco is None
     if dataset.roll is None:
         by_camera, facts, notes, unknown = cameras_from_boards(photos, corners_uv, xy_board, symmetric)
@@ -490,13 +498,8 @@ def split_roll_dataset(dataset: Dataset, corners: CornerSet) -> tuple[Dataset, C
                              clues, symmetric=symmetric)
     for note in notes:
         warn(note)
-    names = {p.path: n for n, ps in roll.cameras.items() for p in ps.values()}
-    identical: dict = {}
-    for p, kept in ((p, kept) for d in dataset.identical.values() for p, kept in d.items()):
-        if kept in names:
-            identical.setdefault(names[kept], {})[p] = kept
     split = Dataset(roll.cameras, choose_reference(roll.cameras, options["reference"]), dataset.source,
-                    dataset.skipped, {}, roll.record, identical)
+                    dataset.skipped, {}, roll.record, _copies_by_camera(roll.cameras, identical))
     _exclude(split, options["exclude"])
     out = _regrouped(split, corners, detected, roll.record)
     if symmetric and len(out.cameras) > 1:
