@@ -66,6 +66,14 @@ def _exif_bytes(cam, taken: datetime, device: str) -> bytes:
     return exif.tobytes()
 
 
+def _reencoded(jpeg: bytes, quality: int) -> bytes:
+    """A JPEG decoded and encoded again by Pillow at ``quality``, without EXIF (no ``exif=``: Pillow writes none)."""
+    out = io.BytesIO()
+    with Image.open(io.BytesIO(jpeg)) as img:
+        img.save(out, "JPEG", quality=quality)
+    return out.getvalue()
+
+
 def _with_exif(jpeg: bytes, payload: bytes) -> bytes:
     """A JPEG with an APP1 EXIF segment inserted after its SOI marker (the image data untouched)."""
     if jpeg[:2] != b"\xff\xd8":
@@ -196,9 +204,7 @@ def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic pho
                 if before is not None and (before.camera, before.view) == (s.camera, s.view):
                     shot["retake"] = (before.name, s.name)
                     # a retake is another exposure, never the same file: encoded again, a little differently
-                    again = io.BytesIO()
-                    Image.open(io.BytesIO(data)).save(again, "JPEG", quality=90)
-                    data = again.getvalue()
+                    data = _reencoded(data, 90)
             else:
                 w, h = cam.image_size
                 pixels = (rng.normal(120, 25, (h // 8, w // 8)).clip(0, 255)).astype(np.uint8)
@@ -223,9 +229,6 @@ def strip_exif(folder, out_folder, quality: int = 92) -> list[Path]:
     written = []
     for path in sorted(Path(folder).iterdir()):
         if path.suffix.lower() in (".jpg", ".jpeg"):
-            buffer = io.BytesIO()
-            with Image.open(path) as img:
-                img.save(buffer, "JPEG", quality=quality)          # no exif= : Pillow writes none
-            write_bytes_atomic(out_folder / path.name, buffer.getvalue())
+            write_bytes_atomic(out_folder / path.name, _reencoded(path.read_bytes(), quality))
             written.append(out_folder / path.name)
     return written
