@@ -355,11 +355,12 @@ plane itself is absorbed by every photo's pose). Each coefficient is the height,
 term reaches at the edge (``xx``, ``yy``) or the corner (``xy``) of the corner grid."""
 
 
-def shape_basis(xy_mm: np.ndarray) -> np.ndarray:
+def shape_basis(xy_mm: np.ndarray, extent_mm=None) -> np.ndarray:
     """(N, 3) values of the :data:`SHAPE_TERMS` at board points ``xy_mm`` (N, 2), scaled to [-1, 1]
-    over the points' own extent (pass all of a board's corners)."""
+    over the points' own extent (pass all of a board's corners), or over ``extent_mm``, ``(lo, hi)`` (2,)
+    each (the corners' extent, for points beyond them)."""
     xy = np.asarray(xy_mm, float)[:, :2]
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    lo, hi = (xy.min(axis=0), xy.max(axis=0)) if extent_mm is None else (np.asarray(e, float) for e in extent_mm)
     s = (xy - 0.5 * (lo + hi)) / np.maximum(0.5 * (hi - lo), 1e-12)
     return np.column_stack([s[:, 0] ** 2, s[:, 1] ** 2, s[:, 0] * s[:, 1]])
 

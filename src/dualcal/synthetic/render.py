@@ -38,7 +38,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..geometry.board import Board
+from ..geometry.board import Board, shape_basis
 from ..geometry.camera import CameraModel, check_invertible_in_image, project_points, ray_directions
 from ..files.io import write_jpeg_atomic
 from ..geometry.model import Pose
@@ -103,11 +103,10 @@ def board_height_mm(board: Board, X: np.ndarray, Y: np.ndarray, shape_mm) -> np.
     does not hold)."""
     if callable(shape_mm):
         return np.asarray(shape_mm(X, Y), float)
-    w_xx, w_yy, w_xy = np.asarray(shape_mm, float)
-    half_x = 0.5 * max(board.cols - 1, 1) * board.square_mm
-    half_y = 0.5 * max(board.rows - 1, 1) * board.square_mm
-    x, y = (X - half_x) / half_x, (Y - half_y) / half_y
-    return w_xx * x * x + w_yy * y * y + w_xy * x * y
+    X, Y = np.broadcast_arrays(np.asarray(X, float), np.asarray(Y, float))
+    corners = board.object_points_mm()[:, :2]
+    basis = shape_basis(np.column_stack([X.ravel(), Y.ravel()]), (corners.min(axis=0), corners.max(axis=0)))
+    return (basis @ np.asarray(shape_mm, float)).reshape(X.shape)
 
 
 def board_coordinates(cam: CameraModel, pose: Pose, u: np.ndarray, v: np.ndarray, board: Board | None = None,
