@@ -667,15 +667,16 @@ def _camera_lens_model(entry: dict, common: str, what: str) -> str:
     return model
 
 
-def _check_lens_keys(entry: dict, model: str, what: str) -> None:
-    """Raise :class:`InputError` unless a camera entry has exactly the lens coefficients of ``model``."""
+def _check_lens_keys(entry: dict, model: str, what: str,
+                     named_by: str = "calib.json 'model'; a file without one is k1k2") -> None:
+    """Raise :class:`InputError` unless a camera entry has exactly the lens coefficients of ``model`` (which
+    ``named_by`` says where the file names)."""
     missing = [n for n in LENS_MODELS[model] if n not in entry]
     if missing:
-        raise InputError(f"{what} lacks {', '.join(missing)} of its lens model {model} (calib.json 'model')")
+        raise InputError(f"{what} lacks {', '.join(missing)} of its lens model {model} ({named_by})")
     foreign = [n for n in DISTORTION_NAMES if n in entry and n not in LENS_MODELS[model]]
     if foreign:
-        raise InputError(f"{what} has {', '.join(foreign)}, which its lens model {model} does not have "
-                         "(calib.json 'model'; a file without one is k1k2)")
+        raise InputError(f"{what} has {', '.join(foreign)}, which its lens model {model} does not have ({named_by})")
 
 
 def _lens_fold_problem(cam: CameraModel, corners: CameraCorners | None) -> str | None:
@@ -843,7 +844,7 @@ def intrinsics_from_dict(doc: dict, source: str = "intrinsics.json") -> dict[str
         model = e["model"]
         if model not in LENS_MODELS:
             raise InputError(f"{what}: lens model {model!r} is unknown (dualcal knows {', '.join(LENS_MODELS)})")
-        _check_lens_keys(e, model, what)
+        _check_lens_keys(e, model, what, "its 'model'")
         names = intrinsic_names(model)
         sigma = {k: float(v) for k, v in e.get("sigma", {}).items()}
         foreign = [k for k in sigma if k not in names]
