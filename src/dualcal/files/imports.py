@@ -758,6 +758,13 @@ def write_imported(imported: Imported, folder) -> list[Path]:
     """Write ``folder/corners.json`` (a caliscope session's corners) and ``folder/intrinsics.json`` (the cameras'
     intrinsics, their poses as ``extrinsics``), atomically; ``folder`` is created if its parent exists.
 
+    Parameters
+    ----------
+    imported : Imported
+        What :func:`import_files` read.
+    folder : str or Path
+        The folder to write into.
+
     Returns
     -------
     list of Path
