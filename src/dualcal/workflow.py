@@ -222,7 +222,8 @@ def known_intrinsics_for(corners: CornerSet, known: dict[str, KnownIntrinsics]) 
     unknown = sorted(set(known) - set(corners.cameras))
     if unknown:
         warn(f"{', '.join(unknown)}: known intrinsics of no camera here (cameras: "
-             f"{', '.join(sorted(corners.cameras))}): not used (rename the camera in the file, or when importing with --rename, to use them)")
+             f"{', '.join(sorted(corners.cameras))}): not used (rename the camera in the file, or when importing "
+             "with --rename, to use them)")
     for name in sorted(set(known) & set(corners.cameras)):
         given, photos = known[name].camera.image_size, corners.cameras[name].image_size
         if tuple(given) != tuple(photos):

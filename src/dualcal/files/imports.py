@@ -64,8 +64,8 @@ from ..progress import warn
 from .io import (check_output_file, json_kind, load_intrinsics, make_output_folder, read_json, save_corners,
                  save_intrinsics)
 
-__all__ = ["CALISCOPE_SESSIONS", "FORMATS", "Imported", "import_files", "known_from_rig", "read_known_intrinsics",
-           "write_imported"]
+__all__ = ["CALISCOPE_SESSIONS", "FORMATS", "Imported", "import_files", "known_from_rig", "python_literal",
+           "read_known_intrinsics", "write_imported"]
 
 #: The formats ``dualcal import`` reads.
 FORMATS = ("caliscope", "opencv", "kalibr", "mrcal", "colmap")
@@ -643,10 +643,6 @@ def read_caliscope(folder: Path, session: str = "auto", image_size: dict | None 
         meta = {"imported": {"format": "caliscope", "session": session, "instants_shared": session == "extrinsic",
                              "cam_id": int(name[4:]), "board_inverted": inverted}}
         corner_cameras[name] = CameraCorners(size, views, meta)
-    for name, known in cameras.items():
-        if name in corner_cameras and known.camera.image_size != corner_cameras[name].image_size:
-            raise InputError(f"{array_path}: {name}'s size {known.camera.image_size} is not its corners' image "
-                             f"size {corner_cameras[name].image_size}")
     return Imported("caliscope", [str(folder)], cameras, poses, "caliscope world" if poses else None,
                     CornerSet(board, corner_cameras), session)
 
@@ -816,12 +812,11 @@ def _format_of(path: Path) -> str:
     if suffix == ".txt":
         return "colmap"
     text = _read_text(path)
+    if text.lstrip().startswith(("%YAML", "<?xml")) or "!!opencv-matrix" in text:
+        return "opencv"
     if suffix == ".json":
-        doc = read_json(path)
-        return "dualcal" if json_kind(doc) in ("calib", "intrinsics") and "type_id" not in text else "opencv"
+        return "dualcal" if json_kind(read_json(path)) in ("calib", "intrinsics") else "opencv"
     if suffix in (".yml", ".yaml", ".xml"):
-        if text.lstrip().startswith(("%YAML", "<?xml")) or "!!opencv-matrix" in text or suffix == ".xml":
-            return "opencv"
         return "kalibr" if re.search(r"^cam\d+\s*:", text, re.M) else "opencv"
     if "lensmodel" in text and text.lstrip().startswith(("{", "#")):
         return "mrcal"

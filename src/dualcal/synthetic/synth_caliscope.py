@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
 from ..files.io import make_output_folder, write_text_atomic
 from ..geometry.board import Board
 from ..geometry.camera import CameraModel, in_frame
@@ -81,9 +82,14 @@ def make_caliscope_truth(cameras: int = 4, moments: int = 57, seed: int = 0, rad
     SynthTruth
         ``cam_0`` the reference; view keys the moments' ``sync_index``, zero-padded to four digits (as
         ``dualcal import caliscope`` keys them).
+
+    Raises
+    ------
+    InputError
+        Fewer than 2 or more than 4 cameras.
     """
     if not 2 <= cameras <= len(_WEBCAMS):
-        raise ValueError(f"cameras={cameras}: 2 to {len(_WEBCAMS)}")
+        raise InputError(f"a synthetic caliscope session has 2 to {len(_WEBCAMS)} cameras, not {cameras}")
     rng = np.random.default_rng(seed)
     names = [f"cam_{i}" for i in range(cameras)]
     centre = np.array([0.0, 0.0, radius_mm])       # the volume's centre in a frame W of the room
@@ -94,19 +100,18 @@ def make_caliscope_truth(cameras: int = 4, moments: int = 57, seed: int = 0, rad
         world[name] = _look_at_pose(positions[name], centre, rng.uniform(-0.05, 0.05))     # W to camera
     reference = world[names[0]]
     rig = {n: world[n].compose(reference.inverse()) for n in names[1:]}
-    cams = dict(zip(names, _WEBCAMS))
-    board = CALISCOPE_BOARD
-    middle = board.object_points_mm().mean(axis=0)
-    views = {}
-    while len(views) < moments:
+    truth = SynthTruth(CALISCOPE_BOARD, dict(zip(names, _WEBCAMS)), names[0], rig, {})
+    middle = truth.board.object_points_mm().mean(axis=0)
+    while len(truth.view_poses) < moments:
         # the board's centre somewhere in the volume, its face turned to within 35 degrees of one camera
         at = centre + rng.uniform(-spread_mm, spread_mm, 3) * [1.0, 0.6, 1.0]
         facing = _tilted(positions[names[rng.integers(cameras)]] - at, rng)
         pose = reference.compose(Pose(R := _board_axes(-facing, rng), at - R @ middle))   # board to cam_0
-        seen = [n for n in names if _sees(cams[n], _seen_by(rig, n, pose), board).sum() >= _MIN_CORNERS]
+        seen = [n for n, cam in truth.cameras.items()
+                if _sees(cam, truth.seen_by(n, pose), truth.board).sum() >= _MIN_CORNERS]
         if len(seen) >= min(3, cameras):
-            views[f"{len(views):04d}"] = pose
-    return SynthTruth(board, cams, names[0], rig, views)
+            truth.view_poses[f"{len(truth.view_poses):04d}"] = pose
+    return truth
 
 
 def _board_axes(z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -127,10 +132,6 @@ def _tilted(direction: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     axis = np.cross(d, rng.normal(size=3))
     axis /= np.linalg.norm(axis)
     return rotation_from_rotvec(np.radians(rng.uniform(0.0, 35.0)) * axis) @ d
-
-
-def _seen_by(rig: dict[str, Pose], name: str, board_pose: Pose) -> Pose:
-    return rig[name].compose(board_pose) if name in rig else board_pose
 
 
 def _toml_value(value) -> str:
