@@ -115,17 +115,6 @@ def test_a_synthetic_caliscope_session_imports_to_its_truth(session):
                                                                     t_mm=np.zeros(3))))
 
 
-def test_the_synthetic_session_is_as_caliscope_s_extrinsic_test_session(session):
-    folder, truth = session
-    corners = import_files("caliscope", [folder]).corners
-    assert len(truth.view_poses) >= 50 and len(truth.cameras) == 4
-    assert all(c.image_size == (1280, 720) for c in corners.cameras.values())
-    per_moment = [sum(view in c.views for c in corners.cameras.values()) for view in truth.view_poses]
-    assert min(per_moment) >= 3                                          # each moment seen by 3 or 4 cameras
-    widths = [np.nanmax(uv[:, 0]) - np.nanmin(uv[:, 0]) for c in corners.cameras.values() for uv in c.views.values()]
-    assert np.median(widths) < 0.1 * 1280                                # the board small in every frame
-
-
 def test_a_session_s_intrinsic_recordings_are_chosen_by_session(session, tmp_path, run_cli):
     folder, truth = session
     intrinsic = import_files("caliscope", [folder], session="intrinsic")
