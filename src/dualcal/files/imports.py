@@ -305,22 +305,24 @@ def read_kalibr(path: Path) -> Imported:
     """The cameras of a Kalibr camchain YAML (``cam0``, ``cam1``, ...: ``camera_model: pinhole``,
     ``distortion_model`` ``radtan``, ``equidistant`` or ``none``, ``intrinsics: [fu, fv, pu, pv]``,
     ``distortion_coeffs``, ``resolution``), and the chain's poses from ``cam0`` composed of ``T_cn_cnm1``
-    (metres, as mm). Each camera is named by the first part of its ``rostopic`` (``/wide/image_raw``: ``wide``)
-    where those are distinct, else by its key."""
+    (metres, as mm). Each camera is named by the first part of its ``rostopic`` (``/wide/image_raw``: ``wide``;
+    dualcal's export writes the camera's name there, a ``-`` as ``_``) where those are distinct, else by its key."""
     from ..extras import require
 
     require("kalibr")
     import yaml
 
+    text = _read_text(path)
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
         raise InputError(f"{path}: not a YAML file ({str(exc).splitlines()[0][:100]})") from None
     keys = sorted((k for k in (doc or {}) if re.fullmatch(r"cam\d+", str(k))), key=lambda k: int(k[3:])) \
         if isinstance(doc, dict) else []
     if not keys:
         raise InputError(f"{path}: no cam0, cam1, ... of a Kalibr camchain in it")
-    topics = [str((doc[k] or {}).get("rostopic", "")).strip("/").split("/")[0] for k in keys]
+    topics = [str(doc[k].get("rostopic", "") if isinstance(doc[k], dict) else "").strip("/").split("/")[0]
+              for k in keys]
     names = topics if all(topics) and len(set(topics)) == len(topics) else keys
     cameras, poses = {}, {}
     pose = Pose(np.eye(3), np.zeros(3))
