@@ -141,7 +141,7 @@ def test_caliscope_s_board_is_sized_as_caliscope_sizes_it():
         caliscope_board({"rows": 5}, "t")
 
 
-def test_a_flat_session_written_by_hand_as_caliscope_writes_it(tmp_path):
+def test_a_flat_session_written_by_hand_as_caliscope_writes_it(tmp_path, run_cli):
     """The csv and charuco.toml side by side (an older caliscope's columns port and point_id): the corners land on
     their ids, the others are missing; a flat folder is taken as intrinsic unless told."""
     write(tmp_path / "charuco.toml", CHARUCO_TOML)
@@ -157,6 +157,10 @@ def test_a_flat_session_written_by_hand_as_caliscope_writes_it(tmp_path):
     assert np.isnan(views["0007"][1:11]).all() and views["0012"][4].tolist() == [30.0, 40.0]
     assert import_files("caliscope", [tmp_path], session="extrinsic", image_size={"*": (640, 480)}).session \
         == "extrinsic"
+    res = run_cli("import", "caliscope", tmp_path, "--image-size", "cam_2=640x480", "--rename", "cam_2=wide",
+                  "-o", tmp_path / "out")
+    assert res.code == 0, res.err
+    assert load_corners(tmp_path / "out" / "corners.json").cameras["wide"].image_size == (640, 480)
 
 
 def test_caliscope_camera_array_rotations_fisheyes_and_uncalibrated_cameras(tmp_path, caplog):
