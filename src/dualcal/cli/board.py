@@ -20,7 +20,7 @@ from .common import board_from_flags, board_options, echo
               help="Suggest the board for the cameras of these photos (a camera roll or a dataset: their EXIF "
                    "focal lengths): the tele must see it whole where the ultra-wide still resolves its squares.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="board.pdf or board.png to write.")
-def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi, for_photos, output):
+def board_command(spec, board_spec, square_mm, marker_mm, dictionary, circle_mm, paper, dpi, for_photos, output):
     """Write the board to print: a PDF at true scale, or a PNG at --dpi.
 
     \b
@@ -52,7 +52,7 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
                                "or --for PHOTOS to have it chosen")
     else:
         check_output_file(output)
-        board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary)
+        board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary, circle_mm)
     layout = write_board(board, output, paper=paper, dpi=dpi)
     w, h = layout.page_mm
     echo(f"{layout.board.describe()}, squares of {layout.board.square_mm:g} mm, on a {w:.0f} x {h:.0f} mm page: "

@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..geometry.board import Board
+from ..geometry.circles import circle_centre_offset_px
 from ..geometry.camera import INTRINSIC_NAMES, CameraModel, fold_radius, in_frame, project_points
 from ..errors import EstimationError, InputError
 from ..geometry.model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
@@ -317,7 +318,8 @@ def seen_pixels(cam: CameraModel, pose: Pose, X_board: np.ndarray) -> np.ndarray
 
 
 def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
-    """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner; NaN rows for the
+    """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner (a circle grid's: the centre of each
+    circle's image, :func:`dualcal.geometry.circles.circle_image_centre`); NaN rows for the
     corners a camera does not see (:func:`in_frame`: only on partial views). A chessboard (no
     markers to number a part of it) that a camera does not see whole, with its outer squares, is
     all NaN: the camera missed that instant."""
@@ -331,6 +333,8 @@ def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
             missed = truth.board.charuco is None and not _all_visible({cam: model}, {cam: pose},
                                                                       np.vstack([X, outline]), margin=0.0)
             out[cam][v] = np.full((len(X), 2), np.nan) if missed else seen_pixels(model, pose, X)
+            if truth.board.is_circle_grid:      # a circle's centre as measured: its image's (geometry.circles)
+                out[cam][v] += circle_centre_offset_px(model, pose, X, 0.5 * truth.board.circle_mm)
     return out
 
 
