@@ -21,7 +21,7 @@ Per photo (called by :func:`dualcal.files.detect.pipeline.detect_photo` for a bo
    within half the spacing (in board mm) of the circle's centre, twice. A blur, the box-sampling of pixels
    and sensor noise move the mean of darkness nowhere, so this is the centre of the circle's image
    (its area's centroid: an ellipse's centre), which :mod:`dualcal.geometry.circles` models;
-4. a centre whose refinement left its window, or that its neighbours' affine map misplaces by more than
+4. a centre whose refinement left its window, or that its neighbours' homography misplaces by more than
    :data:`MAX_NEIGHBOUR_SHARE` of the spacing, is a NaN row; a grid with fewer than half its centres left is
    not found.
 """
@@ -145,6 +145,23 @@ def _local_affine(k: int, xy: np.ndarray, uv: np.ndarray) -> np.ndarray | None:
     return sol.T
 
 
+def _neighbour_miss(k: int, xy: np.ndarray, uv: np.ndarray, spacing_mm: float) -> float | None:
+    """How far centre ``k`` is from where the homography of its :data:`_NEIGHBOURS` nearest measured neighbours
+    puts it, in spacings there (None where it or too few of them are measured)."""
+    if not np.isfinite(uv[k]).all():
+        return None
+    d = np.hypot(*(xy - xy[k]).T)
+    d[k] = np.inf
+    near = [j for j in np.argsort(d) if np.isfinite(uv[j]).all()][:_NEIGHBOURS]
+    if len(near) < 6:
+        return None
+    H, _ = cv2.findHomography(xy[near], uv[near], 0)
+    if H is None:
+        return None
+    ends = cv2.perspectiveTransform(np.array([[xy[k], xy[k] + [spacing_mm, 0.0]]]), H)[0]
+    return float(np.hypot(*(ends[0] - uv[k])) / max(np.hypot(*(ends[1] - ends[0])), 1e-9))
+
+
 def refine_centre(full: np.ndarray, affine: np.ndarray, start_px: np.ndarray, board: Board,
                   iterations: int = 6) -> np.ndarray | None:
     """A circle's centre (2,) in full-resolution pixels, as the darkness-weighted mean of the pixels around it (the
@@ -254,11 +271,8 @@ def detect_circles(full: np.ndarray, board: Board) -> tuple[np.ndarray, bool]:
         if refined is not None:
             uv[k] = refined
     for k in range(board.n_corners):                         # each refined centre against its refined neighbours
-        affine = _local_affine(k, xy, uv)
-        if affine is None or not np.isfinite(uv[k]).all():
-            continue
-        spacing = float(np.sqrt(abs(np.linalg.det(affine[:, :2])))) * board.square_mm
-        if np.hypot(*(affine[:, :2] @ xy[k] + affine[:, 2] - uv[k])) > MAX_NEIGHBOUR_SHARE * spacing:
+        miss = _neighbour_miss(k, xy, uv, board.square_mm)
+        if miss is not None and miss > MAX_NEIGHBOUR_SHARE:
             uv[k] = np.nan
     if np.isfinite(uv).all(axis=1).sum() * 2 < board.n_corners:
         raise DetectionError(f"the {board.spec()} circle grid was found, but fewer than half its centres measured")
