@@ -5,8 +5,8 @@ Per photo (called by :func:`dualcal.files.detect.pipeline.detect_photo` for a bo
 
 1. on the photo reduced to 1/2-1/8 (:func:`.coarse.reduce_image`), OpenCV's ``findCirclesGrid``
    (symmetric or asymmetric; its clustering variant where that fails) with a blob detector tuned to the
-   reduced photo's scale (:func:`blob_detector`: circles from a few pixels across to a board filling the
-   frame); where the grid is not found, or its circles are under :data:`MIN_CIRCLE_PX` across, the same at
+   reduced photo's scale (:func:`blob_detector`: circles from about 6 pixels across to a board filling the
+   frame twice over); where the grid is not found, or its circles are under :data:`MIN_CIRCLE_PX` across, the same at
    twice the resolution, down to the full photo;
 2. the grid put in the contract's order (:func:`canonical_order`): OpenCV may number a grid from any of the
    corners its layout's symmetries allow; of those numberings, the one whose board frame is right-handed
@@ -56,19 +56,14 @@ _NEIGHBOURS = 8
 
 
 def blob_detector(image_size: tuple[int, int], board: Board) -> cv2.SimpleBlobDetector:
-    """OpenCV's blob detector for ``board``'s circles in an image of ``image_size = (W, H)``: dark blobs from
-    6 px^2 (about 3 px across) to the size the circles have when the board fills the image twice over
-    (a steep view's near side), nearly convex, any elongation a view up to 85 degrees gives."""
+    """OpenCV's blob detector for ``board``'s circles in an image of ``image_size = (W, H)``: OpenCV's defaults (dark
+    blobs of at least 25 px^2, nearly convex; smaller specks of a cluttered room confuse the grid finder, and circles
+    that small are searched for at a finer resolution anyway), up to the size the circles have when the board
+    fills the image twice over (a steep view's near side; OpenCV's default stops at 5000 px^2)."""
     p = cv2.SimpleBlobDetector_Params()
     x0, x1, y0, y1 = board.pattern_extent_mm()
     px_per_mm = 2.0 * max(image_size) / max(x1 - x0, y1 - y0)
-    p.filterByColor, p.blobColor = True, 0
-    p.filterByArea, p.minArea = True, 6.0
     p.maxArea = float(max(p.minArea + 1.0, np.pi / 4 * (board.circle_mm * px_per_mm) ** 2))
-    p.filterByCircularity = False
-    p.filterByConvexity, p.minConvexity = True, 0.8
-    p.filterByInertia, p.minInertiaRatio = True, 0.05
-    p.minDistBetweenBlobs = 2.0
     return cv2.SimpleBlobDetector_create(p)
 
 
@@ -232,18 +227,22 @@ def refine_centre(full: np.ndarray, affine: np.ndarray, start_px: np.ndarray, bo
 def _full_resolution_centres(full: np.ndarray, board: Board) -> tuple[np.ndarray, int]:
     """The grid's coarse centres (N, 2) in full-resolution pixels, in OpenCV's order, and the reduction they were
     found at (module docstring, step 1)."""
-    size = full.shape[::-1]
-    f = reduction_factor(size)
+    f = reduction_factor(full.shape[::-1])
+    best = None
     while True:
-        small = reduce_image(full, f) if f > 1 else full
-        found = find_circle_grid(small, board)
+        found = find_circle_grid(reduce_image(full, f) if f > 1 else full, board)
         if found is not None:
+            best = to_full_resolution(found, f), f
             spacing = np.median(np.hypot(*np.diff(found.reshape(board.rows, board.cols, 2), axis=1).reshape(-1, 2).T))
             circle = spacing * board.circle_mm / (board.square_mm * (2.0 if board.pattern == "acircles" else 1.0))
-            if circle >= MIN_CIRCLE_PX or f == 1:
-                return to_full_resolution(found, f), f
+            if circle >= MIN_CIRCLE_PX:
+                return best
+        elif best is not None:                 # small circles found coarser, not here: those, refined at full size
+            return best
         if f == 1:
-            raise DetectionError(f"no {board.spec()} circle grid found")
+            if best is None:
+                raise DetectionError(f"no {board.spec()} circle grid found")
+            return best
         f //= 2
 
 
