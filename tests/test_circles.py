@@ -218,3 +218,25 @@ def test_board_entries_round_trip(tmp_path):
                             "circle_mm")):
         with pytest.raises(InputError, match=message):
             Board.from_dict(entry)
+
+
+def test_printed_circles_at_true_scale(tmp_path):
+    """The PNG of `dualcal board acircles:4x11` at 100 dpi: each circle's centroid where the layout puts the board's
+    point, and its area that of a circle of the given diameter (to a pixel's share)."""
+    pytest.importorskip("matplotlib")
+    from dualcal.files.boardprint import write_board
+
+    dpi = 100.0
+    layout = write_board(ACIRCLES, tmp_path / "b.png", dpi=dpi)
+    img = cv2.imread(str(tmp_path / "b.png"), cv2.IMREAD_GRAYSCALE)
+    px = dpi / 25.4
+    expected = (ACIRCLES.object_points_mm()[:, :2] + layout.origin_mm) * px - 0.5
+    dark = 1.0 - img.astype(float) / 255.0
+    r = int(np.ceil(0.5 * ACIRCLES.circle_mm * px)) + 2
+    for u, v in expected:
+        u0, v0 = int(round(u)), int(round(v))
+        win = dark[v0 - r: v0 + r + 1, u0 - r: u0 + r + 1]
+        vv, uu = np.mgrid[v0 - r: v0 + r + 1, u0 - r: u0 + r + 1]
+        centroid = np.array([np.sum(win * uu), np.sum(win * vv)]) / win.sum()
+        assert np.hypot(*(centroid - (u, v))) < 0.05
+        assert win.sum() == pytest.approx(np.pi / 4 * (ACIRCLES.circle_mm * px) ** 2, rel=0.01)
