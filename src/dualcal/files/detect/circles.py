@@ -48,7 +48,8 @@ MIN_CIRCLE_PX = 8.0
 MAX_NEIGHBOUR_SHARE = 0.1
 
 #: Pixels beyond a circle's edge that its mean of darkness takes in (a blur's tail; fewer pixels of paper, whose
-#: noise moves the mean, the nearer), and the width of the ring of paper beyond them that gives the paper's level.
+#: noise moves the mean, the nearer), and the width of the ring of paper beyond them that gives the paper's level;
+#: where the circles are closer than that, each takes half the gap.
 EDGE_PX = 5.0
 
 #: Neighbours (nearest on the board) whose centres give a circle's local affine map.
@@ -182,7 +183,7 @@ def refine_centre(full: np.ndarray, affine: np.ndarray, start_px: np.ndarray, bo
     Ainv = np.linalg.inv(A)
     # the circle and its blur: EDGE_PX beyond its edge (in mm along the map's shorter axis), within the reach
     edge_mm = EDGE_PX / float(np.linalg.svd(A, compute_uv=False)[-1])
-    inside_mm = min(reach, r + edge_mm)
+    inside_mm = min(r + edge_mm, 0.5 * (r + reach))           # small circles: half the gap each, mean and ring
     outside_mm = min(reach, inside_mm + edge_mm)
     half = np.abs(A) @ np.array([outside_mm, outside_mm]) + 2.0           # the window's half-size, px
     H, W = full.shape
