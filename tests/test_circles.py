@@ -21,6 +21,7 @@ from dualcal.geometry.model import Pose
 from dualcal.geometry.rotation import rotation_from_rotvec
 from dualcal.synthetic.render import render_view
 from dualcal.synthetic.synth import make_truth, noisy_corner_set, scale_camera
+from dualcal.workflow import check_board
 
 ACIRCLES = Board.circle_grid("acircles", 4, 11, 20.0, 10.0)
 CAMERA_12MP = CameraModel((4000, 3000), 3200.0, 3200.0, 0.0, 1990.0, 1510.0, 0.06, -0.15)
@@ -41,7 +42,7 @@ def test_layout_is_opencvs():
     np.testing.assert_array_equal(X[-1, :2], [(2 * 3 + 10 % 2) * 15, 10 * 15])
     S = board_from_spec("circles:7x5", 25.0, circle_mm=12).object_points_mm()
     np.testing.assert_array_equal(S[8, :2], [25, 25])
-    assert board_from_spec("circles:7x5", 25.0).circle_mm == pytest.approx(10.0)      # gen_pattern's default
+    assert board_from_spec("circles:7x5", 25.0).circle_diameter_mm == pytest.approx(10.0)      # gen_pattern's default
     assert ACIRCLES.is_symmetric is False and Board.circle_grid("acircles", 4, 10, 20.0).is_symmetric
     with pytest.raises(InputError, match="smaller than the distance"):
         board_from_spec("circles:7x5", 25.0, circle_mm=25.0)
@@ -98,7 +99,7 @@ def test_detection_beats_opencv(scale, board, pose):
     area centroid) than OpenCV's findCirclesGrid at full size on the same render."""
     cam = scale_camera(CAMERA_12MP, scale)
     img = render_view(cam, pose, board, np.random.default_rng(3))
-    truth = outline_centroid_px(cam, pose, board.object_points_mm(), 0.5 * board.circle_mm)
+    truth = outline_centroid_px(cam, pose, board.object_points_mm(), 0.5 * board.circle_diameter_mm)
     uv, ambiguous = detect_circles(img, board)
     assert ambiguous == board.is_symmetric
     if ambiguous and _rms(uv, truth) > 1:                           # the other of the two numberings
@@ -123,7 +124,7 @@ def _outline_blocks(truth, board, noise_px, seed):
     rng = np.random.default_rng(seed)
     cam = truth.cameras["left"]
     X = board.object_points_mm()
-    return [(0, v, circle_image_centre(cam, truth.camera_pose("left", v), X, 0.5 * board.circle_mm)
+    return [(0, v, circle_image_centre(cam, truth.camera_pose("left", v), X, 0.5 * board.circle_diameter_mm)
              + rng.normal(0.0, noise_px, (len(X), 2))) for v in truth.view_poses]
 
 
@@ -169,7 +170,7 @@ def test_fixed_point_is_the_outline_models_least_squares():
 
     def residuals(p):
         c, poses = unpack(p)
-        return np.concatenate([(circle_image_centre(c, q, X, 0.5 * board.circle_mm) - uv).ravel()
+        return np.concatenate([(circle_image_centre(c, q, X, 0.5 * board.circle_diameter_mm) - uv).ravel()
                                for q, (_, _, uv) in zip(poses, blocks)])
 
     start = [cam.fx, cam.fy, cam.cx, cam.cy, cam.k1, cam.k2]
@@ -206,11 +207,16 @@ def test_board_entries_round_trip(tmp_path):
     """corners.json keeps a circle grid's pattern and circle diameter and a target's points; bad entries say why."""
     for board in (ACIRCLES, Board.circle_grid("circles", 7, 5, 25.0, square_sigma_mm=0.05),
                   Board.from_points([[0, 0, 0], [50, 0, 0], [0, 40, 0], [60, 50, 0]], square_mm=10.0)):
-        assert Board.from_dict(board.to_dict()) == board
+        assert board.matches(Board.from_dict(board.to_dict()))
+        assert Board.from_dict(board.to_dict()).to_dict() == board.to_dict()
     truth = make_truth("stereo", views=3, seed=1, board=ACIRCLES)
     save_corners(tmp_path / "c.json", noisy_corner_set(truth, 0.0))
     loaded = load_corners(tmp_path / "c.json")
     assert loaded.board == ACIRCLES and loaded.board.circle_mm == 10.0
+    # a board given without --circle is the file's, whatever its diameter; with another one it is not
+    assert check_board(board_from_spec("acircles:4x11", 20.0), loaded.board, "c.json") == loaded.board
+    with pytest.raises(InputError, match="disagrees with c.json"):
+        check_board(board_from_spec("acircles:4x11", 20.0, circle_mm=8.0), loaded.board, "c.json")
     for entry, message in (({"points_mm": [[0, 0], [1, 0], [2, 0], [3, 0]]}, "one line"),
                            ({"points_mm": [[0, 0, 1], [1, 0, 0], [0, 1, 0], [1, 1, 0]]}, "its plane"),
                            ({"cols": 4, "rows": 11, "square_mm": 20, "pattern": "hexagons"}, "pattern"),

@@ -57,7 +57,7 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, circle_mm,
         board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary, circle_mm)
     layout = write_board(board, output, paper=paper, dpi=dpi)
     w, h = layout.page_mm
-    sizes = (f"circles of {board.circle_mm:g} mm, {board.square_mm:g} mm apart" if board.is_circle_grid
+    sizes = (f"circles of {board.circle_diameter_mm:g} mm, {board.square_mm:g} mm apart" if board.is_circle_grid
              else f"squares of {board.square_mm:g} mm")
     echo(f"{layout.board.describe()}, {sizes}, on a {w:.0f} x {h:.0f} mm page: wrote {output} (print at 100 %)",
          err=True)

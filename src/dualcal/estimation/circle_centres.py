@@ -71,7 +71,7 @@ def outline_offsets(sol: Solution, board: Board) -> dict[tuple[int, str], np.nda
     centres = board.object_points_mm()
     poses = sol.photo_poses
     cams = {c: sol.state.camera(sol.problem, c) for c in range(len(sol.problem.cameras))}
-    return {(c, v): circle_centre_offset_px(cams[c], poses[(c, v)], centres, 0.5 * board.circle_mm)
+    return {(c, v): circle_centre_offset_px(cams[c], poses[(c, v)], centres, 0.5 * board.circle_diameter_mm)
             for c, v, _ in sol.problem.blocks}
 
 
@@ -96,7 +96,7 @@ def fit_circle_outlines(solve: Callable, blocks, first: Solution, board: Board,
     first : Solution
         ``solve``'s solution of ``blocks`` as they are (the point model): the start.
     board : Board
-        the circle grid (its ``circle_mm`` is the circles' diameter).
+        the circle grid (its ``circle_diameter_mm`` the circles' diameter).
     tol_px : float
         stop when no offset changes by more than this (pixels).
     max_iterations : int

@@ -111,7 +111,7 @@ def _black_path(layout: PageLayout):
     board, (ox, oy) = layout.board, layout.origin_mm
     if board.is_circle_grid:
         centres = board.object_points_mm()[:, :2] + (ox, oy)
-        return MplPath.make_compound_path(*(MplPath.circle(tuple(c), 0.5 * board.circle_mm) for c in centres))
+        return MplPath.make_compound_path(*(MplPath.circle(tuple(c), 0.5 * board.circle_diameter_mm) for c in centres))
     r = _black_rectangles(layout)
     verts = np.stack([r[:, [0, 1]], r[:, [2, 1]], r[:, [2, 3]], r[:, [0, 3]], r[:, [0, 1]]], axis=1)
     codes = np.tile([MplPath.MOVETO] + [MplPath.LINETO] * 3 + [MplPath.CLOSEPOLY], len(r))
@@ -145,8 +145,8 @@ def _spec_lines(board: Board) -> list[str]:
     s = board.square_mm
     if board.is_circle_grid:
         kind = "symmetric" if board.pattern == "circles" else "asymmetric"
-        return [f"--board {board.spec()} --square {s:g} --circle {board.circle_mm:g}",
-                f"{kind} circle grid of {board.cols} x {board.rows} circles of {board.circle_mm:g} mm, {s:g} mm apart "
+        return [f"--board {board.spec()} --square {s:g} --circle {board.circle_diameter_mm:g}",
+                f"{kind} circle grid of {board.cols} x {board.rows} circles of {board.circle_diameter_mm:g} mm, {s:g} mm apart "
                 "(OpenCV's count and order); point 0 at the top left"]
     if board.charuco is None:
         return [f"--board {board.spec()} --square {s:g}",

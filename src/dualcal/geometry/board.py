@@ -136,7 +136,8 @@ class Charuco:
 class Board:
     """A planar target: a chessboard of ``cols x rows`` inner corners of pitch ``square_mm``, a ChArUco
     board when ``charuco`` is given (:meth:`charuco_board` builds one from its squares), a circle grid
-    (``pattern`` ``"circles"`` or ``"acircles"``, circles of diameter ``circle_mm``; :meth:`circle_grid`)
+    (``pattern`` ``"circles"`` or ``"acircles"``, circles of diameter ``circle_mm``, None for the default:
+    :attr:`circle_diameter_mm`; :meth:`circle_grid`)
     or a target given by its points (``pattern`` ``"points"``, :meth:`from_points`); see the module
     docstring for each one's layout.
 
@@ -191,13 +192,23 @@ class Board:
                              f"board of {ch.squares[0]}x{ch.squares[1]} squares needs {ch.n_markers}")
 
     def _check_circles(self) -> None:
-        if self.circle_mm is None:
-            object.__setattr__(self, "circle_mm", DEFAULT_CIRCLE_SHARE * float(self.square_mm))
         # neighbouring circles must not touch: centres s apart (symmetric), s*sqrt(2) (asymmetric)
-        gap = self.square_mm * (np.sqrt(2.0) if self.pattern == "acircles" else 1.0)
-        if not (0 < self.circle_mm < gap and np.isfinite(self.circle_mm)):
-            raise InputError(f"circle diameter {self.circle_mm} mm: must be positive and smaller than the distance "
-                             f"between neighbouring circles ({gap:g} mm)")
+        d = self.circle_diameter_mm
+        if not (0 < d < self.circle_gap_mm and np.isfinite(d)):
+            raise InputError(f"circle diameter {d:g} mm: must be positive and smaller than the distance "
+                             f"between neighbouring circles ({self.circle_gap_mm:g} mm)")
+
+    @property
+    def circle_diameter_mm(self) -> float:
+        """A circle grid's circle diameter, mm: ``circle_mm``, or where that is not given (None)
+        :data:`DEFAULT_CIRCLE_SHARE` of the spacing."""
+        return float(self.circle_mm) if self.circle_mm is not None else DEFAULT_CIRCLE_SHARE * float(self.square_mm)
+
+    @property
+    def circle_gap_mm(self) -> float:
+        """Distance from a circle grid's centre to its nearest other centre, mm (the spacing; the diagonal
+        ``s sqrt(2)`` on an asymmetric grid)."""
+        return self.square_mm * (np.sqrt(2.0) if self.pattern == "acircles" else 1.0)
 
     def _check_points(self) -> None:
         pts = np.asarray(self.points_mm if self.points_mm is not None else [], float)
@@ -293,7 +304,7 @@ class Board:
         if self.pattern == "chessboard":
             return -s, self.cols * s, -s, self.rows * s
         xy = self.object_points_mm()[:, :2]
-        pad = 0.5 * (s + self.circle_mm) if self.is_circle_grid else s
+        pad = 0.5 * (s + self.circle_diameter_mm) if self.is_circle_grid else s
         (x0, y0), (x1, y1) = xy.min(axis=0) - pad, xy.max(axis=0) + pad
         return float(x0), float(x1), float(y0), float(y1)
 
@@ -318,7 +329,7 @@ class Board:
         if self.is_circle_grid:
             kind = "symmetric" if self.pattern == "circles" else "asymmetric"
             return (f"{self.spec()} {kind} circle grid"
-                    + (f" of {self.square_mm:g} mm spacing and {self.circle_mm:g} mm circles" if sizes else ""))
+                    + (f" of {self.square_mm:g} mm spacing and {self.circle_diameter_mm:g} mm circles" if sizes else ""))
         if self.charuco is None:
             text = f"{self.spec()} chessboard"
         else:
@@ -362,9 +373,11 @@ class Board:
         return np.sort(around, axis=1)[:, 2:]
 
     def matches(self, other: "Board") -> bool:
-        """True when ``other`` is this board; a ChArUco board's dictionary and layout are compared
-        only where this one gives them (a board from the command line may leave them to the photos);
-        ``square_sigma_mm`` is not compared."""
+        """True when ``other`` is this board; a ChArUco board's dictionary and layout, and a circle grid's
+        diameter, are compared only where this one gives them (a board from the command line may leave them
+        to the photos, or to the file); ``square_sigma_mm`` is not compared."""
+        if self.is_circle_grid and self.circle_mm is None:         # the diameter not given: any
+            return replace(self, square_sigma_mm=0.0) == replace(other, square_sigma_mm=0.0, circle_mm=None)
         if self.charuco is None or other.charuco is None:
             return replace(self, square_sigma_mm=0.0) == replace(other, square_sigma_mm=0.0)
         mine, theirs = self.charuco, other.charuco
@@ -379,7 +392,7 @@ class Board:
         else:
             doc = {"cols": self.cols, "rows": self.rows, "square_mm": float(self.square_mm)}
         if self.is_circle_grid:
-            doc.update(pattern=self.pattern, circle_mm=float(self.circle_mm))
+            doc.update(pattern=self.pattern, circle_mm=self.circle_diameter_mm)
         if self.square_sigma_mm:
             doc["square_sigma_mm"] = float(self.square_sigma_mm)
         ch = self.charuco

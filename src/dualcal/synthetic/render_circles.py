@@ -58,7 +58,7 @@ def circle_darkness(board: Board, X: np.ndarray, Y: np.ndarray, hX: np.ndarray, 
         half-widths of the footprints, mm (the shape of ``X``); below the circles' spacing minus their radius,
         so that a footprint meets only circles of the two rows and two columns around it.
     """
-    s, r = board.square_mm, 0.5 * board.circle_mm
+    s, r = board.square_mm, 0.5 * board.circle_diameter_mm
     pitch = 2.0 * s if board.pattern == "acircles" else s         # along a row
     covered = np.zeros(np.shape(X))
     r0 = np.floor(Y / s).astype(int)

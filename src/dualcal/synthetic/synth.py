@@ -334,7 +334,7 @@ def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
                                                                       np.vstack([X, outline]), margin=0.0)
             out[cam][v] = np.full((len(X), 2), np.nan) if missed else seen_pixels(model, pose, X)
             if truth.board.is_circle_grid:      # a circle's centre as measured: its image's (geometry.circles)
-                out[cam][v] += circle_centre_offset_px(model, pose, X, 0.5 * truth.board.circle_mm)
+                out[cam][v] += circle_centre_offset_px(model, pose, X, 0.5 * truth.board.circle_diameter_mm)
     return out
 
 

@@ -64,7 +64,7 @@ def blob_detector(image_size: tuple[int, int], board: Board) -> cv2.SimpleBlobDe
     p = cv2.SimpleBlobDetector_Params()
     x0, x1, y0, y1 = board.pattern_extent_mm()
     px_per_mm = 2.0 * max(image_size) / max(x1 - x0, y1 - y0)
-    p.maxArea = float(max(p.minArea + 1.0, np.pi / 4 * (board.circle_mm * px_per_mm) ** 2))
+    p.maxArea = float(max(p.minArea + 1.0, np.pi / 4 * (board.circle_diameter_mm * px_per_mm) ** 2))
     return cv2.SimpleBlobDetector_create(p)
 
 
@@ -176,9 +176,8 @@ def refine_centre(full: np.ndarray, affine: np.ndarray, start_px: np.ndarray, bo
     iterations : int
         the mean taken again around the last one.
     """
-    s, r = board.square_mm, 0.5 * board.circle_mm
-    gap = s * (np.sqrt(2.0) if board.pattern == "acircles" else 1.0)       # to the nearest other centre
-    reach = 0.5 * gap                                                     # mm: halfway to the next centre
+    r = 0.5 * board.circle_diameter_mm
+    reach = 0.5 * board.circle_gap_mm                                     # mm: halfway to the next centre
     A = affine[:, :2]
     Ainv = np.linalg.inv(A)
     # the circle and its blur: EDGE_PX beyond its edge (in mm along the map's shorter axis), within the reach
@@ -235,7 +234,7 @@ def _full_resolution_centres(full: np.ndarray, board: Board) -> tuple[np.ndarray
         if found is not None:
             best = to_full_resolution(found, f), f
             spacing = np.median(np.hypot(*np.diff(found.reshape(board.rows, board.cols, 2), axis=1).reshape(-1, 2).T))
-            circle = spacing * board.circle_mm / (board.square_mm * (2.0 if board.pattern == "acircles" else 1.0))
+            circle = spacing * board.circle_diameter_mm / (board.square_mm * (2.0 if board.pattern == "acircles" else 1.0))
             if circle >= MIN_CIRCLE_PX:
                 return best
         elif best is not None:                 # small circles found coarser, not here: those, refined at full size
