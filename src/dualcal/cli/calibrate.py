@@ -41,8 +41,8 @@ from .detect import dataset_options, read_corners_from_flags
                    "on instants left out of the calibration, and recommend one (recorded in calib.json). --model "
                    "auto always compares them, camera by camera.")
 @dataset_options
-def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, circle_mm, square_sigma_mm, output, skew, rig_mode,
-                      drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens,
+def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, circle_mm, square_sigma_mm, output,
+                      skew, rig_mode, drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens,
                       **dataset_opts):
     """Calibrate every camera and the rig from INPUT and write calib.json.
 
@@ -68,8 +68,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
         raise InputError(f"--outlier-factor {outlier_factor}: must be greater than 1")
     check_output_file(output)
     model = model_flags(model)
-    corners = read_corners_from_flags(input_path, board_from_flags(board_spec, square_mm, marker_mm, dictionary, circle_mm),
-                                      square_sigma_mm, dataset_opts)
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary, circle_mm)
+    corners = read_corners_from_flags(input_path, board, square_sigma_mm, dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
                   outlier_factor=outlier_factor, board_shape=board_shape, model=model)
     rig = calibrate_corners(corners, skew=skew, compare_lens=compare_lens, **kwargs)

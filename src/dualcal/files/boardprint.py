@@ -146,7 +146,8 @@ def _spec_lines(board: Board) -> list[str]:
     if board.is_circle_grid:
         kind = "symmetric" if board.pattern == "circles" else "asymmetric"
         return [f"--board {board.spec()} --square {s:g} --circle {board.circle_diameter_mm:g}",
-                f"{kind} circle grid of {board.cols} x {board.rows} circles of {board.circle_diameter_mm:g} mm, {s:g} mm apart "
+                f"{kind} circle grid of {board.cols} x {board.rows} circles of {board.circle_diameter_mm:g} mm, "
+                f"{s:g} mm apart "
                 "(OpenCV's count and order); point 0 at the top left"]
     if board.charuco is None:
         return [f"--board {board.spec()} --square {s:g}",

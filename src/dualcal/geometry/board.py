@@ -328,8 +328,8 @@ class Board:
             return f"target of {self.n_corners} points" + (f" ({self.square_mm:g} mm apart)" if sizes else "")
         if self.is_circle_grid:
             kind = "symmetric" if self.pattern == "circles" else "asymmetric"
-            return (f"{self.spec()} {kind} circle grid"
-                    + (f" of {self.square_mm:g} mm spacing and {self.circle_diameter_mm:g} mm circles" if sizes else ""))
+            sized = f" of {self.square_mm:g} mm spacing and {self.circle_diameter_mm:g} mm circles" if sizes else ""
+            return f"{self.spec()} {kind} circle grid{sized}"
         if self.charuco is None:
             text = f"{self.spec()} chessboard"
         else:

@@ -234,7 +234,8 @@ def _full_resolution_centres(full: np.ndarray, board: Board) -> tuple[np.ndarray
         if found is not None:
             best = to_full_resolution(found, f), f
             spacing = np.median(np.hypot(*np.diff(found.reshape(board.rows, board.cols, 2), axis=1).reshape(-1, 2).T))
-            circle = spacing * board.circle_diameter_mm / (board.square_mm * (2.0 if board.pattern == "acircles" else 1.0))
+            pitch_mm = board.square_mm * (2.0 if board.pattern == "acircles" else 1.0)      # along a row
+            circle = spacing * board.circle_diameter_mm / pitch_mm
             if circle >= MIN_CIRCLE_PX:
                 return best
         elif best is not None:                 # small circles found coarser, not here: those, refined at full size
