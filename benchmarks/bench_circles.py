@@ -23,7 +23,9 @@ Figures for synthetic renders, not for real photos. Run::
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -36,6 +38,9 @@ from dualcal.geometry.camera import CameraModel, project_points
 from dualcal.geometry.circles import outline_centroid_px
 from dualcal.geometry.model import Pose
 from dualcal.synthetic.render import render_view
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from test_circles import opencv_centres  # noqa: E402  (OpenCV as the tests run it)
 
 CAMERA = CameraModel((4000, 3000), 3200.0, 3200.0, 0.0, 1990.0, 1510.0, 0.06, -0.15)
 BANDS = ((0, 15), (15, 30), (30, 45), (45, 60))
@@ -70,18 +75,6 @@ def poses_in_band(board: Board, band, views: int, seed: int) -> list[Pose]:
         if np.all(uv > 20) and np.all(uv < np.array(CAMERA.image_size) - 21):
             out.append(pose)
     return out
-
-
-def opencv_centres(img, board: Board):
-    params = cv2.SimpleBlobDetector_Params()
-    params.maxArea = 1e6
-    kind = cv2.CALIB_CB_ASYMMETRIC_GRID
-    for flags in (kind, kind | cv2.CALIB_CB_CLUSTERING):
-        found, centres = cv2.findCirclesGrid(img, (board.cols, board.rows), flags=flags,
-                                             blobDetector=cv2.SimpleBlobDetector_create(params))
-        if found:
-            return centres.reshape(-1, 2).astype(float)
-    return None
 
 
 def matched(uv, truth):

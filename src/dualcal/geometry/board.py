@@ -447,7 +447,6 @@ class Board:
             raise InputError(f"board entry's charuco legacy {legacy!r}: expected true or false")
         return replace(board, charuco=Charuco(tuple(squares), float(marker), name, bool(legacy)))
 
-
     @classmethod
     def _points_from_dict(cls, d: dict, sigma: float) -> "Board":
         """The target of a board entry with ``points_mm`` (see :meth:`from_points`)."""

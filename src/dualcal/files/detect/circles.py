@@ -224,15 +224,14 @@ def refine_centre(full: np.ndarray, affine: np.ndarray, start_px: np.ndarray, bo
     return centre
 
 
-def _full_resolution_centres(full: np.ndarray, board: Board) -> tuple[np.ndarray, int]:
-    """The grid's coarse centres (N, 2) in full-resolution pixels, in OpenCV's order, and the reduction they were
-    found at (module docstring, step 1)."""
+def _coarse_centres(full: np.ndarray, board: Board) -> np.ndarray:
+    """The grid's coarse centres (N, 2) in full-resolution pixels, in OpenCV's order (module docstring, step 1)."""
     f = reduction_factor(full.shape[::-1])
     best = None
     while True:
         found = find_circle_grid(reduce_image(full, f) if f > 1 else full, board)
         if found is not None:
-            best = to_full_resolution(found, f), f
+            best = to_full_resolution(found, f)
             spacing = np.median(np.hypot(*np.diff(found.reshape(board.rows, board.cols, 2), axis=1).reshape(-1, 2).T))
             pitch_mm = board.square_mm * (2.0 if board.pattern == "acircles" else 1.0)      # along a row
             circle = spacing * board.circle_diameter_mm / pitch_mm
@@ -261,8 +260,7 @@ def detect_circles(full: np.ndarray, board: Board) -> tuple[np.ndarray, bool]:
     """
     if not board.is_circle_grid:
         raise InputError(f"{board.describe()} cannot be detected in photos: give its corners in corners.json")
-    coarse, _ = _full_resolution_centres(full, board)
-    coarse, ambiguous = canonical_order(coarse, board)
+    coarse, ambiguous = canonical_order(_coarse_centres(full, board), board)
     xy = board.object_points_mm()[:, :2]
     uv = np.full_like(coarse, np.nan)
     for k in range(board.n_corners):
