@@ -50,8 +50,12 @@ def _roll_clues(roll: dict | None) -> dict | None:
     clues = roll.get("clues") or {}
     return {"cameras": ", ".join(clues.get("cameras") or ()) or "-",
             "instants": ", ".join(clues.get("instants") or ()) or "-",
-            "sure": roll.get("split_sure"),
+            "sure": roll.get("split_sure"), "cameras_sure": roll.get("cameras_sure"),
+            "cameras_separation_sigma": roll.get("cameras_separation_sigma"),
             "found": [{"camera": n, "lens": c.get("lens_model") or "", "focal_35mm": c.get("focal_length_35mm_mm"),
+                       "focal_board_px": c.get("focal_length_board_px"),
+                       "focal_board_sigma_px": c.get("focal_length_board_sigma_px"),
+                       "nearest": c.get("nearest_lens"), "separation_sigma": c.get("separation_sigma"),
                        "told_by": c.get("told_by"), "image_size": c.get("image_size"), "photos": c.get("photos")}
                       for n, c in cams.items()],
             "left_out": roll.get("left_out", {})}
