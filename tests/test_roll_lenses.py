@@ -167,3 +167,41 @@ def test_two_lenses_closer_than_the_margin_are_named_in_the_refusal():
     message = str(roll._not_told("DCIM", (504, 378), split, []))
     assert message.startswith("DCIM: the photos of 504x378 px without EXIF show two groups of focal lengths, 1300 +- "
                               f"26 px (6 photos) and 1365 +- 27 px (5), only {sep:.1f} sigma apart (at least 5 tell")
+
+
+@pytest.fixture(scope="module")
+def uploaded_roll(tmp_path_factory):
+    """The issue's three-lens roll as a browser uploads it, rendered: a fisheye ultra-wide (1130 px), a wide
+    (1340 px) and a third lens (1650 px), all 2016 x 1512 (at a quarter), 10 positions, EXIF stripped."""
+    from dualcal.synthetic.synth_roll import strip_exif, write_camera_roll
+
+    truth = synth.make_truth(shared_size_rig({"wide": 1340.0, "ultra": 1130.0, "wide2": 1650.0}), views=10, seed=8,
+                             scale=0.25)
+    folder = tmp_path_factory.mktemp("uploaded")
+    shot = write_camera_roll(truth, folder / "DCIM", seed=8, progress=False, jobs=2)
+    strip_exif(folder / "DCIM", folder / "upload")
+    return truth, folder / "upload", shot
+
+
+def test_a_rendered_roll_of_lenses_that_share_a_size_calibrates_through_the_command(uploaded_roll, tmp_path, run_cli):
+    """``dualcal calibrate UPLOAD``: three cameras, every photo with the board in its own lens's camera and its own
+    instant, how sure the split is printed and recorded, and every camera's focal length and principal point
+    within 4 sigma of the truth (whichever lens model each was given)."""
+    import json
+
+    truth, upload, shot = uploaded_roll
+    res = run_cli("calibrate", upload, "--board", "8x5", "--square", "30", "-o", tmp_path / "calib.json")
+    assert res.code == 0, res.err
+    doc = json.loads((tmp_path / "calib.json").read_text())
+    record = doc["corners"]["roll"]
+    assert record["clues"]["cameras"] == ["image size", "focal length from the board"]
+    assert set(record["cameras"]) == {"ultra", "wide", "wide2"} and doc["reference"] == "wide"
+    for inst in record["instants"].values():
+        assert all(shot["photos"][f][0] == name for name, f in inst["photos"].items()), inst
+        assert len({shot["photos"][f][1] for f in inst["photos"].values()}) == 1, inst
+    assert record["cameras_sure"] in ("sure", "certain") and record["cameras_separation_sigma"] >= 10
+    assert f"{record['cameras_separation_sigma']:.1f} sigma apart" in res.out
+    assert record["cameras"]["ultra"]["distortion_board"] < -0.3                  # the fisheye's bend, shown
+    for name, cam in doc["cameras"].items():
+        for key in ("fx", "fy", "cx", "cy"):
+            assert abs(cam[key] - getattr(truth.cameras[name], key)) < 4 * cam["sigma"][key], (name, key, cam["model"])

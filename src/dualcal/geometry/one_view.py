@@ -225,13 +225,14 @@ def one_view(xy_board: np.ndarray, uv: np.ndarray, image_size, lam: float | None
     col = np.unique(np.round(xy[:, 0], 6), return_inverse=True)[1]
     row = np.unique(np.round(xy[:, 1], 6), return_inverse=True)[1]
     quarter = col % 2 + 2 * (row % 2)
-    parts = quarter[None, :] == np.arange(4)[:, None]
-    try:
-        Hq = np.array(estimate_homographies(xy, np.broadcast_to(undistorted, (4, *undistorted.shape)), parts,
-                                            refine=False))
-        logs = np.log([focal_from_homography(H, image_size) for H in Hq])
-    except EstimationError:
-        Hq, logs = np.full((4, 3, 3), np.nan), np.full(4, np.nan)
+    Hq = np.full((4, 3, 3), np.nan)
+    for k in range(4):                 # each on its own: a board seen in part may leave a quarter too few corners
+        try:
+            Hq[k] = estimate_homographies(xy, undistorted[None], (quarter == k)[None], refine=False)[0]
+        except EstimationError:
+            pass
+    with np.errstate(invalid="ignore"):
+        logs = np.log([focal_from_homography(H, image_size) if np.all(np.isfinite(H)) else np.nan for H in Hq])
     sigma = np.inf if not np.isfinite(f) or not np.all(np.isfinite(logs)) else max(np.std(logs) / 2, MIN_F_LOG_SIGMA)
     view = OneView(H, Hq, lam, misfit, float(f), float(sigma), float("nan"), tuple(int(v) for v in image_size))
     if np.isfinite(f):
