@@ -1,6 +1,6 @@
 """dualcal app against dualcal calibrate, on a three-lens 12 MP camera roll uploaded through the API.
 
-    .venv/bin/python benchmarks/bench_app.py [--rounds 2] [--preset phone3] [--views 20] [--scale 1]
+    .venv/bin/python benchmarks/bench_app.py [--rounds 2] [--preset phone3] [--views 20] [--scale 1] [--browser]
 
 The roll is ``dualcal synth DIR --preset phone3 --views 20 --roll`` (a wide, a 3x tele and a fisheye ultra-wide,
 12 MP each: about 60 photos, cached under out/bench-app/). Printed, each with the issue's aim (the two sides of
@@ -10,6 +10,7 @@ each ratio take turns, and the medians are compared: this machine's speed drifts
   ``dualcal calibrate ROLL`` as a process on the same photos;
 * the time from leaving a photo out (``POST /use``) to the new verdict against ``dualcal calibrate
   corners.json --exclude PHOTO`` as a process on the corners the app stored (its corners.json before);
+  with ``--browser``, both waits while the project's page is open in Chromium with an iPhone's viewport;
 * the server's peak memory: its processes and every worker's, RSS and PSS (shared pages counted once);
 * the API's latency (``GET /api/projects/{id}``, every 50 ms) while the photos are detected: median, p95;
 * two clients uploading halves of the roll into one project at once: every photo there, byte for byte.
@@ -133,8 +134,32 @@ def upload(server: Server, pid: str, photos: list[Path]) -> dict:
     return r.json()
 
 
-def app_round(server: Server, photos: list[Path], latencies: list[float]) -> tuple[float, float]:
+class Viewer:
+    """The project's page open in Chromium with an iPhone's viewport (Playwright, Debian's /usr/bin/chromium), as a
+    person follows the work on the phone: the page fetches its sections again as the state changes."""
+
+    def __init__(self, server: Server):
+        from playwright.sync_api import sync_playwright
+
+        self._pw = sync_playwright().start()
+        self._browser = self._pw.chromium.launch(executable_path="/usr/bin/chromium", args=["--no-sandbox"])
+        self._context = self._browser.new_context(**self._pw.devices["iPhone 13"])
+        self.page = self._context.new_page()
+        self.page.goto(f"{server.url}/?token={TOKEN}")
+
+    def follow(self, server: Server, pid: str) -> None:
+        self.page.goto(f"{server.url}/projects/{pid}")
+
+    def close(self) -> None:
+        self._browser.close()
+        self._pw.stop()
+
+
+def app_round(server: Server, photos: list[Path], latencies: list[float], viewer: Viewer | None = None
+              ) -> tuple[float, float]:
     pid = server.project("bench")
+    if viewer is not None:
+        viewer.follow(server, pid)
     done = threading.Event()
 
     def ping():                     # the API's latency while the photos arrive and are detected
@@ -219,6 +244,8 @@ def main():
     parser.add_argument("--preset", default="phone3")
     parser.add_argument("--views", type=int, default=20)
     parser.add_argument("--scale", type=float, default=1.0)
+    parser.add_argument("--browser", action="store_true",
+                        help="follow the project's page in Chromium with an iPhone's viewport meanwhile")
     args = parser.parse_args()
     roll = synth_roll(args.preset, args.views, args.scale)
     photos = sorted(roll.glob("*.JPG"))
@@ -227,17 +254,20 @@ def main():
         workspace = Path(tmp) / "ws"
         workspace.mkdir()
         server = Server(workspace)
+        viewer = Viewer(server) if args.browser else None
         try:
             latencies, app_times, cli_times, pid = [], [], [], None
             for _ in range(args.rounds):              # the two take turns
                 cli_times.append(cli_round(roll, Path(tmp) / "cli.json"))
-                t, pid = app_round(server, photos, latencies)
+                t, pid = app_round(server, photos, latencies, viewer)
                 app_times.append(t)
             instants = len(json.loads((workspace / pid / "calib.json").read_text())["views"])
             left_app, left_cli = leave_out(server, pid, workspace, Path(tmp))
             both = two_clients(server, photos, workspace)
             rss, pss = server.peak
         finally:
+            if viewer is not None:
+                viewer.close()
             server.stop()
     p95 = statistics.quantiles(latencies, n=20)[18] if len(latencies) >= 20 else max(latencies, default=float("nan"))
     app, cli = statistics.median(app_times), statistics.median(cli_times)

@@ -472,3 +472,26 @@ def test_on_the_local_network_the_pages_show_the_qr_code(tmp_path):
         page = c.get("/", cookies={"dualcal_token": TOKEN}).text
         assert '<img class="qr" src="/api/qr.svg"' in page
         assert c.get("/api/projects", headers={**AUTH, "host": "attacker.example:8765"}).status_code == 400
+
+
+def test_photos_left_out_are_summed_up_by_kind_and_the_charts_labels_tell_the_photos_apart():
+    """Eight photos left out stand in one line ("8 photos left out: 5 show part of the board, 3 show no board"),
+    each once (the detection's reason, not the split's again), the other warnings apart; a phone's names, the same
+    17 characters first, are labelled by what differs; a name in a camera's folder keeps its folder."""
+    from dualcal.app.summary import chart_labels, split_warnings
+
+    part = "only part of the 8x5 chessboard is in the photo (3x3 corners at the frame's edge): too little of it"
+    names = [f"IMG_20210417_0103{n:02d}.jpg" for n in range(8)]
+    warnings = [f"photos/{n}: skipped: {part if k < 5 else 'no 8x5 chessboard found'}" for k, n in enumerate(names)]
+    warnings += [f"{n}: left out (no board found (wide))" for n in names] + ["a warning about no photo"]
+    rest, out = split_warnings(warnings, names + ["IMG_20210417_010399.jpg"])
+    assert rest == ["a warning about no photo"]
+    assert out["count"] == 8 and out["kinds"] == [{"kind": "show part of the board", "count": 5},
+                                                   {"kind": "show no board", "count": 3}]
+    assert [p["photo"] for p in out["photos"]] == names and out["photos"][0]["why"] == part
+    _, one = split_warnings(["IMG_1.JPG: left out (retake: IMG_2.JPG of the same camera is kept)"], ["IMG_1.JPG"])
+    assert one["kinds"] == [{"kind": "retake", "count": 1}]
+    assert chart_labels(names[:3]) == ["…010300", "…010301", "…010302"]
+    assert chart_labels(["wide/IMG_01.jpg", "tele/IMG_01.jpg"]) == ["wide/IMG_01", "tele/IMG_01"]
+    long = chart_labels(["a_photo_with_a_very_long_name_0001.jpeg", "b.jpeg"], width=14)
+    assert long[0] == "a_phot…me_0001" and len(long[0]) == 14

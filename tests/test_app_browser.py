@@ -136,7 +136,7 @@ def whole_flow(device, server, chromium, roll):
     assert len(set(labels)) == len(labels) and all(len(t) <= 24 for t in labels), labels
     overflowing = page.evaluate("""() => [document.scrollingElement, ...document.querySelectorAll(
         '#live section, #live li, #live p, #live figcaption, #live caption')]
-        .filter((e) => e.scrollWidth > e.clientWidth + 1 && getComputedStyle(e).overflowX !== 'auto')
+        .filter((e) => e.scrollWidth > e.clientWidth + 1 && getComputedStyle(e).overflowX === 'visible')
         .map((e) => e.id || e.className || e.tagName)""")
     assert not overflowing, overflowing
     state = json.loads((folder / ".dualcal-app" / "summary.json").read_text())

@@ -156,6 +156,22 @@ def test_photos_that_scatter_as_two_close_lenses_without_a_gap_are_refused_with_
     assert "keep the EXIF (export the originals from the phone" in message and "\n" not in message
 
 
+def test_lenses_too_close_for_their_photos_focal_lengths_are_refused_by_the_photos_of_one_position():
+    """Two mild lenses 3 % and 5 % apart: each photo's focal length cannot tell them apart (one group of photos that
+    scatter as one lens's), but each position's two photos show the board scaled by 1.03 or 1.05 again and again:
+    refused in one line naming the pairs, never calibrated as one camera. One lens's retakes and moves are no such
+    pairs (the rigs above and one lens never refused)."""
+    for ratio in (1.03, 1.05):
+        truth, photos, uv, _ = _uploaded({"wide": 1340.0, "wide2": 1340.0 * ratio}, (), seed=0)
+        with pytest.raises(InputError) as refused:
+            roll.cameras_from_boards(photos, uv, truth.board.object_points_mm()[:, :2], folder="DCIM")
+        message = str(refused.value)
+        assert re.match(r"DCIM: the photos of 504x378 px without EXIF show one lens by their focal lengths \(\d+ \+- "
+                        r"\d+ px\), but \d+ pairs of successive photos \(IMG_0101.JPG and IMG_0102.JPG, ", message)
+        found = float(re.search(r"one board position ([\d.]+) times larger in the second", message).group(1))
+        assert abs(found - ratio) < 0.01, message              # their lenses' ratio (and parallax, the bends' own)
+
+
 def test_two_lenses_closer_than_the_margin_are_named_in_the_refusal():
     """Where two lenses found are less than SPLIT_SIGMA apart, the line names both focal lengths with their sigmas
     and photos, and the separation."""

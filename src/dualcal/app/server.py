@@ -46,6 +46,7 @@ from ..errors import DualcalError, InputError
 from .jobs import ProjectState, Runner
 from .security import Guard, HostRule
 from .store import EXPORTS, FILES, Settings, Workspace
+from .summary import chart_labels
 from .uploads import PhotoStream, safe_photo_name
 
 __all__ = ["AppConfig", "create_app"]
@@ -146,9 +147,10 @@ def create_app(config: AppConfig) -> Starlette:
             return HTMLResponse("no such project", status_code=404)
         described = describe(state)
         summary = state.summary or {}
+        names = [ph["name"] for ph in described["photos"]]
         html = templates.get_template("part.html").render(
             p=described, s=summary, bars=_bars(described), advice_cards=_advice_cards(summary),
-            exports=_exports(state.project.folder))
+            exports=_exports(state.project.folder), labels=dict(zip(names, chart_labels(names, width=18))))
         return HTMLResponse(html, headers={"content-security-policy": PAGE_POLICY, "cache-control": "no-store"})
 
     # -- the API
@@ -428,8 +430,6 @@ def _number(x) -> str:
 def _bars(described: dict) -> list[dict]:
     """The per-photo chart: every photo with an RMS, used or left out, each labelled by what tells its name from
     the others' (:func:`.summary.chart_labels`)."""
-    from .summary import chart_labels
-
     shown = [ph for ph in described["photos"] if ph["rms_px"] is not None]
     out = []
     for ph, label in zip(shown, chart_labels([ph["name"] for ph in shown])):

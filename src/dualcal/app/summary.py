@@ -18,12 +18,15 @@ from .store import photo_of
 
 __all__ = ["advice_summary", "calibration_summary", "chart_labels", "split_warnings"]
 
-#: Why a photo was left out, in a few words, from the words of its warning (the first that matches): the page
-#: counts the photos of each kind ("8 photos left out: 5 show part of the board, 3 show no board").
-LEFT_OUT_KINDS = (("show part of the board", ("part of the", "frame's edge", "corners passed their checks")),
-                  ("show no board", ("no board", "chessboard found", "board found", "not found")),
-                  ("retakes", ("retake",)), ("copies", ("the same file",)),
-                  ("of an unclear camera", ("camera is unclear", "fit none of the lenses")))
+#: Why a photo was left out, in a few words (for one photo, for more), from the words of its warning (the first
+#: that matches): the page counts the photos of each kind ("8 photos left out: 5 show part of the board, 3 show
+#: no board").
+LEFT_OUT_KINDS = ((("shows part of the board", "show part of the board"),
+                   ("part of the", "frame's edge", "corners passed their checks")),
+                  (("shows no board", "show no board"), ("no board", "chessboard found", "board found", "not found")),
+                  (("retake", "retakes"), ("retake",)), (("copy", "copies"), ("the same file",)),
+                  (("of an unclear camera", "of an unclear camera"), ("camera is unclear", "fit none of the lenses")))
+_OTHER_KIND = ("for another reason", "for other reasons")
 
 
 def _photo_map(corners) -> dict[tuple[str, str], str]:
@@ -147,18 +150,16 @@ def split_warnings(warnings: list[str], photos: list[str]) -> tuple[list[str], d
             rest.append(w)
     if not why_of:
         return rest, None
-    items = [{"photo": p, "why": why, "kind": _left_out_kind(why)} for p, why in sorted(why_of.items())]
-    counts: dict[str, int] = {}
-    for item in items:
-        counts[item["kind"]] = counts.get(item["kind"], 0) + 1
-    order = [k for k, _ in LEFT_OUT_KINDS] + ["for another reason"]
-    kinds = [{"kind": k, "count": counts[k]} for k in order if k in counts]
-    return rest, {"count": len(items), "kinds": kinds, "photos": items}
+    kinds = [_left_out_kind(why) for why in why_of.values()]
+    items = [{"photo": p, "why": why, "kind": kind[1]} for (p, why), kind in sorted(zip(why_of.items(), kinds))]
+    order = [kind for kind, _ in LEFT_OUT_KINDS] + [_OTHER_KIND]
+    counted = [{"kind": kind[kinds.count(kind) > 1], "count": kinds.count(kind)} for kind in order if kind in kinds]
+    return rest, {"count": len(items), "kinds": counted, "photos": items}
 
 
-def _left_out_kind(why: str) -> str:
+def _left_out_kind(why: str) -> tuple[str, str]:
     lower = why.lower()
-    return next((kind for kind, words in LEFT_OUT_KINDS if any(w in lower for w in words)), "for another reason")
+    return next((kind for kind, words in LEFT_OUT_KINDS if any(w in lower for w in words)), _OTHER_KIND)
 
 
 def chart_labels(names: list[str], width: int = 14) -> list[str]:

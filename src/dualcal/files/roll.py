@@ -23,7 +23,9 @@ a board, never waits for the rest), then, once the boards are detected, the inst
   focal length and how it bends the board (:func:`dualcal.geometry.one_view.view_lens`), grouped with a
   stated margin (:mod:`dualcal.files.roll_lenses`: two photos are of one lens where they differ by less than
   a few sigma of their difference, two lenses are told apart where their means differ by more; lenses too
-  close to tell are refused, saying what to do). A board seen nearly square-on gives a focal length that fits
+  close to tell are refused, saying what to do). Lenses so close that their photos' focal lengths look like
+  one lens's still show in the roll: successive photos of one position scaled by the same ratio again and
+  again (:func:`scale_step`); such a roll is refused too. A board seen nearly square-on gives a focal length that fits
   more than one camera; the photos beside it decide then, over the roll in shooting order at once (the most
   likely labelling of a chain): successive photos of one position by two lenses look alike but for the ratio
   of their focal lengths (:func:`looks_alike`). A photo still unclear is left out, saying so. Named by the same
@@ -60,7 +62,8 @@ from .roll_lenses import SPLIT_SIGMA, LensSplit, find_lenses, log_likelihoods
 from .roll_positions import CERTAIN, MIN_MARGIN, SAME_IMAGE, Shot, image_change, split_positions
 
 __all__ = ["CameraRoll", "camera_class", "cameras_from_boards", "equivalent_focal_mm", "has_lens_exif",
-           "is_camera_roll", "looks_alike", "shooting_order", "split_cameras", "split_roll", "turned_photos"]
+           "is_camera_roll", "looks_alike", "scale_step", "shooting_order", "split_cameras", "split_roll",
+           "turned_photos"]
 
 #: A photo takes a camera where the odds for it are at least this (99:1).
 SURE_ODDS = 99.0
@@ -73,6 +76,10 @@ FITS_LENS_CHI2 = 18.42
 ALIKE_SHAPE, ALIKE_SHIFT_RAD = 0.08, 0.1
 #: The log-odds two successive photos that look alike give their labels (one position).
 ALIKE_LOG_ODDS = 6.0
+#: Two successive photos of one lens that show one position scaled by more than this (``|ln r|``: a refocus moves
+#: a phone's focal length by 1.5 % at most) are two lenses' photos, where :data:`LENS_STEP_PAIRS` pairs show the
+#: same ratio within :data:`LENS_STEP_TOLERANCE` (a board moved towards the camera gives a ratio of its own).
+MIN_LENS_STEP, LENS_STEP_PAIRS, LENS_STEP_TOLERANCE = 0.02, 3, 0.01
 
 
 @dataclass
@@ -235,6 +242,46 @@ def looks_alike(a: OneView, b: OneView, ratio: float, f_px: float, xy_board: np.
     return False
 
 
+def scale_step(a: OneView, b: OneView, f_px: float, xy_board: np.ndarray, symmetric: bool = False) -> float | None:
+    """``ln r`` where photo ``b``'s board scaled by ``r`` about the image centre is ``a``'s (:func:`looks_alike`): one
+    board position shot by two lenses whose focal lengths differ by ``r`` (``r`` by least squares, the shift
+    free), or None where the boards are not alike (another position)."""
+    pa, pb = board_pixels(a, xy_board), board_pixels(b, xy_board)
+    for other in ([pb, pb[::-1]] if symmetric else [pb]):
+        da, db = pa - pa.mean(axis=0), other - other.mean(axis=0)
+        r = float(np.sum(da * db) / np.sum(db * db))
+        if r > 0 and looks_alike(a, b if other is pb else _turned(b), r, f_px, xy_board):
+            return float(np.log(r))
+    return None
+
+
+def _turned(view: OneView) -> OneView:
+    """A view of a board that looks the same turned by 180 degrees, numbered the other way round."""
+    from dataclasses import replace
+
+    turn = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
+    return replace(view, H=view.H @ turn)
+
+
+def _two_lenses_in_one(chain: list[OneView], labels: np.ndarray, lenses: list, xy_board: np.ndarray,
+                       symmetric: bool) -> list[tuple[int, int, float]]:
+    """The successive photos ``(i - 1, i)`` given one lens that show one board position scaled by the same ratio
+    ``ln r`` (beyond a refocus, :data:`MIN_LENS_STEP`) as at least :data:`LENS_STEP_PAIRS` - 1 other such pairs
+    (within :data:`LENS_STEP_TOLERANCE`): two lenses whose photos' focal lengths could not tell them apart, whose
+    photos of one position tell them so (none where no ratio repeats)."""
+    steps = []
+    for i in range(1, len(chain)):
+        if labels[i] == labels[i - 1]:
+            step = scale_step(chain[i - 1], chain[i], lenses[labels[i]].f_px, xy_board, symmetric)
+            if step is not None and abs(step) >= MIN_LENS_STEP:
+                steps.append((i - 1, i, step))
+    best: list[tuple[int, int, float]] = []
+    for _, _, step in steps:
+        near = [s for s in steps if abs(abs(s[2]) - abs(step)) <= LENS_STEP_TOLERANCE]
+        best = near if len(near) > len(best) else best
+    return best if len(best) >= LENS_STEP_PAIRS else []
+
+
 def _chain_labels(views: list[OneView], unary: np.ndarray, modes: np.ndarray, xy_board: np.ndarray,
                   symmetric: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The camera of each photo of one size (in shooting order) that explains best both what each photo says
@@ -293,6 +340,18 @@ def _not_told(folder: str, size, split: LensSplit, views: list) -> InputError:
                       "its own (a dataset folder with one subfolder per camera)")
 
 
+def _two_in_one(folder: str, size, lens, pairs: list) -> InputError:
+    """The refusal of a roll where one lens found is two (:func:`_two_lenses_in_one`)."""
+    named = ", ".join(f"{a.path.name} and {b.path.name}" for a, b, _ in pairs[:3])
+    ratio = float(np.exp(np.median([abs(step) for _, _, step in pairs])))
+    return InputError(
+        f"{folder + ': ' if folder else ''}the photos of {size[0]}x{size[1]} px without EXIF show one lens by their "
+        f"focal lengths ({lens.f_px:.0f} +- {lens.f_sigma_px:.0f} px), but {len(pairs)} pairs of successive photos "
+        f"({named}) show one board position {ratio:.3f} times larger in the second: two lenses too close to tell "
+        "which took which photo; keep the EXIF (export the originals from the phone, not through a browser), or put "
+        "each camera's photos in a folder of its own (a dataset folder with one subfolder per camera)")
+
+
 def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndarray, symmetric: bool = False,
                         folder: str = ""):
     """The cameras of photos without EXIF, from what they show (module docstring).
@@ -318,7 +377,9 @@ def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndar
     ------
     InputError
         Two lenses of one image size whose photos' focal lengths and distortions are too close to tell which
-        photo is which (:data:`dualcal.files.roll_lenses.SPLIT_SIGMA`).
+        photo is which (:data:`dualcal.files.roll_lenses.SPLIT_SIGMA`, or photos that scatter more than one lens's
+        without a gap), or one lens found whose successive photos show one position scaled by a ratio again and
+        again (:data:`LENS_STEP_PAIRS`).
     """
     order, _ = shooting_order(photos)
     views = {p.path: None if corners_uv.get(p.path) is None else one_view(xy_board, corners_uv[p.path], p.size)
@@ -341,7 +402,12 @@ def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndar
             continue
         unary, d2 = log_likelihoods(lenses, split.lenses)
         log_f = np.array([lens.mean[0] for lens in split.lenses])
-        labels, margins = _chain_labels([views[p.path] for p in shown], unary, log_f, xy_board, symmetric)
+        chain = [views[p.path] for p in shown]
+        labels, margins = _chain_labels(chain, unary, log_f, xy_board, symmetric)
+        steps = _two_lenses_in_one(chain, labels, split.lenses, xy_board, symmetric)
+        if steps:
+            raise _two_in_one(folder, size, split.lenses[labels[steps[0][1]]], [(shown[i], shown[j], step)
+                                                                               for i, j, step in steps])
         for i, (p, k, margin) in enumerate(zip(shown, labels, margins)):
             fits = not np.isfinite(d2[i, k]) or d2[i, k] <= FITS_LENS_CHI2
             if margin >= np.log(SURE_ODDS) and fits:
