@@ -94,7 +94,8 @@ def test_the_real_sets_are_each_one_lens_with_their_references_focal_length_and_
     """Every real set's photos as one folder without EXIF: one lens, its focal length within 1 % of the published
     calibration's and its principal point within 3 sigma of it, and 0.6 % of the half-diagonal for what one
     division term leaves out of a lens and a board that is not flat (the Huawei's: 11 px of 2040). The stereo set's two webcams together
-    (f 533 and 537 px) are one lens too: their photos cannot tell them apart (0.7 %), and nothing is refused."""
+    (f 533 and 537 px) are one lens too: their photos cannot tell them apart (0.7 %), and nothing is refused; each
+    set as a folder without EXIF is one camera, every photo in it."""
     references = {  # f, principal point (0-based pixels): SOURCE.md of each set
         ("bouguet", "cam"): (657.5, (303.1, 242.6)), ("stereo", "left"): (533.5, (341.6, 235.2)),
         ("stereo", "right"): (536.6, (326.3, 250.1)), ("huawei", "huawei-y5-2017"): (2702.0, (1178.3, 1587.7))}
@@ -116,6 +117,13 @@ def test_the_real_sets_are_each_one_lens_with_their_references_focal_length_and_
     xy = stereo_corners.board.object_points_mm()[:, :2]
     both = [view_lens(xy, uv, cc.image_size) for cc in stereo_corners.cameras.values() for uv in cc.views.values()]
     assert len(roll_lenses.find_lenses(both).lenses) == 1
+    for corners in sets.values():                    # as one folder of photos without EXIF: one camera, none left out
+        photos = {Path(f"{cam}-{key}.jpg"): (cc.image_size, uv) for cam, cc in corners.cameras.items()
+                  for key, uv in cc.views.items()}
+        cameras, _, _, left_out = roll.cameras_from_boards([Photo(path, size, {}) for path, (size, _) in photos.items()],
+                                                           {path: uv for path, (_, uv) in photos.items()},
+                                                           corners.board.object_points_mm()[:, :2])
+        assert len(cameras) == 1 and not left_out, (corners.board, left_out)
 
 
 def _points(ln_f, sigma=0.002, size=(504, 378)):
@@ -156,20 +164,27 @@ def test_photos_that_scatter_as_two_close_lenses_without_a_gap_are_refused_with_
     assert "keep the EXIF (export the originals from the phone" in message and "\n" not in message
 
 
-def test_lenses_too_close_for_their_photos_focal_lengths_are_refused_by_the_photos_of_one_position():
-    """Two mild lenses 3 % and 5 % apart: each photo's focal length cannot tell them apart (one group of photos that
-    scatter as one lens's), but each position's two photos show the board scaled by 1.03 or 1.05 again and again:
-    refused in one line naming the pairs, never calibrated as one camera. One lens's retakes and moves are no such
-    pairs (the rigs above and one lens never refused)."""
-    for ratio in (1.03, 1.05):
-        truth, photos, uv, _ = _uploaded({"wide": 1340.0, "wide2": 1340.0 * ratio}, (), seed=0)
-        with pytest.raises(InputError) as refused:
-            roll.cameras_from_boards(photos, uv, truth.board.object_points_mm()[:, :2], folder="DCIM")
-        message = str(refused.value)
-        assert re.match(r"DCIM: the photos of 504x378 px without EXIF show one lens by their focal lengths \(\d+ \+- "
-                        r"\d+ px\), but \d+ pairs of successive photos \(IMG_0101.JPG and IMG_0102.JPG, ", message)
-        found = float(re.search(r"one board position ([\d.]+) times larger in the second", message).group(1))
-        assert abs(found - ratio) < 0.01, message              # their lenses' ratio (and parallax, the bends' own)
+def test_lenses_too_close_for_their_photos_focal_lengths_are_told_by_their_photos_of_one_position():
+    """Two mild lenses 5 % apart: each photo's focal length cannot tell them apart (one group of photos that scatter
+    as one lens's), but each position's two photos show the board scaled by 1.05 again and again: two lenses that
+    far apart, each photo told by its place, every photo to its own lens, sure by the ratio's own spread. At 3 %
+    (twice what a refocus moves) they are refused in one line naming the pairs, never calibrated as one camera."""
+    truth, photos, uv, true_camera = _uploaded({"wide": 1340.0, "wide2": 1407.0}, (), seed=0)
+    cameras, facts, _, left_out = roll.cameras_from_boards(photos, uv, truth.board.object_points_mm()[:, :2])
+    assert {n: {true_camera[p.path.name] for p in members} for n, members in cameras.items()} == \
+        {"wide": {"wide"}, "wide2": {"wide2"}}
+    assert facts["wide2"]["focal_length_board_px"] / facts["wide"]["focal_length_board_px"] == pytest.approx(1.05,
+                                                                                                          abs=0.02)
+    assert facts["wide"]["separation_sigma"] > 10 and facts["wide"]["sure"] == "certain"
+    assert len([n for n, why in left_out.items() if not why.startswith("no board")]) <= 1
+    truth, photos, uv, _ = _uploaded({"wide": 1340.0, "wide2": 1380.0}, (), seed=0)
+    with pytest.raises(InputError) as refused:
+        roll.cameras_from_boards(photos, uv, truth.board.object_points_mm()[:, :2], folder="DCIM")
+    message = str(refused.value)
+    assert re.match(r"DCIM: the photos of 504x378 px without EXIF show one lens by their focal lengths, but \d+ pairs "
+                    r"of successive photos \(IMG_0101.JPG and IMG_0102.JPG, ", message), message
+    found = float(re.search(r"one board position ([\d.]+) times larger in the second", message).group(1))
+    assert abs(found - 1.03) < 0.01, message              # their lenses' ratio (and parallax, the bends' own)
 
 
 def test_two_lenses_closer_than_the_margin_are_named_in_the_refusal():

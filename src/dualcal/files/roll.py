@@ -25,7 +25,8 @@ a board, never waits for the rest), then, once the boards are detected, the inst
   a few sigma of their difference, two lenses are told apart where their means differ by more; lenses too
   close to tell are refused, saying what to do). Lenses so close that their photos' focal lengths look like
   one lens's still show in the roll: successive photos of one position scaled by the same ratio again and
-  again (:func:`scale_step`); such a roll is refused too. A board seen nearly square-on gives a focal length that fits
+  again (:func:`scale_step`); they are split by that ratio, or refused where even it cannot tell which photo is
+  which. A board seen nearly square-on gives a focal length that fits
   more than one camera; the photos beside it decide then, over the roll in shooting order at once (the most
   likely labelling of a chain): successive photos of one position by two lenses look alike but for the ratio
   of their focal lengths (:func:`looks_alike`). A photo still unclear is left out, saying so. Named by the same
@@ -58,7 +59,7 @@ from ..geometry.camera import equivalent_focal_35mm, focal_px_from_35mm
 from ..geometry.model import observed_mask
 from ..geometry.one_view import OneView, board_pixels, common_division, one_view, spread_px, view_lens
 from .photos import Photo
-from .roll_lenses import SPLIT_SIGMA, LensSplit, find_lenses, log_likelihoods
+from .roll_lenses import MIN_LENS_PHOTOS, SPLIT_SIGMA, LensSplit, find_lenses, lens_of, log_likelihoods, separation
 from .roll_positions import CERTAIN, MIN_MARGIN, SAME_IMAGE, Shot, image_change, split_positions
 
 __all__ = ["CameraRoll", "camera_class", "cameras_from_boards", "equivalent_focal_mm", "has_lens_exif",
@@ -340,16 +341,51 @@ def _not_told(folder: str, size, split: LensSplit, views: list) -> InputError:
                       "its own (a dataset folder with one subfolder per camera)")
 
 
-def _two_in_one(folder: str, size, lens, pairs: list) -> InputError:
-    """The refusal of a roll where one lens found is two (:func:`_two_lenses_in_one`)."""
+def _split_by_steps(views: list, split: LensSplit, labels: np.ndarray, steps: list, chain: list,
+                    xy_board: np.ndarray, symmetric: bool) -> LensSplit | None:
+    """One lens found that is two (:func:`_two_lenses_in_one`) split by the ratio its photos of one position show:
+    two lenses ``ln r`` apart about its mean, each photo told by its focal length and by the photos beside it
+    (:func:`_chain_labels`), then each lens from its photos. Their separation is the ratio's, in sigma of its mean
+    over the pairs (its spread at least 0.2 %). None where the photos do not fall into two lenses of at least
+    :data:`dualcal.files.roll_lenses.MIN_LENS_PHOTOS` photos with every pair on its two sides."""
+    from dataclasses import replace
+
+    k = int(labels[steps[0][1]])
+    log_r = np.array([abs(step) for _, _, step in steps])
+    delta = float(np.median(log_r))
+    half = np.array([delta / 2.0, 0.0])
+    lens = split.lenses[k]
+    pseudo = split.lenses[:k] + [replace(lens, mean=lens.mean - half), replace(lens, mean=lens.mean + half)] \
+        + split.lenses[k + 1:]
+    unary, _ = log_likelihoods(views, pseudo)
+    new, margins = _chain_labels(chain, unary, np.array([q.mean[0] for q in pseudo]), xy_board, symmetric)
+    sure = margins >= np.log(SURE_ODDS)
+    members = [np.flatnonzero((new == j) & sure) for j in (k, k + 1)]
+    # a step is ln(f of the first / f of the second): the first is the longer lens where it is positive
+    sides = [(new[i] == k + (step > 0), new[j] == k + (step < 0)) for i, j, step in steps]
+    if min(len(m) for m in members) < MIN_LENS_PHOTOS or not all(a and b for a, b in sides):
+        return None
+    lenses = split.lenses[:k] + [lens_of(views, m) for m in members] + split.lenses[k + 1:]
+    m = len(lenses)
+    sep = np.full((m, m), np.inf)
+    for i in range(m):
+        for j in range(i + 1, m):
+            sep[i, j] = sep[j, i] = separation(lenses[i], lenses[j])
+    sep[k, k + 1] = sep[k + 1, k] = delta / (max(float(np.std(log_r)), 0.002) / np.sqrt(len(log_r)))
+    return LensSplit(lenses, sep, [], split.stray, [])
+
+
+def _two_in_one(folder: str, size, pairs: list) -> InputError:
+    """The refusal of a roll where one lens found is two (:func:`_two_lenses_in_one`) and their photos could not be
+    told apart even by their photos of one position (:func:`_split_by_steps`)."""
     named = ", ".join(f"{a.path.name} and {b.path.name}" for a, b, _ in pairs[:3])
     ratio = float(np.exp(np.median([abs(step) for _, _, step in pairs])))
     return InputError(
         f"{folder + ': ' if folder else ''}the photos of {size[0]}x{size[1]} px without EXIF show one lens by their "
-        f"focal lengths ({lens.f_px:.0f} +- {lens.f_sigma_px:.0f} px), but {len(pairs)} pairs of successive photos "
-        f"({named}) show one board position {ratio:.3f} times larger in the second: two lenses too close to tell "
-        "which took which photo; keep the EXIF (export the originals from the phone, not through a browser), or put "
-        "each camera's photos in a folder of its own (a dataset folder with one subfolder per camera)")
+        f"focal lengths, but {len(pairs)} pairs of successive photos ({named}) show one board position {ratio:.3f} "
+        "times larger in the second: two lenses too close to tell which took which photo; keep the EXIF (export the "
+        "originals from the phone, not through a browser), or put each camera's photos in a folder of its own (a "
+        "dataset folder with one subfolder per camera)")
 
 
 def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndarray, symmetric: bool = False,
@@ -379,7 +415,7 @@ def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndar
         Two lenses of one image size whose photos' focal lengths and distortions are too close to tell which
         photo is which (:data:`dualcal.files.roll_lenses.SPLIT_SIGMA`, or photos that scatter more than one lens's
         without a gap), or one lens found whose successive photos show one position scaled by a ratio again and
-        again (:data:`LENS_STEP_PAIRS`).
+        again (:data:`LENS_STEP_PAIRS`) but that ratio cannot split.
     """
     order, _ = shooting_order(photos)
     views = {p.path: None if corners_uv.get(p.path) is None else one_view(xy_board, corners_uv[p.path], p.size)
@@ -406,8 +442,12 @@ def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndar
         labels, margins = _chain_labels(chain, unary, log_f, xy_board, symmetric)
         steps = _two_lenses_in_one(chain, labels, split.lenses, xy_board, symmetric)
         if steps:
-            raise _two_in_one(folder, size, split.lenses[labels[steps[0][1]]], [(shown[i], shown[j], step)
-                                                                               for i, j, step in steps])
+            split = _split_by_steps(lenses, split, labels, steps, chain, xy_board, symmetric)
+            if split is None:
+                raise _two_in_one(folder, size, [(shown[i], shown[j], step) for i, j, step in steps])
+            unary, d2 = log_likelihoods(lenses, split.lenses)
+            log_f = np.array([lens.mean[0] for lens in split.lenses])
+            labels, margins = _chain_labels(chain, unary, log_f, xy_board, symmetric)
         for i, (p, k, margin) in enumerate(zip(shown, labels, margins)):
             fits = not np.isfinite(d2[i, k]) or d2[i, k] <= FITS_LENS_CHI2
             if margin >= np.log(SURE_ODDS) and fits:

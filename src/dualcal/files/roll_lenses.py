@@ -39,7 +39,8 @@ from ..estimation.distributions import chi2_quantile
 from ..geometry.one_view import LAMBDA_RANGE, PRINCIPAL_POINT_SIGMA
 
 __all__ = ["LENS_SPREAD", "MAX_GROUPING_SIGMA", "MIN_LENS_PHOTOS", "ONE_LENS_RATE", "SAME_LENS_SIGMA", "SPLIT_SIGMA",
-           "TWO_LENSES_GAP", "Lens", "LensSplit", "gap_ratio", "find_lenses", "lens_points", "log_likelihoods", "separation", "shared_principal_point"]
+           "TWO_LENSES_GAP", "Lens", "LensSplit", "gap_ratio", "find_lenses", "lens_of", "lens_points", "log_likelihoods",
+           "separation", "shared_principal_point"]
 
 #: What moves one lens's point between its photos beyond their corners' noise (1-sigma of ``ln f`` and of
 #: ``lam``): a refocus changes the focal length by up to 1.5 % (a thin lens focused at 0.3 m), and the division
@@ -48,6 +49,10 @@ __all__ = ["LENS_SPREAD", "MAX_GROUPING_SIGMA", "MIN_LENS_PHOTOS", "ONE_LENS_RAT
 #: whose boards near the edge give ``lam`` 0.05 and ``f`` 5-10 % from those near the centre).
 LENS_SPREAD = (0.015, 0.02)
 LENS_SPREAD_PER_BEND = (0.05, 0.15)
+#: A board that is not flat (paper that bows by 1 % of its size) looks like perspective to one view: it moves the
+#: focal length that view gives by about this over the tangent of the board's tilt (on the Huawei's home-made
+#: board, a photo 9 degrees from square-on gives 22 % less than the others).
+BOARD_SHAPE_SPREAD = 0.015
 #: Two photos are of one lens where their points differ by less than this many sigma of the difference.
 SAME_LENS_SIGMA = 4.0
 #: A group whose photos scatter more than their sigmas allow at this false-alarm rate is more than one lens.
@@ -124,7 +129,8 @@ def _prior() -> tuple[np.ndarray, np.ndarray]:
 
 
 def lens_points(views: list, pp: np.ndarray, pp_covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each photo's point ``(ln f, lam)`` (n, 2) and its covariance (n, 2, 2), with :data:`LENS_SPREAD` added,
+    """Each photo's point ``(ln f, lam)`` (n, 2) and its covariance (n, 2, 2), with :data:`LENS_SPREAD` and
+    :data:`BOARD_SHAPE_SPREAD` added,
     where the principal point is ``pp`` with ``pp_covariance`` (:meth:`dualcal.geometry.one_view.ViewLens.given`);
     NaN for a photo without a lens (None)."""
     x, C = np.full((len(views), 2), np.nan), np.full((len(views), 2, 2), np.nan)
@@ -133,7 +139,10 @@ def lens_points(views: list, pp: np.ndarray, pp_covariance: np.ndarray) -> tuple
             x[i], C[i] = v.given(pp, pp_covariance)
     bend = np.abs(np.clip(np.nan_to_num(x[:, 1]), *LAMBDA_RANGE))
     spread = np.array(LENS_SPREAD) + bend[:, None] * np.array(LENS_SPREAD_PER_BEND)
-    return x, C + spread[:, :, None] * np.eye(2) * spread[:, None, :]
+    tilt = np.radians([90.0 if v is None or not np.isfinite(v.tilt_deg) else max(v.tilt_deg, 1.0) for v in views])
+    C = C + spread[:, :, None] * np.eye(2) * spread[:, None, :]
+    C[:, 0, 0] += (BOARD_SHAPE_SPREAD / np.tan(tilt)) ** 2
+    return x, C
 
 
 def shared_principal_point(views: list, members: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,6 +171,13 @@ def _lens(x: np.ndarray, C: np.ndarray, members: np.ndarray, pp, pp_covariance) 
     chi2 = float(np.einsum("ni,nij,nj->", d, info, d))
     return Lens(np.sort(members), np.asarray(pp, float), np.asarray(pp_covariance, float), mean, covariance, chi2,
                 2 * (len(members) - 1))
+
+
+def lens_of(views: list, members: np.ndarray) -> Lens:
+    """The lens of the photos ``members``: their principal point (:func:`shared_principal_point`), their points at it
+    and their weighted mean."""
+    pp = shared_principal_point(views, members)
+    return _lens(*lens_points(views, *pp), np.asarray(members), *pp)
 
 
 def one_lens(lens: Lens) -> bool:
@@ -329,8 +345,7 @@ def find_lenses(views: list) -> LensSplit:
         xs, Cs = lens_points(views, *pp)
         inner = group[np.isin(group, _grouping(xs, Cs))]
         parts = None if len(inner) < MIN_LENS_PHOTOS or one_lens(_lens(xs, Cs, inner, *pp)) else _cut(xs, Cs, inner)
-        found = [_lens(*lens_points(views, *q), part, *q) for part, q in
-                 ((part, shared_principal_point(views, part)) for part in parts or [])]
+        found = [lens_of(views, part) for part in parts or []]
         # the parts stand where each, at its own principal point, is surely apart from every other: a principal
         # point shared by two lenses moves their photos' focal lengths by how each board is tilted, and can make
         # one lens's photos look like two
@@ -342,9 +357,7 @@ def find_lenses(views: list) -> LensSplit:
             if any(np.array_equal(group, g) for g in wide_spread):     # scattered at both steps: not told
                 spread.append(group)
     if not lenses and stray:              # too few photos for a lens of their own: one lens of them all
-        members = np.concatenate(stray)
-        pp = shared_principal_point(views, members)
-        lenses, stray = [_lens(*lens_points(views, *pp), members, *pp)], []
+        lenses, stray = [lens_of(views, np.concatenate(stray))], []
     lenses.sort(key=lambda lens: lens.mean[0])
     m = len(lenses)
     sep = np.full((m, m), np.inf)

@@ -281,6 +281,7 @@ class ViewLens:
     rms_px: float
     corners: int
     image_size: tuple[int, int]
+    tilt_deg: float = float("nan")
 
     @property
     def f_px(self) -> float:
@@ -402,4 +403,7 @@ def view_lens(xy_board: np.ndarray, uv: np.ndarray, image_size, start: OneView |
     except np.linalg.LinAlgError:
         return None
     rms = float(np.sqrt(np.mean(r[:2 * len(X)] ** 2))) * noise
-    return ViewLens(params[6:].copy(), information, rms, len(X), tuple(int(v) for v in image_size))
+    from .rotation import rotation_from_rotvec
+
+    tilt = float(np.degrees(np.arccos(min(1.0, abs((rotation_from_rotvec(params[:3]) @ pose.R)[2, 2])))))
+    return ViewLens(params[6:].copy(), information, rms, len(X), tuple(int(v) for v in image_size), tilt)
