@@ -176,6 +176,7 @@ def test_lenses_too_close_for_their_photos_focal_lengths_are_told_by_their_photo
     assert facts["wide2"]["focal_length_board_px"] / facts["wide"]["focal_length_board_px"] == pytest.approx(1.05,
                                                                                                           abs=0.02)
     assert facts["wide"]["separation_sigma"] > 10 and facts["wide"]["sure"] == "certain"
+    assert facts["wide"]["told_by"] == "focal length from the board, its scale at one position"
     assert len([n for n, why in left_out.items() if not why.startswith("no board")]) <= 1
     truth, photos, uv, _ = _uploaded({"wide": 1340.0, "wide2": 1380.0}, (), seed=0)
     with pytest.raises(InputError) as refused:

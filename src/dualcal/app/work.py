@@ -219,12 +219,13 @@ def _every_photos_corners(project: Project, settings: Settings, warnings: list[s
     said again), so that leaving a photo out, or using it again, calibrates at once from them, as ``dualcal
     calibrate corners.json --exclude PHOTO`` does (reading the photos' headers, the files' contents for copies
     and the roll's split again took a third of that wait on a 62-photo roll)."""
+    from .. import __version__
     from ..files.io import corners_from_dict, corners_to_dict
     from ..workflow import read_corners
 
-    key = {"board": settings.to_dict(), "photos": [[name, os.stat(project.photos_dir / name).st_size,
-                                                    os.stat(project.photos_dir / name).st_mtime_ns]
-                                                   for name in project.photo_names()]}
+    stats = {name: os.stat(project.photos_dir / name) for name in project.photo_names()}
+    key = {"dualcal": __version__, "board": settings.to_dict(),
+           "photos": [[name, st.st_size, st.st_mtime_ns] for name, st in stats.items()]}
     kept = project.read_app_json("corners-all.json")
     if kept and kept.get("key") == key:
         warnings.extend(kept["warnings"])

@@ -193,7 +193,7 @@ def roll_tables(roll: dict) -> list[Table]:
         found.add_column(col, justify="left" if col in ("camera", "lens") else "right")
     for name, c in cams.items():
         f35 = c.get("focal_length_35mm_mm")
-        if c.get("told_by") == "focal length from the board":
+        if str(c.get("told_by", "")).startswith("focal length from the board"):
             lens = f"f {c['focal_length_board_px']:.0f} px from the boards"
             if c.get("focal_length_board_sigma_px") is not None:
                 lens = (f"f {c['focal_length_board_px']:.0f} +- {c['focal_length_board_sigma_px']:.0f} px, bend "

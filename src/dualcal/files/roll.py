@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -59,7 +59,7 @@ from ..geometry.camera import equivalent_focal_35mm, focal_px_from_35mm
 from ..geometry.model import observed_mask
 from ..geometry.one_view import OneView, board_pixels, common_division, one_view, spread_px, view_lens
 from .photos import Photo
-from .roll_lenses import MIN_LENS_PHOTOS, SPLIT_SIGMA, LensSplit, find_lenses, lens_of, log_likelihoods, separation
+from .roll_lenses import MIN_LENS_PHOTOS, SPLIT_SIGMA, LensSplit, find_lenses, lens_of, log_likelihoods, separations
 from .roll_positions import CERTAIN, MIN_MARGIN, SAME_IMAGE, Shot, image_change, split_positions
 
 __all__ = ["CameraRoll", "camera_class", "cameras_from_boards", "equivalent_focal_mm", "has_lens_exif",
@@ -258,8 +258,6 @@ def scale_step(a: OneView, b: OneView, f_px: float, xy_board: np.ndarray, symmet
 
 def _turned(view: OneView) -> OneView:
     """A view of a board that looks the same turned by 180 degrees, numbered the other way round."""
-    from dataclasses import replace
-
     turn = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
     return replace(view, H=view.H @ turn)
 
@@ -348,8 +346,6 @@ def _split_by_steps(views: list, split: LensSplit, labels: np.ndarray, steps: li
     (:func:`_chain_labels`), then each lens from its photos. Their separation is the ratio's, in sigma of its mean
     over the pairs (its spread at least 0.2 %). None where the photos do not fall into two lenses of at least
     :data:`dualcal.files.roll_lenses.MIN_LENS_PHOTOS` photos with every pair on its two sides."""
-    from dataclasses import replace
-
     k = int(labels[steps[0][1]])
     log_r = np.array([abs(step) for _, _, step in steps])
     delta = float(np.median(log_r))
@@ -366,13 +362,9 @@ def _split_by_steps(views: list, split: LensSplit, labels: np.ndarray, steps: li
     if min(len(m) for m in members) < MIN_LENS_PHOTOS or not all(a and b for a, b in sides):
         return None
     lenses = split.lenses[:k] + [lens_of(views, m) for m in members] + split.lenses[k + 1:]
-    m = len(lenses)
-    sep = np.full((m, m), np.inf)
-    for i in range(m):
-        for j in range(i + 1, m):
-            sep[i, j] = sep[j, i] = separation(lenses[i], lenses[j])
+    sep = separations(lenses)
     sep[k, k + 1] = sep[k + 1, k] = delta / (max(float(np.std(log_r)), 0.002) / np.sqrt(len(log_r)))
-    return LensSplit(lenses, sep, [], split.stray, [])
+    return LensSplit(lenses, sep, [], split.stray, [], (k, k + 1))
 
 
 def _two_in_one(folder: str, size, pairs: list) -> InputError:
@@ -466,8 +458,9 @@ def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndar
     for key, (split, k) in found.items():
         lens, apart = split.lenses[k], split.separation_sigma[k]
         nearest = [(key[0], j) for j in np.argsort(apart) if np.isfinite(apart[j]) and (key[0], j) in names][:1]
+        told = "focal length from the board" + (", its scale at one position" if k in split.by_ratio else "")
         facts[names[key]] = {
-            "told_by": "focal length from the board", "focal_length_board_px": round(lens.f_px, 1),
+            "told_by": told, "focal_length_board_px": round(lens.f_px, 1),
             "focal_length_board_sigma_px": round(lens.f_sigma_px, 1), "distortion_board": round(lens.lam, 4),
             "distortion_board_sigma": round(lens.lam_sigma, 4),
             "nearest_lens": names[nearest[0]] if nearest else None,

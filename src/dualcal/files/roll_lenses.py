@@ -40,7 +40,7 @@ from ..geometry.one_view import LAMBDA_RANGE, PRINCIPAL_POINT_SIGMA
 
 __all__ = ["LENS_SPREAD", "MAX_GROUPING_SIGMA", "MIN_LENS_PHOTOS", "ONE_LENS_RATE", "SAME_LENS_SIGMA", "SPLIT_SIGMA",
            "TWO_LENSES_GAP", "Lens", "LensSplit", "gap_ratio", "find_lenses", "lens_of", "lens_points", "log_likelihoods",
-           "separation", "shared_principal_point"]
+           "separation", "separations", "shared_principal_point"]
 
 #: What moves one lens's point between its photos beyond their corners' noise (1-sigma of ``ln f`` and of
 #: ``lam``): a refocus changes the focal length by up to 1.5 % (a thin lens focused at 0.3 m), and the division
@@ -109,13 +109,16 @@ class LensSplit:
     """The lenses of one image size: ``lenses`` in order of focal length, ``separation_sigma`` (m, m) each pair's
     (inf on the diagonal), ``unresolved`` the pairs (i, j) closer than :data:`SPLIT_SIGMA`, ``stray`` the photos
     that made groups too small for a lens (fewer than :data:`MIN_LENS_PHOTOS`), ``spread`` the groups of photos
-    (indices) that scatter more than one lens's photos do but show no gap between lenses."""
+    (indices) that scatter more than one lens's photos do but show no gap between lenses; ``by_ratio`` the lenses
+    told apart by the ratio their photos of one position show (:func:`dualcal.files.roll.scale_step`), not by their
+    points."""
 
     lenses: list[Lens]
     separation_sigma: np.ndarray
     unresolved: list[tuple[int, int]]
     stray: np.ndarray
     spread: list[np.ndarray]
+    by_ratio: tuple[int, ...] = ()
 
     @property
     def told(self) -> bool:
@@ -189,6 +192,16 @@ def separation(a: Lens, b: Lens) -> float:
     """How many sigma of their difference two lenses' means are apart (Mahalanobis)."""
     d = a.mean - b.mean
     return float(np.sqrt(d @ np.linalg.solve(a.covariance + b.covariance, d)))
+
+
+def separations(lenses: list[Lens]) -> np.ndarray:
+    """(m, m) each two lenses' :func:`separation` (inf on the diagonal)."""
+    m = len(lenses)
+    sep = np.full((m, m), np.inf)
+    for i in range(m):
+        for j in range(i + 1, m):
+            sep[i, j] = sep[j, i] = separation(lenses[i], lenses[j])
+    return sep
 
 
 def _linked(x: np.ndarray, C: np.ndarray, idx: np.ndarray) -> list[np.ndarray]:
@@ -359,11 +372,8 @@ def find_lenses(views: list) -> LensSplit:
     if not lenses and stray:              # too few photos for a lens of their own: one lens of them all
         lenses, stray = [lens_of(views, np.concatenate(stray))], []
     lenses.sort(key=lambda lens: lens.mean[0])
+    sep = separations(lenses)
     m = len(lenses)
-    sep = np.full((m, m), np.inf)
-    for i in range(m):
-        for j in range(i + 1, m):
-            sep[i, j] = sep[j, i] = separation(lenses[i], lenses[j])
     unresolved = [(i, j) for i in range(m) for j in range(i + 1, m) if sep[i, j] < SPLIT_SIGMA]
     return LensSplit(lenses, sep, unresolved, np.sort(np.concatenate(stray)) if stray else np.zeros(0, int),
                      [np.sort(g) for g in spread])
