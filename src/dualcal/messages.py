@@ -167,10 +167,13 @@ ERRORS = {
         "meaning": "A file, folder, flag or JSON document is missing, malformed or does not fit the others.",
         "cause": "A typo in a path or flag; a folder holding both photos and subfolders; cameras whose photos pair "
                  "with none of the reference camera's; a JSON file edited by hand that breaks its schema (the line "
-                 "names the key); an eval.json of another calibration; a photo too large to be one.",
+                 "names the key); an eval.json of another calibration; a photo too large to be one; a camera roll "
+                 "without EXIF whose lenses of one image size the photos cannot tell apart (their focal lengths and "
+                 "bends within 5 sigma of each other, or scattering more than one lens's without a gap).",
         "action": "Do what the line says. `dualcal schema NAME` prints the schema of a JSON file; `dualcal COMMAND "
                   "--help` lists the flags.",
-        "examples": ["pair with none of", "must be greater than 1", "was computed from another calibration than"],
+        "examples": ["pair with none of", "must be greater than 1", "was computed from another calibration than",
+                     "which lens took which photo cannot be told"],
     },
     "EstimationError": {
         "title": "an estimate could not be made",

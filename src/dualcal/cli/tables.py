@@ -185,13 +185,21 @@ def roll_tables(roll: dict) -> list[Table]:
     cams = roll["cameras"]
     clues = roll.get("clues", {})
     told = f" told apart by {', '.join(clues['cameras'])}" if clues.get("cameras") else ""
+    if roll.get("cameras_separation_sigma") is not None:
+        told += (f" ({roll['cameras_sure']}: the closest two lenses of one size {roll['cameras_separation_sigma']:.1f} "
+                 "sigma apart)")
     found = Table(title=f"Camera roll {roll['folder']}: {len(cams)} cameras{told}", box=box.SIMPLE_HEAD)
     for col in ("camera", "lens", "f (35 mm equiv.)", "image size", "photos"):
         found.add_column(col, justify="left" if col in ("camera", "lens") else "right")
     for name, c in cams.items():
         f35 = c.get("focal_length_35mm_mm")
-        if c.get("told_by") == "focal length from the board":
+        if str(c.get("told_by", "")).startswith("focal length from the board"):
             lens = f"f {c['focal_length_board_px']:.0f} px from the boards"
+            if c.get("focal_length_board_sigma_px") is not None:
+                lens = (f"f {c['focal_length_board_px']:.0f} +- {c['focal_length_board_sigma_px']:.0f} px, bend "
+                        f"{c['distortion_board']:+.2f} +- {c['distortion_board_sigma']:.2f} from the boards")
+            if c.get("nearest_lens"):
+                lens += f"; {c['separation_sigma']:.1f} sigma from {c['nearest_lens']}"
         else:
             lens = c.get("lens_model") or f"{c.get('focal_length_mm') or '?'} mm"
         found.add_row(name, lens, f"{f35:.0f} mm" if f35 else "?", "x".join(map(str, c["image_size"])), str(c["photos"]))

@@ -482,7 +482,7 @@ def split_roll_dataset(dataset: Dataset, corners: CornerSet) -> tuple[Dataset, C
     left_out.update({p.name: f"the same file as {kept.name}" for p, kept in identical.items()})
     symmetric = corners.board.is_symmetric and corners.board.charuco is None
     if dataset.roll is None:
-        by_camera, facts, notes, unknown = cameras_from_boards(photos, corners_uv, xy_board, symmetric)
+        by_camera, facts, notes, unknown = cameras_from_boards(photos, corners_uv, xy_board, symmetric, dataset.source)
         if len(dataset.cameras) == 1 and len(by_camera) <= 1:        # one camera, as the folder was opened
             one = replace(dataset, reference=choose_reference(dataset.cameras, options["reference"]), roll_options=None)
             _exclude(one, options["exclude"])
