@@ -185,12 +185,13 @@ def test_a_view_of_four_corners_has_no_say_in_the_closed_form():
 
 
 def test_linear_k1_k2_that_fold_the_lens_where_the_corners_are_start_at_zero(monkeypatch):
-    """A poor closed form (here: 4 x the focal length, the principal point far off) makes the
-    linear k1 k2 fold the lens inside the corners; the adjustment could not start from there."""
+    """A poor closed form (here: 4 x the focal length, the principal point far off, and no constrained one to
+    prefer) makes the linear k1 k2 fold the lens inside the corners; the adjustment could not start from there."""
     truth = make_truth("note8", 6, seed=14)
     cam, xy, views = _pinhole_views(truth, "tele")
     bad = dataclasses.replace(cam, fx=4 * cam.fx, fy=4 * cam.fy, cx=2900.0, cy=300.0)
     monkeypatch.setattr("dualcal.geometry.zhang.intrinsics_from_homographies", lambda *args, **kwargs: bad)
+    monkeypatch.setattr("dualcal.geometry.zhang.common_focal", lambda *args, **kwargs: float("nan"))
     est, _ = initial_camera(xy, views, cam.image_size)
     assert est.k1 == est.k2 == 0.0
     for uv in views.values():
