@@ -540,14 +540,18 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
     Zhang's four unknowns (and its focal length is then the nearer); small boards with few corners, seen near
     square-on, leave its ``B`` to the noise (not positive definite, or a focal length far too short: half the
     truth and less at 1 px of noise on caliscope's webcams), where the constrained one, with three unknowns
-    less, holds.
+    less, holds. Where neither gives a camera, a strong lens may have bent the homographies of boards near the
+    frame's edges: both are tried again on the corners undistorted by the division model that fits every view's
+    homography best (:func:`dualcal.geometry.one_view.common_division`), the homographies then of those corners.
 
     Raises
     ------
     EstimationError
-        No view fixes a homography, or the views' perspective is within their corners' noise
-        (:func:`perspective_z`): the photos fix no focal length.
+        No view fixes a homography, the views' perspective is within their corners' noise (:func:`perspective_z`:
+        the photos fix no focal length), or neither closed form gives a camera.
     """
+    from .one_view import common_division, undistort_division    # one_view builds on this module
+
     who = _subject(name, image_size, len(uvs))
     fixing = [i for i, m in enumerate(seen) if fixes_homography(xy_board[m])]
     if not fixing:
@@ -566,36 +570,56 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
     weights = np.sqrt(2.0 * f_seen.sum(axis=1) - 2 * MIN_HOMOGRAPHY_CORNERS)
     if not weights.any():                       # no view has more corners than its homography needs: alike
         weights = np.ones(len(fixed))
-
-    def zhang(keep):
-        return intrinsics_from_homographies(fixed[keep], image_size, skew, weights[keep])
-
-    def constrained_f(keep):
-        return common_focal(fixed[keep], image_size, weights[keep])
-
-    every = np.ones(len(fixed), bool)
-    starts, spread, fallback = {}, {}, None
-    f_px = constrained_f(every)
-    if np.isfinite(f_px):
-        w, h = image_size
-        starts["constrained"] = CameraModel(tuple(image_size), f_px, f_px, 0.0, 0.5 * (w - 1), 0.5 * (h - 1))
-        spread["constrained"] = _jackknife_log_sigma(constrained_f, len(fixed))
-    try:
-        starts["zhang"] = zhang(every)
-        spread["zhang"] = _jackknife_log_sigma(lambda keep: _mean_focal(zhang(keep)), len(fixed))
-    except EstimationError as exc:
+    starts, spread, failed = _closed_forms(fixed, weights, image_size, skew)
+    undistorted = ""
+    if not starts:
+        lam = common_division(xy_board, f_uvs, image_size)
+        pins = np.where(f_seen[..., None], undistort_division(np.nan_to_num(f_uvs), lam, image_size), np.nan)
+        fixed = np.array(estimate_homographies(xy_board, pins, f_seen, refine))
+        starts, spread, _ = _closed_forms(fixed, weights, image_size, skew)
         if not starts:
-            raise EstimationError(f"{who}: {exc}") from None
-        sure = f" (+-{100 * spread['constrained']:.2g} % by the jackknife)" if np.isfinite(spread["constrained"]) else ""
-        # the error's first clause says what failed; its advice, after the colon, is not the warning's
-        fallback = (f"{str(exc).split(':')[0]} from {len(fixed)} photos; it starts from square pixels, the principal "
-                    f"point at the image centre and one focal length from every photo together, f = {f_px:.0f} px"
-                    f"{sure}, which the adjustment then refines with the rest")
+            raise EstimationError(f"{who}: {failed}: the board poses are too alike or the corners too noisy; take "
+                                  "photos with the board tilted 30-50 degrees in different directions")
+        undistorted = f" on the corners undistorted by a division model (lambda {lam:.3g})"
     chosen = min(starts, key=lambda kind: (spread[kind], kind != "zhang"))
+    fallback = None
+    if failed:
+        f_px = starts[chosen].fx
+        sure = f" (+-{100 * spread[chosen]:.2g} % by the jackknife)" if np.isfinite(spread[chosen]) else ""
+        fallback = (f"{failed} from {len(fixed)} photos; it starts from "
+                    + ("square pixels, the principal point at the image centre and one focal length from every photo "
+                       f"together, f = {f_px:.0f} px" if chosen == "constrained" else f"Zhang's, f = {f_px:.0f} px")
+                    + f"{sure}{undistorted}, which the adjustment then refines with the rest")
     Hs: list[np.ndarray | None] = [None] * len(uvs)
     for i, H in zip(fixing, fixed):
         Hs[i] = H
     return starts[chosen], Hs, fallback
+
+
+def _closed_forms(Hs: np.ndarray, weights: np.ndarray, image_size, skew: bool):
+    """Zhang's camera and the constrained one from the homographies ``Hs`` (V, 3, 3) weighed by ``weights`` (V,):
+    ``(starts, spread, failed)``, the cameras each closed form gives (``{"zhang": ..., "constrained": ...}``), the
+    jackknife sigma of each one's log focal length, and what made Zhang's fail (its error's first clause; its
+    advice, after the colon, is not a fallback's) or None."""
+    def zhang(keep):
+        return intrinsics_from_homographies(Hs[keep], image_size, skew, weights[keep])
+
+    def constrained_f(keep):
+        return common_focal(Hs[keep], image_size, weights[keep])
+
+    every = np.ones(len(Hs), bool)
+    starts, spread, failed = {}, {}, None
+    f_px = constrained_f(every)
+    if np.isfinite(f_px):
+        w, h = image_size
+        starts["constrained"] = CameraModel(tuple(image_size), f_px, f_px, 0.0, 0.5 * (w - 1), 0.5 * (h - 1))
+        spread["constrained"] = _jackknife_log_sigma(constrained_f, len(Hs))
+    try:
+        starts["zhang"] = zhang(every)
+        spread["zhang"] = _jackknife_log_sigma(lambda keep: _mean_focal(zhang(keep)), len(Hs))
+    except EstimationError as exc:
+        failed = str(exc).split(":")[0]
+    return starts, spread, failed
 
 
 def _mean_focal(cam: CameraModel) -> float:
