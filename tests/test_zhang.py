@@ -216,7 +216,8 @@ def test_a_fisheye_of_145_degrees_starts_near_its_truth():
     """phone3's ultra-wide (kb4, 73 degrees from the axis at the image's corners; views that put the
     board near its edges): the equidistant un-projection and Zhang's closed form on the rays' pinhole
     image start within a few per cent of the truth, the poses in front, and ``k1 .. k4`` fold nowhere
-    the corners are; the radial-tangential start on the same corners is far off."""
+    the corners are. The radial-tangential start on the same corners, whose homographies are of the corners undistorted
+    by the division model, starts near too (without that model it was 20 % off)."""
     truth = make_truth("phone3", 12, seed=4)
     obs = {v: uv for v, uv in true_corners(truth)["ultra"].items() if not np.isnan(uv).all()}
     true = truth.cameras["ultra"]
@@ -230,4 +231,4 @@ def test_a_fisheye_of_145_degrees_starts_near_its_truth():
     error_px = [np.max(np.linalg.norm(project_points(cam, poses[v].apply(X)) - uv, axis=1)) for v, uv in obs.items()]
     assert np.median(error_px) < 0.02 * true.fx
     pinhole, _ = initial_camera(xy, obs, true.image_size)
-    assert abs(pinhole.fx / true.fx - 1) > 0.05
+    assert abs(pinhole.fx / true.fx - 1) < 0.03

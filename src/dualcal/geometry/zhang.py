@@ -228,9 +228,9 @@ def intrinsics_from_homographies(homographies, image_size, skew: bool = False, w
         model = "with skew free (Model 2)" if skew else "with skew = 0 (Model 1)"
         raise EstimationError(f"Zhang's closed form {model} needs at least {views_needed} views "
                               f"({len(V) // 2} given)")
-    # b spans the null space of V: the last right singular vector of the *full* decomposition
-    # (with fewer rows than unknowns a reduced SVD does not contain it).
-    _, sv, Vt = np.linalg.svd(V, full_matrices=True)
+    # b spans the null space of V: the last right singular vector of the *full* decomposition where V has
+    # fewer rows than unknowns (a reduced SVD does not contain it then); else the reduced one has it, at less cost.
+    _, sv, Vt = np.linalg.svd(V, full_matrices=len(V) < n)
     sv = np.concatenate([sv, np.zeros(n - len(sv))])
     if sv[-2] < 1e-6 * sv[0]:
         raise EstimationError("the views do not determine the intrinsics: the board poses are (nearly) "
@@ -513,11 +513,11 @@ def _jackknife_log_sigma(estimate, views: int) -> float:
 
 
 def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool,
-                 refine: bool = True, name: str | None = None) -> _ClosedForm:
+                 refine: bool = True, name: str | None = None, division: bool = True) -> _ClosedForm:
     """Homographies (``refine``: on the pixel error), the closed form and one pose per view, no lens (sections
-    1.3-1.5, with :func:`initial_camera`'s fallbacks): a view without a homography, or whose pose puts a corner
-    behind the camera (from a poor closed form), is resected."""
-    cam, Hs, fallback = _closed_form_intrinsics(xy_board, uvs, seen, image_size, skew, refine, name)
+    1.3-1.5, with :func:`initial_camera`'s fallbacks; ``division``: :func:`_closed_form_intrinsics`'s): a view
+    without a homography, or whose pose puts a corner behind the camera (from a poor closed form), is resected."""
+    cam, Hs, fallback = _closed_form_intrinsics(xy_board, uvs, seen, image_size, skew, refine, name, division)
     X = np.column_stack([xy_board, np.zeros(len(xy_board))])
     with_H = [i for i, H in enumerate(Hs) if H is not None]
     poses: list[Pose | None] = [None] * len(uvs)
@@ -529,10 +529,16 @@ def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndar
 
 
 def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size,
-                            skew: bool, refine: bool = True, name: str | None = None):
+                            skew: bool, refine: bool = True, name: str | None = None, division: bool = True):
     """Homographies and the closed form (sections 1.3-1.4) of the views whose corners fix a homography:
     ``(camera, homographies, fallback)``, the homographies one per view (None where its corners fix none),
     ``fallback`` as :class:`_ClosedForm`'s.
+
+    With ``division``, the homographies are of the corners undistorted by the division model that fits every
+    view's homography best (:func:`dualcal.geometry.one_view.common_division`): a lens bends the image of a board
+    near the frame's edge, and its homography takes the bend for perspective, which the closed forms read as a
+    focal length (caliscope's webcams, k1 = -0.33 at 1280 x 720: starts 50-120 % off in one session of ten
+    without it). The camera is then a pinhole start of the undistorted pixels, whose lens section 1.6 estimates.
 
     Of Zhang's camera and the constrained one (square pixels, the principal point at the image centre, one focal
     length: :func:`common_focal`), the camera is the one whose focal length the views fix better: the smaller
@@ -540,9 +546,7 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
     Zhang's four unknowns (and its focal length is then the nearer); small boards with few corners, seen near
     square-on, leave its ``B`` to the noise (not positive definite, or a focal length far too short: half the
     truth and less at 1 px of noise on caliscope's webcams), where the constrained one, with three unknowns
-    less, holds. Where neither gives a camera, a strong lens may have bent the homographies of boards near the
-    frame's edges: both are tried again on the corners undistorted by the division model that fits every view's
-    homography best (:func:`dualcal.geometry.one_view.common_division`), the homographies then of those corners.
+    less, holds.
 
     Raises
     ------
@@ -558,6 +562,9 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
         raise EstimationError(f"{who}: no photo's corners fix a homography (at least four corners, no three of "
                               "them on one line); take photos where more of the board is seen")
     f_uvs, f_seen = np.array([uvs[i] for i in fixing], float), np.array([seen[i] for i in fixing])
+    if division:
+        lam = common_division(xy_board, f_uvs, image_size)
+        f_uvs = np.where(f_seen[..., None], undistort_division(np.nan_to_num(f_uvs), lam, image_size), np.nan)
     fixed = np.array(estimate_homographies(xy_board, f_uvs, f_seen, refine))
     z = perspective_z(fixed, *homography_covariances(fixed, xy_board, f_uvs, f_seen))
     if z < PERSPECTIVE_SIGNIFICANCE:
@@ -571,25 +578,16 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
     if not weights.any():                       # no view has more corners than its homography needs: alike
         weights = np.ones(len(fixed))
     starts, spread, failed = _closed_forms(fixed, weights, image_size, skew)
-    undistorted = ""
     if not starts:
-        lam = common_division(xy_board, f_uvs, image_size)
-        pins = np.where(f_seen[..., None], undistort_division(np.nan_to_num(f_uvs), lam, image_size), np.nan)
-        fixed = np.array(estimate_homographies(xy_board, pins, f_seen, refine))
-        starts, spread, _ = _closed_forms(fixed, weights, image_size, skew)
-        if not starts:
-            raise EstimationError(f"{who}: {failed}: the board poses are too alike or the corners too noisy; take "
-                                  "photos with the board tilted 30-50 degrees in different directions")
-        undistorted = f" on the corners undistorted by a division model (lambda {lam:.3g})"
+        raise EstimationError(f"{who}: {failed}: the board poses are too alike or the corners too noisy; take "
+                              "photos with the board tilted 30-50 degrees in different directions")
     chosen = min(starts, key=lambda kind: (spread[kind], kind != "zhang"))
     fallback = None
     if failed:
-        f_px = starts[chosen].fx
         sure = f" (+-{100 * spread[chosen]:.2g} % by the jackknife)" if np.isfinite(spread[chosen]) else ""
-        fallback = (f"{failed} from {len(fixed)} photos; it starts from "
-                    + ("square pixels, the principal point at the image centre and one focal length from every photo "
-                       f"together, f = {f_px:.0f} px" if chosen == "constrained" else f"Zhang's, f = {f_px:.0f} px")
-                    + f"{sure}{undistorted}, which the adjustment then refines with the rest")
+        fallback = (f"{failed} from {len(fixed)} photos; it starts from square pixels, the principal point at the "
+                    f"image centre and one focal length from every photo together, f = {starts[chosen].fx:.0f} px"
+                    f"{sure}, which the adjustment then refines with the rest")
     Hs: list[np.ndarray | None] = [None] * len(uvs)
     for i, H in zip(fixing, fixed):
         Hs[i] = H
@@ -693,7 +691,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
             try:
                 pins = _pinhole_pixels(guess, search_uvs)
                 cam = _closed_form_intrinsics(xy_board, pins, search_seen, image_size, skew, refine=False,
-                                              name=who)[0]
+                                              name=who, division=False)[0]
             except NotInvertibleError:
                 break
             except EstimationError as exc:          # this k1's rays fix no camera: the other k1 may
@@ -710,7 +708,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     if not starts or not np.isfinite(min(m for m, _ in starts)):
         raise EstimationError("the fisheye's start puts a corner at 90 degrees or more from the axis")
     guess = min(starts, key=lambda s: s[0])[1]
-    start = _closed_form(xy_board, _pinhole_pixels(guess, uvs), seen, image_size, skew, name=name)
+    start = _closed_form(xy_board, _pinhole_pixels(guess, uvs), seen, image_size, skew, name=name, division=False)
     poses = start.poses
     coefficients = _fisheye_linear(guess, poses, xy_board, uvs)
     cam = guess.with_distortion(coefficients[0], coefficients[1], k3=coefficients[2], k4=coefficients[3])
