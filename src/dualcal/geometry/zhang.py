@@ -674,7 +674,9 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     the rays best (residual over ``f``, an angle). Last, the linear least squares of section 1.6 for
     ``k1 .. k4``: given the poses, ``(u~, v~) - (u, v) = A' (x theta / r) sum_j k_j theta^(2 j)`` with
     ``(u, v)`` the equidistant projection. Returns ``(CameraModel, {view: Pose})``. On phone3's
-    ultra-wide (145 degrees on the diagonal) A starts within 3 % of the truth.
+    ultra-wide (145 degrees on the diagonal) A starts within 3 % of the truth. Where no ``k1`` gives rays
+    that fix a camera (a lens narrower than a fisheye's, taken for one by its closed form; views too weak for the
+    search), A and the poses are :func:`initial_camera`'s, on the corners undistorted by the division model.
     """
     keys = sorted(views)
     uvs = [np.asarray(views[k], float) for k in keys]
@@ -683,7 +685,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     search_uvs, search_seen = [uvs[i] for i in picked], [seen[i] for i in picked]
     w, h = image_size
     who = _subject(name, image_size, len(uvs))
-    starts, failed = [], None
+    starts = []
     for k1 in _FISHEYE_K1_GRID:
         guess = _fisheye_guess(image_size, float(np.hypot(w, h)), float(k1), 0.5 * (w - 1), 0.5 * (h - 1))
         found = None
@@ -692,10 +694,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
                 pins = _pinhole_pixels(guess, search_uvs)
                 cam = _closed_form_intrinsics(xy_board, pins, search_seen, image_size, skew, refine=False,
                                               name=who, division=False)[0]
-            except NotInvertibleError:
-                break
-            except EstimationError as exc:          # this k1's rays fix no camera: the other k1 may
-                failed = exc
+            except EstimationError:                 # this k1's rays fix no camera (or not all have one)
                 break
             settled = abs(cam.fx / guess.fx - 1.0) < _FISHEYE_SETTLED
             guess, found = replace(cam, model=model, k1=float(k1)), guess
@@ -703,12 +702,19 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
                 break
         if found is not None:
             starts.append((_homography_misfit(xy_board, search_uvs, search_seen, found), found))
-    if not starts and failed is not None:
-        raise failed
-    if not starts or not np.isfinite(min(m for m, _ in starts)):
-        raise EstimationError("the fisheye's start puts a corner at 90 degrees or more from the axis")
-    guess = min(starts, key=lambda s: s[0])[1]
-    start = _closed_form(xy_board, _pinhole_pixels(guess, uvs), seen, image_size, skew, name=name, division=False)
+    start = None
+    if starts and np.isfinite(min(m for m, _ in starts)):
+        guess = min(starts, key=lambda s: s[0])[1]
+        try:
+            start = _closed_form(xy_board, _pinhole_pixels(guess, uvs), seen, image_size, skew, name=name,
+                                 division=False)
+        except EstimationError:
+            start = None
+    if start is None:
+        # no k1 gives rays that fix a camera (a lens narrower than a fisheye's, views too weak for the search):
+        # the closed form of the corners undistorted by the division model, as a fisheye with no coefficients yet
+        start = _closed_form(xy_board, uvs, seen, image_size, skew, name=name)
+        guess = replace(start.camera, model=model)
     poses = start.poses
     coefficients = _fisheye_linear(guess, poses, xy_board, uvs)
     cam = guess.with_distortion(coefficients[0], coefficients[1], k3=coefficients[2], k4=coefficients[3])
