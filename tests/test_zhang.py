@@ -263,21 +263,36 @@ def test_a_view_whose_corners_fix_no_homography_is_left_out_and_resected():
 
 
 def test_where_zhangs_closed_form_gives_no_camera_the_constrained_one_starts():
-    """One view (Zhang's Model 1 needs two) of a camera with square pixels and its principal point at the image
-    centre: the constrained closed form gives its exact focal length, and a warning says which start it is."""
-    truth = make_truth("note8", 1, seed=7)
+    """Two views with skew free (Zhang's Model 2 needs three) of a camera with square pixels and its principal point at
+    the image centre: the constrained closed form gives its exact focal length, and a warning says which start it
+    is."""
+    truth = make_truth("note8", 2, seed=7)
     cam, xy, views = _pinhole_views(truth, "wide")
     w, h = cam.image_size
     cam = dataclasses.replace(cam, fy=cam.fx, cx=0.5 * (w - 1), cy=0.5 * (h - 1))
-    views = {v: project_points(cam, truth.camera_pose("wide", v).apply(np.column_stack([xy, 0 * xy[:, 0]])))
-             for v in views}
+    X = np.column_stack([xy, np.zeros(len(xy))])
+    views = {v: project_points(cam, truth.camera_pose("wide", v).apply(X)) for v in views}
     with collect_warnings() as warned:
-        est, poses = initial_camera(xy, views, cam.image_size, name="wide")
+        est, poses = initial_camera(xy, views, cam.image_size, skew=True, name="wide")
     np.testing.assert_allclose(est.as_vector()[:5], cam.as_vector()[:5], rtol=1e-7, atol=1e-5)
-    np.testing.assert_allclose(poses["IMG_01"].t_mm, truth.camera_pose("wide", "IMG_01").t_mm, rtol=1e-7)
+    for v, pose in poses.items():
+        np.testing.assert_allclose(pose.t_mm, truth.camera_pose("wide", v).t_mm, rtol=1e-7)
     assert len(warned) == 1 and warned[0].startswith(
-        "wide: Zhang's closed form with skew = 0 (Model 1) needs at least 2 views (1 given) from 1 photos; it starts "
-        "from square pixels, the principal point at the image centre and one focal length")
+        "wide: Zhang's closed form with skew free (Model 2) needs at least 3 views (2 given) from 2 photos; it "
+        "starts from square pixels, the principal point at the image centre and one focal length")
+
+
+def test_parallel_boards_are_refused_whichever_closed_form_starts():
+    """Five tilted boards, all parallel (shifted only): Zhang's closed form gives no camera, and the constrained one,
+    which would, fixes no principal point for the adjustment: refused, saying why."""
+    truth = make_truth("note8", 1, seed=2)
+    base = truth.view_poses["IMG_01"]
+    for k in range(2, 6):
+        truth.view_poses[f"IMG_{k:02d}"] = Pose(base.R.copy(), base.t_mm + [8.0 * k, -4.0 * k, 15.0 * k])
+    xy = truth.board.object_points_mm()[:, :2]
+    with pytest.raises(EstimationError, match="wide: its boards are all parallel to each other"):
+        initial_camera(xy, noisy_corner_set(truth, 0.05).cameras["wide"].found(), truth.cameras["wide"].image_size,
+                       name="wide")
 
 
 def test_the_perspective_of_boards_seen_square_on_is_noise_of_unit_spread():

@@ -11,6 +11,12 @@
 * A fisheye (lens model ``kb4``) is beyond a homography of its pixels: :func:`initial_fisheye_camera`
   first un-projects them with an equidistant guess, then runs the steps above on the pinhole pixels
   of the same rays.
+* Weak views, as peers' sessions have them (4-12 corners of a board a tenth of the frame wide, near
+  square-on): :func:`perspective_z` tests that the views show perspective beyond their corners' noise (else
+  they fix no focal length); :func:`common_focal` is the constrained closed form (square pixels, the principal
+  point at the image centre: one focal length from eqs. 9-10 of every view), which :func:`initial_camera` starts
+  from where the views fix its focal length better than Zhang's (:func:`homography_covariances`: how well each
+  view fixes its homography).
 
 Board points are the board's ``(X, Y)`` in mm (Z = 0); image points are pixels ``(u, v)``. A
 view may have corners that were not measured (NaN rows, :func:`dualcal.geometry.model.observed_mask`):
@@ -427,22 +433,23 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
     corners has none, and no say; unweighted, a single such view of a narrow lens that sees
     small parts of the board was seen to make fx 790 px for a true 6059).
 
-    Weak views as peers record them (a small board, 4-12 corners, a partial ChArUco view, near square-on)
-    are met by fallbacks, each said in a warning naming ``name`` (the camera): a view whose corners fix no
-    homography (:func:`dualcal.geometry.resection.fixes_homography`: four on a row and one off it) is left out
-    of the closed form; where Zhang's closed form gives no camera (``B`` not positive definite), the
-    constrained one does (:func:`common_focal`: square pixels, the principal point at the image centre, one
-    focal length from every view together); a pose with a corner behind the camera, or of a view without a
-    homography, comes by space resection (:func:`dualcal.geometry.resection.planar_pose`: IPPE, or SQPnP
-    where IPPE cannot). A start the adjustment could not move from is avoided: linear coefficients whose
-    radial part folds over where the corners are become 0. These are the starting values of the joint
-    adjustment, which refines all of them together.
+    Weak views as peers record them (a small board, 4-12 corners, a partial ChArUco view, near square-on):
+    the homographies are of the corners undistorted by a division model, and the camera is Zhang's or the
+    constrained one (:func:`_closed_form_intrinsics`). Where a fallback changes the start, a warning naming
+    ``name`` (the camera; else its image size) says so: a view whose corners fix no homography
+    (:func:`dualcal.geometry.resection.fixes_homography`: four on a row and one off it) is left out of the
+    closed form; where Zhang's closed form gives no camera (``B`` not positive definite), the constrained one
+    starts (:func:`common_focal`). A pose with a corner behind the camera, or of a view without a homography,
+    comes by space resection (:func:`dualcal.geometry.resection.planar_pose`: IPPE, or SQPnP where IPPE
+    cannot). A start the adjustment could not move from is avoided: linear coefficients whose radial part folds
+    over where the corners are become 0. These are the starting values of the joint adjustment, which refines
+    all of them together.
 
     Raises
     ------
     EstimationError
-        Where the photos fix no camera: no view fixes a homography, or their boards' perspective is within
-        their corners' noise (:func:`common_focal`).
+        Where the photos fix no camera: no view fixes a homography, their boards' perspective is within their
+        corners' noise (:func:`perspective_z`), or neither closed form gives a camera.
     """
     if model in FISHEYE_MODELS:
         return initial_fisheye_camera(xy_board, views, image_size, skew, model, name)
@@ -537,15 +544,16 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
     With ``division``, the homographies are of the corners undistorted by the division model that fits every
     view's homography best (:func:`dualcal.geometry.one_view.common_division`): a lens bends the image of a board
     near the frame's edge, and its homography takes the bend for perspective, which the closed forms read as a
-    focal length (caliscope's webcams, k1 = -0.33 at 1280 x 720: starts 50-120 % off in one session of ten
-    without it). The camera is then a pinhole start of the undistorted pixels, whose lens section 1.6 estimates.
+    focal length (sessions of caliscope's webcams, k1 down to -0.33 at 1280 x 720, the board a tenth of the frame:
+    the starts' median error of fx 22 % without it, 12 % with it). The camera is then a pinhole start of the
+    undistorted pixels, whose lens section 1.6 estimates.
 
     Of Zhang's camera and the constrained one (square pixels, the principal point at the image centre, one focal
     length: :func:`common_focal`), the camera is the one whose focal length the views fix better: the smaller
     jackknife sigma over the views (:func:`_jackknife_log_sigma`). Tilted boards that fill the frame fix
     Zhang's four unknowns (and its focal length is then the nearer); small boards with few corners, seen near
     square-on, leave its ``B`` to the noise (not positive definite, or a focal length far too short: half the
-    truth and less at 1 px of noise on caliscope's webcams), where the constrained one, with three unknowns
+    truth and less at 1.2 px of noise on caliscope's webcams), where the constrained one, with three unknowns
     less, holds.
 
     Raises
@@ -582,6 +590,10 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
         raise EstimationError(f"{who}: {failed}: the board poses are too alike or the corners too noisy; take "
                               "photos with the board tilted 30-50 degrees in different directions")
     chosen = min(starts, key=lambda kind: (spread[kind], kind != "zhang"))
+    if _normals_spread_deg(starts[chosen], fixed) < PARALLEL_DEG:
+        raise EstimationError(f"{who}: its boards are all parallel to each other (their normals within "
+                              f"{PARALLEL_DEG:g} degree), which fixes no principal point; take photos with the board "
+                              "tilted 30-50 degrees in different directions")
     fallback = None
     if failed:
         sure = f" (+-{100 * spread[chosen]:.2g} % by the jackknife)" if np.isfinite(spread[chosen]) else ""
@@ -618,6 +630,19 @@ def _closed_forms(Hs: np.ndarray, weights: np.ndarray, image_size, skew: bool):
     except EstimationError as exc:
         failed = str(exc).split(":")[0]
     return starts, spread, failed
+
+
+#: Boards whose normals all lie within this (RMS, degrees) of their mean are parallel: Zhang's degenerate case, where
+#: the views fix a focal length only given the principal point, which no start can give the adjustment.
+PARALLEL_DEG = 1.0
+
+
+def _normals_spread_deg(cam: CameraModel, Hs: np.ndarray) -> float:
+    """The RMS angle (degrees) of the boards' normals from their mean, their poses from ``Hs`` with ``cam``."""
+    normals = np.array([pose.R[:, 2] for pose in extrinsics_from_homographies(cam.K, Hs)])
+    mean = normals.mean(axis=0)
+    cosines = np.clip(normals @ (mean / np.linalg.norm(mean)), -1.0, 1.0)
+    return float(np.degrees(np.sqrt(np.mean(np.arccos(cosines) ** 2))))
 
 
 def _mean_focal(cam: CameraModel) -> float:
