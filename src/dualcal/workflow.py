@@ -55,7 +55,7 @@ def check_board(given: Board | None, found: Board, source: str) -> Board:
             what = f"board {given.spec()} disagrees with {source}, which has {found.spec()}"
         elif abs(given.square_mm - found.square_mm) > 1e-9 * found.square_mm:
             what = f"square {given.square_mm:g} mm disagrees with {source}, which has {found.square_mm:g} mm"
-        elif given.charuco.marker_mm != found.charuco.marker_mm:
+        elif None not in (given.charuco, found.charuco) and given.charuco.marker_mm != found.charuco.marker_mm:
             what = (f"marker {given.charuco.marker_mm:g} mm disagrees with {source}, which has "
                     f"{found.charuco.marker_mm:g} mm")
         else:

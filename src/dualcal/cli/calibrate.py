@@ -46,9 +46,9 @@ from .detect import dataset_options, read_corners_from_flags
                    "camera it names takes its lens model and intrinsics from it: a prior with the file's sigma "
                    "where it has one, else held fixed; the other cameras are calibrated as always.")
 @dataset_options
-def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, square_sigma_mm, output, skew, rig_mode,
-                      drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens, intrinsics,
-                      **dataset_opts):
+def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, circle_mm, square_sigma_mm, output,
+                      skew, rig_mode, drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens,
+                      intrinsics, **dataset_opts):
     """Calibrate every camera and the rig from INPUT and write calib.json.
 
     INPUT is a corners.json (from 'dualcal detect', also one edited by hand: views removed,
@@ -75,8 +75,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     check_output_file(output)
     model = model_flags(model)
     known = read_intrinsics(intrinsics)               # before the photos are detected: a bad file fails at once
-    corners = read_corners_from_flags(input_path, board_from_flags(board_spec, square_mm, marker_mm, dictionary),
-                                      square_sigma_mm, dataset_opts)
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary, circle_mm)
+    corners = read_corners_from_flags(input_path, board, square_sigma_mm, dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
                   outlier_factor=outlier_factor, board_shape=board_shape, model=model,
                   known_intrinsics=known_intrinsics_for(corners, known))
