@@ -26,13 +26,17 @@ CAMERA_KEYS = ("fx", "fy", "cx", "cy", "k1", "k2")
 class RealSet:
     """One folder of ``../shared/data``: how it is opened, its board and how ``dualcal calibrate`` is run on it.
 
-    ``cameras`` are ``--camera NAME=GLOB`` specs (relative to the folder; empty: the folder is one camera, or a
-    corners file: ``corners``), ``options`` the options of :func:`dualcal.workflow.calibrate_corners`."""
+    ``cameras`` are ``--camera NAME=GLOB`` specs (relative to the folder; empty: the folder is one camera),
+    ``options`` the options of :func:`dualcal.workflow.calibrate_corners`. A set of a peer's corners, not photos, has
+    no board here (its files name it) and ``imported`` the format :func:`dualcal.files.imports.import_files` reads it
+    in, with ``import_options``."""
 
     name: str
     board: Board | None
     cameras: tuple[str, ...] = ()
     options: dict = field(default_factory=dict)
+    imported: str | None = None
+    import_options: dict = field(default_factory=dict)
 
     @property
     def folder(self) -> Path:
@@ -51,13 +55,21 @@ REAL_SETS = (
     RealSet("opencv-samples-stereo", Board(9, 6, 30.0), ("left=left*.jpg", "right=right*.jpg")),
     RealSet("huawei-y5-2017", Board(7, 9, 30.0)),
     RealSet("bouguet-calib-example", Board(12, 13, 30.0), ("cam=Image*.tif",)),
+    # caliscope's intrinsic session: each webcam filmed the board alone, so every camera is calibrated alone
+    RealSet("caliscope-prerecorded", None, options={"rig_mode": "none"}, imported="caliscope",
+            import_options={"image_size": {"*": (1280, 720)}}),
 )
 
 
 def detect(real: RealSet):
-    """The set's corners, detected as ``dualcal detect`` does (two threads, no progress bar)."""
+    """The set's corners, detected as ``dualcal detect`` does (two threads, no progress bar), or imported as
+    ``dualcal import`` does."""
     from dualcal.files.dataset import open_dataset
     from dualcal.files.detect import detect_dataset
+    from dualcal.files.imports import import_files
+
+    if real.imported:
+        return import_files(real.imported, [real.folder], **real.import_options).corners
 
     specs = [f"{spec.split('=')[0]}={real.folder}/{spec.split('=')[1]}" for spec in real.cameras]
     dataset = open_dataset(None, specs) if specs else open_dataset(real.folder)
@@ -80,7 +92,8 @@ def summarise(corners, rig) -> dict:
 
     Per camera: ``photos``, ``boards`` (found), ``corners`` (kept by the calibration), ``model``, and each of
     :data:`CAMERA_KEYS` as ``[value, sigma]``; per non-reference camera ``baseline_mm`` and ``opk_arcmin`` with their
-    sigmas; ``failed_checks`` the names of the checks that fail (the verdict)."""
+    sigmas (none between cameras that each filmed the board alone); ``failed_checks`` the names of the checks that
+    fail (the verdict)."""
     used = rig.used_corners()
     cameras = {}
     for name, cam in rig.cameras.items():
@@ -90,9 +103,11 @@ def summarise(corners, rig) -> dict:
         cameras[name] = {"photos": len(views), "boards": sum(uv is not None for uv in views.values()),
                          "corners": kept, "model": cam.model,
                          **{k: [float(getattr(cam, k)), _number(sigma.get(k))] for k in CAMERA_KEYS}}
+    # cameras that each filmed the board alone (caliscope's intrinsic session) share no moment: no relation to pin
+    alone = {name for name, c in corners.cameras.items() if (c.meta.get("imported") or {}).get("instants_shared") is False}
     relations = {name: {"baseline_mm": [float(rel.baseline_mm), float(rel.sigma_baseline_mm)],
                         "opk_arcmin": [[float(a), float(s)] for a, s in zip(rel.pose.opk_arcmin, rel.sigma_opk_arcmin)]}
-                 for name, rel in rig.rig.items()}
+                 for name, rel in rig.rig.items() if not {name, rig.reference} & alone}
     failed = sorted(k for k, c in rig.checks.items() if not c.get("ok", True))
     return {"cameras": cameras, "rig": relations, "failed_checks": failed}
 

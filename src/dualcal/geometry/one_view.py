@@ -35,7 +35,8 @@ import numpy as np
 
 from ..errors import EstimationError
 from .model import Pose, observed_mask
-from .zhang import MIN_HOMOGRAPHY_CORNERS, apply_homography, estimate_homographies, extrinsics_from_homography
+from .zhang import (MIN_HOMOGRAPHY_CORNERS, apply_homography, common_focal, estimate_homographies,
+                    extrinsics_from_homography)
 
 __all__ = ["LENS_PARAMETERS", "OneView", "ViewLens", "board_pixels", "board_pose", "spread_px", "common_division",
            "division_homography", "focal_from_homography", "one_view", "undistort_division", "view_lens"]
@@ -49,9 +50,6 @@ LAMBDA_SIGNIFICANCE = 25.0
 #: The spread of one view's log focal length never counts as less than this (the principal point is not
 #: exactly at the centre, and the division model is not the lens).
 MIN_F_LOG_SIGMA = 0.03
-#: A homography (normalised image coordinates, its 2x2 part of unit norm) whose columns are orthogonal and of
-#: equal length to within this is a similarity: the board seen square-on, which tells no focal length.
-SQUARE_ON = 1e-9
 
 
 @dataclass(frozen=True)
@@ -181,21 +179,10 @@ def common_division(xy_board: np.ndarray, uvs, image_size) -> float:
 
 def focal_from_homography(H: np.ndarray, image_size) -> float:
     """The focal length (pixels) that one view's homography gives a camera with square pixels, no skew
-    and its principal point at the image centre (module docstring), or NaN where it gives none (a board
-    seen square-on, or noise that makes ``1/f^2`` negative)."""
-    c, s = _centre_and_scale(image_size)
-    # centre the pixels and scale them to about 1 (the focal length comes out in those units)
-    N = np.array([[1.0 / s, 0.0, -c[0] / s], [0.0, 1.0 / s, -c[1] / s], [0.0, 0.0, 1.0]])
-    Hn = N @ np.asarray(H, float)
-    Hn = Hn / np.linalg.norm(Hn[:2, :2])
-    h1, h2 = Hn[:, 0], Hn[:, 1]
-    # eq. 9 (h1^T B h2 = 0) and eq. 10 (h1^T B h1 - h2^T B h2 = 0) as  a * (1/f^2) + b = 0
-    a = np.array([h1[0] * h2[0] + h1[1] * h2[1], h1[0] ** 2 + h1[1] ** 2 - h2[0] ** 2 - h2[1] ** 2])
-    b = np.array([h1[2] * h2[2], h1[2] ** 2 - h2[2] ** 2])
-    if float(a @ a) < SQUARE_ON ** 2:           # the image a similarity of the board: eqs. 9-10 tell no f
-        return float("nan")
-    inv_f2 = -float(a @ b) / float(a @ a)
-    return s / np.sqrt(inv_f2) if inv_f2 > 0 else float("nan")
+    and its principal point at the image centre (module docstring; :func:`dualcal.geometry.zhang.common_focal`
+    of the one view), or NaN where it gives none (a board seen square-on, or noise that makes ``1/f^2``
+    negative)."""
+    return common_focal([H], image_size)
 
 
 def one_view(xy_board: np.ndarray, uv: np.ndarray, image_size, lam: float | None = None) -> OneView | None:
