@@ -56,9 +56,9 @@ window has no texture along the line (its predicted sigma above :data:`MAX_SIGMA
 its match's after: a blank wall, an edge along the line) is ``texture-less``.
 
 The matched pixel is the tapped pixel's surface point as ``b`` sees it, so a tap's error moves the
-match with it: :attr:`Match.tap_jacobian` is ``d uv_b / d uv_a`` at the matched depth (the
-surface taken fronto-parallel), which the measurement uses to keep the tap's error out of the
-disparity (:mod:`dualcal.estimation.measurement`).
+match with it: :attr:`Match.tap_jacobian` is ``d uv_b / d uv_a`` over the surface the match found (its
+disparity and slopes), which the measurement uses to keep the tap's error out of the disparity
+(:mod:`dualcal.estimation.measurement`).
 
 Everything here is a pure function of arrays: photos as (H, W) grey arrays in their stored frame
 (pixel ``(i, j)`` at ``(u=j, v=i)``), cameras as :class:`~dualcal.geometry.camera.CameraModel`, the
@@ -139,7 +139,7 @@ class Match:
     line's unit direction at ``uv`` in ``b``'s pixels (the match is exact across it: ``covariance`` (2, 2) is
     ``sigma_px^2 direction direction^T``); ``score`` the ZNCC at the match, ``second_score`` the best
     other peak's (None: none); ``level`` the scale that made it unique (0: the finest); ``depth_mm`` the
-    rectified depth; ``tap_jacobian`` (2, 2) ``d uv / d uv_a`` at that depth.
+    rectified depth; ``tap_jacobian`` (2, 2) ``d uv / d uv_a`` over the surface found (its depth and slant).
     """
 
     ok: bool
@@ -395,8 +395,8 @@ class _Fit:
 
 
 def _refine(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int):
-    """The shift at the finest scale from ``x0`` and its sigma, finest-grid px (module docstring); None when it does
-    not settle.
+    """The shift at the finest scale from ``x0`` and its sigma, finest-grid px, and the disparity's slopes (module
+    docstring); None when it does not settle.
 
     Two estimates of the disparity's slopes (the plane of the surface): the window's own (free in its fit: right
     where the window has texture everywhere, wrong where it holds a corner's two edges and no more) and a
@@ -409,9 +409,10 @@ def _refine(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int):
     wide = None if coarse is None else _equalised(frame, a, b, coarse.x, half, 0, coarse.slopes, coarse.slopes_cov)
     if local is None or wide is None:
         fine = local or wide
-        return None if fine is None else (fine.x, fine.sigma_x)
+        return None if fine is None else (fine.x, fine.sigma_x, fine.slopes)
     d = local.x - wide.x
-    return 0.5 * (local.x + wide.x), float(np.sqrt(0.5 * (local.sigma_x ** 2 + wide.sigma_x ** 2) + 0.25 * d * d))
+    return (0.5 * (local.x + wide.x), float(np.sqrt(0.5 * (local.sigma_x ** 2 + wide.sigma_x ** 2) + 0.25 * d * d)),
+            0.5 * (local.slopes + wide.slopes))
 
 
 def _equalised(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int, level: int, slopes=None,
@@ -549,13 +550,15 @@ def epipolar_curve(cam_a: CameraModel, cam_b: CameraModel, pose_ab: Pose, uv_a, 
     return uv
 
 
-def _tap_jacobian(frame: MatchFrame, cam_a: CameraModel, cam_b: CameraModel, uv_a: np.ndarray,
-                  disparity: float, step_px: float = 0.25) -> np.ndarray:
-    """``d uv_b / d uv_a`` at a fixed disparity (the surface fronto-parallel in the rectified frame)."""
+def _tap_jacobian(frame: MatchFrame, cam_a: CameraModel, cam_b: CameraModel, uv_a: np.ndarray, x_b: float,
+                  slopes: np.ndarray, step_px: float = 0.25) -> np.ndarray:
+    """``d uv_b / d uv_a``: where the match moves when the tap does, over the surface the match found (its
+    rectified disparity at the tap and its ``slopes`` along and across the line)."""
     def to_b(uv):
         ray = pixel_rays(cam_a, uv)[0] @ frame.rotation_a.T
-        x, y = frame.f_px * ray[0] / ray[2], frame.f_px * ray[1] / ray[2]
-        return _pixels(cam_b, frame.rotation_b, frame.f_px, np.array([x - disparity]), np.array([y]))[0][0]
+        dx, y = frame.f_px * ray[0] / ray[2] - frame.x_tap, frame.f_px * ray[1] / ray[2]
+        x = x_b + (1.0 + slopes[0]) * dx + slopes[1] * y
+        return _pixels(cam_b, frame.rotation_b, frame.f_px, np.array([x]), np.array([y]))[0][0]
 
     J = np.empty((2, 2))
     for i in range(2):
@@ -625,7 +628,7 @@ def match_point(image_a: np.ndarray, cam_a: CameraModel, image_b: np.ndarray, ca
     refined = _refine(frame, a, b, found.best_x, half)
     if refined is None:
         return Match(False, "no match", score=found.score)
-    x_b, sigma_x = refined
+    x_b, sigma_x, slopes = refined
     if sigma_x > MAX_SIGMA_PX:
         return Match(False, "texture-less", score=found.score)
     uv_b = _pixels(cam_b, frame.rotation_b, frame.f_px, np.array([x_b - 0.5, x_b, x_b + 0.5]), np.zeros(3))[0]
@@ -633,4 +636,4 @@ def match_point(image_a: np.ndarray, cam_a: CameraModel, image_b: np.ndarray, ca
     disparity = frame.x_tap - x_b
     depth = frame.f_px * frame.baseline_mm / disparity if disparity > 0 else np.inf
     return Match(True, None, uv_b[1], float(sigma_x * np.linalg.norm(along)), along / np.linalg.norm(along),
-                 found.score, second, level, float(depth), _tap_jacobian(frame, cam_a, cam_b, uv_a, disparity))
+                 found.score, second, level, float(depth), _tap_jacobian(frame, cam_a, cam_b, uv_a, x_b, slopes))
