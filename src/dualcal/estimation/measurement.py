@@ -81,7 +81,7 @@ from ..errors import EstimationError, InputError
 from .intersect import triangulate
 from .matching import MIN_DISTANCE_MM, Match, match_point
 from ..geometry.model import RigModel
-from ..progress import warn
+from ..progress import track, warn
 from ..geometry.rotation import cross_matrix
 from ..geometry.scale import relative_sigma, with_scale_in_measurement
 
@@ -409,7 +409,7 @@ def match_taps(rig: RigModel, taps: dict[str, dict[str, np.ndarray]], photos: di
         ``{point: {other camera: Match}}`` for every other camera with a photo and a pose in the rig.
     """
     out = {}
-    for name, seen in taps.items():
+    for name, seen in track(taps.items(), "matching the points", len(taps)):
         (a, uv), = seen.items()
         if a not in photos:
             raise InputError(f"point {name!r} is given in camera {a!r} only, and there is no photo of {a!r} to find it "
