@@ -505,22 +505,31 @@ def _fit_shift(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int, leve
 
 
 def _predicted_sigma(frame: MatchFrame, a: tuple, half: int) -> float:
-    """The sigma a match of the tapped window could reach along the line, px of the finest grid, with the
-    tapped photo's noise (estimated on the window's own pixels by Immerkaer's Laplacian difference) in both
-    photos: large where the window has no texture along the line."""
+    """The sigma a match of the tapped window could reach along the line, px of the finest grid (inf: its
+    gradients along the line are mostly noise): the tapped photo's noise ``sigma`` per pixel (Immerkaer's
+    Laplacian difference, its median over the window's pixels) in both photos, a smoothed sample's variance
+    ``v = sigma^2 / (4 pi s^2)`` (``s`` the smoothing, source px), and the window's gradient energy along the
+    line less what noise alone gives it (``2 v (1 - rho)``, ``rho`` the smoothed noise's correlation one
+    sample apart): large where the window has no texture along the line (a blank wall, an edge along it)."""
     k = np.arange(-half, half + 1, dtype=float)
     ty, tx = np.meshgrid(k, frame.x_tap + np.concatenate([k - 0.5, k + 0.5]), indexing="ij")
     T = _resample(*a, frame.rotation_a, frame.f_px, 0, tx, ty)
     n = len(k)
     g = T.values[:, n:] - T.values[:, :n]
     w = _window_weights(half)
-    crop = T.crop.astype(float)
-    lap = cv2.filter2D(a[0][T.origin[1]:T.origin[1] + crop.shape[0], T.origin[0]:T.origin[0] + crop.shape[1]]
-                       .astype(np.float32), -1, np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32))
-    noise = float(np.median(np.abs(lap[1:-1, 1:-1]))) * 1.4826 / 6.0 if lap.size > 4 else 1.0
+    h, wd = T.crop.shape
+    lap = cv2.filter2D(a[0][T.origin[1]:T.origin[1] + h, T.origin[0]:T.origin[0] + wd].astype(np.float32), -1,
+                       np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32))
+    noise = float(np.median(np.abs(lap[1:-1, 1:-1]))) * 1.4826 / 6.0 if lap.size > 9 else 1.0
     noise = max(noise, 0.5)                                  # 8-bit quantisation: never below half a level
-    per_sample = 2 * noise ** 2 * 0.25 / (np.pi * max(T.sigma_px, 0.5) ** 2)
-    return float(np.sqrt(per_sample * np.sum(w ** 2 * g ** 2)) / np.sum(w * g ** 2))
+    smoothing = max(T.sigma_px, 0.5)
+    step_src = min(a[1].fx, a[1].fy) / frame.f_px            # source px per grid sample
+    v = noise ** 2 / (4 * np.pi * smoothing ** 2)
+    noise_energy = 2 * v * (1 - np.exp(-step_src ** 2 / (4 * smoothing ** 2))) * w.sum()
+    energy = float(np.sum(w * g ** 2))
+    if energy <= 2 * noise_energy:
+        return float("inf")
+    return float(np.sqrt(2 * v * np.sum(w ** 2 * g ** 2)) / (energy - noise_energy))
 
 
 def epipolar_curve(cam_a: CameraModel, cam_b: CameraModel, pose_ab: Pose, uv_a, distances_mm) -> np.ndarray:
