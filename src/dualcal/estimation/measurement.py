@@ -167,12 +167,13 @@ def _parameter_rows(rig: RigModel, name: str, X_cam: np.ndarray, J_X: np.ndarray
     return rows
 
 
-def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]],
-                     index: dict[str, int]) -> dict[str, IntersectedPoint]:
+def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]], index: dict[str, int],
+                     failed: dict[str, str] | None = None) -> dict[str, IntersectedPoint]:
     """Intersect and linearise points ``{name: {camera: (2,) uv}}`` (module docstring), those seen by the
     same cameras together (one triangulation and one projection per camera for all of them).
 
-    ``index`` maps the names of calib.json's covariance parameters to their positions.
+    ``index`` maps the names of calib.json's covariance parameters to their positions. A point whose rays do not
+    meet raises :class:`EstimationError`, or with ``failed`` is left out and named there with the reason.
     """
     groups: dict[tuple[str, ...], list[str]] = {}
     for name, seen in uv_px.items():
@@ -185,10 +186,12 @@ def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]],
         try:
             X = triangulate(cams, poses, uv)
         except EstimationError as exc:
-            if len(members) == 1:
+            if len(members) == 1 and failed is not None:
+                failed[members[0]] = str(exc)
+            elif len(members) == 1:
                 raise EstimationError(f"point {members[0]!r}: {exc}") from None
-            for m in members:                      # name the point whose rays fail
-                out.update(intersect_points(rig, {m: uv_px[m]}, index))
+            for m in members if len(members) > 1 else ():      # name the point whose rays fail
+                out.update(intersect_points(rig, {m: uv_px[m]}, index, failed))
             continue
         J, J_theta, res = [], [], []
         for name, cam, pose, uv_c in zip(names, cams, poses, uv):
@@ -204,7 +207,7 @@ def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]],
         res = np.stack(res, axis=1)                                                 # (P, m, 2)
         for i, m in enumerate(members):
             out[m] = IntersectedPoint(X[i], names, A[i], B[i], res[i], J_theta[i], annihilator[i])
-    return {name: out[name] for name in uv_px}
+    return {name: out[name] for name in uv_px if name in out}
 
 
 def intersect_point(rig: RigModel, uv_px: dict[str, np.ndarray], index: dict[str, int]) -> IntersectedPoint:
@@ -552,7 +555,11 @@ def _measure_at(rig: RigModel, spec: dict, photos: dict, focus: dict, pixel_sigm
             warn(f"point {name}: not found in the other photos ({'; '.join(f'{c}: {r}' for c, r in missed.items())}): "
                  "it is not measured (tap it in another photo too, or pick a point with texture around it)")
             del uv_px[name]
-    doc = _measured(rig, spec, uv_px, matched, pixel_sigma)
+    failed = {}
+    doc = _measured(rig, spec, uv_px, matched, pixel_sigma, failed)
+    for name, reason in failed.items():
+        unmatched[name] = {c: f"its rays do not meet in front of the cameras ({reason})" for c in matched[name]}
+        warn(f"point {name}: its match does not meet its tap's ray in front of the cameras: it is not measured")
     for name, m in matched.items():
         if name in doc["points"] and m:
             doc["points"][name]["matched"] = {c: _match_doc(x) for c, x in m.items()}
@@ -560,10 +567,15 @@ def _measure_at(rig: RigModel, spec: dict, photos: dict, focus: dict, pixel_sigm
     return doc
 
 
-def _measured(rig: RigModel, spec: dict, uv_px: dict, matched: dict, pixel_sigma: dict) -> dict:
-    """The points ``uv_px`` ``{name: {camera: uv}}`` intersected and the lengths between them (module docstring)."""
+def _measured(rig: RigModel, spec: dict, uv_px: dict, matched: dict, pixel_sigma: dict,
+              failed: dict[str, str]) -> dict:
+    """The points ``uv_px`` ``{name: {camera: uv}}`` intersected and the lengths between them (module docstring); a
+    matched point whose rays do not meet (a match at or beyond infinity) is left out and named in ``failed``."""
     index, cov_theta = _covariances(rig)
-    found = intersect_points(rig, uv_px, index) if uv_px else {}
+    given = {n: uv for n, uv in uv_px.items() if n not in matched}
+    found = {**intersect_points(rig, given, index),
+             **intersect_points(rig, {n: uv for n, uv in uv_px.items() if n in matched}, index, failed)}
+    found = {n: found[n] for n in uv_px if n in found}
     names = list(found)
     pixel_cov = {n: _pixel_covariance(found[n].cameras, pixel_sigma, matched.get(n)) for n in names}
     # Every part is a fixed-size block (module docstring): a point's 3 x 3 pixel part A S A^T, and the
