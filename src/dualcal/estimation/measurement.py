@@ -443,7 +443,8 @@ def _pixel_covariance(cameras: tuple[str, ...], sigma_px: dict[str, float], matc
     return S
 
 
-def _match_doc(m: Match) -> dict:
+def match_to_dict(m: Match) -> dict:
+    """A match as measure.json's ``matched`` holds it: ``uv``, ``sigma_px``, ``score``, ``second_score``, ``direction``."""
     return {"uv": m.uv.tolist(), "sigma_px": m.sigma_px, "score": m.score, "second_score": m.second_score,
             "direction": m.direction.tolist()}
 
@@ -562,7 +563,7 @@ def _measure_at(rig: RigModel, spec: dict, photos: dict, focus: dict, pixel_sigm
         warn(f"point {name}: its match does not meet its tap's ray in front of the cameras: it is not measured")
     for name, m in matched.items():
         if name in doc["points"] and m:
-            doc["points"][name]["matched"] = {c: _match_doc(x) for c, x in m.items()}
+            doc["points"][name]["matched"] = {c: match_to_dict(x) for c, x in m.items()}
     doc["unmatched"] = unmatched
     return doc
 
