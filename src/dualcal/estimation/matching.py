@@ -67,6 +67,8 @@ relative pose as :class:`~dualcal.geometry.model.Pose` (``X_b = R X_a + t``, mm)
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -384,14 +386,26 @@ def _noise_gram(s: _Samples) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Fit:
-    """A shift fitted at one scale: ``x`` and ``sigma_x`` (finest-grid px), the blur variance ``a`` still lacks
-    (negative: ``b``), the disparity's ``slopes`` (2,) along and across the line and their covariance (2, 2)."""
+    """A shift fitted at one scale: ``x`` (finest-grid px), the blur variance ``a`` still lacks (negative: ``b``),
+    the disparity's ``slopes`` (2,) along and across the line; ``sigma_x`` and the slopes' covariance (2, 2),
+    ``slopes_cov``, computed when asked (``uncertainty()`` gives both): the last of the blur passes only."""
 
     x: float
-    sigma_x: float
     blur_variance: float
     slopes: np.ndarray
-    slopes_cov: np.ndarray
+    uncertainty: Callable[[], tuple[float, np.ndarray]]
+
+    @functools.cached_property
+    def _sigmas(self) -> tuple[float, np.ndarray]:
+        return self.uncertainty()
+
+    @property
+    def sigma_x(self) -> float:
+        return self._sigmas[0]
+
+    @property
+    def slopes_cov(self) -> np.ndarray:
+        return self._sigmas[1]
 
 
 def _refine(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int):
@@ -477,31 +491,31 @@ def _fit_shift(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int, leve
             return None
         if abs(delta[0]) < 1e-4:
             break
-    # the sigma (module docstring): C, the residuals' covariance for unit noise per source pixel; the noise's
-    # variance from the residuals against their expectation tr(W P C P^T), P = I - J G with G = N^-1 J^T W (the
-    # diagonal of P C P^T without forming it: diag C - 2 diag(J G C) + diag(J G C G^T J^T)); the shift's from
-    # G's first row, and given slopes' uncertainty through the shift's sensitivity to them
     S_at = _Samples(S, S_all.inside[:, n:2 * n], S_all.uv[:, n:2 * n], S_all.sigma_px, S_all.crop, S_all.origin)
     r = (photometric[0] * T.values + photometric[1] + photometric[2] * lap - S).ravel()
-    C = photometric[0] ** 2 * _noise_gram(T) + _noise_gram(S_at)
-    G = np.linalg.solve(N, (J * W[:, None]).T)
-    GC = G @ C
-    diagonal = np.diag(C) - 2 * np.einsum("kj,jk->k", J, GC) + np.einsum("kj,jl,kl->k", J, GC @ G.T, J)
-    noise_var = float(np.sum(W * r * r)) / float(np.sum(W * diagonal))
-    var_x = noise_var * float(GC[0] @ G[0])
-    # clustered: each block of the window's residuals taken as one draw, whatever their correlation inside
-    contribution = (G[0] * r).reshape(n, n)
-    edges = np.linspace(0, n, _CLUSTERS + 1).astype(int)
-    blocks = np.add.reduceat(np.add.reduceat(contribution, edges[:-1], axis=0), edges[:-1], axis=1)
-    clusters = blocks.size
-    var_x = max(var_x, float(np.sum(blocks ** 2)) * clusters / (clusters - 1))
-    if free:
-        slopes_cov = noise_var * (GC[1:3] @ G[1:3].T)
-    else:
+
+    def uncertainty() -> tuple[float, np.ndarray]:
+        # the sigma (module docstring): C, the residuals' covariance for unit noise per source pixel; the noise's
+        # variance from the residuals against their expectation tr(W P C P^T), P = I - J G with G = N^-1 J^T W (the
+        # diagonal of P C P^T without forming it: diag C - 2 diag(J G C) + diag(J G C G^T J^T)); the shift's from
+        # G's first row, and given slopes' uncertainty through the shift's sensitivity to them
+        C = photometric[0] ** 2 * _noise_gram(T) + _noise_gram(S_at)
+        G = np.linalg.solve(N, (J * W[:, None]).T)
+        GC = G @ C
+        diagonal = np.diag(C) - 2 * np.einsum("kj,jk->k", J, GC) + np.einsum("kj,jl,kl->k", J, GC @ G.T, J)
+        noise_var = float(np.sum(W * r * r)) / float(np.sum(W * diagonal))
+        var_x = noise_var * float(GC[0] @ G[0])
+        # clustered: each block of the window's residuals taken as one draw, whatever their correlation inside
+        contribution = (G[0] * r).reshape(n, n)
+        edges = np.linspace(0, n, _CLUSTERS + 1).astype(int)[:-1]
+        blocks = np.add.reduceat(np.add.reduceat(contribution, edges, axis=0), edges, axis=1)
+        var_x = max(var_x, float(np.sum(blocks ** 2)) * blocks.size / (blocks.size - 1))
+        if free:
+            return float(np.sqrt(var_x)), noise_var * (GC[1:3] @ G[1:3].T)
         sensitivity = np.array([G[0] @ (g * along).ravel(), G[0] @ (g * across).ravel()])
-        var_x += float(sensitivity @ slopes_cov @ sensitivity)
-    return _Fit(float(x), float(np.sqrt(var_x)), float(2.0 * photometric[2] / photometric[0]) * step ** 2, slope,
-                np.asarray(slopes_cov, float))
+        return float(np.sqrt(var_x + sensitivity @ slopes_cov @ sensitivity)), np.asarray(slopes_cov, float)
+
+    return _Fit(float(x), float(2.0 * photometric[2] / photometric[0]) * step ** 2, slope, uncertainty)
 
 
 def _predicted_sigma(frame: MatchFrame, a: tuple, half: int) -> float:
