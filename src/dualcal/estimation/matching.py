@@ -69,7 +69,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -141,7 +141,9 @@ class Match:
     line's unit direction at ``uv`` in ``b``'s pixels (the match is exact across it: ``covariance`` (2, 2) is
     ``sigma_px^2 direction direction^T``); ``score`` the ZNCC at the match, ``second_score`` the best
     other peak's (None: none); ``level`` the scale that made it unique (0: the finest); ``depth_mm`` the
-    rectified depth; ``tap_jacobian`` (2, 2) ``d uv / d uv_a`` over the surface found (its depth and slant).
+    rectified depth; ``tap_jacobian`` (2, 2) ``d uv / d uv_a`` over the surface found (its depth and slant);
+    ``photometric_sigma_px`` the sigma of the match on the line as given, ``epipolar_coupling`` how far it moves along
+    the line per px the line is off across (``sigma_px`` holds both, :meth:`widened`).
     """
 
     ok: bool
@@ -154,6 +156,16 @@ class Match:
     level: int | None = None
     depth_mm: float | None = None
     tap_jacobian: np.ndarray | None = None
+    photometric_sigma_px: float | None = None
+    epipolar_coupling: float | None = None
+
+    def widened(self, epipolar_sigma_px: float) -> "Match":
+        """The match with ``sigma_px`` from its photometric sigma and an epipolar line off across by
+        ``epipolar_sigma_px`` (1-sigma, px of ``b``): ``sqrt(s_photo^2 + (coupling e)^2)``."""
+        if not self.ok:
+            return self
+        return replace(self, sigma_px=float(np.hypot(self.photometric_sigma_px,
+                                                     self.epipolar_coupling * epipolar_sigma_px)))
 
     @property
     def covariance(self) -> np.ndarray:
@@ -388,12 +400,13 @@ def _noise_gram(s: _Samples) -> np.ndarray:
 class _Fit:
     """A shift fitted at one scale: ``x`` (finest-grid px), the blur variance ``a`` still lacks (negative: ``b``),
     the disparity's ``slopes`` (2,) along and across the line; ``sigma_x`` and the slopes' covariance (2, 2),
-    ``slopes_cov``, computed when asked (``uncertainty()`` gives both): the last of the blur passes only."""
+    ``slopes_cov``, and the shift's ``coupling`` to an epipolar line off across, computed when asked
+    (``uncertainty()`` gives them): for the last of the blur passes only."""
 
     x: float
     blur_variance: float
     slopes: np.ndarray
-    uncertainty: Callable[[], tuple[float, np.ndarray]]
+    uncertainty: Callable[[], tuple[float, np.ndarray, float]]
 
     @functools.cached_property
     def _sigmas(self) -> tuple[float, np.ndarray]:
@@ -407,10 +420,15 @@ class _Fit:
     def slopes_cov(self) -> np.ndarray:
         return self._sigmas[1]
 
+    @property
+    def coupling(self) -> float:
+        """How far the shift moves along the line when the line is off by one (finest-grid) px across it."""
+        return self._sigmas[2]
+
 
 def _refine(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int):
-    """The shift at the finest scale from ``x0`` and its sigma, finest-grid px, and the disparity's slopes (module
-    docstring); None when it does not settle.
+    """The shift at the finest scale from ``x0`` and its sigma, finest-grid px, the disparity's slopes and the shift's
+    coupling to the line's error across (module docstring); None when it does not settle.
 
     Two estimates of the disparity's slopes (the plane of the surface): the window's own (free in its fit: right
     where the window has texture everywhere, wrong where it holds a corner's two edges and no more) and a
@@ -423,10 +441,10 @@ def _refine(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int):
     wide = None if coarse is None else _equalised(frame, a, b, coarse.x, half, 0, coarse.slopes, coarse.slopes_cov)
     if local is None or wide is None:
         fine = local or wide
-        return None if fine is None else (fine.x, fine.sigma_x, fine.slopes)
+        return None if fine is None else (fine.x, fine.sigma_x, fine.slopes, fine.coupling)
     d = local.x - wide.x
     return (0.5 * (local.x + wide.x), float(np.sqrt(0.5 * (local.sigma_x ** 2 + wide.sigma_x ** 2) + 0.25 * d * d)),
-            0.5 * (local.slopes + wide.slopes))
+            0.5 * (local.slopes + wide.slopes), 0.5 * (local.coupling + wide.coupling))
 
 
 def _equalised(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int, level: int, slopes=None,
@@ -494,7 +512,7 @@ def _fit_shift(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int, leve
     S_at = _Samples(S, S_all.inside[:, n:2 * n], S_all.uv[:, n:2 * n], S_all.sigma_px, S_all.crop, S_all.origin)
     r = (photometric[0] * T.values + photometric[1] + photometric[2] * lap - S).ravel()
 
-    def uncertainty() -> tuple[float, np.ndarray]:
+    def uncertainty() -> tuple[float, np.ndarray, float]:
         # the sigma (module docstring): C, the residuals' covariance for unit noise per source pixel; the noise's
         # variance from the residuals against their expectation tr(W P C P^T), P = I - J G with G = N^-1 J^T W (the
         # diagonal of P C P^T without forming it: diag C - 2 diag(J G C) + diag(J G C G^T J^T)); the shift's from
@@ -510,10 +528,16 @@ def _fit_shift(frame: MatchFrame, a: tuple, b: tuple, x0: float, half: int, leve
         edges = np.linspace(0, n, _CLUSTERS + 1).astype(int)[:-1]
         blocks = np.add.reduceat(np.add.reduceat(contribution, edges, axis=0), edges, axis=1)
         var_x = max(var_x, float(np.sum(blocks ** 2)) * blocks.size / (blocks.size - 1))
+        # the line itself off by dy across: b's samples then differ by g_y dy, which moves the shift by G_0 . g_y
+        shift_px = x + slope[0] * along + slope[1] * across + along
+        rows = _resample(*b, frame.rotation_b, frame.f_px, level, np.concatenate([shift_px, shift_px], axis=1),
+                         np.concatenate([across - 0.5 * step, across + 0.5 * step], axis=1), extra_b).values
+        coupling = float(G[0] @ ((rows[:, n:] - rows[:, :n]) / step).ravel())
         if free:
-            return float(np.sqrt(var_x)), noise_var * (GC[1:3] @ G[1:3].T)
+            return float(np.sqrt(var_x)), noise_var * (GC[1:3] @ G[1:3].T), coupling
         sensitivity = np.array([G[0] @ (g * along).ravel(), G[0] @ (g * across).ravel()])
-        return float(np.sqrt(var_x + sensitivity @ slopes_cov @ sensitivity)), np.asarray(slopes_cov, float)
+        return (float(np.sqrt(var_x + sensitivity @ slopes_cov @ sensitivity)), np.asarray(slopes_cov, float),
+                coupling)
 
     return _Fit(float(x), float(2.0 * photometric[2] / photometric[0]) * step ** 2, slope, uncertainty)
 
@@ -592,7 +616,8 @@ def _tap_jacobian(frame: MatchFrame, cam_a: CameraModel, cam_b: CameraModel, uv_
 
 
 def match_point(image_a: np.ndarray, cam_a: CameraModel, image_b: np.ndarray, cam_b: CameraModel, pose_ab: Pose,
-                uv_a, min_distance_mm: float = MIN_DISTANCE_MM, half: int = HALF_WINDOW) -> Match:
+                uv_a, min_distance_mm: float = MIN_DISTANCE_MM, half: int = HALF_WINDOW,
+                epipolar_sigma_px: float = 0.0) -> Match:
     """Find the point tapped at ``uv_a`` in photo ``a`` in photo ``b`` of the same instant (module docstring).
 
     Parameters
@@ -609,6 +634,10 @@ def match_point(image_a: np.ndarray, cam_a: CameraModel, image_b: np.ndarray, ca
         The nearest surface searched, mm from ``a``'s centre along the rectified axis.
     half : int
         Half-width of the window, samples.
+    epipolar_sigma_px : float
+        How far off across itself the calibration's epipolar line may be at the match, 1-sigma, px of ``b``: the
+        match moves along the line by its ``epipolar_coupling`` times that, which its ``sigma_px`` includes
+        (:meth:`Match.widened` adds it later).
 
     Returns
     -------
@@ -651,12 +680,17 @@ def match_point(image_a: np.ndarray, cam_a: CameraModel, image_b: np.ndarray, ca
     refined = _refine(frame, a, b, found.best_x, half)
     if refined is None:
         return Match(False, "no match", score=found.score)
-    x_b, sigma_x, slopes = refined
+    x_b, sigma_x, slopes, coupling = refined
     if sigma_x > MAX_SIGMA_PX:
         return Match(False, "texture-less", score=found.score)
-    uv_b = _pixels(cam_b, frame.rotation_b, frame.f_px, np.array([x_b - 0.5, x_b, x_b + 0.5]), np.zeros(3))[0]
-    along = uv_b[2] - uv_b[0]                             # d uv_b / d x, per grid px
+    uv_b = _pixels(cam_b, frame.rotation_b, frame.f_px, np.array([x_b - 0.5, x_b, x_b + 0.5, x_b, x_b]),
+                   np.array([0.0, 0.0, 0.0, -0.5, 0.5]))[0]
+    along, across = uv_b[2] - uv_b[0], uv_b[4] - uv_b[3]            # d uv_b / d x and d uv_b / d y, per grid px
+    scale_along, scale_across = float(np.linalg.norm(along)), float(np.linalg.norm(across))
     disparity = frame.x_tap - x_b
     depth = frame.f_px * frame.baseline_mm / disparity if disparity > 0 else np.inf
-    return Match(True, None, uv_b[1], float(sigma_x * np.linalg.norm(along)), along / np.linalg.norm(along),
-                 found.score, second, level, float(depth), _tap_jacobian(frame, cam_a, cam_b, uv_a, x_b, slopes))
+    # in b's px: the match's own sigma, and its move along per px of the line's error across
+    coupling_px = coupling * scale_along / scale_across
+    sigma_px = float(np.hypot(sigma_x * scale_along, coupling_px * epipolar_sigma_px))
+    return Match(True, None, uv_b[1], sigma_px, along / scale_along, found.score, second, level, float(depth),
+                 _tap_jacobian(frame, cam_a, cam_b, uv_a, x_b, slopes), float(sigma_x * scale_along), coupling_px)

@@ -45,7 +45,11 @@ camera only (a tap) is found in the others; its pixels' errors are then correlat
 ``tap_jacobian``), and the match adds its own error along the epipolar line (``M``, its ``sigma_px``), so
 the pixels ``(uv_a, uv_b, ...)`` have the covariance ``S = T s^2 T^T + blockdiag(0, M_b, ...)``,
 ``T = (I, K_b, ...)``: the tap moves the point along the surface, not in depth. Wherever ``S`` appears
-below it is this matrix (diagonal for points given by hand in every camera).
+below it is this matrix (diagonal for points given by hand in every camera). The match is made on the
+calibration's epipolar line, which is itself uncertain across (by :func:`_epipolar_sigma_px`, from the
+calibration's covariance): a line off by ``D`` moves a match along it by its ``epipolar_coupling`` times ``D``
+(how the texture there slants), which its ``sigma_px`` includes (:meth:`Match.widened`), taken as independent
+of the calibration's other effects on the point.
 
 Focus. Each photo's camera is :func:`camera_at_focus` at that photo's focus distance: the focus its
 metadata states, else the distance of the points it measured (``focus_from`` ``"metadata"``, ``"points"``),
@@ -443,6 +447,22 @@ def _pixel_covariance(cameras: tuple[str, ...], sigma_px: dict[str, float], matc
     return S
 
 
+def _epipolar_sigma_px(p: IntersectedPoint, camera: str, m: Match, cov_theta: dict[str, np.ndarray]) -> float:
+    """How far off across itself the calibration's epipolar line may be at the match of point ``p`` in ``camera``,
+    1-sigma, px (the larger of calib.json's two covariances).
+
+    A misclosure ``D`` across the line in that camera (a pixel off by ``D n``, ``n`` the unit normal to the line)
+    leaves the residual ``P n D`` (``P`` the point's ``annihilator``, a projector), so ``D = u . r`` with
+    ``u = P n / |P n|^2``; the calibration's part of the residuals has covariance ``P J_theta C J_theta^T P^T``.
+    """
+    i = p.cameras.index(camera)
+    normal = np.zeros(2 * len(p.cameras))
+    normal[2 * i:2 * i + 2] = [-m.direction[1], m.direction[0]]
+    Pn = p.annihilator @ normal
+    u = p.annihilator.T @ (Pn / (Pn @ Pn))
+    return float(np.sqrt(max(u @ p.J_theta @ C @ p.J_theta.T @ u for C in cov_theta.values())))
+
+
 def match_to_dict(m: Match) -> dict:
     """A match as measure.json's ``matched`` holds it: ``uv``, ``sigma_px``, ``score``, ``second_score``, ``direction``."""
     return {"uv": m.uv.tolist(), "sigma_px": m.sigma_px, "score": m.score, "second_score": m.second_score,
@@ -578,6 +598,9 @@ def _measured(rig: RigModel, spec: dict, uv_px: dict, matched: dict, pixel_sigma
              **intersect_points(rig, {n: uv for n, uv in uv_px.items() if n in matched}, index, failed)}
     found = {n: found[n] for n in uv_px if n in found}
     names = list(found)
+    for n in names:
+        for c, m in (matched.get(n) or {}).items():
+            matched[n][c] = m.widened(_epipolar_sigma_px(found[n], c, m, cov_theta))
     pixel_cov = {n: _pixel_covariance(found[n].cameras, pixel_sigma, matched.get(n)) for n in names}
     # Every part is a fixed-size block (module docstring): a point's 3 x 3 pixel part A S A^T, and the
     # calibration's part through B (3 x k), so the cost grows linearly with the points and the lengths.

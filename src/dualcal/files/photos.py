@@ -309,6 +309,16 @@ def read_focus(path) -> FocusFacts:
     Android's Camera2 focus distance (``LENS_FOCUS_DISTANCE``, dioptres) has no EXIF tag of its own: it is read
     where the camera app wrote it as ``SubjectDistance``.
 
+    Parameters
+    ----------
+    path : str or Path
+        The photo (JPEG, PNG, TIFF, HEIC or DNG); only its header is read.
+
+    Returns
+    -------
+    FocusFacts
+        What its metadata says; ``focus_m`` is the distance to use (None: none stated).
+
     Raises
     ------
     InputError

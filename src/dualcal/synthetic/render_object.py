@@ -28,6 +28,9 @@ __all__ = ["TexturedBox", "render_object", "texture_image"]
 
 #: Texture image size, px per face (square; each face's texture is stretched over it).
 TEXTURE_PX = 1024
+#: Most points a pixel's footprint is read at along its long axis (a face seen more obliquely is filtered as at
+#: this slant).
+ANISOTROPY = 8
 #: The wall behind the box, mm beyond its centre, and its half-width.
 WALL_BEHIND_MM, WALL_HALF_MM = 400.0, 4000.0
 
@@ -71,6 +74,22 @@ def _remap_flat(image: np.ndarray, u: np.ndarray, v: np.ndarray, width: int = 40
     out = cv2.remap(image, maps[0].reshape(rows, width), maps[1].reshape(rows, width), cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_REFLECT)
     return out.ravel()[:n]
+
+
+def _trilinear(pyramid: list[np.ndarray], st_mm: np.ndarray, texel: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """The texture at face points ``st_mm`` (N, 2), read at mip ``level`` (N,), blended between its two levels.
+
+    Texel ``j`` of level 0 is centred at ``s = (j + 0.5) texel``; ``cv2.pyrDown`` centres level ``k``'s pixel ``j`` on
+    level 0's pixel ``2^k j``."""
+    lo = np.floor(level).astype(int)
+    value = np.zeros(len(st_mm))
+    for L in np.unique(lo):
+        sel = lo == L
+        for k, w in ((L, 1.0 - (level[sel] - L)), (L + 1, level[sel] - L)):
+            scale = 2.0 ** k
+            value[sel] += w * _remap_flat(pyramid[k], (st_mm[sel, 0] / texel[0] - 0.5) / scale,
+                                          (st_mm[sel, 1] / texel[1] - 0.5) / scale)
+    return value
 
 
 @dataclass(frozen=True)
@@ -159,7 +178,11 @@ class TexturedBox:
 
     def shade(self, centre: np.ndarray, directions: np.ndarray, footprint_mm: np.ndarray) -> np.ndarray:
         """Reflectance seen along rays (N, 3) from ``centre`` whose pixels span ``footprint_mm`` (N,) per mm of
-        distance (the pixel's angular size): the texture at the level of the footprint on the face (trilinear)."""
+        distance (the pixel's angular size), the texture filtered over the pixel's footprint on the face: an
+        ellipse ``lam a`` across the slant and ``lam a / cos(theta)`` along it (``theta`` the ray's angle to the
+        face's normal). The texture is read at the level of the ellipse's short axis (trilinear) at up to
+        :data:`ANISOTROPY` points spread along its long axis, averaged (anisotropic filtering), so that a tele and
+        a wide see a slanted face blurred alike, as optics and pixels blur it."""
         lam, index, st = self._hits(centre, directions)
         out = np.full(len(directions), 0.5)
         for i, f in enumerate(self.faces):
@@ -168,23 +191,17 @@ class TexturedBox:
                 continue
             pyramid = self._textures[i]
             texel = np.array(f.size_mm) / pyramid[0].shape[::-1]
-            d = directions[on]
-            slant = np.abs(d @ f.normal) / np.linalg.norm(d, axis=1)
-            # the footprint on the face, texels: its geometric mean over the two axes (one foreshortened)
-            size = lam[on] * footprint_mm[on] / np.sqrt(np.maximum(slant, 0.05)) / texel.min()
-            level = np.clip(np.log2(np.maximum(size, 1.0)), 0, len(pyramid) - 1.001)
-            lo = np.floor(level).astype(int)
+            d = directions[on] / np.linalg.norm(directions[on], axis=1, keepdims=True)
+            cos = np.maximum(np.abs(d @ f.normal), 1.0 / ANISOTROPY)
+            short = lam[on] * footprint_mm[on]                                       # mm
+            along = np.column_stack([d @ f.s_axis, d @ f.t_axis])                     # the slant, in (s, t)
+            along /= np.maximum(np.linalg.norm(along, axis=1, keepdims=True), 1e-12)
+            extra = short * (1.0 / cos - 1.0)                                        # long axis beyond the short
+            taps = int(np.clip(np.ceil(np.max(1.0 / cos)), 1, ANISOTROPY))
+            level = np.clip(np.log2(np.maximum(short / texel.min(), 1.0)), 0, len(pyramid) - 1.001)
             value = np.zeros(on.sum())
-            for L in np.unique(lo):
-                for k, w in ((L, 1.0 - (level - L)), (L + 1, level - L)):
-                    sel = lo == L
-                    scale = 2.0 ** k
-                    # texel j of level 0 is centred at s = (j + 0.5) texel; pyrDown centres level k's
-                    # pixel j on level 0's pixel 2^k j
-                    mu = (st[on][sel, 0] / texel[0] - 0.5) / scale
-                    mv = (st[on][sel, 1] / texel[1] - 0.5) / scale
-                    sampled = _remap_flat(pyramid[k], mu, mv)
-                    value[sel] += w[sel] * sampled
+            for t in (np.arange(taps) + 0.5) / taps - 0.5:                         # spread along the long axis
+                value += _trilinear(pyramid, st[on] + (t * extra)[:, None] * along, texel, level) / taps
             out[on] = value
         return out
 

@@ -40,8 +40,8 @@ from ..geometry.rotation import rotation_from_opk
 from ..parallel import interruptible_map
 from ..progress import progress_bar
 
-__all__ = ["FOCAL_MM", "PhotoLens", "breathing_camera", "focus_exif", "photo_lenses", "photos_truth_doc",
-           "write_focus_photo_set", "write_object_photos"]
+__all__ = ["FOCAL_MM", "PhotoLens", "breathing_camera", "face_points", "focal_lengths_mm", "focus_exif", "lens_doc",
+           "photo_lenses", "photos_truth_doc", "write_focus_photo_set", "write_object_photos"]
 
 #: The EXIF focal length of each preset's cameras, mm (a phone's wide 4.3 mm at 1.4 um pixels, ...). A camera not
 #: named here: its focal length in px times 1.4 um.
@@ -162,6 +162,19 @@ def write_focus_photo_set(truth, photo_dir, seed: int = 0, jobs: int | None = No
     return paths
 
 
+def face_points(box, share: float = 0.3) -> np.ndarray:
+    """(4, 3) points on the face of ``box`` that looks most squarely at the reference camera, ``share`` of its
+    sides from its centre each way (in its plane, reference frame, mm): points to tap and measure between."""
+    R, centre, half = box.pose.R, box.pose.t_mm, np.asarray(box.size_mm, float) / 2
+    toward = -centre / np.linalg.norm(centre)
+    axis = int(np.argmax(np.abs(R.T @ toward)))
+    normal = R[:, axis] * np.sign(R[:, axis] @ toward)
+    a, b = [k for k in range(3) if k != axis]
+    offsets = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
+    return np.array([centre + normal * half[axis] + 2 * share * (i * half[a] * R[:, a] + j * half[b] * R[:, b])
+                     for i, j in offsets])
+
+
 def write_object_photos(truth, folder, distances_mm=(300.0, 2000.0), seed: int = 0, breathing: float = 0.0,
                         ois_px: float = 0.0, focal_mm: dict[str, float] | None = None, quality: int = 92) -> dict:
     """Measurement photos of a textured box (:class:`~dualcal.synthetic.render_object.TexturedBox`, edges 0.3, 0.22
@@ -173,7 +186,8 @@ def write_object_photos(truth, folder, distances_mm=(300.0, 2000.0), seed: int =
     -------
     dict
         truth.json's ``measure_photos``: ``{"<distance>mm": {"box": {"R", "t_mm", "size_mm"}, "corners_mm": (8, 3)
-        in the reference camera's frame, "photos": {camera: {"file", lens...}}}}``.
+        in the reference camera's frame, "face_points_mm": (4, 3) (:func:`face_points`), "photos": {camera:
+        {"file", lens...}}}}``.
     """
     from .render_object import TexturedBox, render_object
 
@@ -196,5 +210,6 @@ def write_object_photos(truth, folder, distances_mm=(300.0, 2000.0), seed: int =
             _write_jpeg(sub / f"{name}.jpg", gray, focus_exif(lens), quality)
             photos[name] = {"file": f"{sub.name}/{name}.jpg", **lens_doc(lens)}
         out[sub.name] = {"box": {"R": pose.R.tolist(), "t_mm": pose.t_mm.tolist(), "size_mm": list(box.size_mm)},
-                         "corners_mm": box.corners_mm().tolist(), "photos": photos}
+                         "corners_mm": box.corners_mm().tolist(), "face_points_mm": face_points(box).tolist(),
+                         "photos": photos}
     return out
