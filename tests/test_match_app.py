@@ -11,12 +11,8 @@ lengths read off the page against the truth, the record downloaded. Screenshots 
 from __future__ import annotations
 
 import io
-import json
-import os
 import re
-import signal
-import subprocess
-import sys
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +22,7 @@ from PIL import Image
 pytest.importorskip("uvicorn", reason="the app extra")
 from starlette.testclient import TestClient  # noqa: E402
 
-from conftest import CHROMIUM  # noqa: E402
+from test_app_browser import TOKEN, chromium, server, sync_api  # noqa: E402,F401  (its fixtures: the app, Chromium)
 from dualcal.app.server import AppConfig, create_app  # noqa: E402
 from dualcal.estimation.calibrate import calibrate_rig  # noqa: E402
 from dualcal.files.io import save_rig  # noqa: E402
@@ -36,7 +32,6 @@ from dualcal.geometry.rotation import rotation_from_opk  # noqa: E402
 from dualcal.synthetic.render_object import TexturedBox, render_object  # noqa: E402
 from dualcal.synthetic.synth import make_truth, noisy_corner_set  # noqa: E402
 
-TOKEN = "measure-token-0123456789"
 BASE = "http://127.0.0.1:8000"
 AUTH = {"authorization": f"Bearer {TOKEN}"}
 SCREENS = Path(__file__).resolve().parents[1] / "out" / "app-screens"
@@ -110,38 +105,20 @@ def test_the_api_takes_the_photos_finds_a_tap_and_measures(client, scene):
     assert "A&ndash;B" in record.text and record.text.count("data:image/jpeg") == 4
 
 
-def test_the_page_in_a_phone_and_on_a_desktop(scene):
-    if CHROMIUM is None:
-        pytest.skip("no Chromium here (Debian: apt-get install chromium); the API test still ran")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (test extra) drives Chromium")
-    workspace, files, X, uv = scene
-    env = {**os.environ, "DUALCAL_APP_TOKEN": TOKEN, "OPENBLAS_NUM_THREADS": "1"}
-    process = subprocess.Popen([sys.executable, "-m", "dualcal", "app", str(workspace), "--port", "0", "--no-browser"],
-                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True)
-    try:
-        line = process.stdout.readline()
-        assert line.startswith("dualcal app: "), line
-        url = line.split(": ", 1)[1].strip()
-        with sync_api.sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox", "--disable-gpu"])
-            for device in ("iPhone 13", "desktop"):
-                _page_flow(sync_api, pw, browser, url, device, files, X, uv)
-            browser.close()
-    finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(20)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-        process.stdout.close()
+def test_the_page_in_a_phone_and_on_a_desktop(server, chromium, scene):
+    """The app as a process and Chromium as the app's own browser test starts them (its fixtures)."""
+    url, workspace = server
+    devices, browser = chromium
+    shutil.copytree(scene[0] / "box", workspace / "box", ignore=shutil.ignore_patterns("measure"))
+    for device in ("iPhone 13", "desktop"):
+        _page_flow(devices, browser, url, device, *scene[1:])
 
 
-def _page_flow(sync_api, pw, browser, url, device, files, X, uv):
+def _page_flow(devices, browser, url, device, files, X, uv):
     screens = SCREENS / f"measure-{device.split()[0].lower()}"
     screens.mkdir(parents=True, exist_ok=True)
     print(f"screenshots: {screens}")
-    options = dict(pw.devices[device]) if device != "desktop" else {"viewport": {"width": 1280, "height": 900}}
+    options = dict(devices[device]) if device != "desktop" else {"viewport": {"width": 1280, "height": 900}}
     context = browser.new_context(**options, accept_downloads=True)
     page = context.new_page()
     touch = bool(options.get("has_touch"))

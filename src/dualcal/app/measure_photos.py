@@ -88,6 +88,7 @@ class _Photos:
 
 
 _SUFFIXES = {s for suffixes in KINDS.values() for s in suffixes}
+_NO_PHOTO = JSONResponse({"error": "no photo of this camera yet"}, status_code=404)
 
 
 def _camera(request: Request, rig) -> str:
@@ -160,13 +161,16 @@ def measure_routes(page, project_route, json_body, max_photo_bytes: int) -> list
             temp.unlink(missing_ok=True)
         return JSONResponse(await anyio.to_thread.run_sync(state_doc, state))
 
+    async def photo_of(request: Request, state) -> Path | None:
+        """The measurement photo of the camera the route names (None: none yet)."""
+        rig = await anyio.to_thread.run_sync(photos.rig, state.project.folder)
+        return photos.path(state.project.folder, _camera(request, rig))
+
     @project_route
     async def get_photo(request: Request, state):
-        folder = state.project.folder
-        rig = await anyio.to_thread.run_sync(photos.rig, folder)
-        path = photos.path(folder, _camera(request, rig))
+        path = await photo_of(request, state)
         if path is None:
-            return JSONResponse({"error": "no photo of this camera yet"}, status_code=404)
+            return _NO_PHOTO
 
         def screen() -> bytes:
             import cv2
@@ -181,11 +185,9 @@ def measure_routes(page, project_route, json_body, max_photo_bytes: int) -> list
 
     @project_route
     async def crop(request: Request, state):
-        folder = state.project.folder
-        rig = await anyio.to_thread.run_sync(photos.rig, folder)
-        path = photos.path(folder, _camera(request, rig))
+        path = await photo_of(request, state)
         if path is None:
-            return JSONResponse({"error": "no photo of this camera yet"}, status_code=404)
+            return _NO_PHOTO
         try:
             u, v = float(request.query_params["u"]), float(request.query_params["v"])
             r = int(request.query_params.get("r", 40))
