@@ -97,8 +97,8 @@ def _read_photos(photos: dict[str, Path]) -> tuple[dict, dict]:
 @click.option("--record", "record_path", type=click.Path(dir_okay=False, path_type=Path), metavar="record.html",
               help="Also write the measurement record: the lengths with their sigmas, each point's crops in every "
                    "photo with the match drawn, the focus used; one self-contained HTML page to keep or send.")
-@click.option("--min-distance", "min_distance_mm", type=click.FloatRange(min=1.0), default=100.0, show_default=True,
-              metavar="MM", help="The nearest distance from the camera a tapped point is searched at, mm.")
+@click.option("--min-distance", "min_distance_mm", type=click.FloatRange(min=1.0), default=None, metavar="MM",
+              help="The nearest distance from the camera a tapped point is searched at, mm (default 100).")
 @click.option("--pick", is_flag=True,
               help="Write the page on which to click the points in the photos NAME=IMAGE (one per camera, "
                    "taken at one instant); it exports points.json.")
@@ -146,7 +146,7 @@ def measure_command(calib: Path, photo_specs: tuple[str, ...], points_path: Path
 
     points = load_points(points_path, single_camera=bool(photos))
     images, focus = _read_photos(photos)
-    doc = measure(rig, points, images, focus, min_distance_mm)
+    doc = measure(rig, points, images, focus, **({} if min_distance_mm is None else {"min_distance_mm": min_distance_mm}))
     write_json_atomic(output, doc)
     if record_path is not None:
         from ..pages.report.record import render_record

@@ -190,12 +190,13 @@ def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]], ind
         try:
             X = triangulate(cams, poses, uv)
         except EstimationError as exc:
-            if len(members) == 1 and failed is not None:
+            if len(members) > 1:                   # name the point whose rays fail
+                for m in members:
+                    out.update(intersect_points(rig, {m: uv_px[m]}, index, failed))
+            elif failed is not None:
                 failed[members[0]] = str(exc)
-            elif len(members) == 1:
+            else:
                 raise EstimationError(f"point {members[0]!r}: {exc}") from None
-            for m in members if len(members) > 1 else ():      # name the point whose rays fail
-                out.update(intersect_points(rig, {m: uv_px[m]}, index, failed))
             continue
         J, J_theta, res = [], [], []
         for name, cam, pose, uv_c in zip(names, cams, poses, uv):
@@ -306,7 +307,7 @@ def points_from_dict(doc: dict, source: str = "points.json", single_camera: bool
         if len(seen) < (1 if single_camera else 2):
             raise InputError(f"{source}: point {name!r} is given in {len(seen)} camera(s) "
                              f"({', '.join(seen) or 'none'}); a point needs its pixels in two or more cameras "
-                             "of one instant (or, with the instant's photos, in one camera: --photo CAMERA=PATH)")
+                             "of one instant (or, with the photos of that instant, in one)")
         out[str(name)] = {str(cam): _finite_uv(uv, f"{source}: point {name!r} in camera {cam!r}")
                           for cam, uv in seen.items()}
     lengths = doc.get("lengths", [])
@@ -420,12 +421,12 @@ def match_taps(rig: RigModel, taps: dict[str, dict[str, np.ndarray]], photos: di
         (a, uv), = seen.items()
         if a not in photos:
             raise InputError(f"point {name!r} is given in camera {a!r} only, and there is no photo of {a!r} to find it "
-                             f"in the others: give it with --photo {a}=PATH")
+                             f"in the others: give that camera's photo of the instant")
         pose_a = rig.pose_from_reference(a)
         others = [b for b in rig.camera_order() if b != a and b in photos and (b == rig.reference or b in rig.rig)]
         if not others:
             raise InputError(f"point {name!r} is given in camera {a!r} only, and there is no photo of another camera "
-                             f"of the rig to find it in: give one with --photo CAMERA=PATH")
+                             f"of the rig to find it in: give another camera's photo of the instant")
         out[name] = {}
         for b in others:
             pose_ab = rig.pose_from_reference(b).compose(pose_a.inverse())
@@ -535,8 +536,7 @@ def measure(rig: RigModel, points: dict, photos: dict[str, np.ndarray] | None = 
     cameras = [c for c in rig.camera_order() if c in photos or any(c in seen for seen in spec["points"].values())]
     focus = _focus(rig, cameras, focus_metadata_m or {}, {})
     doc = _measure_at(rig, spec, photos, focus, pixel_sigma, min_distance_mm)
-    if any(f["focus_from"] == "points" or (focus_modelled(rig, c) and f["focus_from"] == "calibration")
-           for c, f in focus.items()):
+    if any(focus_modelled(rig, c) and f["focus_from"] == "calibration" for c, f in focus.items()):
         # a camera whose focus is modelled but not stated: again at the distance of the points it measured
         focus = _focus(rig, cameras, focus_metadata_m or {}, _distances_m(rig, doc))
         doc = _measure_at(rig, spec, photos, focus, pixel_sigma, min_distance_mm)
