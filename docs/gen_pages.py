@@ -176,6 +176,8 @@ API_MODULES = {
     "dualcal.files.boardprint": ["write_board"],
     "dualcal.synthetic.synth_roll": ["write_camera_roll"],
     "dualcal.files.imports": ["Imported", "write_imported"],
+    "dualcal.estimation.matching": ["match_point", "Match", "epipolar_curve"],
+    "dualcal.files.photos": ["read_focus", "FocusFacts"],
     "dualcal.messages": None,
 }
 

@@ -22,6 +22,8 @@ GET      /api/projects/{id}/files/NAME           corners.json, calib.json, eval.
 GET      /api/projects/{id}/archive.zip          every file of the project
 GET      /api/projects/{id}/photos/NAME          a photo as uploaded; ``thumbs/NAME``, ``screen/NAME``: its previews
 GET      /api/qr.svg                             the QR code of the app's URL (with the token)
+GET      /projects/{id}/measure                  the page measuring with photos of an object
+ANY      /api/projects/{id}/measure/...          its routes (:mod:`dualcal.app.measure_photos`)
 =======  ======================================  ===============================================================
 """
 
@@ -44,6 +46,7 @@ from starlette.staticfiles import StaticFiles
 from .. import __version__
 from ..errors import DualcalError, InputError
 from .jobs import ProjectState, Runner
+from .measure_photos import measure_routes
 from .security import Guard, HostRule
 from .store import EXPORTS, FILES, Settings, Workspace
 from .summary import chart_labels
@@ -380,6 +383,7 @@ def create_app(config: AppConfig) -> Starlette:
         Route("/api/projects/{project_id}/photos", upload, methods=["POST"]),
         Route("/api/projects/{project_id}/use", use, methods=["POST"]),
         Route("/api/projects/{project_id}/measure", measure, methods=["POST"]),
+        *measure_routes(page, project_route, _json_body, config.max_photo_bytes),
         Route("/api/projects/{project_id}/archive.zip", archive),
         Route("/api/projects/{project_id}/files/{name:path}", get_file),
         *(Route(f"/api/projects/{{project_id}}/{kind}/{{name:path}}", photo_route(kind))

@@ -967,8 +967,9 @@ def check_corners_fit(rig: RigModel, source: str, slack_px: float = 1.0) -> None
 # ---------------------------------------------------------------------------- points.json (dualcal measure)
 
 
-def load_points(path) -> dict:
-    """Read and validate a points.json (:func:`dualcal.estimation.measurement.points_from_dict`)."""
+def load_points(path, single_camera: bool = False) -> dict:
+    """Read and validate a points.json (:func:`dualcal.estimation.measurement.points_from_dict`; ``single_camera``:
+    points may be given in one camera, to be found in the instant's photos)."""
     from ..estimation.measurement import points_from_dict
 
-    return points_from_dict(_load(path, "points"), str(path))
+    return points_from_dict(_load(path, "points"), str(path), single_camera)

@@ -113,7 +113,10 @@ class SynthTruth:
     """A rig and board poses with known truth.
 
     ``rig[cam]`` maps reference-camera coordinates to camera ``cam`` (the reference maps to
-    itself and is not listed); ``view_poses[view]`` maps board to reference camera.
+    itself and is not listed); ``view_poses[view]`` maps board to reference camera. ``photo_lenses``
+    (``{view: {cam: PhotoLens}}``, :mod:`dualcal.synthetic.synth_focus`) holds each photo's own lens where the
+    lenses breathe with focus or shift with OIS (``cameras`` then hold their values at infinity, unshifted);
+    None: every photo is taken with ``cameras``.
     """
 
     board: Board
@@ -121,6 +124,12 @@ class SynthTruth:
     reference: str
     rig: dict[str, Pose]
     view_poses: dict[str, Pose]
+    photo_lenses: dict | None = None
+
+    def photo_camera(self, cam: str, view: str) -> CameraModel:
+        """The camera as it took ``cam``'s photo of ``view``: focused on the board and shifted by OIS where its lens
+        breathes or shifts (``photo_lenses[view][cam]``, :mod:`dualcal.synthetic.synth_focus`), else ``cameras[cam]``."""
+        return self.cameras[cam] if self.photo_lenses is None else self.photo_lenses[view][cam].camera
 
     def camera_pose(self, cam: str, view: str) -> Pose:
         """Board-to-camera pose of ``cam`` in ``view``."""
@@ -177,7 +186,8 @@ def _all_visible(cams: dict[str, CameraModel], poses: dict[str, Pose], X: np.nda
 def make_truth(preset: str | dict = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
                max_tilt_deg: float = 40.0, min_tilt_deg: float = 5.0,
                fill: tuple[float, float] | None = None, board: Board | None = None,
-               coverage: tuple[float, float] | None = None) -> SynthTruth:
+               coverage: tuple[float, float] | None = None, breathing: float = 0.0, ois_px: float = 0.0,
+               focal_mm: dict[str, float] | None = None) -> SynthTruth:
     """Draw a rig from ``preset`` and ``views`` board poses seen whole by every camera.
 
     Poses look at a random point of the board from a tilt of ``min_tilt_deg`` to
@@ -213,6 +223,16 @@ def make_truth(preset: str | dict = "note8", views: int = 13, seed: int = 0, sca
         Another board than the preset's.
     coverage : tuple of float or None
         Partial views of a ChArUco board, as above.
+    breathing : float
+        The lenses breathe with focus (:mod:`dualcal.synthetic.synth_focus`): ``fx(d) = fx_inf (1 + b f / (d - f))``
+        with this ``b`` (0: they do not), each photo focused on the board's centre; the preset's ``fx, fy`` are
+        then the values at infinity.
+    ois_px : float
+        Each photo's principal point moved by OIS, a normal draw of this many px per coordinate, independent per
+        camera and photo (0: none). Drawn from a generator of its own: the poses are those without it.
+    focal_mm : dict or None
+        Each camera's focal length, mm, for the breathing (default: the preset's,
+        :func:`dualcal.synthetic.synth_focus.focal_lengths_mm`).
 
     Returns
     -------
@@ -289,7 +309,28 @@ def make_truth(preset: str | dict = "note8", views: int = 13, seed: int = 0, sca
         if ok:
             view_poses[f"IMG_{len(view_poses) + 1:02d}"] = ref_pose
             aim = None
-    return SynthTruth(board, cameras, reference, rig, view_poses)
+    truth = SynthTruth(board, cameras, reference, rig, view_poses)
+    if breathing or ois_px:
+        truth = _with_photo_lenses(truth, preset, scale, breathing, ois_px, focal_mm, seed)
+    return truth
+
+
+def _with_photo_lenses(truth: SynthTruth, preset: str, scale: float, breathing: float, ois_px: float,
+                       focal_mm: dict[str, float] | None, seed: int) -> SynthTruth:
+    """``truth`` with every photo's own lens: focused on the board's centre, shifted by OIS
+    (:func:`dualcal.synthetic.synth_focus.photo_lenses`)."""
+    from .synth_focus import focal_lengths_mm, photo_lenses
+
+    if breathing < 0 or ois_px < 0:
+        raise InputError(f"breathing {breathing:g} and ois_px {ois_px:g} must be >= 0")
+    focal = focal_mm or focal_lengths_mm(preset, truth.cameras, scale)
+    rng = np.random.default_rng([int(seed), 0x015])
+    centre = truth.board.object_points_mm().mean(axis=0)
+    lenses = {}
+    for view in truth.view_poses:
+        depth = {n: float(truth.camera_pose(n, view).apply(centre[None])[0, 2]) for n in truth.cameras}
+        lenses[view] = photo_lenses(truth.cameras, focal, depth, breathing, ois_px, rng)
+    return replace(truth, photo_lenses=lenses)
 
 
 def _edge_view_poses(cameras, rig, reference, edge, extent, target, direction, roll, rng) -> dict[str, Pose]:
@@ -327,9 +368,10 @@ def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
     X = truth.board.object_points_mm()
     outline = _outline_mm(truth.board)
     out = {}
-    for cam, model in truth.cameras.items():
+    for cam in truth.cameras:
         out[cam] = {}
         for v in truth.view_poses:
+            model = truth.photo_camera(cam, v)
             pose = truth.camera_pose(cam, v)
             missed = truth.board.charuco is None and not _all_visible({cam: model}, {cam: pose},
                                                                       np.vstack([X, outline]), margin=0.0)
