@@ -169,10 +169,10 @@ def test_a_bent_board_is_found_and_costs_little():
 def test_the_shape_test_at_the_one_step_estimate_is_that_of_the_adjusted_shape():
     """The board-shape test is made first at the one-step (linearised) estimate from the flat board's
     solution; the shape is adjusted in full only where that T^2 exceeds half its limit
-    (``calibrate.SHAPE_FULL_TEST``). On boards bent from not at all to twice what the photos show (13 note8
+    (``board_shape.SHAPE_FULL_TEST``). On boards bent from not at all to twice what the photos show (13 note8
     instants, 0.2 px), the one-step T^2 is within 3 % of the adjusted shape's, so that no decision can differ
     (it would take a factor of 2), and calibrate_rig decides as the full test does."""
-    from dualcal.estimation.calibrate import board_shape_test
+    from dualcal.estimation.board_shape import board_shape_test
     from dualcal.estimation.fitting import Setup, usable_photos
 
     truth = make_truth("note8", 13, seed=5)

@@ -275,7 +275,7 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
       ``G - 1`` degrees of freedom): every instant out of sync, or a rig that is not rigid, fails.
 
     ``explained`` are instants whose misfit a refocused photo explains (``focus``): they are not judged
-    here. ``named`` are instants already found not to fit (:func:`dualcal.estimation.calibrate.attribution_checks`
+    here. ``named`` are instants already found not to fit (:func:`dualcal.estimation.checking.attribution_checks`
     takes the worst out and judges the others without it, so that a bad instant, which pulls the shared
     pose, does not make the good ones look bad): ``{view: its test}`` as it was, flagged first.
     ``shift_sigma`` is how far leaving a named instant out moves the rig's relations, the largest over the
@@ -454,7 +454,7 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
     refocus only where its focal scale takes away at least :data:`REFOCUS_SHARE` of its instant's extra
     cost of being tied to the rig; the others are left to ``rig_rigid`` (``flagged`` lists them with
     ``"cause": "rig"``). ``named`` are refocused photos already found
-    (:func:`dualcal.estimation.calibrate.attribution_checks` takes each out and judges the others without it):
+    (:func:`dualcal.estimation.checking.attribution_checks` takes each out and judges the others without it):
     they are flagged first, as they were found.
 
     The document: ``ok``, ``message``, ``flagged``, ``test``, ``statistic`` (the largest ``|t|``, or a named
@@ -702,7 +702,7 @@ def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solutio
     """Every check of a calibration: ``rig`` and its final solution ``sol``; ``tied_flat`` the same
     rig mode with a flat board and ``alone`` every camera alone, over the same photos (for
     ``rig_rigid`` and ``focus``). ``attribution(tied, alone, kappa2) -> (focus, rig_rigid)`` makes those
-    two (default: from these solutions alone; :func:`dualcal.estimation.calibrate.attribution_checks` names each
+    two (default: from these solutions alone; :func:`dualcal.estimation.checking.attribution_checks` names each
     refocused photo and each instant that does not fit the rig alone)."""
     checks = {"converged": convergence(sol), "photos": photo_count(rig), "fit": fit_quality(rig)}
     kappa2 = design_effect(alone)

@@ -1,14 +1,14 @@
-"""One rig fitted to its corners: the solving core under every calibration, comparison and check.
+"""One rig fitted to its corners: the solving core under every stage of a calibration, comparison and check.
 
-What a calibration (:mod:`dualcal.estimation.calibrate`), the comparison of lens models
+What the stages of a calibration (:mod:`dualcal.estimation.calibrate`), the comparison of lens models
 (:mod:`dualcal.estimation.model_selection`) and the checks share: which photos can be used
-(:func:`usable_photos`), one adjustment of a rig from Zhang's closed form or from an earlier solution
-(:class:`Setup`, :func:`solve`), a calibration's corners adjusted again with another lens, skew or rig
-model (:func:`refit`; one camera alone, :func:`refit_alone`), two cameras of a rig as a rig of their own
-(:func:`pair_solutions`), the fit and
-the error on instants left out (:func:`fit_summary`, :func:`held_out_error`), and a solution packaged as
-the :class:`~dualcal.geometry.model.RigModel` that calib.json holds (:func:`rig_model_from_solution`).
-No outliers are looked for here and nothing is decided: that is the calibration's part.
+(:func:`usable_photos`), the one adjustment of a rig from Zhang's closed form or from an earlier solution
+(:class:`Setup`, its switches: the rig mode, the lens models, the board's shape; :func:`solve`), a
+calibration's or a solution's corners adjusted again with another lens, skew or rig model, or some of its
+cameras alone (:func:`refit`, the one entry point of the comparison of lens models), two cameras of a rig as a
+rig of their own (:func:`pair_solutions`), and a solution packaged with its covariance as the
+:class:`~dualcal.geometry.model.RigModel` that calib.json holds (:func:`rig_model_from_solution`).
+No outliers are looked for here and nothing is decided: those are the calibration's stages.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from ..geometry.camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MOD
                                CameraModel)
 from .covariance import JointCovariance, intrinsic_name
 from ..errors import EstimationError, InputError
+from .held_out import fit_summary
 from .lm import COMPARISON_LM, NEAR_START, LMOptions
 from ..geometry.model import CornerSet, Pose, RigModel, RigRelation, observed_mask
 from ..progress import warn
@@ -209,37 +210,75 @@ def lens_models_for(model: str | Mapping[str, str], names: list[str]) -> tuple[s
     return tuple(model.get(n, default) for n in names)
 
 
-def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
+def refit(source: RigModel | Solution, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
           rig_mode: str | None = None, options: LMOptions = NEAR_START, cameras=None) -> Solution:
-    """The corners ``rig`` used (:meth:`RigModel.used_corners`), adjusted again with another lens model,
-    skew model or rig mode (None: ``rig``'s), started from ``rig``'s values; those of the ``cameras`` named
-    alone, where given (then the first named is the reference).
+    """The corners ``source`` used, adjusted again with another lens model, skew model or rig mode (None:
+    ``source``'s), started from ``source``'s values; those of the ``cameras`` named alone, where given (then
+    the first named is the reference, unless ``source``'s is among them).
 
-    No outliers are looked for and the board keeps ``rig``'s treatment (its shape estimated again where
-    ``rig`` kept one): the same corners, so that the solutions compare. A lens model of ``rig``'s family
-    starts from ``rig``'s coefficients (a new coefficient at 0, a dropped one let go); one of another
-    family (a fisheye for a radial lens, or back) from Zhang's closed form with ``rig``'s poses.
-    This is what comparing lens or skew models costs: one adjustment from a near start, where a full
-    calibration (closed form, outliers alone and tied, the board-shape test) takes several. ``options``:
-    the adjustment's tolerances (a comparison needs fewer digits than a result).
+    ``source`` is a calibration (its corners without those it left out, :meth:`RigModel.used_corners`) or a
+    solution (its photos). No outliers are looked for and the board keeps ``source``'s treatment (its shape
+    estimated again where ``source`` estimated one): the same corners, so that the solutions compare. A lens
+    model of ``source``'s family starts from its coefficients (a new coefficient at 0, a dropped one let go);
+    one of another family (a fisheye for a radial lens, or back) from Zhang's closed form with ``source``'s
+    poses. This is what comparing lens or skew models costs: one adjustment from a near start, where a full
+    calibration (closed form, outliers alone and tied, the board-shape test) takes several. ``options``: the
+    adjustment's tolerances (a comparison needs fewer digits than a result).
     """
-    corners = rig.used_corners()
-    names = sorted(corners.cameras if cameras is None else cameras)
-    model = rig.models if model is None else model
+    start = _Values.of(source)
+    names = sorted(start.names if cameras is None else cameras)
+    model = start.models if model is None else model
     models = lens_models_for(model if isinstance(model, str) else
                              {k: m for k, m in model.items() if k in names or k == "*"}, names)
-    skew = rig.skew if skew is None else skew
-    X = corners.board.object_points_mm()
-    blocks = usable_photos(corners, names, X[:, :2], quiet=True)
+    skew = start.skew if skew is None else skew
+    X = start.X_board
+    blocks = [(names.index(n), v, uv) for n, v, uv in start.photos if n in names]
     _check_enough_views(blocks, names)
-    sizes = [corners.cameras[n].image_size for n in names]
-    poses = [dict(rig.camera_poses[n]) for n in names]
-    cams = [_start_camera(rig.cameras[n], models[c], skew, X, {v: uv for cc, v, uv in blocks if cc == c})
+    cams = [_start_camera(start.cameras[n], models[c], skew, X, {v: uv for cc, v, uv in blocks if cc == c})
             for c, n in enumerate(names)]
-    ref = names.index(rig.reference) if rig.reference in names else 0
-    problem = Problem(X, names, sizes, blocks, rig_mode or rig.rig_mode, skew, ref, rig.board_shape_mm is not None,
-                      models)
-    return adjust(problem, initial_state(problem, cams, poses, rig.board_shape_mm), options)
+    ref = names.index(start.reference) if start.reference in names else 0
+    problem = Problem(X, names, [start.sizes[n] for n in names], blocks, rig_mode or start.mode, skew, ref,
+                      start.board_shape_mm is not None, models)
+    return adjust(problem, initial_state(problem, cams, [dict(start.poses[n]) for n in names], start.board_shape_mm),
+                  options)
+
+
+@dataclass(frozen=True)
+class _Values:
+    """What :func:`refit` starts from, by camera name: a calibration's or a solution's photos ``(camera, view,
+    uv)``, cameras, board-to-camera poses, image sizes and lens models, its board's shape (None: flat), its
+    reference, skew model and rig mode."""
+
+    X_board: np.ndarray
+    names: list[str]
+    photos: list[tuple[str, str, np.ndarray]]
+    cameras: dict[str, CameraModel]
+    poses: dict[str, dict[str, Pose]]
+    sizes: dict[str, tuple[int, int]]
+    models: dict[str, str]
+    board_shape_mm: np.ndarray | None
+    reference: str
+    skew: bool
+    mode: str
+
+    @classmethod
+    def of(cls, source: RigModel | Solution) -> "_Values":
+        if isinstance(source, Solution):
+            p = source.problem
+            poses = {n: {} for n in p.cameras}
+            for (c, v), pose in source.photo_poses.items():
+                poses[p.cameras[c]][v] = pose
+            return cls(p.X_board, list(p.cameras), [(p.cameras[c], v, uv) for c, v, uv in p.blocks],
+                       {n: source.state.camera(p, c) for c, n in enumerate(p.cameras)}, poses,
+                       dict(zip(p.cameras, p.image_sizes)), dict(zip(p.cameras, p.models)),
+                       source.state.board_shape_mm if p.board_shape else None, p.cameras[p.reference], p.skew, p.mode)
+        corners = source.used_corners()
+        X = corners.board.object_points_mm()
+        names = sorted(corners.cameras)
+        photos = [(names[c], v, uv) for c, v, uv in usable_photos(corners, names, X[:, :2], quiet=True)]
+        return cls(X, names, photos, source.cameras, source.camera_poses,
+                   {n: corners.cameras[n].image_size for n in names}, source.models, source.board_shape_mm,
+                   source.reference, source.skew, source.rig_mode)
 
 
 def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray, views: dict) -> CameraModel:
@@ -251,70 +290,19 @@ def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray,
     return initial_camera(X_board[:, :2], views, cam.image_size, skew, model)[0]
 
 
-def refit_alone(sol: Solution, c: int, model: str, options: LMOptions = NEAR_START) -> Solution:
-    """Camera ``c`` of ``sol`` (a solution of every camera alone with a flat board, where no camera's fit
-    depends on another's) adjusted alone with lens ``model``, from its values there (:func:`refit`'s start)."""
-    p = sol.problem
-    if p.mode != "none" or p.board_shape:
-        raise ValueError("refit_alone takes a solution of every camera alone with a flat board")
-    cams, poses = _starting_values(sol)
-    blocks = [(0, v, uv) for cc, v, uv in p.blocks if cc == c]
-    cam = _start_camera(cams[c], model, p.skew, p.X_board, {v: uv for _, v, uv in blocks})
-    problem = Problem(p.X_board, [p.cameras[c]], [p.image_sizes[c]], blocks, "none", p.skew, 0, False, (model,))
-    return adjust(problem, initial_state(problem, [cam], [poses[c]]), options)
-
-
-def fit_summary(sol: Solution) -> dict:
-    """What comparing models needs of a solution: ``rms_px`` (2-D, per corner), ``camera_rms_px``
-    ``{camera: px}`` and the held-out errors of :func:`held_out_error`."""
-    sq = np.sum(sol.residuals ** 2, axis=2)
-    cams = np.array([c for c, _, _ in sol.problem.blocks])
-    return {"rms_px": float(np.sqrt(np.nanmean(sq))),
-            "camera_rms_px": {name: float(np.sqrt(np.nanmean(sq[cams == c])))
-                              for c, name in enumerate(sol.problem.cameras)},
-            **held_out_error(sol)}
-
-
-def held_out_error(sol: Solution) -> dict:
-    """The error on instants the calibration did not see (:meth:`Solution.held_out_squares`), as
-    :func:`held_out_summary` gives it."""
-    names = sol.problem.cameras
-    return held_out_summary({view: None if photos is None else {names[c]: sq for c, sq in sorted(photos.items())}
-                             for view, photos in sol.held_out_squares().items()}, names)
-
-
-def held_out_summary(squares: dict[str, dict[str, tuple[float, int]] | None], names) -> dict:
-    """From each instant's held-out ``{camera: (px^2, corners)}`` (None: it cannot be left out):
-    ``held_out_rms_px``, the RMS length of the 2-D held-out residual per corner over the instants
-    that can be left out, ``held_out_per_instant`` ``{view: {"rms_px", "corners"}}`` and the same of
-    each camera of ``names``' own corners, ``held_out_per_camera`` ``{camera: {view: {"rms_px", "corners"}}}``."""
-    per_instant, per_camera = {}, {name: {} for name in names}
-    for view, photos in squares.items():
-        if photos is None:
-            continue
-        for name, (sq, n) in photos.items():
-            per_camera[name][view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
-        sq, n = (sum(x) for x in zip(*photos.values()))
-        per_instant[view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
-    total = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
-    corners = sum(d["corners"] for d in per_instant.values())
-    return {"held_out_rms_px": float(np.sqrt(total / corners)) if corners else None,
-            "held_out_per_instant": per_instant, "held_out_per_camera": per_camera}
-
-
 def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict],
                             dropped_corners: list[dict] = ()) -> RigModel:
     """Package an adjustment result as the :class:`RigModel` written to calib.json (no checks)."""
     p, st = sol.problem, sol.state
     names = p.cameras
     cams = {name: st.camera(p, c) for c, name in enumerate(names)}
+    fit = fit_summary(sol)
     names_cov, covs = parameter_covariance(sol, COVARIANCE_KINDS)
     sd = {kind: dict(zip(names_cov, np.sqrt(np.maximum(np.diag(cov), 0.0)))) for kind, cov in covs.items()}
     sigma_formal = {name: {n: sd["formal"].get(intrinsic_name(name, n), 0.0) for n in INTRINSIC_NAMES}
                     for name in names}
     sigma = {name: {n: max(sd["clustered"].get(intrinsic_name(name, n), 0.0), s)
                     for n, s in sigma_formal[name].items()} for name in names}
-    fit = fit_summary(sol)
     view_rms: dict[str, dict[str, float]] = {}
     for b, (c, v, _) in enumerate(p.blocks):
         view_rms.setdefault(v, {})[names[c]] = sol.block_rms_px[b]
