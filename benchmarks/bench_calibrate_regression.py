@@ -39,7 +39,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from calib_regression import SYNTHETIC_CASES, _case, differences, summary, synthetic_corners  # noqa: E402
+from calib_regression import (SYNTHETIC_CASES, _case, differences, largest_shift_sigma, summary,  # noqa: E402
+                              synthetic_corners)
 
 from dualcal.errors import DualcalError  # noqa: E402
 from dualcal.estimation.calibrate import calibrate_rig  # noqa: E402
@@ -103,14 +104,14 @@ def case_corners(case: dict, cache: Path | None):
     return synthetic_corners(case["preset"], case["views"], case["seed"], case["noise_px"], case["plant"], truth)
 
 
-def run(cases, cache: Path | None) -> dict:
+def run(cases, cache: Path | None, extra: dict | None = None) -> dict:
     out = {}
     for case in cases:
         corners = case_corners(case, cache)
         t0 = time.perf_counter()
         try:
             with collect_warnings():
-                result = summary(calibrate_rig(corners, **case["options"]))
+                result = summary(calibrate_rig(corners, **case["options"], **(extra or {})))
         except DualcalError as exc:             # a refusal is a result too
             result = {"error": str(exc)}
         out[case["name"]] = {"case": case, "seconds": time.perf_counter() - t0, "summary": result}
@@ -132,6 +133,8 @@ def main(argv=None) -> int:
                     help="where the real sets' corners are kept between runs")
     ap.add_argument("--quick", action="store_true", help="only the suite's cases")
     ap.add_argument("--tol", type=float, default=1e-6, help="tolerance, in sigmas (default 1e-6)")
+    ap.add_argument("--unweighted", action="store_true",
+                    help="calibrate with weigh_photos=False (every photo alike: the calibration before issue 38)")
     args = ap.parse_args(argv)
     if args.action == "test-data":
         cases = [c for c in SYNTHETIC_CASES + REAL_CASES if c["name"] in TEST_CASES]
@@ -159,13 +162,14 @@ def main(argv=None) -> int:
         return 0
     ref = json.loads(args.file.read_text())
     results = run([r["case"] for r in ref.values() if not args.quick or r["case"]["name"] in TEST_CASES],
-                  args.corners)
+                  args.corners, {"weigh_photos": False} if args.unweighted else None)
     failed = 0
-    print(f"\n{'case':<70} {'old s':>7} {'new s':>7}  differences beyond {args.tol:g} sigma")
+    print(f"\n{'case':<70} {'old s':>7} {'new s':>7} {'moved':>8}  differences beyond {args.tol:g} sigma")
     for name, r in results.items():
         diff = differences(ref[name]["summary"], r["summary"], args.tol)
         failed += bool(diff)
-        print(f"{name:<70} {ref[name]['seconds']:7.2f} {r['seconds']:7.2f}  {len(diff) or 'none'}")
+        moved = largest_shift_sigma(ref[name]["summary"], r["summary"]) if "values" in r["summary"] else 0.0
+        print(f"{name:<70} {ref[name]['seconds']:7.2f} {r['seconds']:7.2f} {moved:8.2g}  {len(diff) or 'none'}")
         for line in diff[:12]:
             print(f"    {line}")
     total_old = sum(ref[n]["seconds"] for n in results)

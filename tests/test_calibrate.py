@@ -353,7 +353,7 @@ def test_paper_mode_fits_a_baseline_whose_direction_moves_between_instants():
 
 
 def test_a_noisier_camera_keeps_its_photos():
-    """Outliers are judged against each camera's own median: a camera whose corners are simply
+    """Outliers are judged against each photo's own noise: a camera whose corners are simply
     noisier (here 4x) is not an outlier."""
     truth = make_truth("triple", 13, seed=3)
     corners = noisy_corner_set(truth, 0.1, seed=4)
@@ -364,7 +364,7 @@ def test_a_noisier_camera_keeps_its_photos():
     assert rig.dropped_views == []
     assert len(rig.dropped_corners) == 0                     # of 1560: the limit is ~7 sigma of each camera
     assert rig.adjustment["options"] == {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto",
-                                         "model": "k1k2"}
+                                         "model": "k1k2", "weigh_photos": True}
 
 
 def _partial_views(corners, rng, missing=0.3, tele_window=0.25):

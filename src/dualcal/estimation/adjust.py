@@ -27,6 +27,12 @@ With ``board_shape`` the board is not taken as flat: three global unknowns, shar
 photo, give its out-of-plane shape (:data:`dualcal.geometry.board.SHAPE_TERMS`: sag, bend, twist), so the
 corners sit at ``X + Z(X) e_z``.
 
+With ``weights`` each photo's squared residuals count with its own weight ``w_b``: the cost is
+``F = sum_b w_b |r_b|^2``, each photo's residual rows and Jacobian rows scaled by ``sqrt(w_b)`` (weighted
+least squares). :mod:`dualcal.estimation.photo_noise` sets ``w_b = sigma_ref^2 / sigma_b^2`` from every photo's
+own noise ``sigma_b``, so that ``s0`` stays in pixels (the noise of a photo of weight 1) and a blurred photo
+counts for what its corners are worth. ``residuals`` stay pixels, unweighted.
+
 To add a group of global parameters: give it columns in :func:`_build_layout`, a field in
 :class:`State` updated in :meth:`State.updated`, and its Jacobian piece in
 :func:`_jacobian_pieces`, where ``J_X`` (d residual / d camera-frame point) and the rotations are
@@ -42,6 +48,7 @@ Two covariances of the unknowns (``kind``): ``formal``, the textbook ``N^-1 s0^2
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -68,13 +75,15 @@ COVARIANCE_KINDS = ("clustered", "formal")
 @dataclass(frozen=True)
 class CameraBatch:
     """All photos of one camera: ``blocks`` (B,) indices into ``Problem.blocks``, ``views`` (B,)
-    instant indices, ``uv_px`` (B, N, 2) corners (NaN rows unmeasured), ``observed`` (B, N)."""
+    instant indices, ``uv_px`` (B, N, 2) corners (NaN rows unmeasured), ``observed`` (B, N), ``sqrt_weight``
+    (B,) the square root of each photo's weight (None: every weight 1)."""
 
     camera: int
     blocks: np.ndarray
     views: np.ndarray
     uv_px: np.ndarray
     observed: np.ndarray
+    sqrt_weight: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -115,7 +124,9 @@ class Problem:
     ``blocks`` is a list of ``(camera index, view key, (N, 2) pixels)``, one per photo; row k is
     corner k of ``X_board`` (N, 3); unmeasured corners are NaN rows. ``model`` is the lens model
     (:data:`dualcal.geometry.camera.LENS_MODELS`) of every camera, or a sequence of one per camera; its
-    coefficients are free, the others stay 0. ``models`` is the sequence, one per camera.
+    coefficients are free, the others stay 0. ``models`` is the sequence, one per camera. ``weights``
+    ``{(camera name, view): w}`` weighs each photo's squared residuals (module docstring; a photo not named,
+    or no mapping: 1); ``block_weights`` (n_blocks,) is each block's.
     """
 
     X_board: np.ndarray
@@ -127,6 +138,7 @@ class Problem:
     reference: int = 0
     board_shape: bool = False
     model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
+    weights: Mapping[tuple[str, str], float] | None = None
 
     def __post_init__(self):
         if self.mode not in RIG_MODES:
@@ -138,13 +150,16 @@ class Problem:
                              f"camera (choose from {', '.join(LENS_MODELS)})")
         self.views = sorted({v for _, v, _ in self.blocks})
         self.view_index = {v: i for i, v in enumerate(self.views)}
+        weights = self.weights or {}
+        self.block_weights = np.array([float(weights.get((self.cameras[c], v), 1.0)) for c, v, _ in self.blocks])
         self.batches = []
         for c in range(len(self.cameras)):
             idx = np.array([b for b, (cc, _, _) in enumerate(self.blocks) if cc == c], int)
             if len(idx):
                 uv = np.array([self.blocks[b][2] for b in idx], float)
                 self.batches.append(CameraBatch(c, idx, np.array([self.view_index[self.blocks[b][1]] for b in idx]),
-                                                uv, observed_mask(uv)))
+                                                uv, observed_mask(uv),
+                                                np.sqrt(self.block_weights[idx]) if self.weights else None))
         self.shape_basis = shape_basis(self.X_board)          # (N, 3), used when board_shape
         self.layout = _build_layout(self)
 
@@ -339,7 +354,7 @@ def corners_behind(problem: Problem, state: State) -> int:
 
 
 def cost(problem: Problem, state: State, allowed_behind: int = 0) -> float:
-    """``r^T r`` over the measured corners, residuals only; ``inf`` if more than ``allowed_behind``
+    """``sum_b w_b |r_b|^2`` over the measured corners, residuals only; ``inf`` if more than ``allowed_behind``
     of them lie at ``Z <= 0`` (a projection from behind the camera is a mirror image, not a fit)."""
     total, behind = 0.0, 0
     for batch in problem.batches:
@@ -348,8 +363,11 @@ def cost(problem: Problem, state: State, allowed_behind: int = 0) -> float:
         if behind > allowed_behind:
             return np.inf
         with np.errstate(divide="ignore", invalid="ignore"):
-            total += float(np.sum((project_points(state.camera(problem, batch.camera), Xc)
-                                   - batch.uv_px[batch.observed]) ** 2))
+            squares = np.sum((project_points(state.camera(problem, batch.camera), Xc)
+                              - batch.uv_px[batch.observed]) ** 2, axis=1)
+        if batch.sqrt_weight is not None:
+            squares = squares * np.broadcast_to(batch.sqrt_weight[:, None] ** 2, batch.observed.shape)[batch.observed]
+        total += float(np.sum(squares))
     return total if np.isfinite(total) else np.inf
 
 
@@ -422,7 +440,8 @@ def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, 
 
 def _linearised_batches(problem: Problem, state: State):
     """Per camera: ``(batch, r (B, 2N), J (B, 2N, k_g + k_l), global columns (k_g,), local slots (k_l,))``,
-    the Jacobian's global columns first; the rows of unmeasured corners zero."""
+    the Jacobian's global columns first; the rows of unmeasured corners zero; each photo's rows scaled by the
+    square root of its weight."""
     for batch in problem.batches:
         W, Xc, rel_t = _camera_points(problem, state, batch)
         B, n = batch.observed.shape
@@ -432,11 +451,14 @@ def _linearised_batches(problem: Problem, state: State):
         cols_g, slots_l = _columns(problem, batch.camera)
         J = _jacobian(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3), J_K.reshape(B, n, 2, -1),
                       len(cols_g)).reshape(B, 2 * n, -1)
+        if batch.sqrt_weight is not None:
+            r, J = r * batch.sqrt_weight[:, None], J * batch.sqrt_weight[:, None, None]
         yield batch, r, J, cols_g, slots_l
 
 
 def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
-    """``r^T r`` and the normal equations, assembled photo by photo from dense (2N, k) pieces."""
+    """``F`` (the weighted ``r^T r``) and the normal equations, assembled photo by photo from dense (2N, k)
+    pieces."""
     lay = problem.layout
     ne = NormalEquations.zeros(lay.n_global, lay.local_used)
     total = 0.0
@@ -487,7 +509,8 @@ def _add_sphere_curvature(problem: Problem, state: State, ne: NormalEquations, b
 class PhotoRows:
     """The Jacobian rows of one photo's measured corners: ``J`` (m, k) over the flat parameter
     indices ``columns`` (k,), residuals ``r`` (m,) (predicted - observed, px; corner by corner, u
-    then v); ``block`` is the photo's index in ``Problem.blocks``."""
+    then v), both scaled by the square root of the photo's weight; ``block`` is the photo's index in
+    ``Problem.blocks``."""
 
     block: int
     columns: np.ndarray
@@ -548,8 +571,8 @@ def instant_rows(problem: Problem, state: State) -> list[InstantRows]:
 class Solution:
     """Result of :func:`adjust`: the state, the fit and the factorized normal equations.
 
-    ``residuals`` is (n_blocks, N, 2), NaN where a corner was not measured; ``block_rms_px`` the
-    RMS length of each photo's 2-D residuals over its measured corners.
+    ``residuals`` is (n_blocks, N, 2), pixels (unweighted), NaN where a corner was not measured;
+    ``block_rms_px`` the RMS length of each photo's 2-D residuals over its measured corners.
     """
 
     problem: Problem
@@ -604,6 +627,10 @@ class Solution:
             sig[str(name)] = float(s)
         return sig
 
+    def block_costs(self) -> np.ndarray:
+        """(n_blocks,) each photo's part of the cost: ``w_b |r_b|^2`` (px^2 of a photo of weight 1)."""
+        return self.problem.block_weights * np.nansum(self.residuals ** 2, axis=(1, 2))
+
     @cached_property
     def photo_poses(self) -> dict[tuple[int, str], Pose]:
         """The board-to-camera pose of every photo, ``{(camera, view): Pose}``."""
@@ -622,7 +649,7 @@ class Solution:
         out: dict[str, dict[int, tuple[float, int]] | None] = {v: {} for v in p.views}
         counts = {b: int(n) for ph in self.factorization.ne.photos for b, n in zip(ph.blocks, ph.corners)}
         for c, blocks, squares in held_out_squares(self.factorization, self._leverage.held_out, self._at_minimum):
-            for b, sq in zip(blocks, squares):
+            for b, sq in zip(blocks, squares / p.block_weights[blocks]):           # weighted squares: px^2
                 view = p.blocks[b][1]
                 if out[view] is not None:
                     out[view] = None if np.isnan(sq) else {**out[view], c: (float(sq), counts[b])}

@@ -44,6 +44,7 @@ from ..errors import InputError
 from .fitting import AUTO_MODEL, Setup, lens_models_for, rig_model_from_solution, usable_photos
 from .model_selection import choose_lens_models, preferred_lens_models
 from .outliers import adjust_dropping_outliers
+from .photo_noise import PhotoNoise
 from ..geometry.camera import DEFAULT_LENS_MODEL
 from ..geometry.model import CornerSet, RigModel, choose_reference
 from ..progress import warn
@@ -61,6 +62,7 @@ class Settings:
     drop_outliers: bool = True
     outlier_factor: float = 6.0
     board_shape: str = "auto"
+    weigh_photos: bool = True
 
     @property
     def factor(self) -> float | None:
@@ -97,11 +99,12 @@ class LensModels:
 
 @dataclass(frozen=True)
 class Fit:
-    """Stages 3-5: the adjusted rig. ``setup`` the solver's switches (with the lens models), ``blocks`` the photos
-    kept, ``alone`` every camera alone over them (flat board), ``flat`` the rig tied in its mode (``alone`` in mode
-    ``none``), ``solution`` the final one (``flat``, or with the board's shape), ``shape_test`` the board-shape
-    test (:func:`dualcal.estimation.board_shape.board_shape_test`; None where not made), and the photos and corners
-    left out, each with its reason."""
+    """Stages 3-5: the adjusted rig. ``setup`` the solver's switches (with the lens models and the photos'
+    weights), ``blocks`` the photos kept, ``alone`` every camera alone over them (flat board), ``flat`` the rig tied
+    in its mode (``alone`` in mode ``none``), ``solution`` the final one (``flat``, or with the board's shape),
+    ``shape_test`` the board-shape test (:func:`dualcal.estimation.board_shape.board_shape_test`; None where not
+    made), the photos and corners left out, each with its reason, and ``noise`` each photo's
+    (:class:`dualcal.estimation.photo_noise.PhotoNoise`; None where the photos are not weighed by it)."""
 
     setup: Setup
     blocks: list[tuple[int, str, np.ndarray]]
@@ -111,6 +114,7 @@ class Fit:
     shape_test: dict | None = None
     dropped: list[dict] = field(default_factory=list)
     dropped_corners: list[dict] = field(default_factory=list)
+    noise: PhotoNoise | None = None
 
 
 def photos_to_calibrate(corners: CornerSet, settings: Settings) -> Photos:
@@ -135,24 +139,29 @@ def lens_models(photos: Photos, model: str | Mapping[str, str]) -> LensModels:
     return LensModels(lens_models_for(model, photos.setup.names))
 
 
-def cameras_alone(photos: Photos, models: tuple[str, ...], factor: float | None, start: Solution | None = None) -> Fit:
+def cameras_alone(photos: Photos, models: tuple[str, ...], settings: Settings, start: Solution | None = None) -> Fit:
     """Stage 3 (module docstring): every camera adjusted alone from Zhang's closed form, or from ``start`` (such
-    a solution with other lens models), its outliers (``factor``) left out."""
+    a solution with other lens models), its outliers left out; with ``settings.weigh_photos`` each photo's noise
+    estimated and the photos weighed by it (:mod:`dualcal.estimation.photo_noise`)."""
     setup = replace(photos.setup, model=models)
     dropped: list[dict] = []
     dropped_corners: list[dict] = []
-    alone, blocks = adjust_dropping_outliers(replace(setup, mode="none"), photos.blocks, factor, dropped,
-                                             dropped_corners, start)
-    return Fit(setup, blocks, alone, alone, alone, None, dropped, dropped_corners)
+    alone, blocks, noise = adjust_dropping_outliers(replace(setup, mode="none"), photos.blocks, settings.factor,
+                                                    dropped, dropped_corners, start, weigh=settings.weigh_photos)
+    if noise is not None:
+        setup = replace(setup, weights=noise.weights())
+    return Fit(setup, blocks, alone, alone, alone, None, dropped, dropped_corners, noise)
 
 
 def rig_tied(fit: Fit, factor: float | None) -> Fit:
-    """Stage 4 (module docstring): the rig in its mode, started from the cameras alone, its outliers left out;
-    the cameras alone solved again over the photos it kept where it left out more."""
+    """Stage 4 (module docstring): the rig in its mode, started from the cameras alone, its outliers (against
+    each photo's noise with every camera alone) left out; the cameras alone solved again over the photos it kept
+    where it left out more."""
     if fit.setup.mode == "none":
         return fit
     dropped, dropped_corners = list(fit.dropped), list(fit.dropped_corners)
-    tied, blocks = adjust_dropping_outliers(fit.setup, fit.blocks, factor, dropped, dropped_corners, fit.alone)
+    tied, blocks, _ = adjust_dropping_outliers(fit.setup, fit.blocks, factor, dropped, dropped_corners, fit.alone,
+                                               fit.noise)
     alone = fit.alone if blocks is fit.blocks else fit.setup.solve(blocks, tied, mode="none")
     return replace(fit, blocks=blocks, alone=alone, flat=tied, solution=tied, dropped=dropped,
                    dropped_corners=dropped_corners)
@@ -167,7 +176,7 @@ def board_shape(fit: Fit, option: str) -> Fit:
 
 def adjusted(photos: Photos, models: tuple[str, ...], settings: Settings, start: Solution | None = None) -> Fit:
     """Stages 3 to 5 with the lens ``models``."""
-    fit = cameras_alone(photos, models, settings.factor, start)           # 3
+    fit = cameras_alone(photos, models, settings, start)                  # 3
     fit = rig_tied(fit, settings.factor)                                  # 4
     return board_shape(fit, settings.board_shape)                         # 5
 
@@ -190,16 +199,20 @@ def calibration(photos: Photos, fit: Fit, settings: Settings) -> RigModel:
     models = setup.model
     rig.adjustment["options"] = {"drop_outliers": bool(settings.drop_outliers),
                                  "outlier_factor": float(settings.outlier_factor), "board_shape": settings.board_shape,
-                                 "model": models[0] if len(set(models)) == 1 else dict(zip(setup.names, models))}
+                                 "model": models[0] if len(set(models)) == 1 else dict(zip(setup.names, models)),
+                                 "weigh_photos": bool(settings.weigh_photos)}
     if fit.shape_test is not None:
         rig.adjustment["board_shape_test"] = fit.shape_test
+    if fit.noise is not None:
+        kept = {(setup.names[c], v) for c, v, _ in sol.problem.blocks}
+        rig.adjustment["photo_noise"] = fit.noise.to_dict(kept)
     return rig
 
 
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
                   reference: str | None = None, drop_outliers: bool = True,
                   outlier_factor: float = 6.0, board_shape: str = "auto",
-                  model: str | Mapping[str, str] = DEFAULT_LENS_MODEL) -> RigModel:
+                  model: str | Mapping[str, str] = DEFAULT_LENS_MODEL, weigh_photos: bool = True) -> RigModel:
     """Calibrate every camera of a rig and the rig itself from chessboard corners (the stages: module docstring).
 
     Parameters
@@ -231,6 +244,11 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         ``kb4`` (OpenCV's fisheye); or ``{camera: model}`` (cameras not named: ``k1k2``); or ``"auto"``:
         each camera's chosen by its held-out instants (:func:`lens_choice`, which records the comparison in
         ``adjustment["lens_models"]`` and the choice in ``adjustment["lens_models_chosen"]``)
+    weigh_photos : bool
+        estimate each photo's own noise from its residuals with every camera alone, weigh the photos by it in
+        every adjustment and judge each photo's corners against it (:mod:`dualcal.estimation.photo_noise`;
+        ``adjustment["photo_noise"]`` records it); False: every photo alike, corners judged against their
+        camera's median residual
 
     Returns
     -------
@@ -247,7 +265,7 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     """
     if board_shape not in BOARD_SHAPES:
         raise InputError(f"--board-shape {board_shape!r} is unknown (choose from {', '.join(BOARD_SHAPES)})")
-    settings = Settings(skew, rig_mode, reference, drop_outliers, outlier_factor, board_shape)
+    settings = Settings(skew, rig_mode, reference, drop_outliers, outlier_factor, board_shape, weigh_photos)
     photos = photos_to_calibrate(corners, settings)                                      # 1
     lenses = lens_models(photos, model)                                                  # 2
     fit = adjusted(photos, lenses.models, settings)                                      # 3, 4, 5

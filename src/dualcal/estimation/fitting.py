@@ -25,6 +25,7 @@ from ..geometry.camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MOD
 from .covariance import JointCovariance, intrinsic_name
 from ..errors import EstimationError, InputError
 from .held_out import fit_summary
+from .photo_noise import photo_weights
 from .lm import COMPARISON_LM, NEAR_START, LMOptions
 from ..geometry.model import CornerSet, Pose, RigModel, RigRelation, observed_mask
 from ..progress import warn
@@ -82,9 +83,11 @@ def _starting_values(sol: Solution):
 
 @dataclass(frozen=True)
 class Setup:
-    """What every adjustment of one calibration shares: the board's corners ``X_board`` (N, 3), the
-    camera names and image sizes, the reference's index, the skew model, the rig mode and the lens
-    model of every camera (one name, or one per camera)."""
+    """What every adjustment of one calibration shares, the switches of its one solver: the board's corners
+    ``X_board`` (N, 3), the camera names and image sizes, the reference's index, the skew model, the rig mode,
+    the lens model of every camera (one name, or one per camera) and each photo's weight ``weights``
+    ``{(camera, view): w}`` (:mod:`dualcal.estimation.photo_noise`; None: all 1). :meth:`problem` makes the
+    :class:`dualcal.estimation.adjust.Problem` of every adjustment from them."""
 
     X_board: np.ndarray
     names: list[str]
@@ -93,70 +96,78 @@ class Setup:
     skew: bool
     mode: str
     model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
+    weights: Mapping[tuple[str, str], float] | None = None
+
+    @property
+    def models(self) -> tuple[str, ...]:
+        """One lens model per camera."""
+        return (self.model,) * len(self.names) if isinstance(self.model, str) else tuple(self.model)
+
+    def problem(self, blocks, mode: str | None = None, board_shape: bool = False) -> Problem:
+        """The adjustment's problem of ``blocks`` with these switches (``mode`` overrides the rig mode)."""
+        return Problem(self.X_board, list(self.names), list(self.sizes), blocks, mode or self.mode, self.skew,
+                       self.reference, board_shape, self.models, self.weights)
 
     def solve(self, blocks, start: "Solution | None" = None, mode: str | None = None,
               board_shape: bool = False) -> "Solution":
-        """:func:`solve` with these settings (``mode`` overrides the rig mode)."""
-        return solve(self.X_board, self.names, self.sizes, blocks, self.reference, self.skew, mode or self.mode,
-                     start, board_shape, self.model)
+        """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples; ``mode``
+        overrides the rig mode.
+
+        Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
+        solution over the same photos (or a superset of them: photos it did not see start from
+        Zhang's), whose board shape is kept as the start too; a camera of another lens model there starts
+        from its values as :func:`refit` converts them. The paper's model starts from the
+        better (lower cost) of the rigid solution (every instant's baseline direction the same) and
+        the cameras-alone solution (each instant's own relative pose): the first is the nearer when
+        the rig is rigid, the second when the direction moves between instants. With
+        ``board_shape`` the board's out-of-plane shape is estimated too.
+        """
+        mode = mode or self.mode
+        X_board, skew, models = self.X_board, self.skew, self.models
+        _check_enough_views(blocks, self.names)
+        if mode == "paper" and start is None:
+            start = self.solve(blocks, mode="none", board_shape=board_shape)
+        shape = start.state.board_shape_mm if start is not None else None
+        if start is not None:
+            cams, poses = _starting_values(start)
+            cams = [cam if cam.model == models[c] else
+                    _start_camera(cam, models[c], skew, X_board, {v: uv for cc, v, uv in blocks if cc == c})
+                    for c, cam in enumerate(cams)]
+            views = {v for _, v, _ in blocks}
+            poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
+            missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
+            if missing:
+                zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, self.sizes[c],
+                                           skew, models[c])[1]
+                         for c in {c for c, _ in missing}}
+                for c, v in missing:
+                    poses[c][v] = zhang[c][v]
+        else:
+            cams, poses = [], []
+            for c, size in enumerate(self.sizes):
+                cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew,
+                                        models[c])
+                cams.append(cam)
+                poses.append(p)
+        problem = self.problem(blocks, "rigid" if mode == "paper" else mode, board_shape)
+        sol = adjust(problem, initial_state(problem, cams, poses, shape), LMOptions() if start is None else NEAR_START)
+        if mode != "paper":
+            return sol
+        problem = self.problem(blocks, "paper", board_shape)
+        starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
+        return adjust(problem, min(starts, key=lambda state: cost(problem, state)), NEAR_START)
 
     def linearised(self, sol: "Solution", board_shape: bool) -> "Solution":
         """``sol``'s photos and state linearised (:func:`dualcal.estimation.adjust.linearised_at`), the board's
         shape free or not."""
-        p = sol.problem
-        return linearised_at(Problem(self.X_board, list(self.names), list(self.sizes), p.blocks, p.mode, self.skew,
-                                     self.reference, board_shape, p.model), sol.state)
+        return linearised_at(self.problem(sol.problem.blocks, sol.problem.mode, board_shape), sol.state)
 
 
 def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
           start: Solution | None = None, board_shape: bool = False,
           model: str | tuple[str, ...] = DEFAULT_LENS_MODEL) -> Solution:
-    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples;
-    ``model``: the lens model (:data:`dualcal.geometry.camera.LENS_MODELS`) of every camera, or one per camera.
-
-    Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
-    solution over the same photos (or a superset of them: photos it did not see start from
-    Zhang's), whose board shape is kept as the start too; a camera of another lens model there starts
-    from its values as :func:`refit` converts them. The paper's model starts from the
-    better (lower cost) of the rigid solution (every instant's baseline direction the same) and
-    the cameras-alone solution (each instant's own relative pose): the first is the nearer when
-    the rig is rigid, the second when the direction moves between instants. With
-    ``board_shape`` the board's out-of-plane shape is estimated too.
-    """
-    _check_enough_views(blocks, names)
-    models = (model,) * len(names) if isinstance(model, str) else tuple(model)
-    if mode == "paper" and start is None:
-        start = solve(X_board, names, sizes, blocks, reference, skew, "none", board_shape=board_shape, model=model)
-    shape = start.state.board_shape_mm if start is not None else None
-    if start is not None:
-        cams, poses = _starting_values(start)
-        cams = [cam if cam.model == models[c] else
-                _start_camera(cam, models[c], skew, X_board, {v: uv for cc, v, uv in blocks if cc == c})
-                for c, cam in enumerate(cams)]
-        views = {v for _, v, _ in blocks}
-        poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
-        missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
-        if missing:
-            zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew,
-                                       models[c])[1]
-                     for c in {c for c, _ in missing}}
-            for c, v in missing:
-                poses[c][v] = zhang[c][v]
-    else:
-        cams, poses = [], []
-        for c, size in enumerate(sizes):
-            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew,
-                                    models[c])
-            cams.append(cam)
-            poses.append(p)
-    first_mode = "rigid" if mode == "paper" else mode
-    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape, models)
-    sol = adjust(problem, initial_state(problem, cams, poses, shape), LMOptions() if start is None else NEAR_START)
-    if mode != "paper":
-        return sol
-    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape, models)
-    starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
-    return adjust(problem, min(starts, key=lambda state: cost(problem, state)), NEAR_START)
+    """:meth:`Setup.solve` of a setup of these arguments (every photo of weight 1)."""
+    return Setup(X_board, names, sizes, reference, skew, mode, model).solve(blocks, start, board_shape=board_shape)
 
 
 def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int) -> tuple[Solution, Solution, int]:
@@ -167,13 +178,12 @@ def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int)
     cams, poses = _starting_values(sol)
     views = set(poses[x]) & set(poses[y])
     blocks = [(int(c == y), v, uv) for c, v, uv in sol.problem.blocks if c in (x, y) and v in views]
-    model = setup.model if isinstance(setup.model, str) else (setup.model[x], setup.model[y])
     pair = replace(setup, names=[setup.names[x], setup.names[y]], sizes=[setup.sizes[x], setup.sizes[y]],
-                   reference=0, mode="rigid", model=model)
+                   reference=0, mode="rigid", model=(setup.models[x], setup.models[y]))
     _check_enough_views(blocks, pair.names)
 
     def adjusted(mode: str, start: Solution) -> Solution:
-        problem = Problem(pair.X_board, pair.names, pair.sizes, blocks, mode, pair.skew, 0, False, pair.model)
+        problem = pair.problem(blocks, mode)
         start_cams, start_poses = _starting_values(start)
         return adjust(problem, initial_state(problem, [start_cams[x], start_cams[y]],
                                              [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)]),
@@ -231,14 +241,14 @@ def refit(source: RigModel | Solution, model: str | Mapping[str, str] | None = N
     models = lens_models_for(model if isinstance(model, str) else
                              {k: m for k, m in model.items() if k in names or k == "*"}, names)
     skew = start.skew if skew is None else skew
-    X = start.X_board
+    setup = Setup(start.X_board, names, [start.sizes[n] for n in names],
+                  names.index(start.reference) if start.reference in names else 0, skew, rig_mode or start.mode,
+                  models, start.weights)
     blocks = [(names.index(n), v, uv) for n, v, uv in start.photos if n in names]
     _check_enough_views(blocks, names)
-    cams = [_start_camera(start.cameras[n], models[c], skew, X, {v: uv for cc, v, uv in blocks if cc == c})
+    cams = [_start_camera(start.cameras[n], models[c], skew, setup.X_board, {v: uv for cc, v, uv in blocks if cc == c})
             for c, n in enumerate(names)]
-    ref = names.index(start.reference) if start.reference in names else 0
-    problem = Problem(X, names, [start.sizes[n] for n in names], blocks, rig_mode or start.mode, skew, ref,
-                      start.board_shape_mm is not None, models)
+    problem = setup.problem(blocks, board_shape=start.board_shape_mm is not None)
     return adjust(problem, initial_state(problem, cams, [dict(start.poses[n]) for n in names], start.board_shape_mm),
                   options)
 
@@ -247,7 +257,7 @@ def refit(source: RigModel | Solution, model: str | Mapping[str, str] | None = N
 class _Values:
     """What :func:`refit` starts from, by camera name: a calibration's or a solution's photos ``(camera, view,
     uv)``, cameras, board-to-camera poses, image sizes and lens models, its board's shape (None: flat), its
-    reference, skew model and rig mode."""
+    reference, skew model, rig mode and photos' weights."""
 
     X_board: np.ndarray
     names: list[str]
@@ -260,6 +270,7 @@ class _Values:
     reference: str
     skew: bool
     mode: str
+    weights: Mapping[tuple[str, str], float] | None
 
     @classmethod
     def of(cls, source: RigModel | Solution) -> "_Values":
@@ -271,14 +282,15 @@ class _Values:
             return cls(p.X_board, list(p.cameras), [(p.cameras[c], v, uv) for c, v, uv in p.blocks],
                        {n: source.state.camera(p, c) for c, n in enumerate(p.cameras)}, poses,
                        dict(zip(p.cameras, p.image_sizes)), dict(zip(p.cameras, p.models)),
-                       source.state.board_shape_mm if p.board_shape else None, p.cameras[p.reference], p.skew, p.mode)
+                       source.state.board_shape_mm if p.board_shape else None, p.cameras[p.reference], p.skew, p.mode,
+                       p.weights)
         corners = source.used_corners()
         X = corners.board.object_points_mm()
         names = sorted(corners.cameras)
         photos = [(names[c], v, uv) for c, v, uv in usable_photos(corners, names, X[:, :2], quiet=True)]
         return cls(X, names, photos, source.cameras, source.camera_poses,
                    {n: corners.cameras[n].image_size for n in names}, source.models, source.board_shape_mm,
-                   source.reference, source.skew, source.rig_mode)
+                   source.reference, source.skew, source.rig_mode, photo_weights(source.adjustment))
 
 
 def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray, views: dict) -> CameraModel:

@@ -1,19 +1,23 @@
 """Outliers: single corners far off their photo's fit, and photos (or instants) that do not fit at all.
 
-A corner is an outlier when its residual is far above the typical residual of its camera
-(:func:`outlier_limit_px`); it is left out (``dropped_corners``). A photo is dropped only when most of its
-corners are outliers (:data:`MOST_CORNERS`: a moved board, a wrong numbering), and only where that really
-improves the fit, with a recorded reason; in a tied rig, an instant whose photos fit their cameras alone but not
-the rig is dropped whole (the cameras' shots disagree), or the photo whose own focal length explains the misfit
-(a refocus). :func:`adjust_dropping_outliers` is the stage of the calibration (:mod:`dualcal.estimation.calibrate`)
-that does this with every camera alone first, so that a bad photo shows in its own camera's residuals, then with
-the rig tied.
+A corner is an outlier when its residual is far above its photo's own noise (:func:`outlier_limit_px` of
+:data:`dualcal.estimation.photo_noise.MEDIAN_LENGTH` times the photo's noise, estimated with every camera alone:
+:mod:`dualcal.estimation.photo_noise`), so that a blurred photo keeps its corners; it is left out
+(``dropped_corners``). (Without the photos weighed by their noise, the limit is that of the typical residual of
+the photo's camera.) A photo is dropped only for a gross misfit: its noise beyond a tenth of its squares (another
+numbering, another board), or most of its corners outliers against its own noise (:data:`MOST_CORNERS`: a board
+moved between the shots of an instant), and only where that really improves the fit, with a recorded reason; in
+a tied rig, an instant whose photos fit their cameras alone but not the rig is dropped whole (the cameras' shots
+disagree), or the photo whose own focal length explains the misfit (a refocus).
+:func:`adjust_dropping_outliers` is the stage of the calibration (:mod:`dualcal.estimation.calibrate`) that does
+this with every camera alone first, so that a bad photo shows in its own camera's residuals and each photo's
+noise is its own corners', then with the rig tied.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -21,6 +25,7 @@ from .adjust import Solution
 from .checking import _refocused_camera
 from .checks import REFOCUS_SHARE, design_effect, focal_scale_fits
 from .fitting import MIN_VIEWS, Setup, unusable_reason
+from .photo_noise import MEDIAN_LENGTH, PhotoNoise, photo_noise, rough_residuals
 from ..progress import warn
 
 OUTLIER_FLOOR_PX = 0.05
@@ -28,31 +33,42 @@ OUTLIER_FLOOR_PX = 0.05
 MOST_CORNERS = 0.5
 
 
-def outlier_limit_px(camera_median_px: float, factor: float) -> float:
-    """Residual above which a corner is an outlier: ``factor`` x the median length of its camera's
-    corner residuals (cameras differ in noise), but never below :data:`OUTLIER_FLOOR_PX`. For
-    independent equal errors the median length is 1.18 sigma, so the default factor 6 puts the
-    limit at 7 sigma: corner errors on real photos have long tails (a board's own defects, blur),
-    and only gross errors (a corner on the wrong feature) are meant; on the real sets a limit of
-    4 medians took out corners whose error the photos share, and the sigmas of k suffered. The
+def outlier_limit_px(median_px: float, factor: float) -> float:
+    """Residual above which a corner is an outlier: ``factor`` x the median length of a corner residual
+    (``median_px``: its photo's in its own noise, :data:`dualcal.estimation.photo_noise.MEDIAN_LENGTH` sigma; or
+    its camera's), but never below :data:`OUTLIER_FLOOR_PX`. For independent equal errors the median length is
+    1.18 sigma, so the default factor 6 puts the limit at 7 sigma: corner errors on real photos have long tails
+    (a board's own defects, blur), and only gross errors (a corner on the wrong feature) are meant; on the real
+    sets a limit of 4 medians took out corners whose error the photos share, and the sigmas of k suffered. The
     report uses it too."""
-    return max(factor * camera_median_px, OUTLIER_FLOOR_PX)
+    return max(factor * median_px, OUTLIER_FLOOR_PX)
 
 
-def corner_outliers(sol: Solution, factor: float) -> tuple[np.ndarray, np.ndarray]:
-    """Which measured corners are outliers: ``(B, N)`` bool, and each photo's limit (B,) px."""
-    length = np.linalg.norm(sol.residuals, axis=2)                       # (B, N), NaN where not measured
-    cams = np.array([c for c, _, _ in sol.problem.blocks])
+def corner_outliers(sol: Solution, factor: float, noise: PhotoNoise | None = None):
+    """Which measured corners are outliers: ``(B, N)`` bool, each photo's limit (B,) px and the residual lengths
+    judged (B, N) px: against its own
+    ``noise`` (:func:`dualcal.estimation.photo_noise.photo_noise`; with every camera alone, their rough residuals,
+    :func:`dualcal.estimation.photo_noise.rough_residuals`), or, without it (or for a photo it has not), against
+    its camera's median residual."""
+    p = sol.problem
+    rough = noise is not None and p.mode == "none"
+    length = np.linalg.norm(rough_residuals(sol, factor)[0] if rough else sol.residuals, axis=2)   # (B, N), NaN
+
+    cams = np.array([c for c, _, _ in p.blocks])
     limit = np.empty(len(cams))
     for c in np.unique(cams):
         limit[cams == c] = outlier_limit_px(float(np.nanmedian(length[cams == c])), factor)
+    if noise is not None:
+        for b, (c, v, _) in enumerate(p.blocks):
+            if (p.cameras[c], v) in noise.noise_px:
+                limit[b] = outlier_limit_px(MEDIAN_LENGTH * noise.noise_px[p.cameras[c], v], factor)
     with np.errstate(invalid="ignore"):
-        return length > limit[:, None], limit
+        return length > limit[:, None], limit, length
 
 
-def outlier_shares(sol: Solution, factor: float) -> tuple[np.ndarray, np.ndarray]:
+def outlier_shares(sol: Solution, factor: float, noise: PhotoNoise | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each photo's share of outlier corners (B,) and its limit (B,) px (:func:`corner_outliers`)."""
-    out, limit = corner_outliers(sol, factor)
+    out, limit, _ = corner_outliers(sol, factor, noise)
     return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1), limit
 
 
@@ -70,25 +86,33 @@ def _views_left(blocks, c: int) -> int:
 
 
 MAX_CORNER_ROUNDS = 5
+#: Each photo's noise (with ``weigh``) is estimated again from every solution, and the photos weighed by it
+#: again, until no weight changes by more than this share (at most :data:`MAX_REWEIGHTS` times).
+REWEIGHT_TOLERANCE = 1e-3
+MAX_REWEIGHTS = 10
 
 
 @dataclass(frozen=True)
 class _Round:
-    """What one round of :func:`adjust_dropping_outliers` adjusts: each of ``trials`` (lists of photos, the one
-    that fits best is kept) from ``start``; with ``improve``, kept only where it fits better than the solution
-    before (else ``kept``, a warning, is said where given); ``record(before, after, trial)`` records and says
-    what was left out."""
+    """What one round of :func:`adjust_dropping_outliers` adjusts (``kind``: ``start``, ``photo``, ``instant``,
+    ``gross``, ``corners`` or ``reweight``): each of ``trials`` (lists of photos, the one that fits best is kept)
+    from ``start``, with the photos' ``weights`` (None: as before); with ``improve``, kept only where it fits
+    better than the solution before (else ``kept``, a warning, is said where given); ``record(before, after,
+    trial)`` records and says what was left out."""
 
+    kind: str
     trials: list[list]
     start: Solution | None = None
+    weights: PhotoNoise | None = None
     improve: bool = False
     kept: str | None = None
     record: Callable[[Solution, Solution, int], None] | None = None
 
 
-def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corners, start=None):
+def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corners, start=None,
+                             noise: PhotoNoise | None = None, weigh: bool = False):
     """Solve, drop outlier photos and then outlier corners while there are any, solve again;
-    returns ``(solution, blocks)``.
+    returns ``(solution, blocks, noise)``.
 
     Each round decides what to leave out of the current solution (:func:`_next_round`) and adjusts the
     photos without it, the one adjustment of the stage: a photo, an instant or a refocused photo from a
@@ -97,13 +121,26 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
     the limit is recomputed. In a tied rig a bad photo pulls the shared pose and so spreads its error over
     every photo of that instant; of the photos of the flagged instant whose corners are mostly outliers,
     the one whose removal fits best is dropped.
+
+    With ``weigh`` (every camera alone, ``setup.mode`` ``none``) each photo's noise is estimated from every
+    solution (:func:`dualcal.estimation.photo_noise.photo_noise`), its corners judged against it, and the photos
+    weighed by it and adjusted again until the weights settle (:data:`REWEIGHT_TOLERANCE`); the ``noise``
+    returned is the one whose weights the solution has. With ``noise`` (the cameras alone's, ``setup``'s weights
+    from it) in a tied rig, a photo is judged against it, and no single corner: a corner that fits its photo's
+    own pose but not the rig's is no corner error but its instant's misfit (a shot out of sync, a board moved),
+    which the photo or the instant is dropped for, or ``rig_rigid`` names. Without either, the corners are judged
+    against their camera's median residual.
     """
     alone_share = {}
     if factor and setup.mode != "none" and start is not None:
-        alone_share = dict(zip([(c, v) for c, v, _ in start.problem.blocks], outlier_shares(start, factor)[0]))
-    sol, corner_rounds = None, 0
-    step: _Round | None = _Round([blocks], start)
+        alone_share = dict(zip([(c, v) for c, v, _ in start.problem.blocks],
+                               outlier_shares(start, factor, noise)[0]))
+    sol, corner_rounds, reweights, weighed = None, 0, 0, noise
+    step: _Round | None = _Round("start", [blocks], start)
     while step is not None:
+        if step.weights is not None:
+            weighed = step.weights
+            setup = replace(setup, weights=weighed.weights())
         trials = [setup.solve(trial, step.start) for trial in step.trials]
         best = min(range(len(trials)), key=lambda i: trials[i].s0_px)
         if step.improve and trials[best].s0_px >= sol.s0_px:
@@ -113,27 +150,58 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
         if step.record is not None:
             step.record(sol, trials[best], best)
         sol, blocks = trials[best], step.trials[best]
-        if not factor:
-            break
+        if weigh:
+            noise = photo_noise(sol, factor)
         step = _next_round(setup, sol, blocks, start, factor, alone_share, dropped, dropped_corners,
-                           corner_rounds < MAX_CORNER_ROUNDS)
-        corner_rounds += step is not None and not step.improve
-    return sol, blocks
+                           corner_rounds < MAX_CORNER_ROUNDS and (noise is None or setup.mode == "none"), noise,
+                           weigh and reweights < MAX_REWEIGHTS, weighed is None)
+        corner_rounds += step is not None and step.kind == "corners"
+        reweights += step is not None and step.kind == "reweight"
+    return sol, blocks, weighed
 
 
-def _next_round(setup: Setup, sol: Solution, blocks, alone: Solution | None, factor: float, alone_share: dict,
-                dropped: list, dropped_corners: list, corners_too: bool) -> _Round | None:
-    """What to leave out of ``sol`` next (:func:`adjust_dropping_outliers`): the photo (or the instant, or the
-    refocused photo of an instant) most of whose corners are outliers; else, where ``corners_too``, the outlier
-    corners; None where there is nothing to leave out, or it cannot be (a warning says why)."""
+def _settled(setup: Setup, noise: PhotoNoise) -> bool:
+    """Whether the photos' weights of ``noise`` are ``setup``'s, within :data:`REWEIGHT_TOLERANCE`."""
+    old = setup.weights or {}
+    return all(abs(w / old.get(k, 1.0) - 1.0) <= REWEIGHT_TOLERANCE for k, w in noise.weights().items())
+
+
+def _next_round(setup: Setup, sol: Solution, blocks, alone: Solution | None, factor: float | None, alone_share: dict,
+                dropped: list, dropped_corners: list, corners_too: bool, noise: PhotoNoise | None,
+                reweigh: bool, unweighed: bool) -> _Round | None:
+    """What to do next with ``sol`` (:func:`adjust_dropping_outliers`): leave out a photo of a gross misfit
+    (:attr:`dualcal.estimation.photo_noise.PhotoNoise.gross`), else the photo (or the instant, or the refocused
+    photo of an instant) most of whose corners are outliers against ``noise``, else, where ``corners_too``, the
+    outlier corners; else, where ``reweigh``, weigh the photos by ``noise`` where their weights have not
+    settled (or, ``unweighed``, not been weighed yet). None where there is nothing to do, or what should be left out
+    cannot be (a warning says why)."""
+    if factor:
+        leave_out = _leave_out(setup, sol, blocks, alone, factor, alone_share, dropped, dropped_corners, corners_too,
+                               noise)
+        if leave_out is not None:
+            return leave_out
+    if reweigh and (unweighed or not _settled(setup, noise)):
+        return _Round("reweight", [blocks], sol, noise)
+    return None
+
+
+def _leave_out(setup: Setup, sol: Solution, blocks, alone: Solution | None, factor: float, alone_share: dict,
+               dropped: list, dropped_corners: list, corners_too: bool, noise: PhotoNoise | None) -> _Round | None:
+    """The round that leaves out what :func:`_next_round` says, or None."""
     names = setup.names
-    shares, limits = outlier_shares(sol, factor)
+    index = {(names[c], v): i for i, (c, v, _) in enumerate(blocks)}
+    gross = [index[k] for k in (noise.gross if noise is not None else ())
+             if k in index and _views_left(blocks, blocks[index[k]][0]) > MIN_VIEWS]
+    if gross:                            # the worst first: it may have pulled the others' fit off
+        return _without_gross(setup, blocks, gross[0], dropped)
+    shares, limits = outlier_shares(sol, factor, noise)
     out = find_outlier(shares, limits)
     if out is None:
-        bad, limit = corner_outliers(sol, factor)
+        bad, limit, length = corner_outliers(sol, factor, noise)
         if not bad.any() or not corners_too:
             return None
-        return _Round([_without_corners(setup, sol, blocks, bad, limit, dropped, dropped_corners)], sol)
+        return _Round("corners", [_without_corners(setup, sol, blocks, bad, limit, length, dropped, dropped_corners)],
+                      sol)
     b, share, limit = out
     view = blocks[b][1]
     instant = _instant_misfit(setup, sol, alone, blocks, view, alone_share)
@@ -150,6 +218,8 @@ def _next_round(setup: Setup, sol: Solution, blocks, alone: Solution | None, fac
     if not candidates:
         warn(f"{photo} but it cannot be dropped: only {MIN_VIEWS} views left for {names[blocks[b][0]]!r}")
         return None
+    median = ("the median its photo's own noise gives" if noise is not None else
+              f"the median of {names[blocks[b][0]]!r}")
 
     def record(before: Solution, after: Solution, trial: int):
         i = candidates[trial]
@@ -159,15 +229,29 @@ def _next_round(setup: Setup, sol: Solution, blocks, alone: Solution | None, fac
                       f"phone refocused or zoomed between the shots of {view} (photo RMS {rms_i:.3g} px in rig mode "
                       f"{setup.mode}; without it s0 falls from {before.s0_px:.3g} to {after.s0_px:.3g} px); lock focus")
         else:
-            reason = (f"{share:.0%} of its corners are outliers (residual above {limit:.3g} px, {factor:g} x the "
-                      f"median of {names[c]!r}; photo RMS {rms_i:.3g} px) in rig mode {setup.mode}; without it s0 "
+            reason = (f"{share:.0%} of its corners are outliers (residual above {limit:.3g} px, {factor:g} x "
+                      f"{median}; photo RMS {rms_i:.3g} px) in rig mode {setup.mode}; without it s0 "
                       f"falls from {before.s0_px:.3g} to {after.s0_px:.3g} px (moved board, wrong corner order, blur, "
                       "or another zoom/focus setting?)")
         warn(f"dropping {names[c]}/{view}: {reason}")
         dropped.append({"camera": names[c], "view": view, "rms_px": rms_i, "reason": reason})
 
-    return _Round([blocks[:i] + blocks[i + 1:] for i in candidates], improve=True,
+    return _Round("photo", [blocks[:i] + blocks[i + 1:] for i in candidates], improve=True,
                   kept=f"{photo} but dropping the photo does not improve the fit: kept", record=record)
+
+
+def _without_gross(setup: Setup, blocks, b: int, dropped: list) -> _Round:
+    """The round without photo ``b``, a gross misfit (:attr:`dualcal.estimation.photo_noise.PhotoNoise.gross`)."""
+    c, view, _ = blocks[b]
+
+    def record(before: Solution, after: Solution, _trial: int):
+        reason = (f"its corners are off its own fit by {before.block_rms_px[b]:.3g} px RMS, more than a tenth of its "
+                  f"squares in the photo: no noise of a corner detection, but another numbering of the board (turned "
+                  f"or mirrored), another board, or corners found wrongly; without it s0 is {after.s0_px:.3g} px")
+        warn(f"dropping {setup.names[c]}/{view}: {reason}")
+        dropped.append({"camera": setup.names[c], "view": view, "rms_px": before.block_rms_px[b], "reason": reason})
+
+    return _Round("gross", [blocks[:b] + blocks[b + 1:]], record=record)
 
 
 def _instant_misfit(setup: Setup, sol: Solution, alone: Solution | None, blocks, view: str, alone_share: dict):
@@ -181,8 +265,9 @@ def _instant_misfit(setup: Setup, sol: Solution, alone: Solution | None, blocks,
         return None
     if any(alone_share.get((blocks[i][0], view), 1.0) > MOST_CORNERS for i in instant):
         return None
-    alone_cost = {(c, v): float(np.nansum(r ** 2)) for (c, v, _), r in zip(alone.problem.blocks, alone.residuals)}
-    tie = sum(float(np.nansum(sol.residuals[i] ** 2)) - alone_cost.get((blocks[i][0], view), 0.0) for i in instant)
+    alone_cost = dict(zip([(c, v) for c, v, _ in alone.problem.blocks], alone.block_costs()))
+    tied_cost = sol.block_costs()
+    tie = sum(float(tied_cost[i]) - alone_cost.get((blocks[i][0], view), 0.0) for i in instant)
     if not any(tie > 0 and f["explained_px2"] >= REFOCUS_SHARE * tie for f in focal_scale_fits(sol, {view})):
         return "instant"
     c = _refocused_camera(alone, view, design_effect(alone))
@@ -217,14 +302,13 @@ def _without_instant(setup: Setup, alone: Solution, blocks, view: str, dropped) 
             dropped.append({"camera": names[blocks[i][0]], "view": view, "rms_px": before.block_rms_px[i],
                             "reason": reason, "instant": True})
 
-    return _Round([rest], improve=True, record=record)
+    return _Round("instant", [rest], improve=True, record=record)
 
 
-def _without_corners(setup: Setup, sol: Solution, blocks, bad, limit, dropped, dropped_corners):
-    """``blocks`` with the outlier corners ``bad`` (B, N) set to NaN, each recorded; a photo left
-    unable to fix a homography is dropped, with the reason."""
+def _without_corners(setup: Setup, sol: Solution, blocks, bad, limit, length, dropped, dropped_corners):
+    """``blocks`` with the outlier corners ``bad`` (B, N) set to NaN, each recorded with its residual ``length``
+    and its photo's ``limit`` (px); a photo left unable to fix a homography is dropped, with the reason."""
     out = []
-    length = np.linalg.norm(sol.residuals, axis=2)
     for b, (c, v, uv) in enumerate(blocks):
         if not bad[b].any():
             out.append((c, v, uv))

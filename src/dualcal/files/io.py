@@ -514,8 +514,11 @@ def rig_to_dict(rig: RigModel) -> dict:
             f = rel.sigma_formal
             rig_doc[name]["sigma_formal"] = _rig_sigma_doc(f["t_mm"], f["baseline_mm"], f["opk_arcmin"])
     views = {}
+    noise = (rig.adjustment.get("photo_noise") or {}).get("photos", {})
     for view, pose in rig.reference_poses().items():
         views[view] = {**pose.to_dict(), "rms_px": rig.view_rms_px.get(view, {})}
+        if noise:
+            views[view]["noise_px"] = {cam: noise[cam][view]["noise_px"] for cam in noise if view in noise[cam]}
     board = rig.board.to_dict()
     if rig.board_shape_mm is not None:
         board["sag_mm"] = rig.board_sag_mm()
