@@ -41,12 +41,13 @@ from .board_shape import BOARD_SHAPES, with_board_shape
 from .checking import calibration_checks
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import InputError
-from .fitting import AUTO_MODEL, Setup, lens_models_for, rig_model_from_solution, usable_photos
+from .fitting import (AUTO_MODEL, Setup, known_intrinsics_record, lens_models_for, rig_model_from_solution,
+                      usable_photos)
 from .model_selection import choose_lens_models, preferred_lens_models
 from .outliers import adjust_dropping_outliers
 from .photo_noise import PhotoNoise
 from ..geometry.camera import DEFAULT_LENS_MODEL
-from ..geometry.model import CornerSet, RigModel, choose_reference
+from ..geometry.model import CornerSet, KnownIntrinsics, RigModel, choose_reference
 from ..progress import warn
 
 __all__ = ["BOARD_SHAPES", "Fit", "LensModels", "Photos", "Settings", "calibrate_rig"]
@@ -86,15 +87,12 @@ class Photos:
 @dataclass(frozen=True)
 class LensModels:
     """Stage 2: each camera's lens model to adjust with (``models``, in the order of the cameras), and with
-    ``model="auto"`` its ``candidates`` ``{camera: models}`` (None where the models were given)."""
+    ``model="auto"`` the ``candidates`` ``{camera: models}`` and the ``preferred`` ``{camera: model}`` of every
+    camera whose intrinsics are not known (None where the models were given)."""
 
     models: tuple[str, ...]
     candidates: dict[str, tuple[str, ...]] | None = None
-
-    @property
-    def preferred(self) -> dict[str, str]:
-        """``{camera: the model it starts with}`` (``model="auto"``)."""
-        return dict(zip(sorted(self.candidates or ()), self.models))
+    preferred: dict[str, str] | None = None
 
 
 @dataclass(frozen=True)
@@ -117,26 +115,45 @@ class Fit:
     noise: PhotoNoise | None = None
 
 
-def photos_to_calibrate(corners: CornerSet, settings: Settings) -> Photos:
-    """Stage 1 (module docstring)."""
+def photos_to_calibrate(corners: CornerSet, settings: Settings,
+                        known: Mapping[str, KnownIntrinsics] | None = None) -> Photos:
+    """Stage 1 (module docstring); ``known``: the cameras whose intrinsics are known (:func:`calibrate_rig`).
+
+    Raises
+    ------
+    InputError
+        Known intrinsics of a camera that is not in ``corners``, or of another image size.
+    """
     corners, duplicates = merge_duplicate_instants(corners)
     if duplicates:
         warn(describe_duplicates(duplicates))
     names = sorted(corners.cameras)
+    for name, k in (known or {}).items():
+        if name not in corners.cameras:
+            raise InputError(f"known intrinsics of camera {name!r}, which is not one of the corners' "
+                             f"({', '.join(names)})")
+        if tuple(k.camera.image_size) != tuple(corners.cameras[name].image_size):
+            raise InputError(f"known intrinsics of camera {name!r} are for images of {k.camera.image_size}, its "
+                             f"photos are {corners.cameras[name].image_size}: another camera or another resolution")
     reference = settings.reference if settings.reference is not None else corners.reference
     X = corners.board.object_points_mm()
     setup = Setup(X, names, [corners.cameras[n].image_size for n in names],
-                  names.index(choose_reference(names, reference)), settings.skew, settings.rig_mode)
+                  names.index(choose_reference(names, reference)), settings.skew, settings.rig_mode,
+                  known=dict(known) if known else None)
     return Photos(corners, duplicates, usable_photos(corners, names, X[:, :2]), setup)
 
 
 def lens_models(photos: Photos, model: str | Mapping[str, str]) -> LensModels:
     """Stage 2 (module docstring): ``model`` for every camera, ``{camera: model}``, or ``"auto"``: each camera's
-    candidates and preferred model (:func:`dualcal.estimation.model_selection.preferred_lens_models`)."""
+    candidates and preferred model (:func:`dualcal.estimation.model_selection.preferred_lens_models`); a camera
+    whose intrinsics are known has their lens model."""
+    setup = photos.setup
+    known = {n: k.camera.model for n, k in (setup.known or {}).items()}
     if isinstance(model, str) and model == AUTO_MODEL:
-        candidates, preferred = preferred_lens_models(photos.setup, photos.blocks)
-        return LensModels(lens_models_for(preferred, photos.setup.names), candidates)
-    return LensModels(lens_models_for(model, photos.setup.names))
+        candidates, preferred = preferred_lens_models(setup, photos.blocks)
+        return LensModels(lens_models_for({**preferred, **known}, setup.names), candidates, preferred)
+    given = lens_models_for(model, setup.names)
+    return LensModels(tuple(known.get(n, m) for n, m in zip(setup.names, given)))
 
 
 def cameras_alone(photos: Photos, models: tuple[str, ...], settings: Settings, start: Solution | None = None) -> Fit:
@@ -146,10 +163,10 @@ def cameras_alone(photos: Photos, models: tuple[str, ...], settings: Settings, s
     setup = replace(photos.setup, model=models)
     dropped: list[dict] = []
     dropped_corners: list[dict] = []
-    alone, blocks, noise = adjust_dropping_outliers(replace(setup, mode="none"), photos.blocks, settings.factor,
-                                                    dropped, dropped_corners, start, weigh=settings.weigh_photos)
-    if noise is not None:
-        setup = replace(setup, weights=noise.weights())
+    alone, blocks, noise, solved = adjust_dropping_outliers(replace(setup, mode="none"), photos.blocks,
+                                                            settings.factor, dropped, dropped_corners, start,
+                                                            weigh=settings.weigh_photos)
+    setup = replace(solved, mode=setup.mode)
     return Fit(setup, blocks, alone, alone, alone, None, dropped, dropped_corners, noise)
 
 
@@ -160,8 +177,8 @@ def rig_tied(fit: Fit, factor: float | None) -> Fit:
     if fit.setup.mode == "none":
         return fit
     dropped, dropped_corners = list(fit.dropped), list(fit.dropped_corners)
-    tied, blocks, _ = adjust_dropping_outliers(fit.setup, fit.blocks, factor, dropped, dropped_corners, fit.alone,
-                                               fit.noise)
+    tied, blocks, _, _ = adjust_dropping_outliers(fit.setup, fit.blocks, factor, dropped, dropped_corners,
+                                                  fit.alone, fit.noise)
     alone = fit.alone if blocks is fit.blocks else fit.setup.solve(blocks, tied, mode="none")
     return replace(fit, blocks=blocks, alone=alone, flat=tied, solution=tied, dropped=dropped,
                    dropped_corners=dropped_corners)
@@ -185,7 +202,7 @@ def lens_choice(fit: Fit, lenses: LensModels) -> tuple[tuple[str, ...], list[dic
     """Stage 6 (module docstring): every camera's lens model chosen by its held-out instants, from ``fit`` with
     every camera's preferred model, and the comparison as calib.json keeps it (``adjustment["lens_models"]``)."""
     chosen, comparison = choose_lens_models(fit.solution, fit.alone, lenses.candidates, lenses.preferred)
-    return tuple(chosen[n] for n in fit.setup.names), comparison
+    return tuple(chosen.get(n, m) for n, m in zip(fit.setup.names, fit.setup.models)), comparison
 
 
 def calibration(photos: Photos, fit: Fit, settings: Settings) -> RigModel:
@@ -206,13 +223,16 @@ def calibration(photos: Photos, fit: Fit, settings: Settings) -> RigModel:
     if fit.noise is not None:
         kept = {(setup.names[c], v) for c, v, _ in sol.problem.blocks}
         rig.adjustment["photo_noise"] = fit.noise.to_dict(kept)
+    if setup.known:
+        rig.adjustment["known_intrinsics"] = known_intrinsics_record(setup)
     return rig
 
 
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
                   reference: str | None = None, drop_outliers: bool = True,
                   outlier_factor: float = 6.0, board_shape: str = "auto",
-                  model: str | Mapping[str, str] = DEFAULT_LENS_MODEL, weigh_photos: bool = True) -> RigModel:
+                  model: str | Mapping[str, str] = DEFAULT_LENS_MODEL, weigh_photos: bool = True,
+                  known_intrinsics: Mapping[str, KnownIntrinsics] | None = None) -> RigModel:
     """Calibrate every camera of a rig and the rig itself from chessboard corners (the stages: module docstring).
 
     Parameters
@@ -249,6 +269,14 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         every adjustment and judge each photo's corners against it (:mod:`dualcal.estimation.photo_noise`;
         ``adjustment["photo_noise"]`` records it); False: every photo alike, corners judged against their
         camera's median residual
+    known_intrinsics : Mapping[str, KnownIntrinsics] or None
+        ``{camera: KnownIntrinsics}``: cameras whose lens model and intrinsics are known (an earlier calibration
+        of each camera from its own photos, a peer's file). Each takes its lens model from it, and its
+        intrinsics as a prior of its covariance (``mode`` ``prior``; every sigma then holds their uncertainty
+        too), or held fixed (``fixed``: no covariance); Zhang's closed form is not needed for it (its photos'
+        poses by space resection), and one photo of it suffices. The check ``intrinsics_prior`` says whether its
+        photos agree with what was known (a lens that changed is named). ``adjustment["known_intrinsics"]``
+        records them.
 
     Returns
     -------
@@ -259,14 +287,14 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     Raises
     ------
     InputError
-        An unknown lens model or board shape option.
+        An unknown lens model or board shape option, known intrinsics of a camera that is not there.
     EstimationError
         Fewer than 3 usable views for a camera, degenerate views, no shared view in a rig.
     """
     if board_shape not in BOARD_SHAPES:
         raise InputError(f"--board-shape {board_shape!r} is unknown (choose from {', '.join(BOARD_SHAPES)})")
     settings = Settings(skew, rig_mode, reference, drop_outliers, outlier_factor, board_shape, weigh_photos)
-    photos = photos_to_calibrate(corners, settings)                                      # 1
+    photos = photos_to_calibrate(corners, settings, known_intrinsics)                    # 1
     lenses = lens_models(photos, model)                                                  # 2
     fit = adjusted(photos, lenses.models, settings)                                      # 3, 4, 5
     comparison = None

@@ -90,7 +90,8 @@ def design_effect(sol: Solution) -> dict[int, float]:
     out = {}
     for c in range(len(sol.problem.cameras)):
         clustered, formal = sol.intrinsic_sigma(c, "clustered"), sol.intrinsic_sigma(c, "formal")
-        out[c] = max(1.0, float(np.median([(clustered[n] / s) ** 2 for n, s in formal.items() if s > 0])))
+        ratios = [(clustered[n] / s) ** 2 for n, s in formal.items() if s > 0]
+        out[c] = max(1.0, float(np.median(ratios))) if ratios else 1.0          # none free: intrinsics held fixed
     return out
 
 
@@ -379,8 +380,11 @@ def focal_scale_fits(sol: Solution, views=None) -> list[dict]:
         row = 0
         for pr in rows:
             c = p.blocks[pr.block][0]
+            if len(lay.intrinsics[c]) < 2:                         # intrinsics held fixed (known): not judged here
+                row += len(pr.r)
+                continue
             col = {int(k): i for i, k in enumerate(pr.columns)}
-            fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are always free
+            fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are free where any intrinsic is
             cam = sol.state.intrinsics[c]
             J_scale = np.zeros(m)
             J_scale[row:row + len(pr.r)] = cam[0] * pr.J[:, col[fx_col]] + cam[1] * pr.J[:, col[fy_col]]

@@ -27,10 +27,11 @@ from ..errors import EstimationError, InputError
 from .held_out import fit_summary
 from .photo_noise import photo_weights
 from .lm import COMPARISON_LM, NEAR_START, LMOptions
-from ..geometry.model import CornerSet, Pose, RigModel, RigRelation, observed_mask
+from ..geometry.model import CornerSet, KnownIntrinsics, Pose, RigModel, RigRelation, observed_mask
 from ..progress import warn
 from .rig_relations import parameter_covariance, rig_relation, shared_views
 from ..geometry.scale import relative_sigma, with_scale
+from ..geometry.resection import planar_pose
 from ..geometry.zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
 
 MIN_VIEWS = 3
@@ -64,20 +65,21 @@ def usable_photos(corners: CornerSet, names: list[str], xy_board: np.ndarray,
     return blocks
 
 
-def _check_enough_views(blocks, names) -> None:
+def _check_enough_views(blocks, names, known=None) -> None:
     for c, name in enumerate(names):
         n = sum(1 for cam, _, _ in blocks if cam == c)
-        if n < MIN_VIEWS:
+        if n < (1 if name in (known or {}) else MIN_VIEWS):
             raise EstimationError(f"camera {name!r} has {n} usable view(s); at least {MIN_VIEWS} are needed "
                                   "(take more photos, or check that the board is found in them)")
 
 
-def _starting_values(sol: Solution):
-    """Per-camera intrinsics and board-to-camera poses of a solution, to start another adjustment."""
+def _starting_values(sol: Solution, names=None):
+    """Per-camera intrinsics and board-to-camera poses of a solution, to start another adjustment: of every
+    camera, or of the cameras ``names`` (some of the solution's), in that order."""
     bp = sol.photo_poses
-    n = len(sol.problem.cameras)
-    cams = [sol.state.camera(sol.problem, c) for c in range(n)]
-    poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c and (c, v) in bp} for c in range(n)]
+    cameras = range(len(sol.problem.cameras)) if names is None else [sol.problem.cameras.index(n) for n in names]
+    cams = [sol.state.camera(sol.problem, c) for c in cameras]
+    poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c and (c, v) in bp} for c in cameras]
     return cams, poses
 
 
@@ -85,8 +87,10 @@ def _starting_values(sol: Solution):
 class Setup:
     """What every adjustment of one calibration shares, the switches of its one solver: the board's corners
     ``X_board`` (N, 3), the camera names and image sizes, the reference's index, the skew model, the rig mode,
-    the lens model of every camera (one name, or one per camera) and each photo's weight ``weights``
-    ``{(camera, view): w}`` (:mod:`dualcal.estimation.photo_noise`; None: all 1). :meth:`problem` makes the
+    the lens model of every camera (one name, or one per camera), each photo's weight ``weights``
+    ``{(camera, view): w}`` (:mod:`dualcal.estimation.photo_noise`; None: all 1), and the cameras whose
+    intrinsics are ``known`` ``{camera: KnownIntrinsics}``, as a prior of scale ``prior_scale_px`` (the noise of
+    a photo of weight 1; None: held until it is known) or fixed. :meth:`problem` makes the
     :class:`dualcal.estimation.adjust.Problem` of every adjustment from them."""
 
     X_board: np.ndarray
@@ -97,6 +101,8 @@ class Setup:
     mode: str
     model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
     weights: Mapping[tuple[str, str], float] | None = None
+    known: Mapping[str, KnownIntrinsics] | None = None
+    prior_scale_px: float | None = None
 
     @property
     def models(self) -> tuple[str, ...]:
@@ -106,7 +112,17 @@ class Setup:
     def problem(self, blocks, mode: str | None = None, board_shape: bool = False) -> Problem:
         """The adjustment's problem of ``blocks`` with these switches (``mode`` overrides the rig mode)."""
         return Problem(self.X_board, list(self.names), list(self.sizes), blocks, mode or self.mode, self.skew,
-                       self.reference, board_shape, self.models, self.weights)
+                       self.reference, board_shape, self.models, self.weights, self.known, self.prior_scale_px)
+
+    def closed_form(self, c: int, views: dict):
+        """Camera ``c``'s start from the photos ``views`` ``{view: uv}``: Zhang's closed form
+        (:func:`dualcal.geometry.zhang.initial_camera`), or, for a camera whose intrinsics are known, those and
+        each photo's pose by space resection (:func:`dualcal.geometry.resection.planar_pose`): ``(camera,
+        {view: Pose})``."""
+        known = (self.known or {}).get(self.names[c])
+        if known is None:
+            return initial_camera(self.X_board[:, :2], views, self.sizes[c], self.skew, self.models[c])
+        return known.camera, {v: planar_pose(self.X_board, known.camera, uv) for v, uv in views.items()}
 
     def solve(self, blocks, start: "Solution | None" = None, mode: str | None = None,
               board_shape: bool = False) -> "Solution":
@@ -115,7 +131,7 @@ class Setup:
 
         Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
         solution over the same photos (or a superset of them: photos it did not see start from
-        Zhang's), whose board shape is kept as the start too; a camera of another lens model there starts
+        Zhang's; of these cameras or more), whose board shape is kept as the start too; a camera of another lens model there starts
         from its values as :func:`refit` converts them. The paper's model starts from the
         better (lower cost) of the rigid solution (every instant's baseline direction the same) and
         the cameras-alone solution (each instant's own relative pose): the first is the nearer when
@@ -124,12 +140,12 @@ class Setup:
         """
         mode = mode or self.mode
         X_board, skew, models = self.X_board, self.skew, self.models
-        _check_enough_views(blocks, self.names)
+        _check_enough_views(blocks, self.names, self.known)
         if mode == "paper" and start is None:
             start = self.solve(blocks, mode="none", board_shape=board_shape)
         shape = start.state.board_shape_mm if start is not None else None
         if start is not None:
-            cams, poses = _starting_values(start)
+            cams, poses = _starting_values(start, self.names)
             cams = [cam if cam.model == models[c] else
                     _start_camera(cam, models[c], skew, X_board, {v: uv for cc, v, uv in blocks if cc == c})
                     for c, cam in enumerate(cams)]
@@ -137,24 +153,19 @@ class Setup:
             poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
             missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
             if missing:
-                zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, self.sizes[c],
-                                           skew, models[c])[1]
+                zhang = {c: self.closed_form(c, {v: uv for cc, v, uv in blocks if cc == c})[1]
                          for c in {c for c, _ in missing}}
                 for c, v in missing:
                     poses[c][v] = zhang[c][v]
         else:
-            cams, poses = [], []
-            for c, size in enumerate(self.sizes):
-                cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew,
-                                        models[c])
-                cams.append(cam)
-                poses.append(p)
+            cams, poses = map(list, zip(*(self.closed_form(c, {v: uv for cc, v, uv in blocks if cc == c})
+                                          for c in range(len(self.names)))))
         problem = self.problem(blocks, "rigid" if mode == "paper" else mode, board_shape)
         sol = adjust(problem, initial_state(problem, cams, poses, shape), LMOptions() if start is None else NEAR_START)
         if mode != "paper":
             return sol
         problem = self.problem(blocks, "paper", board_shape)
-        starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
+        starts = [initial_state(problem, *_starting_values(s, self.names), s.state.board_shape_mm) for s in (sol, start)]
         return adjust(problem, min(starts, key=lambda state: cost(problem, state)), NEAR_START)
 
     def linearised(self, sol: "Solution", board_shape: bool) -> "Solution":
@@ -180,7 +191,7 @@ def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int)
     blocks = [(int(c == y), v, uv) for c, v, uv in sol.problem.blocks if c in (x, y) and v in views]
     pair = replace(setup, names=[setup.names[x], setup.names[y]], sizes=[setup.sizes[x], setup.sizes[y]],
                    reference=0, mode="rigid", model=(setup.models[x], setup.models[y]))
-    _check_enough_views(blocks, pair.names)
+    _check_enough_views(blocks, pair.names, pair.known)
 
     def adjusted(mode: str, start: Solution) -> Solution:
         problem = pair.problem(blocks, mode)
@@ -237,15 +248,15 @@ def refit(source: RigModel | Solution, model: str | Mapping[str, str] | None = N
     """
     start = _Values.of(source)
     names = sorted(start.names if cameras is None else cameras)
-    model = start.models if model is None else model
-    models = lens_models_for(model if isinstance(model, str) else
-                             {k: m for k, m in model.items() if k in names or k == "*"}, names)
+    requested = start.models if model is None else dict.fromkeys(names, model) if isinstance(model, str) else model
+    model = {**requested, **{n: start.models[n] for n in start.known or ()}}      # a known camera keeps its lens
+    models = lens_models_for({k: m for k, m in model.items() if k in names or k == "*"}, names)
     skew = start.skew if skew is None else skew
     setup = Setup(start.X_board, names, [start.sizes[n] for n in names],
                   names.index(start.reference) if start.reference in names else 0, skew, rig_mode or start.mode,
-                  models, start.weights)
+                  models, start.weights, start.known, start.prior_scale_px)
     blocks = [(names.index(n), v, uv) for n, v, uv in start.photos if n in names]
-    _check_enough_views(blocks, names)
+    _check_enough_views(blocks, names, start.known)
     cams = [_start_camera(start.cameras[n], models[c], skew, setup.X_board, {v: uv for cc, v, uv in blocks if cc == c})
             for c, n in enumerate(names)]
     problem = setup.problem(blocks, board_shape=start.board_shape_mm is not None)
@@ -257,7 +268,8 @@ def refit(source: RigModel | Solution, model: str | Mapping[str, str] | None = N
 class _Values:
     """What :func:`refit` starts from, by camera name: a calibration's or a solution's photos ``(camera, view,
     uv)``, cameras, board-to-camera poses, image sizes and lens models, its board's shape (None: flat), its
-    reference, skew model, rig mode and photos' weights."""
+    reference, skew model, rig mode, photos' weights, and the cameras whose intrinsics were known (with the
+    prior's scale)."""
 
     X_board: np.ndarray
     names: list[str]
@@ -271,6 +283,8 @@ class _Values:
     skew: bool
     mode: str
     weights: Mapping[tuple[str, str], float] | None
+    known: Mapping[str, KnownIntrinsics] | None
+    prior_scale_px: float | None
 
     @classmethod
     def of(cls, source: RigModel | Solution) -> "_Values":
@@ -283,14 +297,15 @@ class _Values:
                        {n: source.state.camera(p, c) for c, n in enumerate(p.cameras)}, poses,
                        dict(zip(p.cameras, p.image_sizes)), dict(zip(p.cameras, p.models)),
                        source.state.board_shape_mm if p.board_shape else None, p.cameras[p.reference], p.skew, p.mode,
-                       p.weights)
+                       p.weights, p.known, p.prior_scale_px)
         corners = source.used_corners()
         X = corners.board.object_points_mm()
         names = sorted(corners.cameras)
         photos = [(names[c], v, uv) for c, v, uv in usable_photos(corners, names, X[:, :2], quiet=True)]
         return cls(X, names, photos, source.cameras, source.camera_poses,
                    {n: corners.cameras[n].image_size for n in names}, source.models, source.board_shape_mm,
-                   source.reference, source.skew, source.rig_mode, photo_weights(source.adjustment))
+                   source.reference, source.skew, source.rig_mode, photo_weights(source.adjustment),
+                   *known_intrinsics_of(source.adjustment))
 
 
 def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray, views: dict) -> CameraModel:
@@ -347,3 +362,20 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
     return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, fit["camera_rms_px"], rig, poses,
                     dict(sorted(view_rms.items())), fit["rms_px"], corners, adjustment, dropped,
                     sigma_formal, shape, shape_sigma, list(dropped_corners), {}, covariance)
+
+
+def known_intrinsics_record(setup: Setup) -> dict | None:
+    """calib.json's ``adjustment.known_intrinsics`` of a calibration whose ``setup`` had cameras of known
+    intrinsics: ``{"prior_scale_px", "cameras": {camera: KnownIntrinsics.to_dict()}}``; None for none."""
+    if not setup.known:
+        return None
+    return {"prior_scale_px": setup.prior_scale_px,
+            "cameras": {name: known.to_dict() for name, known in sorted(setup.known.items())}}
+
+
+def known_intrinsics_of(adjustment: Mapping) -> tuple[dict[str, KnownIntrinsics] | None, float | None]:
+    """The known intrinsics and the prior's scale a calibration recorded (:func:`known_intrinsics_record`)."""
+    doc = adjustment.get("known_intrinsics")
+    if not doc:
+        return None, None
+    return {name: KnownIntrinsics.from_dict(d) for name, d in doc["cameras"].items()}, doc["prior_scale_px"]

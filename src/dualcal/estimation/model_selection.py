@@ -201,7 +201,8 @@ def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
 def preferred_lens_models(setup: Setup, blocks) -> tuple[dict[str, tuple[str, ...]], dict[str, str]]:
     """Every camera's candidate lens models (:func:`lens_model_candidates`, from Zhang's closed form of its
     usable photos ``blocks``, ``(camera index, view, uv)``) and its preferred one: the fisheye ``kb4`` where it
-    is a candidate, else :data:`dualcal.geometry.camera.DEFAULT_LENS_MODEL`.
+    is a candidate, else :data:`dualcal.geometry.camera.DEFAULT_LENS_MODEL`; a camera whose intrinsics are
+    known (``setup.known``) has none.
 
     Raises
     ------
@@ -211,6 +212,8 @@ def preferred_lens_models(setup: Setup, blocks) -> tuple[dict[str, tuple[str, ..
     xy = setup.X_board[:, :2]
     candidates = {}
     for c, name in enumerate(setup.names):
+        if name in (setup.known or {}):                  # its lens model is known
+            continue
         views = {v: uv for cc, v, uv in blocks if cc == c}
         if len(views) < 3:
             raise EstimationError(f"camera {name!r} has {len(views)} usable view(s); at least 3 are needed")

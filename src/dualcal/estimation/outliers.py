@@ -95,15 +95,17 @@ MAX_REWEIGHTS = 10
 @dataclass(frozen=True)
 class _Round:
     """What one round of :func:`adjust_dropping_outliers` adjusts (``kind``: ``start``, ``photo``, ``instant``,
-    ``gross``, ``corners`` or ``reweight``): each of ``trials`` (lists of photos, the one that fits best is kept)
-    from ``start``, with the photos' ``weights`` (None: as before); with ``improve``, kept only where it fits
-    better than the solution before (else ``kept``, a warning, is said where given); ``record(before, after,
-    trial)`` records and says what was left out."""
+    ``gross``, ``corners``, ``reweight`` or ``prior``): each of ``trials`` (lists of photos, the one that fits best
+    is kept) from ``start``, with the solver's switches ``setup`` (None: as before: a ``reweight`` round weighs the
+    photos by their noise, ``noise``, and gives a prior on known intrinsics its scale, as a ``prior`` round
+    does); with ``improve``, kept only where it fits better than the solution before (else ``kept``, a warning,
+    is said where given); ``record(before, after, trial)`` records and says what was left out."""
 
     kind: str
     trials: list[list]
     start: Solution | None = None
-    weights: PhotoNoise | None = None
+    setup: Setup | None = None
+    noise: PhotoNoise | None = None
     improve: bool = False
     kept: str | None = None
     record: Callable[[Solution, Solution, int], None] | None = None
@@ -112,7 +114,7 @@ class _Round:
 def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corners, start=None,
                              noise: PhotoNoise | None = None, weigh: bool = False):
     """Solve, drop outlier photos and then outlier corners while there are any, solve again;
-    returns ``(solution, blocks, noise)``.
+    returns ``(solution, blocks, noise, setup)``.
 
     Each round decides what to leave out of the current solution (:func:`_next_round`) and adjusts the
     photos without it, the one adjustment of the stage: a photo, an instant or a refocused photo from a
@@ -125,7 +127,9 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
     With ``weigh`` (every camera alone, ``setup.mode`` ``none``) each photo's noise is estimated from every
     solution (:func:`dualcal.estimation.photo_noise.photo_noise`), its corners judged against it, and the photos
     weighed by it and adjusted again until the weights settle (:data:`REWEIGHT_TOLERANCE`); the ``noise``
-    returned is the one whose weights the solution has. With ``noise`` (the cameras alone's, ``setup``'s weights
+    returned is the one whose weights the solution has, with the ``setup`` of its switches (the weights, and
+    the scale of a prior on known intrinsics, which they hold until the first solution's noise gives it; without
+    ``weigh``, its ``s0``). With ``noise`` (the cameras alone's, ``setup``'s weights
     from it) in a tied rig, a photo is judged against it, and no single corner: a corner that fits its photo's
     own pose but not the rig's is no corner error but its instant's misfit (a shot out of sync, a board moved),
     which the photo or the instant is dropped for, or ``rig_rigid`` names. Without either, the corners are judged
@@ -138,9 +142,8 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
     sol, corner_rounds, reweights, weighed = None, 0, 0, noise
     step: _Round | None = _Round("start", [blocks], start)
     while step is not None:
-        if step.weights is not None:
-            weighed = step.weights
-            setup = replace(setup, weights=weighed.weights())
+        if step.setup is not None:
+            setup, weighed = step.setup, step.noise or weighed
         trials = [setup.solve(trial, step.start) for trial in step.trials]
         best = min(range(len(trials)), key=lambda i: trials[i].s0_px)
         if step.improve and trials[best].s0_px >= sol.s0_px:
@@ -157,7 +160,7 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
                            weigh and reweights < MAX_REWEIGHTS, weighed is None)
         corner_rounds += step is not None and step.kind == "corners"
         reweights += step is not None and step.kind == "reweight"
-    return sol, blocks, weighed
+    return sol, blocks, weighed, setup
 
 
 def _settled(setup: Setup, noise: PhotoNoise) -> bool:
@@ -181,7 +184,10 @@ def _next_round(setup: Setup, sol: Solution, blocks, alone: Solution | None, fac
         if leave_out is not None:
             return leave_out
     if reweigh and (unweighed or not _settled(setup, noise)):
-        return _Round("reweight", [blocks], sol, noise)
+        return _Round("reweight", [blocks], sol, replace(setup, weights=noise.weights(), prior_scale_px=(
+            noise.reference_px if setup.known else None)), noise)
+    if any(k.mode == "prior" for k in (setup.known or {}).values()) and setup.prior_scale_px is None:
+        return _Round("prior", [blocks], sol, replace(setup, prior_scale_px=sol.s0_px))
     return None
 
 

@@ -113,6 +113,40 @@ def choose_reference(names, override: str | None = None) -> str:
     return "wide" if "wide" in names else names[0]
 
 
+@dataclass(frozen=True)
+class KnownIntrinsics:
+    """A camera's intrinsics known before a calibration (an earlier calibration of it, a peer's file): its lens
+    model and values ``camera``, and the covariance ``covariance`` (p, p) of the intrinsics it names (``names``,
+    of :data:`dualcal.geometry.camera.INTRINSIC_NAMES`), or None. With a covariance the calibration takes them as
+    a prior (``mode`` ``"prior"``: the photos may move them as far as that covariance allows); without one it
+    holds them fixed (``"fixed"``)."""
+
+    camera: CameraModel
+    covariance: np.ndarray | None = None
+    names: tuple[str, ...] = ()
+
+    @property
+    def mode(self) -> str:
+        """``"prior"`` where there is a covariance, else ``"fixed"``."""
+        return "prior" if self.covariance is not None else "fixed"
+
+    def to_dict(self) -> dict:
+        """``{"mode", "image_size", "model", "values": {intrinsic: value}, "names", "covariance"}`` (JSON)."""
+        from .camera import intrinsic_names
+
+        return {"mode": self.mode, "image_size": list(self.camera.image_size), "model": self.camera.model,
+                "values": {n: float(getattr(self.camera, n)) for n in intrinsic_names(self.camera.model)},
+                "names": list(self.names),
+                "covariance": None if self.covariance is None else np.asarray(self.covariance, float).tolist()}
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> "KnownIntrinsics":
+        """The record :meth:`to_dict` wrote."""
+        camera = CameraModel(tuple(doc["image_size"]), model=doc["model"], **doc["values"])
+        covariance = None if doc.get("covariance") is None else np.asarray(doc["covariance"], float)
+        return cls(camera, covariance, tuple(doc.get("names", ())))
+
+
 @dataclass
 class RigRelation:
     """Pose of a non-reference camera relative to the reference, with 1-sigma uncertainties.
