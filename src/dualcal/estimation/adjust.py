@@ -514,7 +514,8 @@ def _linearised_batches(problem: Problem, state: State):
         J = _jacobian(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3), J_K.reshape(B, n, 2, -1),
                       len(cols_g)).reshape(B, 2 * n, -1)
         if batch.sqrt_weight is not None:
-            r, J = r * batch.sqrt_weight[:, None], J * batch.sqrt_weight[:, None, None]
+            r *= batch.sqrt_weight[:, None]
+            J *= batch.sqrt_weight[:, None, None]
         yield batch, r, J, cols_g, slots_l
 
 

@@ -44,15 +44,15 @@ def outlier_limit_px(median_px: float, factor: float) -> float:
     return max(factor * median_px, OUTLIER_FLOOR_PX)
 
 
-def corner_outliers(sol: Solution, factor: float, noise: PhotoNoise | None = None):
+def corner_outliers(sol: Solution, factor: float, noise: PhotoNoise | None = None,
+                    lengths: np.ndarray | None = None):
     """Which measured corners are outliers: ``(B, N)`` bool, each photo's limit (B,) px and the residual lengths
-    judged (B, N) px: against its own
-    ``noise`` (:func:`dualcal.estimation.photo_noise.photo_noise`; with every camera alone, their rough residuals,
-    :func:`dualcal.estimation.photo_noise.rough_residuals`), or, without it (or for a photo it has not), against
-    its camera's median residual."""
+    judged (B, N) px: ``lengths`` (with every camera alone, the rough residuals':
+    :func:`dualcal.estimation.photo_noise.rough_residuals`), or the residuals', against its own ``noise``
+    (:func:`dualcal.estimation.photo_noise.photo_noise`), or, without it (or for a photo it has not), against its
+    camera's median residual."""
     p = sol.problem
-    rough = noise is not None and p.mode == "none"
-    length = np.linalg.norm(rough_residuals(sol, factor)[0] if rough else sol.residuals, axis=2)   # (B, N), NaN
+    length = np.linalg.norm(sol.residuals, axis=2) if lengths is None else lengths          # (B, N), NaN
 
     cams = np.array([c for c, _, _ in p.blocks])
     limit = np.empty(len(cams))
@@ -66,9 +66,10 @@ def corner_outliers(sol: Solution, factor: float, noise: PhotoNoise | None = Non
         return length > limit[:, None], limit, length
 
 
-def outlier_shares(sol: Solution, factor: float, noise: PhotoNoise | None = None) -> tuple[np.ndarray, np.ndarray]:
+def outlier_shares(sol: Solution, factor: float, noise: PhotoNoise | None = None,
+                   lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each photo's share of outlier corners (B,) and its limit (B,) px (:func:`corner_outliers`)."""
-    out, limit, _ = corner_outliers(sol, factor, noise)
+    out, limit, _ = corner_outliers(sol, factor, noise, lengths)
     return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1), limit
 
 
@@ -137,8 +138,9 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
     """
     alone_share = {}
     if factor and setup.mode != "none" and start is not None:
+        rough = None if noise is None else np.linalg.norm(rough_residuals(start, factor)[0], axis=2)
         alone_share = dict(zip([(c, v) for c, v, _ in start.problem.blocks],
-                               outlier_shares(start, factor, noise)[0]))
+                               outlier_shares(start, factor, noise, rough)[0]))
     sol, corner_rounds, reweights, weighed = None, 0, 0, noise
     step: _Round | None = _Round("start", [blocks], start)
     while step is not None:
@@ -157,37 +159,40 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
             noise = photo_noise(sol, factor)
         step = _next_round(setup, sol, blocks, start, factor, alone_share, dropped, dropped_corners,
                            corner_rounds < MAX_CORNER_ROUNDS and (noise is None or setup.mode == "none"), noise,
-                           weigh and reweights < MAX_REWEIGHTS, weighed is None)
+                           weigh and reweights < MAX_REWEIGHTS)
         corner_rounds += step is not None and step.kind == "corners"
         reweights += step is not None and step.kind == "reweight"
+    if weigh and weighed is None:          # the first weights were 1 within the tolerance: the solution's own
+        weighed, setup = noise, replace(setup, weights=noise.weights())
     return sol, blocks, weighed, setup
 
 
 def _settled(setup: Setup, noise: PhotoNoise) -> bool:
     """Whether the photos' weights of ``noise`` are ``setup``'s, within :data:`REWEIGHT_TOLERANCE`."""
-    old = setup.weights or {}
-    return all(abs(w / old.get(k, 1.0) - 1.0) <= REWEIGHT_TOLERANCE for k, w in noise.weights().items())
+    old, new = setup.weights or {}, noise.weights() or {}
+    return all(abs(new.get(k, 1.0) / old.get(k, 1.0) - 1.0) <= REWEIGHT_TOLERANCE for k in old.keys() | new.keys())
 
 
 def _next_round(setup: Setup, sol: Solution, blocks, alone: Solution | None, factor: float | None, alone_share: dict,
                 dropped: list, dropped_corners: list, corners_too: bool, noise: PhotoNoise | None,
-                reweigh: bool, unweighed: bool) -> _Round | None:
+                reweigh: bool) -> _Round | None:
     """What to do next with ``sol`` (:func:`adjust_dropping_outliers`): leave out a photo of a gross misfit
     (:attr:`dualcal.estimation.photo_noise.PhotoNoise.gross`), else the photo (or the instant, or the refocused
     photo of an instant) most of whose corners are outliers against ``noise``, else, where ``corners_too``, the
     outlier corners; else, where ``reweigh``, weigh the photos by ``noise`` where their weights have not
-    settled (or, ``unweighed``, not been weighed yet). None where there is nothing to do, or what should be left out
-    cannot be (a warning says why)."""
+    settled; give a prior on known intrinsics its scale where it has none yet. None where there is nothing to do,
+    or what should be left out cannot be (a warning says why)."""
     if factor:
         leave_out = _leave_out(setup, sol, blocks, alone, factor, alone_share, dropped, dropped_corners, corners_too,
                                noise)
         if leave_out is not None:
             return leave_out
-    if reweigh and (unweighed or not _settled(setup, noise)):
+    if reweigh and not _settled(setup, noise):
         return _Round("reweight", [blocks], sol, replace(setup, weights=noise.weights(), prior_scale_px=(
             noise.reference_px if setup.known else None)), noise)
     if any(k.mode == "prior" for k in (setup.known or {}).values()) and setup.prior_scale_px is None:
-        return _Round("prior", [blocks], sol, replace(setup, prior_scale_px=sol.s0_px))
+        return _Round("prior", [blocks], sol, replace(setup, weights=None if noise is None else noise.weights(),
+                                                      prior_scale_px=sol.s0_px), noise)
     return None
 
 
@@ -195,15 +200,16 @@ def _leave_out(setup: Setup, sol: Solution, blocks, alone: Solution | None, fact
                dropped: list, dropped_corners: list, corners_too: bool, noise: PhotoNoise | None) -> _Round | None:
     """The round that leaves out what :func:`_next_round` says, or None."""
     names = setup.names
+    lengths = noise.lengths_px if noise is not None and setup.mode == "none" else None   # with every camera alone
     index = {(names[c], v): i for i, (c, v, _) in enumerate(blocks)}
     gross = [index[k] for k in (noise.gross if noise is not None else ())
              if k in index and _views_left(blocks, blocks[index[k]][0]) > MIN_VIEWS]
     if gross:                            # the worst first: it may have pulled the others' fit off
         return _without_gross(setup, blocks, gross[0], dropped)
-    shares, limits = outlier_shares(sol, factor, noise)
+    shares, limits = outlier_shares(sol, factor, noise, lengths)
     out = find_outlier(shares, limits)
     if out is None:
-        bad, limit, length = corner_outliers(sol, factor, noise)
+        bad, limit, length = corner_outliers(sol, factor, noise, lengths)
         if not bad.any() or not corners_too:
             return None
         return _Round("corners", [_without_corners(setup, sol, blocks, bad, limit, length, dropped, dropped_corners)],

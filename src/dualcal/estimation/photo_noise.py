@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -76,7 +77,8 @@ class PhotoNoise:
     ``camera_px`` each camera's level (shrunk toward the rig's) and ``spread`` its ``tau`` (the scatter of its
     photos' log-variances; 0: photos alike), ``camera_spread`` that of the cameras' levels; ``reference_px``
     ``sigma_ref``; ``gross`` the photos whose median residual exceeds :data:`GROSS_SHARE` of their squares, the
-    worst first (not in the others)."""
+    worst first (not in the others); ``lengths_px`` (n_blocks, N) the rough residuals' lengths (px) of the
+    photos of the solution it was estimated from, in its blocks' order (NaN where not measured)."""
 
     noise_px: dict[tuple[str, str], float]
     raw_px: dict[tuple[str, str], float]
@@ -86,9 +88,12 @@ class PhotoNoise:
     camera_spread: float
     reference_px: float
     gross: list[tuple[str, str]]
+    lengths_px: np.ndarray | None = None
 
-    def weights(self) -> dict[tuple[str, str], float]:
-        """``{(camera, view): w_b}`` (module docstring)."""
+    def weights(self) -> dict[tuple[str, str], float] | None:
+        """``{(camera, view): w_b}`` (module docstring); None where every photo is of one level (every weight 1)."""
+        if len(set(self.noise_px.values())) <= 1:
+            return None
         return {k: (self.reference_px / s) ** 2 for k, s in self.noise_px.items()}
 
     def information_share(self) -> dict[tuple[str, str], float]:
@@ -104,7 +109,7 @@ class PhotoNoise:
         ``spread``, and
         per photo ``photos.<camera>.<view>`` ``{"noise_px", "raw_px", "dof", "weight", "information_share"}`` (of
         the ``(camera, view)`` in ``photos_kept``, default all)."""
-        weights, share = self.weights(), self.information_share()
+        weights, share = self.weights() or dict.fromkeys(self.noise_px, 1.0), self.information_share()
         photos: dict[str, dict[str, dict]] = {}
         for (camera, view), s in sorted(self.noise_px.items()):
             if photos_kept is not None and (camera, view) not in photos_kept:
@@ -132,50 +137,78 @@ def _log_variance_moments(nu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return -1.0 / (2 * x) - 1.0 / (12 * x * x), 1.0 / x + 1.0 / (2 * x * x) + 1.0 / (6 * x ** 3)
 
 
-def _square_size_px(X_board: np.ndarray, uv: np.ndarray) -> float:
-    """The median image distance (px) between corners that are neighbours on the board, both measured."""
+def _square_sizes_px(X_board: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(B,) each photo's median image distance (px) between corners that are neighbours on the board, both
+    measured, of its corners ``uv`` (B, N, 2); inf where there are none."""
     d = np.linalg.norm(X_board[:, None, :] - X_board[None, :, :], axis=2)
     step = np.min(d[d > 0])
     i, j = np.nonzero(np.triu(np.abs(d - step) < 1e-6 * step))
-    lengths = np.linalg.norm(uv[i] - uv[j], axis=1)
-    lengths = lengths[np.isfinite(lengths)]
-    return float(np.median(lengths)) if len(lengths) else np.inf
+    lengths = np.linalg.norm(uv[:, i] - uv[:, j], axis=2)
+    seen = np.isfinite(lengths).any(axis=1)
+    out = np.full(len(uv), np.inf)
+    out[seen] = np.nanmedian(lengths[seen], axis=1)
+    return out
 
 
-def _smooth_basis(xy: np.ndarray, n: int) -> np.ndarray:
-    """(M, k) the smooth functions of board positions ``xy`` (M, 2) that a photo of ``n`` measured corners has
-    taken out of its residuals: a cubic (:data:`SMOOTH_TERMS`), fewer terms for fewer corners."""
-    x, y = xy.T
-    columns = [np.ones_like(x), x, y, x * x, x * y, y * y, x ** 3, x * x * y, x * y * y, y ** 3]
-    k = SMOOTH_TERMS if n >= 2.5 * SMOOTH_TERMS else 3 if n >= 6 else 1
-    return np.column_stack(columns[:k])
+def _smooth_basis(X_board: np.ndarray) -> np.ndarray:
+    """(N, :data:`SMOOTH_TERMS`) the smooth functions of the board's corners that a photo's residuals are
+    taken less: a cubic in their coordinates (centred, scaled to [-1, 1]); a photo of fewer corners takes the
+    first of them (:func:`_terms`)."""
+    xy = X_board[:, :2] - X_board[:, :2].mean(axis=0)
+    x, y = (xy / max(float(np.max(np.abs(xy))), 1e-300)).T
+    return np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y, x ** 3, x * x * y, x * y * y, y ** 3])
 
 
-def rough_residuals(sol: Solution, factor: float | None) -> tuple[np.ndarray, np.ndarray]:
+def _terms(n: np.ndarray) -> np.ndarray:
+    """The smooth terms of photos of ``n`` corners: the cubic's :data:`SMOOTH_TERMS`, an affine field (3) for
+    fewer than 2.5 times as many corners, the mean (1) for fewer than 6."""
+    return np.where(n >= 2.5 * SMOOTH_TERMS, SMOOTH_TERMS, np.where(n >= 6, 3, 1))
+
+
+def _less_smooth(r: np.ndarray, use: np.ndarray, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals ``r`` (B, N, 2) less their smooth part fitted by least squares to the corners ``use`` (B, N) of
+    each photo, and each photo's number of smooth terms (B,)."""
+    k = _terms(use.sum(axis=1))
+    fitted = np.zeros_like(r)
+    r0 = np.where(use[..., None], r, 0.0)
+    for terms in np.unique(k):
+        photos = np.flatnonzero(k == terms)
+        A, w = basis[:, :terms], use[photos].astype(float)
+        normal = np.einsum("bn,ni,nj->bij", w, A, A) + 1e-12 * np.eye(terms)
+        coef = np.linalg.solve(normal, np.einsum("bn,ni,bnc->bic", w, A, r0[photos]))
+        fitted[photos] = np.einsum("ni,bic->bnc", A, coef)
+    return r - fitted, k
+
+
+def rough_residuals(sol: Solution, factor: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every photo's residuals less their smooth part (module docstring), ``(n_blocks, N, 2)`` px (NaN where not
-    measured), and each photo's degrees of freedom ``nu_b``.
+    measured), each photo's degrees of freedom ``nu_b`` and its corners within ``factor`` x the median length of
+    its rough residuals (all with ``factor`` None), ``(n_blocks, N)`` bool.
 
     The smooth part is a cubic in the corners' board positions per image coordinate, fitted by least
     squares twice: to every measured corner, then (with ``factor``) to those within ``factor`` x the median
     length of the first fit's rough residuals, so that a gross corner error does not move it. ``nu_b`` is
     ``2 n - max(2 k, 6)`` for the ``n`` corners of the second fit and the ``k`` smooth terms of each coordinate
     (a photo of fewer corners gets fewer terms: an affine field, or its mean, and its pose's six unknowns)."""
-    p = sol.problem
-    xy = p.X_board[:, :2] - p.X_board[:, :2].mean(axis=0)
-    xy = xy / max(float(np.max(np.abs(xy))), 1e-300)
-    rough = np.full(sol.residuals.shape, np.nan)
-    nu = np.ones(len(p.blocks))
-    for b, r in enumerate(sol.residuals):
-        seen = np.flatnonzero(np.isfinite(r[:, 0]))
-        fit = seen
-        for _ in range(2 if factor is not None else 1):
-            A = _smooth_basis(xy[fit], len(fit))
-            coef = np.linalg.lstsq(A, r[fit], rcond=None)[0]
-            rough[b, seen] = r[seen] - _smooth_basis(xy[seen], len(fit)) @ coef
-            length = np.linalg.norm(rough[b, seen], axis=1)
-            fit = seen[length <= factor * max(float(np.median(length)), NOISE_FLOOR_PX)] if factor else seen
-        nu[b] = max(2 * len(fit) - max(2 * A.shape[1], POSE_UNKNOWNS), 1)
-    return rough, nu
+    r = sol.residuals
+    seen = np.isfinite(r[..., 0])
+    basis = _smooth_basis(sol.problem.X_board)
+
+    def within(rough):
+        if factor is None:
+            return seen
+        length = np.linalg.norm(rough, axis=2)
+        median = np.nanmedian(np.where(seen, length, np.nan), axis=1)
+        with np.errstate(invalid="ignore"):
+            return seen & (length <= factor * np.maximum(median, NOISE_FLOOR_PX)[:, None])
+
+    rough, _ = _less_smooth(r, seen, basis)
+    fit = within(rough)
+    if (fit != seen).any():
+        rough, _ = _less_smooth(r, fit, basis)
+    terms = _terms(fit.sum(axis=1))
+    nu = np.maximum(2 * fit.sum(axis=1) - np.maximum(2 * terms, POSE_UNKNOWNS), 1)
+    return rough, nu, within(rough)
 
 
 def photo_noise(sol: Solution, factor: float | None) -> PhotoNoise:
@@ -183,20 +216,17 @@ def photo_noise(sol: Solution, factor: float | None) -> PhotoNoise:
     residuals (:func:`rough_residuals`) within ``factor`` x their median length (in noise: :data:`MEDIAN_LENGTH`
     sigma; None: all of them)."""
     p = sol.problem
-    rough, nu = rough_residuals(sol, factor)
-    length = np.linalg.norm(rough, axis=2)
-    full = np.linalg.norm(sol.residuals, axis=2)
+    rough, nu, inliers = rough_residuals(sol, factor)
+    squares = np.where(inliers, np.sum(np.nan_to_num(rough) ** 2, axis=2), 0.0).sum(axis=1)
+    misfit = np.nanmedian(np.linalg.norm(sol.residuals, axis=2), axis=1) / _square_sizes_px(
+        p.X_board, np.array([uv for _, _, uv in p.blocks], float))
     raw, dof, gross = {}, {}, {}
-    for b, (c, view, uv) in enumerate(p.blocks):
-        seen = length[b][np.isfinite(length[b])]
-        if factor is not None:
-            seen = seen[seen <= factor * max(float(np.median(seen)), NOISE_FLOOR_PX)]
+    for b, (c, view, _) in enumerate(p.blocks):
         key = (p.cameras[c], view)
-        misfit = float(np.nanmedian(full[b])) / _square_size_px(p.X_board, uv)
-        if misfit > GROSS_SHARE:
-            gross[key] = misfit
+        if misfit[b] > GROSS_SHARE:
+            gross[key] = float(misfit[b])
             continue
-        raw[key] = max(float(np.sqrt(np.sum(seen ** 2) / nu[b])), NOISE_FLOOR_PX)
+        raw[key] = max(float(np.sqrt(squares[b] / nu[b])), NOISE_FLOOR_PX)
         dof[key] = int(nu[b])
     cameras = [n for n in p.cameras if any(k[0] == n for k in raw)]
     photos = {n: [k for k in raw if k[0] == n] for n in cameras}
@@ -221,7 +251,13 @@ def photo_noise(sol: Solution, factor: float | None) -> PhotoNoise:
     reference = float(np.sqrt(sum(dof[k] for k in noise) / sum(dof[k] / s ** 2 for k, s in noise.items()))) \
         if noise else 1.0
     return PhotoNoise(noise, raw, dof, camera_px, spread, float(np.sqrt(tau2_cameras)), reference,
-                      sorted(gross, key=gross.get, reverse=True))
+                      sorted(gross, key=gross.get, reverse=True), np.linalg.norm(rough, axis=2))
+
+
+@lru_cache(maxsize=None)
+def _alike_limit(dof: int) -> float:
+    """Cochran's Q of ``dof + 1`` estimates of one level at :data:`ALIKE_LEVEL` (the chi-square quantile)."""
+    return chi2_quantile(dof, ALIKE_LEVEL)
 
 
 def _random_effects(y: np.ndarray, v: np.ndarray) -> tuple[float, float, float]:
@@ -232,6 +268,6 @@ def _random_effects(y: np.ndarray, v: np.ndarray) -> tuple[float, float, float]:
     tau2 = 0.0
     if len(y) > 1:
         q = float(np.sum(u * (y - np.sum(u * y) / np.sum(u)) ** 2))
-        tau2 = max(0.0, (q - chi2_quantile(len(y) - 1, ALIKE_LEVEL)) / (np.sum(u) - np.sum(u * u) / np.sum(u)))
+        tau2 = max(0.0, (q - _alike_limit(len(y) - 1)) / (np.sum(u) - np.sum(u * u) / np.sum(u)))
     u_random = 1.0 / (v + tau2)
     return float(np.sum(u_random * y) / np.sum(u_random)), tau2, float(1.0 / np.sum(u_random))
