@@ -652,13 +652,8 @@ def test_calibrate_takes_every_lens_alone_for_caliscope_s_intrinsic_recordings(s
     assert read_json(tmp_path / "calib.json")["rig_mode"] == "none"
 
 
-# ---------------------------------------------------------------------------- end to end, for the lead
+# ---------------------------------------------------------------------------- end to end
 
-LEAD = pytest.mark.xfail(strict=True, reason="lead: needs the estimation side of --intrinsics "
-                                             "(calibrate_rig(known_intrinsics=...)); remove this mark when it lands")
-
-
-@LEAD
 def test_the_caliscope_workflow_recovers_the_rig_with_the_intrinsics_held(tmp_path, run_cli):
     """import caliscope (the camera_array.toml's intrinsics held fixed), then calibrate --intrinsics: every
     camera's intrinsics are the file's, the rig within 4 of its sigmas of the truth."""
@@ -675,7 +670,6 @@ def test_the_caliscope_workflow_recovers_the_rig_with_the_intrinsics_held(tmp_pa
         assert np.all(err < 4 * np.array(got["sigma"]["t_mm"])), (name, err, got["sigma"]["t_mm"])
 
 
-@LEAD
 def test_calibrate_takes_an_opencv_file_as_a_camera_s_held_intrinsics(stereo_corners, tmp_path, run_cli):
     truth = make_truth("stereo", views=8, seed=2)
     rig = truth_rig_model(truth)

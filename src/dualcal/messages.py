@@ -150,6 +150,17 @@ CHECKS = {
                   "again; make sure every pair of cameras sees the board in at least 8 instants.",
         "examples": ["no loop of three cameras can be checked", "do not fit one rigid relation"],
     },
+    "intrinsics_prior": {
+        "title": "the photos agree with the intrinsics known for a camera",
+        "meaning": "Where some cameras' intrinsics were given (an earlier calibration of each camera from its own "
+                   "photos, a peer's file), each is calibrated again from its photos alone and compared with what "
+                   "was given, within both their sigmas: a chi-square test at a stated false-alarm rate.",
+        "cause": "The lens changed since the intrinsics were found (refocused, another zoom, a lens or a case moved, "
+                 "the phone dropped), or the intrinsics given are another camera's or another resolution's.",
+        "action": "Calibrate the camera named again from its own photos (or give its intrinsics with their "
+                  "covariance, so that the photos may move them); check that the file names the right camera.",
+        "examples": ["disagree with the intrinsics known for", "the photos agree with the known intrinsics"],
+    },
 }
 """The checks of a calibration (calib.json ``checks``, the end of ``dualcal calibrate``'s output, the top of the
 report), keyed by their name in calib.json."""

@@ -517,8 +517,11 @@ def rig_to_dict(rig: RigModel) -> dict:
             f = rel.sigma_formal
             rig_doc[name]["sigma_formal"] = _rig_sigma_doc(f["t_mm"], f["baseline_mm"], f["opk_arcmin"])
     views = {}
+    noise = (rig.adjustment.get("photo_noise") or {}).get("photos", {})
     for view, pose in rig.reference_poses().items():
         views[view] = {**pose.to_dict(), "rms_px": rig.view_rms_px.get(view, {})}
+        if noise:
+            views[view]["noise_px"] = {cam: noise[cam][view]["noise_px"] for cam in noise if view in noise[cam]}
     board = rig.board.to_dict()
     if rig.board_shape_mm is not None:
         board["sag_mm"] = rig.board_sag_mm()
@@ -546,6 +549,9 @@ def rig_to_dict(rig: RigModel) -> dict:
     }
     if rig.covariance is not None:
         doc["covariance"] = rig.covariance
+    known = (rig.adjustment.get("known_intrinsics") or {}).get("cameras")
+    if known:
+        doc["intrinsics_given"] = {name: entry["mode"] for name, entry in sorted(known.items())}
     video = video_record(rig.corners)
     if video is not None:
         doc["video"] = video

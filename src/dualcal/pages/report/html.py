@@ -17,7 +17,7 @@ from markupsafe import Markup
 
 from ... import __version__
 from ...geometry.board import SHAPE_TERMS
-from ...estimation.calibrate import OUTLIER_FLOOR_PX
+from ...estimation.outliers import OUTLIER_FLOOR_PX
 from ...geometry.camera import INTRINSIC_NAMES, intrinsic_names
 from ...estimation.checks import check_limits, verdict
 from ...geometry.model import RigModel
