@@ -25,7 +25,7 @@ def _grid_directions(uv: np.ndarray, board: Board) -> np.ndarray:
 def _fit_from_near(img: np.ndarray, uv_true: np.ndarray, board: Board, half: int):
     """``(fit, ok)`` of fit_saddles on ``img`` started 0.3 px (per coordinate, a fixed draw) off the true corners."""
     start = uv_true + np.random.default_rng(2).normal(0, 0.3, uv_true.shape)
-    fit, ok, _ = fit_saddles(img, start, _grid_directions(uv_true, board), half=half)
+    fit, ok, *_ = fit_saddles(img, start, _grid_directions(uv_true, board), half=half)
     return fit, ok
 
 
@@ -184,7 +184,7 @@ def test_a_planted_corner_is_drawn_where_it_was_moved_and_the_others_stay(truth)
     moved = project_points(cam, pose.apply(X[k:k + 1] + [*shift_mm, 0.0]))
     start = uv_true.copy()
     start[k] = moved
-    fit, ok, _ = fit_saddles(img, start, dirs, half=6)
+    fit, ok, *_ = fit_saddles(img, start, dirs, half=6)
     assert ok[k] and np.linalg.norm(fit[k] - moved) < 0.05
     others = np.arange(b.n_corners) != k
     assert np.max(np.linalg.norm(fit[others] - uv_true[others], axis=1)) < 0.02
