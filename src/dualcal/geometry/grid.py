@@ -38,10 +38,12 @@ __all__ = ["local_spacing_px", "neighbour_predictions", "predict_from_neighbours
 #: local one. What such a board's corners keep of its shape is the adjustment's to judge.
 OUTLIER_TIMES = 5.0
 #: ... but never below this share of the corner's spacing: on a sharp photo the noise is a few hundredths of a
-#: pixel, below what the prediction itself cannot follow of a lens's bending and a printed board's errors (0.1-0.2
-#: % of a square on the real sets and the renders), and a corner within half a percent of a square of its
-#: neighbours' prediction is on the right feature (a corner on the wrong one is off by a good part of a square).
-OUTLIER_FLOOR_SHARE = 0.005
+#: pixel, below what the prediction itself cannot follow of a lens's bending and a sheet's curl near the board's
+#: edge (on the steep 960 x 720 renders of curled sheets: exact corners up to 1.2 % of a square off their
+#: prediction, 0.36 px), and a corner within 2 % of a square of its neighbours' prediction is on the right
+#: feature: one on the wrong feature is off by a good part of a square. Whether it is as precise as the others
+#: is for the adjustment to judge.
+OUTLIER_FLOOR_SHARE = 0.02
 #: Fewest measured neighbours for which :func:`predict_from_neighbours` fits a cubic, not a quadratic,
 #: to what the homography leaves (its 10 coefficients with 4 to spare).
 CUBIC_NEIGHBOURS = 14
@@ -193,16 +195,17 @@ def typical_residual_px(residual_px: np.ndarray, shape: tuple[int, int]) -> np.n
     return np.maximum(local, float(np.median(res[finite])))
 
 
-def outlier_limit_px(spacing_px: np.ndarray, typical_px, gain=INNER_GAIN) -> np.ndarray:
+def outlier_limit_px(spacing_px: np.ndarray, typical_px, gain=INNER_GAIN,
+                     floor_share: float = OUTLIER_FLOOR_SHARE) -> np.ndarray:
     """Largest accepted neighbour residual of corners ``spacing_px`` from their nearest neighbour.
 
     ``typical_px`` is the typical neighbour residual around each corner (:func:`typical_residual_px`:
     the corner noise and what the prediction cannot follow of the board's shape), ``gain`` that of
-    each corner's prediction; see :data:`OUTLIER_TIMES`, :data:`OUTLIER_FLOOR_SHARE` and :data:`INNER_GAIN`
-    for the rule.
+    each corner's prediction; see :data:`OUTLIER_TIMES`, :data:`OUTLIER_FLOOR_SHARE` (``floor_share``) and
+    :data:`INNER_GAIN` for the rule.
     """
     noise = np.sqrt((1.0 + np.asarray(gain, float) ** 2) / (1.0 + INNER_GAIN**2))
-    return (np.maximum(OUTLIER_TIMES * np.asarray(typical_px, float), OUTLIER_FLOOR_SHARE * np.asarray(spacing_px, float))
+    return (np.maximum(OUTLIER_TIMES * np.asarray(typical_px, float), floor_share * np.asarray(spacing_px, float))
             * np.maximum(noise, 1.0))
 
 
@@ -228,7 +231,7 @@ def corner_noise_px(uv: np.ndarray, shape: tuple[int, int]) -> float:
 
 
 def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray | None = None,
-                  candidates: int = 4, judged: np.ndarray | None = None):
+                  candidates: int = 8, judged: np.ndarray | None = None, floor_share: float = OUTLIER_FLOOR_SHARE):
     """The corner to reject first, or None when every corner that can be judged is within its limit.
 
     Parameters
@@ -236,9 +239,10 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
     uv : (N, 2) corners in grid order, NaN rows unmeasured.
     shape : ``(rows, cols)``.
     spacing_px : (N,) spacing that sets each corner's limit; default :func:`local_spacing_px` of ``uv``.
-    candidates : how many of the corners over their limit are tried (see below).
+    candidates : how many of the corners over the photo's limit are tried (see below).
     judged : (N,) bool, the corners that may be judged (default: all); the others still predict
         their neighbours.
+    floor_share : the limit's floor, a share of the spacing (:func:`outlier_limit_px`).
 
     Returns
     -------
@@ -246,13 +250,15 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
 
     Notes
     -----
-    One bad corner also spoils the predictions of its neighbours, and it can push the
-    extrapolated prediction of a board corner next to it further than its own residual. So the
-    corners over their :func:`outlier_limit_px` are tried, the ``candidates`` of them whose
-    residual is largest for the noise their prediction carries (residual / sqrt(1 + gain^2),
-    :func:`predict_from_neighbours`) first: each is left out in turn, and the one whose absence
-    leaves the others closest to their predictions (least sum of squared residual / limit) is
-    the corner to reject.
+    One bad corner also spoils the predictions of its neighbours: it raises their residuals, and with them
+    the typical residual around itself (:func:`typical_residual_px`), by which it would hide; and it can
+    push the extrapolated prediction of a board corner next to it further than its own residual. So the
+    corners over the limit the photo's median residual sets (which no corner can raise) are candidates, the
+    ``candidates`` of them whose residual is largest for the noise their prediction carries (residual /
+    sqrt(1 + gain^2), :func:`predict_from_neighbours`) first: each is left out in turn, its own limit is set
+    by the typical residual around it without it, and of those over that limit, the one whose absence
+    leaves the others closest to their predictions (least sum of squared residual / limit) is the corner to
+    reject.
     """
     uv = np.asarray(uv, float)
     pred, gain = predict_from_neighbours(uv, shape)
@@ -264,23 +270,24 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
         return None
     if spacing_px is None:
         spacing_px = local_spacing_px(uv, shape)
-    limit = outlier_limit_px(spacing_px, typical_residual_px(res, shape), gain)
-    over = finite & (res > limit)
+    over = finite & (res > outlier_limit_px(spacing_px, np.median(res[finite]), gain, floor_share))
     if not over.any():
         return None
     z = np.where(over, res / np.sqrt(1.0 + gain**2), -np.inf)
-    tried = np.argsort(-z)[: min(candidates, int(over.sum()))]
-    if len(tried) == 1:
-        return int(tried[0]), float(res[tried[0]])
-
-    def left_over(k):
+    best = None
+    for k in np.argsort(-z)[: min(candidates, int(over.sum()))]:
         without = uv.copy()
         without[k] = np.nan
-        r = np.linalg.norm(without - neighbour_predictions(without, shape), axis=1) / limit
-        return float(np.sum(np.where(np.isfinite(r) & finite, r * r, 0.0)))
-
-    k = int(min(tried, key=left_over))
-    return k, float(res[k])
+        others = np.linalg.norm(without - neighbour_predictions(without, shape), axis=1)
+        others[~finite] = np.nan
+        limit = outlier_limit_px(spacing_px, typical_residual_px(others, shape), gain, floor_share)
+        if res[k] <= limit[k]:
+            continue
+        r = others / limit
+        left_over = float(np.sum(np.where(np.isfinite(r), r * r, 0.0)))
+        if best is None or left_over < best[0]:
+            best = (left_over, int(k))
+    return None if best is None else (best[1], float(res[best[1]]))
 
 
 #: Fewest corners of a ChArUco photo (:func:`min_corners`).

@@ -53,7 +53,7 @@ from ...geometry.grid import local_spacing_px, validate_grid
 from .refine import MeasuredGrid, drop_outliers, photo_edge_width_px, refine_measured, window_half_size
 
 __all__ = ["opencv_board", "detect_markers", "check_markers", "agreeing_markers", "predict_corners",
-           "detect_charuco", "marker_scores", "resolve_board"]
+           "detect_charuco", "measure_charuco", "marker_scores", "resolve_board"]
 
 #: Markers whose centres lie within this many squares of a marker's centre (on the board) are
 #: its neighbours: the 8 around it (diagonals at 1.41 squares, in line at 2).
@@ -253,7 +253,7 @@ def _layouts(board: Board) -> tuple[bool, ...]:
     return (False, True) if board.charuco.squares[1] % 2 == 0 else (False,)
 
 
-def detect_charuco(full: np.ndarray, board: Board) -> MeasuredGrid:
+def detect_charuco(full: np.ndarray, board: Board) -> np.ndarray:
     """The inner corners of a ChArUco board in a full-resolution photo (module docstring).
 
     Parameters
@@ -263,14 +263,18 @@ def detect_charuco(full: np.ndarray, board: Board) -> MeasuredGrid:
 
     Returns
     -------
-    MeasuredGrid
-        (N, 2) corners in the board's order, pixels, NaN rows for the corners not measured; and the photo's blur.
+    (N, 2) corners in the board's order, pixels; NaN rows for the corners not measured.
 
     Raises
     ------
     DetectionError
         With a one-line reason when the photo does not show enough of the board.
     """
+    return measure_charuco(full, board).uv
+
+
+def measure_charuco(full: np.ndarray, board: Board) -> MeasuredGrid:
+    """:func:`detect_charuco`'s corners, and the photo's blur (:class:`.refine.MeasuredGrid`)."""
     uv, ids = _find_markers(full, board)
     if len(ids) == 0:
         raise DetectionError(f"no marker of {board.describe()} found")

@@ -1,7 +1,7 @@
 """Detection of one photo and of a whole dataset (paper section 1.2).
 
 Per photo (:func:`detect_photo`), one photo in memory at a time (a ChArUco board goes through
-:func:`.charuco.detect_charuco` instead: its markers number the corners):
+:func:`.charuco.measure_charuco` instead: its markers number the corners):
 
 1. decode the photo once, reduce it to 1/2-1/8 size and find the grid there (:mod:`.coarse`),
    or, where that fails and the user clicked four corners, predict the grid from them
@@ -43,7 +43,7 @@ from ..io import make_output_folder, write_jpeg_atomic
 from ...geometry.model import CameraCorners, CornerSet
 from ...parallel import interruptible_map
 from ...progress import progress_bar, warn
-from .charuco import detect_charuco, resolve_board
+from .charuco import measure_charuco, resolve_board
 from .coarse import (classic_grid, consistent_part, largest_grid, reduce_image, reduction_factor, sb_grid,
                      shows_a_chessboard, to_full_resolution)
 from ...geometry.grid import corner_noise_px, local_spacing_px, validate_grid
@@ -214,7 +214,7 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
         size = (full.shape[1], full.shape[0])
         if board.charuco is not None:
             # a dataset settles the dictionary and layout first (detect_dataset); one photo alone tells its own
-            uv, width = detect_charuco(full, board if board.charuco.resolved else resolve_board(board, [full]))
+            uv, width = measure_charuco(full, board if board.charuco.resolved else resolve_board(board, [full]))
             if overlay_path is not None:
                 f = reduction_factor(size)
                 write_overlay(overlay_path, reduce_image(full, f), uv, f)

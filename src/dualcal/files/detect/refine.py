@@ -38,8 +38,8 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from ...geometry.grid import (local_spacing_px, outlier_limit_px, predict_from_neighbours, typical_residual_px,
-                              worst_outlier)
+from ...geometry.grid import (OUTLIER_FLOOR_SHARE, local_spacing_px, outlier_limit_px, predict_from_neighbours,
+                              typical_residual_px, worst_outlier)
 
 __all__ = ["refine_corners", "fit_saddles", "symmetry_centres", "window_half_size", "drop_outliers", "measure_grid"]
 
@@ -372,10 +372,12 @@ def refine_measured(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int]
     todo = np.isfinite(spacing) & np.all(np.isfinite(start), axis=1)
     if only is not None:
         todo &= np.asarray(only, bool)
-    half = np.where(todo, window_half_size(np.where(todo, spacing, 0.0)), 0)
-    # a corner outside the image (a board cut off by the frame) cannot be measured
+    # a corner outside the image (a board cut off by the frame) cannot be measured; one near its edge, in a
+    # window that the edge cuts
     H, W = img.shape
-    todo &= np.all((start >= 0) & (start <= [W - 1, H - 1]), axis=1)
+    room = np.floor(np.min(np.column_stack([start, [W - 1, H - 1] - start]), axis=1))
+    todo &= np.isfinite(room) & (room > 3)
+    half = np.where(todo, np.minimum(window_half_size(np.where(todo, spacing, 0.0)), np.where(todo, room, 0) - 1), 0)
     if wide_start:
         wide = np.clip(np.floor(0.45 * np.where(todo, spacing, 0.0)), 3, 80).astype(int)
         for h, k in _groups(wide[todo]):
@@ -419,16 +421,17 @@ def _grid_direction(g: np.ndarray, axis: int) -> np.ndarray:
 
 
 def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.ndarray,
-                  judged: np.ndarray | None = None) -> np.ndarray:
+                  judged: np.ndarray | None = None, floor_share: float = OUTLIER_FLOOR_SHARE) -> np.ndarray:
     """``uv`` with the corners that disagree with their neighbours set to NaN, worst first.
 
     The worst corner (:func:`~dualcal.geometry.grid.worst_outlier`) goes first and the residuals
     are computed again, so that one bad corner does not take with it its neighbours, whose
     predictions it spoiled. What is left passes :func:`~dualcal.geometry.grid.validate_grid`'s
-    residual check. ``judged``: only these corners may be dropped (default: all).
+    residual check. ``judged``: only these corners may be dropped (default: all); ``floor_share``: the limit's
+    floor (:func:`~dualcal.geometry.grid.outlier_limit_px`).
     """
     uv = np.array(uv, float)
-    while (worst := worst_outlier(uv, grid_shape, spacing_px, judged=judged)) is not None:
+    while (worst := worst_outlier(uv, grid_shape, spacing_px, judged=judged, floor_share=floor_share)) is not None:
         uv[worst[0]] = np.nan
     return uv
 
@@ -480,6 +483,9 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
     uv = np.where((refined.ok | ~ran_off)[:, None], refined.uv, start)
     uv[~refined.tried] = np.nan
     uv = drop_outliers(uv, grid_shape, spacing)
+    # a corner whose refinement failed is kept only within many times the photo's own noise (the floor for what
+    # the prediction cannot follow is for measured corners)
+    uv = drop_outliers(uv, grid_shape, spacing, judged=refined.tried & ~refined.ok, floor_share=0.0)
     lost = refined.tried & ~np.all(np.isfinite(uv), axis=1)
     pred, gain = predict_from_neighbours(uv, grid_shape)
     retry = lost & np.all(np.isfinite(pred), axis=1)
