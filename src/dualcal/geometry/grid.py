@@ -263,14 +263,14 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
     uv = np.asarray(uv, float)
     pred, gain = predict_from_neighbours(uv, shape)
     res = np.linalg.norm(uv - pred, axis=1)
-    if judged is not None:
-        res[~np.asarray(judged, bool)] = np.nan
-    finite = np.isfinite(res)
+    finite = np.isfinite(res)                      # every corner judged sets the scale, judged or not
     if not finite.any():
         return None
     if spacing_px is None:
         spacing_px = local_spacing_px(uv, shape)
     over = finite & (res > outlier_limit_px(spacing_px, np.median(res[finite]), gain, floor_share))
+    if judged is not None:
+        over &= np.asarray(judged, bool)
     if not over.any():
         return None
     z = np.where(over, res / np.sqrt(1.0 + gain**2), -np.inf)
@@ -279,7 +279,6 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
         without = uv.copy()
         without[k] = np.nan
         others = np.linalg.norm(without - neighbour_predictions(without, shape), axis=1)
-        others[~finite] = np.nan
         limit = outlier_limit_px(spacing_px, typical_residual_px(others, shape), gain, floor_share)
         if res[k] <= limit[k]:
             continue

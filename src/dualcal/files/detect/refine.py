@@ -336,18 +336,20 @@ def refine_corners(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int],
     -------
     uv : (N, 2) refined corners, pixels, in the order of ``uv``.
     ok : (N,) True where the corner was measured in its window: by the blurred-corner fit
-        (:func:`fit_saddles`), or where the photo is too blurred for it, by the window's point symmetry
-        (:func:`symmetry_centres`); elsewhere ``uv`` holds the ``cornerSubPix`` result.
+        (:func:`fit_saddles`), or where the photo is too blurred for it (:data:`BLURRED_WIDTH_SHARE`), by the
+        window's point symmetry (:func:`symmetry_centres`); elsewhere ``uv`` holds the best estimate there is
+        (the symmetry's centre, or the ``cornerSubPix`` result), which the caller should not trust as it is.
     """
     refined = refine_measured(img, uv, grid_shape, spacing_px, wide_start, only)
     return refined.uv, refined.ok
 
 
-#: Where the fitted edge width ``w`` of a corner passes this share of its window's half-size, or its fit fails,
-#: the blur spreads over so much of the window that the corner model of :func:`fit_saddles` (a single crossing
-#: of two edges) stops holding, and the corner is measured by its window's point symmetry instead
-#: (:func:`symmetry_centres`). Measured on 1280 x 960 renders defocused by discs of 0-10 px: below it the
-#: corner fit is as precise or more, above it the symmetry.
+#: Where the fitted edge widths ``w`` of a photo's corners pass this share of their windows' half-size (the
+#: median over the photo), the blur spreads over so much of the windows that the corner model of
+#: :func:`fit_saddles` (a single crossing of two edges) stops holding, and the photo's corners are measured by
+#: their windows' point symmetry instead (:func:`symmetry_centres`); so is a corner whose fit fails. Measured on
+#: 1280 x 960 renders defocused by discs of 0-10 px radius: below it the corner fit is as precise or more
+#: (0.010 against 0.011 px in focus), above it the symmetry (0.015-0.024 against 0.022-0.10 px).
 BLURRED_WIDTH_SHARE = 0.2
 
 
@@ -386,22 +388,27 @@ def refine_measured(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int]
     g = start.reshape(rows, cols, 2)
     dirs = np.stack([_grid_direction(g, axis=1), _grid_direction(g, axis=0)], axis=1)
     out = start.copy()
-    ok = np.zeros(len(start), bool)
+    good = np.zeros(len(start), bool)
     width = np.full(len(start), np.nan)
+    first = start.copy()
     for h, k in _groups(half[todo]):
         k = np.flatnonzero(todo)[k]
-        first = _subpix(img, start[k], h)
-        fit, good, _, width[k] = fit_saddles(img, first, dirs[k], h)
-        good &= width[k] <= BLURRED_WIDTH_SHARE * h
-        out[k] = np.where(good[:, None], fit, first)
-        blurred = np.flatnonzero(~good)
-        if len(blurred):
-            # cornerSubPix's gradients cross neighbouring squares' blur too: start from it only where it
-            # stayed near the start
-            near = np.linalg.norm(first[blurred] - start[k[blurred]], axis=1) < 0.25 * h
-            sym, good[blurred] = symmetry_centres(img, np.where(near[:, None], first[blurred], start[k[blurred]]), h)
-            out[k[blurred]] = np.where(good[blurred, None], sym, first[blurred])
-        ok[k] = good & (np.linalg.norm(out[k] - start[k], axis=1) < h)
+        first[k] = _subpix(img, start[k], h)
+        out[k], good[k], _, width[k] = fit_saddles(img, first[k], dirs[k], h)
+    out = np.where(good[:, None], out, first)
+    # a photo whose edges are blurred over much of the corners' windows is measured by the windows' symmetry; in a
+    # sharper photo a corner whose fit failed gets its symmetry's centre as its best estimate, but not as measured
+    blurred = bool(np.nanmedian((width / np.maximum(half, 1))[todo]) > BLURRED_WIDTH_SHARE) if np.isfinite(width[todo]).any() else False
+    redo = todo & (~good | blurred)
+    for h, k in _groups(half[redo]):
+        k = np.flatnonzero(redo)[k]
+        # cornerSubPix's gradients cross neighbouring squares' blur too: start from it only where it stayed
+        # near the start
+        near = np.linalg.norm(first[k] - start[k], axis=1) < 0.25 * h
+        sym, sym_ok = symmetry_centres(img, np.where(near[:, None], first[k], start[k]), h)
+        out[k] = np.where(sym_ok[:, None], sym, first[k])
+        good[k] = sym_ok & blurred
+    ok = todo & good & (np.linalg.norm(out - start, axis=1) < np.maximum(half, 1))
     return RefinedCorners(out, ok, todo, width)
 
 
@@ -478,14 +485,7 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
     far = np.linalg.norm(coarse - pred, axis=1) > 0.15 * spacing
     start = np.where(far[:, None], pred, coarse)
     refined = refine_measured(img, start, grid_shape, spacing, wide_start=wide_start)
-    half = window_half_size(np.where(refined.tried, spacing, 0.0))
-    ran_off = np.linalg.norm(refined.uv - start, axis=1) >= 0.5 * half
-    uv = np.where((refined.ok | ~ran_off)[:, None], refined.uv, start)
-    uv[~refined.tried] = np.nan
-    uv = drop_outliers(uv, grid_shape, spacing)
-    # a corner whose refinement failed is kept only within many times the photo's own noise (the floor for what
-    # the prediction cannot follow is for measured corners)
-    uv = drop_outliers(uv, grid_shape, spacing, judged=refined.tried & ~refined.ok, floor_share=0.0)
+    uv = drop_outliers(np.where(refined.ok[:, None], refined.uv, np.nan), grid_shape, spacing)
     lost = refined.tried & ~np.all(np.isfinite(uv), axis=1)
     pred, gain = predict_from_neighbours(uv, grid_shape)
     retry = lost & np.all(np.isfinite(pred), axis=1)
@@ -495,6 +495,17 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
         keep = retry & ok & (np.linalg.norm(again - pred, axis=1) <= outlier_limit_px(spacing, typical, gain))
         uv[keep] = again[keep]
         uv = drop_outliers(uv, grid_shape, spacing)
+    # a corner whose refinement failed twice keeps its best estimate (cornerSubPix's, or where that ran off, its
+    # start) where the measured corners around it can judge it and it is within many times the photo's own
+    # noise of their prediction (the floor for what the prediction cannot follow is for measured corners)
+    rough = refined.tried & ~refined.ok & ~np.all(np.isfinite(uv), axis=1)
+    if rough.any():
+        half = window_half_size(np.where(rough, spacing, 0.0))
+        ran_off = np.linalg.norm(refined.uv - start, axis=1) >= 0.5 * half
+        uv[rough] = np.where(ran_off[:, None], start, refined.uv)[rough]
+        unjudged = rough & ~np.all(np.isfinite(predict_from_neighbours(uv, grid_shape)[0]), axis=1)
+        uv[unjudged] = np.nan
+        uv = drop_outliers(uv, grid_shape, spacing, judged=rough, floor_share=0.0)
     return MeasuredGrid(uv, photo_edge_width_px(refined.width_px))
 
 
