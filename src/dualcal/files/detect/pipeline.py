@@ -85,8 +85,9 @@ def photo_quality(uv: np.ndarray, board: Board, edge_width_px: float) -> dict[st
     """How blurred a photo is and how noisy its corners are: ``{"blur_px", "corner_noise_px"}``.
 
     ``blur_px``: the width of the squares' edges, the median over the corners of the corner fit's ``w``
-    (:func:`.refine.fit_saddles`; about 1.25 x the standard deviation of a Gaussian blur, 0.55 x the radius of
-    a defocused lens's disc where the fit still holds). ``corner_noise_px``: the standard deviation of one
+    (:func:`.refine.fit_saddles`; about 1.2 x the standard deviation of a Gaussian blur, 0.7 x the radius of
+    a defocused lens's disc up to about 10 px, beyond which the fit's window no longer holds the edges and it
+    only grows). ``corner_noise_px``: the standard deviation of one
     coordinate of a corner, from the photo's own corners (:func:`dualcal.geometry.grid.corner_noise_px`).
     """
     return {"blur_px": float(edge_width_px), "corner_noise_px": corner_noise_px(uv, (board.rows, board.cols))}

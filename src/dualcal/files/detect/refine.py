@@ -99,7 +99,7 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
     uv_fit : (K, 2) fitted corners.
     ok : (K,) True where the fit converged inside its window.
     rms : (K,) residual RMS of the fit, in grey levels (the image's units).
-    width_px : (K,) the fitted edge width ``w`` (the blur across an edge, pixels: about 1.25 x a Gaussian
+    width_px : (K,) the fitted edge width ``w`` (the blur across an edge, pixels: about 1.2 x a Gaussian
         blur's standard deviation); NaN where the window is not inside the image.
     """
     uv = np.asarray(uv, float)
@@ -446,7 +446,7 @@ def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.nd
 class MeasuredGrid(NamedTuple):
     """:func:`measure_grid`'s result: ``uv`` (N, 2) the corners, NaN rows for the corners left out;
     ``edge_width_px`` the photo's blur, the median fitted edge width of its corners (:func:`fit_saddles`'s ``w``,
-    about 1.25 x a Gaussian blur's standard deviation; NaN where none was fitted)."""
+    about 1.2 x a Gaussian blur's standard deviation; NaN where none was fitted)."""
 
     uv: np.ndarray
     edge_width_px: float
