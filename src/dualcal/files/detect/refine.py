@@ -23,10 +23,15 @@ corner, both touching only that window:
    boards), it returns the crossing of the four edges, which gradient orthogonality in a small
    window does not. A corner whose fit does not converge inside its window is reported as
    failed.
+3. Where a photo's edges are blurred over much of its windows (a defocused lens), one crossing of
+   two edges is no model of a window that its neighbours' blur reaches into: every corner is then
+   measured by its window's point symmetry (:func:`symmetry_centres`), which any point-symmetric
+   blur keeps. A corner whose fit failed in a sharper photo gets the symmetry's centre as its best
+   estimate.
 
-:func:`measure_grid` then checks every corner against its neighbours (:mod:`.grid`), refines
-again from the neighbours' prediction where it disagrees, and makes a NaN row of what still
-fails.
+:func:`measure_grid` then checks every corner against its neighbours (:mod:`.grid`), with the
+photo's own corner noise as the scale, refines again from the neighbours' prediction where it
+disagrees, and makes a NaN row only of a corner many times the noise off.
 
 Pixel ``(row i, col j)`` has its centre at ``(u=j, v=i)``.
 """
@@ -179,8 +184,6 @@ def symmetry_centres(img: np.ndarray, uv: np.ndarray, half: int, iterations: int
     ok : (K,) True where the window lies inside the image and the centre stayed within ``half / 2`` of its start.
     """
     uv = np.asarray(uv, float)
-    K = len(uv)
-    H, W = img.shape
     m = half + half // 2 + 2                                 # the patch holds c +- d wherever c may go
     n = 2 * m + 1
     r = np.arange(-half, half + 1, dtype=np.float32)
@@ -190,9 +193,8 @@ def symmetry_centres(img: np.ndarray, uv: np.ndarray, half: int, iterations: int
     centres = np.rint(uv).astype(int)
     patches, valid = _windows(img, centres, m)
     gy, gx = np.gradient(patches, axis=(1, 2))
-    rows = np.arange(K)[:, None]
 
-    def sample(x, y):
+    def sample(rows, x, y):
         x0 = np.clip(np.floor(x).astype(int), 0, n - 2)
         y0 = np.clip(np.floor(y).astype(int), 0, n - 2)
         fx, fy = x - x0, y - y0
@@ -206,9 +208,8 @@ def symmetry_centres(img: np.ndarray, uv: np.ndarray, half: int, iterations: int
         if len(active) == 0:
             break
         cu, cv = c[active, :1], c[active, 1:]
-        rows = active[:, None]
-        Ip, gxp, gyp = sample(cu + dx, cv + dy)
-        Im, gxm, gym = sample(cu - dx, cv - dy)
+        Ip, gxp, gyp = sample(active[:, None], cu + dx, cv + dy)
+        Im, gxm, gym = sample(active[:, None], cu - dx, cv - dy)
         e, Ju, Jv = Ip - Im, gxp - gxm, gyp - gym
         a, b, d = (Ju * Ju).sum(1), (Ju * Jv).sum(1), (Jv * Jv).sum(1)
         gu, gv = (Ju * e).sum(1), (Jv * e).sum(1)
