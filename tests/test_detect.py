@@ -385,6 +385,9 @@ def test_detect_command_writes_corners_json_and_overlays(small_set, tmp_path):
         for v, uv in cc.views.items():
             assert _rms(uv, tc[cam][v]) < 0.05
             assert (overlays / cam / f"{v}.jpg").is_file()
+            # the renders' blur: a Gaussian of 1.2 px and the pixel's box, edges 1.2 x as wide; their noise
+            quality = cc.meta["photo_quality"][v]
+            assert 1.2 < quality["blur_px"] < 2.0 and 0.002 < quality["corner_noise_px"] < 0.03, quality
 
 
 def test_detect_command_uses_hints_and_rejects_bad_usage(small_set, tmp_path, capsys):

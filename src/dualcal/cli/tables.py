@@ -105,8 +105,9 @@ def photo_table(rig: RigModel) -> Table:
     kept = sum(s == "kept" for per in status.values() for _, s in per.values())
     total = sum(len(per) for per in status.values())
     quality = photo_quality(rig)
-    t = Table(title=f"Photos: {kept} of {total} kept; RMS reprojection error (px) per camera"
-                    + ("; blur (edge width) / corner noise (px)" if quality else ""), box=box.SIMPLE_HEAD)
+    t = Table(title=f"Photos: {kept} of {total} kept; RMS reprojection error (px) per camera",
+              caption="blur: the squares' edge width (px); noise: the corner noise (px), measured at detection"
+              if quality else None, box=box.SIMPLE_HEAD)
     t.add_column("view", no_wrap=True)
     for name in names:
         t.add_column(name, justify="right", no_wrap=True)

@@ -263,7 +263,7 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
     uv = np.asarray(uv, float)
     pred, gain = predict_from_neighbours(uv, shape)
     res = np.linalg.norm(uv - pred, axis=1)
-    finite = np.isfinite(res)                      # every corner judged sets the scale, judged or not
+    finite = np.isfinite(res)           # every corner with a prediction sets the scale, whether it may be judged or not
     if not finite.any():
         return None
     if spacing_px is None:

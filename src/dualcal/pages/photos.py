@@ -73,7 +73,7 @@ def photo_rows(status: dict, names: list[str], missing: str = "-",
         blurred = []
         if quality is not None:
             q = quality.get(view, {})
-            cells += [f"{q[n][0]:.1f} / {q[n][1]:.2f}" if n in q else missing for n in names]
+            cells += [f"{q[n][0]:.1f} / {q[n][1]:.3f}" if n in q else missing for n in names]
             blurred = [f"{n}: blurred (edges {q[n][0]:.1f} px wide, corner noise {q[n][1]:.2f} px)"
                        for n in names if n in q and q[n][2]]
         rows.append((view, cells, "; ".join([*(notes or ["kept"]), *blurred])))
