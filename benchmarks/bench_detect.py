@@ -48,8 +48,9 @@ Two parts, each in this one run, on the same renders for every detector:
    processed as a phone does (bilateral denoise, unsharp mask 0.5-1.2, JPEG 70-95). Per photo, taking turns on
    one thread each: dualcal's :func:`dualcal.files.detect.detect_photo`, OpenCV classic (+ ``cornerSubPix``) and
    SB (exhaustive, accurate), all on the full photo. Printed: boards found by each, boards OpenCV found that
-   dualcal missed, dualcal's null corners, corner RMS vs truth over the photos each found and over those all
-   found, the median blur and corner noise dualcal measured, and the time ratios to each OpenCV detector.
+   dualcal missed, dualcal's null corners, corner RMS vs truth over the photos each detector found and dualcal's
+   over the same photos, the median blur and corner noise dualcal measured, and each detector's time over
+   dualcal's (dualcal's includes reading the photo).
 
 Exit code 1 if a target is missed: dualcal finds every board, its RMS on the steep views is
 at most OpenCV's best there, the 12 MP RMS <= 0.02 px and the time ratio <= 0.5; it gives up on
@@ -131,17 +132,25 @@ def opencv_sb(img, cols, rows):
 DETECTORS = ("dualcal", "OpenCV classic", "OpenCV SB")
 
 
+def _timed(fn):
+    t = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t
+
+
 def corner_errors(path: Path, board: Board, uv_true: np.ndarray):
-    """``(dualcal's result, {detector: corner errors against uv_true, or None where it found no board})`` of one
-    photo, for every detector of :data:`DETECTORS` (OpenCV's corners matched to the nearest true corner)."""
+    """``(dualcal's result, {detector: corner errors against uv_true, or None where it found no board}, {detector:
+    seconds})`` of one photo, for every detector of :data:`DETECTORS` (OpenCV's corners matched to the nearest true
+    corner; dualcal's time includes reading the photo, OpenCV's does not)."""
     gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    res = detect_photo(path, board)
+    res, t = _timed(lambda: detect_photo(path, board))
     seen = observed_mask(res.uv) if res.uv is not None else None
     errors = {"dualcal": None if seen is None else res.uv[seen] - uv_true[seen]}
+    seconds = {"dualcal": t}
     for name, fn in (("OpenCV classic", opencv_classic), ("OpenCV SB", opencv_sb)):
-        uv = fn(gray, board.cols, board.rows)
+        uv, seconds[name] = _timed(lambda: fn(gray, board.cols, board.rows))
         errors[name] = None if uv is None else matched(uv, uv_true)
-    return res, errors
+    return res, errors, seconds
 
 
 def steep_part(root: Path, n: int, seed: int) -> bool:
@@ -164,7 +173,7 @@ def steep_part(root: Path, n: int, seed: int) -> bool:
                           shadow=(rng.uniform(0, 2 * np.pi), rng.uniform(-200, 200), 0.35, 15.0))
         path = root / f"steep_{i:02d}.jpg"
         cv2.imwrite(str(path), img, [cv2.IMWRITE_JPEG_QUALITY, 92])
-        res, found = corner_errors(path, board, uv_true)
+        res, found, _ = corner_errors(path, board, uv_true)
         if res.uv is not None:
             nulls += int((~observed_mask(res.uv)).sum())
         for name, e in found.items():
@@ -240,12 +249,6 @@ def speed_part(root: Path, views: int, seed: int) -> bool:
     return ratio <= 0.5 and rms(err_d) <= 0.02 and found_d == len(photos)
 
 
-def _timed(fn):
-    t = time.perf_counter()
-    out = fn()
-    return out, time.perf_counter() - t
-
-
 def _cut_and_absent_photos(root: Path, n: int, seed: int):
     """``(kind, path)`` of synthetic 3 MP photos of a board cut by the frame or absent, and of real 8 MP photos
     cropped to cut the board or miss it."""
@@ -304,7 +307,7 @@ def curled_part(root: Path, n: int, seed: int) -> bool:
     errors = {m: {} for m in names}
     kept, missed = [], []
     for path, uv_true in _curled_photos(root, n, seed):
-        res, found = corner_errors(path, board, uv_true)
+        res, found, _ = corner_errors(path, board, uv_true)
         if res.uv is not None:
             kept.append(int(observed_mask(res.uv).sum()))
         elif any(e is not None for e in found.values()):
@@ -341,37 +344,32 @@ def defocus_part(root: Path, n: int, seed: int) -> bool:
                           noise=0.015, processing=processing)
         path = root / f"defocus_{i:02d}.png"
         cv2.imwrite(str(path), img)
-        res, t = _timed(lambda: detect_photo(path, board))
-        seconds["dualcal"] += t
+        res, found, t = corner_errors(path, board, uv_true)
         if res.uv is not None:
-            seen = observed_mask(res.uv)
-            nulls += int((~seen).sum())
-            errors["dualcal"][view] = res.uv[seen] - uv_true[seen]
+            nulls += int((~observed_mask(res.uv)).sum())
             quality.append((res.blur_px, res.corner_noise_px))
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        for name, fn in (("OpenCV classic", opencv_classic), ("OpenCV SB", opencv_sb)):
-            uv, t = _timed(lambda: fn(gray, board.cols, board.rows))
-            seconds[name] += t
-            if uv is not None:
-                errors[name][view] = matched(uv, uv_true)
-                if res.uv is None:
-                    missed.append(path.name)
+        elif found["OpenCV classic"] is not None or found["OpenCV SB"] is not None:
+            missed.append(path.name)
+        for name, e in found.items():
+            seconds[name] += t[name]
+            if e is not None:
+                errors[name][view] = e
     cv2.setNumThreads(-1)
-    common = set.intersection(*(set(e) for e in errors.values()))
     print(f"\ndefocused 8 MP photos: {n} of 2419x3226, an A4 9x6 board, defocus disc 5-20 px radius, phone-processed "
           "(denoise, unsharp mask, JPEG 70-95), one thread each, taking turns")
-    print(f"{'detector':15} {'found':>6} {'RMS px (all found)':>19} {f'RMS px ({len(common)} common)':>20} "
-          f"{'time / dualcal':>14}")
+    print(f"{'detector':15} {'found':>6} {'RMS px (all found)':>19} {'dualcal RMS px there':>21} {'time / dualcal':>14}")
+    ok = not missed and nulls == 0
     for name in DETECTORS:
         e = errors[name]
-        print(f"{name:15} {len(e):>3}/{n:<2} {rms(list(e.values())):19.4f} {rms([e[v] for v in sorted(common)]):20.4f} "
+        ours = rms([errors["dualcal"][v] for v in e if v in errors["dualcal"]])
+        ok &= not e or ours <= rms(list(e.values()))
+        print(f"{name:15} {len(e):>3}/{n:<2} {rms(list(e.values())):19.4f} {ours:21.4f} "
               f"{seconds[name] / seconds['dualcal']:14.2f}")
     if quality:
         blur, noise = np.median(np.array(quality), axis=0)
         print(f"dualcal: {nulls} null corners; median blur (edge width) {blur:.1f} px, corner noise {noise:.3f} px; "
               f"boards OpenCV found that dualcal missed: {len(set(missed))}")
-    best = min(rms([errors[m][v] for v in sorted(common)]) for m in DETECTORS[1:])
-    return not missed and nulls == 0 and rms([errors["dualcal"][v] for v in sorted(common)]) <= best
+    return ok
 
 
 def main(argv=None) -> int:
