@@ -175,6 +175,7 @@ API_MODULES = {
     "dualcal.estimation.advise": ["advise", "prior_from_rig", "nominal_prior", "describe", "Advice", "AdvisedPose"],
     "dualcal.files.boardprint": ["write_board"],
     "dualcal.synthetic.synth_roll": ["write_camera_roll"],
+    "dualcal.files.imports": ["Imported", "write_imported"],
     "dualcal.messages": None,
 }
 

@@ -267,6 +267,7 @@ COMMAND_PAGES = {
     "detect": "how-to-shoot.md",
     "evaluate": "reading-results.md",
     "export": "how-to/export.md",
+    "import": "how-to/import.md",
     "measure": "how-to/measure.md",
     "pick": "how-to/manual.md",
     "rectify": "how-to/rectify.md",

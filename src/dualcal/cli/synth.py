@@ -59,7 +59,7 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
               help="Print marks in the chessboard's white squares: a binary code in each (as ECoCheck), a dot in "
                    "each, a logo in two, or a serial number along the first row.")
 def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, video, fps, offset_frames, readout_ms,
-                  jobs, board_spec, square_mm, marker_mm, dictionary, coverage, marks):
+                  jobs, board_spec, square_mm, marker_mm, dictionary, circle_mm, coverage, marks):
     """Write a synthetic rig with known truth to OUTDIR.
 
     \b
@@ -81,7 +81,7 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, vi
         raise InputError(f"--scale {scale}: must be in (0, 4]")
     if noise_px < 0:
         raise InputError(f"--noise {noise_px}: must be >= 0")
-    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary, circle_mm)
     board = with_default_markers(board) if board is not None else None
     if marks is not None and board is not None and board.charuco is not None:
         raise InputError("--marks is for chessboards: a ChArUco board has its markers in its white squares")

@@ -36,7 +36,7 @@ from .loop_closure import loop_closure
 from .model_selection import choose_lens_models, preferred_lens_models
 from ..geometry.board import SHAPE_TERMS
 from ..geometry.camera import DEFAULT_LENS_MODEL
-from ..geometry.model import CornerSet, RigModel, choose_reference
+from ..geometry.model import CornerSet, KnownIntrinsics, RigModel, choose_reference
 from ..progress import warn
 
 BOARD_SHAPES = ("auto", "flat", "fit")
@@ -271,7 +271,8 @@ def board_shape_test(sol: Solution, one_step: bool = False) -> dict:
 def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid",
                   reference: str | None = None, drop_outliers: bool = True,
                   outlier_factor: float = 6.0, board_shape: str = "auto",
-                  model: str | Mapping[str, str] = DEFAULT_LENS_MODEL) -> RigModel:
+                  model: str | Mapping[str, str] = DEFAULT_LENS_MODEL,
+                  known_intrinsics: Mapping[str, KnownIntrinsics] | None = None) -> RigModel:
     """Calibrate every camera of a rig and the rig itself from chessboard corners.
 
     Parameters
@@ -303,6 +304,10 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         ``kb4`` (OpenCV's fisheye); or ``{camera: model}`` (cameras not named: ``k1k2``); or ``"auto"``:
         each camera's chosen by its held-out instants (:func:`_calibrate_auto`, which records the comparison in
         ``adjustment["lens_models"]``)
+    known_intrinsics : Mapping[str, KnownIntrinsics] or None
+        cameras whose lens model and intrinsics are known (``--intrinsics FILE``): each a prior with its sigma
+        or covariance, or held fixed (:class:`dualcal.geometry.model.KnownIntrinsics`). Not supported yet: a
+        non-empty one is refused.
 
     Returns
     -------
@@ -317,6 +322,8 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     EstimationError
         Fewer than 3 usable views for a camera, degenerate views, no shared view in a rig.
     """
+    if known_intrinsics:
+        raise InputError("--intrinsics is not supported yet")
     if board_shape not in BOARD_SHAPES:
         raise InputError(f"--board-shape {board_shape!r} is unknown (choose from {', '.join(BOARD_SHAPES)})")
     corners, duplicates = merge_duplicate_instants(corners)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .board import Board, sag_mm, shaped_points_mm
-from .camera import CameraModel, project_points
+from .camera import CameraModel, intrinsic_names, project_points
 from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
 
 
@@ -100,6 +100,50 @@ class CornerSet:
         cams = {name: CameraCorners(c.image_size, {v: uv for v, uv in c.views.items() if keep(name, v)}, c.meta)
                 for name, c in self.cameras.items()}
         return replace(self, cameras=cams)
+
+
+#: How a camera's known intrinsics enter its calibration (:class:`KnownIntrinsics`).
+INTRINSICS_USES = ("prior", "fixed")
+
+
+@dataclass(frozen=True, eq=False)
+class KnownIntrinsics:
+    """A camera's intrinsics known before its calibration (``dualcal calibrate --intrinsics FILE``).
+
+    ``camera`` is the lens model and its values. ``use`` says how they enter the calibration: ``"prior"``, each
+    value observed with its 1-sigma ``sigma`` (``{name: sigma}``, names of
+    :func:`~dualcal.geometry.camera.intrinsic_names` of the model), or jointly with ``covariance`` ((k, k), over
+    the names ``parameters``) where the source has one; ``"fixed"``, held at these values (a source without any
+    uncertainty). In a prior, a value without a sigma, or with sigma 0, is held at its value too. ``source``
+    names the file they came from.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``use``, a prior without a sigma or covariance, a fixed camera with one, a sigma or a
+        covariance's name that is not an intrinsic of the lens model, or a covariance of the wrong shape.
+    """
+
+    camera: CameraModel
+    use: str = "fixed"
+    sigma: dict[str, float] = field(default_factory=dict)
+    parameters: tuple[str, ...] = ()
+    covariance: np.ndarray | None = None
+    source: str = ""
+
+    def __post_init__(self):
+        if self.use not in INTRINSICS_USES:
+            raise ValueError(f"use {self.use!r} is not one of {', '.join(INTRINSICS_USES)}")
+        uncertain = bool(self.sigma) or self.covariance is not None
+        if uncertain != (self.use == "prior"):
+            raise ValueError("a prior needs a sigma or a covariance, and only a prior has one")
+        names = intrinsic_names(self.camera.model)
+        foreign = [n for n in (*self.sigma, *self.parameters) if n not in names]
+        if foreign:
+            raise ValueError(f"{', '.join(foreign)}: not intrinsics of lens model {self.camera.model}")
+        k = len(self.parameters)
+        if (self.covariance is None) != (k == 0) or (k and np.shape(self.covariance) != (k, k)):
+            raise ValueError(f"covariance of shape {np.shape(self.covariance)} for {k} parameters")
 
 
 def choose_reference(names, override: str | None = None) -> str:

@@ -48,6 +48,7 @@ from ..geometry.model import Pose
 from ..parallel import interruptible_map
 from ..progress import progress_bar
 from .render_charuco import MarkerTexture, marker_darkness, marker_texture
+from .render_circles import circle_darkness
 from .render_marks import marks_texture
 
 __all__ = ["board_height_mm", "shaped_corners_mm", "render_view", "write_photo_set", "photo_seed", "PhoneProcessing",
@@ -81,13 +82,16 @@ def _reflectance(X: np.ndarray, Y: np.ndarray, hX: np.ndarray, hY: np.ndarray, b
     s = board.square_mm
     tri = lambda x: _square_wave_integral(x, s)  # noqa: E731
     ident = lambda x: x                          # noqa: E731
-    # the checkered area, squares a = -1 .. cols-1, b = -1 .. rows-1
-    x0, x1, y0, y1 = -s, board.cols * s, -s, board.rows * s
-    inside = _box_mean(ident, X, hX, x0, x1) * _box_mean(ident, Y, hY, y0, y1)
-    product = _box_mean(tri, X, hX, x0, x1) * _box_mean(tri, Y, hY, y0, y1)
-    black_share = 0.5 * (inside + product)          # black where sq(X) sq(Y) = +1, i.e. a + b even
-    if board.black_parity() != inverted:            # OpenCV's legacy ChArUco layout: the other squares
-        black_share = inside - black_share
+    # the printed area: a chessboard's squares a = -1 .. cols-1, b = -1 .. rows-1, or a circle grid's circles
+    x0, x1, y0, y1 = board.pattern_extent_mm()
+    if board.is_circle_grid:
+        black_share = circle_darkness(board, X, Y, hX, hY)
+    else:
+        inside = _box_mean(ident, X, hX, x0, x1) * _box_mean(ident, Y, hY, y0, y1)
+        product = _box_mean(tri, X, hX, x0, x1) * _box_mean(tri, Y, hY, y0, y1)
+        black_share = 0.5 * (inside + product)          # black where sq(X) sq(Y) = +1, i.e. a + b even
+        if board.black_parity() != inverted:            # OpenCV's legacy ChArUco layout: the other squares
+            black_share = inside - black_share
     if markers is not None:
         black_share = black_share + marker_darkness(markers, X, Y, hX, hY)
     paper = (_box_mean(ident, X, hX, x0 - margin_mm, x1 + margin_mm)
@@ -256,8 +260,9 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
     ----------
     cam : camera model; ``cam.image_size = (W, H)`` sets the photo size.
     pose : board-to-camera pose.
-    board : the chessboard (inner corners and square size), or a ChArUco board with a known
-        dictionary and layout (its markers drawn with :mod:`dualcal.synthetic.render_charuco`).
+    board : the chessboard (inner corners and square size), a ChArUco board with a known
+        dictionary and layout (its markers drawn with :mod:`dualcal.synthetic.render_charuco`), or a
+        circle grid (its circles drawn with :mod:`dualcal.synthetic.render_circles`).
     rng : random generator for the lighting direction, background and sensor noise
         (``None``: a fixed seed).
     blur_px : standard deviation of the Gaussian optical blur, pixels (0: none).
@@ -269,7 +274,8 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
     noise : standard deviation of the sensor noise at full white, in units of full scale;
         it scales with the square root of the signal (shot noise) plus a read-noise floor.
     white, black : reflectance of the paper and of the black squares (0..1).
-    margin_squares : white margin around the outer ring of squares, in squares.
+    margin_squares : white margin around the outer ring of squares (a circle grid: around half a spacing
+        beyond its outer circles), in squares (spacings).
     vignetting : relative light loss at the image corners.
     uneven_light : relative change of light across the image along a random direction.
     background : reflectance beyond the board's edge, under the clutter (with smooth shading).
@@ -411,9 +417,8 @@ def _board_support(cam: CameraModel, pose: Pose, board: Board, margin_mm: float,
     Where part of the board is behind the camera the whole image is returned.
     """
     W, H = cam.image_size
-    s = board.square_mm
-    x0, x1 = -s - margin_mm, board.cols * s + margin_mm
-    y0, y1 = -s - margin_mm, board.rows * s + margin_mm
+    x0, x1, y0, y1 = board.pattern_extent_mm()
+    x0, x1, y0, y1 = x0 - margin_mm, x1 + margin_mm, y0 - margin_mm, y1 + margin_mm
     t = np.linspace(0.0, 1.0, 400)
     edges = np.concatenate([
         np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y0)]),

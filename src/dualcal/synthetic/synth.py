@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..geometry.board import Board
+from ..geometry.circles import circle_centre_offset_px
 from ..geometry.camera import INTRINSIC_NAMES, CameraModel, fold_radius, in_frame, project_points
 from ..errors import EstimationError, InputError
 from ..geometry.model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
@@ -138,6 +139,13 @@ def scale_camera(cam: CameraModel, scale: float) -> CameraModel:
                    cx=(cam.cx + 0.5) * scale - 0.5, cy=(cam.cy + 0.5) * scale - 0.5)
 
 
+def _outline_mm(board: Board) -> np.ndarray:
+    """(4, 3) corners of the board's printed pattern (:meth:`Board.pattern_extent_mm`: a chessboard's outer ring
+    of squares), first and last diagonally opposite."""
+    x0, x1, y0, y1 = board.pattern_extent_mm()
+    return np.array([[x0, y0, 0], [x1, y0, 0], [x0, y1, 0], [x1, y1, 0]], float)
+
+
 def _look_at_pose(center: np.ndarray, target: np.ndarray, roll: float) -> Pose:
     """Board-to-camera pose of a camera at ``center`` looking at ``target`` (board frame)."""
     z = target - center
@@ -229,11 +237,10 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     rng = np.random.default_rng(seed)
 
     s = board.square_mm
-    outline = np.array([[-s, -s, 0], [board.cols * s, -s, 0], [-s, board.rows * s, 0],
-                        [board.cols * s, board.rows * s, 0]])
+    outline = _outline_mm(board)
     X = np.vstack([board.object_points_mm(), outline])
-    centre = np.array([(board.cols - 1) * s / 2, (board.rows - 1) * s / 2, 0.0])
-    extent = np.hypot((board.cols + 1) * s, (board.rows + 1) * s)
+    centre = np.append(0.5 * (outline[0, :2] + outline[3, :2]), 0.0)
+    extent = float(np.linalg.norm(outline[3] - outline[0]))
     narrowest = max(cameras, key=lambda n: cameras[n].fx / min(cameras[n].image_size))
     fmin, fmax = fill or p["fill"]
     if coverage is not None:
@@ -311,14 +318,13 @@ def seen_pixels(cam: CameraModel, pose: Pose, X_board: np.ndarray) -> np.ndarray
 
 
 def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
-    """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner; NaN rows for the
+    """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner (a circle grid's: the centre of each
+    circle's image, :func:`dualcal.geometry.circles.circle_image_centre`); NaN rows for the
     corners a camera does not see (:func:`in_frame`: only on partial views). A chessboard (no
     markers to number a part of it) that a camera does not see whole, with its outer squares, is
     all NaN: the camera missed that instant."""
     X = truth.board.object_points_mm()
-    s = truth.board.square_mm
-    outline = np.array([[-s, -s, 0], [truth.board.cols * s, -s, 0], [-s, truth.board.rows * s, 0],
-                        [truth.board.cols * s, truth.board.rows * s, 0]])
+    outline = _outline_mm(truth.board)
     out = {}
     for cam, model in truth.cameras.items():
         out[cam] = {}
@@ -327,6 +333,8 @@ def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
             missed = truth.board.charuco is None and not _all_visible({cam: model}, {cam: pose},
                                                                       np.vstack([X, outline]), margin=0.0)
             out[cam][v] = np.full((len(X), 2), np.nan) if missed else seen_pixels(model, pose, X)
+            if truth.board.is_circle_grid:      # a circle's centre as measured: its image's (geometry.circles)
+                out[cam][v] += circle_centre_offset_px(model, pose, X, 0.5 * truth.board.circle_diameter_mm)
     return out
 
 

@@ -29,7 +29,7 @@ dictionary (or layout) is not given it first finds them from the photos
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -44,6 +44,7 @@ from ...geometry.model import CameraCorners, CornerSet
 from ...parallel import interruptible_map
 from ...progress import progress_bar, warn
 from .charuco import measure_charuco, resolve_board
+from .circles import detect_circles
 from .coarse import (classic_grid, consistent_part, largest_grid, reduce_image, reduction_factor, sb_grid,
                      shows_a_chessboard, to_full_resolution)
 from ...geometry.grid import corner_noise_px, local_spacing_px, validate_grid
@@ -213,6 +214,12 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
     try:
         full = read_gray(path)
         size = (full.shape[1], full.shape[0])
+        if board.pattern != "chessboard":
+            uv, symmetric = detect_circles(full, board)          # circle grids (.circles)
+            if overlay_path is not None:
+                f = reduction_factor(size)
+                write_overlay(overlay_path, reduce_image(full, f), uv, f)
+            return PhotoResult(uv, size, symmetric=symmetric)
         if board.charuco is not None:
             # a dataset settles the dictionary and layout first (detect_dataset); one photo alone tells its own
             uv, width = measure_charuco(full, board if board.charuco.resolved else resolve_board(board, [full]))
@@ -297,8 +304,10 @@ def warn_unpaired_cameras(dataset: Dataset) -> None:
 def likely_boards(board: Board) -> list[Board]:
     """The ``--board`` a user most likely meant when ``board`` is not found: squares counted
     instead of inner corners (``cols-1 x rows-1``), the counts swapped, or both."""
-    if board.charuco is not None:
+    if board.charuco is not None or board.pattern == "points":
         return []                     # its markers say which board it is: none is mistaken for another
+    if board.is_circle_grid:          # circles counted along the other side
+        return [replace(board, cols=board.rows, rows=board.cols)] if board.cols != board.rows else []
     c, r, s = board.cols, board.rows, board.square_mm
     sizes = [(c - 1, r - 1), (r, c), (r - 1, c - 1)]
     return [Board(a, b, s) for a, b in dict.fromkeys(sizes) if min(a, b) >= 2 and (a, b) != (c, r)]
@@ -476,7 +485,8 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
                            for check, n in Counter(r.failed_check for r in results if r.failed_check).most_common())
         suggestion = suggest_board(missed, board)
         if found == 0:
-            check = ("check --board (inner corners, COLSxROWS)" if board.charuco is None
+            check = ("check --board (circles, circles:COLSxROWS or acircles:COLSxROWS)" if board.is_circle_grid
+                     else "check --board (inner corners, COLSxROWS)" if board.charuco is None
                      else "check --board (squares, charuco:SXxSY), --square, --marker and --dictionary")
             raise InputError(f"no {board.describe()} found in any photo of {dataset.source} "
                              f"({len(tasks)} photos): " + ": ".join(filter(None, [failed, suggestion or check])))
