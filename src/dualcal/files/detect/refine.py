@@ -357,18 +357,24 @@ BLURRED_WIDTH_SHARE = 0.2
 class RefinedCorners(NamedTuple):
     """What :func:`refine_measured` found: ``uv`` (N, 2) and ``ok`` (N,) as :func:`refine_corners` returns them,
     ``tried`` (N,) the corners that were refined (inside the image, with a window), ``width_px`` (N,) each
-    corner's fitted edge width (:func:`fit_saddles`; NaN where not fitted)."""
+    corner's fitted edge width (:func:`fit_saddles`; NaN where not fitted), ``blurred`` whether they were measured
+    by their windows' symmetry (:data:`BLURRED_WIDTH_SHARE`)."""
 
     uv: np.ndarray
     ok: np.ndarray
     tried: np.ndarray
     width_px: np.ndarray
+    blurred: bool
 
 
 def refine_measured(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int],
                     spacing_px: np.ndarray | None = None, wide_start: bool = False,
-                    only: np.ndarray | None = None) -> RefinedCorners:
-    """:func:`refine_corners`, with which corners were tried and what their fits measured of the photo's blur."""
+                    only: np.ndarray | None = None, blurred: bool | None = None) -> RefinedCorners:
+    """:func:`refine_corners`, with which corners were tried and what their fits measured of the photo's blur.
+
+    ``blurred``: measure the corners by their windows' symmetry, or not; None: where the corners' own edge widths
+    say so (:data:`BLURRED_WIDTH_SHARE`). A few corners refined again (``only``) take the photo's decision: the
+    corners that failed are no sample of its blur."""
     rows, cols = grid_shape
     start = np.array(uv, float).reshape(rows * cols, 2)
     spacing = local_spacing_px(start, grid_shape) if spacing_px is None else np.asarray(spacing_px, float)
@@ -399,7 +405,9 @@ def refine_measured(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int]
     out = np.where(good[:, None], out, first)
     # a photo whose edges are blurred over much of the corners' windows is measured by the windows' symmetry; in a
     # sharper photo a corner whose fit failed gets its symmetry's centre as its best estimate, but not as measured
-    blurred = bool(np.nanmedian((width / np.maximum(half, 1))[todo]) > BLURRED_WIDTH_SHARE) if np.isfinite(width[todo]).any() else False
+    if blurred is None:
+        share = width[todo] / np.maximum(half[todo], 1)
+        blurred = bool(np.isfinite(share).any() and np.nanmedian(share) > BLURRED_WIDTH_SHARE)
     redo = todo & (~good | blurred)
     for h, k in _groups(half[redo]):
         k = np.flatnonzero(redo)[k]
@@ -410,7 +418,7 @@ def refine_measured(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int]
         out[k] = np.where(sym_ok[:, None], sym, first[k])
         good[k] = sym_ok & blurred
     ok = todo & good & (np.linalg.norm(out - start, axis=1) < np.maximum(half, 1))
-    return RefinedCorners(out, ok, todo, width)
+    return RefinedCorners(out, ok, todo, width, blurred)
 
 
 def _grid_direction(g: np.ndarray, axis: int) -> np.ndarray:
@@ -444,6 +452,11 @@ def drop_outliers(uv: np.ndarray, grid_shape: tuple[int, int], spacing_px: np.nd
     return uv
 
 
+#: Rounds of second chances in :func:`measure_grid`: a corner lost next to others lost has no prediction until they
+#: are back.
+RETRY_ROUNDS = 2
+
+
 class MeasuredGrid(NamedTuple):
     """:func:`measure_grid`'s result: ``uv`` (N, 2) the corners, NaN rows for the corners left out;
     ``edge_width_px`` the photo's blur, the median fitted edge width of its corners (:func:`fit_saddles`'s ``w``,
@@ -460,13 +473,15 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
     1. A coarse corner further than 0.15 of its spacing from its neighbours' prediction (the
        classic detector's corners at the border of a tilted board can be 5-13 px off) starts
        from that prediction instead.
-    2. Every corner is refined in its own window (:func:`refine_corners`); a corner whose
-       refinement fails keeps the best estimate there is (``cornerSubPix``'s, or where that ran off, its
-       start), and every corner further than :func:`~dualcal.geometry.grid.outlier_limit_px` (many times
-       the photo's own corner noise) from its neighbours' prediction is dropped, worst first
-       (:func:`drop_outliers`).
+    2. Every corner is refined in its own window (:func:`refine_corners`); of those measured, every
+       corner further than :func:`~dualcal.geometry.grid.outlier_limit_px` (many times the photo's own
+       corner noise) from its neighbours' prediction is dropped, worst first (:func:`drop_outliers`).
     3. Each dropped corner gets a second chance: refined again from where its remaining
-       neighbours put it, and kept if its fit converges there within the limit.
+       neighbours put it, and kept if its fit converges there within the limit (in
+       :data:`RETRY_ROUNDS`, for corners whose neighbours come back in the first).
+    4. A corner whose refinement failed and did not come back keeps the best estimate there is (the
+       symmetry's centre or ``cornerSubPix``'s, or where that ran off, its start) where it is within
+       many times the photo's own noise of its neighbours' prediction.
 
     Parameters
     ----------
@@ -487,11 +502,15 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
     start = np.where(far[:, None], pred, coarse)
     refined = refine_measured(img, start, grid_shape, spacing, wide_start=wide_start)
     uv = drop_outliers(np.where(refined.ok[:, None], refined.uv, np.nan), grid_shape, spacing)
-    lost = refined.tried & ~np.all(np.isfinite(uv), axis=1)
-    pred, gain = predict_from_neighbours(uv, grid_shape)
-    retry = lost & np.all(np.isfinite(pred), axis=1)
-    if retry.any():
-        again, ok = refine_corners(img, np.where(retry[:, None], pred, uv), grid_shape, spacing, only=retry)
+    retried = np.zeros(len(uv), bool)
+    for _ in range(RETRY_ROUNDS):
+        pred, gain = predict_from_neighbours(uv, grid_shape)
+        retry = refined.tried & ~retried & ~np.all(np.isfinite(uv), axis=1) & np.all(np.isfinite(pred), axis=1)
+        if not retry.any():
+            break
+        retried |= retry
+        again, ok, *_ = refine_measured(img, np.where(retry[:, None], pred, uv), grid_shape, spacing, only=retry,
+                                        blurred=refined.blurred)
         typical = typical_residual_px(np.linalg.norm(uv - pred, axis=1), grid_shape)
         keep = retry & ok & (np.linalg.norm(again - pred, axis=1) <= outlier_limit_px(spacing, typical, gain))
         uv[keep] = again[keep]
