@@ -766,3 +766,26 @@ def test_every_defocused_or_phone_processed_board_opencv_finds_is_kept_and_measu
     assert len(ours) >= 4 and 20 in blur
     assert _rms(np.concatenate(ours), 0.0) <= _rms(np.concatenate(theirs), 0.0)
     assert min(blur[10]) > max(blur[5]) and min(blur[20]) > max(blur[10])
+
+
+def test_a_photos_corner_noise_is_measured_from_its_own_corners_and_sets_its_outlier_limit():
+    """Known truth: exact corners of the stereo rig (k1 = -0.29) with white noise of 0.03-0.5 px per coordinate.
+    The noise is measured to 20 %; no corner of a noisy photo is an outlier (the limit scales with the photo's
+    noise: no pixel ceiling), while a corner moved by a third of a square (the wrong feature) is; a board found
+    whole keeps its photo with 20 of 54 corners left, one placed from a part needs more than half."""
+    truth = make_truth("stereo", views=4, seed=2)
+    shape = (truth.board.rows, truth.board.cols)
+    rng = np.random.default_rng(5)
+    for sigma in (0.03, 0.1, 0.5):
+        for view, uv in true_corners(truth)["left"].items():
+            noisy = uv + rng.normal(0.0, sigma, uv.shape)
+            assert corner_noise_px(noisy, shape) == pytest.approx(sigma, rel=0.2), (sigma, view)
+            assert validate_grid(noisy, truth.board) is None, (sigma, view)
+            bad = noisy.copy()
+            bad[22] += local_spacing_px(uv, shape)[22] / 3
+            assert validate_grid(bad, truth.board).startswith("corner 22 is "), (sigma, view)
+    few = noisy.copy()
+    few[20:] = np.nan
+    assert validate_grid(few, truth.board, whole=True) is None
+    assert validate_grid(few, truth.board) == ("only 20 of 54 corners passed their checks (at least 28 needed: "
+                                               "more than half of the board)")
