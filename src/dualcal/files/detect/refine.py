@@ -349,9 +349,13 @@ def refine_corners(img: np.ndarray, uv: np.ndarray, grid_shape: tuple[int, int],
 #: median over the photo), the blur spreads over so much of the windows that the corner model of
 #: :func:`fit_saddles` (a single crossing of two edges) stops holding, and the photo's corners are measured by
 #: their windows' point symmetry instead (:func:`symmetry_centres`); so is a corner whose fit fails. Measured on
-#: 1280 x 960 renders defocused by discs of 0-10 px radius: below it the corner fit is as precise or more
-#: (0.010 against 0.011 px in focus), above it the symmetry (0.015-0.024 against 0.022-0.10 px).
-BLURRED_WIDTH_SHARE = 0.2
+#: 1280 x 960 renders defocused by discs of 0-10 px radius, the RMS error against the truth of the corner fit and
+#: the symmetry: 0.010 and 0.011 px in focus, 0.013-0.024 and 0.017-0.018 px at 0.2-0.25, 0.022-0.030 and
+#: 0.015-0.017 px at 0.25-0.3, 0.032-0.039 and 0.018-0.026 px at 0.3-0.4, 0.10-1.1 and 0.024-0.04 px beyond. The
+#: switch is at 0.3, not where the symmetry starts to be better: the small windows of sharp low-resolution photos
+#: reach 0.2-0.26, and there a photo and its copy developed otherwise (a DNG and its JPEG) would fall on either
+#: side of it and be measured by two methods whose results differ by a hundredth of a pixel.
+BLURRED_WIDTH_SHARE = 0.3
 
 
 class RefinedCorners(NamedTuple):
