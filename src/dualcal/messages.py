@@ -211,7 +211,9 @@ ERRORS = {
                    "corners against their neighbours). In a dataset such a photo is skipped with a warning naming "
                    "it; the error stops the command only where no photo is left.",
         "cause": "A wrong `--board` (it counts inner corners: a board of 9 x 6 squares is `8x5`), the board cut "
-                 "off by the frame, glare, blur, or a board too small in the photo.",
+                 "off by the frame, glare, blur so strong that OpenCV's detectors do not find the board either "
+                 "(a blurred board they find is kept: its corners are noisier, and the photo table says so), or a "
+                 "board too small in the photo.",
         "action": "Count the inner corners again; `dualcal detect --overlays DIR` draws what was found on each "
                   "photo; where detection fails, `dualcal pick` lets you click the board's four outer corners.",
         "examples": ["chessboard found"],

@@ -16,7 +16,7 @@ from rich.table import Table
 
 from ..geometry.camera import DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, intrinsic_names
 from ..geometry.model import RigModel
-from ..pages.photos import photo_rows, photo_status
+from ..pages.photos import photo_quality, photo_rows, photo_status
 from ..geometry.scale import relative_sigma, scale_share
 
 _PAPER_NAMES = {"fx": "alpha = fx", "fy": "beta = fy", "skew": "gamma = skew", "cx": "u0 = cx",
@@ -98,18 +98,23 @@ def result_tables(models: list[RigModel]) -> list[Table]:
 
 
 def photo_table(rig: RigModel) -> Table:
-    """Every photo: its RMS (px) per camera and, where a photo was not kept, which and why."""
+    """Every photo: its RMS (px) per camera, its blur and corner noise (px) where the detection measured them,
+    and, where a photo was not kept, which and why, and which photos are blurred."""
     names = rig.camera_order()
     status = photo_status(rig)
     kept = sum(s == "kept" for per in status.values() for _, s in per.values())
     total = sum(len(per) for per in status.values())
+    quality = photo_quality(rig)
     t = Table(title=f"Photos: {kept} of {total} kept; RMS reprojection error (px) per camera",
-              box=box.SIMPLE_HEAD)
+              caption="blur: the squares' edge width (px); noise: the corner noise (px), measured at detection"
+              if quality else None, box=box.SIMPLE_HEAD)
     t.add_column("view", no_wrap=True)
     for name in names:
         t.add_column(name, justify="right", no_wrap=True)
+    for name in names if quality else []:
+        t.add_column(f"{name} blur / noise", justify="right", no_wrap=True)
     t.add_column("status")
-    for view, cells, note in photo_rows(status, names):
+    for view, cells, note in photo_rows(status, names, quality=quality or None):
         t.add_row(view, *cells, note)
     return t
 

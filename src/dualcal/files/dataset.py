@@ -522,7 +522,8 @@ def _exclude(dataset: Dataset, patterns) -> None:
 
 def _regrouped(dataset: Dataset, corners: CornerSet, detected: dict[Path, tuple[str, str]], roll) -> CornerSet:
     """The corners of ``dataset``'s cameras and views, taken from ``corners`` by photo (``detected``: each photo's
-    camera and key there), with ``dataset``'s meta (and the manual and partial views the detection marked)."""
+    camera and key there), with ``dataset``'s meta (and the manual and partial views the detection marked, and each
+    photo's quality it measured)."""
     cameras = {}
     for name, photos in dataset.cameras.items():
         meta = dataset.meta(name)
@@ -531,6 +532,10 @@ def _regrouped(dataset: Dataset, corners: CornerSet, detected: dict[Path, tuple[
                           if detected[p.path][1] in corners.cameras[detected[p.path][0]].meta.get(flag, ()))
             if keys:
                 meta[flag] = keys
+        quality = {k: q for k, p in photos.items() if (q := corners.cameras[detected[p.path][0]].meta
+                                                       .get("photo_quality", {}).get(detected[p.path][1]))}
+        if quality:
+            meta["photo_quality"] = dict(sorted(quality.items()))
         uv = {k: corners.cameras[detected[p.path][0]].views[detected[p.path][1]] for k, p in photos.items()}
         cameras[name] = CameraCorners(dataset.image_size(name), uv, meta)
     return replace(corners, cameras=cameras, roll=roll)
