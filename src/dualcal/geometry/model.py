@@ -95,6 +95,12 @@ class CornerSet:
     reference: str | None = None     # the reference camera chosen at detection, if one was given
     roll: dict | None = None
 
+    def cameras_alone(self) -> list[str]:
+        """The cameras whose view keys name no moment shared with the other cameras: each filmed the board on its
+        own (an imported caliscope intrinsic session: ``meta["imported"]["instants_shared"]`` false)."""
+        return [name for name, cam in self.cameras.items()
+                if (cam.meta.get("imported") or {}).get("instants_shared") is False]
+
     def with_views(self, keep: Callable[[str, str], bool]) -> "CornerSet":
         """The same corners with only the photos for which ``keep(camera, view)`` is true."""
         cams = {name: CameraCorners(c.image_size, {v: uv for v, uv in c.views.items() if keep(name, v)}, c.meta)
