@@ -75,13 +75,15 @@ HELD_OUT = {
         board=Board(8, 5, 30.0),
         cameras={"wide": CameraModel((_W, _H), 2980.0, 2985.0, 0.0, 1530.0, 1990.0, 0.05, -0.12),
                  "tele": CameraModel((_W, _H), 7500.0, 7510.0, 0.0, 1480.0, 2050.0, -0.05, 0.4)},
-        rig={"tele": Pose(rotation_from_opk(np.array([-0.8, 1.2, 2.5]) / ARCMIN_PER_RAD), np.array([-9.5, 0.4, 0.2]))},
+        rig={"tele": Pose(rotation_from_opk(np.array([-0.8, 1.2, 2.5]) / ARCMIN_PER_RAD),
+                          np.array([-9.5, 0.4, 0.2]))},
         fill=(0.45, 0.85)),
     "wide_tele3": dict(
         board=Board(8, 5, 30.0),
         cameras={"wide": CameraModel((_W, _H), 3050.0, 3050.0, 0.0, 1500.0, 2030.0, 0.09, -0.25),
                  "tele": CameraModel((_W, _H), 9100.0, 9105.0, 0.0, 1540.0, 1985.0, -0.15, 1.1)},
-        rig={"tele": Pose(rotation_from_opk(np.array([1.5, -0.5, -1.0]) / ARCMIN_PER_RAD), np.array([0.3, 13.0, -0.4]))},
+        rig={"tele": Pose(rotation_from_opk(np.array([1.5, -0.5, -1.0]) / ARCMIN_PER_RAD),
+                          np.array([0.3, 13.0, -0.4]))},
         fill=(0.45, 0.85)),
 }
 

@@ -34,22 +34,38 @@ distortion, baseline, angles), first within each camera, then over the cameras, 
 few targets is not forgotten; with goals (``--target NAME=SIGMA``) it is how far the sigmas are
 above their goals (geometric mean of ``max(sigma / goal, 1)``).
 
-No parameter left behind. A geometric mean lets a large gain on some parameters pay for leaving
-another where it was: followed photo by photo on the synthetic triple rig, it left the tele's kappa
-angle at 0.93 x what as many random photos give over 16 runs (1.06 x over 8 of them, 1.51 x in the
-worst) and its principal point at 0.79-0.82 x (1.55 x in the worst run), where the other cameras'
-sigmas reached 0.2-0.4 x (``benchmarks/bench_advise.py``). So without goals the poses are ranked by the objective plus
-:data:`LAG_WEIGHT` times the lag of the key target that lags most: ``max(log(sigma / due), 0)``, where a
-target's due after ``n`` advised photos is its sigma after ``n`` photos that each bring the average
-information of the candidate poses every camera sees (:func:`random_information`; photos taken like a
-user's). A pose that shrinks the geometric mean a little less but keeps every key sigma up with its
-due wins; the gain reported is the objective's alone, and ``done`` says that no pose would shrink
-the objective by :data:`STOP_GAIN`.
+No camera left behind. A geometric mean lets a large gain on some parameters pay for leaving another
+where it was, and a greedy choice made one photo at a time remembers nothing: a photo seen by the wide
+alone that halves its principal point's sigma wins over one that shrinks every sigma a little, again
+and again, and the tele's principal point and the rig's angles fall behind what as many ordinary photos
+would have given them. So without goals the poses are ranked by the objective plus :data:`LAG_WEIGHT`
+times the lag of the key target that lags most, ``max(log(sigma / due), 0)``, where a target's due after
+``s`` advised photos is :data:`DUE_FACTOR` times its sigma after ``s`` more photos like the calibration's
+own: its ``n`` instants' information is ``C^-1``, so ``s`` more like them make it ``C^-1 (n + s) / n`` and
+every sigma ``sqrt(n / (n + s))`` of what it is now (:func:`_dues`; for a plan, which has no photos, the
+average candidate every camera sees, :func:`random_information`). Each advised photo must so shrink
+every key sigma at least as much as an ordinary photo would (5 % more), where one pose can; among those
+the objective decides. The gain reported is the objective's alone, and ``done`` says that no pose would
+shrink the objective by :data:`STOP_GAIN`.
 
 Candidates are poses a person can hold (:func:`holdable`): the board in front of the reference
 camera, its centre within 0.67-1.5 times the distance range the calibration's photos span, at most
-60 degrees from facing that camera; each is aimed at one camera, which must see the whole board
-(a ChArUco board: :data:`CHARUCO_SHARE` of its corners), and lists every camera that does.
+60 degrees from facing that camera. Each is aimed at one camera: along the ray of a pixel (half of them
+near the image's centre), tilted and turned at random, and placed where that camera sees the whole board
+nearest (:func:`_nearest_whole_mm`), or farther (:func:`candidate_poses`). A narrow camera's principal
+point and lens show in views that fill its frame, tilted: drawn at random distances, the tele of a
+wide + 2.8 x tele rig saw 2 of its 114 candidates fill 80 % of its frame and none tilted 40 degrees or
+more (35 and 7 of 263 placed so), and the advice followed with whole-board photos left its principal
+point behind random photos (``tests/test_advise.py``).
+
+Which cameras see a pose: those that would detect the board in it (:func:`seen_corners`). A plain
+chessboard only whole, its outline inside the frame by a margin (:func:`frame_margin_px`: where the
+calibration knows the lens too little to say where the outline falls, or where a board held
+:data:`HOLD_SHARE` of its distance off would leave the frame: three times as far across a 3 x tele's
+frame as across the wide's); a ChArUco board in part (:data:`CHARUCO_SHARE` of its corners); either only
+with every square at least :data:`MIN_SQUARE_PX` long in the image and at most :data:`MAX_VIEW_DEG` from
+facing the camera (:func:`detectable`). A camera counted where it would not find the board is
+information the calibration never gets.
 
 Lens-model agnostic: the cameras are projected only through ``project_with_jacobians`` and their
 coefficients are those calib.json's covariance names.
