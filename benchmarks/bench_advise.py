@@ -24,7 +24,11 @@ rig). Printed, per rig:
 * **every key sigma's ratio advised / random** (each camera's fx, fy, cx, cy, k1; each rig camera's
   baseline, omega, phi, kappa; the honest ``sigma`` of calib.json): its geometric mean over the seeds and
   starts, and its worst (largest) run with the run's seed/start; PASS when the geometric mean is at most
-  1.0, i.e. no camera's parameter is left worse off than random photos leave it;
+  1.0, i.e. no camera's parameter is left worse off than random photos leave it. Beside it the same for the
+  textbook sigmas: with 11 photos the honest sigma (clustered by instant) scatters from one noise draw to the
+  next (the tele's cx on wide_tele3, seed 3, start 1: honest / textbook 2.00 advised and 1.05 random, where
+  over 16 draws of the noise on the same poses it is 1.08 and 1.07 on average), so a single run's honest
+  ratio can pass 1.0 where its textbook one is 0.6;
 * **the geometric mean over every key sigma** of those ratios: PASS at most 0.5;
 * per run: that geometric mean, its largest ratio, the largest |error| / sigma of the key parameters in the
   advised calibration (target <= 4), the prediction-vs-actual check (the key sigmas predicted for the first
@@ -121,19 +125,19 @@ def held(board, pose: Pose, rng: np.random.Generator) -> Pose:
 
 
 def key_values(rig, truth=None):
-    """``{name: (estimate, sigma, true)}`` of the key parameters of a calibration."""
+    """``{name: (estimate, sigma, textbook sigma, true)}`` of the key parameters of a calibration."""
     out = {}
     for name, cam in rig.cameras.items():
         for n in ("fx", "fy", "cx", "cy", "k1"):
-            out[f"{name}.{n}"] = (getattr(cam, n), rig.camera_sigma[name][n],
+            out[f"{name}.{n}"] = (getattr(cam, n), rig.camera_sigma[name][n], rig.camera_sigma_formal[name][n],
                                   getattr(truth.cameras[name], n) if truth else np.nan)
     for name, rel in rig.rig.items():
-        out[f"{name}.baseline_mm"] = (rel.baseline_mm, rel.sigma_baseline_mm,
+        out[f"{name}.baseline_mm"] = (rel.baseline_mm, rel.sigma_baseline_mm, rel.sigma_formal["baseline_mm"],
                                       np.linalg.norm(truth.rig[name].t_mm) if truth else np.nan)
         opk = opk_from_rotation(rel.pose.R) * ARCMIN_PER_RAD
         true = opk_from_rotation(truth.rig[name].R) * ARCMIN_PER_RAD if truth else [np.nan] * 3
         for i, a in enumerate(("omega", "phi", "kappa")):
-            out[f"{name}.{a}_arcmin"] = (opk[i], rel.sigma_opk_arcmin[i], true[i])
+            out[f"{name}.{a}_arcmin"] = (opk[i], rel.sigma_opk_arcmin[i], rel.sigma_formal["opk_arcmin"][i], true[i])
     return out
 
 
@@ -186,7 +190,7 @@ def met(rig, goals) -> bool:
 
 
 def run(seed: int, start: int, goal: float | None, truth, all_corners):
-    """One run: ``({key: advised / random}, max |err|/sigma, (honest, textbook) actual/predicted,
+    """One run: ``({key: advised / random, honest and textbook}, max |err|/sigma, (honest, textbook) actual/predicted,
     advised poses found as advised (of MORE), photos to the goal advised, random)``."""
     first = start * (START + MORE)
     begin = random_photos(truth, all_corners, first, START)
@@ -196,8 +200,8 @@ def run(seed: int, start: int, goal: float | None, truth, all_corners):
     advised, _ = follow_advice(truth, begin, rig5, rng, MORE, predicted=predicted, agreed=agreed)
     random = calibrate_rig(random_photos(truth, all_corners, first, START + MORE))
     a, r = key_values(advised, truth), key_values(random, truth)
-    ratios = {n: a[n][1] / r[n][1] for n in a}
-    worst_z = max(abs(e - t) / s for e, s, t in a.values())
+    ratios = {n: (a[n][1] / r[n][1], a[n][2] / r[n][2]) for n in a}
+    worst_z = max(abs(e - t) / s for e, s, _, t in a.values())
     names = [n for n in a if n in predicted[0][0][0]]
     pred_ratio = [float(np.exp(np.mean([np.log(act[n] / pred[n]) for n in names]))) for pred, act in predicted[0]]
     n_adv = n_rand = None
@@ -246,19 +250,22 @@ def main() -> None:
                 rows.append((f"{seed}/{start}", ratios, z, pred, agreed, n_adv, n_rand))
                 adv = "-" if n_adv is None else n_adv
                 rnd = "-" if goal is None else (n_rand if n_rand else f">{MAX_PHOTOS - START}")
-                print(f"{seed:>8}/{start} {geomean(list(ratios.values())):>22.3f} {max(ratios.values()):>7.3f} "
+                honest = [h for h, _ in ratios.values()]
+                print(f"{seed:>8}/{start} {geomean(honest):>22.3f} {max(honest):>7.3f} "
                       f"{z:>15.2f} {pred[0]:>16.3f} {pred[1]:>8.3f} {f'{agreed}/{MORE}':>16} {adv:>23} {rnd:>7}",
                       flush=True)
         names = list(rows[0][1])
-        print(f"{'key sigma':22} {'advised/random':>14} {'worst run':>9} {'(seed/start)':>12}")
+        print(f"{'key sigma':22} {'advised/random':>14} {'worst run':>9} {'(seed/start)':>12}  {'':15} "
+              f"{'textbook':>8} {'worst run':>9}")
         each = {}
         for n in names:
-            r = np.array([row[1][n] for row in rows])
-            each[n] = geomean(r)
-            w = int(np.argmax(r))
+            r = np.array([row[1][n] for row in rows])                      # (runs, 2): honest, textbook
+            each[n] = geomean(r[:, 0])
+            w, wt = int(np.argmax(r[:, 0])), int(np.argmax(r[:, 1]))
             ok = each[n] <= EACH_MAX
             verdicts.append(ok)
-            print(f"{n:22} {each[n]:>14.3f} {r[w]:>9.3f} {rows[w][0]:>12}  {'PASS' if ok else 'FAIL'} (<= {EACH_MAX})")
+            print(f"{n:22} {each[n]:>14.3f} {r[w, 0]:>9.3f} {rows[w][0]:>12}  {'PASS' if ok else 'FAIL'} "
+                  f"(<= {EACH_MAX})  {geomean(r[:, 1]):>8.3f} {r[wt, 1]:>9.3f}")
         g = geomean(list(each.values()))
         verdicts.append(g <= GEOMEAN_MAX)
         passed = g <= GEOMEAN_MAX and max(each.values()) <= EACH_MAX
