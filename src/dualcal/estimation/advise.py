@@ -119,9 +119,9 @@ BISECTIONS = 10
 MIN_SQUARE_PX = 12.0
 MAX_VIEW_DEG = 70.0
 #: The default ranking's weight of the most-lagging key target's lag (module docstring): how much of the
-#: objective's log a pose may give up per log of lag. 0: the objective alone. (Measured on the triple rig,
-#: 16 runs, key sigmas' geometric mean advised / random and the tele's kappa: 0: 0.317, 0.93 x; 0.2: 0.333,
-#: 0.77 x; 0.25: 0.337, 0.70 x; 0.4: 0.347, 0.67 x.)
+#: objective's log a pose may give up per log of lag; 0: the objective alone. (``benchmarks/bench_advise.py``
+#: on seeds 100-105 of its five rigs, key sigmas advised / random, their geometric mean and the largest, the
+#: tele's kappa angle on every rig but the pair: 0: 0.23-0.30, 0.79-0.87; 4: 0.23-0.30, 0.67-0.76.)
 LAG_WEIGHT = 4.0
 #: A key target's due is this share of its sigma after as many photos like the calibration's own (5 % to
 #: spare: the honest sigma after a few photos scatters about its prediction).
