@@ -405,8 +405,7 @@ def tilt_deg(R: np.ndarray, centre_mm: np.ndarray) -> float:
     """Angle between the board's normal (its +Z, into the board: away from a camera that sees its
     front) and the line of sight from the camera to its centre ``centre_mm`` (camera frame), degrees;
     above 90 the camera sees the board's back."""
-    cos = R[:, 2] @ centre_mm / np.linalg.norm(centre_mm)
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return float(_tilts_deg(R[None], np.asarray(centre_mm, float)[None])[0])
 
 
 def _tilts_deg(R: np.ndarray, centres_mm: np.ndarray) -> np.ndarray:
@@ -568,7 +567,7 @@ def _nearest_whole_mm(prior: Prior, aimed: str, rays: np.ndarray, R: np.ndarray)
     its centre as it moves away)."""
     rel = prior.camera_pose(aimed, Pose(np.eye(3), np.zeros(3)))          # reference to the aimed camera
     origin = rel.inverse().t_mm
-    offsets = board_outline_mm(prior.board, samples=3) - prior.board.object_points_mm().mean(axis=0)
+    offsets = board_outline_mm(prior.board) - prior.board.object_points_mm().mean(axis=0)
 
     def whole(log_d):
         X = _applied(R, _on_rays(origin, rays, np.exp(log_d)), offsets)
@@ -587,7 +586,8 @@ def _nearest_whole_mm(prior: Prior, aimed: str, rays: np.ndarray, R: np.ndarray)
 def candidate_poses(prior: Prior, per_camera: int = CANDIDATES_PER_CAMERA, seed: int = 0):
     """Holdable board poses, ``[(pose, {camera: seen corners (N,) bool})]``, aimed at each camera in turn.
 
-    Each is drawn along the ray of a random pixel of the aimed camera, tilted up to :data:`MAX_TILT_DEG`
+    Each is drawn along the ray of a random pixel of the aimed camera (:data:`CENTRED_SHARE` of them near
+    the image's centre, where the board can fill the frame), tilted up to :data:`MAX_TILT_DEG`
     from facing it in a random direction and turned at random, then placed where that camera sees the whole
     board nearest (:func:`_nearest_whole_mm`: the board fills its frame as far as the tilt and the pixel
     let it, where a lens's principal point and distortion show most), or, for :data:`FARTHER_SHARE` of
@@ -602,7 +602,6 @@ def candidate_poses(prior: Prior, per_camera: int = CANDIDATES_PER_CAMERA, seed:
     for aimed, cam in prior.cameras.items():
         to_ref = prior.camera_pose(aimed, Pose(np.eye(3), np.zeros(3))).inverse()
         w, h = cam.image_size
-        # a share of the boards' centres near the image's centre (where the board can fill the frame), the rest anywhere
         spread = np.where(rng.uniform(size=(per_camera, 1)) < CENTRED_SHARE, 0.1, 0.4)
         pixels = np.array([w, h]) * (0.5 + spread * rng.uniform(-1.0, 1.0, (per_camera, 2)))
         rays = pixel_rays(cam, pixels) @ to_ref.R.T
