@@ -90,7 +90,8 @@ def design_effect(sol: Solution) -> dict[int, float]:
     out = {}
     for c in range(len(sol.problem.cameras)):
         clustered, formal = sol.intrinsic_sigma(c, "clustered"), sol.intrinsic_sigma(c, "formal")
-        out[c] = max(1.0, float(np.median([(clustered[n] / s) ** 2 for n, s in formal.items() if s > 0])))
+        ratios = [(clustered[n] / s) ** 2 for n, s in formal.items() if s > 0]
+        out[c] = max(1.0, float(np.median(ratios))) if ratios else 1.0          # none free: intrinsics held fixed
     return out
 
 
@@ -275,7 +276,7 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
       ``G - 1`` degrees of freedom): every instant out of sync, or a rig that is not rigid, fails.
 
     ``explained`` are instants whose misfit a refocused photo explains (``focus``): they are not judged
-    here. ``named`` are instants already found not to fit (:func:`dualcal.estimation.calibrate.attribution_checks`
+    here. ``named`` are instants already found not to fit (:func:`dualcal.estimation.checking.attribution_checks`
     takes the worst out and judges the others without it, so that a bad instant, which pulls the shared
     pose, does not make the good ones look bad): ``{view: its test}`` as it was, flagged first.
     ``shift_sigma`` is how far leaving a named instant out moves the rig's relations, the largest over the
@@ -379,8 +380,11 @@ def focal_scale_fits(sol: Solution, views=None) -> list[dict]:
         row = 0
         for pr in rows:
             c = p.blocks[pr.block][0]
+            if len(lay.intrinsics[c]) < 2:                         # intrinsics held fixed (known): not judged here
+                row += len(pr.r)
+                continue
             col = {int(k): i for i, k in enumerate(pr.columns)}
-            fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are always free
+            fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are free where any intrinsic is
             cam = sol.state.intrinsics[c]
             J_scale = np.zeros(m)
             J_scale[row:row + len(pr.r)] = cam[0] * pr.J[:, col[fx_col]] + cam[1] * pr.J[:, col[fy_col]]
@@ -454,7 +458,7 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
     refocus only where its focal scale takes away at least :data:`REFOCUS_SHARE` of its instant's extra
     cost of being tied to the rig; the others are left to ``rig_rigid`` (``flagged`` lists them with
     ``"cause": "rig"``). ``named`` are refocused photos already found
-    (:func:`dualcal.estimation.calibrate.attribution_checks` takes each out and judges the others without it):
+    (:func:`dualcal.estimation.checking.attribution_checks` takes each out and judges the others without it):
     they are flagged first, as they were found.
 
     The document: ``ok``, ``message``, ``flagged``, ``test``, ``statistic`` (the largest ``|t|``, or a named
@@ -702,7 +706,7 @@ def run_checks(rig: RigModel, sol: Solution, tied_flat: Solution, alone: Solutio
     """Every check of a calibration: ``rig`` and its final solution ``sol``; ``tied_flat`` the same
     rig mode with a flat board and ``alone`` every camera alone, over the same photos (for
     ``rig_rigid`` and ``focus``). ``attribution(tied, alone, kappa2) -> (focus, rig_rigid)`` makes those
-    two (default: from these solutions alone; :func:`dualcal.estimation.calibrate.attribution_checks` names each
+    two (default: from these solutions alone; :func:`dualcal.estimation.checking.attribution_checks` names each
     refocused photo and each instant that does not fit the rig alone)."""
     checks = {"converged": convergence(sol), "photos": photo_count(rig), "fit": fit_quality(rig)}
     kappa2 = design_effect(alone)
