@@ -47,14 +47,25 @@ def test_the_calibrations_own_instants_give_back_its_normal_matrix(preset, board
     prior = A.prior_from_rig(rig)
     assert (board_shape == "fit") == any(n.startswith("board.shape_mm") for n in prior.parameters)
     used = rig.used_corners()
+    noise = A.photo_noise_px(rig)                              # each photo weighed by its own noise
     total = np.zeros_like(prior.covariance)
     for view, pose in rig.reference_poses().items():
         seen = {n: np.isfinite(used.cameras[n].views[view][:, 0]) for n in rig.cameras
                 if used.cameras[n].views.get(view) is not None}
-        total += A.instant_information(prior, pose, seen)
+        total += A.instant_information(prior, pose, seen, {n: noise[n, view] for n in seen})
     N = np.linalg.inv(prior.covariance)
     scale = np.sqrt(np.outer(np.diag(N), np.diag(N)))
     assert np.max(np.abs(total - N) / scale) < 1e-6
+
+
+def test_a_new_photo_is_as_noisy_as_its_cameras_photos():
+    """Where each photo is weighed by its own noise, a new photo's corners are as noisy as its camera's photos:
+    the tele's photos 2.5 x as noisy as the wide's give its new photo 2.5 x the wide's noise (within 20 %)."""
+    truth = synth.make_truth("note8", views=8, seed=1)
+    sharp, blurred = (synth.noisy_corner_set(truth, px, seed=1) for px in (0.2, 0.5))
+    corners = replace(sharp, cameras={"wide": sharp.cameras["wide"], "tele": blurred.cameras["tele"]})
+    prior = A.prior_from_rig(calibrate_rig(corners, board_shape="flat"))
+    assert prior.noise_px["tele"] / prior.noise_px["wide"] == pytest.approx(2.5, rel=0.2)
 
 
 def test_the_covariance_update_is_the_inverse_of_the_summed_information():

@@ -13,8 +13,10 @@ eliminated by the Schur complement (the projection), in the normal equations' un
 once it is taken is ``(C^-1 + I(P))^-1`` in closed form (no re-solve), and the next pose is chosen
 assuming this one was taken (greedy).
 
-Honest noise. A new corner's noise is ``s0``, the calibration's a-posteriori sigma of a corner, as
-in the textbook covariance ``C = s0^2 N^-1`` that the update works on. On real photos the errors of
+Honest noise. A new corner's noise is its camera's level in the terms of the textbook covariance
+``C = s0^2 N^-1`` that the update works on: ``s0``, the calibration's a-posteriori sigma of a corner of a
+photo of weight 1, times the camera's noise over the reference noise where the calibration weighs each photo
+by its own noise (:mod:`dualcal.estimation.photo_noise`; :func:`photo_noise_px` for its own photos). On real photos the errors of
 one photo's corners are correlated, and the calibration measured by how much: for each target the
 ratio ``kappa`` of its honest sigma (the larger of the clustered-by-instant and the textbook one,
 :mod:`dualcal.estimation.uncertainty`, as calib.json reports it) to its textbook one. A new photo brings the
@@ -243,11 +245,23 @@ def prior_from_rig(rig: RigModel) -> Prior:
         raise InputError("this calib.json's covariance is not positive definite: some parameter is not "
                          "determined by its photos (see its 'determination' check)") from None
     lo, hi = photo_distance_range(rig)
+    noise = rig.adjustment.get("photo_noise")          # a new photo's corners: as noisy as its camera's photos
+    level = {n: float(s0) * (noise["camera_px"][n] / noise["reference_px"] if noise else 1.0) for n in rig.cameras}
     return Prior(rig.board, rig.reference, dict(rig.cameras), {n: r.pose for n, r in rig.rig.items()},
                  None if rig.board_shape_mm is None else np.asarray(rig.board_shape_mm, float),
-                 list(cov.parameters), formal, cov.matrices["clustered"], dict.fromkeys(rig.cameras, float(s0)),
+                 list(cov.parameters), formal, cov.matrices["clustered"], level,
                  (DISTANCE_FACTORS[0] * lo, DISTANCE_FACTORS[1] * hi), rig.rig_mode,
                  len({view for poses in rig.camera_poses.values() for view in poses}))
+
+
+def photo_noise_px(rig: RigModel) -> dict[tuple[str, str], float]:
+    """``{(camera, view): px}`` each photo's corner noise in the textbook covariance's terms: ``s0 / sqrt(w_b)``
+    for its weight ``w_b`` in the adjustment (calib.json's ``adjustment.photo_noise``, each photo weighed by its
+    own noise), ``s0`` for every photo of a calibration that weighs them alike."""
+    s0 = float(rig.adjustment["s0_px"])
+    photos = (rig.adjustment.get("photo_noise") or {}).get("photos", {})
+    return {(camera, view): s0 / np.sqrt(photos.get(camera, {}).get(view, {}).get("weight", 1.0))
+            for camera, poses in rig.camera_poses.items() for view in poses}
 
 
 #: A plan's prior: 1-sigma of what is known before any photo (relative focal length, principal point
@@ -625,10 +639,13 @@ def candidate_poses(prior: Prior, per_camera: int = CANDIDATES_PER_CAMERA, seed:
 # ---------------------------------------------------------------------------- information of an instant
 
 
-def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray]) -> np.ndarray:
+def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray],
+                        noise_px: dict[str, float] | None = None) -> np.ndarray:
     """(k, k) information a new instant at ``pose`` adds on the prior's parameters (module docstring).
 
-    ``seen[camera]`` (N,) bool: the corners each camera measures. The instant's board pose (left
+    ``seen[camera]`` (N,) bool: the corners each camera measures, with noise ``noise_px[camera]`` (default
+    ``prior.noise_px``: a new photo's, its camera's level; :func:`photo_noise_px` gives a calibration's own
+    photos' noise). The instant's board pose (left
     rotation increment and translation of the reference camera's pose) is eliminated; so are, in
     rig mode ``paper``, each camera's baseline direction in this instant and, in mode ``none``,
     each camera's own pose (the rig's parameters then get no information from it).
@@ -669,7 +686,7 @@ def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray]) -
             q = n_local - 2 * len(names) + 2 * c
             # this instant's own baseline direction (t = D u_v): two tangent increments of u_v
             Al[:, :, q:q + 2] = J_X @ tangent_basis(rel.t_mm[None] / np.linalg.norm(rel.t_mm))[0]
-        w = 1.0 / prior.noise_px[name]
+        w = 1.0 / (prior.noise_px if noise_px is None else noise_px)[name]
         blocks_g.append(w * Ag.reshape(-1, k))
         blocks_l.append(w * Al.reshape(-1, n_local))
     A_g, A_l = np.vstack(blocks_g), np.vstack(blocks_l)
