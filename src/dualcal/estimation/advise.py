@@ -16,8 +16,9 @@ assuming this one was taken (greedy).
 Honest noise. A new corner's noise is its camera's level in the terms of the textbook covariance
 ``C = s0^2 N^-1`` that the update works on: ``s0``, the calibration's a-posteriori sigma of a corner of a
 photo of weight 1, times the camera's noise over the reference noise where the calibration weighs each photo
-by its own noise (:mod:`dualcal.estimation.photo_noise`; :func:`photo_noise_px` for its own photos). On real photos the errors of
-one photo's corners are correlated, and the calibration measured by how much: for each target the
+by its own noise (:mod:`dualcal.estimation.photo_noise`; :func:`photo_noise_px` for its own photos). On
+real photos the errors of one photo's corners are correlated, and the calibration measured by how much: for
+each target the
 ratio ``kappa`` of its honest sigma (the larger of the clustered-by-instant and the textbook one,
 :mod:`dualcal.estimation.uncertainty`, as calib.json reports it) to its textbook one. A new photo brings the
 same photo-level noise, so its information enters with noise ``kappa s0`` for that target: the
