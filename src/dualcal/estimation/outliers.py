@@ -73,10 +73,12 @@ def outlier_shares(sol: Solution, factor: float, noise: PhotoNoise | None = None
     return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1), limit
 
 
-def find_outlier(shares: np.ndarray, limits: np.ndarray):
+def find_outlier(shares: np.ndarray, limits: np.ndarray, misfit: np.ndarray | None = None):
     """The photo with the largest share of outlier corners (:func:`outlier_shares`), if more than
-    :data:`MOST_CORNERS` of them are, as ``(block, share, limit_px)``; else None."""
-    worst = int(np.argmax(shares))
+    :data:`MOST_CORNERS` of them are, as ``(block, share, limit_px)``; else None. Of photos with the same share
+    (a tied rig pulled far off by one instant can make every photo's corners outliers against their own noise),
+    the one of the largest ``misfit`` (B,), its RMS over its limit."""
+    worst = int(np.lexsort((np.zeros(len(shares)) if misfit is None else misfit, shares))[-1])
     if shares[worst] <= MOST_CORNERS:
         return None
     return worst, float(shares[worst]), float(limits[worst])
@@ -207,7 +209,7 @@ def _leave_out(setup: Setup, sol: Solution, blocks, alone: Solution | None, fact
     if gross:                            # the worst first: it may have pulled the others' fit off
         return _without_gross(setup, blocks, gross[0], dropped)
     shares, limits = outlier_shares(sol, factor, noise, lengths)
-    out = find_outlier(shares, limits)
+    out = find_outlier(shares, limits, np.asarray(sol.block_rms_px) / np.maximum(limits, 1e-12))
     if out is None:
         bad, limit, length = corner_outliers(sol, factor, noise, lengths)
         if not bad.any() or not corners_too:
