@@ -73,3 +73,54 @@ def test_a_refocused_photo_is_told_apart_from_a_desynchronised_shot(seed):
     assert not focus["ok"] and [(f["camera"], f["view"]) for f in focus["flagged"] if f["cause"] == "refocus"] == \
         [("tele", view)]
     assert kept.checks["rig_rigid"]["ok"]
+
+
+def _bad_instants(seed: int, kind: str, count: int, noise: float = 0.05):
+    """The note8 rig with ``count`` instants (the 7th, 3rd, 11th) of its tele shot 0.5 mm and 1.5 arcmin off the rig
+    (``"desync"``) or refocused 0.5 % longer (``"refocus"``): their views and the corners."""
+    truth = synth.make_truth("note8", 13, seed=seed)
+    corners = synth.noisy_corner_set(truth, noise, seed=seed)
+    views = [list(truth.view_poses)[j] for j in (6, 2, 10)[:count]]
+    rng = np.random.default_rng(seed + 1000)
+    tele, rig = truth.cameras["tele"], truth.rig["tele"]
+    uv = dict(corners.cameras["tele"].views)
+    for view in views:
+        cam, pose = tele, truth.camera_pose("tele", view)
+        if kind == "refocus":
+            cam = replace(tele, fx=tele.fx * 1.005, fy=tele.fy * 1.005)
+        else:
+            d, a = (v / np.linalg.norm(v) for v in rng.normal(size=(2, 3)))
+            R = rotation_from_opk(a * 1.5 * np.pi / (180 * 60))
+            pose = Pose(R @ rig.R, R @ rig.t_mm + 0.5 * d).compose(truth.view_poses[view])
+        uv[view] = project_points(cam, pose.apply(truth.board.object_points_mm())) + rng.normal(0, noise, (40, 2))
+    cams = {**corners.cameras, "tele": CameraCorners(corners.cameras["tele"].image_size, uv)}
+    return views, CornerSet(corners.board, cams)
+
+
+@pytest.mark.parametrize("count", [1, 2, 3])
+def test_every_desynchronised_instant_is_named(count):
+    """Issue 38: one, two or three desynchronised instants (each some 7 px off on 12 MP) are each named, and no
+    other: each instant is judged against a robust core of the others, so that the bad ones can neither pull the
+    relations the others are judged by nor widen their scatter (judged against all the others, two hide each
+    other). The check fails (they move the rig by many sigma) and the message names them all."""
+    views, corners = _bad_instants(0, "desync", count)
+    check = calibrate_rig(corners, drop_outliers=False).checks["rig_rigid"]
+    assert sorted(check["flagged"]) == sorted(views), check["message"]
+    assert not check["ok"] and check["shift_sigma"] > check["shift_limit_sigma"]
+    assert all(f"{v} (F = " in check["message"] for v in views) and check["core_instants"] == 13 - count
+    assert all(check["instant_f"][v]["p"] < check["instant_rate"] <= check["instant_f"][u]["p"]
+               for v in views for u in check["instant_f"] if u not in views)
+
+
+@pytest.mark.parametrize("count", [2, 3])
+def test_every_refocused_photo_is_named(count):
+    """Two or three of the tele's photos refocused by 0.5 %: each named as a refocus (its own focal scale against a
+    robust core of the tele's other photos), none other; their instants' misfit is the refocus's, so rig_rigid does
+    not judge them and passes."""
+    views, corners = _bad_instants(1, "refocus", count)
+    checks = calibrate_rig(corners, drop_outliers=False).checks
+    focus = checks["focus"]
+    assert sorted((f["camera"], f["view"]) for f in focus["flagged"]) == sorted(("tele", v) for v in views)
+    assert not focus["ok"] and all(f["cause"] == "refocus" for f in focus["flagged"]), focus["message"]
+    assert all(f["focal_change"] == pytest.approx(0.005, abs=0.0015) for f in focus["flagged"])
+    assert checks["rig_rigid"]["ok"] and sorted(checks["rig_rigid"]["explained_by_refocus"]) == sorted(views)
