@@ -6,11 +6,11 @@ a message in plain words that says what is wrong and what would help:
 ``converged``      the adjustment reached its optimum.
 ``photos``         enough instants for sigmas that come from how the photos disagree.
 ``fit``            every camera's RMS (2-D, per corner) near what corner detection achieves.
-``rig_rigid``      the photos of every instant fit one rigid relative pose of the cameras: each instant
-                   judged against the other instants' scatter (an F test), the instants together against
-                   the photo-level noise (an unsynchronised pair, a lens that moved).
-``focus``          no photo whose own focal length is off against the scatter of its camera's other
-                   photos (a Student t test: the phone refocused).
+``rig_rigid``      the photos of every instant fit one rigid relative pose of the cameras: each instant judged
+                   against a robust core of the other instants (two or three bad ones cannot hide each other),
+                   the instants together against the photo-level noise (an unsynchronised pair, a lens that moved).
+``focus``          no photo whose own focal length is off against a robust core of its camera's other photos (the
+                   phone refocused), and no camera whose photos have two focal lengths (two lenses taken for one).
 ``determination``  every parameter determined well enough (focal length, principal point,
                    distortion as far out as corners were measured, baseline, angles).
 ``lens_model``     residuals that do not grow towards the image's edge (the lens model lacks terms).
@@ -21,13 +21,14 @@ a message in plain words that says what is wrong and what would help:
                    so there is no such check and :func:`scale_note` says that the scale rests on the square
                    (a check that always passes would only add to "all checks pass").
 
-*False alarms.* ``rig_rigid`` and ``focus`` take their limits from the distribution of their statistic
-on a synchronised rig with a fixed focus, at :data:`FALSE_ALARM_RATE` per calibration, split over their
-tests; the statistic of one instant (photo) is judged against the scatter of the others, so that the
-calibration's own noise, lens-model error included, sets the limit. Each gives ``test`` (its name),
+*False alarms.* ``rig_rigid``, ``focus`` (and ``loop_closure``, :mod:`dualcal.estimation.loop_closure`) take
+their limits from the distribution of their statistic on a synchronised rig with a fixed focus, at
+:data:`FALSE_ALARM_RATE` per calibration, split over their tests; the statistic of one instant (photo) is judged
+against the scatter of a core of the others (:mod:`dualcal.estimation.outliers`), so that the calibration's own
+noise, lens-model error included, sets the limit, and bad instants do not. Each gives ``test`` (its name),
 ``statistic`` (the worst instant's or photo's), ``limit`` (that test's) and ``false_alarm_rate``.
-``benchmarks/bench_false_alarms.py`` measures the rates. The other checks have fixed limits: physical
-ones (what corner detection achieves, a sigma too large to use), said in their entries.
+``benchmarks/bench_false_alarms.py`` measures the rates. The other checks have fixed limits: physical ones (what
+corner detection achieves, a sigma too large to use), said in their entries.
 
 *Photo-level noise.* Corner errors within one photo are correlated on real photos, so a test
 against white corner noise (``s0``) would fail every real rig. The checks measure noise in units of
@@ -60,12 +61,14 @@ __all__ = ["design_effect", "rig_rigid", "rigidity_statistics", "focus_drift", "
 MIN_INSTANTS = 8
 #: A camera's RMS (2-D, per corner) above this is far beyond what corner detection achieves.
 FIT_RMS_LIMIT_PX = 1.0
-#: The false-alarm rate of each check with a statistical limit (``rig_rigid``, ``focus``), per calibration:
-#: on a synchronised rig with a fixed focus, one calibration in a hundred fails the check by chance. It is
-#: split over the check's tests (one per instant, or per photo) by :func:`dualcal.estimation.distributions.sidak`.
+#: The false-alarm rate of each check with a statistical limit (``rig_rigid``, ``focus``, ``loop_closure``), per
+#: calibration: on a synchronised rig with a fixed focus, one calibration in a hundred fails the check by chance.
+#: It is split over the check's tests (one per instant, photo or pair) by
+#: :func:`dualcal.estimation.distributions.sidak`.
 FALSE_ALARM_RATE = 0.01
-#: ... where that focal change takes away at least this share of its instant's extra cost of being tied
-#: to the rig (a desynchronised shot also pulls the focal lengths, but explains little of its misfit so).
+#: A photo's focal change is a refocus (``focus``) where it takes away at least this share of its instant's extra
+#: cost of being tied to the rig (a desynchronised shot also pulls the focal lengths, but explains little of its
+#: misfit so).
 REFOCUS_SHARE = 0.6
 #: Noise below this (px) is numerical: exact synthetic corners are judged against it instead.
 NOISE_FLOOR_PX = 1e-6
