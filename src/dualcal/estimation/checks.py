@@ -533,11 +533,11 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
             else:
                 rest.append(fit)
         if c in splittable and len(rest) >= 2 * MIN_SPLIT_GROUP:
-            splits[names[c]] = sp = _split(rest, split_each)
             cam = sol.state.intrinsics[c]
-            sp["sigma_focal"] = max(sol.intrinsic_sigma(c, kind)[k] / v for kind in ("clustered", "formal")
-                                    for k, v in (("fx", cam[0]), ("fy", cam[1])))
-            sp["failed"] = bool(sp["f"] > sp["limit"] and abs(sp["focal_change"]) > SHIFT_SIGMAS * sp["sigma_focal"])
+            sigma = max(sol.intrinsic_sigma(c, kind)[k] / v for kind in ("clustered", "formal")
+                        for k, v in (("fx", cam[0]), ("fy", cam[1])))
+            splits[names[c]] = sp = _split(rest, split_each, SHIFT_SIGMAS * sigma)
+            sp["sigma_focal"] = sigma
             if sp["failed"]:
                 small = sp["lower"] if len(sp["lower"]) <= len(sp["upper"]) else sp["upper"]
                 sign = 1.0 if small is sp["upper"] else -1.0
@@ -551,16 +551,16 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
     return _focus_document(flagged, splits, list(tested.values()), weak, names, each, split_each, rate)
 
 
-def _split(fits: list[dict], rate: float) -> dict:
+def _split(fits: list[dict], rate: float, least_change: float) -> dict:
     """One camera's photos (:func:`focal_scale_fits` entries with their ``sigma``) split into two groups of focal
-    lengths (:func:`dualcal.estimation.outliers.split_test`): ``{"f", "limit", "p", "focal_change", "lower",
-    "upper"}``, the difference of the groups' weighted mean focal scales and their photos."""
-    s, sd = np.array([f["s"] for f in fits]), np.array([f["sigma"] for f in fits])
-    found = split_test(s, sd, rate, T_DOF_SHARE)
+    lengths (:func:`dualcal.estimation.outliers.split_test`): ``{"f", "limit", "p", "failed", "focal_change",
+    "lower", "upper"}``, the difference of the groups' weighted mean focal scales and their photos."""
+    found = split_test(np.array([f["s"] for f in fits]), np.array([f["sigma"] for f in fits]), rate, T_DOF_SHARE,
+                       least_change)
     low = found["lower"]
-    change = float(np.average(s[~low], weights=sd[~low] ** -2) - np.average(s[low], weights=sd[low] ** -2))
-    return {"f": found["f"], "limit": found["limit"], "p": found["p"], "focal_change": change,
-            "lower": [f["view"] for f, x in zip(fits, low) if x], "upper": [f["view"] for f, x in zip(fits, low) if not x]}
+    return {"f": found["f"], "limit": found["limit"], "p": found["p"], "failed": found["failed"],
+            "focal_change": found["change"], "lower": [f["view"] for f, x in zip(fits, low) if x],
+            "upper": [f["view"] for f, x in zip(fits, low) if not x]}
 
 
 def refocused_camera(alone: Solution, view: str, kappa2) -> int | None:

@@ -166,6 +166,8 @@ def deleted_costs(rel: InstantRelations, core: np.ndarray) -> np.ndarray:
     bool without it: ``(z - theta)^T (Cov + Cov_theta)^-1 (z - theta)`` (module docstring); inf where the core
     without it shows not every camera of the instant."""
     info, score = rel.information(core)
+    if len({tuple(c) for c in rel.cameras}) == 1:            # every instant of the same cameras: all at once
+        return _deleted_costs_alike(rel, core, info, score)
     out = np.empty(len(rel.views))
     for i, z in enumerate(rel.z):
         cols = rel.columns(i)
@@ -184,6 +186,21 @@ def deleted_costs(rel: InstantRelations, core: np.ndarray) -> np.ndarray:
         d = z - theta[cols]
         out[i] = float(d @ np.linalg.solve(rel.cov[i] + cov[np.ix_(at, at)], d))
     return out
+
+
+def _deleted_costs_alike(rel: InstantRelations, core: np.ndarray, info: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """:func:`deleted_costs` where every instant shows the same cameras: their relations' information and score
+    less each core instant's own, solved for all instants at once."""
+    cols = rel.columns(0)
+    if core.sum() < 2:
+        return np.full(len(rel.views), np.inf)
+    W, z = np.array(rel.weight), np.array(rel.z)                               # (n, k, k), (n, k)
+    own = core[:, None, None]
+    M = info[np.ix_(cols, cols)][None] - np.where(own, W, 0.0)
+    b = score[cols][None] - np.where(own[..., 0], np.einsum("nkl,nl->nk", W, z), 0.0)
+    cov = np.linalg.inv(M)
+    d = z - np.einsum("nkl,nl->nk", cov, b)
+    return np.einsum("nk,nk->n", d, np.linalg.solve(np.array(rel.cov) + cov, d[..., None])[..., 0])
 
 
 def focal_responses(alone: Solution, views) -> dict[tuple[int, str], np.ndarray]:

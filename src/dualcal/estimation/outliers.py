@@ -26,6 +26,7 @@ against the same values' splits by chance.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -33,7 +34,7 @@ import numpy as np
 
 from .distributions import f_quantile, f_sf
 
-__all__ = ["CoreTest", "core_tests", "cube_root_spread", "robust_core", "split_test", "weighted_fit"]
+__all__ = ["CoreTest", "core_tests", "cube_root_spread", "robust_core", "split_test", "t_limit"]
 
 #: MAD of a normal over its standard deviation.
 _MAD_NORMAL = 0.6744897501960817
@@ -48,19 +49,17 @@ def cube_root_spread(dofs) -> np.ndarray:
     return np.sqrt(2.0 / (9.0 * np.asarray(dofs, float)))
 
 
-def weighted_fit(x: np.ndarray, r: np.ndarray) -> tuple[float, float, float]:
-    """``(mu, tau, sum r^-2)`` of values ``x`` (n,) of relative spreads ``r`` (n,): the weighted mean and the
-    spread of the standardised residuals over ``n - 1`` (0 for fewer than two values)."""
-    w = 1.0 / np.square(r)
-    mu = float(np.sum(w * x) / np.sum(w))
-    tau = math.sqrt(float(np.sum(w * (x - mu) ** 2)) / (len(x) - 1)) if len(x) > 1 else 0.0
-    return mu, tau, float(np.sum(w))
-
-
 def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
     order = np.argsort(x)
     cum = np.cumsum(w[order])
     return float(x[order][np.searchsorted(cum, 0.5 * cum[-1])])
+
+
+@functools.lru_cache(maxsize=256)
+def t_limit(dof: float, rate: float, two_sided: bool) -> float:
+    """The ``t`` that Student's t of ``dof`` degrees of freedom exceeds (in absolute value, ``two_sided``) with
+    probability ``rate`` (a quantile costs a millisecond, and the tests of one core share a few)."""
+    return math.sqrt(f_quantile(1, dof, 1.0 - (rate if two_sided else 2.0 * rate)))
 
 
 @dataclass(frozen=True)
@@ -77,7 +76,26 @@ class CoreTest:
 
     def limit(self, rate: float, two_sided: bool) -> float:
         """The ``t`` a value of this test reaches at p-value ``rate``."""
-        return math.sqrt(f_quantile(1, self.dof, 1.0 - (rate if two_sided else 2.0 * rate)))
+        return t_limit(self.dof, rate, two_sided)
+
+
+def _studentised(x: np.ndarray, r: np.ndarray, core: np.ndarray, dof_share: float):
+    """Every value's ``(t, dof, mu, spread)`` against the core without it, as arrays (NaN where fewer than three
+    others remain or the value is not finite)."""
+    w = np.where(core, 1.0 / np.square(r), 0.0)
+    xs = np.where(core, x, 0.0)
+    own = core.astype(float)
+    n = core.sum() - own                               # the others, each value's own taken away
+    W = w.sum() - w
+    S1 = (w * xs).sum() - w * xs
+    S2 = (w * xs * xs).sum() - w * xs * xs
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mu = S1 / W
+        tau = np.sqrt(np.maximum(S2 - S1 * mu, 0.0) / (n - 1))
+        spread = np.maximum(tau, 1e-300) * np.sqrt(r ** 2 + 1.0 / W)
+        t = (x - mu) / spread
+    bad = (n < 3) | ~np.isfinite(x)
+    return np.where(bad, np.nan, t), dof_share * (n - 1), mu, spread
 
 
 def core_tests(x: np.ndarray, r: np.ndarray, core: np.ndarray, two_sided: bool,
@@ -86,21 +104,15 @@ def core_tests(x: np.ndarray, r: np.ndarray, core: np.ndarray, two_sided: bool,
     degrees of freedom; None where fewer than three others remain or the value is not finite. ``two_sided`` False
     judges only values above the others (a worse fit)."""
     x, r, core = np.asarray(x, float), np.asarray(r, float), np.asarray(core, bool)
+    t, dof, mu, spread = _studentised(x, r, core, dof_share)
     out = []
     for i in range(len(x)):
-        others = core.copy()
-        others[i] = False
-        n = int(others.sum())
-        if n < 3 or not np.isfinite(x[i]):
+        if np.isnan(t[i]):
             out.append(None)
             continue
-        mu, tau, weight = weighted_fit(x[others], r[others])
-        spread = max(tau, 1e-300) * math.sqrt(r[i] ** 2 + 1.0 / weight)
-        t = (x[i] - mu) / spread
-        dof = dof_share * (n - 1)
-        tail = f_sf(t * t, 1, dof)                       # P(|T| > |t|) for Student's t
-        p = tail if two_sided else (0.5 * tail if t > 0 else 1.0 - 0.5 * tail)
-        out.append(CoreTest(float(t), dof, float(p), mu, spread))
+        tail = f_sf(t[i] * t[i], 1, dof[i])               # P(|T| > |t|) for Student's t
+        p = tail if two_sided else (0.5 * tail if t[i] > 0 else 1.0 - 0.5 * tail)
+        out.append(CoreTest(float(t[i]), float(dof[i]), float(p), float(mu[i]), float(spread[i])))
     return out
 
 
@@ -133,12 +145,12 @@ def robust_core(values, r: np.ndarray, rate: float, dof_share: float = 1.0,
     tau = float(np.median(np.abs(x - mu) / r)) / _MAD_NORMAL
     if not 0 < tau < np.inf:
         return np.isfinite(x)
-    limit = CoreTest(0.0, max(dof_share * (n - 2), 1.0), 1.0, mu, tau).limit(rate, two_sided=True)
-    core = np.abs(x - mu) <= limit * tau * r
+    core = np.abs(x - mu) <= t_limit(max(dof_share * (n - 2), 1.0), rate, True) * tau * r
     for _ in range(_MAX_ROUNDS):
         x = np.asarray(compute(core), float)
-        tests = core_tests(x, r, core, True, dof_share)
-        new = np.array([t is not None and t.p >= rate for t in tests])
+        t, dof, _, _ = _studentised(x, r, core, dof_share)
+        limits = np.array([t_limit(float(d), rate, True) if d > 0 else np.inf for d in dof])
+        new = np.abs(t) <= limits                       # NaN (cannot be judged) is not in it
         if new.sum() < 4 or (new == core).all():
             break
         core = new
@@ -167,7 +179,8 @@ def _split_f(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order, between / np.maximum(within, 1e-300) * (n - 2)
 
 
-def split_test(x: np.ndarray, r: np.ndarray, rate: float, dof_share: float = 1.0) -> dict | None:
+def split_test(x: np.ndarray, r: np.ndarray, rate: float, dof_share: float = 1.0,
+               least_change: float = 0.0) -> dict | None:
     """Whether values ``x`` (n,) of relative spreads ``r`` (n,) fall into two groups of different locations.
 
     For every split of the sorted values into a lower and an upper group of at least :data:`MIN_SPLIT_GROUP`,
@@ -175,10 +188,13 @@ def split_test(x: np.ndarray, r: np.ndarray, rate: float, dof_share: float = 1.0
     its variance against the groups' own scatter); the statistic is the largest. Sorting makes it far larger
     than ``F(1, n - 2)`` on values of one location, so its distribution is drawn: :data:`SPLIT_DRAWS` sets of
     values ``r_i eps_i`` (fixed seed; the unknown scale cancels; ``eps`` Student's t of ``dof_share (n - 2)``
-    degrees of freedom, normal for ``dof_share`` 1, as :func:`core_tests` takes them), the limit its ``1 - rate`` quantile
-    (at least ``SPLIT_DRAWS * rate`` draws beyond it: for a smaller ``rate`` the draws' largest, a limit
-    a little low). Returns ``{"f", "limit", "p", "lower": (n,) bool}`` (the lower group of the best split; ``p``
-    the share of draws at or beyond ``f``, at least ``1 / SPLIT_DRAWS``), or None for fewer than
+    degrees of freedom, normal for ``dof_share`` 1, as :func:`core_tests` takes them), the limit its
+    ``1 - rate`` quantile (for a ``rate`` below ``1 / SPLIT_DRAWS`` the draws' largest, a limit a little low).
+
+    Returns ``{"f", "limit", "p", "change", "lower": (n,) bool, "failed"}``: the lower group of the best split,
+    ``change`` the upper group's weighted mean less the lower's, ``p`` the share of draws at or beyond ``f`` (at
+    least ``1 / SPLIT_DRAWS``); ``failed`` where ``f`` exceeds its limit and ``change`` exceeds ``least_change``
+    (a split too small to matter is not drawn for: ``limit`` and ``p`` None). None for fewer than
     ``2 MIN_SPLIT_GROUP`` values.
     """
     x, r = np.asarray(x, float), np.asarray(r, float)
@@ -188,13 +204,18 @@ def split_test(x: np.ndarray, r: np.ndarray, rate: float, dof_share: float = 1.0
     w = 1.0 / r ** 2
     order, f_splits = _split_f(x[None, :], w)
     best = int(np.argmax(f_splits[0]))
-    f = float(f_splits[0, best])
+    lower = np.zeros(n, bool)
+    lower[order[0, :best + MIN_SPLIT_GROUP]] = True
+    change = float(np.average(x[~lower], weights=w[~lower]) - np.average(x[lower], weights=w[lower]))
+    out = {"f": float(f_splits[0, best]), "limit": None, "p": None, "change": change, "lower": lower,
+           "failed": False}
+    if change <= least_change:
+        return out
     rng = np.random.default_rng(0)
     eps = rng.standard_normal((SPLIT_DRAWS, n)) if dof_share >= 1 else rng.standard_t(dof_share * (n - 2),
                                                                                        (SPLIT_DRAWS, n))
     null = np.sort(np.max(_split_f(eps * r, w)[1], axis=1))
-    limit = float(null[min(int(math.floor((1.0 - rate) * SPLIT_DRAWS)), SPLIT_DRAWS - 1)])
-    p = max(float(np.mean(null >= f)), 1.0 / SPLIT_DRAWS)
-    lower = np.zeros(n, bool)
-    lower[order[0, :best + MIN_SPLIT_GROUP]] = True
-    return {"f": f, "limit": limit, "p": p, "lower": lower}
+    out["limit"] = float(null[min(int(math.floor((1.0 - rate) * SPLIT_DRAWS)), SPLIT_DRAWS - 1)])
+    out["p"] = max(float(np.mean(null >= out["f"])), 1.0 / SPLIT_DRAWS)
+    out["failed"] = out["f"] > out["limit"]
+    return out
