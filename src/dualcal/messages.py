@@ -69,8 +69,9 @@ CHECKS = {
                    "calibration in a hundred fails by chance (`false_alarm_rate` 0.01, split over the tests). Each "
                    "instant's tie cost (how far its own relative pose of the cameras, with every camera alone, is from "
                    "the relation the other instants tell, in its photos' noise) is judged against a robust core of the "
-                   "other instants: the instants that fit within three of their spread, found so that two or three bad "
-                   "instants can neither pull the relation nor widen the scatter the others are judged by (`statistic`: "
+                   "other instants: the instants that each pass the test against the rest of the core, found so that "
+                   "two or three bad instants can neither pull the relation nor widen the scatter the others are "
+                   "judged by (`statistic`: "
                    "the worst instant's tie cost over the core's typical one, `limit`: that ratio at its test's limit; "
                    "`instant_f`: every instant's ratio, t, p-value and limit; `core_instants`). The instants together "
                    "are judged against the photo-level noise, how much more the photos disagree than white noise on "
@@ -78,7 +79,8 @@ CHECKS = {
                    "`design_effect`). The message names every instant that does not fit, with its ratio and p-value. "
                    "Named instants fail the check only where leaving them out moves the rig's baseline or angles by "
                    "more than twice their sigma (`shift_sigma` against `shift_limit_sigma`); a smaller misfit is named "
-                   "and kept.",
+                   "and kept. An instant whose misfit one photo's focal change explains is a refocus, which `focus` names "
+                   "(`refocused`).",
         "cause": "The board or the phone moved between the shots of one position (not on a tripod, a board held "
                  "by hand, a board that slid, a tap on the screen), the lenses did not shoot at the same instant, a "
                  "lens that moved (optical image stabilisation, a refocus), or photos of different positions put "

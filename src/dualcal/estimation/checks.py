@@ -186,7 +186,7 @@ def instant_tests(rel: InstantRelations, own: dict[str, float], rate: float) -> 
             computed[key] = np.cbrt(deleted_costs(rel, core) / scale)
         return computed[key]
 
-    core = robust_core(values, r, rate, T_DOF_SHARE, best_fitting_half(rel))
+    core = robust_core(values, r, rate, T_DOF_SHARE, best_fitting_half(rel) if len(rel.views) >= 4 else None)
     x = values(core)
     return x, core, core_tests(x, r, core, False, T_DOF_SHARE)
 
@@ -493,10 +493,11 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
     whose own focal scale is furthest off with every camera alone (``alone``, :func:`refocused_camera`) is named.
     ``found_by_rig`` are refocused photos ``rig_rigid`` found (its ``refocused``), named too.
 
-    The document: ``ok``, ``message``, ``flagged`` (``{"camera", "view", "focal_change", "sigmas", "t", "p",
+    The document: ``ok``, ``message``, ``flagged`` (``{"camera", "view", "focal_change", "sigmas", "t", "dof", "p",
     "limit", "explained_share", "cause"}``, cause ``refocus``, ``rig`` or ``split``), ``test``, ``statistic`` (the
     largest ``|t|``, a refocused photo's first; or a split camera's ``F``), ``limit``, ``p_value``, ``worst``,
-    ``false_alarm_rate`` (``rate``), ``photo_rate`` and ``split_rate`` (each test's), ``not_judged`` (``{"camera",
+    ``false_alarm_rate`` (``rate``), ``photo_rate`` and ``split_rate`` (each test's), ``photo_t``
+    ``{"camera/view": {"t", "dof", "p"}}`` (every judged photo's test), ``not_judged`` (``{"camera",
     "view", "sigma"}``), ``not_judged_limit`` (:data:`MAX_FOCAL_SCALE_SIGMA`), ``splits`` ``{camera: {"f", "limit",
     "p", "lower", "upper", "focal_change", "sigma_focal", "failed"}}`` (every camera tested: its groups' photos, the
     difference of their focal scales and the camera's relative focal sigma).
@@ -526,7 +527,8 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
             share = fit["explained_px2"] / tie if tie and tie > 0 else None
             tested[(names[c], fit["view"])] = entry = {
                 "camera": names[c], "view": fit["view"], "focal_change": fit["s"] - test.mu,
-                "sigmas": float(fit["s"] / fit["sigma"]), "t": abs(test.t), "p": test.p, "limit": test.limit(each, True),
+                "sigmas": float(fit["s"] / fit["sigma"]), "t": abs(test.t), "dof": test.dof, "p": test.p,
+                "limit": test.limit(each, True),
                 "explained_share": share, "cause": "refocus" if share is None or share >= REFOCUS_SHARE else "rig"}
             if test.p < each:
                 flagged.append(entry)
@@ -546,7 +548,7 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
                             for view in small]
     if alone is not None and sol.problem.mode != "none":
         flagged = _one_per_instant(flagged, tested, alone, kappa2)
-    flagged += [{**f, "sigmas": None, "t": None, "limit": None, "cause": "refocus"} for f in found_by_rig]
+    flagged += [{**f, "sigmas": None, "t": None, "dof": None, "limit": None, "cause": "refocus"} for f in found_by_rig]
     flagged.sort(key=lambda f: (f["cause"] != "refocus", f["t"] is None, -(f["t"] or 0.0)))
     return _focus_document(flagged, splits, list(tested.values()), weak, names, each, split_each, rate)
 
@@ -593,6 +595,8 @@ def _focus_document(flagged, splits, tested, weak, names, each, split_each, rate
     split = {n: sp for n, sp in splits.items() if sp["failed"]}
     worst = max(tested, key=lambda f: f["t"], default=None)
     doc = {"test": FOCUS_TEST, "false_alarm_rate": rate, "photo_rate": each, "split_rate": split_each,
+           "photo_t": {f"{f['camera']}/{f['view']}": {"t": round(f["t"], 3), "dof": f["dof"], "p": f["p"]}
+                       for f in tested},
            "flagged": flagged, "splits": splits, "not_judged_limit": MAX_FOCAL_SCALE_SIGMA,
            "not_judged": [{"camera": names[f["camera"]], "view": f["view"], "sigma": f["sigma"]} for f in weak]}
     if refocused:

@@ -113,7 +113,8 @@ def loop_closure(tied: Solution, alone: Solution, kappa2: float | None = None,
     Returns
     -------
     ``{"ok", "message", "test", "statistic", "limit", "p_value", "false_alarm_rate", "test_rate", "worst",
-    "pairs": {"X-Y": {"ok", "views", "judged", "ratio", "limit_ratio", "p"}}, "loops": {"r-B-C": {"ok", "t2",
+    "pairs": {"X-Y": {"ok", "views", "judged", "ratio", "limit_ratio", "p"}} (a pair not judged: ``"message"``
+    instead of the statistics), "loops": {"r-B-C": {"ok", "t2",
     "limit", "p", "instants", "rotation_arcmin": [3], "t_mm": [3], "sigma_rotation_arcmin": [3], "sigma_t_mm":
     [3]}}, "not_judged": ["X-Y", ...]}`` (the misclosure in C's frame), ``statistic`` and ``limit`` of the test
     of the smallest p-value (a pair's ratio or a loop's ``T^2``).
@@ -136,7 +137,8 @@ def loop_closure(tied: Solution, alone: Solution, kappa2: float | None = None,
     for (x, y), views in shared.items():
         key = f"{names[x]}-{names[y]}"
         if (x, y) not in judged:
-            pairs[key] = {"ok": True, "judged": False, "views": len(views)}
+            pairs[key] = {"ok": True, "judged": False, "views": len(views),
+                          "message": f"not judged: fewer than {MIN_PAIR_INSTANTS} shared instants"}
             continue
         fit = _pair(tied, alone, x, y, views, kappa2)
         dof = 6 * (len(views) - 1)

@@ -140,6 +140,8 @@ def robust_core(values, r: np.ndarray, rate: float, dof_share: float = 1.0,
     compute = values if callable(values) else (lambda core: values)
     r = np.asarray(r, float)
     n = len(r)
+    if n < 4:                                        # too few to judge any against the others
+        return np.ones(n, bool)
     x = np.asarray(compute(np.ones(n, bool) if start is None else np.asarray(start, bool)), float)
     mu = _weighted_median(x, 1.0 / r ** 2)
     tau = float(np.median(np.abs(x - mu) / r)) / _MAD_NORMAL
