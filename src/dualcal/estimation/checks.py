@@ -42,7 +42,7 @@ from __future__ import annotations
 import numpy as np
 
 from .adjust import Solution, photo_rows
-from .distributions import f_quantile, f_sf, sidak
+from .distributions import f_quantile, sidak
 from .instant_poses import (InstantRelations, best_fitting_half, deleted_costs, focal_responses, instant_relations,
                             refocus_explained)
 from .rig_relations import rig_relation
@@ -365,13 +365,14 @@ def _without(refit, tied: Solution, views, photos) -> tuple[Solution, Solution] 
 def _rigid_message(doc: dict, rate: float) -> str:
     """``rig_rigid``'s message (:func:`rig_rigid`'s document)."""
     flagged, fs, rate_words = doc["flagged"], doc["instant_f"], f"false-alarm rate {100 * rate:g} % per calibration"
-    named = ", ".join(f"{v} (F = {fs[v]['f']:.1f} x the others' tie cost, limit {fs[v]['limit']:.2f}, p = {fs[v]['p']:.2g})"
-                      for v in flagged[:5]) + (f" and {len(flagged) - 5} more" if len(flagged) > 5 else "")
-    together = (f"the instants together {doc['ratio']:.2f} x the photo-level noise (limit {doc['limit_ratio']:.2f}; "
-                f"{rate_words})")
+    one = len(flagged) == 1
+    named = ", ".join(f"{v} (F = {fs[v]['f']:.1f} x the others' tie cost, limit {fs[v]['limit']:.2f}, "
+                      f"p = {fs[v]['p']:.2g})" for v in flagged[:5]) + (f" and {len(flagged) - 5} more"
+                                                                        if len(flagged) > 5 else "")
+    together = f"the instants together {doc['ratio']:.2f} x the photo-level noise (limit {doc['limit_ratio']:.2f}"
     if doc["ok"] and flagged:
         return (f"the photos of every instant fit one rigid relative pose but for {named}, which fit worse than the "
-                f"other instants ({rate_words}); leaving {'it' if len(flagged) == 1 else 'them'} out moves the "
+                f"other instants ({rate_words}); leaving {'it' if one else 'them'} out moves the "
                 f"baseline and angles by {doc['shift_sigma']:.2f} sigma at most (limit {SHIFT_SIGMAS:g}): a small "
                 "misfit (the board moved a little between the shots, a shot a little late) that changes no result "
                 "beyond twice its sigma; kept (--exclude them to compare)")
@@ -379,18 +380,18 @@ def _rigid_message(doc: dict, rate: float) -> str:
         worst = doc["worst"]
         words = (f"the worst, {worst}, F = {fs[worst]['f']:.2f} x the others' tie cost against their scatter (limit "
                  f"{fs[worst]['limit']:.2f}); ") if worst else ""
-        return f"the photos of every instant fit one rigid relative pose: {words}{together}"
+        return f"the photos of every instant fit one rigid relative pose: {words}{together}; {rate_words})"
     if flagged:
         moved = (f"; leaving them out moves the baseline and angles by up to {doc['shift_sigma']:.1f} sigma"
                  if doc["shift_sigma"] is not None else "")
-        rest = "" if doc["ratio"] <= doc["limit_ratio"] else f"; without them, {together.replace(f'; {rate_words}', '')}"
-        return (f"the photos of {len(flagged)} instant(s) do not fit the rig's relative pose: {named} against the other "
-                f"instants' scatter{moved}{rest}: the cameras' shots of {'that instant' if len(flagged) == 1 else 'those instants'} "
+        rest = f"; without them, {together})" if doc["ratio"] > doc["limit_ratio"] else ""
+        return (f"the photos of {len(flagged)} instant(s) do not fit the rig's relative pose: {named} against the "
+                f"other instants' scatter{moved}{rest}: the cameras' shots of {'that instant' if one else 'those instants'} "
                 "disagree (not taken at the same instant, a lens that moved, or a board that moved between the shots); "
                 f"drop them with --exclude or shoot them again ({rate_words})")
     return (f"the instants fit one rigid relative pose {doc['ratio']:.1f} x worse than the photo-level noise allows "
-            f"(limit {doc['limit_ratio']:.2f}; {rate_words}): the cameras' shots are not synchronised, or the rig is not "
-            "rigid; its baseline and angles hold only on average")
+            f"(limit {doc['limit_ratio']:.2f}; {rate_words}): the cameras' shots are not synchronised, or the rig is "
+            "not rigid; its baseline and angles hold only on average")
 
 
 def focal_scale_fits(sol: Solution, views=None) -> list[dict]:
@@ -455,10 +456,10 @@ def focal_scale_sigmas(fit: dict, kappa2: dict[int, float], s0_px: float) -> flo
 
 
 #: ``focus`` judges no photo whose own corners fix its focal length no better than this (1 sigma of its focal
-#: scale from its corners' noise, ``s0``): few corners, or a board small or square-on in the frame. Such a photo can show
-#: no refocus a phone makes (0.1-3 % of the focal length), and at its test's limit (20-25 %) the focal scale,
-#: one linearised step from the calibration's focal length, no longer holds (caliscope's 12-corner webcam
-#: session: a photo with 7 corners, +-31 %, gave +150 %).
+#: scale from its corners' noise, ``s0``): few corners, or a board small or square-on in the frame. Such a photo
+#: can show no refocus a phone makes (0.1-3 % of the focal length), and at its test's limit (20-25 %) the focal
+#: scale, one linearised step from the calibration's focal length, no longer holds (caliscope's 12-corner webcam
+#: session: a photo with 7 corners, +-27 %, gave +150 %).
 MAX_FOCAL_SCALE_SIGMA = 0.05
 
 #: The name of ``focus``'s test (calib.json ``checks.focus.test``).
@@ -615,8 +616,8 @@ def _focus_document(flagged, splits, tested, weak, names, each, split_each, rate
     rate_words = f"false-alarm rate {100 * rate:g} % per calibration"
     sigmas = [f["sigma"] for f in weak]
     unjudged = (f"; {len(weak)} photo(s) not judged: their own corners fix the focal length only to "
-                f"+-{100 * min(sigmas):.0f}-{100 * max(sigmas):.0f} % (more than {100 * MAX_FOCAL_SCALE_SIGMA:g} %: few "
-                "corners, or the board small or square-on)") if weak else ""
+                f"+-{100 * min(sigmas):.0f}-{100 * max(sigmas):.0f} % (more than {100 * MAX_FOCAL_SCALE_SIGMA:g} %: "
+                "few corners, or the board small or square-on)") if weak else ""
     problems = []
     if refocused:
         problems.append(f"{len(refocused)} photo(s) have a focal length of their own: " + ", ".join(

@@ -18,9 +18,12 @@ rotation and the baseline's length deviate: ``d = (rotvec(R R_J^T), |t| - D)``, 
 Tying an instant's photos to relations ``theta`` costs, to first order and with the intrinsics held,
 ``(z - theta)^T Cov^-1 (z - theta)``: its tie cost. The relations that the instants ``S`` tell together are the
 weighted mean of theirs (:func:`relations_of`); an instant judged against the others gets the cost of its
-deviation from their mean, with that mean's own covariance added (:func:`deleted_costs`): a chi-square of
-``k`` degrees of freedom (6 per tied camera, 4 in the paper's model) in units of the white noise, for an
-instant like the others, whichever bad instants are outside ``S``.
+deviation from their mean, with that mean's own covariance added (:func:`deleted_costs`), whichever bad instants
+are outside ``S``: nearly a chi-square of ``k`` degrees of freedom (6 per tied camera, 4 in the paper's model) in
+units of the white noise, for an instant like the others (the intrinsics' error, which the covariance given them
+leaves out, moves each instant's relative pose its own way and adds some: on a VGA stereo rig of 30 instants
+with white noise they averaged 1.46 ``k`` (tests/test_instant_poses.py); noise correlated within the photos adds
+more, and the checks take the scale from the instants' own scatter).
 """
 
 from __future__ import annotations

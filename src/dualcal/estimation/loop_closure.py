@@ -87,7 +87,7 @@ def _pair(tied: Solution, alone: Solution, x: int, y: int, views: list[str], kap
         D[i], J[i] = relation_deviation(poses[(x, v)], poses[(y, v)], R_J, t_J)
     columns = np.concatenate([np.concatenate([pose_columns(alone, v, x), pose_columns(alone, v, y)]) for v in views])
     C = alone.covariance(columns, "formal").reshape(n, 12, n, 12)
-    cov = kappa2 * np.einsum("aij,ajbk,blk->aibl", J, C, J, optimize=True).reshape(6 * n, 6 * n)      # J C J^T, J block-diagonal
+    cov = kappa2 * np.einsum("aij,ajbk,blk->aibl", J, C, J, optimize=True).reshape(6 * n, 6 * n)  # J block-diagonal
     D = D.ravel()
     W = np.linalg.inv(cov)
     A = np.tile(np.eye(6), (n, 1))
@@ -190,12 +190,13 @@ def _document(pairs: dict, loops: dict, tests: list, rate: float, each: float) -
             common = set.intersection(*cams) if len(cams) > 1 else set()
             words = ", ".join(f"{k} ({pairs[k]['ratio']:.1f} x the noise, limit {pairs[k]['limit_ratio']:.2f})"
                               for k in bad_pairs)
-            parts.append(f"the pair(s) {words} do not fit one rigid relation"
-                         + (f" (camera {', '.join(sorted(common))} in each: it moved between instants?)" if common else ""))
+            moved = f" (camera {', '.join(sorted(common))} in each: it moved between instants?)" if common else ""
+            parts.append(f"the pair(s) {words} do not fit one rigid relation{moved}")
         for k in bad_loops:
             lp = loops[k]
             parts.append(f"loop {k} misses by {np.linalg.norm(lp['rotation_arcmin']):.2f}' and "
                          f"{np.linalg.norm(lp['t_mm']):.3f} mm (T^2 {lp['t2']:.1f}, limit {lp['limit']:.1f})")
-        doc["message"] = ("; ".join(parts) + f": the rig's relative poses do not hold for every instant ({rate_words}); "
-                          f"find the instants with rig_rigid, drop them with --exclude or shoot again{skipped}")
+        doc["message"] = ("; ".join(parts) + ": the rig's relative poses do not hold for every instant "
+                          f"({rate_words}); find the instants with rig_rigid, drop them with --exclude or shoot "
+                          f"again{skipped}")
     return doc
