@@ -50,6 +50,7 @@ import argparse
 import cProfile
 import os
 import pstats
+import resource
 import statistics
 import subprocess
 import sys
@@ -148,16 +149,20 @@ for n in names:
 def _times(cmds: dict[str, list[str]], runs: int) -> dict[str, float]:
     """Median wall seconds of each command as a process, the commands taking turns run by run (after one
     warm-up each, for the file caches), so that a machine that slows down or speeds up meanwhile (a shared
-    one does, by a third) weighs on every side alike."""
+    one does, by a third) weighs on every side alike; and, as ``"<name> cpu"``, the median CPU seconds (user and
+    system) of each process, which a machine busy with other work inflates far less than its wall time."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1")}
     for cmd in cmds.values():
         subprocess.run(cmd, check=True, capture_output=True, env=env)
-    times = {name: [] for name in cmds}
+    times = {name: [] for name in cmds} | {f"{name} cpu": [] for name in cmds}
     for _ in range(runs):
         for name, cmd in cmds.items():
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
             t0 = time.perf_counter()
             subprocess.run(cmd, check=True, capture_output=True, env=env)
             times[name].append(time.perf_counter() - t0)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            times[f"{name} cpu"].append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
     return {name: statistics.median(t) for name, t in times.items()}
 
 

@@ -15,7 +15,9 @@
    * the floor under dualcal's time: a process that imports every module the default command imported, in
      its order, and does nothing else (``imports alone``).
 
-   Target: dualcal / OpenCV at most 1.0. ``--growth`` adds 13 and 200 instants and the paper's case alone
+   Beside the wall times, each side's CPU seconds (user and system, median): on a machine busy with other
+   work the wall time of both waits for a core, and the CPU time is what each side itself costs.
+   Target: dualcal / OpenCV at most 1.0 (issue 41: at most 1.25 at 50 instants of two to four cameras). ``--growth`` adds 13 and 200 instants and the paper's case alone
    (``--model k1k2 --no-compare-models --no-compare-lens``).
 
 2. **A recalibration in process** (what the app does after a photo is left out: the corners in memory,
@@ -39,6 +41,7 @@ dualcal's sources are byte-compiled first, as an installed package's are (this m
     .venv/bin/python benchmarks/bench_calibrate_process.py              # the three parts (~2 min)
     .venv/bin/python benchmarks/bench_calibrate_process.py --growth     # and 13 and 200 instants, the paper's case (~4 min)
     .venv/bin/python benchmarks/bench_calibrate_process.py --quick      # one run each, note8 only
+    .venv/bin/python benchmarks/bench_calibrate_process.py --processes  # part 1 alone, at 50 instants
 """
 
 from __future__ import annotations
@@ -125,14 +128,16 @@ def part_processes(cases, runs: int, growth: bool) -> list[list]:
     rows = []
     print(f"\n1. The defaults as processes (median of {runs} run(s) after a warm-up, taking turns; "
           "OPENBLAS_NUM_THREADS=1)")
-    head = f"{'rig':8} {'instants':>8} {'dualcal':>9} {'OpenCV':>8} {'dualcal/OpenCV':>15} {'imports alone':>14}"
+    head = (f"{'rig':8} {'instants':>8} {'dualcal':>9} {'OpenCV':>8} {'dualcal/OpenCV':>15} {'imports alone':>14}"
+            f" {'CPU s: dualcal':>15} {'OpenCV':>7} {'ratio':>6}")
     print(head + (f" {'paper case':>11} {'paper/OpenCV':>13}" if growth else ""))
     with tempfile.TemporaryDirectory() as tmp:
         for preset, views in cases:
             t = process_times(preset, views, runs if views < 200 else 1, Path(tmp), paper=growth)
             ratio = t["default"] / t["opencv"]
             line = (f"{preset:8} {views:8d} {t['default']:8.2f}s {t['opencv']:7.2f}s {ratio:15.2f} "
-                    f"{t['imports']:13.2f}s")
+                    f"{t['imports']:13.2f}s {t['default cpu']:14.2f}s {t['opencv cpu']:6.2f}s "
+                    f"{t['default cpu'] / t['opencv cpu']:6.2f}")
             if growth:
                 line += f" {t['paper']:10.2f}s {t['paper'] / t['opencv']:13.2f}"
             print(line, flush=True)
@@ -272,6 +277,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="one run each, note8 only, no baseline")
     parser.add_argument("--growth", action="store_true", help="also 13 and 200 instants and the paper's case")
+    parser.add_argument("--processes", action="store_true", help="part 1 alone, at 50 instants")
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--baseline", default="8ffbcf9", help="git revision whose defaults the real sets are held "
                                                                "against (default: main before issue 32's speed work)")
@@ -285,9 +291,12 @@ def main() -> None:
 
     runs = 1 if args.quick else args.runs
     presets = ("note8",) if args.quick else ("note8", "triple", "quad")
-    sizes = (13, 50, 100, 200) if args.growth else (50, 100)
+    sizes = (13, 50, 100, 200) if args.growth else (50,) if args.processes else (50, 100)
     t0 = time.perf_counter()
     rows = part_processes([(p, v) for p in presets for v in sizes], runs, args.growth)
+    if args.processes:
+        print_table("Summary", ["target", "value", "goal", "verdict"], rows)
+        return
     with tempfile.TemporaryDirectory() as tmp:
         real = real_corners(Path(tmp))
         rows += part_recalibration(presets, runs, real)

@@ -169,10 +169,10 @@ def test_a_bent_board_is_found_and_costs_little():
 def test_the_shape_test_at_the_one_step_estimate_is_that_of_the_adjusted_shape():
     """The board-shape test is made first at the one-step (linearised) estimate from the flat board's
     solution; the shape is adjusted in full only where that T^2 exceeds half its limit
-    (``calibrate.SHAPE_FULL_TEST``). On boards bent from not at all to twice what the photos show (13 note8
+    (``board_shape.SHAPE_FULL_TEST``). On boards bent from not at all to twice what the photos show (13 note8
     instants, 0.2 px), the one-step T^2 is within 3 % of the adjusted shape's, so that no decision can differ
     (it would take a factor of 2), and calibrate_rig decides as the full test does."""
-    from dualcal.estimation.calibrate import board_shape_test
+    from dualcal.estimation.board_shape import board_shape_test
     from dualcal.estimation.fitting import Setup, usable_photos
 
     truth = make_truth("note8", 13, seed=5)
@@ -204,13 +204,14 @@ def test_the_shape_test_at_the_one_step_estimate_is_that_of_the_adjusted_shape()
 @pytest.mark.parametrize("mode", ["rigid", "paper", "none"])
 def test_exact_corners_give_the_exact_lens_of_every_coefficient(mode):
     """OpenCV's five-coefficient lens (synth preset stereo5: k3 = 0.238, p1 = 0.0018 on the left)
-    comes back exactly: corners to 1e-6 px, every coefficient to 1e-9."""
+    comes back exactly: corners to 1e-6 px, every coefficient to 1e-8 (where the corners fit to 1e-11 px, the
+    adjustment's last step is that far from zero: where it stops there depends on its start)."""
     truth = make_truth("stereo5", 10, seed=11)
     rig = calibrate_rig(noisy_corner_set(truth, 0.0), rig_mode=mode, model="k1k2p1p2k3")
     assert rig.model == "k1k2p1p2k3" and rig.rms_px < 1e-6
     for name, cam in rig.cameras.items():
         true = truth.cameras[name]
-        np.testing.assert_allclose(cam.distortion, true.distortion, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(cam.distortion, true.distortion, rtol=0, atol=1e-8)
         np.testing.assert_allclose(cam.as_vector()[:5], true.as_vector()[:5], rtol=1e-8, atol=1e-6)
     for name, rel in rig.rig.items():
         np.testing.assert_allclose(rel.pose.t_mm, truth.rig[name].t_mm, atol=1e-6)
@@ -353,7 +354,7 @@ def test_paper_mode_fits_a_baseline_whose_direction_moves_between_instants():
 
 
 def test_a_noisier_camera_keeps_its_photos():
-    """Outliers are judged against each camera's own median: a camera whose corners are simply
+    """Outliers are judged against each photo's own noise: a camera whose corners are simply
     noisier (here 4x) is not an outlier."""
     truth = make_truth("triple", 13, seed=3)
     corners = noisy_corner_set(truth, 0.1, seed=4)
@@ -364,7 +365,7 @@ def test_a_noisier_camera_keeps_its_photos():
     assert rig.dropped_views == []
     assert len(rig.dropped_corners) == 0                     # of 1560: the limit is ~7 sigma of each camera
     assert rig.adjustment["options"] == {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto",
-                                         "model": "k1k2"}
+                                         "model": "k1k2", "weigh_photos": True}
 
 
 def _partial_views(corners, rng, missing=0.3, tele_window=0.25):

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dualcal.estimation import calibrate
+from dualcal.estimation import calibrate, checking
 from dualcal.estimation.instant_poses import (deleted_costs, focal_responses, instant_relations, refocus_explained,
                                               relation_deviation, relations_of)
 from dualcal.geometry.camera import project_points
@@ -24,8 +24,8 @@ def _solutions(monkeypatch, corners):
         seen.update(tied=tied, alone=alone)
         return {}
 
-    monkeypatch.setattr(calibrate, "run_checks", spy)
-    monkeypatch.setattr(calibrate, "loop_closure", lambda *args: None)
+    monkeypatch.setattr(checking, "run_checks", spy)
+    monkeypatch.setattr(checking, "loop_closure", lambda *args: None)
     calibrate.calibrate_rig(corners, drop_outliers=False, board_shape="flat")
     return seen["tied"], seen["alone"]
 

@@ -151,16 +151,21 @@ def test_models_compared_camera_by_camera_are_those_of_one_adjustment_of_every_c
     models' solutions), give every camera's fit and held-out errors as one adjustment of every camera alone
     per model gives them (how each model was refitted before issue 32), to the comparison's tolerance, and
     the same scores and choice."""
-    from dualcal.estimation.calibrate import _calibrate_distinct
-    from dualcal.estimation.model_selection import _camera_fits, _refits, preferred_lens_models
+    from dualcal.estimation.calibrate import Settings, adjusted, lens_models, photos_to_calibrate
+    from dualcal.estimation.fitting import rig_model_from_solution
+    from dualcal.estimation.model_selection import _camera_fits, _refits
     from dualcal.geometry.camera import LENS_MODELS
 
     corners = noisy_corner_set(make_truth("triple", 10, seed=2), 0.2, seed=3)
-    candidates, preferred = preferred_lens_models(corners, False)
+    photos = photos_to_calibrate(corners, Settings(board_shape="flat"))
+    lenses = lens_models(photos, "auto")
+    candidates, preferred = lenses.candidates, lenses.preferred
     assert preferred["ultra"] == "kb4"
-    base, alone = _calibrate_distinct(corners, False, "rigid", None, True, 6.0, "flat", preferred)
+    fit = adjusted(photos, lenses.models, Settings(board_shape="flat"))
+    base = rig_model_from_solution(fit.solution, photos.corners, fit.dropped, fit.dropped_corners)
     mappings = {m: {n: m if m in candidates[n] else preferred[n] for n in candidates} for m in LENS_MODELS}
-    apart, joint = _camera_fits(base, candidates, preferred, mappings, alone), _refits(base, mappings, "none")
+    apart = _camera_fits(fit.solution, fit.alone, candidates, preferred, mappings)
+    joint = _refits(base, mappings, "none")
     assert set(apart) == set(joint) == set(LENS_MODELS)
     for m in mappings:
         for n in candidates:

@@ -13,7 +13,7 @@ import pytest
 
 from dualcal.files import io
 from dualcal.synthetic import synth
-from dualcal.estimation.calibrate import outlier_limit_px
+from dualcal.estimation.outliers import outlier_limit_px
 from dualcal.geometry.camera import (CameraModel, distort_normalized, max_distorted_radius, project_points,
                                      undistort_points)
 from dualcal.geometry.model import CameraCorners, CornerSet, Pose

@@ -27,6 +27,21 @@ With ``board_shape`` the board is not taken as flat: three global unknowns, shar
 photo, give its out-of-plane shape (:data:`dualcal.geometry.board.SHAPE_TERMS`: sag, bend, twist), so the
 corners sit at ``X + Z(X) e_z``.
 
+With ``known`` intrinsics (:class:`dualcal.geometry.model.KnownIntrinsics`) a camera's intrinsics are held fixed
+(no columns), or, in mode ``prior``, taken as a prior: rows ``sqrt(P) (theta - theta_0)`` on the named free
+intrinsics, ``P = scale^2 C_0^-1`` with ``C_0`` the prior's covariance and ``scale`` (``prior_scale_px``) the
+noise of a photo of weight 1, so that the prior weighs against the corners in the cost's own units (a prior's
+intrinsics are held like ``fixed`` ones until ``scale`` is known). The prior's information enters the globals'
+block of the normal equations whole (it belongs to no instant), and the covariance clustered by instant adds
+its known variance, ``scale^2 P`` (:mod:`dualcal.estimation.uncertainty`), so that every sigma holds the
+intrinsics' uncertainty too.
+
+With ``weights`` each photo's squared residuals count with its own weight ``w_b``: the cost is
+``F = sum_b w_b |r_b|^2``, each photo's residual rows and Jacobian rows scaled by ``sqrt(w_b)`` (weighted
+least squares). :mod:`dualcal.estimation.photo_noise` sets ``w_b = sigma_ref^2 / sigma_b^2`` from every photo's
+own noise ``sigma_b``, so that ``s0`` stays in pixels (the noise of a photo of weight 1) and a blurred photo
+counts for what its corners are worth. ``residuals`` stay pixels, unweighted.
+
 To add a group of global parameters: give it columns in :func:`_build_layout`, a field in
 :class:`State` updated in :meth:`State.updated`, and its Jacobian piece in
 :func:`_jacobian_pieces`, where ``J_X`` (d residual / d camera-frame point) and the rotations are
@@ -42,6 +57,7 @@ Two covariances of the unknowns (``kind``): ``formal``, the textbook ``N^-1 s0^2
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -53,7 +69,7 @@ from ..geometry.camera import (DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS,
                                project_points, project_with_jacobians)
 from ..errors import EstimationError, InputError
 from .lm import LMOptions, levenberg_marquardt
-from ..geometry.model import Pose, mean_pose, observed_mask
+from ..geometry.model import KnownIntrinsics, Pose, mean_pose, observed_mask
 from .normal_equations import Factorization, NormalEquations, PhotoNormals
 from ..geometry.poses import moved_on_sphere, relative_pose, rotated, tangent_basis
 from .uncertainty import InstantLeverage, held_out_squares, instant_leverage
@@ -68,13 +84,15 @@ COVARIANCE_KINDS = ("clustered", "formal")
 @dataclass(frozen=True)
 class CameraBatch:
     """All photos of one camera: ``blocks`` (B,) indices into ``Problem.blocks``, ``views`` (B,)
-    instant indices, ``uv_px`` (B, N, 2) corners (NaN rows unmeasured), ``observed`` (B, N)."""
+    instant indices, ``uv_px`` (B, N, 2) corners (NaN rows unmeasured), ``observed`` (B, N), ``sqrt_weight``
+    (B,) the square root of each photo's weight (None: every weight 1)."""
 
     camera: int
     blocks: np.ndarray
     views: np.ndarray
     uv_px: np.ndarray
     observed: np.ndarray
+    sqrt_weight: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -115,7 +133,11 @@ class Problem:
     ``blocks`` is a list of ``(camera index, view key, (N, 2) pixels)``, one per photo; row k is
     corner k of ``X_board`` (N, 3); unmeasured corners are NaN rows. ``model`` is the lens model
     (:data:`dualcal.geometry.camera.LENS_MODELS`) of every camera, or a sequence of one per camera; its
-    coefficients are free, the others stay 0. ``models`` is the sequence, one per camera.
+    coefficients are free, the others stay 0. ``models`` is the sequence, one per camera. ``weights``
+    ``{(camera name, view): w}`` weighs each photo's squared residuals (module docstring; a photo not named,
+    or no mapping: 1); ``block_weights`` (n_blocks,) is each block's. ``known`` ``{camera name:
+    KnownIntrinsics}`` holds cameras' intrinsics fixed or as a prior of scale ``prior_scale_px`` (module
+    docstring); ``priors`` lists the priors in force (:class:`Prior`).
     """
 
     X_board: np.ndarray
@@ -127,6 +149,9 @@ class Problem:
     reference: int = 0
     board_shape: bool = False
     model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
+    weights: Mapping[tuple[str, str], float] | None = None
+    known: Mapping[str, KnownIntrinsics] | None = None
+    prior_scale_px: float | None = None
 
     def __post_init__(self):
         if self.mode not in RIG_MODES:
@@ -138,15 +163,19 @@ class Problem:
                              f"camera (choose from {', '.join(LENS_MODELS)})")
         self.views = sorted({v for _, v, _ in self.blocks})
         self.view_index = {v: i for i, v in enumerate(self.views)}
+        weights = self.weights or {}
+        self.block_weights = np.array([float(weights.get((self.cameras[c], v), 1.0)) for c, v, _ in self.blocks])
         self.batches = []
         for c in range(len(self.cameras)):
             idx = np.array([b for b, (cc, _, _) in enumerate(self.blocks) if cc == c], int)
             if len(idx):
                 uv = np.array([self.blocks[b][2] for b in idx], float)
                 self.batches.append(CameraBatch(c, idx, np.array([self.view_index[self.blocks[b][1]] for b in idx]),
-                                                uv, observed_mask(uv)))
+                                                uv, observed_mask(uv),
+                                                np.sqrt(self.block_weights[idx]) if self.weights else None))
         self.shape_basis = shape_basis(self.X_board)          # (N, 3), used when board_shape
         self.layout = _build_layout(self)
+        self.priors = _priors(self)
 
     def tied(self, c: int) -> bool:
         """Whether camera ``c`` is tied to the reference by a relative pose."""
@@ -163,6 +192,12 @@ class Problem:
     @property
     def n_parameters(self) -> int:
         return self.layout.n_global + int(self.layout.local_used.sum())
+
+    def held(self, c: int) -> bool:
+        """Whether camera ``c``'s intrinsics are held at their known values (``fixed``, or a prior whose scale
+        is not known yet)."""
+        known = (self.known or {}).get(self.cameras[c])
+        return known is not None and (known.mode == "fixed" or self.prior_scale_px is None)
 
     def seen(self, c: int) -> np.ndarray:
         """(V,) bool: the instants camera ``c`` saw."""
@@ -185,6 +220,9 @@ def _build_layout(p: Problem) -> Layout:
     free = np.array([[n in intrinsic_names(m) for n in INTRINSIC_NAMES] for m in p.models]).reshape(C, -1)
     if not p.skew:
         free[:, INTRINSIC_NAMES.index("skew")] = False
+    for c in range(C):
+        if p.held(c):
+            free[c] = False
     g = [0]
     intrinsics = {c: _take(g, free[c].sum()) for c in range(C)}
     tied = [c for c in range(C) if p.tied(c)]
@@ -202,6 +240,44 @@ def _build_layout(p: Problem) -> Layout:
         used[np.ix_(p.seen(c) & p.seen(p.reference), slots)] = True
     return Layout(free, intrinsics, rig_rotation, rig_translation, baseline, board_shape, g[0], pose, direction,
                   loc[0], used)
+
+
+@dataclass(frozen=True)
+class Prior:
+    """A prior on camera ``camera``'s intrinsics ``names`` (those of its known ones that are free): their known
+    values ``theta0`` (p,), their global columns ``columns`` (p,) and ``root`` (p, p), ``root^T root = P`` its
+    information in the cost's units (module docstring)."""
+
+    camera: int
+    names: tuple[str, ...]
+    theta0: np.ndarray
+    columns: np.ndarray
+    root: np.ndarray
+
+    def residual(self, state: "State") -> np.ndarray:
+        """(p,) the prior's rows ``root (theta - theta0)``."""
+        index = [INTRINSIC_NAMES.index(n) for n in self.names]
+        return self.root @ (state.intrinsics[self.camera, index] - self.theta0)
+
+
+def _priors(p: Problem) -> list[Prior]:
+    """The priors in force: every known camera of mode ``prior`` once ``prior_scale_px`` is known."""
+    out = []
+    for c, name in enumerate(p.cameras):
+        known = (p.known or {}).get(name)
+        if known is None or p.held(c):
+            continue
+        lay = p.layout
+        free = [str(n) for n in np.array(INTRINSIC_NAMES)[lay.free_intrinsics[c]]]
+        names = tuple(n for n in known.names if n in free)
+        if not names:
+            continue
+        at = [known.names.index(n) for n in names]
+        information = np.linalg.inv(np.asarray(known.covariance, float))[np.ix_(at, at)]     # given the others
+        root = p.prior_scale_px * np.linalg.cholesky(information).T
+        out.append(Prior(c, names, np.array([getattr(known.camera, n) for n in names], float),
+                         lay.intrinsics[c][[free.index(n) for n in names]], root))
+    return out
 
 
 # ----------------------------------------------------------------------------- the unknowns
@@ -339,7 +415,7 @@ def corners_behind(problem: Problem, state: State) -> int:
 
 
 def cost(problem: Problem, state: State, allowed_behind: int = 0) -> float:
-    """``r^T r`` over the measured corners, residuals only; ``inf`` if more than ``allowed_behind``
+    """``sum_b w_b |r_b|^2`` over the measured corners, residuals only; ``inf`` if more than ``allowed_behind``
     of them lie at ``Z <= 0`` (a projection from behind the camera is a mirror image, not a fit)."""
     total, behind = 0.0, 0
     for batch in problem.batches:
@@ -348,8 +424,12 @@ def cost(problem: Problem, state: State, allowed_behind: int = 0) -> float:
         if behind > allowed_behind:
             return np.inf
         with np.errstate(divide="ignore", invalid="ignore"):
-            total += float(np.sum((project_points(state.camera(problem, batch.camera), Xc)
-                                   - batch.uv_px[batch.observed]) ** 2))
+            squares = np.sum((project_points(state.camera(problem, batch.camera), Xc)
+                              - batch.uv_px[batch.observed]) ** 2, axis=1)
+        if batch.sqrt_weight is not None:
+            squares = squares * np.broadcast_to(batch.sqrt_weight[:, None] ** 2, batch.observed.shape)[batch.observed]
+        total += float(np.sum(squares))
+    total += sum(float(np.sum(prior.residual(state) ** 2)) for prior in problem.priors)
     return total if np.isfinite(total) else np.inf
 
 
@@ -422,7 +502,8 @@ def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, 
 
 def _linearised_batches(problem: Problem, state: State):
     """Per camera: ``(batch, r (B, 2N), J (B, 2N, k_g + k_l), global columns (k_g,), local slots (k_l,))``,
-    the Jacobian's global columns first; the rows of unmeasured corners zero."""
+    the Jacobian's global columns first; the rows of unmeasured corners zero; each photo's rows scaled by the
+    square root of its weight."""
     for batch in problem.batches:
         W, Xc, rel_t = _camera_points(problem, state, batch)
         B, n = batch.observed.shape
@@ -432,11 +513,15 @@ def _linearised_batches(problem: Problem, state: State):
         cols_g, slots_l = _columns(problem, batch.camera)
         J = _jacobian(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3), J_K.reshape(B, n, 2, -1),
                       len(cols_g)).reshape(B, 2 * n, -1)
+        if batch.sqrt_weight is not None:
+            r *= batch.sqrt_weight[:, None]
+            J *= batch.sqrt_weight[:, None, None]
         yield batch, r, J, cols_g, slots_l
 
 
 def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
-    """``r^T r`` and the normal equations, assembled photo by photo from dense (2N, k) pieces."""
+    """``F`` (the weighted ``r^T r``) and the normal equations, assembled photo by photo from dense (2N, k)
+    pieces."""
     lay = problem.layout
     ne = NormalEquations.zeros(lay.n_global, lay.local_used)
     total = 0.0
@@ -459,6 +544,17 @@ def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
         if problem.mode == "paper" and problem.tied(batch.camera):
             _add_sphere_curvature(problem, state, ne, batch, g_g[:, cg == lay.baseline[batch.camera][0]][:, 0],
                                   g_l[:, np.isin(sl, lay.direction[batch.camera])])
+    if problem.priors:
+        ne.prior_gg, ne.prior_grad = np.zeros((lay.n_global, lay.n_global)), np.zeros(lay.n_global)
+        roots = []
+        for prior in problem.priors:
+            r = prior.residual(state)
+            total += float(r @ r)
+            ne.prior_gg[np.ix_(prior.columns, prior.columns)] += prior.root.T @ prior.root
+            ne.prior_grad[prior.columns] += prior.root.T @ r
+            roots.append(np.zeros((lay.n_global, len(r))))
+            roots[-1][prior.columns] = problem.prior_scale_px * prior.root.T
+        ne.prior_meat_root = np.hstack(roots)
     return total, ne
 
 
@@ -487,7 +583,8 @@ def _add_sphere_curvature(problem: Problem, state: State, ne: NormalEquations, b
 class PhotoRows:
     """The Jacobian rows of one photo's measured corners: ``J`` (m, k) over the flat parameter
     indices ``columns`` (k,), residuals ``r`` (m,) (predicted - observed, px; corner by corner, u
-    then v); ``block`` is the photo's index in ``Problem.blocks``."""
+    then v), both scaled by the square root of the photo's weight; ``block`` is the photo's index in
+    ``Problem.blocks``."""
 
     block: int
     columns: np.ndarray
@@ -548,8 +645,8 @@ def instant_rows(problem: Problem, state: State) -> list[InstantRows]:
 class Solution:
     """Result of :func:`adjust`: the state, the fit and the factorized normal equations.
 
-    ``residuals`` is (n_blocks, N, 2), NaN where a corner was not measured; ``block_rms_px`` the
-    RMS length of each photo's 2-D residuals over its measured corners.
+    ``residuals`` is (n_blocks, N, 2), pixels (unweighted), NaN where a corner was not measured;
+    ``block_rms_px`` the RMS length of each photo's 2-D residuals over its measured corners.
     """
 
     problem: Problem
@@ -570,7 +667,8 @@ class Solution:
             return self.s0_px ** 2 * self.factorization.inverse_block(columns)
         if kind != "clustered":
             raise ValueError(f"covariance kind {kind!r} is not one of {COVARIANCE_KINDS}")
-        shifts = self._shifts(columns)
+        shifts = np.hstack([self._shifts(columns),
+                            self.factorization.global_combination(columns) @ self._leverage.prior])
         return shifts @ shifts.T
 
     def instant_shifts(self, columns) -> dict[str, np.ndarray]:
@@ -604,6 +702,10 @@ class Solution:
             sig[str(name)] = float(s)
         return sig
 
+    def block_costs(self) -> np.ndarray:
+        """(n_blocks,) each photo's part of the cost: ``w_b |r_b|^2`` (px^2 of a photo of weight 1)."""
+        return self.problem.block_weights * np.nansum(self.residuals ** 2, axis=(1, 2))
+
     @cached_property
     def photo_poses(self) -> dict[tuple[int, str], Pose]:
         """The board-to-camera pose of every photo, ``{(camera, view): Pose}``."""
@@ -622,7 +724,7 @@ class Solution:
         out: dict[str, dict[int, tuple[float, int]] | None] = {v: {} for v in p.views}
         counts = {b: int(n) for ph in self.factorization.ne.photos for b, n in zip(ph.blocks, ph.corners)}
         for c, blocks, squares in held_out_squares(self.factorization, self._leverage.held_out, self._at_minimum):
-            for b, sq in zip(blocks, squares):
+            for b, sq in zip(blocks, squares / p.block_weights[blocks]):           # weighted squares: px^2
                 view = p.blocks[b][1]
                 if out[view] is not None:
                     out[view] = None if np.isnan(sq) else {**out[view], c: (float(sq), counts[b])}
@@ -665,7 +767,7 @@ def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> 
 
 
 def _redundancy(problem: Problem) -> int:
-    redundancy = problem.n_observations - problem.n_parameters
+    redundancy = problem.n_observations + sum(len(prior.names) for prior in problem.priors) - problem.n_parameters
     if redundancy <= 0:
         raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
     return redundancy

@@ -24,7 +24,7 @@ a message in plain words that says what is wrong and what would help:
 *False alarms.* ``rig_rigid``, ``focus`` (and ``loop_closure``, :mod:`dualcal.estimation.loop_closure`) take
 their limits from the distribution of their statistic on a synchronised rig with a fixed focus, at
 :data:`FALSE_ALARM_RATE` per calibration, split over their tests; the statistic of one instant (photo) is judged
-against the scatter of a core of the others (:mod:`dualcal.estimation.outliers`), so that the calibration's own
+against the scatter of a core of the others (:mod:`dualcal.estimation.robust_tests`), so that the calibration's own
 noise, lens-model error included, sets the limit, and bad instants do not. Each gives ``test`` (its name),
 ``statistic`` (the worst instant's or photo's), ``limit`` (that test's) and ``false_alarm_rate``.
 ``benchmarks/bench_false_alarms.py`` measures the rates. The other checks have fixed limits: physical ones (what
@@ -47,7 +47,7 @@ from .instant_poses import (InstantRelations, best_fitting_half, deleted_costs, 
                             refocus_explained)
 from .rig_relations import rig_relation
 from ..errors import EstimationError
-from .outliers import MIN_SPLIT_GROUP, CoreTest, core_tests, cube_root_spread, robust_core, split_test
+from .robust_tests import MIN_SPLIT_GROUP, CoreTest, core_tests, cube_root_spread, robust_core, split_test
 from ..geometry.camera import FULL_FRAME_DIAGONAL_MM
 from ..geometry.model import RigModel
 from ..geometry.rotation import ARCMIN_PER_RAD, opk_from_rotation
@@ -96,7 +96,8 @@ def design_effect(sol: Solution) -> dict[int, float]:
     out = {}
     for c in range(len(sol.problem.cameras)):
         clustered, formal = sol.intrinsic_sigma(c, "clustered"), sol.intrinsic_sigma(c, "formal")
-        out[c] = max(1.0, float(np.median([(clustered[n] / s) ** 2 for n, s in formal.items() if s > 0])))
+        ratios = [(clustered[n] / s) ** 2 for n, s in formal.items() if s > 0]
+        out[c] = max(1.0, float(np.median(ratios))) if ratios else 1.0          # none free: intrinsics held fixed
     return out
 
 
@@ -169,7 +170,7 @@ def instant_tests(rel: InstantRelations, own: dict[str, float], rate: float) -> 
     An instant's statistic is its tie cost against the relations the core without it tells
     (:func:`dualcal.estimation.instant_poses.deleted_costs`), over its degrees of freedom and its photos' own
     noise (``own``, :func:`own_noise`); its cube root ``x`` is nearly normal, of spread ``r``
-    (:func:`dualcal.estimation.outliers.cube_root_spread`). The core (:func:`dualcal.estimation.outliers.robust_core`)
+    (:func:`dualcal.estimation.robust_tests.cube_root_spread`). The core (:func:`dualcal.estimation.robust_tests.robust_core`)
     starts from the half of the instants that fit best (:func:`dualcal.estimation.instant_poses.best_fitting_half`),
     so that bad instants neither pull the relations the others are judged by nor widen their scatter.
     Returns ``(x, core, tests)`` over ``rel.views``, each test one-sided (a worse fit), by Student's t of
@@ -423,8 +424,11 @@ def focal_scale_fits(sol: Solution, views=None) -> list[dict]:
         row = 0
         for pr in rows:
             c = p.blocks[pr.block][0]
+            if len(lay.intrinsics[c]) < 2:                         # intrinsics held fixed (known): not judged here
+                row += len(pr.r)
+                continue
             col = {int(k): i for i, k in enumerate(pr.columns)}
-            fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are always free
+            fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are free where any intrinsic is
             cam = sol.state.intrinsics[c]
             J_scale = np.zeros(m)
             J_scale[row:row + len(pr.r)] = cam[0] * pr.J[:, col[fx_col]] + cam[1] * pr.J[:, col[fy_col]]
@@ -476,10 +480,10 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
     Each photo's own focal scale ``s`` (:func:`focal_scale_fits`), with its sigma from its corners' noise (the
     photo-level noise of its camera, ``kappa2[c]``, is one factor for all of them, which the test takes from their
     own scatter: a camera of two lenses would inflate it), is judged against a robust core of its camera's other photos
-    (:mod:`dualcal.estimation.outliers`: two or three refocused photos cannot hide each other), two-sided, by
+    (:mod:`dualcal.estimation.robust_tests`: two or three refocused photos cannot hide each other), two-sided, by
     Student's t of :data:`T_DOF_SHARE` of the core's degrees of freedom; a photo whose sigma exceeds
     :data:`MAX_FOCAL_SCALE_SIGMA` is not judged (``not_judged``). Each camera's judged photos that do not fail
-    are also split into two groups of focal lengths (:func:`dualcal.estimation.outliers.split_test`): a camera of
+    are also split into two groups of focal lengths (:func:`dualcal.estimation.robust_tests.split_test`): a camera of
     two lenses fails, where its groups' focal lengths differ by more than :data:`SHIFT_SIGMAS` of the camera's
     focal length's sigma (relative, the larger of the clustered and the formal: a difference that no result shows
     beyond its uncertainty is no second lens). The rate ``rate`` per calibration is split by Sidak over the
@@ -556,7 +560,7 @@ def focus_drift(sol: Solution, kappa2: dict[int, float], tie_cost_px2: dict[str,
 
 def _split(fits: list[dict], rate: float, least_change: float) -> dict:
     """One camera's photos (:func:`focal_scale_fits` entries with their ``sigma``) split into two groups of focal
-    lengths (:func:`dualcal.estimation.outliers.split_test`): ``{"f", "limit", "p", "failed", "focal_change",
+    lengths (:func:`dualcal.estimation.robust_tests.split_test`): ``{"f", "limit", "p", "failed", "focal_change",
     "lower", "upper"}``, the difference of the groups' weighted mean focal scales and their photos."""
     found = split_test(np.array([f["s"] for f in fits]), np.array([f["sigma"] for f in fits]), rate, T_DOF_SHARE,
                        least_change)

@@ -1,7 +1,7 @@
 """The F and chi-square distributions' quantiles, for the tests a calibration runs (Hotelling's T^2)
 and the consistency of a measured point's rays (:mod:`dualcal.estimation.measurement`).
 
-The board-shape test (:func:`dualcal.estimation.calibrate.board_shape_test`) and the loop check
+The board-shape test (:func:`dualcal.estimation.board_shape.board_shape_test`) and the loop check
 (:mod:`dualcal.estimation.loop_closure`) compare a statistic with a quantile of ``F(d1, d2)``. scipy has it
 (``scipy.special.fdtri``), but importing any of scipy costs about 0.3 s, longer than OpenCV takes
 to calibrate a 13-instant rig, and nothing else on the calibration's path needs scipy: so the

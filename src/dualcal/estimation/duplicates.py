@@ -84,10 +84,19 @@ def _rms_differences(stack: np.ndarray, a: int) -> tuple[np.ndarray, np.ndarray]
     return np.where(n > 0, rms, np.inf), share
 
 
+def moments_of(corners: CornerSet) -> dict[str, int]:
+    """``{instant: moment}`` of corners from clips (each camera's ``video`` record, :mod:`dualcal.files.video`);
+    empty for photos."""
+    out = {}
+    for cam in corners.cameras.values():
+        record = cam.meta.get("video")
+        if isinstance(record, dict):
+            out.update(record.get("moment_of_view", {}))
+    return out
+
+
 def same_moment(corners: CornerSet, keys: list[str]) -> np.ndarray:
     """(V, V) bool: the instants ``keys`` whose frames some camera's clip records as one moment."""
-    from .validation import moments_of
-
     moment = moments_of(corners)
     ids = np.array([moment.get(k, -1 - i) for i, k in enumerate(keys)])
     return ids[:, None] == ids[None, :]

@@ -1,14 +1,14 @@
-"""One rig fitted to its corners: the solving core under every calibration, comparison and check.
+"""One rig fitted to its corners: the solving core under every stage of a calibration, comparison and check.
 
-What a calibration (:mod:`dualcal.estimation.calibrate`), the comparison of lens models
+What the stages of a calibration (:mod:`dualcal.estimation.calibrate`), the comparison of lens models
 (:mod:`dualcal.estimation.model_selection`) and the checks share: which photos can be used
-(:func:`usable_photos`), one adjustment of a rig from Zhang's closed form or from an earlier solution
-(:class:`Setup`, :func:`solve`), a calibration's corners adjusted again with another lens, skew or rig
-model (:func:`refit`; one camera alone, :func:`refit_alone`), two cameras of a rig as a rig of their own
-(:func:`pair_solutions`), the fit and
-the error on instants left out (:func:`fit_summary`, :func:`held_out_error`), and a solution packaged as
-the :class:`~dualcal.geometry.model.RigModel` that calib.json holds (:func:`rig_model_from_solution`).
-No outliers are looked for here and nothing is decided: that is the calibration's part.
+(:func:`usable_photos`), the one adjustment of a rig from Zhang's closed form or from an earlier solution
+(:class:`Setup`, its switches: the rig mode, the lens models, the board's shape; :func:`solve`), a
+calibration's or a solution's corners adjusted again with another lens, skew or rig model, or some of its
+cameras alone (:func:`refit`, the one entry point of the comparison of lens models), two cameras of a rig as a
+rig of their own (:func:`pair_solutions`), and a solution packaged with its covariance as the
+:class:`~dualcal.geometry.model.RigModel` that calib.json holds (:func:`rig_model_from_solution`).
+No outliers are looked for here and nothing is decided: those are the calibration's stages.
 """
 
 from __future__ import annotations
@@ -24,11 +24,14 @@ from ..geometry.camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MOD
                                CameraModel)
 from .covariance import JointCovariance, intrinsic_name
 from ..errors import EstimationError, InputError
+from .held_out import fit_summary
+from .photo_noise import photo_weights
 from .lm import COMPARISON_LM, NEAR_START, LMOptions
-from ..geometry.model import CornerSet, Pose, RigModel, RigRelation, observed_mask
+from ..geometry.model import CornerSet, KnownIntrinsics, Pose, RigModel, RigRelation, observed_mask
 from ..progress import warn
 from .rig_relations import parameter_covariance, rig_relation, shared_views
 from ..geometry.scale import relative_sigma, with_scale
+from ..geometry.resection import planar_pose
 from ..geometry.zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
 
 MIN_VIEWS = 3
@@ -62,28 +65,33 @@ def usable_photos(corners: CornerSet, names: list[str], xy_board: np.ndarray,
     return blocks
 
 
-def _check_enough_views(blocks, names) -> None:
+def _check_enough_views(blocks, names, known=None) -> None:
     for c, name in enumerate(names):
         n = sum(1 for cam, _, _ in blocks if cam == c)
-        if n < MIN_VIEWS:
+        if n < (1 if name in (known or {}) else MIN_VIEWS):
             raise EstimationError(f"camera {name!r} has {n} usable view(s); at least {MIN_VIEWS} are needed "
                                   "(take more photos, or check that the board is found in them)")
 
 
-def _starting_values(sol: Solution):
-    """Per-camera intrinsics and board-to-camera poses of a solution, to start another adjustment."""
+def _starting_values(sol: Solution, names=None):
+    """Per-camera intrinsics and board-to-camera poses of a solution, to start another adjustment: of every
+    camera, or of the cameras ``names`` (some of the solution's), in that order."""
     bp = sol.photo_poses
-    n = len(sol.problem.cameras)
-    cams = [sol.state.camera(sol.problem, c) for c in range(n)]
-    poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c and (c, v) in bp} for c in range(n)]
+    cameras = range(len(sol.problem.cameras)) if names is None else [sol.problem.cameras.index(n) for n in names]
+    cams = [sol.state.camera(sol.problem, c) for c in cameras]
+    poses = [{v: bp[(c, v)] for cc, v, _ in sol.problem.blocks if cc == c and (c, v) in bp} for c in cameras]
     return cams, poses
 
 
 @dataclass(frozen=True)
 class Setup:
-    """What every adjustment of one calibration shares: the board's corners ``X_board`` (N, 3), the
-    camera names and image sizes, the reference's index, the skew model, the rig mode and the lens
-    model of every camera (one name, or one per camera)."""
+    """What every adjustment of one calibration shares, the switches of its one solver: the board's corners
+    ``X_board`` (N, 3), the camera names and image sizes, the reference's index, the skew model, the rig mode,
+    the lens model of every camera (one name, or one per camera), each photo's weight ``weights``
+    ``{(camera, view): w}`` (:mod:`dualcal.estimation.photo_noise`; None: all 1), and the cameras whose
+    intrinsics are ``known`` ``{camera: KnownIntrinsics}``, as a prior of scale ``prior_scale_px`` (the noise of
+    a photo of weight 1; None: held until it is known) or fixed. :meth:`problem` makes the
+    :class:`dualcal.estimation.adjust.Problem` of every adjustment from them."""
 
     X_board: np.ndarray
     names: list[str]
@@ -92,70 +100,85 @@ class Setup:
     skew: bool
     mode: str
     model: str | tuple[str, ...] = DEFAULT_LENS_MODEL
+    weights: Mapping[tuple[str, str], float] | None = None
+    known: Mapping[str, KnownIntrinsics] | None = None
+    prior_scale_px: float | None = None
+
+    @property
+    def models(self) -> tuple[str, ...]:
+        """One lens model per camera."""
+        return (self.model,) * len(self.names) if isinstance(self.model, str) else tuple(self.model)
+
+    def problem(self, blocks, mode: str | None = None, board_shape: bool = False) -> Problem:
+        """The adjustment's problem of ``blocks`` with these switches (``mode`` overrides the rig mode)."""
+        return Problem(self.X_board, list(self.names), list(self.sizes), blocks, mode or self.mode, self.skew,
+                       self.reference, board_shape, self.models, self.weights, self.known, self.prior_scale_px)
+
+    def closed_form(self, c: int, views: dict):
+        """Camera ``c``'s start from the photos ``views`` ``{view: uv}``: Zhang's closed form
+        (:func:`dualcal.geometry.zhang.initial_camera`), or, for a camera whose intrinsics are known, those and
+        each photo's pose by space resection (:func:`dualcal.geometry.resection.planar_pose`): ``(camera,
+        {view: Pose})``."""
+        known = (self.known or {}).get(self.names[c])
+        if known is None:
+            return initial_camera(self.X_board[:, :2], views, self.sizes[c], self.skew, self.models[c])
+        return known.camera, {v: planar_pose(self.X_board, known.camera, uv) for v, uv in views.items()}
 
     def solve(self, blocks, start: "Solution | None" = None, mode: str | None = None,
               board_shape: bool = False) -> "Solution":
-        """:func:`solve` with these settings (``mode`` overrides the rig mode)."""
-        return solve(self.X_board, self.names, self.sizes, blocks, self.reference, self.skew, mode or self.mode,
-                     start, board_shape, self.model)
+        """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples; ``mode``
+        overrides the rig mode.
+
+        Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
+        solution over the same photos (or a superset of them: photos it did not see start from
+        Zhang's; of these cameras or more), whose board shape is kept as the start too; a camera of another lens model there starts
+        from its values as :func:`refit` converts them. The paper's model starts from the
+        better (lower cost) of the rigid solution (every instant's baseline direction the same) and
+        the cameras-alone solution (each instant's own relative pose): the first is the nearer when
+        the rig is rigid, the second when the direction moves between instants. With
+        ``board_shape`` the board's out-of-plane shape is estimated too.
+        """
+        mode = mode or self.mode
+        X_board, skew, models = self.X_board, self.skew, self.models
+        _check_enough_views(blocks, self.names, self.known)
+        if mode == "paper" and start is None:
+            start = self.solve(blocks, mode="none", board_shape=board_shape)
+        shape = start.state.board_shape_mm if start is not None else None
+        if start is not None:
+            cams, poses = _starting_values(start, self.names)
+            cams = [cam if cam.model == models[c] else
+                    _start_camera(cam, models[c], skew, X_board, {v: uv for cc, v, uv in blocks if cc == c})
+                    for c, cam in enumerate(cams)]
+            views = {v for _, v, _ in blocks}
+            poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
+            missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
+            if missing:
+                zhang = {c: self.closed_form(c, {v: uv for cc, v, uv in blocks if cc == c})[1]
+                         for c in {c for c, _ in missing}}
+                for c, v in missing:
+                    poses[c][v] = zhang[c][v]
+        else:
+            cams, poses = map(list, zip(*(self.closed_form(c, {v: uv for cc, v, uv in blocks if cc == c})
+                                          for c in range(len(self.names)))))
+        problem = self.problem(blocks, "rigid" if mode == "paper" else mode, board_shape)
+        sol = adjust(problem, initial_state(problem, cams, poses, shape), LMOptions() if start is None else NEAR_START)
+        if mode != "paper":
+            return sol
+        problem = self.problem(blocks, "paper", board_shape)
+        starts = [initial_state(problem, *_starting_values(s, self.names), s.state.board_shape_mm) for s in (sol, start)]
+        return adjust(problem, min(starts, key=lambda state: cost(problem, state)), NEAR_START)
 
     def linearised(self, sol: "Solution", board_shape: bool) -> "Solution":
         """``sol``'s photos and state linearised (:func:`dualcal.estimation.adjust.linearised_at`), the board's
         shape free or not."""
-        p = sol.problem
-        return linearised_at(Problem(self.X_board, list(self.names), list(self.sizes), p.blocks, p.mode, self.skew,
-                                     self.reference, board_shape, p.model), sol.state)
+        return linearised_at(self.problem(sol.problem.blocks, sol.problem.mode, board_shape), sol.state)
 
 
 def solve(X_board, names, sizes, blocks, reference: int, skew: bool, mode: str,
           start: Solution | None = None, board_shape: bool = False,
           model: str | tuple[str, ...] = DEFAULT_LENS_MODEL) -> Solution:
-    """Initialise and adjust one rig (no outlier handling). ``blocks``: (camera, view, uv) triples;
-    ``model``: the lens model (:data:`dualcal.geometry.camera.LENS_MODELS`) of every camera, or one per camera.
-
-    Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
-    solution over the same photos (or a superset of them: photos it did not see start from
-    Zhang's), whose board shape is kept as the start too; a camera of another lens model there starts
-    from its values as :func:`refit` converts them. The paper's model starts from the
-    better (lower cost) of the rigid solution (every instant's baseline direction the same) and
-    the cameras-alone solution (each instant's own relative pose): the first is the nearer when
-    the rig is rigid, the second when the direction moves between instants. With
-    ``board_shape`` the board's out-of-plane shape is estimated too.
-    """
-    _check_enough_views(blocks, names)
-    models = (model,) * len(names) if isinstance(model, str) else tuple(model)
-    if mode == "paper" and start is None:
-        start = solve(X_board, names, sizes, blocks, reference, skew, "none", board_shape=board_shape, model=model)
-    shape = start.state.board_shape_mm if start is not None else None
-    if start is not None:
-        cams, poses = _starting_values(start)
-        cams = [cam if cam.model == models[c] else
-                _start_camera(cam, models[c], skew, X_board, {v: uv for cc, v, uv in blocks if cc == c})
-                for c, cam in enumerate(cams)]
-        views = {v for _, v, _ in blocks}
-        poses = [{v: pose for v, pose in per.items() if v in views} for per in poses]
-        missing = [(c, v) for c, v, _ in blocks if v not in poses[c]]
-        if missing:
-            zhang = {c: initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, sizes[c], skew,
-                                       models[c])[1]
-                     for c in {c for c, _ in missing}}
-            for c, v in missing:
-                poses[c][v] = zhang[c][v]
-    else:
-        cams, poses = [], []
-        for c, size in enumerate(sizes):
-            cam, p = initial_camera(X_board[:, :2], {v: uv for cc, v, uv in blocks if cc == c}, size, skew,
-                                    models[c])
-            cams.append(cam)
-            poses.append(p)
-    first_mode = "rigid" if mode == "paper" else mode
-    problem = Problem(X_board, list(names), list(sizes), blocks, first_mode, skew, reference, board_shape, models)
-    sol = adjust(problem, initial_state(problem, cams, poses, shape), LMOptions() if start is None else NEAR_START)
-    if mode != "paper":
-        return sol
-    problem = Problem(X_board, list(names), list(sizes), blocks, "paper", skew, reference, board_shape, models)
-    starts = [initial_state(problem, *_starting_values(s), s.state.board_shape_mm) for s in (sol, start)]
-    return adjust(problem, min(starts, key=lambda state: cost(problem, state)), NEAR_START)
+    """:meth:`Setup.solve` of a setup of these arguments (every photo of weight 1)."""
+    return Setup(X_board, names, sizes, reference, skew, mode, model).solve(blocks, start, board_shape=board_shape)
 
 
 def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int) -> tuple[Solution, Solution, int]:
@@ -166,13 +189,12 @@ def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int)
     cams, poses = _starting_values(sol)
     views = set(poses[x]) & set(poses[y])
     blocks = [(int(c == y), v, uv) for c, v, uv in sol.problem.blocks if c in (x, y) and v in views]
-    model = setup.model if isinstance(setup.model, str) else (setup.model[x], setup.model[y])
     pair = replace(setup, names=[setup.names[x], setup.names[y]], sizes=[setup.sizes[x], setup.sizes[y]],
-                   reference=0, mode="rigid", model=model)
-    _check_enough_views(blocks, pair.names)
+                   reference=0, mode="rigid", model=(setup.models[x], setup.models[y]))
+    _check_enough_views(blocks, pair.names, pair.known)
 
     def adjusted(mode: str, start: Solution) -> Solution:
-        problem = Problem(pair.X_board, pair.names, pair.sizes, blocks, mode, pair.skew, 0, False, pair.model)
+        problem = pair.problem(blocks, mode)
         start_cams, start_poses = _starting_values(start)
         return adjust(problem, initial_state(problem, [start_cams[x], start_cams[y]],
                                              [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)]),
@@ -209,37 +231,81 @@ def lens_models_for(model: str | Mapping[str, str], names: list[str]) -> tuple[s
     return tuple(model.get(n, default) for n in names)
 
 
-def refit(rig: RigModel, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
+def refit(source: RigModel | Solution, model: str | Mapping[str, str] | None = None, skew: bool | None = None,
           rig_mode: str | None = None, options: LMOptions = NEAR_START, cameras=None) -> Solution:
-    """The corners ``rig`` used (:meth:`RigModel.used_corners`), adjusted again with another lens model,
-    skew model or rig mode (None: ``rig``'s), started from ``rig``'s values; those of the ``cameras`` named
-    alone, where given (then the first named is the reference).
+    """The corners ``source`` used, adjusted again with another lens model, skew model or rig mode (None:
+    ``source``'s), started from ``source``'s values; those of the ``cameras`` named alone, where given (then
+    the first named is the reference, unless ``source``'s is among them).
 
-    No outliers are looked for and the board keeps ``rig``'s treatment (its shape estimated again where
-    ``rig`` kept one): the same corners, so that the solutions compare. A lens model of ``rig``'s family
-    starts from ``rig``'s coefficients (a new coefficient at 0, a dropped one let go); one of another
-    family (a fisheye for a radial lens, or back) from Zhang's closed form with ``rig``'s poses.
-    This is what comparing lens or skew models costs: one adjustment from a near start, where a full
-    calibration (closed form, outliers alone and tied, the board-shape test) takes several. ``options``:
-    the adjustment's tolerances (a comparison needs fewer digits than a result).
+    ``source`` is a calibration (its corners without those it left out, :meth:`RigModel.used_corners`) or a
+    solution (its photos). No outliers are looked for and the board keeps ``source``'s treatment (its shape
+    estimated again where ``source`` estimated one): the same corners, so that the solutions compare. A lens
+    model of ``source``'s family starts from its coefficients (a new coefficient at 0, a dropped one let go);
+    one of another family (a fisheye for a radial lens, or back) from Zhang's closed form with ``source``'s
+    poses. This is what comparing lens or skew models costs: one adjustment from a near start, where a full
+    calibration (closed form, outliers alone and tied, the board-shape test) takes several. ``options``: the
+    adjustment's tolerances (a comparison needs fewer digits than a result).
     """
-    corners = rig.used_corners()
-    names = sorted(corners.cameras if cameras is None else cameras)
-    model = rig.models if model is None else model
-    models = lens_models_for(model if isinstance(model, str) else
-                             {k: m for k, m in model.items() if k in names or k == "*"}, names)
-    skew = rig.skew if skew is None else skew
-    X = corners.board.object_points_mm()
-    blocks = usable_photos(corners, names, X[:, :2], quiet=True)
-    _check_enough_views(blocks, names)
-    sizes = [corners.cameras[n].image_size for n in names]
-    poses = [dict(rig.camera_poses[n]) for n in names]
-    cams = [_start_camera(rig.cameras[n], models[c], skew, X, {v: uv for cc, v, uv in blocks if cc == c})
+    start = _Values.of(source)
+    names = sorted(start.names if cameras is None else cameras)
+    requested = start.models if model is None else dict.fromkeys(names, model) if isinstance(model, str) else model
+    model = {**requested, **{n: start.models[n] for n in start.known or ()}}      # a known camera keeps its lens
+    models = lens_models_for({k: m for k, m in model.items() if k in names or k == "*"}, names)
+    skew = start.skew if skew is None else skew
+    setup = Setup(start.X_board, names, [start.sizes[n] for n in names],
+                  names.index(start.reference) if start.reference in names else 0, skew, rig_mode or start.mode,
+                  models, start.weights, start.known, start.prior_scale_px)
+    blocks = [(names.index(n), v, uv) for n, v, uv in start.photos if n in names]
+    _check_enough_views(blocks, names, start.known)
+    cams = [_start_camera(start.cameras[n], models[c], skew, setup.X_board, {v: uv for cc, v, uv in blocks if cc == c})
             for c, n in enumerate(names)]
-    ref = names.index(rig.reference) if rig.reference in names else 0
-    problem = Problem(X, names, sizes, blocks, rig_mode or rig.rig_mode, skew, ref, rig.board_shape_mm is not None,
-                      models)
-    return adjust(problem, initial_state(problem, cams, poses, rig.board_shape_mm), options)
+    problem = setup.problem(blocks, board_shape=start.board_shape_mm is not None)
+    return adjust(problem, initial_state(problem, cams, [dict(start.poses[n]) for n in names], start.board_shape_mm),
+                  options)
+
+
+@dataclass(frozen=True)
+class _Values:
+    """What :func:`refit` starts from, by camera name: a calibration's or a solution's photos ``(camera, view,
+    uv)``, cameras, board-to-camera poses, image sizes and lens models, its board's shape (None: flat), its
+    reference, skew model, rig mode, photos' weights, and the cameras whose intrinsics were known (with the
+    prior's scale)."""
+
+    X_board: np.ndarray
+    names: list[str]
+    photos: list[tuple[str, str, np.ndarray]]
+    cameras: dict[str, CameraModel]
+    poses: dict[str, dict[str, Pose]]
+    sizes: dict[str, tuple[int, int]]
+    models: dict[str, str]
+    board_shape_mm: np.ndarray | None
+    reference: str
+    skew: bool
+    mode: str
+    weights: Mapping[tuple[str, str], float] | None
+    known: Mapping[str, KnownIntrinsics] | None
+    prior_scale_px: float | None
+
+    @classmethod
+    def of(cls, source: RigModel | Solution) -> "_Values":
+        if isinstance(source, Solution):
+            p = source.problem
+            poses = {n: {} for n in p.cameras}
+            for (c, v), pose in source.photo_poses.items():
+                poses[p.cameras[c]][v] = pose
+            return cls(p.X_board, list(p.cameras), [(p.cameras[c], v, uv) for c, v, uv in p.blocks],
+                       {n: source.state.camera(p, c) for c, n in enumerate(p.cameras)}, poses,
+                       dict(zip(p.cameras, p.image_sizes)), dict(zip(p.cameras, p.models)),
+                       source.state.board_shape_mm if p.board_shape else None, p.cameras[p.reference], p.skew, p.mode,
+                       p.weights, p.known, p.prior_scale_px)
+        corners = source.used_corners()
+        X = corners.board.object_points_mm()
+        names = sorted(corners.cameras)
+        photos = [(names[c], v, uv) for c, v, uv in usable_photos(corners, names, X[:, :2], quiet=True)]
+        return cls(X, names, photos, source.cameras, source.camera_poses,
+                   {n: corners.cameras[n].image_size for n in names}, source.models, source.board_shape_mm,
+                   source.reference, source.skew, source.rig_mode, photo_weights(source.adjustment),
+                   *known_intrinsics_of(source.adjustment))
 
 
 def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray, views: dict) -> CameraModel:
@@ -251,70 +317,19 @@ def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray,
     return initial_camera(X_board[:, :2], views, cam.image_size, skew, model)[0]
 
 
-def refit_alone(sol: Solution, c: int, model: str, options: LMOptions = NEAR_START) -> Solution:
-    """Camera ``c`` of ``sol`` (a solution of every camera alone with a flat board, where no camera's fit
-    depends on another's) adjusted alone with lens ``model``, from its values there (:func:`refit`'s start)."""
-    p = sol.problem
-    if p.mode != "none" or p.board_shape:
-        raise ValueError("refit_alone takes a solution of every camera alone with a flat board")
-    cams, poses = _starting_values(sol)
-    blocks = [(0, v, uv) for cc, v, uv in p.blocks if cc == c]
-    cam = _start_camera(cams[c], model, p.skew, p.X_board, {v: uv for _, v, uv in blocks})
-    problem = Problem(p.X_board, [p.cameras[c]], [p.image_sizes[c]], blocks, "none", p.skew, 0, False, (model,))
-    return adjust(problem, initial_state(problem, [cam], [poses[c]]), options)
-
-
-def fit_summary(sol: Solution) -> dict:
-    """What comparing models needs of a solution: ``rms_px`` (2-D, per corner), ``camera_rms_px``
-    ``{camera: px}`` and the held-out errors of :func:`held_out_error`."""
-    sq = np.sum(sol.residuals ** 2, axis=2)
-    cams = np.array([c for c, _, _ in sol.problem.blocks])
-    return {"rms_px": float(np.sqrt(np.nanmean(sq))),
-            "camera_rms_px": {name: float(np.sqrt(np.nanmean(sq[cams == c])))
-                              for c, name in enumerate(sol.problem.cameras)},
-            **held_out_error(sol)}
-
-
-def held_out_error(sol: Solution) -> dict:
-    """The error on instants the calibration did not see (:meth:`Solution.held_out_squares`), as
-    :func:`held_out_summary` gives it."""
-    names = sol.problem.cameras
-    return held_out_summary({view: None if photos is None else {names[c]: sq for c, sq in sorted(photos.items())}
-                             for view, photos in sol.held_out_squares().items()}, names)
-
-
-def held_out_summary(squares: dict[str, dict[str, tuple[float, int]] | None], names) -> dict:
-    """From each instant's held-out ``{camera: (px^2, corners)}`` (None: it cannot be left out):
-    ``held_out_rms_px``, the RMS length of the 2-D held-out residual per corner over the instants
-    that can be left out, ``held_out_per_instant`` ``{view: {"rms_px", "corners"}}`` and the same of
-    each camera of ``names``' own corners, ``held_out_per_camera`` ``{camera: {view: {"rms_px", "corners"}}}``."""
-    per_instant, per_camera = {}, {name: {} for name in names}
-    for view, photos in squares.items():
-        if photos is None:
-            continue
-        for name, (sq, n) in photos.items():
-            per_camera[name][view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
-        sq, n = (sum(x) for x in zip(*photos.values()))
-        per_instant[view] = {"rms_px": float(np.sqrt(max(sq, 0.0) / n)), "corners": n}
-    total = sum(d["rms_px"] ** 2 * d["corners"] for d in per_instant.values())
-    corners = sum(d["corners"] for d in per_instant.values())
-    return {"held_out_rms_px": float(np.sqrt(total / corners)) if corners else None,
-            "held_out_per_instant": per_instant, "held_out_per_camera": per_camera}
-
-
 def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dict],
                             dropped_corners: list[dict] = ()) -> RigModel:
     """Package an adjustment result as the :class:`RigModel` written to calib.json (no checks)."""
     p, st = sol.problem, sol.state
     names = p.cameras
     cams = {name: st.camera(p, c) for c, name in enumerate(names)}
+    fit = fit_summary(sol)
     names_cov, covs = parameter_covariance(sol, COVARIANCE_KINDS)
     sd = {kind: dict(zip(names_cov, np.sqrt(np.maximum(np.diag(cov), 0.0)))) for kind, cov in covs.items()}
     sigma_formal = {name: {n: sd["formal"].get(intrinsic_name(name, n), 0.0) for n in INTRINSIC_NAMES}
                     for name in names}
     sigma = {name: {n: max(sd["clustered"].get(intrinsic_name(name, n), 0.0), s)
                     for n, s in sigma_formal[name].items()} for name in names}
-    fit = fit_summary(sol)
     view_rms: dict[str, dict[str, float]] = {}
     for b, (c, v, _) in enumerate(p.blocks):
         view_rms.setdefault(v, {})[names[c]] = sol.block_rms_px[b]
@@ -347,3 +362,20 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
     return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, fit["camera_rms_px"], rig, poses,
                     dict(sorted(view_rms.items())), fit["rms_px"], corners, adjustment, dropped,
                     sigma_formal, shape, shape_sigma, list(dropped_corners), {}, covariance)
+
+
+def known_intrinsics_record(setup: Setup) -> dict | None:
+    """calib.json's ``adjustment.known_intrinsics`` of a calibration whose ``setup`` had cameras of known
+    intrinsics: ``{"prior_scale_px", "cameras": {camera: KnownIntrinsics.to_dict()}}``; None for none."""
+    if not setup.known:
+        return None
+    return {"prior_scale_px": setup.prior_scale_px,
+            "cameras": {name: known.to_dict() for name, known in sorted(setup.known.items())}}
+
+
+def known_intrinsics_of(adjustment: Mapping) -> tuple[dict[str, KnownIntrinsics] | None, float | None]:
+    """The known intrinsics and the prior's scale a calibration recorded (:func:`known_intrinsics_record`)."""
+    doc = adjustment.get("known_intrinsics")
+    if not doc:
+        return None, None
+    return {name: KnownIntrinsics.from_dict(d) for name, d in doc["cameras"].items()}, doc["prior_scale_px"]

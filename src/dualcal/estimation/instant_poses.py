@@ -208,7 +208,8 @@ def _deleted_costs_alike(rel: InstantRelations, core: np.ndarray, info: np.ndarr
 
 def focal_responses(alone: Solution, views) -> dict[tuple[int, str], np.ndarray]:
     """How each photo's own pose in ``alone`` (every camera alone) moves per unit of focal change of that photo
-    alone, for the photos of ``views``: ``{(camera, view): (6,)}`` (rotation increment, translation). A photo
+    alone, for the photos of ``views``: ``{(camera, view): (6,)}`` (rotation increment, translation; zero for a
+    camera whose intrinsics are held fixed). A photo
     taken at a focal length ``1 + s`` times its camera's has the residuals ``-s J_s`` at its true pose
     (``J_s = fx dr/dfx + fy dr/dfy``), which its pose takes up as far as it can: ``s (J_p^T J_p)^-1 J_p^T J_s``
     (the board nearer, and turned where the board is tilted)."""
@@ -218,8 +219,11 @@ def focal_responses(alone: Solution, views) -> dict[tuple[int, str], np.ndarray]
         c, view = p.blocks[pr.block][:2]
         if view not in views:
             continue
+        if len(lay.intrinsics[c]) < 2:                        # intrinsics held fixed (known): no focal change
+            out[(c, view)] = np.zeros(6)
+            continue
         at = {int(k): i for i, k in enumerate(pr.columns)}
-        fx, fy = lay.intrinsics[c][:2]                        # fx and fy are always free
+        fx, fy = lay.intrinsics[c][:2]                        # fx and fy are free where any intrinsic is
         J_s = alone.state.intrinsics[c][0] * pr.J[:, at[fx]] + alone.state.intrinsics[c][1] * pr.J[:, at[fy]]
         J_p = pr.J[:, [at[k] for k in pose_columns(alone, view, c)]]
         out[(c, view)] = np.linalg.solve(J_p.T @ J_p, J_p.T @ J_s)
@@ -241,7 +245,7 @@ def refocus_explained(rel: InstantRelations, i: int, core: np.ndarray, responses
     U = np.column_stack([J[:, 6 * j:6 * j + 6] @ responses[(c, rel.views[i])] for j, c in enumerate(cams)])
     g, h = U.T @ W @ d, np.einsum("kj,kl,lj->j", U, W, U)
     total = max(float(d @ W @ d), 1e-300)
-    return {c: (float(g[j] * g[j] / h[j] / total), float(g[j] / h[j])) for j, c in enumerate(cams)}
+    return {c: (float(g[j] * g[j] / h[j] / total), float(g[j] / h[j])) for j, c in enumerate(cams) if h[j] > 0}
 
 
 def fit_costs(rel: InstantRelations, members: np.ndarray) -> np.ndarray:

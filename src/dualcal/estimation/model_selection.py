@@ -21,7 +21,8 @@ the model with the fewest coefficients that is within :data:`RECOMMEND_WITHIN_SE
 the best: a richer model must earn its coefficients by predicting the unseen instants clearly
 better.
 
-``calibrate_rig(model="auto")`` (:func:`preferred_lens_models`, :func:`choose_lens_models`) makes that choice
+``calibrate_rig(model="auto")`` (:func:`preferred_lens_models`, :func:`choose_lens_models`: two stages of the
+calibration, :mod:`dualcal.estimation.calibrate`) makes that choice
 for every camera, from its own corners' held-out residuals (calib.json ``adjustment.held_out_per_camera``).
 The candidates of a camera are the radial-tangential models, and the fisheye ``kb4`` too where the camera's field
 of view makes one plausible: Zhang's closed form (no lens) puts the image's corner more than
@@ -46,8 +47,9 @@ import numpy as np
 from ..geometry.camera import DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraModel, image_corner_radius
 from ..errors import EstimationError
 from .adjust import Solution
-from .fitting import fit_summary, held_out_summary, refit, refit_alone, usable_photos
-from ..geometry.model import CornerSet, RigModel
+from .fitting import Setup, refit
+from .held_out import camera_piece, fit_summary, joint_fit
+from ..geometry.model import RigModel
 from ..geometry.zhang import closed_form_camera
 from ..progress import warn
 from .lm import COMPARISON_LM
@@ -79,7 +81,7 @@ class LensModelScore:
 
 def rig_fit(rig: RigModel) -> dict:
     """A calibration's fit and held-out errors as :func:`score_lens_models` takes them (the keys of
-    :func:`dualcal.estimation.fitting.fit_summary`)."""
+    :func:`dualcal.estimation.held_out.fit_summary`)."""
     return {"rms_px": rig.rms_px, "camera_rms_px": rig.camera_rms_px,
             **{k: rig.adjustment[k] for k in ("held_out_per_instant", "held_out_per_camera")}}
 
@@ -91,7 +93,7 @@ def score_lens_models(fits: dict[str, dict], camera: str | None = None,
     Parameters
     ----------
     fits : ``{model: fit}``, each with ``held_out_per_instant`` and ``rms_px`` (and
-        ``held_out_per_camera``, ``camera_rms_px`` for a ``camera``): :func:`dualcal.estimation.fitting.fit_summary`
+        ``held_out_per_camera``, ``camera_rms_px`` for a ``camera``): :func:`dualcal.estimation.held_out.fit_summary`
         of a solution, or :func:`rig_fit` of a calibration.
     camera : score one camera's corners only (its fit RMS, its held-out errors), else the whole rig's.
     first : a model preferred to all others (a fisheye's ``kb4``): it comes first in the order in which
@@ -138,16 +140,22 @@ def score_lens_models(fits: dict[str, dict], camera: str | None = None,
 
 
 def _refits(rig: RigModel, mappings: dict[str, object], rig_mode: str | None = None) -> dict[str, dict]:
-    """:func:`dualcal.estimation.fitting.fit_summary` of ``rig``'s corners refitted with each lens model mapping
+    """:func:`dualcal.estimation.held_out.fit_summary` of ``rig``'s corners refitted with each lens model mapping
     ``{name: model or {camera: model}}`` (:func:`dualcal.estimation.fitting.refit`); one that cannot be solved
     is left out with a warning."""
-    fits = {}
-    for name, mapping in mappings.items():
-        try:
-            fits[name] = fit_summary(refit(rig, model=mapping, rig_mode=rig_mode, options=COMPARISON_LM))
-        except EstimationError as exc:
-            warn(f"lens model {name} could not be calibrated for the comparison: {exc}")
-    return fits
+    solved = {name: _compared(f"lens model {name}", rig, mapping, rig_mode) for name, mapping in mappings.items()}
+    return {name: fit_summary(sol) for name, sol in solved.items() if sol is not None}
+
+
+def _compared(what: str, source, model, rig_mode: str | None, cameras=None) -> Solution | None:
+    """``source`` adjusted again with lens ``model`` to a comparison's tolerance
+    (:func:`dualcal.estimation.fitting.refit`, :data:`dualcal.estimation.lm.COMPARISON_LM`); None, with a
+    warning naming ``what``, where that cannot be solved."""
+    try:
+        return refit(source, model=model, rig_mode=rig_mode, options=COMPARISON_LM, cameras=cameras)
+    except EstimationError as exc:
+        warn(f"{what} could not be calibrated for the comparison: {exc}")
+        return None
 
 
 def compare_lens_models(rig: RigModel, models=tuple(m for m in LENS_MODELS if m not in FISHEYE_MODELS)
@@ -190,34 +198,35 @@ def lens_model_candidates(cam: CameraModel) -> tuple[str, ...]:
     return tuple(m for m in LENS_MODELS if wide or m not in FISHEYE_MODELS)
 
 
-def _closed_form_cameras(corners: CornerSet, skew: bool) -> dict[str, CameraModel]:
-    """Every camera's intrinsics by Zhang's closed form (no lens), from its usable photos (the
-    calibration that follows warns about the others)."""
-    names = sorted(corners.cameras)
-    xy = corners.board.object_points_mm()[:, :2]
-    blocks = usable_photos(corners, names, xy, quiet=True)
-    out = {}
-    for c, name in enumerate(names):
+def preferred_lens_models(setup: Setup, blocks) -> tuple[dict[str, tuple[str, ...]], dict[str, str]]:
+    """Every camera's candidate lens models (:func:`lens_model_candidates`, from Zhang's closed form of its
+    usable photos ``blocks``, ``(camera index, view, uv)``) and its preferred one: the fisheye ``kb4`` where it
+    is a candidate, else :data:`dualcal.geometry.camera.DEFAULT_LENS_MODEL`; a camera whose intrinsics are
+    known (``setup.known``) has none.
+
+    Raises
+    ------
+    EstimationError
+        A camera with fewer than 3 usable photos.
+    """
+    xy = setup.X_board[:, :2]
+    candidates = {}
+    for c, name in enumerate(setup.names):
+        if name in (setup.known or {}):                  # its lens model is known
+            continue
         views = {v: uv for cc, v, uv in blocks if cc == c}
         if len(views) < 3:
             raise EstimationError(f"camera {name!r} has {len(views)} usable view(s); at least 3 are needed")
-        out[name] = closed_form_camera(xy, views, corners.cameras[name].image_size, skew)
-    return out
-
-
-def preferred_lens_models(corners: CornerSet, skew: bool) -> tuple[dict[str, tuple[str, ...]], dict[str, str]]:
-    """Every camera's candidate lens models (:func:`lens_model_candidates`, from Zhang's closed form) and its
-    preferred one: the fisheye ``kb4`` where it is a candidate, else :data:`dualcal.geometry.camera.DEFAULT_LENS_MODEL`."""
-    candidates = {n: lens_model_candidates(cam) for n, cam in _closed_form_cameras(corners, skew).items()}
+        candidates[name] = lens_model_candidates(closed_form_camera(xy, views, setup.sizes[c], setup.skew))
     preferred = {n: next((m for m in c if m in FISHEYE_MODELS), DEFAULT_LENS_MODEL) for n, c in candidates.items()}
     return candidates, preferred
 
 
-def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], preferred: dict[str, str],
-                       alone: Solution | None = None) -> tuple[dict[str, str], list[dict]]:
-    """Every camera's lens model chosen by its held-out instants (module docstring), from ``base``, a
-    calibration with every camera's ``preferred`` model (:func:`preferred_lens_models`), and ``alone``, its
-    solution with every camera alone (flat board) over the photos it kept, where there is one.
+def choose_lens_models(sol: Solution, alone: Solution, candidates: dict[str, tuple[str, ...]],
+                       preferred: dict[str, str]) -> tuple[dict[str, str], list[dict]]:
+    """Every camera's lens model chosen by its held-out instants (module docstring), from ``sol``, a
+    calibration's final solution with every camera's ``preferred`` model (:func:`preferred_lens_models`), and
+    ``alone``, its solution with every camera alone (flat board) over the same photos.
 
     Returns ``{camera: model}`` and the comparison as calib.json keeps it (``adjustment["lens_models"]``):
     one entry per model (the whole rig's scores, every camera alone; for a model that is not every camera's
@@ -227,7 +236,7 @@ def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], p
     names = sorted(candidates)
     mappings = {m: {n: m if m in candidates[n] else preferred[n] for n in names}
                 for m in LENS_MODELS if any(m in c for c in candidates.values())}
-    fits = _camera_fits(base, candidates, preferred, mappings, alone)
+    fits = _camera_fits(sol, alone, candidates, preferred, mappings)
     per_camera, chosen = {}, dict(preferred)
     for n in names:
         try:
@@ -245,71 +254,45 @@ def choose_lens_models(base: RigModel, candidates: dict[str, tuple[str, ...]], p
                      "per_camera": {n: _camera_entry(per_camera.get(n, {}).get(m)) for n in names}} for m in fits]
 
 
-def _camera_fits(base: RigModel, candidates, preferred, mappings: dict[str, dict[str, str]],
-                 alone: Solution | None) -> dict[str, dict]:
-    """``{model: fit}`` (:func:`dualcal.estimation.fitting.fit_summary`'s keys) of ``base``'s corners with every
-    camera alone and the lens models of each mapping ``{model: {camera: model}}``.
+def _camera_fits(sol: Solution, alone: Solution, candidates, preferred,
+                 mappings: dict[str, dict[str, str]]) -> dict[str, dict]:
+    """``{model: fit}`` (:func:`dualcal.estimation.held_out.fit_summary`'s keys) of ``sol``'s photos with every
+    camera alone and the lens models of each mapping ``{model: {camera: model}}``, each adjusted by
+    :func:`dualcal.estimation.fitting.refit`.
 
     With every camera alone and a flat board no camera's fit depends on another's: each camera is adjusted
-    alone once per candidate model (its preferred one is ``alone``'s, or adjusted from ``base``'s values;
-    every other from the solution of the camera's richest model nested in it that has been solved, or from
-    Zhang's closed form for another family), and a mapping's fit is put together from its cameras' (an
-    instant is left out of every camera where one camera cannot do without it, as in one adjustment of them
-    all). A board whose shape ``base`` estimated ties the cameras together: one adjustment per distinct
-    mapping. One that cannot be solved is left out with a warning."""
-    if base.board_shape_mm is not None:
+    alone once per candidate model (its preferred one is ``alone``'s; every other from the solution of the
+    camera's richest model nested in it that has been solved, or from Zhang's closed form for another family),
+    and a mapping's fit is put together from its cameras' (an instant is left out of every camera where one
+    camera cannot do without it, as in one adjustment of them all). A board whose shape ``sol`` estimated ties
+    the cameras together: one adjustment of them all per distinct mapping, from ``sol``. One that cannot be
+    solved is left out with a warning."""
+    shaped = sol.problem.board_shape
+
+    def piece(n: str, mapping: dict[str, str]):
+        """Which solution's part camera ``n`` takes in ``mapping``'s fit."""
+        return n, tuple(sorted(mapping.items())) if shaped else mapping[n]
+
+    if shaped:
+        requests = [(None, key) for key in sorted({tuple(sorted(mp.items())) for mp in mappings.values()})]
         solved = {}
-        for key in {tuple(sorted(mp.items())) for mp in mappings.values()}:
-            try:
-                sol = refit(base, model=dict(key), rig_mode="none", options=COMPARISON_LM)
-                solved[key] = {n: _camera_piece(sol, c) for c, n in enumerate(sol.problem.cameras)}
-            except EstimationError as exc:
-                warn(f"lens models {dict(key)} could not be calibrated for the comparison: {exc}")
-        return {m: _joint_fit({n: solved[key][n] for n in mp}) for m, mp in mappings.items()
-                if (key := tuple(sorted(mp.items()))) in solved}
-    pieces = {}
-    for n in sorted(candidates):
-        solutions = {}                                   # model -> (solution, the camera's index in it)
-        try:
-            solutions[preferred[n]] = ((alone, alone.problem.cameras.index(n)) if alone is not None else
-                                       (refit(base, model=preferred[n], rig_mode="none", options=COMPARISON_LM,
-                                              cameras=[n]), 0))
-        except EstimationError as exc:
-            warn(f"the lens models of {n!r} could not be calibrated for the comparison: {exc}")
-            continue
-        for m in sorted(candidates[n], key=lambda m: len(LENS_MODELS[m])):
-            if m in solutions:
-                continue
-            nested = [k for k in solutions if (k in FISHEYE_MODELS) == (m in FISHEYE_MODELS)
-                      and set(LENS_MODELS[k]) <= set(LENS_MODELS[m])]
-            start = solutions[max(nested, key=lambda k: len(LENS_MODELS[k]))] if nested else solutions[preferred[n]]
-            try:
-                solutions[m] = (refit_alone(*start, m, COMPARISON_LM), 0)
-            except EstimationError as exc:
-                warn(f"lens model {m} of {n!r} could not be calibrated for the comparison: {exc}")
-        pieces.update({(n, m): _camera_piece(*solved) for m, solved in solutions.items()})
-    return {m: _joint_fit({n: pieces[n, k] for n, k in mp.items()}) for m, mp in mappings.items()
-            if all((n, k) in pieces for n, k in mp.items())}
+    else:               # fewest coefficients first: each model starts from the richest one nested in it
+        requests = [((n,), m) for n in sorted(candidates)
+                    for m in sorted(candidates[n], key=lambda m: len(LENS_MODELS[m])) if m != preferred[n]]
+        solved = {((n,), preferred[n]): alone for n in candidates}
+    for cameras, model in requests:
+        start = sol if cameras is None else _nested_start(solved, cameras[0], model, preferred)
+        what = f"lens models {dict(model)}" if cameras is None else f"lens model {model} of {cameras[0]!r}"
+        solved[cameras, model] = _compared(what, start, dict(model) if cameras is None else model, "none", cameras)
+    pieces = {(n, model): camera_piece(s, c) for (cameras, model), s in solved.items() if s is not None
+              for c, n in enumerate(s.problem.cameras) if cameras is None or n in cameras}
+    return {m: joint_fit({n: pieces[piece(n, mp)] for n in mp}) for m, mp in mappings.items()
+            if all(piece(n, mp) in pieces for n in mp)}
 
 
-def _camera_piece(sol: Solution, c: int) -> dict:
-    """Camera ``c``'s part of a fit: its corners' sum of squares (px^2) and count, and per instant its
-    held-out ``(px^2, corners)`` (:meth:`dualcal.estimation.adjust.Solution.held_out_squares`), None where the
-    instant cannot be left out."""
-    sq = np.sum(sol.residuals ** 2, axis=2)[[b for b, (cc, _, _) in enumerate(sol.problem.blocks) if cc == c]]
-    held = {v: None if photos is None else photos[c] for v, photos in sol.held_out_squares().items()
-            if photos is None or c in photos}
-    return {"squares": float(np.nansum(sq)), "corners": int(np.isfinite(sq).sum()), "held_out": held}
-
-
-def _joint_fit(pieces: dict[str, dict]) -> dict:
-    """The fit of cameras alone, ``{camera: piece}`` (:func:`_camera_piece`), as
-    :func:`dualcal.estimation.fitting.fit_summary` gives that of one adjustment of them all (an instant that one
-    camera cannot do without is left out of all)."""
-    views = sorted({v for p in pieces.values() for v in p["held_out"]})
-    squares = {v: None if any(p["held_out"].get(v, ()) is None for p in pieces.values()) else
-               {n: p["held_out"][v] for n, p in pieces.items() if v in p["held_out"]} for v in views}
-    return {"rms_px": float(np.sqrt(sum(p["squares"] for p in pieces.values())
-                                    / sum(p["corners"] for p in pieces.values()))),
-            "camera_rms_px": {n: float(np.sqrt(p["squares"] / p["corners"])) for n, p in pieces.items()},
-            **held_out_summary(squares, list(pieces))}
+def _nested_start(solved: dict, n: str, model: str, preferred: dict[str, str]) -> Solution:
+    """The solution camera ``n``'s ``model`` starts from: that of its richest model nested in ``model`` solved
+    so far (:func:`_camera_fits`), else its preferred model's."""
+    nested = [k for (cams, k), s in solved.items() if cams == (n,) and s is not None
+              and (k in FISHEYE_MODELS) == (model in FISHEYE_MODELS) and set(LENS_MODELS[k]) <= set(LENS_MODELS[model])]
+    return solved[(n,), max(nested, key=lambda k: len(LENS_MODELS[k])) if nested else preferred[n]]

@@ -12,7 +12,9 @@ so ``N = J^T J`` is an arrow matrix::
 
 and :class:`NormalEquations` keeps exactly those pieces, instant by instant (and, where they are
 assembled from photos, each photo's own part: :class:`PhotoNormals`, from which the error an instant's
-photos would have if the fit had not seen them is found without their rows).
+photos would have if the fit had not seen them is found without their rows). A prior on some globals (known
+intrinsics) belongs to no instant: its information ``prior_gg`` (G, G) and gradient ``prior_grad`` (G,) are
+added to the globals' block whole.
 The damped system ``(N + mu D) h = -g`` (``D = diag N``, Marquardt's scaling) is solved by
 eliminating the locals first (:class:`Factorization`): with ``W_v = A_ll,v^-1 A_lg,v`` the reduced
 matrix ``S = A_gg - sum_v A_gl,v W_v`` has only ``G`` rows, so the cost grows linearly with the
@@ -68,6 +70,9 @@ class NormalEquations:
         ``sum r d2r / dp dq`` of the Hessian that a curved model adds to ``J^T J`` (used for the
         steps with ``second_order=True``, never for a covariance).
     photos : each camera's photos' own parts (:class:`PhotoNormals`), where they were kept.
+    prior_gg, prior_grad : None, or (G, G) and (G,) a prior's information and gradient (module docstring).
+    prior_meat_root : None, or (G, q): ``R R^T`` is the variance of the prior's part of the gradient, which the
+        covariance clustered by instant adds (:mod:`dualcal.estimation.uncertainty`).
     """
 
     gg: np.ndarray
@@ -79,6 +84,9 @@ class NormalEquations:
     curvature_gl: np.ndarray | None = None
     curvature_ll: np.ndarray | None = None
     photos: list[PhotoNormals] = field(default_factory=list)
+    prior_gg: np.ndarray | None = None
+    prior_grad: np.ndarray | None = None
+    prior_meat_root: np.ndarray | None = None
 
     @classmethod
     def zeros(cls, n_global: int, local_used: np.ndarray) -> "NormalEquations":
@@ -106,22 +114,29 @@ class NormalEquations:
             photos.append(replace(ph, grad_g=grad_g, grad_l=grad_l, squares=squares))
         return replace(self, grad_g=self.grad_g + self.gg @ h_g + np.einsum("vgl,vl->vg", self.gl, h_l),
                        grad_l=self.grad_l + np.einsum("vgl,g->vl", self.gl, h_g) + np.einsum("vij,vj->vi", self.ll, h_l),
-                       photos=photos)
+                       photos=photos,
+                       prior_grad=None if self.prior_grad is None else self.prior_grad + self.prior_gg @ h_g)
+
+    def global_block(self) -> np.ndarray:
+        """(G, G) the globals' block of ``N``: every instant's, and the prior's."""
+        gg = self.gg.sum(axis=0)
+        return gg if self.prior_gg is None else gg + self.prior_gg
 
     def gradient(self) -> np.ndarray:
         """``J^T r`` as one flat vector (module docstring)."""
-        return np.concatenate([self.grad_g.sum(axis=0), self.grad_l.ravel()])
+        g = self.grad_g.sum(axis=0)
+        return np.concatenate([g if self.prior_grad is None else g + self.prior_grad, self.grad_l.ravel()])
 
     def diagonal(self) -> np.ndarray:
         """``diag N`` as one flat vector; 1 for unused local slots (so it can divide)."""
         d_l = np.where(self.local_used, np.diagonal(self.ll, axis1=1, axis2=2), 1.0)
-        return np.concatenate([np.diagonal(self.gg, axis1=1, axis2=2).sum(axis=0), d_l.ravel()])
+        return np.concatenate([np.diag(self.global_block()), d_l.ravel()])
 
     def metric(self, h: np.ndarray) -> float:
         """``h^T N h`` for a flat vector ``h`` (the squared change of the residuals ``J h``)."""
         G, (V, L) = self.n_global, self.ll.shape[:2]
         h_g, h_l = h[:G], h[G:].reshape(V, L)
-        return float(h_g @ self.gg.sum(axis=0) @ h_g + 2.0 * np.einsum("g,vgl,vl->", h_g, self.gl, h_l)
+        return float(h_g @ self.global_block() @ h_g + 2.0 * np.einsum("g,vgl,vl->", h_g, self.gl, h_l)
                      + np.einsum("vi,vij,vj->", h_l, self.ll, h_l))
 
     def factor(self, mu: float = 0.0, second_order: bool = False) -> "Factorization":
@@ -147,7 +162,7 @@ class Factorization:
         chol_inv = np.linalg.inv(chol)
         self.ll_inv = np.swapaxes(chol_inv, 1, 2) @ chol_inv         # (V, L, L)
         self.W = self.ll_inv @ np.swapaxes(gl, 1, 2)               # (V, L, G)
-        A_gg = ne.gg.sum(axis=0)
+        A_gg = ne.global_block()
         A_gg = A_gg + mu * np.diag(np.diag(A_gg))
         self.S = A_gg - np.einsum("vgl,vlh->gh", gl, self.W)
         self.chol_S = np.linalg.cholesky(self.S)                     # raises LinAlgError too
@@ -157,7 +172,7 @@ class Factorization:
         """The flat step ``h`` solving ``A h = -g``."""
         ne = self.ne
         y_l = -np.einsum("vij,vj->vi", self.ll_inv, ne.grad_l)
-        h_g = self._solve_S(-ne.grad_g.sum(axis=0) - np.einsum("vgl,vl->g", self.gl, y_l))
+        h_g = self._solve_S(-ne.gradient()[:ne.n_global] - np.einsum("vgl,vl->g", self.gl, y_l))
         h_l = y_l - self.W @ h_g
         return np.concatenate([h_g, np.where(ne.local_used, h_l, 0.0).ravel()])
 

@@ -1,223 +1,340 @@
-"""Values judged against a robust estimate of the others' scatter, so that two or three bad ones cannot hide each
-other (masking): the statistics under ``rig_rigid`` and ``focus`` (:mod:`dualcal.estimation.checks`).
+"""Outliers: single corners far off their photo's fit, and photos (or instants) that do not fit at all.
 
-The checks have values ``x_i`` (one per instant or photo) that share one location and one unknown scale,
-each with its own known relative spread ``r_i``::
-
-    x_i = mu + tau r_i eps_i,    eps_i ~ N(0, 1)
-
-(``rig_rigid``: the cube root of each instant's tie statistic, :func:`cube_root_spread`; ``focus``: each photo's
-focal scale with its own sigma). Each value is judged against others (:func:`core_tests`): with their weighted
-mean ``mu`` and spread ``tau`` (weights ``r^-2``), ``t_i = (x_i - mu) / (tau sqrt(r_i^2 + 1 / sum r_j^-2))`` is
-Student's ``t`` with ``n - 1`` degrees of freedom for ``n`` others (the externally studentised residual; a share
-``dof_share`` of them where the values scatter as a mixture, with longer tails than one normal). The textbook
-test takes every other value, and fails where several are off: each bad one widens the others' spread and moves
-their mean, so none stands out. Here the others are a **core** (:func:`robust_core`): the values each of which
-passes its test against the rest of the core at the test's own rate, found from a start that no bad value can
-move while they are fewer than half (the weighted median and the median absolute deviation of the values, which
-may depend on the core: an instant's statistic against the rig's relations the core tells). Every value outside
-the core fails its test and every value inside passes, so where nothing is wrong the core is every value (but
-at the tests' own rate) and the tests are the textbook ones, with their false-alarm rate.
-
-A lens split (two lenses merged into one camera) defeats any test of one value against the others: half the
-photos are off, in two groups. :func:`split_test` judges the best split of the sorted values into two groups
-against the same values' splits by chance.
+A corner is an outlier when its residual is far above its photo's own noise (:func:`outlier_limit_px` of
+:data:`dualcal.estimation.photo_noise.MEDIAN_LENGTH` times the photo's noise, estimated with every camera alone:
+:mod:`dualcal.estimation.photo_noise`), so that a blurred photo keeps its corners; it is left out
+(``dropped_corners``). (Without the photos weighed by their noise, the limit is that of the typical residual of
+the photo's camera.) A photo is dropped only for a gross misfit: its noise beyond a tenth of its squares (another
+numbering, another board), or most of its corners outliers against its own noise (:data:`MOST_CORNERS`: a board
+moved between the shots of an instant), and only where that really improves the fit, with a recorded reason; in
+a tied rig, an instant whose photos fit their cameras alone but not the rig is dropped whole (the cameras' shots
+disagree), or the photo whose own focal length explains the misfit (a refocus).
+:func:`adjust_dropping_outliers` is the stage of the calibration (:mod:`dualcal.estimation.calibrate`) that does
+this with every camera alone first, so that a bad photo shows in its own camera's residuals and each photo's
+noise is its own corners', then with the rig tied.
 """
 
 from __future__ import annotations
 
-import functools
-import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .distributions import f_quantile, f_sf
+from .adjust import Solution
+from .checking import _refocused_camera
+from .checks import REFOCUS_SHARE, design_effect, focal_scale_fits
+from .fitting import MIN_VIEWS, Setup, unusable_reason
+from .photo_noise import MEDIAN_LENGTH, PhotoNoise, photo_noise, rough_residuals
+from ..progress import warn
 
-__all__ = ["CoreTest", "core_tests", "cube_root_spread", "robust_core", "split_test", "t_limit"]
-
-#: MAD of a normal over its standard deviation.
-_MAD_NORMAL = 0.6744897501960817
-_MAX_ROUNDS = 20
-
-
-def cube_root_spread(dofs) -> np.ndarray:
-    """The relative spread ``r`` (k,) of the cube roots of chi-square statistics of ``dofs`` (k,) degrees of freedom
-    each over its degrees of freedom (Wilson and Hilferty, 1931: ``(chi^2_k / k)^(1/3)`` is nearly normal, of
-    variance ``2 / (9 k)``; with fewer effective degrees of freedom, as noise correlated within a photo leaves, all
-    spreads grow by one factor, which ``tau`` takes)."""
-    return np.sqrt(2.0 / (9.0 * np.asarray(dofs, float)))
+OUTLIER_FLOOR_PX = 0.05
+#: A photo is dropped when more than this share of its corners are outliers.
+MOST_CORNERS = 0.5
 
 
-def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
-    order = np.argsort(x)
-    cum = np.cumsum(w[order])
-    return float(x[order][np.searchsorted(cum, 0.5 * cum[-1])])
+def outlier_limit_px(median_px: float, factor: float) -> float:
+    """Residual above which a corner is an outlier: ``factor`` x the median length of a corner residual
+    (``median_px``: its photo's in its own noise, :data:`dualcal.estimation.photo_noise.MEDIAN_LENGTH` sigma; or
+    its camera's), but never below :data:`OUTLIER_FLOOR_PX`. For independent equal errors the median length is
+    1.18 sigma, so the default factor 6 puts the limit at 7 sigma: corner errors on real photos have long tails
+    (a board's own defects, blur), and only gross errors (a corner on the wrong feature) are meant; on the real
+    sets a limit of 4 medians took out corners whose error the photos share, and the sigmas of k suffered. The
+    report uses it too."""
+    return max(factor * median_px, OUTLIER_FLOOR_PX)
 
 
-@functools.lru_cache(maxsize=256)
-def t_limit(dof: float, rate: float, two_sided: bool) -> float:
-    """The ``t`` that Student's t of ``dof`` degrees of freedom exceeds (in absolute value, ``two_sided``) with
-    probability ``rate`` (a quantile costs a millisecond, and the tests of one core share a few)."""
-    return math.sqrt(f_quantile(1, dof, 1.0 - (rate if two_sided else 2.0 * rate)))
+def corner_outliers(sol: Solution, factor: float, noise: PhotoNoise | None = None,
+                    lengths: np.ndarray | None = None):
+    """Which measured corners are outliers: ``(B, N)`` bool, each photo's limit (B,) px and the residual lengths
+    judged (B, N) px: ``lengths`` (with every camera alone, the rough residuals':
+    :func:`dualcal.estimation.photo_noise.rough_residuals`), or the residuals', against its own ``noise``
+    (:func:`dualcal.estimation.photo_noise.photo_noise`), or, without it (or for a photo it has not), against its
+    camera's median residual."""
+    p = sol.problem
+    length = np.linalg.norm(sol.residuals, axis=2) if lengths is None else lengths          # (B, N), NaN
+
+    cams = np.array([c for c, _, _ in p.blocks])
+    limit = np.empty(len(cams))
+    for c in np.unique(cams):
+        limit[cams == c] = outlier_limit_px(float(np.nanmedian(length[cams == c])), factor)
+    if noise is not None:
+        for b, (c, v, _) in enumerate(p.blocks):
+            if (p.cameras[c], v) in noise.noise_px:
+                limit[b] = outlier_limit_px(MEDIAN_LENGTH * noise.noise_px[p.cameras[c], v], factor)
+    with np.errstate(invalid="ignore"):
+        return length > limit[:, None], limit, length
+
+
+def outlier_shares(sol: Solution, factor: float, noise: PhotoNoise | None = None,
+                   lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each photo's share of outlier corners (B,) and its limit (B,) px (:func:`corner_outliers`)."""
+    out, limit, _ = corner_outliers(sol, factor, noise, lengths)
+    return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1), limit
+
+
+def find_outlier(shares: np.ndarray, limits: np.ndarray):
+    """The photo with the largest share of outlier corners (:func:`outlier_shares`), if more than
+    :data:`MOST_CORNERS` of them are, as ``(block, share, limit_px)``; else None."""
+    worst = int(np.argmax(shares))
+    if shares[worst] <= MOST_CORNERS:
+        return None
+    return worst, float(shares[worst]), float(limits[worst])
+
+
+def _views_left(blocks, c: int) -> int:
+    return sum(1 for blk in blocks if blk[0] == c)
+
+
+MAX_CORNER_ROUNDS = 5
+#: Each photo's noise (with ``weigh``) is estimated again from every solution, and the photos weighed by it
+#: again, until no weight changes by more than this share (at most :data:`MAX_REWEIGHTS` times).
+REWEIGHT_TOLERANCE = 1e-3
+MAX_REWEIGHTS = 10
 
 
 @dataclass(frozen=True)
-class CoreTest:
-    """One value judged against others: ``t`` its externally studentised residual, ``dof`` Student's degrees of
-    freedom, ``p`` the p-value (one-sided, upward, or two-sided), ``mu`` the others' location and ``spread`` the
-    standard deviation of the value's difference from it (``t = (x - mu) / spread``)."""
+class _Round:
+    """What one round of :func:`adjust_dropping_outliers` adjusts (``kind``: ``start``, ``photo``, ``instant``,
+    ``gross``, ``corners``, ``reweight`` or ``prior``): each of ``trials`` (lists of photos, the one that fits best
+    is kept) from ``start``, with the solver's switches ``setup`` (None: as before: a ``reweight`` round weighs the
+    photos by their noise, ``noise``, and gives a prior on known intrinsics its scale, as a ``prior`` round
+    does); with ``improve``, kept only where it fits better than the solution before (else ``kept``, a warning,
+    is said where given); ``record(before, after, trial)`` records and says what was left out."""
 
-    t: float
-    dof: float
-    p: float
-    mu: float
-    spread: float
-
-    def limit(self, rate: float, two_sided: bool) -> float:
-        """The ``t`` a value of this test reaches at p-value ``rate``."""
-        return t_limit(self.dof, rate, two_sided)
-
-
-def _studentised(x: np.ndarray, r: np.ndarray, core: np.ndarray, dof_share: float):
-    """Every value's ``(t, dof, mu, spread)`` against the core without it, as arrays (NaN where fewer than three
-    others remain or the value is not finite)."""
-    w = np.where(core, 1.0 / np.square(r), 0.0)
-    xs = np.where(core, x, 0.0)
-    own = core.astype(float)
-    n = core.sum() - own                               # the others, each value's own taken away
-    W = w.sum() - w
-    S1 = (w * xs).sum() - w * xs
-    S2 = (w * xs * xs).sum() - w * xs * xs
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mu = S1 / W
-        tau = np.sqrt(np.maximum(S2 - S1 * mu, 0.0) / (n - 1))
-        spread = np.maximum(tau, 1e-300) * np.sqrt(r ** 2 + 1.0 / W)
-        t = (x - mu) / spread
-    bad = (n < 3) | ~np.isfinite(x)
-    return np.where(bad, np.nan, t), dof_share * (n - 1), mu, spread
+    kind: str
+    trials: list[list]
+    start: Solution | None = None
+    setup: Setup | None = None
+    noise: PhotoNoise | None = None
+    improve: bool = False
+    kept: str | None = None
+    record: Callable[[Solution, Solution, int], None] | None = None
 
 
-def core_tests(x: np.ndarray, r: np.ndarray, core: np.ndarray, two_sided: bool,
-               dof_share: float = 1.0) -> list[CoreTest | None]:
-    """Every value ``x_i`` against the core without it (module docstring), by Student's t of ``dof_share`` of its
-    degrees of freedom; None where fewer than three others remain or the value is not finite. ``two_sided`` False
-    judges only values above the others (a worse fit)."""
-    x, r, core = np.asarray(x, float), np.asarray(r, float), np.asarray(core, bool)
-    t, dof, mu, spread = _studentised(x, r, core, dof_share)
-    out = []
-    for i in range(len(x)):
-        if np.isnan(t[i]):
-            out.append(None)
-            continue
-        tail = f_sf(t[i] * t[i], 1, dof[i])               # P(|T| > |t|) for Student's t
-        p = tail if two_sided else (0.5 * tail if t[i] > 0 else 1.0 - 0.5 * tail)
-        out.append(CoreTest(float(t[i]), float(dof[i]), float(p), float(mu[i]), float(spread[i])))
-    return out
+def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corners, start=None,
+                             noise: PhotoNoise | None = None, weigh: bool = False):
+    """Solve, drop outlier photos and then outlier corners while there are any, solve again;
+    returns ``(solution, blocks, noise, setup)``.
 
+    Each round decides what to leave out of the current solution (:func:`_next_round`) and adjusts the
+    photos without it, the one adjustment of the stage: a photo, an instant or a refocused photo from a
+    fresh start (the solution with the bad photo in it may be far off), kept only where the fit then really
+    improves; outlier corners from the solution, a round at a time (at most :data:`MAX_CORNER_ROUNDS`), as
+    the limit is recomputed. In a tied rig a bad photo pulls the shared pose and so spreads its error over
+    every photo of that instant; of the photos of the flagged instant whose corners are mostly outliers,
+    the one whose removal fits best is dropped.
 
-def robust_core(values, r: np.ndarray, rate: float, dof_share: float = 1.0,
-                start: np.ndarray | None = None) -> np.ndarray:
-    """The core (n,) bool: the values each of which passes its test against the rest of the core at ``rate``
-    (:func:`core_tests`, two-sided, with ``dof_share``; module docstring): a value far below the others leaves
-    it too, so that it does not widen their spread, though only a value above them may fail a one-sided test.
-
-    Parameters
-    ----------
-    values : (n,) array, or a callable ``core -> (n,) array``: values that depend on the core (each instant's
-        statistic against the rig's relations fitted to the core) are computed again for every core tried.
-    r : (n,) the values' relative spreads.
-    rate, dof_share : the tests'.
-    start : (n,) bool or None: the core whose values the start takes (None: every value). The start keeps the
-        values within the tests' limit of the values' weighted median, in units of their median absolute
-        deviation, which bad values cannot move while they are fewer than half.
-
-    Returns
-    -------
-    (n,) bool: the last core, its values' tests against it all passing (or, after 20 rounds or before a core of
-    fewer than four, the last one tried). A value that is not finite is never in it.
+    With ``weigh`` (every camera alone, ``setup.mode`` ``none``) each photo's noise is estimated from every
+    solution (:func:`dualcal.estimation.photo_noise.photo_noise`), its corners judged against it, and the photos
+    weighed by it and adjusted again until the weights settle (:data:`REWEIGHT_TOLERANCE`); the ``noise``
+    returned is the one whose weights the solution has, with the ``setup`` of its switches (the weights, and
+    the scale of a prior on known intrinsics, which they hold until the first solution's noise gives it; without
+    ``weigh``, its ``s0``). With ``noise`` (the cameras alone's, ``setup``'s weights
+    from it) in a tied rig, a photo is judged against it, and no single corner: a corner that fits its photo's
+    own pose but not the rig's is no corner error but its instant's misfit (a shot out of sync, a board moved),
+    which the photo or the instant is dropped for, or ``rig_rigid`` names. Without either, the corners are judged
+    against their camera's median residual.
     """
-    compute = values if callable(values) else (lambda core: values)
-    r = np.asarray(r, float)
-    n = len(r)
-    if n < 4:                                        # too few to judge any against the others
-        return np.ones(n, bool)
-    x = np.asarray(compute(np.ones(n, bool) if start is None else np.asarray(start, bool)), float)
-    mu = _weighted_median(x, 1.0 / r ** 2)
-    tau = float(np.median(np.abs(x - mu) / r)) / _MAD_NORMAL
-    if not 0 < tau < np.inf:
-        return np.isfinite(x)
-    core = np.abs(x - mu) <= t_limit(max(dof_share * (n - 2), 1.0), rate, True) * tau * r
-    for _ in range(_MAX_ROUNDS):
-        x = np.asarray(compute(core), float)
-        t, dof, _, _ = _studentised(x, r, core, dof_share)
-        limits = np.array([t_limit(float(d), rate, True) if d > 0 else np.inf for d in dof])
-        new = np.abs(t) <= limits                       # NaN (cannot be judged) is not in it
-        if new.sum() < 4 or (new == core).all():
+    alone_share = {}
+    if factor and setup.mode != "none" and start is not None:
+        rough = None if noise is None else np.linalg.norm(rough_residuals(start, factor)[0], axis=2)
+        alone_share = dict(zip([(c, v) for c, v, _ in start.problem.blocks],
+                               outlier_shares(start, factor, noise, rough)[0]))
+    sol, corner_rounds, reweights, weighed = None, 0, 0, noise
+    step: _Round | None = _Round("start", [blocks], start)
+    while step is not None:
+        if step.setup is not None:
+            setup, weighed = step.setup, step.noise or weighed
+        trials = [setup.solve(trial, step.start) for trial in step.trials]
+        best = min(range(len(trials)), key=lambda i: trials[i].s0_px)
+        if step.improve and trials[best].s0_px >= sol.s0_px:
+            if step.kept:
+                warn(step.kept)
             break
-        core = new
-    return core
+        if step.record is not None:
+            step.record(sol, trials[best], best)
+        sol, blocks = trials[best], step.trials[best]
+        if weigh:
+            noise = photo_noise(sol, factor)
+        step = _next_round(setup, sol, blocks, start, factor, alone_share, dropped, dropped_corners,
+                           corner_rounds < MAX_CORNER_ROUNDS and (noise is None or setup.mode == "none"), noise,
+                           weigh and reweights < MAX_REWEIGHTS)
+        corner_rounds += step is not None and step.kind == "corners"
+        reweights += step is not None and step.kind == "reweight"
+    if weigh and weighed is None:          # the first weights were 1 within the tolerance: the solution's own
+        weighed, setup = noise, replace(setup, weights=noise.weights())
+    return sol, blocks, weighed, setup
 
 
-#: The least number of values in either group of :func:`split_test`.
-MIN_SPLIT_GROUP = 3
-#: Draws of the split statistic under the null hypothesis (fixed seed, so that a calibration is repeatable).
-SPLIT_DRAWS = 4000
+def _settled(setup: Setup, noise: PhotoNoise) -> bool:
+    """Whether the photos' weights of ``noise`` are ``setup``'s, within :data:`REWEIGHT_TOLERANCE`."""
+    old, new = setup.weights or {}, noise.weights() or {}
+    return all(abs(new.get(k, 1.0) / old.get(k, 1.0) - 1.0) <= REWEIGHT_TOLERANCE for k in old.keys() | new.keys())
 
 
-def _split_f(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every row of ``x`` (m, n) sorted (``order`` (m, n)), and the ``F`` of each of its splits into the lowest
-    ``j + 1`` and the rest, ``j`` from ``MIN_SPLIT_GROUP - 1`` (m, n + 1 - 2 MIN_SPLIT_GROUP), weights ``w`` (n,)
-    (see :func:`split_test`)."""
-    order = np.argsort(x, axis=1)
-    xs, ws = np.take_along_axis(x, order, axis=1), w[order]
-    n = x.shape[1]
-    cw, cx, cxx = np.cumsum(ws, axis=1), np.cumsum(ws * xs, axis=1), np.cumsum(ws * xs * xs, axis=1)
-    j = np.arange(MIN_SPLIT_GROUP - 1, n - MIN_SPLIT_GROUP)
-    wa, xa, xxa = cw[:, j], cx[:, j], cxx[:, j]
-    wb, xb, xxb = cw[:, -1:] - wa, cx[:, -1:] - xa, cxx[:, -1:] - xxa
-    within = (xxa - xa * xa / wa) + (xxb - xb * xb / wb)
-    between = (xa / wa - xb / wb) ** 2 * wa * wb / (wa + wb)
-    return order, between / np.maximum(within, 1e-300) * (n - 2)
+def _next_round(setup: Setup, sol: Solution, blocks, alone: Solution | None, factor: float | None, alone_share: dict,
+                dropped: list, dropped_corners: list, corners_too: bool, noise: PhotoNoise | None,
+                reweigh: bool) -> _Round | None:
+    """What to do next with ``sol`` (:func:`adjust_dropping_outliers`): leave out a photo of a gross misfit
+    (:attr:`dualcal.estimation.photo_noise.PhotoNoise.gross`), else the photo (or the instant, or the refocused
+    photo of an instant) most of whose corners are outliers against ``noise``, else, where ``corners_too``, the
+    outlier corners; else, where ``reweigh``, weigh the photos by ``noise`` where their weights have not
+    settled; give a prior on known intrinsics its scale where it has none yet. None where there is nothing to do,
+    or what should be left out cannot be (a warning says why)."""
+    if factor:
+        leave_out = _leave_out(setup, sol, blocks, alone, factor, alone_share, dropped, dropped_corners, corners_too,
+                               noise)
+        if leave_out is not None:
+            return leave_out
+    if reweigh and not _settled(setup, noise):
+        return _Round("reweight", [blocks], sol, replace(setup, weights=noise.weights(), prior_scale_px=(
+            noise.reference_px if setup.known else None)), noise)
+    if any(k.mode == "prior" for k in (setup.known or {}).values()) and setup.prior_scale_px is None:
+        return _Round("prior", [blocks], sol, replace(setup, weights=None if noise is None else noise.weights(),
+                                                      prior_scale_px=sol.s0_px), noise)
+    return None
 
 
-def split_test(x: np.ndarray, r: np.ndarray, rate: float, dof_share: float = 1.0,
-               least_change: float = 0.0) -> dict | None:
-    """Whether values ``x`` (n,) of relative spreads ``r`` (n,) fall into two groups of different locations.
-
-    For every split of the sorted values into a lower and an upper group of at least :data:`MIN_SPLIT_GROUP`,
-    ``F = between / (within / (n - 2))`` (weighted by ``r^-2``: the squared difference of the groups' means over
-    its variance against the groups' own scatter); the statistic is the largest. Sorting makes it far larger
-    than ``F(1, n - 2)`` on values of one location, so its distribution is drawn: :data:`SPLIT_DRAWS` sets of
-    values ``r_i eps_i`` (fixed seed; the unknown scale cancels; ``eps`` Student's t of ``dof_share (n - 2)``
-    degrees of freedom, normal for ``dof_share`` 1, as :func:`core_tests` takes them), the limit its
-    ``1 - rate`` quantile (for a ``rate`` below ``1 / SPLIT_DRAWS`` the draws' largest, a limit a little low).
-
-    Returns ``{"f", "limit", "p", "change", "lower": (n,) bool, "failed"}``: the lower group of the best split,
-    ``change`` the upper group's weighted mean less the lower's, ``p`` the share of draws at or beyond ``f`` (at
-    least ``1 / SPLIT_DRAWS``); ``failed`` where ``f`` exceeds its limit and ``change`` exceeds ``least_change``
-    (a split too small to matter is not drawn for: ``limit`` and ``p`` None). None for fewer than
-    ``2 MIN_SPLIT_GROUP`` values.
-    """
-    x, r = np.asarray(x, float), np.asarray(r, float)
-    n = len(x)
-    if n < 2 * MIN_SPLIT_GROUP:
+def _leave_out(setup: Setup, sol: Solution, blocks, alone: Solution | None, factor: float, alone_share: dict,
+               dropped: list, dropped_corners: list, corners_too: bool, noise: PhotoNoise | None) -> _Round | None:
+    """The round that leaves out what :func:`_next_round` says, or None."""
+    names = setup.names
+    lengths = noise.lengths_px if noise is not None and setup.mode == "none" else None   # with every camera alone
+    index = {(names[c], v): i for i, (c, v, _) in enumerate(blocks)}
+    gross = [index[k] for k in (noise.gross if noise is not None else ())
+             if k in index and _views_left(blocks, blocks[index[k]][0]) > MIN_VIEWS]
+    if gross:                            # the worst first: it may have pulled the others' fit off
+        return _without_gross(setup, blocks, gross[0], dropped)
+    shares, limits = outlier_shares(sol, factor, noise, lengths)
+    out = find_outlier(shares, limits)
+    if out is None:
+        bad, limit, length = corner_outliers(sol, factor, noise, lengths)
+        if not bad.any() or not corners_too:
+            return None
+        return _Round("corners", [_without_corners(setup, sol, blocks, bad, limit, length, dropped, dropped_corners)],
+                      sol)
+    b, share, limit = out
+    view = blocks[b][1]
+    instant = _instant_misfit(setup, sol, alone, blocks, view, alone_share)
+    if instant == "instant":
+        return _without_instant(setup, alone, blocks, view, dropped)
+    if instant is not None:
+        candidates = instant                      # the refocused photo(s) of the instant
+    else:
+        candidates = [b] if setup.mode == "none" else [i for i, blk in enumerate(blocks) if blk[1] == view]
+    candidates = [i for i in candidates if _views_left(blocks, blocks[i][0]) > MIN_VIEWS]
+    if setup.mode != "none" and instant is None:
+        candidates = [i for i in candidates if shares[i] > MOST_CORNERS]
+    photo = f"{names[blocks[b][0]]}/{view}: {share:.0%} of its corners are outliers (limit {limit:.3g} px)"
+    if not candidates:
+        warn(f"{photo} but it cannot be dropped: only {MIN_VIEWS} views left for {names[blocks[b][0]]!r}")
         return None
-    w = 1.0 / r ** 2
-    order, f_splits = _split_f(x[None, :], w)
-    best = int(np.argmax(f_splits[0]))
-    lower = np.zeros(n, bool)
-    lower[order[0, :best + MIN_SPLIT_GROUP]] = True
-    change = float(np.average(x[~lower], weights=w[~lower]) - np.average(x[lower], weights=w[lower]))
-    out = {"f": float(f_splits[0, best]), "limit": None, "p": None, "change": change, "lower": lower,
-           "failed": False}
-    if change <= least_change:
-        return out
-    rng = np.random.default_rng(0)
-    eps = rng.standard_normal((SPLIT_DRAWS, n)) if dof_share >= 1 else rng.standard_t(dof_share * (n - 2),
-                                                                                       (SPLIT_DRAWS, n))
-    null = np.sort(np.max(_split_f(eps * r, w)[1], axis=1))
-    out["limit"] = float(null[min(int(math.floor((1.0 - rate) * SPLIT_DRAWS)), SPLIT_DRAWS - 1)])
-    out["p"] = max(float(np.mean(null >= out["f"])), 1.0 / SPLIT_DRAWS)
-    out["failed"] = out["f"] > out["limit"]
+    median = ("the median its photo's own noise gives" if noise is not None else
+              f"the median of {names[blocks[b][0]]!r}")
+
+    def record(before: Solution, after: Solution, trial: int):
+        i = candidates[trial]
+        c, rms_i = blocks[i][0], before.block_rms_px[i]
+        if instant is not None:
+            reason = (f"it fits {names[c]!r} alone, but tied to the rig only with a focal length of its own: the "
+                      f"phone refocused or zoomed between the shots of {view} (photo RMS {rms_i:.3g} px in rig mode "
+                      f"{setup.mode}; without it s0 falls from {before.s0_px:.3g} to {after.s0_px:.3g} px); lock focus")
+        else:
+            reason = (f"{share:.0%} of its corners are outliers (residual above {limit:.3g} px, {factor:g} x "
+                      f"{median}; photo RMS {rms_i:.3g} px) in rig mode {setup.mode}; without it s0 "
+                      f"falls from {before.s0_px:.3g} to {after.s0_px:.3g} px (moved board, wrong corner order, blur, "
+                      "or another zoom/focus setting?)")
+        warn(f"dropping {names[c]}/{view}: {reason}")
+        dropped.append({"camera": names[c], "view": view, "rms_px": rms_i, "reason": reason})
+
+    return _Round("photo", [blocks[:i] + blocks[i + 1:] for i in candidates], improve=True,
+                  kept=f"{photo} but dropping the photo does not improve the fit: kept", record=record)
+
+
+def _without_gross(setup: Setup, blocks, b: int, dropped: list) -> _Round:
+    """The round without photo ``b``, a gross misfit (:attr:`dualcal.estimation.photo_noise.PhotoNoise.gross`)."""
+    c, view, _ = blocks[b]
+
+    def record(before: Solution, after: Solution, _trial: int):
+        reason = (f"its corners are off its own fit by {before.block_rms_px[b]:.3g} px RMS, more than a tenth of its "
+                  f"squares in the photo: no noise of a corner detection, but another numbering of the board (turned "
+                  f"or mirrored), another board, or corners found wrongly; without it s0 is {after.s0_px:.3g} px")
+        warn(f"dropping {setup.names[c]}/{view}: {reason}")
+        dropped.append({"camera": setup.names[c], "view": view, "rms_px": before.block_rms_px[b], "reason": reason})
+
+    return _Round("gross", [blocks[:b] + blocks[b + 1:]], record=record)
+
+
+def _instant_misfit(setup: Setup, sol: Solution, alone: Solution | None, blocks, view: str, alone_share: dict):
+    """Why the photos of ``view`` do not fit the rig when every one of them fits its camera alone
+    (``alone_share``: each photo's share of outlier corners with every camera alone): ``"instant"``
+    when the cameras' shots disagree, or the blocks of the photo(s) whose own focal length explains
+    the misfit (a refocus, :data:`dualcal.estimation.checks.REFOCUS_SHARE`); None when a photo is an outlier
+    alone (a bad photo, judged photo by photo) or the instant has one camera."""
+    instant = [i for i, blk in enumerate(blocks) if blk[1] == view]
+    if alone is None or len({blocks[i][0] for i in instant}) < 2:
+        return None
+    if any(alone_share.get((blocks[i][0], view), 1.0) > MOST_CORNERS for i in instant):
+        return None
+    alone_cost = dict(zip([(c, v) for c, v, _ in alone.problem.blocks], alone.block_costs()))
+    tied_cost = sol.block_costs()
+    tie = sum(float(tied_cost[i]) - alone_cost.get((blocks[i][0], view), 0.0) for i in instant)
+    if not any(tie > 0 and f["explained_px2"] >= REFOCUS_SHARE * tie for f in focal_scale_fits(sol, {view})):
+        return "instant"
+    c = _refocused_camera(alone, view, design_effect(alone))
+    return [i for i in instant if blocks[i][0] == c] or "instant"
+
+
+def _without_instant(setup: Setup, alone: Solution, blocks, view: str, dropped) -> _Round | None:
+    """The round without every photo of ``view`` (an instant whose photos fit their cameras alone but not the
+    rig), each recorded in ``dropped`` with the reason where that improves the fit; None where that leaves a
+    camera too few views (a warning says so)."""
+    names = setup.names
+    instant = [i for i, blk in enumerate(blocks) if blk[1] == view]
+    rest = [blk for i, blk in enumerate(blocks) if i not in instant]
+    short = [names[blocks[i][0]] for i in instant if _views_left(rest, blocks[i][0]) < MIN_VIEWS]
+    if short:
+        warn(f"instant {view} does not fit the rig, but it cannot be dropped: only {MIN_VIEWS} views left for "
+             f"{short[0]!r}")
+        return None
+
+    def record(before: Solution, after: Solution, _trial: int):
+        alone_rms = {(c, v): r for (c, v, _), r in zip(alone.problem.blocks, alone.block_rms_px)}
+        cams = [names[blocks[i][0]] for i in instant]
+        fits = ", ".join(f"{names[blocks[i][0]]} {alone_rms.get((blocks[i][0], view), float('nan')):.3g} px"
+                         for i in instant)
+        tied = ", ".join(f"{names[blocks[i][0]]} {before.block_rms_px[i]:.3g} px" for i in instant)
+        reason = (f"instant {view}: its photos fit their cameras alone (RMS {fits}) but not one relative pose of the "
+                  f"rig (RMS {tied} in rig mode {setup.mode}; without the instant s0 falls from {before.s0_px:.3g} to "
+                  f"{after.s0_px:.3g} px): the cameras' shots disagree (not taken at the same instant, or a lens or "
+                  "the board moved between them)")
+        warn(f"dropping {' and '.join(f'{c}/{view}' for c in cams)}: {reason}")
+        for i in instant:
+            dropped.append({"camera": names[blocks[i][0]], "view": view, "rms_px": before.block_rms_px[i],
+                            "reason": reason, "instant": True})
+
+    return _Round("instant", [rest], improve=True, record=record)
+
+
+def _without_corners(setup: Setup, sol: Solution, blocks, bad, limit, length, dropped, dropped_corners):
+    """``blocks`` with the outlier corners ``bad`` (B, N) set to NaN, each recorded with its residual ``length``
+    and its photo's ``limit`` (px); a photo left unable to fix a homography is dropped, with the reason."""
+    out = []
+    for b, (c, v, uv) in enumerate(blocks):
+        if not bad[b].any():
+            out.append((c, v, uv))
+            continue
+        for k in np.flatnonzero(bad[b]):
+            dropped_corners.append({"camera": setup.names[c], "view": v, "corner": int(k),
+                                    "residual_px": float(length[b, k]), "limit_px": float(limit[b])})
+        uv = np.array(uv, float)
+        uv[bad[b]] = np.nan
+        reason = unusable_reason(uv, setup.X_board[:, :2])
+        if reason and _views_left(out, c) + _views_left(blocks[b + 1:], c) >= MIN_VIEWS:
+            reason = f"without its {int(bad[b].sum())} outlier corner(s) {reason}"
+            warn(f"dropping {setup.names[c]}/{v}: {reason}")
+            dropped.append({"camera": setup.names[c], "view": v, "rms_px": sol.block_rms_px[b], "reason": reason})
+            continue
+        out.append((c, v, uv if reason is None else blocks[b][2]))
     return out

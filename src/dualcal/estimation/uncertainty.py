@@ -56,6 +56,12 @@ keeps its digits). Then, with ``q_c = U^T T b_c``, since ``J~^T f(J~ S^-1 J~^T) 
 
 One eigen-decomposition of size ``G`` per instant, batched, where the rows would need one QR of the
 instant's ``2 N`` rows by their columns each.
+
+*A prior* on some globals (known intrinsics, :mod:`dualcal.estimation.adjust`) belongs to no instant: its
+information is in ``S`` and in what every instant's others know (``K_c``), and its own part of the score has a
+known variance, ``R R^T`` (:attr:`dualcal.estimation.normal_equations.NormalEquations.prior_meat_root`), whose
+shift ``S^-1 R`` the clustered covariance adds to the instants' (``prior``), so that the prior's uncertainty is
+in every sigma.
 """
 
 from __future__ import annotations
@@ -77,12 +83,14 @@ class InstantLeverage:
     """Every instant's leverage on the global unknowns (module docstring), for ``V`` instants, ``G`` globals.
 
     ``shifts`` (G, V): each instant's CR2 shift of the globals (its leverage-adjusted score through
-    ``N^-1``); their outer products summed are the clustered covariance of the globals. ``held_out`` (V, G):
-    the globals' change when the instant is left out, a row of NaN where the others cannot do without it.
+    ``N^-1``); their outer products summed, with those of ``prior`` (G, q), a prior's shift (none: q = 0), are
+    the clustered covariance of the globals. ``held_out`` (V, G): the globals' change when the instant is left
+    out, a row of NaN where the others cannot do without it.
     """
 
     shifts: np.ndarray
     held_out: np.ndarray
+    prior: np.ndarray
 
 
 def _sums_without_each(S_c: np.ndarray) -> np.ndarray:
@@ -102,16 +110,18 @@ def instant_leverage(factorization: Factorization, ne: NormalEquations | None = 
     S_c = ne.gg - factorization.gl @ W                                                       # (V, G, G)
     b = ne.grad_g - np.einsum("vgl,vl->vg", factorization.gl, np.einsum("vij,vj->vi", factorization.ll_inv,
                                                                           ne.grad_l))
-    S = S_c.sum(axis=0)
+    prior = np.zeros(S_c.shape[1:]) if ne.prior_gg is None else ne.prior_gg
+    S = S_c.sum(axis=0) + prior
     d = 1.0 / np.sqrt(np.diag(S))
     T = np.linalg.inv(np.linalg.cholesky(S * d[:, None] * d[None, :])) * d[None, :]        # S^-1 = T^T T
-    mu, U = np.linalg.eigh(T @ _sums_without_each(S_c) @ T.T)
+    mu, U = np.linalg.eigh(T @ (_sums_without_each(S_c) + prior) @ T.T)
     q = np.einsum("vgk,vg->vk", U, b @ T.T)                                                  # U^T T b
     keep = mu > _SELF_DETERMINED
     shifts = T.T @ np.einsum("vgk,vk->gv", U, np.where(keep, q / np.sqrt(np.where(keep, mu, 1.0)), 0.0))
     known = np.all(mu > _HELD_OUT_OWN, axis=1)
     held = np.einsum("vgk,vk->vg", U, q / np.where(known[:, None], mu, 1.0)) @ T
-    return InstantLeverage(shifts, np.where(known[:, None], held, np.nan))
+    root = np.zeros((len(S), 0)) if ne.prior_meat_root is None else ne.prior_meat_root
+    return InstantLeverage(shifts, np.where(known[:, None], held, np.nan), T.T @ (T @ root))
 
 
 def held_out_squares(factorization: Factorization, held_out: np.ndarray, ne: NormalEquations | None = None

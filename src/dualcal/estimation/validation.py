@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .duplicates import moments_of
 from ..geometry.model import CornerSet, RigModel
 
 __all__ = ["GROUPS", "split_half_z", "pooled_spread", "instants_of", "moments_of"]
@@ -29,17 +30,6 @@ GROUPS = {"f": ("fx", "fy"), "c": ("cx", "cy"), "k": ("k1", "k2")}
 def instants_of(corners: CornerSet) -> list[str]:
     """The view keys where at least one camera found the board."""
     return sorted({v for cc in corners.cameras.values() for v in cc.found()})
-
-
-def moments_of(corners: CornerSet) -> dict[str, int]:
-    """``{instant: moment}`` of corners from clips (each camera's ``video`` record, :mod:`dualcal.files.video`);
-    empty for photos."""
-    out = {}
-    for cam in corners.cameras.values():
-        record = cam.meta.get("video")
-        if isinstance(record, dict):
-            out.update(record.get("moment_of_view", {}))
-    return out
 
 
 def _values(rig: RigModel) -> dict[tuple[str, str], tuple[float, float, float]]:

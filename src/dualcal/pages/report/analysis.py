@@ -6,7 +6,7 @@ in every view, the detected corners), never stored twice:
 * :func:`rig_residuals`: observed minus projected corners, per camera and view (pixels);
 * :func:`rms_px`, :func:`outlier_views`: per-view RMS and the views out of line: those whose RMS
   is above the limit at which the calibration takes a corner for an outlier
-  (:func:`dualcal.estimation.calibrate.outlier_limit_px`), so that most of their corners are;
+  (:func:`dualcal.estimation.outliers.outlier_limit_px`), so that most of their corners are;
 * :func:`coverage_counts`, :func:`coverage_hints`: where on each sensor the board was seen,
   and plain-words warnings where it was not;
 * :func:`distortion_curve`, :func:`displacement_map`: the size of the radial distortion of
@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from matplotlib.path import Path as MplPath
 
-from ...estimation.calibrate import outlier_limit_px
+from ...estimation.outliers import outlier_limit_px
 from ...geometry.camera import (LENS_MODELS, CameraModel, distorted_radius, fold_distorted_radius, image_corner_radius,
                                 max_monotonic_radius, normalized_from_pixel, undistort_normalized,
                                 undistort_points, undistorted_radius)
@@ -53,7 +53,7 @@ _REGION_NAMES = {(0, 0): "top-left", (0, 1): "top", (0, 2): "top-right",
 
 def view_outlier_limit_px(residuals: dict[str, ViewResiduals], factor: float) -> float:
     """RMS above which a view of one camera is out of line (px): the calibration's limit for one
-    corner, :func:`dualcal.estimation.calibrate.outlier_limit_px` of the median length of the camera's corner
+    corner, :func:`dualcal.estimation.outliers.outlier_limit_px` of the median length of the camera's corner
     residuals and ``factor``; NaN without views."""
     lengths = [np.linalg.norm(r.residual_px, axis=1) for r in residuals.values()]
     if not lengths or not sum(len(x) for x in lengths):

@@ -1,10 +1,10 @@
-"""Values judged against a robust core of the others (dualcal.estimation.outliers): bad values cannot hide each
+"""Values judged against a robust core of the others (dualcal.estimation.robust_tests): bad values cannot hide each
 other, the tests have the stated rate on values of one normal, and a split into two groups is found."""
 
 import numpy as np
 import pytest
 
-from dualcal.estimation.outliers import core_tests, cube_root_spread, robust_core, split_test
+from dualcal.estimation.robust_tests import core_tests, cube_root_spread, robust_core, split_test
 
 
 def _values(rng, n=20, bad=(), shift=8.0):
@@ -70,7 +70,7 @@ def test_two_groups_are_split_and_one_is_not():
     x[8:] += 6.0 * np.sqrt(np.mean(r ** 2))
     found = split_test(x, r, 0.001)
     assert found["f"] > found["limit"] and set(np.flatnonzero(found["lower"])) == set(range(8))
-    from dualcal.estimation.outliers import _split_f
+    from dualcal.estimation.robust_tests import _split_f
     limit = split_test(x, r, 0.05)["limit"]
     null = np.max(_split_f(r * rng.standard_normal((1000, 16)), 1.0 / r ** 2)[1], axis=1)
     fails = int(np.sum(null > limit))
