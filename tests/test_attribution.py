@@ -73,3 +73,68 @@ def test_a_refocused_photo_is_told_apart_from_a_desynchronised_shot(seed):
     assert not focus["ok"] and [(f["camera"], f["view"]) for f in focus["flagged"] if f["cause"] == "refocus"] == \
         [("tele", view)]
     assert kept.checks["rig_rigid"]["ok"]
+
+
+def _bad_instants(seed: int, kind: str, count: int, noise: float = 0.05, preset: str = "note8", views: int = 13,
+                  mm: float = 0.5, arcmin: float = 1.5):
+    """The ``preset`` rig (``views`` instants) with ``count`` instants (the 7th, 3rd, 11th) of its second camera
+    shot ``mm`` and ``arcmin`` off the rig (``"desync"``) or refocused 0.5 % longer (``"refocus"``): their views and
+    the corners."""
+    truth = synth.make_truth(preset, views, seed=seed)
+    corners = synth.noisy_corner_set(truth, noise, seed=seed)
+    bad = [list(truth.view_poses)[j] for j in (6, 2, 10)[:count]]
+    rng = np.random.default_rng(seed + 1000)
+    name = next(n for n in truth.cameras if n != truth.reference)
+    second, rig = truth.cameras[name], truth.rig[name]
+    uv = dict(corners.cameras[name].views)
+    for view in bad:
+        cam, pose = second, truth.camera_pose(name, view)
+        if kind == "refocus":
+            cam = replace(second, fx=second.fx * 1.005, fy=second.fy * 1.005)
+        else:
+            d, a = (v / np.linalg.norm(v) for v in rng.normal(size=(2, 3)))
+            R = rotation_from_opk(a * arcmin * np.pi / (180 * 60))
+            pose = Pose(R @ rig.R, R @ rig.t_mm + mm * d).compose(truth.view_poses[view])
+        X = truth.board.object_points_mm()
+        uv[view] = project_points(cam, pose.apply(X)) + rng.normal(0, noise, (len(X), 2))
+    cams = {**corners.cameras, name: CameraCorners(corners.cameras[name].image_size, uv)}
+    return bad, CornerSet(corners.board, cams)
+
+
+@pytest.mark.parametrize("count", [1, 2, 3])
+def test_every_desynchronised_instant_is_named(count):
+    """Issue 38: one, two or three desynchronised instants (each some 7 px off on 12 MP) are each named, and no
+    other: each instant is judged against a robust core of the others, so that the bad ones can neither pull the
+    relations the others are judged by nor widen their scatter (judged against all the others, two hide each
+    other). The check fails (they move the rig by many sigma) and the message names them all."""
+    views, corners = _bad_instants(0, "desync", count)
+    check = calibrate_rig(corners, drop_outliers=False).checks["rig_rigid"]
+    assert sorted(check["flagged"]) == sorted(views), check["message"]
+    assert not check["ok"] and check["shift_sigma"] > check["shift_limit_sigma"]
+    assert all(f"{v} (F = " in check["message"] for v in views) and check["core_instants"] == 13 - count
+    assert all(check["instant_f"][v]["p"] < check["instant_rate"] <= check["instant_f"][u]["p"]
+               for v in views for u in check["instant_f"] if u not in views)
+
+
+def test_three_instants_that_hid_each_other_on_a_stereo_head_are_named():
+    """Issue 38's stereo head: 24 instants, three of them far worse than the others (there 16-40 times their median
+    tie cost), and rig_rigid named none. Here three of a VGA stereo rig's 24 instants shot 1 mm and 3 arcmin off the
+    rig: each is named, none other, and the check fails naming them."""
+    views, corners = _bad_instants(2, "desync", 3, noise=0.1, preset="stereo", views=24, mm=1.0, arcmin=3.0)
+    check = calibrate_rig(corners, drop_outliers=False).checks["rig_rigid"]
+    assert sorted(check["flagged"]) == sorted(views) and not check["ok"], check["message"]
+    assert all(check["instant_f"][v]["f"] > check["instant_f"][v]["limit"] for v in views)
+
+
+@pytest.mark.parametrize("count", [2, 3])
+def test_every_refocused_photo_is_named(count):
+    """Two or three of the tele's photos refocused by 0.5 %: each named as a refocus (its own focal scale against a
+    robust core of the tele's other photos), none other; their instants' misfit is the refocus's, so rig_rigid does
+    not judge them and passes."""
+    views, corners = _bad_instants(1, "refocus", count)
+    checks = calibrate_rig(corners, drop_outliers=False).checks
+    focus = checks["focus"]
+    assert sorted((f["camera"], f["view"]) for f in focus["flagged"]) == sorted(("tele", v) for v in views)
+    assert not focus["ok"] and all(f["cause"] == "refocus" for f in focus["flagged"]), focus["message"]
+    assert all(f["focal_change"] == pytest.approx(0.005, abs=0.0015) for f in focus["flagged"])
+    assert checks["rig_rigid"]["ok"] and sorted(checks["rig_rigid"]["explained_by_refocus"]) == sorted(views)

@@ -161,24 +161,6 @@ def test_the_desynchronised_instant_is_named_alone_with_its_f_and_p():
     assert all(t["p"] >= check["instant_rate"] for v, t in check["instant_f"].items() if v != "IMG_05")
 
 
-def test_the_f_tests_follow_the_others_scatter_and_not_its_unit():
-    """instant_f_tests is scale-free (the noise's unit cancels), an instant far off the others fails, and the
-    Satterthwaite share of degrees of freedom is 1 for tie costs that scatter as chi-square's or less, less
-    for tie costs that scatter more."""
-    from dualcal.estimation.checks import MIN_DOF_SHARE, dof_share, instant_f_tests
-
-    stats = {f"v{i}": t for i, t in enumerate([5.1, 6.3, 4.2, 7.7, 5.5, 6.9, 4.8, 6.0, 5.2, 40.0])}
-    dofs, lev = {v: 6 for v in stats}, {v: 0.1 for v in stats}
-    a = instant_f_tests(stats, dofs, lev, 54, 0.001)
-    b = instant_f_tests({v: 1000 * t for v, t in stats.items()}, dofs, lev, 54, 0.001)
-    assert all(a[v]["f"] == pytest.approx(b[v]["f"]) and a[v]["p"] == pytest.approx(b[v]["p"]) for v in stats)
-    assert a["v9"]["f"] > a["v9"]["limit"] and a["v9"]["p"] < 0.001
-    assert all(a[v]["p"] >= 0.001 and "limit" not in a[v] for v in stats if v != "v9")
-    assert dof_share([1.0, 1.1, 0.9, 1.05], [6] * 4) == 1.0
-    assert MIN_DOF_SHARE <= dof_share([0.1, 3.0, 0.2, 0.1, 2.5], [6] * 5) < 0.5
-    assert dof_share([0.01, 9.0, 0.01, 0.01, 0.01, 0.01], [6] * 6) == pytest.approx(MIN_DOF_SHARE)
-
-
 def test_few_frontal_photos_say_what_is_poorly_determined():
     """Six boards tilted at most 8 degrees: too few instants, and the focal length poorly
     determined, each said in plain words with what would help."""
@@ -275,3 +257,128 @@ def test_a_wrong_square_is_found_where_exif_shows_a_phone():
     assert "scale_plausible" in failed_checks(wrong.checks)
     plain = calibrate_rig(corners, board_shape="flat")             # no EXIF: nothing to judge by, and said so
     assert "scale_plausible" not in plain.checks and "rests on the board's square" in scale_note(plain)
+
+
+# ------------------------------------------------------------------------ focus: weak photos, lens splits (issue 38)
+
+
+def _one_camera(truth, name, views):
+    """``truth``'s camera ``name`` alone, with the corners ``views`` gives (``{view: (N, 2)}``)."""
+    return CornerSet(truth.board, {name: CameraCorners(truth.cameras[name].image_size, views)}, name)
+
+
+def test_a_photo_whose_corners_cannot_fix_a_focal_length_is_not_judged():
+    """One camera alone (rig mode none): one photo shows 6 of the board's 40 corners, another the whole board
+    square-on; with its own pose neither fixes a focal length to 5 % (their focal scales' sigmas), so focus does
+    not judge them (the caliscope finding: a 7-corner photo of a fixed-focus webcam gave +150 %) and says so."""
+    truth = make_truth("note8", 13, seed=3, scale=0.25)
+    corners = noisy_corner_set(truth, 0.1, seed=3).cameras["wide"].views
+    X = truth.board.object_points_mm()
+    few = np.full_like(corners["IMG_04"], np.nan)
+    few[[0, 1, 2, 8, 9, 10]] = corners["IMG_04"][[0, 1, 2, 8, 9, 10]]
+    facing = Pose(np.eye(3), np.array([-105.0, -60.0, 650.0]))          # the board square-on, centred
+    square_on = project_points(truth.cameras["wide"], facing.apply(X)) + np.random.default_rng(0).normal(0, 0.1, (40, 2))
+    rig = calibrate_rig(_one_camera(truth, "wide", {**corners, "IMG_04": few, "IMG_09": square_on}), rig_mode="none",
+                        drop_outliers=False)
+    focus = rig.checks["focus"]
+    weak = {f["view"]: f["sigma"] for f in focus["not_judged"]}
+    assert set(weak) == {"IMG_04", "IMG_09"} and min(weak.values()) > focus["not_judged_limit"] == 0.05, weak
+    assert focus["ok"] and not focus["flagged"] and "2 photo(s) not judged" in focus["message"]
+
+
+def test_two_lenses_taken_for_one_camera_fail_focus():
+    """A camera roll without EXIF merged a wide and a lens of a focal length 20 % longer (and half its k1) into one
+    camera: the focal scales of every other photo are off together. No photo stands out against a core of the
+    others (half of them are off), but the split of the camera's photos into two groups fails, and finds the two
+    lenses' photos (on 1/4-size photos it does so for 8 of 10 seeds: benchmarks/bench_false_alarms.py)."""
+    truth = make_truth("note8", 13, seed=1, scale=0.25)
+    cam = truth.cameras["wide"]
+    other = dataclasses.replace(cam, fx=1.2 * cam.fx, fy=1.2 * cam.fy, k1=0.5 * cam.k1)
+    X, rng = truth.board.object_points_mm(), np.random.default_rng(1)
+    views = {v: project_points(other if i % 2 else cam, truth.camera_pose("wide", v).apply(X))
+             + rng.normal(0, 0.1, (len(X), 2)) for i, v in enumerate(truth.view_poses)}
+    focus = calibrate_rig(_one_camera(truth, "wide", views), rig_mode="none", drop_outliers=False).checks["focus"]
+    split = focus["splits"]["wide"]
+    assert not focus["ok"] and "the photos of wide have two focal lengths" in focus["message"], focus["message"]
+    assert split["f"] > split["limit"] and 0.1 < split["focal_change"] < 0.25
+    judged = set(views) - {f["view"] for f in focus["not_judged"]}
+    lenses = {frozenset(judged & set(list(views)[1::2])), frozenset(judged & set(list(views)[::2]))}
+    assert {frozenset(split["upper"]), frozenset(split["lower"])} == lenses
+    assert frozenset(f["view"] for f in focus["flagged"] if f["cause"] == "split") in lenses
+
+
+@pytest.mark.slow
+@pytest.mark.not_converged
+def test_caliscope_webcams_raise_no_focus_alarm():
+    """caliscope's intrinsic session (four fixed-focus webcams, a 12-corner ChArUco board, rig mode none): the photos
+    whose few corners cannot fix a focal length are not judged, and focus passes (it said +150 % for one). (The
+    adjustment of this session stops at its iteration limit, 0.75 sigma from the minimum: the session's, not the
+    check's.)"""
+    import csv
+    from pathlib import Path
+
+    from dualcal.geometry.board import Board
+
+    path = Path(__file__).resolve().parents[2] / "shared" / "data" / "caliscope-prerecorded" / "xy_CHARUCO.csv"
+    if not path.is_file():
+        pytest.skip(f"{path} absent (../shared/data)")
+    board = Board.charuco_board((4, 5), 54.0, 40.5, "DICT_4X4_1000")
+    views = {}
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            uv = views.setdefault(f"cam_{row['cam_id']}", {}).setdefault(f"{int(row['sync_index']):03d}",
+                                                                          np.full((12, 2), np.nan))
+            uv[int(row["keypoint_id"])] = float(row["img_loc_x"]), float(row["img_loc_y"])
+    corners = CornerSet(board, {c: CameraCorners((1280, 720), v) for c, v in views.items()})
+    focus = calibrate_rig(corners, rig_mode="none").checks["focus"]
+    assert focus["ok"], focus["message"]
+    assert ("cam_2", "037") in {(f["camera"], f["view"]) for f in focus["not_judged"]}
+
+
+# ------------------------------------------------------------------ loop_closure from the joint solution (issue 41)
+
+
+def _triple(seed: int, ultra_views=None):
+    """A synchronised, rigid triple rig (1/4 size, 13 instants, 0.05 px); the ultra-wide sees the board only in the
+    instants ``ultra_views`` (default: all)."""
+    truth = make_truth("triple", 13, seed=seed, scale=0.25)
+    corners = noisy_corner_set(truth, 0.05, seed=seed)
+    if ultra_views is not None:
+        for v in corners.cameras["ultra"].views:
+            if v not in ultra_views:
+                corners.cameras["ultra"].views[v] = None
+    return truth, corners
+
+
+def test_loop_closure_passes_a_rigid_rig_whose_cameras_share_few_instants():
+    """The held-out roll's finding: a rigid, synchronised rig failed loop_closure from 4 shared instants. With the
+    ultra-wide in 4 instants the pairs it belongs to and the loop through them are judged, at the stated rate,
+    and pass; where the tele sees 2 of them, its pair with the ultra-wide (and so the loop) is not judged, and the
+    check says so."""
+    seen = {"IMG_01", "IMG_05", "IMG_09", "IMG_13"}
+    loop = calibrate_rig(_triple(7, seen)[1]).checks["loop_closure"]
+    assert loop["ok"], loop["message"]
+    assert loop["loops"]["wide-tele-ultra"]["instants"] == 4 and loop["pairs"]["wide-ultra"]["views"] == 4
+    assert loop["false_alarm_rate"] == 0.01 and 0 <= loop["statistic"] <= loop["limit"] and loop["test"]
+    assert "false-alarm rate 1 % per calibration" in loop["message"] and not loop["not_judged"]
+    _, corners = _triple(7, seen)
+    corners.cameras["tele"].views["IMG_01"] = corners.cameras["tele"].views["IMG_05"] = None
+    loop = calibrate_rig(corners).checks["loop_closure"]
+    assert loop["ok"] and loop["not_judged"] == ["tele-ultra"] and not loop["loops"], loop
+    assert loop["pairs"]["wide-ultra"]["judged"] and "tele-ultra (2) not judged: fewer than 3 shared" in loop["message"]
+
+
+def test_a_camera_that_moved_fails_the_pairs_it_is_in_and_is_named():
+    """The ultra-wide knocked by 10 arcmin and 0.2 mm after the 6th instant, every instant kept (the outlier stage
+    would drop the instants before the knock, whose shots disagree with the rig after it): both pairs with it
+    scatter beyond the photos' noise, the wide and tele's pair does not, and the message names the ultra-wide."""
+    truth, corners = _triple(8)
+    rig = truth.rig["ultra"]
+    knocked = dataclasses.replace(truth, rig={**truth.rig, "ultra": Pose(
+        rotation_from_rotvec(np.radians([10 / 60, 0, 0])) @ rig.R, rig.t_mm + [0.2, 0, 0])})
+    moved = noisy_corner_set(knocked, 0.05, seed=8).cameras["ultra"].views
+    for v in list(truth.view_poses)[6:]:
+        corners.cameras["ultra"].views[v] = moved[v]
+    loop = calibrate_rig(corners, drop_outliers=False).checks["loop_closure"]      # every instant kept
+    assert not loop["ok"] and "camera ultra in each" in loop["message"], loop["message"]
+    assert not loop["pairs"]["wide-ultra"]["ok"] and not loop["pairs"]["tele-ultra"]["ok"] and loop["pairs"]["wide-tele"]["ok"]

@@ -131,8 +131,8 @@ def test_stereo_calibration_agrees_with_bouguet(stereo_corners):
         np.testing.assert_allclose([cam.fx, cam.fy], fc, atol=2.0)
         np.testing.assert_allclose([cam.cx, cam.cy], cc, atol=3.0)
     np.testing.assert_allclose(rig.rig["right"].pose.t_mm, [-99.80198, 1.12443, 0.05041], atol=1.0)
-    # with the paper's lens every instant fits one rigid relative pose, and every check passes (08 is at the edge:
-    # test_the_stereo_rigs_instant_08_is_at_the_edge)
+    # with the paper's lens every instant fits one rigid relative pose, and every check passes (08 is the worst:
+    # test_the_stereo_rigs_instant_08_stands_out_and_passes)
     assert rig.checks["rig_rigid"]["ok"], rig.checks["rig_rigid"]["message"]
     assert all(c["ok"] for c in rig.checks.values()), {k: c["message"] for k, c in rig.checks.items() if not c["ok"]}
     # the textbook sigmas are several times too small on real photos (issue 11's split-half test)
@@ -140,26 +140,20 @@ def test_stereo_calibration_agrees_with_bouguet(stereo_corners):
 
 
 @pytest.mark.parametrize("model,mode", [("k1k2", "rigid"), ("auto", "rigid"), ("k1k2p1p2", "paper")])
-def test_the_stereo_rigs_instants_08_and_03_are_named_and_kept(stereo_corners, model, mode):
-    """Issue 33: rig_rigid passes on the stereo sample under every lens model the comparison may choose, and
-    says the same of it under each. Its test (1 % per calibration, 14 tests of 7.2e-4 each: each instant's tie
-    cost in its own photos' noise against the other instants' scatter) finds instant 08 at the edge of its
-    limit: p 2.6e-3 with the paper's lens (k1k2, not named), 1e-4 to 5e-4 with tangential terms (``auto`` gives
-    the left camera k1k2p1p2: 08 is named, and without it 03). Leaving either out moves the rig's relation by
-    1.3-1.7 of its sigmas without it, within the limit of 2 (as a synthetic VGA rig's instant 1 mm off does), so
-    the check passes and names them. The other instants lie well within (p above 4e-3). The board is held by hand (a hand shows in right03.jpg) and 08's photos are the least sharp:
-    see benchmarks/README.md (bench_false_alarms.py)."""
+def test_the_stereo_rigs_instant_08_stands_out_and_passes(stereo_corners, model, mode):
+    """Issues 33 and 38: rig_rigid passes on the stereo sample under every lens model the comparison may choose,
+    and says the same of it under each. Its test (1 % per calibration, 14 tests of 7.2e-4 each: each instant's tie
+    cost in its own photos' noise against a robust core of the other instants, by Student's t of half the core's
+    degrees of freedom) finds instant 08 the worst, at p 0.007-0.015, within the limit (the former test, of the
+    others' whole scatter with all their degrees of freedom, named it under some lens models, with 03, and kept
+    them: leaving them out moved the rig by 1.3-1.7 sigma). The others lie well within (p above 0.05). The board is
+    held by hand (a hand shows in right03.jpg) and 08's photos are the least sharp: see benchmarks/README.md
+    (bench_false_alarms.py)."""
     check = calibrate_rig(stereo_corners, reference="left", model=model, rig_mode=mode).checks["rig_rigid"]
     f = check["instant_f"]
-    assert check["ok"], check["message"]
-    assert 1e-7 < f["08"]["p"] < 1e-2, f["08"]                  # 08 the worst, or named first
-    assert all(t["p"] > 4e-3 for v, t in f.items() if v not in ("08", "03"))
-    if check["flagged"]:
-        assert check["flagged"][0] == "08" and set(check["flagged"]) <= {"08", "03"}
-        assert 1.0 < check["shift_sigma"] <= check["shift_limit_sigma"] == 2.0
-        assert "kept" in check["message"] and "08 (F = " in check["message"]
-    else:
-        assert check["worst"] == "08" and check["p_value"] > check["instant_rate"]
+    assert check["ok"] and not check["flagged"], check["message"]
+    assert check["worst"] == "08" and check["instant_rate"] < f["08"]["p"] < 0.05, f["08"]
+    assert all(t["p"] > 0.05 for v, t in f.items() if v != "08")
 
 
 def test_bouguet_calibration_agrees_with_bouguet_and_matlab(bouguet_corners):

@@ -67,15 +67,20 @@ CHECKS = {
         "meaning": "The photos of every instant fit one fixed relative pose of the cameras (the rig's baseline and "
                    "angles). Two statistical tests, with a stated false-alarm rate: on a synchronised rig one "
                    "calibration in a hundred fails by chance (`false_alarm_rate` 0.01, split over the tests). Each "
-                   "instant's tie cost (how much worse its photos fit when tied to the rig than alone) is judged "
-                   "against the other instants' by an F test, so the limit comes from the calibration's own noise, "
-                   "the lens model's error included (`statistic`: the worst instant's F, `limit`: its F quantile, "
-                   "`instant_f`: every instant's F, p-value and limit). The instants together are judged against the "
-                   "photo-level noise, how much more the photos disagree than white noise on the corners would allow "
-                   "(`ratio` against `limit_ratio`, an F quantile; calib.json `design_effect`). The message names "
-                   "the instants that do not fit, with their F and p-value. A named instant fails the check only "
-                   "where leaving it out moves the rig's baseline or angles by more than twice their sigma "
-                   "(`shift_sigma` against `shift_limit_sigma`); a smaller misfit is named and kept.",
+                   "instant's tie cost (how far its own relative pose of the cameras, with every camera alone, is from "
+                   "the relation the other instants tell, in its photos' noise) is judged against a robust core of the "
+                   "other instants: the instants that each pass the test against the rest of the core, found so that "
+                   "two or three bad instants can neither pull the relation nor widen the scatter the others are "
+                   "judged by (`statistic`: "
+                   "the worst instant's tie cost over the core's typical one, `limit`: that ratio at its test's limit; "
+                   "`instant_f`: every instant's ratio, t, p-value and limit; `core_instants`). The instants together "
+                   "are judged against the photo-level noise, how much more the photos disagree than white noise on "
+                   "the corners would allow (`ratio` against `limit_ratio`, an F quantile; calib.json "
+                   "`design_effect`). The message names every instant that does not fit, with its ratio and p-value. "
+                   "Named instants fail the check only where leaving them out moves the rig's baseline or angles by "
+                   "more than twice their sigma (`shift_sigma` against `shift_limit_sigma`); a smaller misfit is named "
+                   "and kept. An instant whose misfit one photo's focal change explains is a refocus, which `focus` names "
+                   "(`refocused`).",
         "cause": "The board or the phone moved between the shots of one position (not on a tripod, a board held "
                  "by hand, a board that slid, a tap on the screen), the lenses did not shoot at the same instant, a "
                  "lens that moved (optical image stabilisation, a refocus), or photos of different positions put "
@@ -86,20 +91,27 @@ CHECKS = {
                   "If every instant fails, the shots are not synchronised: use a tripod and shoot each position "
                   "with every lens before moving the board.",
         "examples": ["do not fit the rig's relative pose", "worse than the photo-level noise allows",
-                     "against the other instants' scatter", "false-alarm rate"],
+                     "against the other instants' scatter", "x the others' tie cost", "false-alarm rate"],
     },
     "focus": {
         "title": "no photo refocused",
-        "meaning": "No photo has a focal length of its own: each photo's focal scale, fitted with its board pose, "
-                   "is judged against those of its camera's other photos by a Student t test (`statistic`: the "
-                   "largest |t|, `limit`: the t quantile), at a stated false-alarm rate of one calibration in a "
-                   "hundred with a fixed focus (`false_alarm_rate` 0.01, split over the photos). A photo that fails "
-                   "was taken after the phone refocused or zoomed.",
-        "cause": "Autofocus ran between the shots (the board at another distance, a tap on the screen), or a "
-                 "digital zoom step (an iPhone's 2x) mixed with the lens's own.",
+        "meaning": "No photo has a focal length of its own, and no camera's photos have two. Each photo's focal "
+                   "scale, fitted with its board pose, is judged against a robust core of its camera's other photos "
+                   "by a Student t test (`statistic`: the largest |t|, `limit`: the t quantile), so that two or three "
+                   "refocused photos cannot hide each other; each camera's photos are also split into two groups of "
+                   "focal lengths, the best split judged against the splits of chance (`splits`: a camera of two "
+                   "lenses fails). The false-alarm rate is one calibration in a hundred with a fixed focus "
+                   "(`false_alarm_rate` 0.01, split over the tests). A photo whose own corners fix its focal length "
+                   "no better than 5 % (few corners, a board small or square-on: `not_judged`, `not_judged_limit`) "
+                   "is not judged: it could not show a refocus, and its focal scale would be a guess.",
+        "cause": "Autofocus ran between the shots (the board at another distance, a tap on the screen), a digital "
+                 "zoom step (an iPhone's 2x) mixed with the lens's own, or two lenses of one image size taken for "
+                 "one camera (a camera roll without EXIF).",
         "action": "Lock focus and exposure (AE/AF lock: a long press on the board in the stock camera app) and "
-                  "shoot again, or leave the named photos out with `--exclude CAMERA/PHOTO`.",
-        "examples": ["have a focal length of their own", "against its camera's other photos"],
+                  "shoot again, or leave the named photos out with `--exclude CAMERA/PHOTO`; for a camera of two "
+                  "focal lengths, give each lens its own camera (its own folder).",
+        "examples": ["have a focal length of their own", "against its camera's other photos", "have two focal lengths",
+                     "not judged: their own corners fix the focal length only to"],
     },
     "determination": {
         "title": "every parameter is known well enough",
@@ -141,14 +153,20 @@ CHECKS = {
     },
     "loop_closure": {
         "title": "three or more cameras agree with each other",
-        "meaning": "For a rig of three or more cameras: every pair of cameras, calibrated alone, fits one rigid "
-                   "relation, and the relations close around every loop of three cameras within their sigmas "
-                   "(wide to tele and tele to ultra-wide give wide to ultra-wide).",
-        "cause": "A camera that moved between instants (a lens with stabilisation, a knock), or a pair of cameras "
-                 "that share too few instants to be calibrated alone.",
+        "meaning": "For a rig of three or more cameras: every pair of cameras, taken alone, tells the rig's story. "
+                   "Every instant two cameras both saw shows their relative pose (each photo with its own board pose); "
+                   "for each pair, those poses scatter about their mean as their photos' noise allows (`pairs`: "
+                   "`ratio` against `limit_ratio`), and for a pair of two non-reference cameras their mean agrees with "
+                   "the relation the rig composes through the reference (`loops`: the misclosure, its `t2` against "
+                   "`limit`). Statistical tests at a stated false-alarm rate, one calibration in a hundred on a rigid "
+                   "rig (`false_alarm_rate` 0.01, split over the tests). A pair sharing fewer than 3 instants is not "
+                   "judged (`not_judged`).",
+        "cause": "A camera that moved between instants (a lens with stabilisation, a knock): it fails every pair it "
+                 "belongs to, which names it.",
         "action": "Find the instants with `rig_rigid`'s message, leave them out with `--exclude` or shoot them "
-                  "again; make sure every pair of cameras sees the board in at least 8 instants.",
-        "examples": ["no loop of three cameras can be checked", "do not fit one rigid relation"],
+                  "again; make sure every pair of cameras sees the board in at least 3 instants, better 8.",
+        "examples": ["do not fit one rigid relation", "in each: it moved between instants?",
+                     "pairwise relative poses agree with the rig", "not judged: fewer than"],
     },
     "intrinsics_prior": {
         "title": "the photos agree with the intrinsics known for a camera",

@@ -1,32 +1,30 @@
-"""Whether the pairwise relative poses of a rig of three or more cameras close their loops.
+"""Whether the cameras of a rig of three or more, taken two at a time, tell the rig's story: the ``loop_closure``
+check, from the joint solution and the solution with every camera alone (no pair adjusted again).
 
-The joint adjustment of a rigid rig has one relative pose per camera (reference -> camera), so
-the relation between two other cameras B and C is ``T_BC = T_C T_B^-1`` and every loop closes by
-construction: comparing the joint solution with itself tests nothing. What can be tested is
-whether the cameras, taken two at a time, tell the same story. Every pair ``(X, Y)`` is
-calibrated alone as a rigid two-camera rig, from the instants both saw (intrinsics free, X its
-reference), and for every loop ``ref -> B -> C`` the composed pairwise relations are compared
-with the direct one:
+The joint adjustment of a rigid rig has one relative pose per camera (reference -> camera), so the relation
+between two other cameras B and C is ``T_BC = T_C T_B^-1`` and every loop closes by construction: comparing the
+joint solution with itself tests nothing. What can be tested is whether each pair's own photos agree with it.
+With every camera alone each photo has its own board pose, so every instant that two cameras ``x`` and ``y``
+both saw shows their relative pose (:func:`dualcal.estimation.instant_poses.relation_deviation`): its deviation
+``d_v`` (rotation increment rad, translation mm) from the joint relation ``T_xy`` (from the reference's
+relations, reported as calib.json has them), with the covariance of all of them together from the
+cameras-alone solution's inverse normal matrix (their intrinsics' shared error included) in units of the
+photo-level noise ``kappa^2 s0^2`` (the design effect, as ``rig_rigid`` takes it). For each pair sharing
+:data:`MIN_PAIR_INSTANTS` instants or more:
 
-* the misclosure ``R_e = R_BC R_rB R_rC^T`` (as its rotation vector, arcmin) and
-  ``t_e = R_BC t_rB + t_BC - t_rC`` (mm), in C's frame;
-* its covariance clustered by instant: each instant's shift of every pair's relation (its adjusted
-  score through the pair's inverse normal matrix, the terms of the pair's ``clustered`` covariance,
-  :meth:`dualcal.estimation.adjust.Solution.instant_shifts`) is carried to the misclosure to first order in the
-  left increments ``R <- exp([d]x) R`` (``d_e = d_BC + R_BC d_rB - d_rC``, ``dt_e = -[R_BC t_rB]x d_BC
-  + R_BC dt_rB + dt_BC - dt_rC``), summed over the pairs instant by instant, and ``Cov = sum_v s_v s_v^T``
-  over the ``n`` instants. The pairs share photos (each camera's are in two pairs), so their errors are
-  correlated; summing per instant keeps that (taking the pairs as independent overstated the sigma
-  about ten-fold on synthetic rigs);
-* Hotelling's ``T^2 = e^T Cov^-1 e``, failing beyond ``6 (n-1) / (n-6) F(6, n-6)`` at
-  :data:`LOOP_FALSE_ALARM` (Bonferroni over the loops): the covariance is estimated from ``n``
-  instants. A loop needs more than 6 instants.
+* its **scatter**: the deviations about their own weighted mean, ``S = (D - A e)^T Cov^-1 (D - A e)``, a
+  chi-square of ``6 (n - 1)`` degrees of freedom for a rigid pair; ``ratio = S / (6 (n - 1))`` against
+  ``F(6 (n - 1), G - 1)`` (the photo-level noise comes from the scatter of ``G`` instants). A camera that moved
+  between instants (knocked, a lens with stabilisation) fails every pair it belongs to and passes the others,
+  which names it (the camera common to the pairs that fail);
+* its **closure** (pairs of two non-reference cameras B and C: the loop reference -> B -> C): the mean ``e``
+  of the pair's own relative poses against the joint relation, ``T^2 = e^T (Cov_e + Cov_BC)^-1 e`` with the
+  mean's covariance and the joint relation's (the adjustment's, formal, in the same noise), against
+  ``6 F(6, G - 1)``; the two are taken as independent, which is exact for instants the reference did not see
+  and cautious for those it saw (there the pair's mean moves with the joint relation).
 
-A loop of averages can close although a camera moved: with every instant seen by all three, the
-pairs with the moved camera average the same two poses. So each pair's own rigidity is judged too,
-by :func:`dualcal.estimation.checks.rig_rigid` on the pair's rigid and cameras-alone solutions: a camera
-knocked between instants fails the pairs it belongs to and passes the others, which names it.
-The check passes when every pair is rigid and every loop closes.
+Every test at the check's false-alarm rate (:data:`dualcal.estimation.checks.FALSE_ALARM_RATE`, split over
+the tests by Sidak), as the other checks. A pair sharing fewer instants is not judged, and said so.
 """
 
 from __future__ import annotations
@@ -36,113 +34,169 @@ from itertools import combinations
 import numpy as np
 
 from .adjust import Solution
-from .distributions import f_quantile
-from ..errors import EstimationError
-from ..geometry.poses import rotated
+from .checks import FALSE_ALARM_RATE, design_effect
+from .distributions import f_quantile, f_sf, sidak
+from ..geometry.model import Pose
+from .instant_poses import pose_columns, relation_deviation
 from .rig_relations import rig_linearisation
-from ..geometry.rotation import ARCMIN_PER_RAD, cross_matrix, rotvec_from_rotation
+from ..geometry.rotation import ARCMIN_PER_RAD
 
-__all__ = ["LOOP_FALSE_ALARM", "loop_closure"]
+__all__ = ["MIN_PAIR_INSTANTS", "LOOP_TEST", "loop_closure"]
 
-#: False-alarm rate of the loop test, over all loops together.
-LOOP_FALSE_ALARM = 1e-3
+#: A pair of cameras that shares fewer instants is not judged: its relative poses from so few photos say too
+#: little about their scatter (each one's error is correlated within its photos, which the noise of their
+#: corners does not show).
+MIN_PAIR_INSTANTS = 3
 
-
-def _pair_relation(sol: Solution):
-    """Camera 1's rigid relation to camera 0 in a two-camera solution at its linearised minimum (moved by the
-    remaining Gauss-Newton step, so that where the solve stopped matters only to second order): R, t and
-    each instant's shift of (rotation increment rad, t mm), ``{view: (6,)}``."""
-    lin = rig_linearisation(sol, 1)
-    J = np.vstack([lin.J_rot, lin.J_t])
-    step = J @ sol.factorization.step()[lin.columns]
-    return rotated(lin.R, step[:3]), lin.t + step[3:], {v: J @ d for v, d in sol.instant_shifts(lin.columns).items()}
+#: The name of ``loop_closure``'s test (calib.json ``checks.loop_closure.test``).
+LOOP_TEST = ("F test of each pair of cameras' relative poses instant by instant about their mean, and of that mean "
+             "against the rig's relation (loops through the reference), against the photo-level noise (Sidak over "
+             "the tests)")
 
 
-def _misclosure(rB, rC, BC):
-    """Misclosure (rotation vector rad, t mm) of ref -> B -> C against ref -> C, and each instant's shift of it."""
-    (R_rB, t_rB, d_rB), (R_rC, t_rC, d_rC), (R_BC, t_BC, d_BC) = rB, rC, BC
-    e = np.concatenate([rotvec_from_rotation(R_BC @ R_rB @ R_rC.T), R_BC @ t_rB + t_BC - t_rC])
-    J_BC = np.block([[np.eye(3), np.zeros((3, 3))], [-cross_matrix(R_BC @ t_rB), np.eye(3)]])
-    J_rB = np.block([[R_BC, np.zeros((3, 3))], [np.zeros((3, 3)), R_BC]])
-    views = set(d_rB) | set(d_rC) | set(d_BC)
-    zero = np.zeros(6)
-    shifts = np.array([J_BC @ d_BC.get(v, zero) + J_rB @ d_rB.get(v, zero) - d_rC.get(v, zero)
-                       for v in sorted(views)])
-    return e, shifts
+def _relation(sol: Solution, c: int):
+    """Camera ``c``'s relation to the reference as a pose (identity for the reference), and its Jacobian (6, k)
+    (rotation increment, translation) by the flat columns (k,)."""
+    if c == sol.problem.reference:
+        return Pose(np.eye(3), np.zeros(3)), np.zeros((6, 0)), np.zeros(0, int)
+    lin = rig_linearisation(sol, c)
+    return Pose(lin.R, lin.t), np.vstack([lin.J_rot, lin.J_t]), lin.columns
 
 
-def loop_closure(names: list[str], ref: int, pair_solutions, rig_rigid) -> dict | None:
-    """The ``loop_closure`` check (module docstring) of a rig; None for fewer than three cameras.
+def _joint_relation(tied: Solution, x: int, y: int, kappa2: float):
+    """The joint relation of ``y`` to ``x`` (``R``, ``t``) and its covariance (6, 6) in photo-level noise."""
+    (P_x, J_x, cols_x), (P_y, J_y, cols_y) = _relation(tied, x), _relation(tied, y)
+    _, J = relation_deviation(P_x, P_y, np.eye(3), np.zeros(3))
+    cols = np.unique(np.concatenate([cols_x, cols_y]))
+    L = np.zeros((12, len(cols)))
+    L[:6, np.searchsorted(cols, cols_x)] = J_x
+    L[6:, np.searchsorted(cols, cols_y)] = J_y
+    cov = kappa2 * (J @ L) @ tied.covariance(cols, "formal") @ (J @ L).T if len(cols) else np.zeros((6, 6))
+    R = P_y.R @ P_x.R.T
+    return R, P_y.t_mm - R @ P_x.t_mm, cov
+
+
+def _pair(tied: Solution, alone: Solution, x: int, y: int, views: list[str], kappa2: float) -> dict:
+    """A pair's deviations from the joint relation: scatter ``S`` about their mean, the mean ``e`` and its
+    covariance with the joint relation's (all in photo-level noise)."""
+    R_J, t_J, cov_J = _joint_relation(tied, x, y, kappa2)
+    poses = alone.photo_poses
+    n = len(views)
+    D, J = np.zeros((n, 6)), np.zeros((n, 6, 12))
+    for i, v in enumerate(views):
+        D[i], J[i] = relation_deviation(poses[(x, v)], poses[(y, v)], R_J, t_J)
+    columns = np.concatenate([np.concatenate([pose_columns(alone, v, x), pose_columns(alone, v, y)]) for v in views])
+    C = alone.covariance(columns, "formal").reshape(n, 12, n, 12)
+    cov = kappa2 * np.einsum("aij,ajbk,blk->aibl", J, C, J, optimize=True).reshape(6 * n, 6 * n)  # J block-diagonal
+    D = D.ravel()
+    W = np.linalg.inv(cov)
+    A = np.tile(np.eye(6), (n, 1))
+    cov_e = np.linalg.inv(A.T @ W @ A)
+    e = cov_e @ (A.T @ W @ D)
+    r = D - A @ e
+    return {"scatter": float(r @ W @ r), "e": e, "cov_e": cov_e + cov_J}
+
+
+def loop_closure(tied: Solution, alone: Solution, kappa2: float | None = None,
+                 rate: float = FALSE_ALARM_RATE) -> dict | None:
+    """The ``loop_closure`` check (module docstring) of a rig; None for fewer than three cameras or rig mode
+    ``none``.
 
     Parameters
     ----------
-    names : the cameras; ``ref`` the index of the reference.
-    pair_solutions : ``(x, y) -> (tied, alone, instants)``, cameras ``x`` and ``y`` as a rigid two-camera
-        rig (``x`` its reference) and alone, over the instants both saw
-        (:func:`dualcal.estimation.fitting.pair_solutions`); raises :class:`EstimationError` when they cannot be.
-    rig_rigid : ``(tied, alone) -> dict | None``, :func:`dualcal.estimation.checks.rig_rigid` of a pair (the
-        calibration passes the rig's design effect, so that every pair is judged against the same noise).
+    tied : the joint solution (rig mode ``rigid`` or ``paper``, a flat board), over the same photos as ``alone``.
+    alone : every camera alone (rig mode ``none``).
+    kappa2 : the photo-level noise over the white noise (default: the largest of ``alone``'s cameras' design
+        effects, :func:`dualcal.estimation.checks.design_effect`).
+    rate : the false-alarm rate per calibration.
 
     Returns
     -------
-    ``{"ok", "message", "pairs": {"X-Y": {"ok", "ratio", "views"}}, "loops": {"r-B-C": {"ok", "t2",
-    "limit", "instants", "rotation_arcmin": [3], "t_mm": [3], "sigma_rotation_arcmin": [3], "sigma_t_mm": [3]}}}``
-    (misclosure in C's frame; sigmas from the clustered covariance).
+    ``{"ok", "message", "test", "statistic", "limit", "p_value", "false_alarm_rate", "test_rate", "worst",
+    "pairs": {"X-Y": {"ok", "views", "judged", "ratio", "limit_ratio", "p"}} (a pair not judged: ``"message"``
+    instead of the statistics), "loops": {"r-B-C": {"ok", "t2",
+    "limit", "p", "instants", "rotation_arcmin": [3], "t_mm": [3], "sigma_rotation_arcmin": [3], "sigma_t_mm":
+    [3]}}, "not_judged": ["X-Y", ...]}`` (the misclosure in C's frame), ``statistic`` and ``limit`` of the test
+    of the smallest p-value (a pair's ratio or a loop's ``T^2``).
     """
-    if len(names) < 3:
+    p = tied.problem
+    names, ref = p.cameras, p.reference
+    if len(names) < 3 or p.mode == "none":
         return None
-    pairs, relations = {}, {}
+    kappa2 = max(design_effect(alone).values()) if kappa2 is None else kappa2
+    G = len(alone.problem.views)
+    photos = alone.photo_poses
+    shared = {}
     for x, y in combinations(range(len(names)), 2):
-        if y == ref:
-            x, y = y, x
+        x, y = (y, x) if y == ref else (x, y)
+        shared[(x, y)] = [v for v in alone.problem.views if (x, v) in photos and (y, v) in photos]
+    judged = {k: v for k, v in shared.items() if len(v) >= MIN_PAIR_INSTANTS}
+    n_tests = len(judged) + sum(ref not in k for k in judged)
+    each = sidak(rate, max(n_tests, 1))
+    pairs, loops, tests = {}, {}, []
+    for (x, y), views in shared.items():
         key = f"{names[x]}-{names[y]}"
-        try:
-            tied, alone, views = pair_solutions(x, y)
-        except EstimationError as exc:
-            pairs[key] = {"ok": False, "views": 0, "message": str(exc)}
+        if (x, y) not in judged:
+            pairs[key] = {"ok": True, "judged": False, "views": len(views),
+                          "message": f"not judged: fewer than {MIN_PAIR_INSTANTS} shared instants"}
             continue
-        rigid = rig_rigid(tied, alone) or {"ok": True, "ratio": 0.0}
-        pairs[key] = {"ok": bool(rigid["ok"]), "ratio": float(rigid["ratio"]), "views": views}
-        relations[(x, y)] = _pair_relation(tied)
-    others = [c for c in range(len(names)) if c != ref]
-    loops = {}
-    triples = [(b, c) for b, c in combinations(others, 2) if {(ref, b), (ref, c), (b, c)} <= set(relations)]
-    alpha = LOOP_FALSE_ALARM / max(1, len(triples))
-    for b, c in triples:
-        e, shifts = _misclosure(relations[(ref, b)], relations[(ref, c)], relations[(b, c)])
-        n = len(shifts)
-        if n <= 6:
+        fit = _pair(tied, alone, x, y, views, kappa2)
+        dof = 6 * (len(views) - 1)
+        ratio = fit["scatter"] / dof
+        p_pair = f_sf(ratio, dof, max(G - 1, 1))
+        limit = f_quantile(dof, max(G - 1, 1), 1.0 - each)
+        pairs[key] = {"ok": ratio <= limit, "judged": True, "views": len(views), "ratio": ratio,
+                      "limit_ratio": limit, "p": p_pair}
+        tests.append((p_pair, f"pair {key}", ratio, limit))
+        if ref in (x, y):
             continue
-        cov = shifts.T @ shifts
-        stat = float(e @ np.linalg.lstsq(cov, e, rcond=None)[0])
-        limit = float(6 * (n - 1) / (n - 6) * f_quantile(6, n - 6, 1.0 - alpha))       # Hotelling's T^2
-        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        loops[f"{names[ref]}-{names[b]}-{names[c]}"] = {
-            "ok": stat <= limit, "t2": stat, "limit": limit, "instants": n,
-            "rotation_arcmin": (e[:3] * ARCMIN_PER_RAD).tolist(), "t_mm": e[3:].tolist(),
-            "sigma_rotation_arcmin": (sd[:3] * ARCMIN_PER_RAD).tolist(), "sigma_t_mm": sd[3:].tolist()}
-    bad_pairs = [k for k, p in pairs.items() if not p["ok"]]
+        e, cov_e = fit["e"], fit["cov_e"]
+        t2 = float(e @ np.linalg.solve(cov_e, e))
+        p_loop = f_sf(t2 / 6, 6, max(G - 1, 1))
+        limit = 6 * f_quantile(6, max(G - 1, 1), 1.0 - each)
+        sd = np.sqrt(np.maximum(np.diag(cov_e), 0.0))
+        loop = f"{names[ref]}-{names[x]}-{names[y]}"
+        loops[loop] = {"ok": t2 <= limit, "t2": t2, "limit": limit, "p": p_loop, "instants": len(views),
+                       "rotation_arcmin": (e[:3] * ARCMIN_PER_RAD).tolist(), "t_mm": e[3:].tolist(),
+                       "sigma_rotation_arcmin": (sd[:3] * ARCMIN_PER_RAD).tolist(), "sigma_t_mm": sd[3:].tolist()}
+        tests.append((p_loop, f"loop {loop}", t2, limit))
+    return _document(pairs, loops, tests, rate, each)
+
+
+def _document(pairs: dict, loops: dict, tests: list, rate: float, each: float) -> dict:
+    """``loop_closure``'s document and message (:func:`loop_closure`)."""
+    not_judged = [k for k, pr in pairs.items() if not pr["judged"]]
+    bad_pairs = [k for k, pr in pairs.items() if not pr["ok"]]
     bad_loops = [k for k, lp in loops.items() if not lp["ok"]]
-    doc = {"ok": not bad_pairs and not bad_loops and bool(loops), "pairs": pairs, "loops": loops}
-    if not loops:
-        doc["message"] = ("no loop of three cameras can be checked: some pair of cameras shares too few "
-                          "instants to be calibrated alone, or the three pairs' instants are 6 or fewer")
+    worst = min(tests, default=None, key=lambda t: t[0])
+    doc = {"ok": not bad_pairs and not bad_loops, "test": LOOP_TEST, "false_alarm_rate": rate, "test_rate": each,
+           "statistic": worst[2] if worst else None, "limit": worst[3] if worst else None,
+           "p_value": worst[0] if worst else None, "worst": worst[1] if worst else None,
+           "pairs": pairs, "loops": loops, "not_judged": not_judged}
+    rate_words = f"false-alarm rate {100 * rate:g} % per calibration"
+    few = ", ".join(f"{k} ({pairs[k]['views']})" for k in not_judged)
+    skipped = f"; the pair(s) {few} not judged: fewer than {MIN_PAIR_INSTANTS} shared instants" if not_judged else ""
+    if not tests:
+        doc["message"] = (f"no pair of cameras shares {MIN_PAIR_INSTANTS} instants or more: the cameras' pairwise "
+                          f"relative poses cannot be checked{skipped}")
     elif doc["ok"]:
-        worst = max(loops.values(), key=lambda lp: lp["t2"])
-        doc["message"] = (f"the cameras' pairwise relative poses agree: every pair fits one rigid relation and "
-                          f"{len(loops)} loop(s) close within their sigmas (largest T^2 {worst['t2']:.1f}, "
-                          f"limit {worst['limit']:.1f})")
+        doc["message"] = (f"the cameras' pairwise relative poses agree with the rig: {len(tests) - len(loops)} pair(s) "
+                          f"scatter as their photos' noise allows and {len(loops)} loop(s) close (the worst, "
+                          f"{worst[1]}, {worst[2]:.2f} against a limit of {worst[3]:.2f}; {rate_words}){skipped}")
     else:
         parts = []
         if bad_pairs:
             cams = [set(k.split("-")) for k in bad_pairs]
             common = set.intersection(*cams) if len(cams) > 1 else set()
-            parts.append(f"the pair(s) {', '.join(bad_pairs)} do not fit one rigid relation"
-                         + (f" (camera {', '.join(sorted(common))} in each: it moved between instants?)" if common else ""))
+            words = ", ".join(f"{k} ({pairs[k]['ratio']:.1f} x the noise, limit {pairs[k]['limit_ratio']:.2f})"
+                              for k in bad_pairs)
+            moved = f" (camera {', '.join(sorted(common))} in each: it moved between instants?)" if common else ""
+            parts.append(f"the pair(s) {words} do not fit one rigid relation{moved}")
         for k in bad_loops:
             lp = loops[k]
             parts.append(f"loop {k} misses by {np.linalg.norm(lp['rotation_arcmin']):.2f}' and "
-                         f"{np.linalg.norm(lp['t_mm']):.3f} mm (T^2 {lp['t2']:.0f}, limit {lp['limit']:.1f})")
-        doc["message"] = ("; ".join(parts) + ": the rig's relative poses do not hold for every instant; "
-                          "find the instants with rig_rigid, drop them with --exclude or shoot again")
+                         f"{np.linalg.norm(lp['t_mm']):.3f} mm (T^2 {lp['t2']:.1f}, limit {lp['limit']:.1f})")
+        doc["message"] = ("; ".join(parts) + ": the rig's relative poses do not hold for every instant "
+                          f"({rate_words}); find the instants with rig_rigid, drop them with --exclude or shoot "
+                          f"again{skipped}")
     return doc
