@@ -207,8 +207,10 @@ def lens_motion(photos: Photos, alone: Fit, fit: Fit, said: list[str], factor: f
 
     first, record = fit, {}
     setup, record["ois"] = with_ois(fit.setup, fit.flat, fit.alone)
-    if setup is not fit.setup:            # its spreads from every instant its prior keeps (not only those kept without)
-        setup, spread = ois_spread(setup, again(setup).flat)
+    if setup is not fit.setup:      # its spreads from the instants its prior keeps, but those that fit far worse
+        tied = again(setup).flat
+        blocks = [b for b in tied.problem.blocks if b[1] not in record["ois"]["left_out"]]
+        setup, spread = ois_spread(setup, tied if len(blocks) == len(tied.problem.blocks) else setup.solve(blocks, tied))
         record["ois"].update(spread)
         fit = again(setup)
     setup, record["breathing"] = with_breathing(fit.setup, fit.flat, photo_focus(photos.corners, fit.alone))

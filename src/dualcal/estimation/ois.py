@@ -11,12 +11,14 @@ spread ``sigma_c`` is estimated here, from how the instants disagree.
 **Whether the photos show one** (:func:`ois_test`). From the rig tied without shifts (its outliers left out), every
 photo's shift is estimated in one Gauss-Newton step with a prior too weak to matter (``sigma`` :data:`FREE_SPREAD`
 times the noise: the shifts as fixed effects, kept apart from the pose only where the data tell them apart).
-Their joint chi-square ``Q = delta^T Cov(delta)^-1 delta`` (the cost they take away, in units of the noise) has
-``k`` degrees of freedom under no stabiliser, ``k`` the shifts' share of the redundancy (Foerstner's ``r``, below;
-nearly 2 per photo); in units of the photo-level noise (``kappa^2 s0^2``, the design effect of
-:func:`dualcal.estimation.checks.design_effect`, as ``rig_rigid`` measures it) ``Q / (kappa^2 k)`` is compared with
-``F(k, G - 1)`` at :data:`dualcal.estimation.checks.FALSE_ALARM_RATE`. A rig whose shots are synchronised and whose
-lenses do not shift passes, and keeps the calibration it had (no shift modelled).
+Each instant's chi-square ``q_v = delta_v^T Cov(delta_v)^-1 delta_v`` (the cost its shifts take away, in units of
+the noise) has ``k_v`` degrees of freedom under no stabiliser, ``k_v`` its shifts' share of the redundancy
+(Foerstner's ``r``, below; nearly 2 per photo). An instant whose ``q_v`` is far beyond the others' is one whose
+shots disagree (a desynchronised shot: ``rig_rigid``'s to name), and is left out of the test. In units of the
+photo-level noise (``kappa^2 s0^2``, the design effect of :func:`dualcal.estimation.checks.design_effect`, as
+``rig_rigid`` measures it) ``sum q_v / (kappa^2 sum k_v)`` is compared with ``F(sum k_v, G - 1)`` at
+:data:`dualcal.estimation.checks.FALSE_ALARM_RATE`. A rig whose shots are synchronised and whose lenses do not
+shift passes, and keeps the calibration it had (no shift modelled).
 
 **Its spread** (:func:`ois_spread`): variance components, the iteration of Foerstner (1979, "Ein Verfahren zur
 Schaetzung von Varianz- und Kovarianzkomponenten"; Koch, *Parameter Estimation and Hypothesis Testing in Linear
@@ -37,8 +39,8 @@ from dataclasses import replace
 import numpy as np
 
 from .adjust import OisPrior, Solution
-from .checks import FALSE_ALARM_RATE, design_effect
-from .distributions import f_quantile
+from .checks import FALSE_ALARM_RATE, design_effect, instant_f_tests
+from .distributions import f_quantile, sidak
 from ..errors import EstimationError
 from .fitting import Setup
 
@@ -73,37 +75,85 @@ def _redundancy_shares(sol: Solution) -> dict[int, float]:
         sol.factorization.inverse_block(_shift_columns(sol, c))))) for c in p.layout.ois}
 
 
+def _free_shifts(setup: Setup, tied: Solution, scale: float) -> Solution:
+    """``tied`` (a rig without shifts) linearised with every photo's shift free under a prior too weak to matter
+    (:data:`FREE_SPREAD` times ``scale``)."""
+    free = replace(setup, ois=OisPrior(dict.fromkeys(tied.problem.cameras, FREE_SPREAD * scale), scale))
+    return free.linearised(tied, tied.problem.board_shape)
+
+
+def _instant_scores(tied: Solution, free: Solution, scale: float) -> tuple[dict[str, float], dict[str, float]]:
+    """Each instant's score test of its photos' shifts, the others' held at none: ``{view: q_v}`` (in units of
+    ``scale``) and ``{view: k_v}`` its degrees of freedom. With the instant's shifts' gradient ``g`` and their
+    information given everything ``tied`` estimates, ``I = N_dd - N_dt N_tt^-1 N_td`` (``N_tt^-1`` ``tied``'s,
+    over the globals and the instant's own unknowns), ``q_v = g^T (I + P)^-1 g`` and ``k_v = tr((I + P)^-1 I)``
+    (``P`` the weak prior)."""
+    lay, lay0, ne = free.problem.layout, tied.problem.layout, free.factorization.ne
+    G = lay.n_global
+    q, k = {}, {}
+    for v, view in enumerate(free.problem.views):
+        shifts = np.concatenate([slots for slots in lay.ois.values() if lay.local_used[v, slots[0]]])
+        own = np.flatnonzero(lay0.local_used[v])
+        cross = np.hstack([ne.gl[v][:, shifts].T, ne.ll[v][np.ix_(shifts, own)]])
+        inverse = tied.factorization.inverse_block(np.concatenate([np.arange(G), lay0.local_columns(v, own)]))
+        prior = np.eye(len(shifts)) / FREE_SPREAD ** 2
+        information = ne.ll[v][np.ix_(shifts, shifts)] - prior - cross @ inverse @ cross.T
+        g = ne.grad_l[v][shifts]
+        q[view] = float(g @ np.linalg.solve(information + prior, g)) / scale ** 2
+        k[view] = float(np.trace(np.linalg.solve(information + prior, information)))
+    return q, k
+
+
+def _joint_statistic(free: Solution, scale: float) -> tuple[float, float, dict[str, float]]:
+    """Every photo's shift estimated at once: their joint chi-square ``Q`` (in units of ``scale``), its degrees of
+    freedom (the shifts' prior rows' redundancy) and each camera's shifts' RMS, px."""
+    p, lay, step = free.problem, free.problem.layout, free.factorization.step()
+    cols = np.concatenate([_shift_columns(free, c) for c in lay.ois])
+    inverse = free.factorization.inverse_block(cols)
+    q = float(step[cols] @ np.linalg.solve(inverse, step[cols])) / scale ** 2
+    dof = float(np.sum(1.0 - np.diag(inverse) / FREE_SPREAD ** 2))
+    return q, dof, {p.cameras[c]: float(np.sqrt(np.mean(step[_shift_columns(free, c)] ** 2))) for c in lay.ois}
+
+
 def ois_test(setup: Setup, tied: Solution, alone: Solution, rate: float = FALSE_ALARM_RATE) -> dict | None:
     """Whether the photos of ``tied`` (a rig without shifts; ``alone`` every camera alone over the same photos) show
     the stabiliser's shifts (module docstring); None for a rig of one camera or mode ``none``.
 
+    A stabiliser shifts every photo; an instant whose shots disagree (not synchronised, the board moved) is one
+    instant, and pulls the rig's relative pose, so that the others seem shifted too. So, as ``rig_rigid`` names
+    them (:func:`dualcal.estimation.checks.instant_f_tests`: each instant's ``q_v`` against the others' scatter, the
+    rate split over the instants), the worst instant that fits far worse than the others is left out and the others
+    judged from a fit without it, until none is (at most a quarter of the instants): those are the rig check's to
+    judge, and the stabiliser's spread is estimated without them.
+
     Returns ``{"test", "statistic" (Q / (kappa^2 k)), "limit", "dof" (k), "design_effect" (kappa^2), "significant",
-    "false_alarm_rate", "spread_px": {camera: the shifts' RMS, px}}`` (the spreads' start: above them, as the
-    shifts' estimates hold their noise too).
+    "false_alarm_rate", "left_out": [views], "spread_px": {camera: the shifts' RMS, px}}`` (the spreads' start:
+    above them, as the shifts' estimates hold their noise too).
     """
     p = tied.problem
     if p.mode == "none" or len(p.cameras) < 2:
         return None
     scale = max(alone.s0_px, 1e-9)       # the noise: tied without shifts, the rig's misfit would count in it
-    free = replace(setup, ois=OisPrior(dict.fromkeys(p.cameras, FREE_SPREAD * scale), scale))
-    lin = free.linearised(tied, p.board_shape)
-    step = lin.factorization.step()
-    cols = np.concatenate([_shift_columns(lin, c) for c in lin.problem.layout.ois])
-    inverse = lin.factorization.inverse_block(cols)
-    delta = step[cols]
+    each = sidak(rate, len(p.views) + 1)
+    left_out = []
     try:
-        q = float(delta @ np.linalg.solve(inverse, delta)) / scale ** 2
-    except np.linalg.LinAlgError:
+        while True:
+            free = _free_shifts(setup, tied, scale)
+            q, k = _instant_scores(tied, free, scale)
+            tests = instant_f_tests(q, k, {v: 1.0 / len(q) for v in q}, sum(k.values()), each)
+            worst = min(tests, key=lambda v: tests[v]["p"], default=None)
+            if worst is None or tests[worst]["p"] >= each or len(left_out) >= len(p.views) // 4:
+                break
+            left_out.append(worst)
+            tied = setup.solve([b for b in tied.problem.blocks if b[1] != worst], tied, board_shape=p.board_shape)
+        statistic, dof, rms = _joint_statistic(free, scale)
+    except (np.linalg.LinAlgError, EstimationError):
         return None
-    shares = _redundancy_shares(lin)
-    dof = float(sum(shares.values()))
     kappa2 = max(design_effect(alone).values())
-    views = len(p.views)
-    limit = f_quantile(dof, max(views - 1, 1), 1.0 - rate)
-    ratio = q / (kappa2 * dof)
-    spread = {p.cameras[c]: float(np.sqrt(np.mean(step[_shift_columns(lin, c)] ** 2))) for c in lin.problem.layout.ois}
+    limit = f_quantile(dof, max(len(tied.problem.views) - 1, 1), 1.0 - rate)
+    ratio = statistic / (kappa2 * dof)
     return {"test": OIS_TEST, "statistic": ratio, "limit": limit, "dof": dof, "design_effect": kappa2,
-            "significant": bool(ratio > limit), "false_alarm_rate": rate, "spread_px": spread}
+            "significant": bool(ratio > limit), "false_alarm_rate": rate, "left_out": left_out, "spread_px": rms}
 
 
 def ois_spread(setup: Setup, tied: Solution) -> tuple[Setup, dict]:
@@ -140,8 +190,9 @@ def ois_spread(setup: Setup, tied: Solution) -> tuple[Setup, dict]:
 
 def with_ois(setup: Setup, tied: Solution, alone: Solution) -> tuple[Setup, dict | None]:
     """``setup`` with the stabiliser's shifts where the photos show them (:func:`ois_test`), their spreads at their
-    start (the shifts' RMS, above the spreads: :func:`ois_spread` estimates them from a fit under this prior), and
-    the test's record (calib.json ``adjustment.lens_motion.ois``; None where not judged)."""
+    start (the shifts' RMS, above the spreads: :func:`ois_spread` estimates them from a fit under this prior, without
+    the instants the test left out), and the test's record (calib.json ``adjustment.lens_motion.ois``; None where
+    not judged)."""
     test = ois_test(setup, tied, alone)
     if test is None or not test["significant"]:
         return setup, test
