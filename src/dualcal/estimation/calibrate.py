@@ -194,23 +194,24 @@ def rig_tied(fit: Fit, factor: float | None) -> Fit:
 
 def lens_motion(photos: Photos, alone: Fit, fit: Fit, said: list[str], factor: float | None) -> Fit:
     """Stage 4's second part (module docstring): from ``fit`` (stage 4's rig) whether its photos shift with the
-    stabiliser (:func:`dualcal.estimation.ois.with_ois`, its spreads by :func:`dualcal.estimation.ois.ois_spread`; a rig
-    tied only), then whether each camera's lens breathes
-    with its focus (:func:`dualcal.estimation.focus_model.with_breathing`; each photo's focus from its metadata,
-    else its board's distance). Each term chosen runs stages 3 (its cameras alone, from ``alone``, stage 3's) and 4
-    again with it, so that the outliers are judged with it (a stabilised rig's instants do not fit one relative pose
-    without it) and the next test is made on what it leaves; what stage 4 said before (``said``) is said where
-    neither is chosen. ``lens_motion`` records the tests (calib.json ``adjustment.lens_motion``)."""
+    stabiliser (:func:`dualcal.estimation.ois.with_ois`, the spreads by :func:`dualcal.estimation.ois.ois_spread`;
+    a rig tied only), then whether each camera's lens breathes with its focus
+    (:func:`dualcal.estimation.focus_model.with_breathing`; each photo's focus from its metadata, else its board's
+    distance). Each term chosen runs stages 3 (its cameras alone, from ``alone``, stage 3's) and 4 again with it,
+    so that the outliers are judged with it (a stabilised rig's instants do not fit one relative pose without it)
+    and the next test is made on what it leaves; what stage 4 said before (``said``) is said where neither is
+    chosen. ``lens_motion`` records the tests (calib.json ``adjustment.lens_motion``)."""
     def again(setup: Setup) -> Fit:
         cameras = setup.solve(alone.blocks, alone.alone, mode="none")
         return rig_tied(replace(alone, setup=setup, alone=cameras, flat=cameras, solution=cameras), factor)
 
     first, record = fit, {}
     setup, record["ois"] = with_ois(fit.setup, fit.flat, fit.alone)
-    if setup is not fit.setup:      # its spreads from the instants its prior keeps, but those that fit far worse
+    if setup is not fit.setup:      # the spreads from the instants its prior keeps, but those that fit far worse
         tied = again(setup).flat
-        blocks = [b for b in tied.problem.blocks if b[1] not in record["ois"]["left_out"]]
-        setup, spread = ois_spread(setup, tied if len(blocks) == len(tied.problem.blocks) else setup.solve(blocks, tied))
+        if record["ois"]["left_out"]:
+            tied = setup.solve([b for b in tied.problem.blocks if b[1] not in record["ois"]["left_out"]], tied)
+        setup, spread = ois_spread(setup, tied)
         record["ois"].update(spread)
         fit = again(setup)
     setup, record["breathing"] = with_breathing(fit.setup, fit.flat, photo_focus(photos.corners, fit.alone))
