@@ -83,14 +83,12 @@ def rig5():
 
 
 def test_calib_json_of_the_paper_model_keeps_the_keys_of_before(rig):
-    """k1k2: the camera entries are those of the contract (no p1, p2, k3), ``model`` names the model; a rig's
-    cameras add the stabiliser's spread, 0 where the photos show none (no focus model: no focal length in EXIF)."""
+    """k1k2: the camera entries are those of the contract (no p1, p2, k3), ``model`` names the model."""
     doc = rig_to_dict(rig)
     assert doc["model"] == "k1k2"
     for entry in doc["cameras"].values():
         names = {"fx", "fy", "skew", "cx", "cy", "k1", "k2"}
-        assert set(entry) == names | {"image_size", "model", "sigma", "sigma_formal", "rms_px", "ois_sigma_px"}
-        assert entry["ois_sigma_px"] == 0.0
+        assert set(entry) == names | {"image_size", "model", "sigma", "sigma_formal", "rms_px"}
         assert set(entry["sigma"]) == set(entry["sigma_formal"]) == names
 
 

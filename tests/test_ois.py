@@ -52,11 +52,19 @@ def test_rig_rigid_passes_a_stabilised_rig_whose_shots_are_synchronised(stabilis
     assert 0.3 < rig.checks["rig_rigid"]["ratio"] < 2.0
 
 
+def _with_exif(corners, focal_mm=4.3):
+    """``corners`` whose cameras' EXIF gives a focal length (their photos may be stabilised)."""
+    for cc in corners.cameras.values():
+        cc.meta = {"exif": {"focal_length_mm": focal_mm}}
+    return corners
+
+
 @pytest.mark.parametrize("preset", ["note8", "triple"])
 def test_no_shift_where_the_lenses_hold_still(preset):
-    """A rig whose principal points stay put: the test does not find shifts, every camera's spread is 0, and the
-    calibration is the one without the lens's motion, to the last digit."""
-    corners = noisy_corner_set(make_truth(preset, views=12, seed=62, scale=0.25), 0.2, seed=2)
+    """A rig whose principal points stay put (its photos' EXIF gives a focal length: they may be stabilised): the
+    test does not find shifts, every camera's spread is 0, and the calibration is the one without the lens's
+    motion, to the last digit."""
+    corners = _with_exif(noisy_corner_set(make_truth(preset, views=12, seed=62, scale=0.25), 0.2, seed=2))
     with collect_warnings():
         rig = calibrate_rig(corners, model="k1k2")
         plain = calibrate_rig(corners, model="k1k2", lens_motion=False)
@@ -88,9 +96,27 @@ def test_a_desynchronised_instant_is_not_taken_for_a_stabiliser():
     """One instant whose second camera shot 0.5 mm and 1.5 arcmin off the rig (the regression harness's planted
     desync) pulls the rig's relative pose, so that every instant seems shifted; the test leaves it out (it fits far
     worse than the others), finds no shift in the rest, and rig_rigid names it, as without the test."""
-    corners = synthetic_corners("triple", 12, 5, 0.1, "desync")
+    corners = _with_exif(synthetic_corners("triple", 12, 5, 0.1, "desync"))
     with collect_warnings():
         rig = calibrate_rig(corners, model="k1k2")
     test = rig.adjustment["lens_motion"]["ois"]
     assert test["left_out"] == ["IMG_07"] and not test["significant"]
     assert not rig.checks["rig_rigid"]["ok"] and rig.checks["rig_rigid"]["flagged"] == ["IMG_07"]
+
+
+def test_cameras_without_a_focal_length_in_exif_are_not_judged():
+    """A webcam rig (no EXIF) whose every instant is jittered like OIS would shift it: its lenses are taken to hold
+    still, no stabiliser is looked for, and the calibration is the one without the lens's motion; only the cameras
+    whose EXIF gives a focal length are judged."""
+    truth = make_truth("note8", views=14, seed=61, scale=0.5, ois_px=OIS_PX)
+    corners = noisy_corner_set(truth, 0.1, seed=1)
+    for cc in corners.cameras.values():
+        cc.meta = {}
+    with collect_warnings():
+        rig = calibrate_rig(corners, model="k1k2")
+        plain = calibrate_rig(corners, model="k1k2", lens_motion=False)
+    assert "lens_motion" not in rig.adjustment and not rig.ois_sigma_px and rig.cameras == plain.cameras
+    corners.cameras["tele"].meta = {"exif": {"focal_length_mm": 6.0}}
+    with collect_warnings():
+        rig = calibrate_rig(corners, model="k1k2")
+    assert rig.adjustment["lens_motion"]["ois"]["cameras"] == ["tele"] and set(rig.ois_sigma_px) == {"tele"}

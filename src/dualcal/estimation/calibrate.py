@@ -45,7 +45,7 @@ from .checking import calibration_checks
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import InputError
 from .focus_model import photo_focus, with_breathing
-from .ois import ois_spread, with_ois
+from .ois import may_stabilise, ois_spread, with_ois
 from .fitting import (AUTO_MODEL, Setup, known_intrinsics_record, lens_models_for, rig_model_from_solution,
                       usable_photos)
 from .model_selection import choose_lens_models, preferred_lens_models
@@ -195,9 +195,9 @@ def rig_tied(fit: Fit, factor: float | None) -> Fit:
 def lens_motion(photos: Photos, alone: Fit, fit: Fit, said: list[str], factor: float | None) -> Fit:
     """Stage 4's second part (module docstring): from ``fit`` (stage 4's rig) whether its photos shift with the
     stabiliser (:func:`dualcal.estimation.ois.with_ois`, the spreads by :func:`dualcal.estimation.ois.ois_spread`;
-    a rig tied only), then whether each camera's lens breathes with its focus
-    (:func:`dualcal.estimation.focus_model.with_breathing`; each photo's focus from its metadata, else its board's
-    distance). Each term chosen runs stages 3 (its cameras alone, from ``alone``, stage 3's) and 4 again with it,
+    a rig tied only, the cameras whose EXIF gives a focal length), then whether each camera's lens breathes with its
+    focus (:func:`dualcal.estimation.focus_model.with_breathing`; each photo's focus from its metadata, else its
+    board's distance). Each term chosen runs stages 3 (its cameras alone, from ``alone``, stage 3's) and 4 again with it,
     so that the outliers are judged with it (a stabilised rig's instants do not fit one relative pose without it)
     and the next test is made on what it leaves; what stage 4 said before (``said``) is said where neither is
     chosen. ``lens_motion`` records the tests (calib.json ``adjustment.lens_motion``)."""
@@ -206,7 +206,7 @@ def lens_motion(photos: Photos, alone: Fit, fit: Fit, said: list[str], factor: f
         return rig_tied(replace(alone, setup=setup, alone=cameras, flat=cameras, solution=cameras), factor)
 
     first, record = fit, {}
-    setup, record["ois"] = with_ois(fit.setup, fit.flat, fit.alone)
+    setup, record["ois"] = with_ois(fit.setup, fit.flat, fit.alone, may_stabilise(photos.corners))
     if setup is not fit.setup:      # the spreads from the instants its prior keeps, but those that fit far worse
         tied = again(setup).flat
         if record["ois"]["left_out"]:
@@ -270,8 +270,8 @@ def calibration(photos: Photos, fit: Fit, settings: Settings) -> RigModel:
         rig.adjustment["known_intrinsics"] = known_intrinsics_record(setup)
     if fit.lens_motion:
         rig.adjustment["lens_motion"] = fit.lens_motion
-        if "ois" in fit.lens_motion and not rig.ois_sigma_px:       # judged, and none seen
-            rig.ois_sigma_px = dict.fromkeys(setup.names, 0.0)
+        if "ois" in fit.lens_motion:                  # the cameras judged: 0 where the photos show no shift
+            rig.ois_sigma_px = {**dict.fromkeys(fit.lens_motion["ois"]["cameras"], 0.0), **rig.ois_sigma_px}
     return rig
 
 

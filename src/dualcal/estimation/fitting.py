@@ -405,7 +405,7 @@ def _with_lens_motion(rig: RigModel, sol: Solution, sd: dict[str, dict[str, floa
                                                max(sd["clustered"][breathing_name(name)], formal), formal)
         rig.photo_focus_m[name] = {v: p.focus.focus_mm[name, v] / 1000.0 for v in views}
     if p.ois is not None:
-        rig.ois_sigma_px = {name: float(p.ois.sigma_px.get(name, 0.0)) for name in p.cameras}
+        rig.ois_sigma_px = {name: float(s) for name, s in p.ois.sigma_px.items() if name in p.cameras}
         for c in lay.ois:
             rig.ois_shift_px[p.cameras[c]] = {v: st.ois_px[p.view_index[v], c].copy() for cc, v, _ in p.blocks
                                              if cc == c}

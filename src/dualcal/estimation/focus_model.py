@@ -39,7 +39,7 @@ from ..geometry.camera import CameraModel
 from ..progress import warn
 
 __all__ = ["MIN_FOCUS_SPAN", "breathing_test", "camera_at_focus", "covariance_at_focus", "photo_focus",
-           "with_breathing"]
+           "rig_at_focus", "with_breathing"]
 
 #: A camera's photos show its breathing only where their focus spans more than this share (farthest over nearest,
 #: less 1): photos all focused alike (focus locked) say nothing of it.
@@ -180,3 +180,10 @@ def covariance_at_focus(rig: RigModel, focus_m: dict[str, float | None]) -> dict
                 added[where[intrinsic_name(c, n)]] = s * s
     matrices = {k: J @ np.asarray(cov.matrices[k]) @ J.T + np.diag(added) for k in KINDS}
     return JointCovariance(cov.parameters, matrices).to_dict()
+
+
+def rig_at_focus(rig: RigModel, focus_m: dict[str, float | None]) -> RigModel:
+    """``rig`` as in photos focused at ``focus_m`` ``{camera: m or None}``: the cameras :func:`camera_at_focus`, the
+    covariance :func:`covariance_at_focus` (for a rectification or an undistortion of those photos)."""
+    return replace(rig, cameras={c: camera_at_focus(rig, c, focus_m.get(c)) for c in rig.cameras},
+                   covariance=covariance_at_focus(rig, focus_m))

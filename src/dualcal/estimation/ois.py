@@ -8,7 +8,9 @@ than the rig's angles' sigma, and the rig seems not rigid. :mod:`dualcal.estimat
 photo its shift, with a prior ``delta ~ N(0, sigma_c^2)`` per coordinate for camera ``c``: a random effect, whose
 spread ``sigma_c`` is estimated here, from how the instants disagree.
 
-**Whether the photos show one** (:func:`ois_test`). From the rig tied without shifts (its outliers left out), every
+**Whether the photos show one** (:func:`ois_test`), for the cameras that may have a stabiliser (:func:`may_stabilise`:
+those whose EXIF gives a focal length; in data without EXIF a shift is not told from a desynchronised shot's
+jitter, which ``rig_rigid`` is to name). From the rig tied without shifts (its outliers left out), every
 photo's shift is estimated in one Gauss-Newton step with a prior too weak to matter (``sigma`` :data:`FREE_SPREAD`
 times the noise: the shifts as fixed effects, kept apart from the pose only where the data tell them apart).
 Each instant's chi-square ``q_v = delta_v^T Cov(delta_v)^-1 delta_v`` (the cost its shifts take away, in units of
@@ -43,8 +45,9 @@ from .checks import FALSE_ALARM_RATE, design_effect, instant_f_tests
 from .distributions import f_quantile, sidak
 from ..errors import EstimationError
 from .fitting import Setup
+from ..geometry.model import CornerSet
 
-__all__ = ["FREE_SPREAD", "MIN_SPREAD", "ois_spread", "ois_test", "with_ois"]
+__all__ = ["FREE_SPREAD", "MIN_SPREAD", "may_stabilise", "ois_spread", "ois_test", "with_ois"]
 
 #: The spread of the prior under which the test estimates every shift, in units of the noise: far beyond any
 #: stabiliser's, so that the shifts are fixed effects wherever the data determine them.
@@ -75,10 +78,10 @@ def _redundancy_shares(sol: Solution) -> dict[int, float]:
         sol.factorization.inverse_block(_shift_columns(sol, c))))) for c in p.layout.ois}
 
 
-def _free_shifts(setup: Setup, tied: Solution, scale: float) -> Solution:
-    """``tied`` (a rig without shifts) linearised with every photo's shift free under a prior too weak to matter
-    (:data:`FREE_SPREAD` times ``scale``)."""
-    free = replace(setup, ois=OisPrior(dict.fromkeys(tied.problem.cameras, FREE_SPREAD * scale), scale))
+def _free_shifts(setup: Setup, tied: Solution, scale: float, cameras) -> Solution:
+    """``tied`` (a rig without shifts) linearised with every photo of ``cameras`` shifted, free under a prior too
+    weak to matter (:data:`FREE_SPREAD` times ``scale``)."""
+    free = replace(setup, ois=OisPrior(dict.fromkeys(cameras, FREE_SPREAD * scale), scale))
     return free.linearised(tied, tied.problem.board_shape)
 
 
@@ -115,9 +118,21 @@ def _joint_statistic(free: Solution, scale: float) -> tuple[float, float, dict[s
     return q, dof, {p.cameras[c]: float(np.sqrt(np.mean(step[_shift_columns(free, c)] ** 2))) for c in lay.ois}
 
 
-def ois_test(setup: Setup, tied: Solution, alone: Solution, rate: float = FALSE_ALARM_RATE) -> dict | None:
+def may_stabilise(corners: CornerSet) -> tuple[str, ...]:
+    """The cameras whose photos may carry a stabiliser's shift: those whose EXIF gives a focal length (corners.json's
+    ``meta["exif"]["focal_length_mm"]``: a phone's, a compact's or a stabilised lens's photos). A camera without
+    (a webcam, a machine-vision camera, photos whose EXIF was stripped) is taken as one whose lens holds still: its
+    rig's instants that do not fit one relative pose are ``rig_rigid``'s to judge, not a stabiliser's to explain."""
+    return tuple(name for name, cc in corners.cameras.items()
+                 if isinstance((cc.meta.get("exif") or {}).get("focal_length_mm"), (int, float))
+                 and cc.meta["exif"]["focal_length_mm"] > 0)
+
+
+def ois_test(setup: Setup, tied: Solution, alone: Solution, cameras=None,
+             rate: float = FALSE_ALARM_RATE) -> dict | None:
     """Whether the photos of ``tied`` (a rig without shifts; ``alone`` every camera alone over the same photos) show
-    the stabiliser's shifts (module docstring); None for a rig of one camera or mode ``none``.
+    the stabiliser's shifts in the ``cameras`` named (default: all); None for a rig of one camera or mode ``none``,
+    or where no camera of it is named.
 
     A stabiliser shifts every photo; an instant whose shots disagree (not synchronised, the board moved) is one
     instant, and pulls the rig's relative pose, so that the others seem shifted too. So, as ``rig_rigid`` names
@@ -126,19 +141,20 @@ def ois_test(setup: Setup, tied: Solution, alone: Solution, rate: float = FALSE_
     judged from a fit without it, until none is (at most a quarter of the instants): those are the rig check's to
     judge, and the stabiliser's spread is estimated without them.
 
-    Returns ``{"test", "statistic" (Q / (kappa^2 k)), "limit", "dof" (k), "design_effect" (kappa^2), "significant",
-    "false_alarm_rate", "left_out": [views], "spread_px": {camera: the shifts' RMS, px}}`` (the spreads' start:
-    above them, as the shifts' estimates hold their noise too).
+    Returns ``{"test", "cameras" (those judged), "statistic" (Q / (kappa^2 k)), "limit", "dof" (k), "design_effect"
+    (kappa^2), "significant", "false_alarm_rate", "left_out": [views], "spread_px": {camera: the shifts' RMS, px}}``
+    (the spreads' start: above them, as the shifts' estimates hold their noise too).
     """
     p = tied.problem
-    if p.mode == "none" or len(p.cameras) < 2:
+    cameras = [n for n in p.cameras if cameras is None or n in cameras]
+    if p.mode == "none" or len(p.cameras) < 2 or not cameras:
         return None
     scale = max(alone.s0_px, 1e-9)       # the noise: tied without shifts, the rig's misfit would count in it
     each = sidak(rate, len(p.views) + 1)
     left_out = []
     try:
         while True:
-            free = _free_shifts(setup, tied, scale)
+            free = _free_shifts(setup, tied, scale, cameras)
             q, k = _instant_scores(tied, free, scale)
             tests = instant_f_tests(q, k, {v: 1.0 / len(q) for v in q}, sum(k.values()), each)
             worst = min(tests, key=lambda v: tests[v]["p"], default=None)
@@ -152,8 +168,9 @@ def ois_test(setup: Setup, tied: Solution, alone: Solution, rate: float = FALSE_
     kappa2 = max(design_effect(alone).values())
     limit = f_quantile(dof, max(len(tied.problem.views) - 1, 1), 1.0 - rate)
     ratio = statistic / (kappa2 * dof)
-    return {"test": OIS_TEST, "statistic": ratio, "limit": limit, "dof": dof, "design_effect": kappa2,
-            "significant": bool(ratio > limit), "false_alarm_rate": rate, "left_out": left_out, "spread_px": rms}
+    return {"test": OIS_TEST, "cameras": cameras, "statistic": ratio, "limit": limit, "dof": dof,
+            "design_effect": kappa2, "significant": bool(ratio > limit), "false_alarm_rate": rate,
+            "left_out": left_out, "spread_px": rms}
 
 
 def ois_spread(setup: Setup, tied: Solution) -> tuple[Setup, dict]:
@@ -188,12 +205,12 @@ def ois_spread(setup: Setup, tied: Solution) -> tuple[Setup, dict]:
     return replace(setup, ois=OisPrior(dict(sigma), scale) if sigma else None), record
 
 
-def with_ois(setup: Setup, tied: Solution, alone: Solution) -> tuple[Setup, dict | None]:
-    """``setup`` with the stabiliser's shifts where the photos show them (:func:`ois_test`), their spreads at their
-    start (the shifts' RMS, above the spreads: :func:`ois_spread` estimates them from a fit under this prior, without
-    the instants the test left out), and the test's record (calib.json ``adjustment.lens_motion.ois``; None where
-    not judged)."""
-    test = ois_test(setup, tied, alone)
+def with_ois(setup: Setup, tied: Solution, alone: Solution, cameras=None) -> tuple[Setup, dict | None]:
+    """``setup`` with the stabiliser's shifts of the ``cameras`` named (default: all; :func:`may_stabilise`) where the
+    photos show them (:func:`ois_test`), their spreads at their start (the shifts' RMS, above the spreads:
+    :func:`ois_spread` estimates them from a fit under this prior, without the instants the test left out), and the
+    test's record (calib.json ``adjustment.lens_motion.ois``; None where not judged)."""
+    test = ois_test(setup, tied, alone, cameras)
     if test is None or not test["significant"]:
         return setup, test
     scale = float(np.sqrt(test["design_effect"])) * alone.s0_px
