@@ -70,6 +70,19 @@ def measured(rig, points: dict, focus_m: dict) -> dict:
                       "lengths": [p for p in points["lengths"] if name not in p]}
 
 
+def phone_corners(truth, noise_px: float, seed: int):
+    """The calibration's corners as detection gives them from a phone's photos: each camera's EXIF focal length and
+    each photo's focus in its meta (``noisy_corner_set`` writes them for lenses that breathe or shift; for still
+    lenses, each photo focused on the board's centre)."""
+    corners = noisy_corner_set(truth, noise_px, seed=seed)
+    if truth.photo_lenses is None:
+        centre = truth.board.object_points_mm().mean(axis=0)
+        for name, cc in corners.cameras.items():
+            cc.meta = {"exif": {"focal_length_mm": FOCAL_MM["note8"][name]},
+                       "focus_m": {v: truth.camera_pose(name, v).apply(centre[None])[0, 2] / 1000 for v in cc.views}}
+    return corners
+
+
 def instant_points(distance: float, rng: np.random.Generator) -> np.ndarray:
     """(4, 3) corners of a square a third of ``distance`` across, ``distance`` mm ahead of the wide, turned by
     up to 30 degrees (reference frame, mm)."""
@@ -117,7 +130,7 @@ def run(args, breathing: float, ois_px: float) -> None:
     for seed in range(args.seeds):
         truth = make_truth("note8", views=args.views, seed=5000 + seed, scale=args.scale, board=Board(8, 5, 15.0),
                            fill=FILL, max_tilt_deg=50.0, breathing=breathing, ois_px=ois_px)
-        corners = noisy_corner_set(truth, args.noise, seed=seed)
+        corners = phone_corners(truth, args.noise, seed)
         rigs = {}
         for kind in ("today", "model") if seed % 2 else ("model", "today"):        # taking turns
             t0 = time.perf_counter()

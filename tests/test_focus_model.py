@@ -141,3 +141,22 @@ def test_a_camera_at_another_focus_is_less_certain_the_further_it_is_extrapolate
     with collect_warnings() as said:
         camera_at_focus(back, "tele", 0.6)
     assert not said
+
+
+def test_export_writes_a_camera_at_the_focus_asked(breathing, tmp_path, run_cli):
+    """``dualcal export --focus tele=0.3``: that camera's focal lengths at 0.3 m (the model's), the other at its
+    calibration's focus; a malformed --focus is one line and exit 2."""
+    _, rig = breathing
+    save_rig(tmp_path / "calib.json", rig)
+    res = run_cli("export", tmp_path / "calib.json", "--format", "colmap", "--focus", "tele=0.3", "-o",
+                  tmp_path / "cameras.txt")
+    assert res.code == 0, res.err
+    rows = {line.split()[0]: [float(x) for x in line.split()[4:8]]
+            for line in (tmp_path / "cameras.txt").read_text().splitlines() if line and not line.startswith("#")}
+    tele, wide = sorted(rows, key=lambda k: rows[k][0])[::-1]
+    g = rig.focus_models["tele"].scale(0.3)
+    assert rows[tele][:2] == pytest.approx([rig.cameras["tele"].fx * g, rig.cameras["tele"].fy * g], rel=1e-9)
+    assert rows[wide][:2] == pytest.approx([rig.cameras["wide"].fx, rig.cameras["wide"].fy], rel=1e-9)
+    res = run_cli("export", tmp_path / "calib.json", "--format", "colmap", "--focus", "tele", "-o",
+                  tmp_path / "other.txt")
+    assert res.code == 2 and len(res.err_lines) == 1 and "CAMERA=METRES" in res.err

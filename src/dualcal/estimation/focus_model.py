@@ -54,11 +54,10 @@ def photo_focus(corners: CornerSet, sol: Solution) -> PhotoFocus | None:
     centre = p.X_board.mean(axis=0)
     focal, reference, focus, source = {}, {}, {}, {}
     for c, name in enumerate(p.cameras):
-        meta = corners.cameras[name].meta if name in corners.cameras else {}
-        f_mm = (meta.get("exif") or {}).get("focal_length_mm")
-        if not isinstance(f_mm, (int, float)) or not f_mm > 0:
+        f_mm = corners.cameras[name].focal_length_mm
+        if f_mm is None:
             continue
-        stated = meta.get("focus_m") or {}
+        stated = corners.cameras[name].meta.get("focus_m") or {}
         for cc, v, _ in p.blocks:
             if cc != c:
                 continue
@@ -68,7 +67,7 @@ def photo_focus(corners: CornerSet, sol: Solution) -> PhotoFocus | None:
             else:
                 focus[name, v] = float(sol.photo_poses[c, v].apply(centre[None])[0, 2])
                 source[name, v] = "board"
-        focal[name] = float(f_mm)
+        focal[name] = f_mm
         reference[name] = float(np.median([d for (n, _), d in focus.items() if n == name]))
     return PhotoFocus(focal, reference, focus, source) if focal else None
 

@@ -123,9 +123,7 @@ def may_stabilise(corners: CornerSet) -> tuple[str, ...]:
     ``meta["exif"]["focal_length_mm"]``: a phone's, a compact's or a stabilised lens's photos). A camera without
     (a webcam, a machine-vision camera, photos whose EXIF was stripped) is taken as one whose lens holds still: its
     rig's instants that do not fit one relative pose are ``rig_rigid``'s to judge, not a stabiliser's to explain."""
-    return tuple(name for name, cc in corners.cameras.items()
-                 if isinstance((cc.meta.get("exif") or {}).get("focal_length_mm"), (int, float))
-                 and cc.meta["exif"]["focal_length_mm"] > 0)
+    return tuple(name for name, cc in corners.cameras.items() if cc.focal_length_mm is not None)
 
 
 def ois_test(setup: Setup, tied: Solution, alone: Solution, cameras=None,

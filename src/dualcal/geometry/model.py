@@ -81,6 +81,12 @@ class CameraCorners:
     views: dict[str, np.ndarray | None]
     meta: dict = field(default_factory=dict)
 
+    @property
+    def focal_length_mm(self) -> float | None:
+        """The lens's focal length its photos' EXIF gives, mm (``meta["exif"]["focal_length_mm"]``); None without."""
+        f = (self.meta.get("exif") or {}).get("focal_length_mm")
+        return float(f) if isinstance(f, (int, float)) and f > 0 else None
+
     def found(self) -> dict[str, np.ndarray]:
         """The views where the board was found (at least one corner measured)."""
         return {k: v for k, v in self.views.items() if v is not None and observed_mask(v).any()}
