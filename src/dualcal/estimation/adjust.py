@@ -51,8 +51,8 @@ focus ``d0``) with ``fx``, ``fy`` and ``skew`` times ``g(d) = (1 + b f/(d - f)) 
 With ``ois`` (:class:`OisPrior`, optical image stabilisation) each photo of a camera it names has its own
 principal-point shift ``delta`` (2, px), a local unknown of its instant added to every pixel of the photo, with a
 prior of spread ``sigma_c`` per coordinate (a random effect): rows ``scale delta / sigma_c`` in the cost, ``scale``
-(``OisPrior.scale_px``) the noise of a photo of weight 1, so that the prior weighs against the corners in the
-cost's own units. The prior's information belongs to the shift's instant (its block of the normal equations), and
+(``OisPrior.scale_px``) the noise of a photo of weight 1 that the prior weighs against, in the cost's own units
+(:mod:`dualcal.estimation.ois` takes the photo-level noise). The prior's information belongs to the shift's instant (its block of the normal equations), and
 every photo's part of the cost (:meth:`Solution.block_costs`) holds its shift's prior, so that what an instant costs
 tied to the rig is what its shots cost under the stabiliser's spread. :mod:`dualcal.estimation.ois` estimates
 ``sigma_c``.
@@ -100,7 +100,8 @@ COVARIANCE_KINDS = ("clustered", "formal")
 @dataclass(frozen=True)
 class OisPrior:
     """The stabiliser's shift of every photo as a random effect (module docstring): ``sigma_px`` ``{camera:
-    spread, px per coordinate}`` of the cameras whose photos shift, ``scale_px`` the noise of a photo of weight 1."""
+    spread, px per coordinate}`` of the cameras whose photos shift, ``scale_px`` the noise of a photo of weight 1 the
+    prior weighs against."""
 
     sigma_px: Mapping[str, float]
     scale_px: float

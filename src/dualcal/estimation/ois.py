@@ -24,7 +24,7 @@ shift passes, and keeps the calibration it had (no shift modelled).
 
 **Its spread** (:func:`ois_spread`): variance components, the iteration of Foerstner (1979, "Ein Verfahren zur
 Schaetzung von Varianz- und Kovarianzkomponenten"; Koch, *Parameter Estimation and Hypothesis Testing in Linear
-Models*, 3.6), which converges to the REML estimate: with the photos' shifts ``delta_i`` estimated under the prior
+Models*, variance components), which converges to the REML estimate: with the photos' shifts ``delta_i`` estimated under the prior
 of spread ``sigma_c``, and ``r_c = sum_i (1 - p_c [N^-1]_ii)`` the redundancy of the prior's rows of camera ``c``
 (``p_c = (scale / sigma_c)^2`` their weight, ``N`` the normal matrix), the new spread is
 ``sigma_c^2 = sum_i delta_i^2 / r_c``, until they settle. The noise ``scale`` the prior is weighed against is the

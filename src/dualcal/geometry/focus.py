@@ -9,7 +9,7 @@ lens; 0: a lens whose focal length does not change with focus)::
 
     fx(d) = fx_inf (1 + b f / (d - f)),    fy(d) = fy_inf (1 + b f / (d - f))
 
-(Ray, *Applied Photographic Optics*, 3rd ed., section 5; "focus breathing" in cinematography). The skew, like
+(S. F. Ray, *Applied Photographic Optics*; "focus breathing" in cinematography). The skew, like
 ``fx``, is a length on the sensor and scales alike; the principal point and the lens's distortion in normalised
 coordinates stay as they are. A calibration gives its camera at a reference focus ``d0`` (its photos' median),
 so the camera focused at ``d`` has every focal length times::
