@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from dualcal.estimation.adjust import Problem, cost, initial_state, instant_rows, linearise, residuals
+from dualcal.estimation.adjust import OisPrior, Problem, cost, initial_state, instant_rows, linearise, residuals
 from dualcal.estimation.rig_relations import rig_relation
 from dualcal.estimation.fitting import solve, usable_photos
 from dualcal.geometry.camera import CameraModel, project_points
+from dualcal.geometry.focus import PhotoFocus
 from dualcal.geometry.model import Pose, choose_reference
 from dualcal.geometry.poses import relative_pose
 from dualcal.geometry.rotation import opk_from_rotation, rotation_from_opk, rotation_from_rotvec, rotvec_from_rotation
@@ -292,3 +293,43 @@ def test_omega_phi_kappa_near_the_gimbal_lock_warn(capsys):
     assert "phi = 88.0 degrees, near the omega-phi-kappa singularity" in capsys.readouterr().err
     rig_relation(sol, 1)
     assert "singularity" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("mode", ["rigid", "paper", "none"])
+def test_the_lens_motion_terms_have_exact_jacobians_and_their_priors_rows(mode):
+    """Lenses that breathe with focus (a coefficient per camera) and photos shifted by the stabiliser (a random
+    effect per photo): the Jacobian rows are those of the residuals' central differences, and the normal equations
+    are the rows' plus the shifts' prior ``(scale / sigma)^2`` on each shift, its gradient and its cost."""
+    truth = make_truth("note8", 4, seed=3, breathing=1.5, ois_px=1.0)
+    corners = noisy_corner_set(truth, 0.1, seed=4)
+    args = _setup(corners, mode)
+    focus = PhotoFocus({"wide": 4.3, "tele": 6.0}, {"wide": 550.0, "tele": 560.0},
+                       {(n, v): truth.photo_lenses[v][n].focus_mm for n in args[1] for v in truth.view_poses}, {})
+    ois = OisPrior({"wide": 1.5, "tele": 0.8}, 0.2)
+    problem = Problem(*args[:4], mode=mode, reference=args[4], board_shape=True, focus=focus,
+                      breathing=("tele", "wide"), ois=ois)
+    rng = np.random.default_rng(5)
+    state = _truth_state(problem, truth, wiggle=1e-3)
+    state.breathing[:] = [1.2, 0.7]
+    state.ois_px[:] = rng.normal(0.0, 1.0, state.ois_px.shape)
+    J, r = _numeric_jacobian(problem, state), _flat_residuals(problem, state)
+    counts = [2 * int(np.isfinite(uv[:, 0]).sum()) for _, _, uv in problem.blocks]
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    lay, used = problem.layout, _used(problem)
+    for inst in instant_rows(problem, state):
+        rows = np.concatenate([np.arange(starts[b], starts[b + 1]) for b, (_, v, _) in enumerate(problem.blocks)
+                               if v == inst.view])
+        np.testing.assert_allclose(inst.J, J[rows][:, inst.columns], rtol=1e-5, atol=1e-5 * np.abs(J[rows]).max())
+    prior = np.zeros(len(used))
+    shifts = np.zeros(len(used))
+    for c, slots in lay.ois.items():
+        for v in np.flatnonzero(lay.local_used[:, slots[0]]):
+            prior[lay.local_columns(v, slots)] = ois.information(problem.cameras[c])
+            shifts[lay.local_columns(v, slots)] = state.ois_px[v, c]
+    assert np.count_nonzero(prior) == 2 * len(problem.blocks)
+    F, ne = linearise(problem, state)
+    N, g = _dense(ne)
+    np.testing.assert_allclose(N[np.ix_(used, used)], (J.T @ J + np.diag(prior))[np.ix_(used, used)], rtol=1e-6,
+                               atol=1e-6 * np.abs(N).max())
+    np.testing.assert_allclose(g[used], (J.T @ r + prior * shifts)[used], rtol=1e-6, atol=1e-6 * np.abs(g).max())
+    assert F == pytest.approx(r @ r + shifts @ (prior * shifts), rel=1e-12) and cost(problem, state) == pytest.approx(F)

@@ -365,7 +365,7 @@ def test_a_noisier_camera_keeps_its_photos():
     assert rig.dropped_views == []
     assert len(rig.dropped_corners) == 0                     # of 1560: the limit is ~7 sigma of each camera
     assert rig.adjustment["options"] == {"drop_outliers": True, "outlier_factor": 6.0, "board_shape": "auto",
-                                         "model": "k1k2", "weigh_photos": True}
+                                         "model": "k1k2", "weigh_photos": True, "lens_motion": True}
 
 
 def _partial_views(corners, rng, missing=0.3, tele_window=0.25):

@@ -89,10 +89,13 @@ def collect_warnings() -> Iterator[list[str]]:
     """Collect the library's warnings into the list yielded, instead of printing them."""
     messages: list[str] = []
     collector = _Collector(messages)
-    LOGGER.removeHandler(STDERR_HANDLER)
+    before = list(LOGGER.handlers)        # stderr, or an outer collection: none of them sees these until said again
+    for handler in before:
+        LOGGER.removeHandler(handler)
     LOGGER.addHandler(collector)
     try:
         yield messages
     finally:
         LOGGER.removeHandler(collector)
-        LOGGER.addHandler(STDERR_HANDLER)
+        for handler in before:
+            LOGGER.addHandler(handler)

@@ -64,7 +64,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     from ..messages import CHECKS, page_of
     from ..progress import warn
     from .tables import (checks_table, lens_model_advice, lens_model_choice_table, lens_model_table, photo_table,
-                                result_tables, roll_tables, video_lines)
+                                lens_motion_lines, result_tables, roll_tables, video_lines)
     from ..workflow import (calibrate_corners, known_intrinsics_for, lens_scores, other_skew_model,
                             read_intrinsics)
 
@@ -101,6 +101,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     if rig.board_shape_mm is not None:
         console.print(f"board shape estimated: sag {rig.board_sag_mm():.2f} mm "
                       f"({', '.join(f'{t} {w:+.2f} mm' for t, w in zip(SHAPE_TERMS, rig.board_shape_mm))})")
+    for line in lens_motion_lines(rig):
+        console.print(line)
     console.print(f"RMS reprojection error (2-D, per corner) {rig.rms_px:.3f} px, s0 (per coordinate) "
                   f"{rig.adjustment['s0_px']:.3f} px, rig mode {rig.rig_mode}, lens model {rig.model}; written {output}")
     if scores:

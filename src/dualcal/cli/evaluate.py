@@ -103,9 +103,12 @@ def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, o
     Only the lens distortion is removed: each photo keeps its camera's orientation, so this is
     not a stereo rectification (for a pair whose corresponding points share a row, use 'dualcal
     rectify'). Writes OUTDIR/<photo name> for each photo and OUTDIR/<NAME>.rectified.json, the
-    pinhole camera (k1 = k2 = 0) of the undistorted photos.
+    pinhole camera (k1 = k2 = 0) of the undistorted photos. Where the calibration models the camera's
+    focus, each photo is taken with its camera at the focus its metadata states.
     """
+    from ..estimation.focus_model import camera_at_focus
     from ..files.io import load_rig, write_json_atomic
+    from ..files.photos import read_focus
     from ..files.rectify import (check_same_rectified_camera, rectified_camera, rectified_camera_doc,
                                  rectified_json_path, undistort_files)
 
@@ -116,7 +119,8 @@ def undistort_command(calib: Path, images: tuple[Path, ...], camera_name: str, o
     new_cam = rectified_camera(cam, keep)
     doc_path = rectified_json_path(out_dir, camera_name)
     check_same_rectified_camera(doc_path, new_cam)
-    written = undistort_files(images, out_dir, cam, new_cam, jobs=jobs or default_jobs())
+    written = undistort_files(images, out_dir, cam, new_cam, jobs=jobs or default_jobs(),
+                              camera_of=lambda path: camera_at_focus(rig, camera_name, read_focus(path).focus_m))
     if not written:
         raise InputError(f"none of the {len(images)} photos could be rectified (see the warnings above)")
     write_json_atomic(doc_path, rectified_camera_doc(camera_name, keep, calib, new_cam))

@@ -41,7 +41,8 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
     Both photos are turned into one ideal camera (no distortion, square pixels, the smaller focal
     length of the two, so a tele photo is reduced to the wide's scale) seen from each camera's
     perspective centre, so that corresponding points lie on the same row, or on the same column
-    for a vertical baseline (like a phone's wide + tele above each other).
+    for a vertical baseline (like a phone's wide + tele above each other). Where the calibration models a
+    camera's focus, its photo is taken with its camera at the focus its metadata states.
 
     \b
     OUTDIR/<NAME>-<stem>.<ext>  the two rectified photos (EXIF kept)
@@ -51,13 +52,14 @@ def rectify_command(calib: Path, pair_specs: tuple[str, str], out_dir: Path, kee
     """
     import numpy as np
 
-    from ..files.photos import open_image, output_suffix
+    from ..estimation.focus_model import rig_at_focus
+    from ..files.photos import open_image, output_suffix, read_focus
     from ..files.io import (calibration_fingerprint, check_output_file, load_rig, make_output_folder, write_jpeg_atomic,
                             write_json_atomic)
     from ..files.stereo import epipolar_check_image, rectify_pair_files, stereo_rectify
 
     photos = _pair(pair_specs)
-    rig = load_rig(calib)
+    rig = rig_at_focus(load_rig(calib), {name: read_focus(path).focus_m for name, path in photos.items()})
     first, second = photos
     rect = stereo_rectify(rig, first, second, keep)
     out = make_output_folder(out_dir)

@@ -48,7 +48,10 @@ def report_command(calib: Path, output: Path, eval_path: Path | None) -> None:
 @click.option("-o", "--output", required=True, type=click.Path(),  # a str: keeps a trailing "/"
               help="File to write. For mrcal: a folder (gets NAME.cameramodel per camera) or a "
                    "stem (gets STEM-NAME.cameramodel).")
-def export_command(calib: Path, fmt: str, output: str) -> None:
+@click.option("--focus", "focus_specs", multiple=True, metavar="CAMERA=METRES",
+              help="Export the camera as focused at that distance, where the calibration models its focus "
+                   "(calib.json focus_model; repeatable). Default: the focus it was calibrated at (focus_m).")
+def export_command(calib: Path, fmt: str, output: str, focus_specs: tuple[str, ...]) -> None:
     """Write a calibration in OpenCV, Kalibr, COLMAP or mrcal format.
 
     \b
@@ -65,11 +68,24 @@ def export_command(calib: Path, fmt: str, output: str) -> None:
 
     Each format gets the lens model of the calibration (--model of 'dualcal calibrate'),
     with zeros for the coefficients it lacks. None of these formats has a skew term: a
-    non-zero skew is dropped with a warning.
+    non-zero skew is dropped with a warning. A camera whose focus the calibration models is
+    written at its calibration's focus, or at the one --focus gives.
     """
+    from ..errors import InputError
+    from ..estimation.focus_model import rig_at_focus
     from ..files.export import write_export
     from ..files.io import load_rig
 
     rig = load_rig(calib)
-    for path in write_export(rig, fmt, output):
+    focus = {}
+    for spec in focus_specs:
+        name, _, metres = spec.partition("=")
+        try:
+            focus[name] = float(metres)
+        except ValueError:
+            raise InputError(f"--focus {spec!r}: expected CAMERA=METRES, e.g. tele=0.3") from None
+        if name not in rig.cameras or not focus[name] > 0:
+            raise InputError(f"--focus {spec!r}: expected a camera of {calib} ({', '.join(rig.cameras)}) and a "
+                             "distance above 0 m")
+    for path in write_export(rig_at_focus(rig, focus) if focus else rig, fmt, output):
         echo(f"wrote {path}")

@@ -246,6 +246,19 @@ def roll_tables(roll: dict) -> list[Table]:
     return tables
 
 
+def lens_motion_lines(rig: RigModel) -> list[str]:
+    """What the calibration found of its lenses' motion: each focus model (its breathing coefficient, the focus its
+    intrinsics hold at, its photos' focus range) and the stabiliser's spread, where modelled."""
+    lines = [f"focus modelled, {name}: breathing b = {m.breathing:.2f} +- {m.breathing_sigma:.2f} (a thin lens of "
+             f"{m.focal_length_mm:g} mm: 1), its intrinsics at {m.focus_m:.2f} m, its photos focused "
+             f"{m.focus_range_m[0]:.2f}-{m.focus_range_m[1]:.2f} m" for name, m in rig.focus_models.items()]
+    shifting = {n: s for n, s in rig.ois_sigma_px.items() if s > 0}
+    if shifting:
+        lines.append("stabiliser: each photo's principal point shifted by "
+                     + ", ".join(f"{s:.2f} px ({n})" for n, s in shifting.items()) + " per coordinate (1-sigma)")
+    return lines
+
+
 def video_lines(corners) -> list[str]:
     """Lines for the terminal: what became of each clip's frames (read, board found, held still, chosen,
     and why the others were not) and each camera's offset from the reference; none without clips."""

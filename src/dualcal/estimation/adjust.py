@@ -42,6 +42,21 @@ least squares). :mod:`dualcal.estimation.photo_noise` sets ``w_b = sigma_ref^2 /
 own noise ``sigma_b``, so that ``s0`` stays in pixels (the noise of a photo of weight 1) and a blurred photo
 counts for what its corners are worth. ``residuals`` stay pixels, unweighted.
 
+With ``focus`` (:class:`dualcal.geometry.focus.PhotoFocus`, each photo's focus) and ``breathing`` (the cameras
+whose lens breathes), each of those cameras has one more global unknown, its breathing coefficient ``b``
+(:mod:`dualcal.geometry.focus`): its photo focused at ``d`` sees the camera's intrinsics (given at the reference
+focus ``d0``) with ``fx``, ``fy`` and ``skew`` times ``g(d) = (1 + b f/(d - f)) / (1 + b f/(d0 - f))``, so a pixel
+``uv`` of the camera at ``d0`` is at ``c + g (uv - c)`` (``c`` the principal point) in that photo.
+
+With ``ois`` (:class:`OisPrior`, optical image stabilisation) each photo of a camera it names has its own
+principal-point shift ``delta`` (2, px), a local unknown of its instant added to every pixel of the photo, with a
+prior of spread ``sigma_c`` per coordinate (a random effect): rows ``scale delta / sigma_c`` in the cost, ``scale``
+(``OisPrior.scale_px``) the noise of a photo of weight 1 that the prior weighs against, in the cost's own units
+(:mod:`dualcal.estimation.ois` takes the photo-level noise). The prior's information belongs to the shift's instant (its block of the normal equations), and
+every photo's part of the cost (:meth:`Solution.block_costs`) holds its shift's prior, so that what an instant costs
+tied to the rig is what its shots cost under the stabiliser's spread. :mod:`dualcal.estimation.ois` estimates
+``sigma_c``.
+
 To add a group of global parameters: give it columns in :func:`_build_layout`, a field in
 :class:`State` updated in :meth:`State.updated`, and its Jacobian piece in
 :func:`_jacobian_pieces`, where ``J_X`` (d residual / d camera-frame point) and the rotations are
@@ -65,6 +80,7 @@ from functools import cached_property
 import numpy as np
 
 from ..geometry.board import SHAPE_TERMS, shape_basis, shaped_points_mm
+from ..geometry.focus import PhotoFocus, focal_scale, focal_scale_per_breathing
 from ..geometry.camera import (DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS, CameraModel, intrinsic_names,
                                project_points, project_with_jacobians)
 from ..errors import EstimationError, InputError
@@ -82,10 +98,25 @@ COVARIANCE_KINDS = ("clustered", "formal")
 
 
 @dataclass(frozen=True)
+class OisPrior:
+    """The stabiliser's shift of every photo as a random effect (module docstring): ``sigma_px`` ``{camera:
+    spread, px per coordinate}`` of the cameras whose photos shift, ``scale_px`` the noise of a photo of weight 1 the
+    prior weighs against."""
+
+    sigma_px: Mapping[str, float]
+    scale_px: float
+
+    def information(self, camera: str) -> float:
+        """``(scale / sigma)^2``: the prior's information per shift coordinate in the cost's units."""
+        return (self.scale_px / self.sigma_px[camera]) ** 2
+
+
+@dataclass(frozen=True)
 class CameraBatch:
     """All photos of one camera: ``blocks`` (B,) indices into ``Problem.blocks``, ``views`` (B,)
     instant indices, ``uv_px`` (B, N, 2) corners (NaN rows unmeasured), ``observed`` (B, N), ``sqrt_weight``
-    (B,) the square root of each photo's weight (None: every weight 1)."""
+    (B,) the square root of each photo's weight (None: every weight 1), ``focus_mm`` (B,) each photo's focus where
+    the camera's lens breathes (None otherwise)."""
 
     camera: int
     blocks: np.ndarray
@@ -93,6 +124,7 @@ class CameraBatch:
     uv_px: np.ndarray
     observed: np.ndarray
     sqrt_weight: np.ndarray | None = None
+    focus_mm: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -103,10 +135,10 @@ class Layout:
     ``intrinsics[c]`` the free intrinsics of camera ``c`` (``free_intrinsics[c]``, a (K,) mask
     over :data:`INTRINSIC_NAMES`); ``rig_rotation[c]`` (3) of each tied camera; ``rig_translation[c]``
     (3, rigid) or ``baseline[c]`` (1, paper); ``board_shape`` (3, or none) the board's shape
-    coefficients. Local (0 .. ``n_local``): ``pose[k]`` (6: rotation
-    increment, then translation) of pose slot ``k`` (slot 0 is the reference's board pose; in mode
-    ``none`` slot ``c`` is camera ``c``'s); ``direction[c]`` (2, paper). ``local_used`` (V, L) marks
-    the slots each instant has.
+    coefficients; ``breathing[c]`` (1) of each camera whose lens breathes. Local (0 .. ``n_local``): ``pose[k]``
+    (6: rotation increment, then translation) of pose slot ``k`` (slot 0 is the reference's board pose; in mode
+    ``none`` slot ``c`` is camera ``c``'s); ``direction[c]`` (2, paper); ``ois[c]`` (2) the principal-point shift
+    of camera ``c``'s photo of the instant, where it has one. ``local_used`` (V, L) marks the slots each instant has.
     """
 
     free_intrinsics: np.ndarray
@@ -120,6 +152,8 @@ class Layout:
     direction: dict[int, np.ndarray]
     n_local: int
     local_used: np.ndarray
+    breathing: dict[int, np.ndarray] = field(default_factory=dict)
+    ois: dict[int, np.ndarray] = field(default_factory=dict)
 
     def local_columns(self, view: int, slots: np.ndarray) -> np.ndarray:
         """Flat indices of local ``slots`` of instant ``view``."""
@@ -137,7 +171,9 @@ class Problem:
     ``{(camera name, view): w}`` weighs each photo's squared residuals (module docstring; a photo not named,
     or no mapping: 1); ``block_weights`` (n_blocks,) is each block's. ``known`` ``{camera name:
     KnownIntrinsics}`` holds cameras' intrinsics fixed or as a prior of scale ``prior_scale_px`` (module
-    docstring); ``priors`` lists the priors in force (:class:`Prior`).
+    docstring); ``priors`` lists the priors in force (:class:`Prior`). ``focus`` (each photo's focus) and
+    ``breathing`` (camera names) free the breathing coefficient of those cameras, ``ois`` gives the photos of
+    the cameras it names their own principal-point shift (module docstring).
     """
 
     X_board: np.ndarray
@@ -152,6 +188,9 @@ class Problem:
     weights: Mapping[tuple[str, str], float] | None = None
     known: Mapping[str, KnownIntrinsics] | None = None
     prior_scale_px: float | None = None
+    focus: PhotoFocus | None = None
+    breathing: tuple[str, ...] = ()
+    ois: OisPrior | None = None
 
     def __post_init__(self):
         if self.mode not in RIG_MODES:
@@ -170,12 +209,22 @@ class Problem:
             idx = np.array([b for b, (cc, _, _) in enumerate(self.blocks) if cc == c], int)
             if len(idx):
                 uv = np.array([self.blocks[b][2] for b in idx], float)
+                focus = (np.array([self.focus.focus_mm[self.cameras[c], self.blocks[b][1]] for b in idx], float)
+                         if self.breathes(c) else None)
                 self.batches.append(CameraBatch(c, idx, np.array([self.view_index[self.blocks[b][1]] for b in idx]),
                                                 uv, observed_mask(uv),
-                                                np.sqrt(self.block_weights[idx]) if self.weights else None))
+                                                np.sqrt(self.block_weights[idx]) if self.weights else None, focus))
         self.shape_basis = shape_basis(self.X_board)          # (N, 3), used when board_shape
         self.layout = _build_layout(self)
         self.priors = _priors(self)
+
+    def breathes(self, c: int) -> bool:
+        """Whether camera ``c``'s breathing coefficient is an unknown."""
+        return self.focus is not None and self.cameras[c] in self.breathing
+
+    def shifts(self, c: int) -> bool:
+        """Whether camera ``c``'s photos have their own principal-point shift (OIS)."""
+        return self.ois is not None and self.cameras[c] in self.ois.sigma_px
 
     def tied(self, c: int) -> bool:
         """Whether camera ``c`` is tied to the reference by a relative pose."""
@@ -230,16 +279,20 @@ def _build_layout(p: Problem) -> Layout:
     rig_translation = {c: _take(g, 3) for c in tied} if p.mode == "rigid" else {}
     baseline = {c: _take(g, 1) for c in tied} if p.mode == "paper" else {}
     board_shape = _take(g, len(SHAPE_TERMS) if p.board_shape else 0)
+    breathing = {c: _take(g, 1) for c in range(C) if p.breathes(c)}
     loc = [0]
     pose = {k: _take(loc, 6) for k in (range(C) if p.mode == "none" else [0])}
     direction = {c: _take(loc, 2) for c in tied} if p.mode == "paper" else {}
+    ois = {c: _take(loc, 2) for c in range(C) if p.shifts(c)}
     used = np.zeros((V, loc[0]), bool)
     for b in p.batches:
         used[np.ix_(b.views, pose[p.pose_slot(b.camera)])] = True
+        if b.camera in ois:
+            used[np.ix_(b.views, ois[b.camera])] = True
     for c, slots in direction.items():
         used[np.ix_(p.seen(c) & p.seen(p.reference), slots)] = True
     return Layout(free, intrinsics, rig_rotation, rig_translation, baseline, board_shape, g[0], pose, direction,
-                  loc[0], used)
+                  loc[0], used, breathing, ois)
 
 
 @dataclass(frozen=True)
@@ -295,6 +348,8 @@ class State:
     direction : (V, C, 3) unit direction of the baseline per instant (mode ``paper``).
     board_shape_mm : (3,) the board's shape coefficients (:data:`dualcal.geometry.board.SHAPE_TERMS`; zero
         for a flat board).
+    breathing : (C,) each camera's breathing coefficient (zero where its lens does not breathe).
+    ois_px : (V, C, 2) each photo's principal-point shift, px (zero where its camera's photos do not shift).
     """
 
     intrinsics: np.ndarray
@@ -305,6 +360,15 @@ class State:
     baseline_mm: np.ndarray
     direction: np.ndarray
     board_shape_mm: np.ndarray = field(default_factory=lambda: np.zeros(len(SHAPE_TERMS)))
+    breathing: np.ndarray | None = None
+    ois_px: np.ndarray | None = None
+
+    def __post_init__(self):
+        C, V = len(self.intrinsics), len(self.pose_R)
+        if self.breathing is None:
+            self.breathing = np.zeros(C)
+        if self.ois_px is None:
+            self.ois_px = np.zeros((V, C, 2))
 
     def updated(self, layout: Layout, h: np.ndarray) -> "State":
         """The state moved by a flat step ``h`` (numbering of :mod:`dualcal.estimation.normal_equations`)."""
@@ -326,7 +390,12 @@ class State:
             pose_t[:, k] += h_l[:, slots[3:]]
         for c, slots in layout.direction.items():
             direction[:, c] = moved_on_sphere(direction[:, c], h_l[:, slots])
-        return State(intr, pose_R, pose_t, rig_R, rig_t, D, direction, shape)
+        breathing, ois = self.breathing.copy(), self.ois_px.copy()
+        for c, cols in layout.breathing.items():
+            breathing[c] += h_g[cols[0]]
+        for c, slots in layout.ois.items():
+            ois[:, c] += h_l[:, slots]
+        return State(intr, pose_R, pose_t, rig_R, rig_t, D, direction, shape, breathing, ois)
 
     def camera(self, problem: Problem, c: int) -> CameraModel:
         return CameraModel.from_vector(problem.image_sizes[c], self.intrinsics[c], problem.models[c])
@@ -347,15 +416,17 @@ class State:
 
 
 def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict[str, Pose]],
-                  board_shape_mm: np.ndarray | None = None) -> State:
+                  board_shape_mm: np.ndarray | None = None, breathing: Mapping[str, float] | None = None,
+                  ois_px: Mapping[tuple[str, str], np.ndarray] | None = None) -> State:
     """Starting values in the problem's layout from every camera's own estimates.
 
     ``cameras[c]`` is a CameraModel, ``poses[c][view]`` a board-to-camera Pose (e.g. from Zhang's
     closed form, or from an earlier adjustment). A tied camera's relative pose starts at the mean
     of its relative poses over the instants it shares with the reference that agree (:func:`~dualcal.geometry.model.consensus_pose`; in mode ``paper``:
     ``D`` at the mean baseline length, each instant's direction at its own). The board's shape
-    starts at ``board_shape_mm`` (default flat). Poses of views the problem does not have (an earlier
-    solution's, of photos dropped since) are ignored.
+    starts at ``board_shape_mm`` (default flat), each breathing coefficient at ``breathing[camera]`` and each
+    photo's shift at ``ois_px[(camera, view)]`` (default 0; only where the problem has them). Poses of views the
+    problem does not have (an earlier solution's, of photos dropped since) are ignored.
     """
     C, V, ref = len(cameras), len(problem.views), problem.reference
     rig_R, rig_t = np.tile(np.eye(3), (C, 1, 1)), np.zeros((C, 3))
@@ -390,6 +461,12 @@ def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict
             rel = Pose(rig_R[c], state.relative_t(problem, c, np.array([i]))[0])
             pose = rel.inverse().compose(pose)
         pose_R[i, 0], pose_t[i, 0] = pose.R, pose.t_mm
+    for c in problem.layout.breathing:
+        state.breathing[c] = (breathing or {}).get(problem.cameras[c], 0.0)
+    for c in problem.layout.ois:
+        for (name, view), shift in (ois_px or {}).items():
+            if name == problem.cameras[c] and view in problem.view_index:
+                state.ois_px[problem.view_index[view], c] = shift
     return state
 
 
@@ -409,6 +486,33 @@ def _camera_points(problem: Problem, state: State, batch: CameraBatch):
     return W, Y @ state.rig_R[batch.camera].T + rel_t[:, None, :], rel_t
 
 
+def _focal_scales(problem: Problem, state: State, batch: CameraBatch) -> tuple[np.ndarray, np.ndarray]:
+    """Each photo's focal scale ``g`` (B,) and ``dg/db`` (B,) of a camera whose lens breathes (module docstring)."""
+    name, c = problem.cameras[batch.camera], batch.camera
+    args = (problem.focus.focal_mm[name], state.breathing[c], problem.focus.reference_mm[name])
+    return focal_scale(batch.focus_mm, *args), focal_scale_per_breathing(batch.focus_mm, *args)
+
+
+def _in_photos(problem: Problem, state: State, batch: CameraBatch, uv: np.ndarray) -> np.ndarray:
+    """``uv`` (B, N, 2), pixels of camera ``batch.camera`` at its reference focus and unshifted, as its photos see
+    them: scaled about the principal point by each photo's focal scale where the lens breathes, moved by each
+    photo's shift where it has one (module docstring)."""
+    c = batch.camera
+    if problem.breathes(c):
+        centre = state.intrinsics[c, 3:5]
+        uv = centre + _focal_scales(problem, state, batch)[0][:, None, None] * (uv - centre)
+    if problem.shifts(c):
+        uv = uv + state.ois_px[batch.views, c][:, None, :]
+    return uv
+
+
+def _predicted(problem: Problem, state: State, batch: CameraBatch, Xc: np.ndarray) -> np.ndarray:
+    """(B, N, 2) the pixels of the camera-frame points ``Xc`` (B, N, 3) in each photo of ``batch``."""
+    with np.errstate(divide="ignore", invalid="ignore"):      # unmeasured corners may sit anywhere
+        uv = project_points(state.camera(problem, batch.camera), Xc.reshape(-1, 3)).reshape(Xc.shape[:2] + (2,))
+    return _in_photos(problem, state, batch, uv)
+
+
 def corners_behind(problem: Problem, state: State) -> int:
     """How many measured corners lie at ``Z <= 0``, behind their camera."""
     return sum(int(np.sum(_camera_points(problem, state, b)[1][b.observed][:, 2] <= 0)) for b in problem.batches)
@@ -419,27 +523,40 @@ def cost(problem: Problem, state: State, allowed_behind: int = 0) -> float:
     of them lie at ``Z <= 0`` (a projection from behind the camera is a mirror image, not a fit)."""
     total, behind = 0.0, 0
     for batch in problem.batches:
-        Xc = _camera_points(problem, state, batch)[1][batch.observed]
-        behind += int(np.sum(Xc[:, 2] <= 0))
+        Xc = _camera_points(problem, state, batch)[1]
+        behind += int(np.sum(Xc[batch.observed][:, 2] <= 0))
         if behind > allowed_behind:
             return np.inf
-        with np.errstate(divide="ignore", invalid="ignore"):
-            squares = np.sum((project_points(state.camera(problem, batch.camera), Xc)
-                              - batch.uv_px[batch.observed]) ** 2, axis=1)
+        if problem.breathes(batch.camera) or problem.shifts(batch.camera):
+            uv = _predicted(problem, state, batch, Xc)[batch.observed]
+        else:                                     # the observed corners only
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv = project_points(state.camera(problem, batch.camera), Xc[batch.observed])
+        squares = np.sum((uv - batch.uv_px[batch.observed]) ** 2, axis=1)
         if batch.sqrt_weight is not None:
             squares = squares * np.broadcast_to(batch.sqrt_weight[:, None] ** 2, batch.observed.shape)[batch.observed]
         total += float(np.sum(squares))
     total += sum(float(np.sum(prior.residual(state) ** 2)) for prior in problem.priors)
+    total += float(np.sum(ois_costs(problem, state)))
     return total if np.isfinite(total) else np.inf
+
+
+def ois_costs(problem: Problem, state: State) -> np.ndarray:
+    """(n_blocks,) each photo's shift's part of the cost, ``(scale / sigma)^2 |delta|^2`` (module docstring; 0 for a
+    photo without a shift)."""
+    out = np.zeros(len(problem.blocks))
+    for batch in problem.batches:
+        if problem.shifts(batch.camera):
+            shift = state.ois_px[batch.views, batch.camera]
+            out[batch.blocks] = problem.ois.information(problem.cameras[batch.camera]) * np.sum(shift ** 2, axis=1)
+    return out
 
 
 def residuals(problem: Problem, state: State) -> np.ndarray:
     """(n_blocks, N, 2) predicted - observed pixels, NaN where a corner was not measured."""
     out = np.full((len(problem.blocks), len(problem.X_board), 2), np.nan)
     for batch in problem.batches:
-        Xc = _camera_points(problem, state, batch)[1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = project_points(state.camera(problem, batch.camera), Xc.reshape(-1, 3)).reshape(Xc.shape[:2] + (2,))
+        uv = _predicted(problem, state, batch, _camera_points(problem, state, batch)[1])
         out[batch.blocks] = np.where(batch.observed[..., None], uv - batch.uv_px, np.nan)
     return out
 
@@ -462,12 +579,20 @@ def _columns(problem: Problem, c: int) -> tuple[np.ndarray, np.ndarray]:
         glob += [lay.rig_rotation[c], lay.rig_translation[c] if problem.mode == "rigid" else lay.baseline[c]]
         if problem.mode == "paper":
             loc.append(lay.direction[c])
-    return np.concatenate(glob + [lay.board_shape]), np.concatenate(loc)
+    glob.append(lay.board_shape)
+    if c in lay.breathing:
+        glob.append(lay.breathing[c])
+    if c in lay.ois:
+        loc.append(lay.ois[c])
+    return np.concatenate(glob), np.concatenate(loc)
 
 
-def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, J_X, J_K, n_global: int):
+def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, J_X, J_K, n_global: int,
+              d_breathing=None):
     """d residual / d unknowns of one camera's photos, (B, N, 2, k): the global columns of
-    :func:`_columns` (the first ``n_global``), then its local slots; the rows of unmeasured corners zero."""
+    :func:`_columns` (the first ``n_global``), then its local slots; the rows of unmeasured corners zero.
+    ``J_X``, ``J_K`` are those of the photos' pixels (each photo's focal scale in them), ``d_breathing`` (B, N, 2)
+    d pixel / d b where the lens breathes."""
     lay, c = problem.layout, batch.camera
     J = np.empty(J_X.shape[:3] + (n_global + len(_columns(problem, c)[1]),))
     k = int(lay.free_intrinsics[c].sum())
@@ -489,6 +614,9 @@ def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, 
         along = (M @ normal[:, None, :, None])[..., 0]                                     # (B, N, 2)
         J[..., k:k + 3] = along[..., None] * problem.shape_basis[None, :, None, :]
         k += 3
+    if d_breathing is not None:
+        J[..., k] = d_breathing
+        k += 1
     _cross(W[:, :, None, :], M, J[..., k:k + 3])                                          # -M [W]x
     J[..., k + 3:k + 6] = M
     k += 6
@@ -496,6 +624,9 @@ def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, 
         u = state.direction[batch.views, c]
         free = lay.local_used[batch.views][:, lay.direction[c][0]]
         J[..., k:k + 2] = (state.baseline_mm[c] * free)[:, None, None, None] * (J_X @ tangent_basis(u)[:, None])
+        k += 2
+    if problem.shifts(c):                                   # d pixel / d shift: the identity
+        J[..., k:k + 2] = np.eye(2)
     J[~batch.observed] = 0.0
     return J
 
@@ -509,10 +640,20 @@ def _linearised_batches(problem: Problem, state: State):
         B, n = batch.observed.shape
         with np.errstate(divide="ignore", invalid="ignore"):      # unmeasured corners may sit anywhere
             uv, J_X, J_K = project_with_jacobians(state.camera(problem, batch.camera), Xc.reshape(-1, 3))
-        r = np.where(batch.observed[:, :, None], uv.reshape(B, n, 2) - batch.uv_px, 0.0).reshape(B, 2 * n)
+        uv, J_X, J_K = uv.reshape(B, n, 2), J_X.reshape(B, n, 2, 3), J_K.reshape(B, n, 2, -1)
+        d_breathing = None
+        if problem.breathes(batch.camera):        # c + g (uv - c): the lengths on the sensor scale, c does not
+            g, dg = _focal_scales(problem, state, batch)
+            from_centre = uv - state.intrinsics[batch.camera, 3:5]
+            d_breathing = dg[:, None, None] * from_centre
+            J_X = g[:, None, None, None] * J_X
+            J_K = J_K.copy()
+            J_K[..., :3] *= g[:, None, None, None]
+            J_K[..., 5:] *= g[:, None, None, None]
+        uv = _in_photos(problem, state, batch, uv)
+        r = np.where(batch.observed[:, :, None], uv - batch.uv_px, 0.0).reshape(B, 2 * n)
         cols_g, slots_l = _columns(problem, batch.camera)
-        J = _jacobian(problem, state, batch, W, Xc, rel_t, J_X.reshape(B, n, 2, 3), J_K.reshape(B, n, 2, -1),
-                      len(cols_g)).reshape(B, 2 * n, -1)
+        J = _jacobian(problem, state, batch, W, Xc, rel_t, J_X, J_K, len(cols_g), d_breathing).reshape(B, 2 * n, -1)
         if batch.sqrt_weight is not None:
             r *= batch.sqrt_weight[:, None]
             J *= batch.sqrt_weight[:, None, None]
@@ -544,6 +685,13 @@ def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
         if problem.mode == "paper" and problem.tied(batch.camera):
             _add_sphere_curvature(problem, state, ne, batch, g_g[:, cg == lay.baseline[batch.camera][0]][:, 0],
                                   g_l[:, np.isin(sl, lay.direction[batch.camera])])
+    for c, slots in lay.ois.items():                 # each shift's prior: its instant's own rows
+        views = lay.local_used[:, slots[0]]
+        information = problem.ois.information(problem.cameras[c])
+        shift = state.ois_px[views, c]
+        total += information * float(np.sum(shift ** 2))
+        ne.ll[np.ix_(views, slots, slots)] += information * np.eye(2)
+        ne.grad_l[np.ix_(views, slots)] += information * shift
     if problem.priors:
         ne.prior_gg, ne.prior_grad = np.zeros((lay.n_global, lay.n_global)), np.zeros(lay.n_global)
         roots = []
@@ -703,8 +851,15 @@ class Solution:
         return sig
 
     def block_costs(self) -> np.ndarray:
-        """(n_blocks,) each photo's part of the cost: ``w_b |r_b|^2`` (px^2 of a photo of weight 1)."""
-        return self.problem.block_weights * np.nansum(self.residuals ** 2, axis=(1, 2))
+        """(n_blocks,) each photo's part of the cost: ``w_b |r_b|^2`` (px^2 of a photo of weight 1), and its shift's
+        prior where it has one (:func:`ois_costs`)."""
+        return (self.problem.block_weights * np.nansum(self.residuals ** 2, axis=(1, 2))
+                + ois_costs(self.problem, self.state))
+
+    def ois_costs_px2(self) -> np.ndarray:
+        """(n_blocks,) each photo's shift's prior in the photo's own pixels (its part of the cost over its
+        weight): what the stabiliser's shift adds to ``|r_b|^2`` (0 for a photo without a shift)."""
+        return ois_costs(self.problem, self.state) / self.problem.block_weights
 
     @cached_property
     def photo_poses(self) -> dict[tuple[int, str], Pose]:
@@ -767,7 +922,9 @@ def adjust(problem: Problem, state: State, options: LMOptions = LMOptions()) -> 
 
 
 def _redundancy(problem: Problem) -> int:
-    redundancy = problem.n_observations + sum(len(prior.names) for prior in problem.priors) - problem.n_parameters
+    shift_rows = sum(int(problem.layout.local_used[:, slots].sum()) for slots in problem.layout.ois.values())
+    redundancy = (problem.n_observations + sum(len(prior.names) for prior in problem.priors) + shift_rows
+                  - problem.n_parameters)
     if redundancy <= 0:
         raise EstimationError(f"not enough observations: redundancy {redundancy} (more views needed)")
     return redundancy

@@ -15,6 +15,9 @@ form or from an earlier solution), its stages as switches (the rig mode, the len
    residuals (:class:`Fit`);
 4. :func:`rig_tied`: the rig from the cameras' relative poses, adjusted in its rig mode, its outliers left out
    (which also reveals a board moved, or a lens refocused, between the shots of one instant);
+   :func:`lens_motion`: the lens's motion where the photos show it: each photo's principal point shifted by the
+   stabiliser (:mod:`dualcal.estimation.ois`), its focal lengths with its focus
+   (:mod:`dualcal.estimation.focus_model`); each chosen runs stages 3-4 again with it, from the cameras alone;
 5. :func:`board_shape`: the board's shape where the photos show it (:mod:`dualcal.estimation.board_shape`);
 6. :func:`lens_choice` (``model="auto"``): every camera's lens model chosen by its held-out instants
    (:mod:`dualcal.estimation.model_selection`); where one changes, stages 3-5 again with the chosen models,
@@ -41,6 +44,8 @@ from .board_shape import BOARD_SHAPES, with_board_shape
 from .checking import calibration_checks
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import InputError
+from .focus_model import photo_focus, with_breathing
+from .ois import may_stabilise, ois_spread, with_ois
 from .fitting import (AUTO_MODEL, Setup, known_intrinsics_record, lens_models_for, rig_model_from_solution,
                       usable_photos)
 from .model_selection import choose_lens_models, preferred_lens_models
@@ -48,7 +53,7 @@ from .outliers import adjust_dropping_outliers
 from .photo_noise import PhotoNoise
 from ..geometry.camera import DEFAULT_LENS_MODEL
 from ..geometry.model import CornerSet, KnownIntrinsics, RigModel, choose_reference
-from ..progress import warn
+from ..progress import collect_warnings, warn
 
 __all__ = ["BOARD_SHAPES", "Fit", "LensModels", "Photos", "Settings", "calibrate_rig"]
 
@@ -64,6 +69,7 @@ class Settings:
     outlier_factor: float = 6.0
     board_shape: str = "auto"
     weigh_photos: bool = True
+    lens_motion: bool = True
 
     @property
     def factor(self) -> float | None:
@@ -101,8 +107,9 @@ class Fit:
     weights), ``blocks`` the photos kept, ``alone`` every camera alone over them (flat board), ``flat`` the rig tied
     in its mode (``alone`` in mode ``none``), ``solution`` the final one (``flat``, or with the board's shape),
     ``shape_test`` the board-shape test (:func:`dualcal.estimation.board_shape.board_shape_test`; None where not
-    made), the photos and corners left out, each with its reason, and ``noise`` each photo's
-    (:class:`dualcal.estimation.photo_noise.PhotoNoise`; None where the photos are not weighed by it)."""
+    made), the photos and corners left out, each with its reason, ``noise`` each photo's
+    (:class:`dualcal.estimation.photo_noise.PhotoNoise`; None where the photos are not weighed by it), and
+    ``lens_motion`` the tests of the lens's motion (:func:`lens_motion`; None before them)."""
 
     setup: Setup
     blocks: list[tuple[int, str, np.ndarray]]
@@ -113,6 +120,7 @@ class Fit:
     dropped: list[dict] = field(default_factory=list)
     dropped_corners: list[dict] = field(default_factory=list)
     noise: PhotoNoise | None = None
+    lens_motion: dict | None = None
 
 
 def photos_to_calibrate(corners: CornerSet, settings: Settings,
@@ -184,6 +192,37 @@ def rig_tied(fit: Fit, factor: float | None) -> Fit:
                    dropped_corners=dropped_corners)
 
 
+def lens_motion(photos: Photos, alone: Fit, fit: Fit, said: list[str], factor: float | None) -> Fit:
+    """Stage 4's second part (module docstring): from ``fit`` (stage 4's rig) whether its photos shift with the
+    stabiliser (:func:`dualcal.estimation.ois.with_ois`, the spreads by :func:`dualcal.estimation.ois.ois_spread`;
+    a rig tied only, the cameras whose EXIF gives a focal length), then whether each camera's lens breathes with its
+    focus (:func:`dualcal.estimation.focus_model.with_breathing`; each photo's focus from its metadata, else its
+    board's distance). Each term chosen runs stages 3 (its cameras alone, from ``alone``, stage 3's) and 4 again with it,
+    so that the outliers are judged with it (a stabilised rig's instants do not fit one relative pose without it)
+    and the next test is made on what it leaves; what stage 4 said before (``said``) is said where neither is
+    chosen. ``lens_motion`` records the tests (calib.json ``adjustment.lens_motion``)."""
+    def again(setup: Setup) -> Fit:
+        cameras = setup.solve(alone.blocks, alone.alone, mode="none")
+        return rig_tied(replace(alone, setup=setup, alone=cameras, flat=cameras, solution=cameras), factor)
+
+    first, record = fit, {}
+    setup, record["ois"] = with_ois(fit.setup, fit.flat, fit.alone, may_stabilise(photos.corners))
+    if setup is not fit.setup:      # the spreads from the instants its prior keeps, but those that fit far worse
+        tied = again(setup).flat
+        if record["ois"]["left_out"]:
+            tied = setup.solve([b for b in tied.problem.blocks if b[1] not in record["ois"]["left_out"]], tied)
+        setup, spread = ois_spread(setup, tied)
+        record["ois"].update(spread)
+        fit = again(setup)
+    setup, record["breathing"] = with_breathing(fit.setup, fit.flat, photo_focus(photos.corners, fit.alone))
+    if setup is not fit.setup:
+        fit = again(setup)
+    if fit is first:
+        for message in said:
+            warn(message)
+    return replace(fit, lens_motion={k: v for k, v in record.items() if v is not None})
+
+
 def board_shape(fit: Fit, option: str) -> Fit:
     """Stage 5 (module docstring): the board's shape as ``option`` says
     (:func:`dualcal.estimation.board_shape.with_board_shape`)."""
@@ -193,8 +232,12 @@ def board_shape(fit: Fit, option: str) -> Fit:
 
 def adjusted(photos: Photos, models: tuple[str, ...], settings: Settings, start: Solution | None = None) -> Fit:
     """Stages 3 to 5 with the lens ``models``."""
-    fit = cameras_alone(photos, models, settings, start)                  # 3
-    fit = rig_tied(fit, settings.factor)                                  # 4
+    alone = cameras_alone(photos, models, settings, start)                # 3
+    if not settings.lens_motion:
+        return board_shape(rig_tied(alone, settings.factor), settings.board_shape)     # 4, 5
+    with collect_warnings() as said:
+        fit = rig_tied(alone, settings.factor)                            # 4
+    fit = lens_motion(photos, alone, fit, said, settings.factor)          # 4: focus, stabiliser
     return board_shape(fit, settings.board_shape)                         # 5
 
 
@@ -217,7 +260,7 @@ def calibration(photos: Photos, fit: Fit, settings: Settings) -> RigModel:
     rig.adjustment["options"] = {"drop_outliers": bool(settings.drop_outliers),
                                  "outlier_factor": float(settings.outlier_factor), "board_shape": settings.board_shape,
                                  "model": models[0] if len(set(models)) == 1 else dict(zip(setup.names, models)),
-                                 "weigh_photos": bool(settings.weigh_photos)}
+                                 "weigh_photos": bool(settings.weigh_photos), "lens_motion": bool(settings.lens_motion)}
     if fit.shape_test is not None:
         rig.adjustment["board_shape_test"] = fit.shape_test
     if fit.noise is not None:
@@ -225,6 +268,10 @@ def calibration(photos: Photos, fit: Fit, settings: Settings) -> RigModel:
         rig.adjustment["photo_noise"] = fit.noise.to_dict(kept)
     if setup.known:
         rig.adjustment["known_intrinsics"] = known_intrinsics_record(setup)
+    if fit.lens_motion:
+        rig.adjustment["lens_motion"] = fit.lens_motion
+        if "ois" in fit.lens_motion:                  # the cameras judged: 0 where the photos show no shift
+            rig.ois_sigma_px = {**dict.fromkeys(fit.lens_motion["ois"]["cameras"], 0.0), **rig.ois_sigma_px}
     return rig
 
 
@@ -232,7 +279,7 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
                   reference: str | None = None, drop_outliers: bool = True,
                   outlier_factor: float = 6.0, board_shape: str = "auto",
                   model: str | Mapping[str, str] = DEFAULT_LENS_MODEL, weigh_photos: bool = True,
-                  known_intrinsics: Mapping[str, KnownIntrinsics] | None = None) -> RigModel:
+                  known_intrinsics: Mapping[str, KnownIntrinsics] | None = None, lens_motion: bool = True) -> RigModel:
     """Calibrate every camera of a rig and the rig itself from chessboard corners (the stages: module docstring).
 
     Parameters
@@ -277,6 +324,11 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
         poses by space resection), and one photo of it suffices. The check ``intrinsics_prior`` says whether its
         photos agree with what was known (a lens that changed is named). ``adjustment["known_intrinsics"]``
         records them.
+    lens_motion : bool
+        find whether each camera's focal lengths change with its focus, and whether a hand-held phone's
+        stabiliser shifts each photo's principal point, and model them where the photos show it (:func:`lens_motion`;
+        ``adjustment["lens_motion"]`` records the tests); False: neither, as a lens that holds still (a camera
+        whose corners.json gives no EXIF focal length is not focus-modelled either way).
 
     Returns
     -------
@@ -293,7 +345,8 @@ def calibrate_rig(corners: CornerSet, skew: bool = False, rig_mode: str = "rigid
     """
     if board_shape not in BOARD_SHAPES:
         raise InputError(f"--board-shape {board_shape!r} is unknown (choose from {', '.join(BOARD_SHAPES)})")
-    settings = Settings(skew, rig_mode, reference, drop_outliers, outlier_factor, board_shape, weigh_photos)
+    settings = Settings(skew, rig_mode, reference, drop_outliers, outlier_factor, board_shape, weigh_photos,
+                        lens_motion)
     photos = photos_to_calibrate(corners, settings, known_intrinsics)                    # 1
     lenses = lens_models(photos, model)                                                  # 2
     fit = adjusted(photos, lenses.models, settings)                                      # 3, 4, 5

@@ -102,7 +102,9 @@ def design_effect(sol: Solution) -> dict[int, float]:
 
 
 def _block_costs(sol: Solution) -> np.ndarray:
-    return np.nansum(sol.residuals ** 2, axis=(1, 2))
+    """Each photo's ``|r|^2`` (px^2), with its stabiliser shift's prior where it has one (what the shift costs:
+    :meth:`dualcal.estimation.adjust.Solution.ois_costs_px2`)."""
+    return np.nansum(sol.residuals ** 2, axis=(1, 2)) + sol.ois_costs_px2()
 
 
 def rigidity_statistics(tied: Solution, alone: Solution, kappa2: dict[int, float] | None = None):

@@ -7,7 +7,9 @@ as ``{"parameters": [names], "clustered": (k, k), "formal": (k, k)}``, the two k
 * ``"<camera>.<intrinsic>"`` for every free intrinsic (``wide.fx``, ``tele.k1``, ...; :func:`intrinsic_name`),
 * ``"<camera>.rig.rotation_rad.<x|y|z>"`` (the relative rotation's left increment, ``R <- exp([d]x) R``)
   and ``"<camera>.rig.t_mm.<x|y|z>"`` for every camera with a rig relation (:func:`rig_name`),
-* ``"board.shape_mm.<term>"`` where the board's shape was estimated.
+* ``"board.shape_mm.<term>"`` where the board's shape was estimated,
+* ``"<camera>.breathing"`` for every camera whose focus is modelled (:func:`breathing_name`;
+  :mod:`dualcal.geometry.focus`).
 
 The sigma dualcal reports for any value is the larger of the two kinds' (the rule of
 :mod:`dualcal.estimation.uncertainty`), so :meth:`JointCovariance.derived_sigma`
@@ -23,7 +25,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["KINDS", "JointCovariance", "intrinsic_name", "rig_name"]
+__all__ = ["KINDS", "JointCovariance", "breathing_name", "intrinsic_name", "rig_name"]
 
 #: The covariance kinds calib.json keeps (:data:`dualcal.estimation.adjust.COVARIANCE_KINDS`).
 KINDS = ("clustered", "formal")
@@ -32,6 +34,11 @@ KINDS = ("clustered", "formal")
 def intrinsic_name(camera: str, name: str) -> str:
     """The covariance's name of a camera's intrinsic, ``"<camera>.<name>"``."""
     return f"{camera}.{name}"
+
+
+def breathing_name(camera: str) -> str:
+    """The covariance's name of a camera's breathing coefficient, ``"<camera>.breathing"``."""
+    return f"{camera}.breathing"
 
 
 def rig_name(camera: str, what: str, axis: str) -> str:

@@ -69,12 +69,13 @@ class OrientedPhoto:
 
 
 def fitted_photos(rig: RigModel) -> dict[str, dict[str, OrientedPhoto]]:
-    """Every photo with the pose the calibration fitted to it and the corners it used: ``[camera][view]``."""
+    """Every photo with the pose the calibration fitted to it, its own camera (:meth:`RigModel.photo_camera`: its
+    focus, its stabiliser's shift) and the corners it used: ``[camera][view]``."""
     out = {}
     used = rig.used_corners()
-    for cam, model in rig.cameras.items():
+    for cam in rig.cameras:
         corners = used.cameras[cam].found()
-        out[cam] = {v: OrientedPhoto(model, pose, corners[v])
+        out[cam] = {v: OrientedPhoto(rig.photo_camera(cam, v), pose, corners[v])
                     for v, pose in rig.camera_poses.get(cam, {}).items() if v in corners}
     return out
 

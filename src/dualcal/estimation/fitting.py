@@ -18,15 +18,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .adjust import COVARIANCE_KINDS, Problem, Solution, adjust, cost, initial_state, linearised_at
+from .adjust import COVARIANCE_KINDS, OisPrior, Problem, Solution, adjust, cost, initial_state, linearised_at
 from ..geometry.board import SHAPE_TERMS
 from ..geometry.camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, LENS_MODELS,
                                CameraModel)
-from .covariance import JointCovariance, intrinsic_name
+from .covariance import JointCovariance, breathing_name, intrinsic_name
 from ..errors import EstimationError, InputError
 from .held_out import fit_summary
 from .photo_noise import photo_weights
 from .lm import COMPARISON_LM, NEAR_START, LMOptions
+from ..geometry.focus import PhotoFocus
 from ..geometry.model import CornerSet, KnownIntrinsics, Pose, RigModel, RigRelation, observed_mask
 from ..progress import warn
 from .rig_relations import parameter_covariance, rig_relation, shared_views
@@ -83,6 +84,14 @@ def _starting_values(sol: Solution, names=None):
     return cams, poses
 
 
+def _lens_motion_start(sol: Solution) -> dict:
+    """A solution's breathing coefficients ``{camera: b}`` and photos' shifts ``{(camera, view): (2,)}``, as
+    :func:`dualcal.estimation.adjust.initial_state`'s keywords: the start of another adjustment."""
+    p, lay = sol.problem, sol.problem.layout
+    shifts = {(p.cameras[c], v): sol.state.ois_px[p.view_index[v], c] for c, v, _ in p.blocks if c in lay.ois}
+    return {"breathing": {p.cameras[c]: float(sol.state.breathing[c]) for c in lay.breathing}, "ois_px": shifts}
+
+
 @dataclass(frozen=True)
 class Setup:
     """What every adjustment of one calibration shares, the switches of its one solver: the board's corners
@@ -90,7 +99,10 @@ class Setup:
     the lens model of every camera (one name, or one per camera), each photo's weight ``weights``
     ``{(camera, view): w}`` (:mod:`dualcal.estimation.photo_noise`; None: all 1), and the cameras whose
     intrinsics are ``known`` ``{camera: KnownIntrinsics}``, as a prior of scale ``prior_scale_px`` (the noise of
-    a photo of weight 1; None: held until it is known) or fixed. :meth:`problem` makes the
+    a photo of weight 1; None: held until it is known) or fixed; the lens's motion: each photo's ``focus``
+    (:class:`dualcal.geometry.focus.PhotoFocus`) and the cameras whose lens ``breathing`` with it is estimated
+    (:mod:`dualcal.estimation.focus_model`), the stabiliser's shift of each photo, ``ois``
+    (:class:`dualcal.estimation.adjust.OisPrior`, :mod:`dualcal.estimation.ois`). :meth:`problem` makes the
     :class:`dualcal.estimation.adjust.Problem` of every adjustment from them."""
 
     X_board: np.ndarray
@@ -103,6 +115,9 @@ class Setup:
     weights: Mapping[tuple[str, str], float] | None = None
     known: Mapping[str, KnownIntrinsics] | None = None
     prior_scale_px: float | None = None
+    focus: PhotoFocus | None = None
+    breathing: tuple[str, ...] = ()
+    ois: OisPrior | None = None
 
     @property
     def models(self) -> tuple[str, ...]:
@@ -112,7 +127,8 @@ class Setup:
     def problem(self, blocks, mode: str | None = None, board_shape: bool = False) -> Problem:
         """The adjustment's problem of ``blocks`` with these switches (``mode`` overrides the rig mode)."""
         return Problem(self.X_board, list(self.names), list(self.sizes), blocks, mode or self.mode, self.skew,
-                       self.reference, board_shape, self.models, self.weights, self.known, self.prior_scale_px)
+                       self.reference, board_shape, self.models, self.weights, self.known, self.prior_scale_px,
+                       self.focus, tuple(n for n in self.breathing if n in self.names), self.ois)
 
     def closed_form(self, c: int, views: dict):
         """Camera ``c``'s start from the photos ``views`` ``{view: uv}``: Zhang's closed form
@@ -161,11 +177,14 @@ class Setup:
             cams, poses = map(list, zip(*(self.closed_form(c, {v: uv for cc, v, uv in blocks if cc == c})
                                           for c in range(len(self.names)))))
         problem = self.problem(blocks, "rigid" if mode == "paper" else mode, board_shape)
-        sol = adjust(problem, initial_state(problem, cams, poses, shape), LMOptions() if start is None else NEAR_START)
+        motion = _lens_motion_start(start) if start is not None else {}
+        sol = adjust(problem, initial_state(problem, cams, poses, shape, **motion),
+                     LMOptions() if start is None else NEAR_START)
         if mode != "paper":
             return sol
         problem = self.problem(blocks, "paper", board_shape)
-        starts = [initial_state(problem, *_starting_values(s, self.names), s.state.board_shape_mm) for s in (sol, start)]
+        starts = [initial_state(problem, *_starting_values(s, self.names), s.state.board_shape_mm,
+                                **_lens_motion_start(s)) for s in (sol, start)]
         return adjust(problem, min(starts, key=lambda state: cost(problem, state)), NEAR_START)
 
     def linearised(self, sol: "Solution", board_shape: bool) -> "Solution":
@@ -197,7 +216,8 @@ def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int)
         problem = pair.problem(blocks, mode)
         start_cams, start_poses = _starting_values(start)
         return adjust(problem, initial_state(problem, [start_cams[x], start_cams[y]],
-                                             [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)]),
+                                             [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)],
+                                             **_lens_motion_start(start)),
                       COMPARISON_LM)
 
     return adjusted("rigid", sol), adjusted("none", alone), len(views)
@@ -254,22 +274,23 @@ def refit(source: RigModel | Solution, model: str | Mapping[str, str] | None = N
     skew = start.skew if skew is None else skew
     setup = Setup(start.X_board, names, [start.sizes[n] for n in names],
                   names.index(start.reference) if start.reference in names else 0, skew, rig_mode or start.mode,
-                  models, start.weights, start.known, start.prior_scale_px)
+                  models, start.weights, start.known, start.prior_scale_px, start.focus, start.breathing, start.ois)
     blocks = [(names.index(n), v, uv) for n, v, uv in start.photos if n in names]
     _check_enough_views(blocks, names, start.known)
     cams = [_start_camera(start.cameras[n], models[c], skew, setup.X_board, {v: uv for cc, v, uv in blocks if cc == c})
             for c, n in enumerate(names)]
     problem = setup.problem(blocks, board_shape=start.board_shape_mm is not None)
-    return adjust(problem, initial_state(problem, cams, [dict(start.poses[n]) for n in names], start.board_shape_mm),
-                  options)
+    return adjust(problem, initial_state(problem, cams, [dict(start.poses[n]) for n in names], start.board_shape_mm,
+                                         start.breathing_values, start.ois_px), options)
 
 
 @dataclass(frozen=True)
 class _Values:
     """What :func:`refit` starts from, by camera name: a calibration's or a solution's photos ``(camera, view,
     uv)``, cameras, board-to-camera poses, image sizes and lens models, its board's shape (None: flat), its
-    reference, skew model, rig mode, photos' weights, and the cameras whose intrinsics were known (with the
-    prior's scale)."""
+    reference, skew model, rig mode, photos' weights, the cameras whose intrinsics were known (with the
+    prior's scale), and the lens's motion: each photo's focus, the cameras whose lens breathes and their
+    coefficients, the stabiliser's prior and each photo's shift."""
 
     X_board: np.ndarray
     names: list[str]
@@ -285,6 +306,11 @@ class _Values:
     weights: Mapping[tuple[str, str], float] | None
     known: Mapping[str, KnownIntrinsics] | None
     prior_scale_px: float | None
+    focus: PhotoFocus | None = None
+    breathing: tuple[str, ...] = ()
+    ois: OisPrior | None = None
+    breathing_values: dict | None = None
+    ois_px: dict | None = None
 
     @classmethod
     def of(cls, source: RigModel | Solution) -> "_Values":
@@ -293,11 +319,13 @@ class _Values:
             poses = {n: {} for n in p.cameras}
             for (c, v), pose in source.photo_poses.items():
                 poses[p.cameras[c]][v] = pose
+            motion = _lens_motion_start(source)
             return cls(p.X_board, list(p.cameras), [(p.cameras[c], v, uv) for c, v, uv in p.blocks],
                        {n: source.state.camera(p, c) for c, n in enumerate(p.cameras)}, poses,
                        dict(zip(p.cameras, p.image_sizes)), dict(zip(p.cameras, p.models)),
                        source.state.board_shape_mm if p.board_shape else None, p.cameras[p.reference], p.skew, p.mode,
-                       p.weights, p.known, p.prior_scale_px)
+                       p.weights, p.known, p.prior_scale_px, p.focus, p.breathing, p.ois, motion["breathing"],
+                       motion["ois_px"])
         corners = source.used_corners()
         X = corners.board.object_points_mm()
         names = sorted(corners.cameras)
@@ -305,7 +333,7 @@ class _Values:
         return cls(X, names, photos, source.cameras, source.camera_poses,
                    {n: corners.cameras[n].image_size for n in names}, source.models, source.board_shape_mm,
                    source.reference, source.skew, source.rig_mode, photo_weights(source.adjustment),
-                   *known_intrinsics_of(source.adjustment))
+                   *known_intrinsics_of(source.adjustment), *lens_motion_of(source))
 
 
 def _start_camera(cam: CameraModel, model: str, skew: bool, X_board: np.ndarray, views: dict) -> CameraModel:
@@ -359,9 +387,29 @@ def rig_model_from_solution(sol: Solution, corners: CornerSet, dropped: list[dic
         shape = st.board_shape_mm.copy()
         shape_sigma = np.array([max(sd[kind][f"board.shape_mm.{t}"] for kind in COVARIANCE_KINDS) for t in SHAPE_TERMS])
     covariance = JointCovariance(tuple(names_cov), covs).to_dict()
-    return RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, fit["camera_rms_px"], rig, poses,
-                    dict(sorted(view_rms.items())), fit["rms_px"], corners, adjustment, dropped,
-                    sigma_formal, shape, shape_sigma, list(dropped_corners), {}, covariance)
+    rig_model = RigModel(corners.board, names[p.reference], p.skew, p.mode, cams, sigma, fit["camera_rms_px"], rig,
+                         poses, dict(sorted(view_rms.items())), fit["rms_px"], corners, adjustment, dropped,
+                         sigma_formal, shape, shape_sigma, list(dropped_corners), {}, covariance)
+    return _with_lens_motion(rig_model, sol, sd)
+
+
+def _with_lens_motion(rig: RigModel, sol: Solution, sd: dict[str, dict[str, float]]) -> RigModel:
+    """``rig`` with the lens's motion ``sol`` estimated (:class:`RigModel`'s ``focus_models``, ``photo_focus_m``,
+    ``ois_sigma_px``, ``ois_shift_px``); ``sd`` the reported parameters' sigmas by covariance kind."""
+    p, st, lay = sol.problem, sol.state, sol.problem.layout
+    for c in lay.breathing:
+        name = p.cameras[c]
+        views = [v for cc, v, _ in p.blocks if cc == c]
+        formal = sd["formal"][breathing_name(name)]
+        rig.focus_models[name] = p.focus.model(name, st.breathing[c], views,
+                                               max(sd["clustered"][breathing_name(name)], formal), formal)
+        rig.photo_focus_m[name] = {v: p.focus.focus_mm[name, v] / 1000.0 for v in views}
+    if p.ois is not None:
+        rig.ois_sigma_px = {name: float(s) for name, s in p.ois.sigma_px.items() if name in p.cameras}
+        for c in lay.ois:
+            rig.ois_shift_px[p.cameras[c]] = {v: st.ois_px[p.view_index[v], c].copy() for cc, v, _ in p.blocks
+                                             if cc == c}
+    return rig
 
 
 def known_intrinsics_record(setup: Setup) -> dict | None:
@@ -371,6 +419,21 @@ def known_intrinsics_record(setup: Setup) -> dict | None:
         return None
     return {"prior_scale_px": setup.prior_scale_px,
             "cameras": {name: known.to_dict() for name, known in sorted(setup.known.items())}}
+
+
+def lens_motion_of(rig: RigModel) -> tuple:
+    """What a calibration's lens motion was (:func:`_with_lens_motion`), as :class:`Setup`'s switches and a start:
+    ``(focus, breathing, ois, {camera: b}, {(camera, view): shift})`` (None and empty where it has none)."""
+    focus = None
+    if rig.focus_models:
+        focus = PhotoFocus({n: m.focal_length_mm for n, m in rig.focus_models.items()},
+                           {n: m.focus_m * 1000.0 for n, m in rig.focus_models.items()},
+                           {(n, v): d * 1000.0 for n in rig.focus_models for v, d in rig.photo_focus_m[n].items()}, {})
+    spread = {n: s for n, s in rig.ois_sigma_px.items() if s > 0}
+    scale = ((rig.adjustment.get("lens_motion") or {}).get("ois") or {}).get("scale_px")
+    ois = OisPrior(spread, scale) if spread and scale else None
+    shifts = {(n, v): np.asarray(d, float) for n, per in rig.ois_shift_px.items() for v, d in per.items()}
+    return focus, tuple(rig.focus_models), ois, {n: m.breathing for n, m in rig.focus_models.items()}, shifts
 
 
 def known_intrinsics_of(adjustment: Mapping) -> tuple[dict[str, KnownIntrinsics] | None, float | None]:

@@ -54,7 +54,10 @@ of the calibration's other effects on the point.
 Focus. Each photo's camera is :func:`camera_at_focus` at that photo's focus distance: the focus its
 metadata states, else the distance of the points it measured (``focus_from`` ``"metadata"``, ``"points"``),
 where the calibration models focus (:func:`focus_modelled`); otherwise the calibration's own camera
-(``"calibration"``, ``focus_m`` the median distance of the board in its calibration photos).
+(``"calibration"``, ``focus_m`` the median distance of the board in its calibration photos). The covariance of
+``theta`` is then that of the intrinsics at that focus (the focus model's uncertainty grows away from the
+calibration's focus), and, where the calibration saw the stabiliser shift its photos, a new photo's principal
+point is uncertain by the spread it found (``ois_sigma_px``): :func:`dualcal.estimation.focus_model.covariance_at_focus`.
 
 When the linear model stops describing a length, its sigma means little, and the length is
 flagged (``meaningless`` in measure.json, a warning on stderr saying what would help): its sigma
@@ -82,6 +85,7 @@ from ..geometry.camera import INTRINSIC_NAMES, CameraModel, project_with_jacobia
 from .covariance import JointCovariance, intrinsic_name, rig_name
 from .distributions import chi2_quantile
 from ..errors import EstimationError, InputError
+from . import focus_model
 from .intersect import triangulate
 from .matching import MIN_DISTANCE_MM, Match, match_point
 from ..geometry.model import RigModel
@@ -335,27 +339,28 @@ def points_from_dict(doc: dict, source: str = "points.json", single_camera: bool
 
 
 def focus_modelled(rig: RigModel, camera_name: str) -> bool:
-    """Whether the calibration models camera ``camera_name``'s intrinsics as a function of the focus distance.
-
-    No calibration does yet (calib.json's ``cameras.<name>.focus_model``, contract "measure with the photos"):
-    until one does, every photo is measured with the calibration's own camera (``focus_from``
-    ``"calibration"``). The focus model plugs in here and in :func:`camera_at_focus`.
-    """
-    return False
+    """Whether the calibration models camera ``camera_name``'s intrinsics as a function of the focus distance
+    (calib.json's ``cameras.<name>.focus_model``, contract "measure with the photos";
+    :mod:`dualcal.estimation.focus_model`). A camera it does not model is measured with the calibration's own
+    camera (``focus_from`` ``"calibration"``)."""
+    return camera_name in rig.focus_models
 
 
 def camera_at_focus(rig: RigModel, camera_name: str, focus_m: float | None) -> CameraModel:
-    """Camera ``camera_name`` of ``rig`` as it is in a photo focused at ``focus_m`` metres (None: unknown).
-
-    Today the calibration's camera unchanged (:func:`focus_modelled`): a calibration with a focus model
-    gives its intrinsics at that focus here, so that every measurement takes each photo's own camera.
-    """
-    return rig.cameras[camera_name]
+    """Camera ``camera_name`` of ``rig`` as it is in a photo focused at ``focus_m`` metres (None: unknown): its
+    intrinsics at that focus where the calibration models its focus, else the calibration's camera
+    (:func:`dualcal.estimation.focus_model.camera_at_focus`, which warns of a focus outside the calibrated range).
+    A measurement takes the calibration's covariance at that focus with it
+    (:func:`dualcal.estimation.focus_model.covariance_at_focus`)."""
+    return focus_model.camera_at_focus(rig, camera_name, focus_m)
 
 
 def calibration_focus_m(rig: RigModel, camera_name: str) -> float | None:
-    """The focus distance the calibration's camera stands for, m: the median distance of the board's centre from
-    camera ``camera_name`` along its axis in its calibration photos (autofocus focused there); None without poses."""
+    """The focus distance the calibration's camera stands for, m: its focus model's reference focus where it has
+    one, else the median distance of the board's centre from camera ``camera_name`` along its axis in its
+    calibration photos (autofocus focused there); None without poses."""
+    if camera_name in rig.focus_models:
+        return rig.focus_models[camera_name].focus_m
     poses = rig.camera_poses.get(camera_name) or {}
     if not poses:
         if camera_name == rig.reference or camera_name not in rig.rig:
@@ -557,9 +562,12 @@ def _distances_m(rig: RigModel, doc: dict) -> dict[str, float]:
 
 def _measure_at(rig: RigModel, spec: dict, photos: dict, focus: dict, pixel_sigma: dict,
                 min_distance_mm: float) -> dict:
-    """:func:`measure` with each photo's camera at its ``focus`` (:func:`camera_at_focus`)."""
+    """:func:`measure` with each photo's camera at its ``focus`` (:func:`camera_at_focus`), and the calibration's
+    covariance there (:func:`dualcal.estimation.focus_model.covariance_at_focus`: the focus model's, the
+    stabiliser's)."""
     rig = replace(rig, cameras={c: camera_at_focus(rig, c, focus[c]["focus_m"]) if c in focus else cam
-                                for c, cam in rig.cameras.items()})
+                                for c, cam in rig.cameras.items()},
+                  covariance=focus_model.covariance_at_focus(rig, {c: f["focus_m"] for c, f in focus.items()}))
     taps = {n: seen for n, seen in spec["points"].items() if len(seen) == 1}
     found = match_taps(rig, taps, photos, min_distance_mm)
     uv_px, matched, unmatched = {}, {}, {}

@@ -19,7 +19,7 @@ import numpy as np
 from .adjust import COVARIANCE_KINDS, Problem, Solution
 from ..geometry.board import SHAPE_TERMS
 from ..geometry.camera import INTRINSIC_NAMES
-from .covariance import intrinsic_name, rig_name
+from .covariance import breathing_name, intrinsic_name, rig_name
 from ..errors import EstimationError
 from ..geometry.model import Pose, mean_pose
 from ..geometry.poses import opk_jacobian, relative_pose, tangent_basis
@@ -121,7 +121,8 @@ def parameter_covariance(sol: Solution, kinds=COVARIANCE_KINDS) -> tuple[list[st
     with a rig relation its rotation's left increment (``"<camera>.rig.rotation_rad.x"``, ``.y``,
     ``.z``: ``R <- exp([d]x) R``) and its translation (``"<camera>.rig.t_mm.x"``, ...), as
     :func:`rig_linearisation` reports them; the board's shape coefficients
-    (``"board.shape_mm.xx"``, ...) where estimated. Returns the names and ``{kind: (k, k)}``, the
+    (``"board.shape_mm.xx"``, ...) where estimated; every breathing coefficient (``"<camera>.breathing"``).
+    Returns the names and ``{kind: (k, k)}``, the
     correlations kept (e.g. for the uncertainty of a measurement with the rig).
     """
     p, lay = sol.problem, sol.problem.layout
@@ -141,6 +142,9 @@ def parameter_covariance(sol: Solution, kinds=COVARIANCE_KINDS) -> tuple[list[st
     for col, term in zip(lay.board_shape, SHAPE_TERMS):
         names.append(f"board.shape_mm.{term}")
         rows.append({col: 1.0})
+    for c, cols in lay.breathing.items():
+        names.append(breathing_name(p.cameras[c]))
+        rows.append({cols[0]: 1.0})
     columns = np.array(sorted({col for row in rows for col in row}), int)
     index = {col: i for i, col in enumerate(columns)}
     J = np.zeros((len(rows), len(columns)))

@@ -39,7 +39,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..geometry.model import CameraCorners, CornerSet, choose_reference
-from .photos import PHOTO_SUFFIXES, Photo, open_image, read_exif, read_gray, source_format
+from .photos import PHOTO_SUFFIXES, Photo, open_image, read_exif, read_focus, read_gray, source_format
 from ..progress import warn
 from .roll import has_lens_exif, is_camera_roll, split_cameras, turned_photos
 
@@ -81,7 +81,9 @@ class Dataset:
     def meta(self, camera: str) -> dict:
         """corners.json ``meta`` of a camera: photo paths, EXIF make/model/focal, orientation, the
         kind of its photo files (``source_format``: ``"jpeg"``, ``"dng"``, ..., comma-separated if
-        mixed), and the photos left out by ``exclude`` (``excluded``: view -> path)."""
+        mixed), the photos left out by ``exclude`` (``excluded``: view -> path), and where each photo focused
+        as its metadata says (``focus_m``: view -> m, :func:`dualcal.files.photos.read_focus`; the photos that say
+        so only), which a calibration's focus model takes (:mod:`dualcal.estimation.focus_model`)."""
         photos = self.cameras[camera]
         first = next(iter(photos.values())).exif
         exif = {k: first[k] for k in ("make", "model", "focal_length_mm", "focal_length_35mm_mm")
@@ -97,10 +99,21 @@ class Dataset:
             meta["excluded"] = {v: str(p) for v, p in self.excluded[camera].items()}
         if self.identical.get(camera):
             meta["identical_files"] = {str(p): str(kept) for p, kept in self.identical[camera].items()}
+        focus = {v: f for v, p in photos.items() if (f := _stated_focus_m(p.path)) is not None}
+        if focus:
+            meta["focus_m"] = focus
         return meta
 
     def photo_count(self) -> int:
         return sum(len(v) for v in self.cameras.values())
+
+
+def _stated_focus_m(path) -> float | None:
+    """Where the photo at ``path`` focused, m, as its metadata says (None: it does not, or it cannot be read)."""
+    try:
+        return read_focus(path).focus_m
+    except InputError:
+        return None
 
 
 # ---------------------------------------------------------------------------- finding photos

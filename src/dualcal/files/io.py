@@ -27,6 +27,7 @@ from ..geometry.board import SHAPE_TERMS, Board
 from ..geometry.camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names,
                                max_distorted_radius, normalized_from_pixel)
 from ..errors import InputError, OutputError
+from ..geometry.focus import FocusModel
 from ..geometry.model import (MIXED_LENS_MODELS, CameraCorners, CornerSet, KnownIntrinsics, Pose, RigModel,
                               RigRelation, rig_residuals, rms_px)
 from ..parallel import raise_if_cancelled
@@ -507,6 +508,11 @@ def rig_to_dict(rig: RigModel) -> dict:
         if name in rig.camera_sigma_formal:
             entry["sigma_formal"] = {n: float(s) for n, s in rig.camera_sigma_formal[name].items() if n in names}
         entry["rms_px"] = float(rig.camera_rms_px[name])
+        if name in rig.focus_models:
+            entry["focus_m"] = rig.focus_models[name].focus_m
+            entry["focus_model"] = rig.focus_models[name].to_dict()
+        if name in rig.ois_sigma_px:
+            entry["ois_sigma_px"] = float(rig.ois_sigma_px[name])
         cameras[name] = entry
     rig_doc = {}
     for name, rel in rig.rig.items():
@@ -522,6 +528,12 @@ def rig_to_dict(rig: RigModel) -> dict:
         views[view] = {**pose.to_dict(), "rms_px": rig.view_rms_px.get(view, {})}
         if noise:
             views[view]["noise_px"] = {cam: noise[cam][view]["noise_px"] for cam in noise if view in noise[cam]}
+        focus = {cam: float(per[view]) for cam, per in rig.photo_focus_m.items() if view in per}
+        if focus:
+            views[view]["focus_m"] = focus
+        shifts = {cam: [float(x) for x in per[view]] for cam, per in rig.ois_shift_px.items() if view in per}
+        if shifts:
+            views[view]["ois_shift_px"] = shifts
     board = rig.board.to_dict()
     if rig.board_shape_mm is not None:
         board["sag_mm"] = rig.board_sag_mm()
@@ -640,6 +652,13 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
                 poses[name] = {v: rel.pose.compose(p) for v, p in ref.items()}
         view_rms = {v: {c: float(x) for c, x in (p.get("rms_px") or {}).items()}
                     for v, p in doc.get("views", {}).items()}
+        focus_models = {name: FocusModel.from_dict(e["focus_model"], e["focus_m"])
+                        for name, e in doc["cameras"].items() if "focus_model" in e}
+        photo_focus = {name: {v: float(p["focus_m"][name]) for v, p in doc.get("views", {}).items()
+                              if name in (p.get("focus_m") or {})} for name in focus_models}
+        ois_sigma = {name: float(e["ois_sigma_px"]) for name, e in doc["cameras"].items() if "ois_sigma_px" in e}
+        ois_shift = {name: {v: np.asarray(p["ois_shift_px"][name], float) for v, p in doc.get("views", {}).items()
+                            if name in (p.get("ois_shift_px") or {})} for name in ois_sigma}
         shape = doc["board"].get("shape_mm")
         shape_sigma = doc["board"].get("shape_sigma_mm", {})
         model = RigModel(board, reference, bool(doc.get("skew", False)), str(doc.get("rig_mode", "rigid")),
@@ -647,7 +666,8 @@ def rig_from_dict(doc: dict, source: str = "calib.json") -> RigModel:
                          corners, doc.get("adjustment", {}), doc.get("dropped_views", []), sigma_formal,
                          None if shape is None else np.array([float(shape[t]) for t in SHAPE_TERMS]),
                          None if shape is None else np.array([float(shape_sigma.get(t, np.nan)) for t in SHAPE_TERMS]),
-                         list(doc.get("dropped_corners", [])), _trusted_checks(doc, source), doc.get("covariance"))
+                         list(doc.get("dropped_corners", [])), _trusted_checks(doc, source), doc.get("covariance"),
+                         focus_models, photo_focus, ois_sigma, {n: d for n, d in ois_shift.items() if d})
     except (KeyError, TypeError, AttributeError, ValueError) as exc:
         raise InputError(f"{source}: malformed calib.json ({type(exc).__name__}: {exc})") from None
     _check_consistent(model, source)

@@ -386,7 +386,7 @@ def check_same_rectified_camera(doc_path, new_cam: CameraModel) -> None:
 
 def undistort_files(sources, out_dir, cam: CameraModel, new_cam: CameraModel | None = None,
                     jobs: int | None = None, band_rows: int = DEFAULT_BAND_ROWS,
-                    progress: bool = True) -> list[Path]:
+                    progress: bool = True, camera_of=None) -> list[Path]:
     """Rectify photos of one camera into ``out_dir`` (same file names), in parallel.
 
     Parameters
@@ -399,6 +399,8 @@ def undistort_files(sources, out_dir, cam: CameraModel, new_cam: CameraModel | N
     band_rows : rows per band (a worker needs about ``64 * band_rows * W`` bytes beyond the
         two images).
     progress : draw a progress bar on stderr.
+    camera_of : None, or ``camera_of(path) -> CameraModel``: each photo's own camera (``cam`` at the photo's focus,
+        :func:`dualcal.estimation.focus_model.camera_at_focus`), undistorted into the one ``new_cam``.
 
     Returns
     -------
@@ -417,16 +419,16 @@ def undistort_files(sources, out_dir, cam: CameraModel, new_cam: CameraModel | N
     created = not Path(out_dir).exists()
     dests = output_paths(sources, out_dir)
     try:
-        written = _undistort_all(sources, dests, cam, new_cam, jobs, band_rows, progress)
+        written = _undistort_all(sources, dests, camera_of or (lambda _: cam), new_cam, jobs, band_rows, progress)
     finally:
         if created and not any(Path(out_dir).iterdir()):     # nothing came of it: no new empty folder
             Path(out_dir).rmdir()
     return written
 
 
-def _undistort_all(sources, dests, cam, new_cam, jobs, band_rows, progress) -> list[Path]:
+def _undistort_all(sources, dests, camera_of, new_cam, jobs, band_rows, progress) -> list[Path]:
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(dests)))
-    tasks = [(s, d, cam, new_cam, band_rows) for s, d in zip(sources, dests, strict=True)]
+    tasks = [(s, d, camera_of(s), new_cam, band_rows) for s, d in zip(sources, dests, strict=True)]
     written = []
     with progress_bar("undistorting photos", len(tasks), enabled=progress) as advance:
         # threads (dualcal.parallel): decoding, remapping and encoding release the GIL, and a

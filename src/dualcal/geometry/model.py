@@ -14,6 +14,7 @@ import numpy as np
 
 from .board import Board, sag_mm, shaped_points_mm
 from .camera import CameraModel, intrinsic_names, project_points
+from .focus import FocusModel, camera_at_focus
 from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
 
 
@@ -100,6 +101,12 @@ class CameraCorners:
     image_size: tuple[int, int]
     views: dict[str, np.ndarray | None]
     meta: dict = field(default_factory=dict)
+
+    @property
+    def focal_length_mm(self) -> float | None:
+        """The lens's focal length its photos' EXIF gives, mm (``meta["exif"]["focal_length_mm"]``); None without."""
+        f = (self.meta.get("exif") or {}).get("focal_length_mm")
+        return float(f) if isinstance(f, (int, float)) and f > 0 else None
 
     def found(self) -> dict[str, np.ndarray]:
         """The views where the board was found (at least one corner measured)."""
@@ -257,6 +264,13 @@ class RigModel:
     (``{"camera", "view", "corner", "residual_px"}``), ``checks`` the named checks of the result
     (:mod:`dualcal.estimation.checks`), ``covariance`` the joint covariance of the calibrated parameters
     (``{"parameters": [names], "clustered": (k, k), "formal": (k, k)}``) or None.
+
+    The lens's motion (:mod:`dualcal.geometry.focus`, :mod:`dualcal.estimation.ois`): ``focus_models`` ``{camera:
+    FocusModel}`` of the cameras whose focus is modelled (their ``cameras`` entry is at the model's ``focus_m``),
+    ``photo_focus_m`` ``{camera: {view: m}}`` where each of their calibration photos focused, ``ois_sigma_px``
+    ``{camera: px}`` the spread of the stabiliser's shift of the principal point from photo to photo (0: none seen;
+    cameras not judged are not named) and ``ois_shift_px`` ``{camera: {view: (2,)}}`` each calibration photo's
+    shift. :meth:`photo_camera` is a calibration photo's own camera.
     """
 
     board: Board
@@ -279,6 +293,22 @@ class RigModel:
     dropped_corners: list[dict] = field(default_factory=list)
     checks: dict = field(default_factory=dict)
     covariance: dict | None = None
+    focus_models: dict[str, FocusModel] = field(default_factory=dict)
+    photo_focus_m: dict[str, dict[str, float]] = field(default_factory=dict)
+    ois_sigma_px: dict[str, float] = field(default_factory=dict)
+    ois_shift_px: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+
+    def photo_camera(self, name: str, view: str) -> CameraModel:
+        """Camera ``name`` as it took its calibration photo of ``view``: at that photo's focus where its focus is
+        modelled, its principal point moved by that photo's stabiliser shift where it has one; else ``cameras[name]``."""
+        cam = self.cameras[name]
+        focus = self.photo_focus_m.get(name, {}).get(view)
+        if name in self.focus_models and focus is not None:
+            cam = camera_at_focus(cam, self.focus_models[name], focus)
+        shift = self.ois_shift_px.get(name, {}).get(view)
+        if shift is not None:
+            cam = replace(cam, cx=cam.cx + float(shift[0]), cy=cam.cy + float(shift[1]))
+        return cam
 
     @property
     def model(self) -> str:
@@ -387,19 +417,20 @@ def rig_residuals(rig: RigModel) -> dict[str, dict[str, ViewResiduals]]:
 
     Views without a pose (not found, or dropped by the calibration) are left out; views are
     in sorted key order; corners not measured (NaN rows) or dropped by the calibration are left
-    out of each view; the board is the one calibrated (:meth:`RigModel.board_points_mm`).
+    out of each view; the board is the one calibrated (:meth:`RigModel.board_points_mm`), each photo's camera its
+    own (:meth:`RigModel.photo_camera`: its focus, its stabiliser's shift).
     """
     X_board = rig.board_points_mm()
     used = rig.used_corners()
     out: dict[str, dict[str, ViewResiduals]] = {}
-    for name, camera in rig.cameras.items():
+    for name in rig.cameras:
         found = used.cameras[name].found() if name in used.cameras else {}
         poses = rig.camera_poses.get(name, {})
         views = {}
         for view in sorted(set(found) & set(poses)):
             measured = observed_mask(found[view])
             uv = np.asarray(found[view], float)[measured]
-            uv_model = project_points(camera, poses[view].apply(X_board[measured]))
+            uv_model = project_points(rig.photo_camera(name, view), poses[view].apply(X_board[measured]))
             views[view] = ViewResiduals(uv, uv - uv_model)
         out[name] = views
     return out

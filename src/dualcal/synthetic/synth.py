@@ -397,13 +397,21 @@ def noisy_corner_set(truth: SynthTruth, noise_px: float, seed: int = 0) -> Corne
     -------
     CornerSet
         Every camera's corners in every view, as detection would give them (a view a camera misses is None).
+        Where the lenses breathe or shift (``truth.photo_lenses``), each camera's ``meta`` holds what detection
+        reads from such photos: the EXIF focal length (``exif.focal_length_mm``) and each photo's focus
+        (``focus_m``, ``{view: m}``).
     """
     rng = np.random.default_rng(seed)
     cams = {}
     for cam, views in true_corners(truth).items():
         noisy = {v: uv + rng.normal(0.0, noise_px, uv.shape) for v, uv in views.items()}
         noisy = {v: None if np.isnan(uv).all() else uv for v, uv in noisy.items()}
-        cams[cam] = CameraCorners(truth.cameras[cam].image_size, noisy)
+        meta = {}
+        if truth.photo_lenses is not None:
+            lenses = {v: truth.photo_lenses[v][cam] for v in views}
+            meta = {"exif": {"focal_length_mm": next(iter(lenses.values())).focal_mm},
+                    "focus_m": {v: lens.focus_mm / 1000.0 for v, lens in lenses.items()}}
+        cams[cam] = CameraCorners(truth.cameras[cam].image_size, noisy, meta)
     return CornerSet(truth.board, cams)
 
 
