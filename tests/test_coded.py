@@ -194,7 +194,7 @@ def test_loop_closure_passes_a_rigid_three_camera_rig_and_fails_one_with_a_knock
     page = render_report(rig)                                  # the report shows the loop and the pairs
     table = page[page.index('id="table-loops"'):]
     table = table[:table.index("</table>")]
-    assert "wide-tele-ultra" in table and table.count("FAIL") == 2 and "pair wide-tele (10 instants)" in table
+    assert "wide-tele-ultra" in table and table.count("FAIL") == 2 and "pair wide-tele (" in table
 
 
 @pytest.mark.slow

@@ -41,8 +41,9 @@ from dataclasses import replace
 import numpy as np
 
 from .adjust import OisPrior, Solution
-from .checks import FALSE_ALARM_RATE, design_effect, instant_f_tests
+from .checks import FALSE_ALARM_RATE, T_DOF_SHARE, design_effect
 from .distributions import f_quantile, sidak
+from .robust_tests import core_tests, cube_root_spread, robust_core
 from ..errors import EstimationError
 from .fitting import Setup
 from ..geometry.model import CornerSet
@@ -126,6 +127,19 @@ def may_stabilise(corners: CornerSet) -> tuple[str, ...]:
     return tuple(name for name, cc in corners.cameras.items() if cc.focal_length_mm is not None)
 
 
+def _worst_instant(q: dict[str, float], k: dict[str, float], rate: float) -> str | None:
+    """The instant whose score ``q_v`` (chi-square of ``k_v`` degrees of freedom) fits worst among those that fail
+    their test against a robust core of the others at ``rate`` (:mod:`dualcal.estimation.robust_tests`: the cube
+    roots of ``q_v / k_v``, as ``rig_rigid`` judges its tie costs), or None where none fails."""
+    views = list(q)
+    dofs = np.array([max(k[v], 1e-9) for v in views])
+    x = np.cbrt(np.array([q[v] for v in views]) / dofs)
+    r = cube_root_spread(dofs)
+    tests = core_tests(x, r, robust_core(x, r, rate, T_DOF_SHARE), False, T_DOF_SHARE)
+    failing = [(t.t, v) for v, t in zip(views, tests) if t is not None and t.p < rate]
+    return max(failing)[1] if failing else None
+
+
 def ois_test(setup: Setup, tied: Solution, alone: Solution, cameras=None,
              rate: float = FALSE_ALARM_RATE) -> dict | None:
     """Whether the photos of ``tied`` (a rig without shifts; ``alone`` every camera alone over the same photos) show
@@ -134,8 +148,8 @@ def ois_test(setup: Setup, tied: Solution, alone: Solution, cameras=None,
 
     A stabiliser shifts every photo; an instant whose shots disagree (not synchronised, the board moved) is one
     instant, and pulls the rig's relative pose, so that the others seem shifted too. So, as ``rig_rigid`` names
-    them (:func:`dualcal.estimation.checks.instant_f_tests`: each instant's ``q_v`` against the others' scatter, the
-    rate split over the instants), the worst instant that fits far worse than the others is left out and the others
+    them (:func:`_worst_instant`: each instant's ``q_v`` against a robust core of the others, the rate split over
+    the instants), the worst instant that fits far worse than the others is left out and the others
     judged from a fit without it, until none is (at most a quarter of the instants): those are the rig check's to
     judge, and the stabiliser's spread is estimated without them.
 
@@ -154,9 +168,8 @@ def ois_test(setup: Setup, tied: Solution, alone: Solution, cameras=None,
         while True:
             free = _free_shifts(setup, tied, scale, cameras)
             q, k = _instant_scores(tied, free, scale)
-            tests = instant_f_tests(q, k, {v: 1.0 / len(q) for v in q}, sum(k.values()), each)
-            worst = min(tests, key=lambda v: tests[v]["p"], default=None)
-            if worst is None or tests[worst]["p"] >= each or len(left_out) >= len(p.views) // 4:
+            worst = _worst_instant(q, k, each)
+            if worst is None or len(left_out) >= len(p.views) // 4:
                 break
             left_out.append(worst)
             tied = setup.solve([b for b in tied.problem.blocks if b[1] != worst], tied, board_shape=p.board_shape)
