@@ -26,7 +26,7 @@ from ...parallel import raise_if_cancelled
 from ...geometry.grid import local_spacing_px, neighbour_residuals_px
 
 __all__ = ["reduction_factor", "reduce_image", "classic_grid", "shows_a_chessboard", "sb_grid", "find_grid",
-           "largest_grid", "consistent_part", "to_full_resolution"]
+           "largest_grid", "consistent_part", "to_full_resolution", "board_window", "in_window"]
 
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
 _SB_ATTEMPTS = (cv2.CALIB_CB_NORMALIZE_IMAGE, cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
@@ -154,3 +154,31 @@ def consistent_part(part: np.ndarray, min_size: int = 3, tolerance: float = 0.08
 def to_full_resolution(uv_reduced: np.ndarray, factor: int) -> np.ndarray:
     """Reduced-image pixels -> full-resolution pixels (pixel centres: ``f (u + 0.5) - 0.5``)."""
     return (np.asarray(uv_reduced, float) + 0.5) * factor - 0.5
+
+
+def board_window(part_px: np.ndarray, cols: int, rows: int, shape: tuple[int, int], factor: int) -> tuple[slice, slice]:
+    """Where a ``cols x rows`` board of which ``part_px`` is a part can lie in an image reduced by ``factor``.
+
+    ``part_px``: a (r, c, 2) grid of the board's corners, full-resolution pixels; ``shape``: the reduced image's
+    (H, W). The part's bounding box widened on every side by twice the board's longer side and its outer ring
+    (``2 * max(cols, rows) + 4``) in the part's own squares, whatever their place on the board and however
+    steep the view (a square on a board's far side is rarely half of one on its near side), as the (rows, cols)
+    slices of the reduced image. A detector asked for the board there sees the board, and no more than it of
+    the room's clutter, where each of its corners may cost it time (:func:`in_window`)."""
+    flat = part_px.reshape(-1, 2)
+    spacing = float(np.nanmedian(local_spacing_px(flat, part_px.shape[:2])))
+    reach = (2 * max(cols, rows) + 4) * spacing
+    if not np.isfinite(reach):
+        return slice(0, shape[0]), slice(0, shape[1])
+    lo = np.floor((np.nanmin(flat, axis=0) - reach + 0.5) / factor - 0.5).astype(int)
+    hi = np.ceil((np.nanmax(flat, axis=0) + reach + 0.5) / factor - 0.5).astype(int) + 1
+    lo = np.clip(lo, 0, [shape[1], shape[0]])
+    hi = np.clip(hi, 0, [shape[1], shape[0]])
+    return slice(lo[1], hi[1]), slice(lo[0], hi[0])
+
+
+def in_window(find, gray: np.ndarray, window: tuple[slice, slice], *args, **kwargs) -> np.ndarray | None:
+    """``find(gray[window], *args, **kwargs)`` (a detector of this module), its grid in ``gray``'s pixels."""
+    rows, cols = window
+    grid = find(np.ascontiguousarray(gray[rows, cols]), *args, **kwargs)
+    return None if grid is None else grid + [cols.start, rows.start]

@@ -45,8 +45,8 @@ from ...parallel import interruptible_map
 from ...progress import progress_bar, warn
 from .charuco import measure_charuco, resolve_board
 from .circles import detect_circles
-from .coarse import (classic_grid, consistent_part, largest_grid, reduce_image, reduction_factor, sb_grid,
-                     shows_a_chessboard, to_full_resolution)
+from .coarse import (board_window, classic_grid, consistent_part, in_window, largest_grid, reduce_image,
+                     reduction_factor, sb_grid, shows_a_chessboard, to_full_resolution)
 from ...geometry.grid import corner_noise_px, local_spacing_px, validate_grid
 from .manual import grid_from_hints
 from .order import (PartialBoard, check_colours, filled_grid, looks_like_part_of_a_board, order_grid, place_partial_grid,
@@ -144,13 +144,15 @@ def locate_board(full: np.ndarray, board: Board, partial: bool = True):
     """
     size = full.shape[::-1]
     f = reduction_factor(size)
+    near = None        # at twice the resolution: the part of a board grown at the coarser one, where to look
     while True:
         small = reduce_image(full, f)
         grid = classic_grid(small, board.cols, board.rows)
         if grid is not None:
             return small, f, to_full_resolution(grid, f), False
         unplaced = DetectionError(f"no {board.spec()} chessboard found")
-        grown = largest_grid(small)
+        grown = largest_grid(small) if near is None else \
+            in_window(largest_grid, small, board_window(near, board.cols, board.rows, small.shape, f))
         if grown is None:
             raise unplaced
         # where no part agrees (a 3 x 3 grid's corners predict each other poorly), what was grown is
@@ -169,8 +171,9 @@ def locate_board(full: np.ndarray, board: Board, partial: bool = True):
         # grew may be part of the board in full view, or (its normalised attempt alone: stripes of a carpet
         # fool the quick look) where the classic detector's quick look saw a board
         grid = None
+        window = board_window(seen_px, board.cols, board.rows, small.shape, f)
         if looks_like_part_of_a_board(seen_px, small, f, board):
-            grid = sb_grid(small, board.cols, board.rows)
+            grid = in_window(sb_grid, small, window, board.cols, board.rows)
         elif shows_a_chessboard(small, board.cols, board.rows):
             grid = sb_grid(small, board.cols, board.rows, exhaustive=False)
         if grid is not None:
@@ -179,8 +182,9 @@ def locate_board(full: np.ndarray, board: Board, partial: bool = True):
             raise unplaced
         if f > 1 and max(size) / f < 2000:
             f //= 2
+            near = seen_px
             continue
-        grid = sb_grid(small, board.cols, board.rows, upsampled=True)
+        grid = in_window(sb_grid, small, window, board.cols, board.rows, upsampled=True)
         if grid is None:
             raise unplaced
         return small, f, to_full_resolution(grid, f), False
