@@ -9,12 +9,15 @@ cuts it or glare or a shadow hides a square. Their corners are accurate to about
 enough to start the full-resolution refinement, whose window is wider. The order in which they are
 tried, and when to give up, is :func:`dualcal.files.detect.pipeline.locate_board`'s.
 
-Why not JPEG's reduced decode (``cv2.IMREAD_REDUCED_GRAYSCALE_4``)? Huffman decoding, which
-DCT scaling does not shorten, is most of a decode: measured on 12 MP renders a 1/4 decode
-costs 18 ms against 33 ms for a full one (and on an 8 MP phone photo 111 ms against 118 ms),
-while area-averaging the full image costs 2-5 ms. The full image is needed for the refinement
-anyway, so one full decode plus :func:`reduce_image` is the cheaper way for every photo that
-shows a board.
+Why not decode a reduced copy (JPEG's DCT scaling), and then only the regions around the corners at full size?
+Huffman decoding, which neither shortens, is most of a decode: libjpeg-turbo's 1/8 decode (every Huffman code, no
+inverse DCT) takes 0.42 of OpenCV's full ``imread`` on 12 MP renders and 0.92 on the real progressive 8 MP phone
+photos, where :func:`dualcal.files.photos.read_gray`'s full decode (libjpeg-turbo through simplejpeg) takes 0.73 and
+1.0 (``benchmarks/bench_detect.py``, CPU time, one thread). A region of a JPEG without restart markers can only be
+decoded after every Huffman code before it, so a reduced decode plus the regions costs more than one full decode for
+every photo that shows a board; area-averaging the full image costs 1-2 ms. Only the DCT coefficients, read once,
+would give both for the price of the Huffman decoding, and no maintained binding reads them quickly (jpeglib and
+pyjpegio took 2-3 x a full decode).
 """
 
 from __future__ import annotations

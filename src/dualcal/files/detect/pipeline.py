@@ -131,7 +131,12 @@ def locate_board(full: np.ndarray, board: Board, partial: bool = True):
     real photos of a striped carpet 1.06 x SB's own time, against 0.83-0.90 x for the first alone (every
     board of the real sets found this way was found by the first).
     Only a grid whose squares are below :data:`SMALL_SQUARE_PX` sends the search to twice the
-    resolution (at full resolution: SB on OpenCV's upsampled image). Measured on 3 MP photos without
+    resolution (at full resolution: SB on OpenCV's upsampled image), and there SB looks only in the window
+    where a board of which that grid is a part can lie (:func:`.coarse.board_window`; OpenCV's classic
+    detector, milliseconds, still looks at the whole image), as SB, where it is asked for the board in full
+    view of a part, looks only around that part: on tiny boards in cluttered 12 MP photos the searches on
+    the whole image took 2.8-6.5 s, in the windows 0.9-1.7 s (SB alone on the photo 4.3-5 s; a loaded
+    machine). Measured on 3 MP photos without
     the whole board, taking turns on one thread each (``benchmarks/bench_detect.py``, a loaded machine):
     0.4-0.9 of the time of OpenCV's ``findChessboardCornersSB`` alone on the same photos, per kind
     (a board cut by the frame or absent; synthetic, and real photos cropped), where the search at both
