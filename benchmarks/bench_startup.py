@@ -20,8 +20,8 @@ import time
 from pathlib import Path
 
 #: What ``dualcal calibrate photos/`` imports before it reads its first photo.
-CALIBRATE_IMPORTS = ("import dualcal.cli, dualcal.workflow, dualcal.files.detect.pipeline, dualcal.estimation.calibrate, "
-                     "dualcal.estimation.adjust")
+CALIBRATE_IMPORTS = ("import dualcal.cli, dualcal.workflow, dualcal.files.detect.pipeline, "
+                     "dualcal.estimation.calibrate, dualcal.estimation.adjust")
 
 
 def main() -> None:
