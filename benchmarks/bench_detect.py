@@ -22,7 +22,10 @@ Two parts, each in this one run, on the same renders for every detector:
    photos of 3024 x 4032 as ``dualcal synth`` renders them. ``dualcal detect`` as a process (start-up
    included, all cores; median of 3 runs, taking turns) against OpenCV classic + ``cornerSubPix`` (11 x 11) run one
    photo after another, also as a process with its start-up. Printed: wall times, their ratio
-   (target <= 0.5) and both corner RMS errors (dualcal's target <= 0.02 px).
+   (target <= 0.5) and both corner RMS errors (dualcal's target <= 0.02 px). Then the decoding alone, per photo,
+   one thread, taking turns: OpenCV's ``imread``, dualcal's ``read_gray`` (libjpeg-turbo through simplejpeg) and
+   libjpeg-turbo's 1/8 decode in the DCT domain (every Huffman code, no inverse DCT: the floor under decoding a
+   reduced copy or a region of a JPEG), on these renders and on the real huawei-y5-2017 photos.
 
 3. **Photos without the whole board** (``--partial``, default 6 poses): what giving up costs, or
    finding the part of a board in view. Synthetic: the ``note8`` wide camera at half resolution
@@ -34,6 +37,10 @@ Two parts, each in this one run, on the same renders for every detector:
    with its default flags. Printed per kind: photos, median seconds per photo of each, the ratio of
    their total times (target <= 1: give up in at most SB's time), the largest per-photo ratio, and what
    each found (a cut board dualcal numbers from its colours; SB needs the whole board).
+   With ``--roll`` (default 4 poses), the same for 12 MP photos (3024 x 4032) as a phone's camera roll has
+   them: the ``triple`` rig's tele seeing part of a board placed for the wide and ultra-wide, cut by the
+   frame; the room without the board; the board tiny in the frame (four times as far as the wide's view of
+   it: the whole board, which both should find); and a striped carpet without the board.
 
 4. **Curled paper** (``--curled``, default 12 photos): an A4 sheet (9x6 inner corners of 25 mm) lying
    curled, 50-65 degrees off frontal, at 960 x 720 through a lens with k1 = -0.29, blur 1.3 px, noise
@@ -58,14 +65,16 @@ photos without the whole board in at most SB's time (total per kind); it finds e
 OpenCV finds, at most as far from the truth; and every defocused board OpenCV finds, keeping every corner, at
 most as far from the truth.
 
-    .venv/bin/python benchmarks/bench_detect.py [--steep 12] [--views 13] [--partial 6] [--curled 12]
-                                                [--defocus 8] [--seed 1000] [--keep DIR]
+    .venv/bin/python benchmarks/bench_detect.py [--steep 12] [--views 13] [--partial 6] [--roll 4]
+                                                [--curled 12] [--defocus 8] [--seed 1000] [--keep DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -76,11 +85,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import simplejpeg
 
 from dualcal.geometry.board import Board
 from dualcal.geometry.camera import project_points
 from dualcal.files.detect import detect_photo
 from dualcal.files.io import load_corners
+from dualcal.files.photos import read_gray
 from dualcal.geometry.model import Pose, observed_mask
 from dualcal.synthetic.render import PhoneProcessing, render_view, write_photo_set
 from dualcal.synthetic.synth import make_truth, true_corners
@@ -196,6 +207,12 @@ def steep_part(root: Path, n: int, seed: int) -> bool:
 SPEED_RUNS = 3
 
 
+def _children_cpu() -> float:
+    """CPU seconds (user + system) of this process's finished children, their threads included."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def speed_part(root: Path, views: int, seed: int) -> bool:
     truth = make_truth("note8", views=views, seed=seed)
     tc = true_corners(truth)
@@ -205,16 +222,18 @@ def speed_part(root: Path, views: int, seed: int) -> bool:
     print(f"\n12 MP: rendered {len(photos)} photos of 3024x4032 in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     dualcal = Path(sys.executable).with_name("dualcal")
     out = root / "corners.json"
-    times_d, times_o = [], []
+    times_d, times_o, cpu_d, cpu_o = [], [], [], []
     for _ in range(SPEED_RUNS):               # taking turns: a shared machine's drift weighs on each alike
-        t = time.perf_counter()
+        t, cpu = time.perf_counter(), _children_cpu()
         subprocess.run([str(dualcal), "detect", str(root / "photos"), "--board", "8x5", "--square", "30", "-o",
                         str(out)], check=True, stderr=subprocess.DEVNULL)
         times_d.append(time.perf_counter() - t)
-        t = time.perf_counter()
+        cpu_d.append(_children_cpu() - cpu)
+        t, cpu = time.perf_counter(), _children_cpu()
         listing = subprocess.run([sys.executable, "-c", OPENCV_CLASSIC_SCRIPT, "8", "5", *photos], check=True,
                                  capture_output=True, text=True).stdout
         times_o.append(time.perf_counter() - t)
+        cpu_o.append(_children_cpu() - cpu)
     t_dualcal, t_opencv = statistics.median(times_d), statistics.median(times_o)
     t = time.perf_counter()
     subprocess.run([str(dualcal), "--version"], check=True, capture_output=True)
@@ -244,9 +263,46 @@ def speed_part(root: Path, views: int, seed: int) -> bool:
           f"(process, {os.cpu_count()} cores; {nulls} null corners; median of {SPEED_RUNS} runs)")
     print(f"{'OpenCV classic':17} {t_opencv:7.2f} {found_o:>3}/{len(photos):<2} {rms(err_o):8.4f}   "
           "(process, one photo after another, cornerSubPix 11x11)")
-    print(f"time ratio dualcal / OpenCV: {ratio:.2f} (target <= 0.5); of dualcal's time, "
-          f"{t_start:.2f} s is the command's start-up ('dualcal --version')")
+    print(f"time ratio dualcal / OpenCV: {ratio:.2f} wall (target <= 0.5), "
+          f"{statistics.median(cpu_d) / statistics.median(cpu_o):.2f} CPU (load average {os.getloadavg()[0]:.1f}); "
+          f"of dualcal's time, {t_start:.2f} s is the command's start-up ('dualcal --version')")
+    decode_part({"these 26 renders (grey)": photos,
+                 "the real huawei-y5-2017 photos (8 MP, progressive)": sorted(map(str, REAL_DIR.glob("*.jpg")))})
     return ratio <= 0.5 and rms(err_d) <= 0.02 and found_d == len(photos)
+
+
+#: The real phone photos of the shared data (8 MP, progressive JPEGs).
+REAL_DIR = Path(__file__).resolve().parents[1].joinpath("..", "shared", "data", "huawei-y5-2017")
+
+
+def decode_part(sets: dict[str, list[str]], runs: int = SPEED_RUNS) -> None:
+    """Decoding to grey, one thread, in this process, taking turns (median of ``runs``): OpenCV's ``imread`` (what
+    OpenCV's pipeline does), dualcal's :func:`~dualcal.files.photos.read_gray` (libjpeg-turbo through simplejpeg), and
+    libjpeg-turbo's decode at 1/8 size in the DCT domain (DC coefficients only, no inverse DCT): every Huffman code
+    is still decoded, so that is the floor under any decode of a part of a JPEG (at a reduced scale, or a region,
+    which must also read every code before it) without restart markers."""
+    cv2.setNumThreads(1)
+    print("\ndecoding to grey at full size, per photo, one thread, taking turns (ratios to OpenCV's imread)")
+    for name, paths in sets.items():
+        if not paths:
+            continue
+        data = [Path(p).read_bytes() for p in paths]
+        ways = {
+            "OpenCV imread": lambda: [cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in paths],
+            "dualcal read_gray": lambda: [read_gray(p) for p in paths],
+            "1/8 in the DCT domain": lambda: [simplejpeg.decode_jpeg(d, "GRAY", min_height=1, min_width=1,
+                                                                     min_factor=8) for d in data],
+        }
+        seconds = {way: [] for way in ways}
+        for _ in range(runs):
+            for way, decode in ways.items():
+                t = time.process_time()
+                decode()
+                seconds[way].append((time.process_time() - t) / len(paths))
+        base = statistics.median(seconds["OpenCV imread"])
+        print(f"  {name}: " + ", ".join(f"{way} {statistics.median(t) * 1e3:.0f} ms ({statistics.median(t) / base:.2f})"
+                                        for way, t in seconds.items()) + " (CPU time)")
+    cv2.setNumThreads(-1)
 
 
 def _cut_and_absent_photos(root: Path, n: int, seed: int):
@@ -275,10 +331,44 @@ def _cut_and_absent_photos(root: Path, n: int, seed: int):
             yield kind, path, Board(7, 9, 30.0)
 
 
-def partial_part(root: Path, n: int, seed: int) -> bool:
+def _striped_carpet(img: np.ndarray, period_px: float, phase: float) -> np.ndarray:
+    """``img`` (a floor without the board) seen through a carpet of dark and light stripes running away from the
+    camera, their period ``period_px`` at the bottom of the frame and half of it at the top."""
+    h, w = img.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    stripes = 0.55 + 0.45 * np.sign(np.sin((xx - w / 2) * (1.0 + h / (yy + h)) / period_px + phase))
+    return np.clip(cv2.GaussianBlur(img * stripes, (0, 0), 1.2), 0, 255).astype(np.uint8)
+
+
+def _roll_photos(root: Path, n: int, seed: int):
+    """``(kind, path, board)`` of 12 MP photos (3024 x 4032) without the whole board, as a phone's camera roll has
+    them: the tele's view of a board placed for the wide and ultra-wide, cut by the frame (the ``triple`` rig's
+    partial views), the room without the board, the board tiny in the frame (four times as far as the wide's
+    view of it: squares of 3-5 px at the coarse search's scale), and a striped carpet."""
+    cut = make_truth("triple", views=n, seed=seed, coverage=(0.3, 0.8))
+    whole = make_truth("triple", views=n, seed=seed + 1)
+    for i, (view, whole_view) in enumerate(zip(cut.view_poses, whole.view_poses)):
+        wide, pose = whole.cameras["wide"], whole.camera_pose("wide", whole_view)
+        away = Pose(pose.R, pose.t_mm + np.array([3.0 * wide.image_size[0] / wide.fx * pose.t_mm[2], 0.0, 0.0]))
+        rng = np.random.default_rng([seed, i])
+        photos = {
+            "12 MP, cut": render_view(cut.cameras["tele"], cut.camera_pose("tele", view), cut.board, rng),
+            "12 MP, absent": render_view(wide, away, whole.board, rng),
+            "12 MP, tiny": render_view(wide, Pose(pose.R, pose.t_mm * [1.0, 1.0, 4.0]), whole.board, rng),
+            "12 MP, carpet": _striped_carpet(render_view(wide, away, whole.board, rng, clutter=0),
+                                             float(rng.uniform(12, 30)), float(rng.uniform(0, np.pi))),
+        }
+        for kind, img in photos.items():
+            path = root / f"roll_{kind.split(', ')[1]}_{i:02d}.jpg"
+            cv2.imwrite(str(path), img, [cv2.IMWRITE_JPEG_QUALITY, 92])
+            yield kind, path, whole.board
+
+
+def partial_part(root: Path, n: int, seed: int, roll: int = 0) -> bool:
     cv2.setNumThreads(1)
     rows: dict[str, list] = {}
-    for kind, path, board in _cut_and_absent_photos(root, n, seed):
+    photos = _cut_and_absent_photos(root, n, seed) if n else iter(())
+    for kind, path, board in itertools.chain(photos, _roll_photos(root, roll, seed) if roll else ()):
         res, t_d = _timed(lambda: detect_photo(path, board))
         (found, _), t_sb = _timed(lambda: cv2.findChessboardCornersSB(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE),
                                                                         (board.cols, board.rows)))
@@ -377,6 +467,8 @@ def main(argv=None) -> int:
     ap.add_argument("--steep", type=int, default=12, help="steep photos (0: skip that part)")
     ap.add_argument("--views", type=int, default=13, help="12 MP views, two photos each (0: skip that part)")
     ap.add_argument("--partial", type=int, default=6, help="poses of cut and absent boards (0: skip that part)")
+    ap.add_argument("--roll", type=int, default=4, help="poses of 12 MP roll photos without the whole board: cut, "
+                                                         "absent, tiny, a striped carpet (0: skip that part)")
     ap.add_argument("--curled", type=int, default=12, help="photos of curled paper (0: skip that part)")
     ap.add_argument("--defocus", type=int, default=8, help="defocused, phone-processed photos (0: skip that part)")
     ap.add_argument("--seed", type=int, default=1000)
@@ -390,8 +482,8 @@ def main(argv=None) -> int:
             ok &= steep_part(root, args.steep, args.seed)
         if args.views:
             ok &= speed_part(root, args.views, args.seed)
-        if args.partial:
-            ok &= partial_part(root, args.partial, args.seed)
+        if args.partial or args.roll:
+            ok &= partial_part(root, args.partial, args.seed, args.roll)
         if args.curled:
             ok &= curled_part(root, args.curled, args.seed)
         if args.defocus:

@@ -13,10 +13,13 @@ that a shared machine's drift weighs on each alike:
   ``stereoCalibrate`` of the tele with the wide (``CALIB_USE_INTRINSIC_GUESS``); one photo after another.
 
 Also timed, for the breakdown: ``dualcal --version`` (start-up), ``dualcal detect`` alone, ``dualcal calibrate
-corners.json`` alone, and in this process the decoding alone of the 26 photos (``cv2.imread``, one thread), which
-both pipelines must do at full size (the refinement, dualcal's and OpenCV's, wants full-resolution pixels) and
-which is therefore the floor under both. Printed: the wall times, the ratio dualcal / OpenCV (target <= 0.5),
-and each result's errors against the truth (fx, cx, k1 of both cameras, the baseline).
+corners.json`` alone, and in this process the decoding alone of the 26 photos (one thread, CPU time): OpenCV's
+``cv2.imread`` and dualcal's ``read_gray`` (libjpeg-turbo through simplejpeg, the same pixels), which both pipelines
+must do at full size (the refinement, dualcal's and OpenCV's, wants full-resolution pixels; decoding a reduced copy
+first, or a region, still decodes every Huffman code before it, which is most of a decode: see
+``bench_detect.py``'s decoding lines) and which is therefore the floor under both. Printed: the wall and CPU times,
+the ratios dualcal / OpenCV (target <= 1.0 wall, issue 41), and each result's errors against the truth (fx, cx, k1
+of both cameras, the baseline).
 
     .venv/bin/python benchmarks/bench_end_to_end.py [--runs 3] [--photos DIR] [--keep DIR]
 
@@ -39,6 +42,8 @@ import time
 from pathlib import Path
 
 import cv2
+
+from dualcal.files.photos import read_gray
 
 OPENCV_PIPELINE = r"""
 import json, os, sys
@@ -136,10 +141,15 @@ def main(argv=None) -> int:
         t = median_times(commands, args.runs)
         cv2.setNumThreads(1)
         files = sorted(photos.glob("*/*.jpg"))
-        start = time.perf_counter()
-        for path in files:
-            cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        decode = time.perf_counter() - start
+        decode = {"OpenCV imread": [], "dualcal read_gray": []}
+        for _ in range(args.runs):
+            for name, read in (("OpenCV imread", lambda p: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)),
+                               ("dualcal read_gray", read_gray)):
+                start = time.process_time()
+                for path in files:
+                    read(path)
+                decode[name].append(time.process_time() - start)
+        decode = {name: statistics.median(t) for name, t in decode.items()}
         truth = json.loads((root / "truth.json").read_text())
         calib = json.loads((work / "calib.json").read_text())
         ours = errors({"cameras": calib["cameras"], "baseline_mm": calib["rig"]["tele"]["baseline_mm"]}, truth)
@@ -155,16 +165,17 @@ def main(argv=None) -> int:
     print(f"  {'':32} {'wall s':>7} {'CPU s':>7}")
     for name, (wall, cpu) in t.items():
         print(f"  {name:32} {wall:7.2f} {cpu:7.2f}")
-    print(f"  {'decoding the 26 JPEGs alone':32} {decode:7.2f} {'':7}   (cv2.imread, one thread, in this process)")
-    print(f"ratio dualcal / OpenCV end to end: {ratio:.2f} wall (target <= 0.5), {ours_s[1] / theirs_s[1]:.2f} CPU")
+    for name, seconds in decode.items():
+        print(f"  {'decoding alone: ' + name:32} {'':7} {seconds:7.2f}   (the 26 JPEGs, one thread, in this process)")
+    print(f"ratio dualcal / OpenCV end to end: {ratio:.2f} wall (target <= 1.0), {ours_s[1] / theirs_s[1]:.2f} CPU")
     cores = os.cpu_count() or 1
-    floor = t["dualcal --version"][0] + decode / cores
-    print(f"floor under dualcal: start-up + the decoding spread over {cores} cores = {floor:.2f} s = "
+    floor = t["dualcal --version"][0] + decode["dualcal read_gray"] / cores
+    print(f"floor under dualcal: start-up + its decoding spread over {cores} cores = {floor:.2f} s = "
           f"{floor / theirs_s[0]:.2f} x OpenCV's pipeline, before any detection or calibration (on idle cores)")
     print(f"{'error vs truth':14} {'dualcal':>10} {'OpenCV':>10}")
     for key in ours:
         print(f"{key:14} {ours[key]:10.4f} {theirs[key]:10.4f}")
-    return 0 if ratio <= 0.5 else 1
+    return 0 if ratio <= 1.0 else 1
 
 
 if __name__ == "__main__":

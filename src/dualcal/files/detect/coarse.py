@@ -9,12 +9,15 @@ cuts it or glare or a shadow hides a square. Their corners are accurate to about
 enough to start the full-resolution refinement, whose window is wider. The order in which they are
 tried, and when to give up, is :func:`dualcal.files.detect.pipeline.locate_board`'s.
 
-Why not JPEG's reduced decode (``cv2.IMREAD_REDUCED_GRAYSCALE_4``)? Huffman decoding, which
-DCT scaling does not shorten, is most of a decode: measured on 12 MP renders a 1/4 decode
-costs 18 ms against 33 ms for a full one (and on an 8 MP phone photo 111 ms against 118 ms),
-while area-averaging the full image costs 2-5 ms. The full image is needed for the refinement
-anyway, so one full decode plus :func:`reduce_image` is the cheaper way for every photo that
-shows a board.
+Why not decode a reduced copy (JPEG's DCT scaling), and then only the regions around the corners at full size?
+Huffman decoding, which neither shortens, is most of a decode: libjpeg-turbo's 1/8 decode (every Huffman code, no
+inverse DCT) takes 0.42 of OpenCV's full ``imread`` on 12 MP renders and 0.92 on the real progressive 8 MP phone
+photos, where :func:`dualcal.files.photos.read_gray`'s full decode (libjpeg-turbo through simplejpeg) takes 0.73 and
+1.0 (``benchmarks/bench_detect.py``, CPU time, one thread). A region of a JPEG without restart markers can only be
+decoded after every Huffman code before it, so a reduced decode plus the regions costs more than one full decode for
+every photo that shows a board; area-averaging the full image costs 1-2 ms. Only the DCT coefficients, read once,
+would give both for the price of the Huffman decoding, and no maintained binding reads them quickly (jpeglib and
+pyjpegio took 2-3 x a full decode).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from ...parallel import raise_if_cancelled
 from ...geometry.grid import local_spacing_px, neighbour_residuals_px
 
 __all__ = ["reduction_factor", "reduce_image", "classic_grid", "shows_a_chessboard", "sb_grid", "find_grid",
-           "largest_grid", "consistent_part", "to_full_resolution"]
+           "largest_grid", "consistent_part", "to_full_resolution", "board_window", "in_window"]
 
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
 _SB_ATTEMPTS = (cv2.CALIB_CB_NORMALIZE_IMAGE, cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
@@ -154,3 +157,31 @@ def consistent_part(part: np.ndarray, min_size: int = 3, tolerance: float = 0.08
 def to_full_resolution(uv_reduced: np.ndarray, factor: int) -> np.ndarray:
     """Reduced-image pixels -> full-resolution pixels (pixel centres: ``f (u + 0.5) - 0.5``)."""
     return (np.asarray(uv_reduced, float) + 0.5) * factor - 0.5
+
+
+def board_window(part_px: np.ndarray, cols: int, rows: int, shape: tuple[int, int], factor: int) -> tuple[slice, slice]:
+    """Where a ``cols x rows`` board of which ``part_px`` is a part can lie in an image reduced by ``factor``.
+
+    ``part_px``: a (r, c, 2) grid of the board's corners, full-resolution pixels; ``shape``: the reduced image's
+    (H, W). The part's bounding box widened on every side by twice the board's longer side and its outer ring
+    (``2 * max(cols, rows) + 4``) in the part's own squares, whatever their place on the board and however
+    steep the view (a square on a board's far side is rarely half of one on its near side), as the (rows, cols)
+    slices of the reduced image. A detector asked for the board there sees the board, and no more than it of
+    the room's clutter, where each of its corners may cost it time (:func:`in_window`)."""
+    flat = part_px.reshape(-1, 2)
+    spacing = float(np.nanmedian(local_spacing_px(flat, part_px.shape[:2])))
+    reach = (2 * max(cols, rows) + 4) * spacing
+    if not np.isfinite(reach):
+        return slice(0, shape[0]), slice(0, shape[1])
+    lo = np.floor((np.nanmin(flat, axis=0) - reach + 0.5) / factor - 0.5).astype(int)
+    hi = np.ceil((np.nanmax(flat, axis=0) + reach + 0.5) / factor - 0.5).astype(int) + 1
+    lo = np.clip(lo, 0, [shape[1], shape[0]])
+    hi = np.clip(hi, 0, [shape[1], shape[0]])
+    return slice(lo[1], hi[1]), slice(lo[0], hi[0])
+
+
+def in_window(find, gray: np.ndarray, window: tuple[slice, slice], *args, **kwargs) -> np.ndarray | None:
+    """``find(gray[window], *args, **kwargs)`` (a detector of this module), its grid in ``gray``'s pixels."""
+    rows, cols = window
+    grid = find(np.ascontiguousarray(gray[rows, cols]), *args, **kwargs)
+    return None if grid is None else grid + [cols.start, rows.start]

@@ -126,9 +126,10 @@ def fit_saddles(img: np.ndarray, uv: np.ndarray, edge_dirs: np.ndarray, half: in
     p[:, 4] = 1.5
     # linear start for the photometric terms (m, g, a) given the geometry
     E1, E2 = _model(p, qx, qy)[:2]
-    A = np.stack(np.broadcast_arrays(1.0, qx[None, :], qy[None, :], E1 * E2), axis=-1)  # (K, P, 4)
-    At = np.swapaxes(A, 1, 2)
-    p[:, 5:9] = np.linalg.solve((At @ A).astype(float) + 1e-9 * np.eye(4),
+    At = np.empty((K, 4, len(qx)), np.float32)             # (K, 4, P): the terms' columns, one row each
+    At[:, 0], At[:, 1], At[:, 2] = 1.0, qx, qy
+    np.multiply(E1, E2, out=At[:, 3])
+    p[:, 5:9] = np.linalg.solve((At @ np.swapaxes(At, 1, 2)).astype(float) + 1e-9 * np.eye(4),
                                 (At @ z[..., None]).astype(float))[..., 0]
 
     ok = valid.copy()
@@ -229,17 +230,23 @@ def _lm(p, qx, qy, z, wt, active, iterations):
     lam = np.full(len(p), 1e-3)
     model = list(_model(p, qx, qy))
     cost = _cost(p, model, qx, qy, z, wt)
+    eye = np.eye(9)
     for _ in range(iterations):
-        pa, za = p[active], z[active]
-        wa = None if wt is None else wt[active]
-        Jt, res = _jacobian(pa, [m[active] for m in model], qx, qy, za)
+        if len(active) == len(p):       # every corner still moving: the arrays as they are, not copies
+            pa, za, wa, ma = p.copy(), z, wt, model
+        else:
+            pa, za = p[active], z[active]
+            wa = None if wt is None else wt[active]
+            ma = [m[active] for m in model]
+        Jt, res = _jacobian(pa, ma, qx, qy, za)
         if wa is not None:
-            Jt, res = Jt * wa[:, None, :], res * wa
+            Jt *= wa[:, None, :]
+            res *= wa
         JtJ = (Jt @ np.swapaxes(Jt, 1, 2)).astype(float)
         Jtr = (Jt @ res[..., None])[..., 0].astype(float)
         D = np.einsum("kii->ki", JtJ) + 1e-12
         la = lam[active]
-        step = np.linalg.solve(JtJ + la[:, None, None] * D[:, :, None] * np.eye(9), -Jtr[..., None])[..., 0]
+        step = np.linalg.solve(JtJ + la[:, None, None] * D[:, :, None] * eye, -Jtr[..., None])[..., 0]
         trial = pa + step
         trial_model = _model(trial, qx, qy)
         new_cost = _cost(trial, trial_model, qx, qy, za, wa)
