@@ -174,7 +174,7 @@ def _all_visible(cams: dict[str, CameraModel], poses: dict[str, Pose], X: np.nda
     return True
 
 
-def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
+def make_truth(preset: str | dict = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
                max_tilt_deg: float = 40.0, min_tilt_deg: float = 5.0,
                fill: tuple[float, float] | None = None, board: Board | None = None,
                coverage: tuple[float, float] | None = None) -> SynthTruth:
@@ -194,10 +194,11 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
 
     Parameters
     ----------
-    preset : str
+    preset : str or dict
         The rig: ``note8`` (wide + tele, 12 MP), ``stereo`` (a 640x480 pair), ``triple`` (wide + tele +
         ultra-wide), ``phone3`` (wide + 3x tele + a fisheye ultra-wide), ``stereo5`` (the pair with OpenCV's
-        five-coefficient lenses).
+        five-coefficient lenses); or a rig of one's own, as :data:`PRESETS` holds one (``board``, ``cameras``
+        with the reference first, ``rig``, ``fill``, and ``edge`` where some views are near a camera's edge).
     views : int
         Number of board poses.
     seed : int
@@ -225,11 +226,11 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     EstimationError
         No poses could be placed as asked.
     """
-    if preset not in PRESETS:
+    if isinstance(preset, str) and preset not in PRESETS:
         raise InputError(f"--preset {preset!r} is unknown (choose from {', '.join(PRESETS)})")
     if views < 1:
         raise InputError("--views must be at least 1")
-    p = PRESETS[preset]
+    p = PRESETS[preset] if isinstance(preset, str) else preset
     board = board or p["board"]
     cameras = {n: scale_camera(c, scale) for n, c in p["cameras"].items()}
     reference = next(iter(cameras))
