@@ -70,6 +70,13 @@ MEASURE_BELOW_PX = 2.0
 WINDOW_MARGIN_PX = 4
 
 
+def _reduction(at_most: float) -> int:
+    """The largest reduction factor :func:`~dualcal.files.detect.coarse.reduce_image` makes exactly (a power of
+    two: it halves the image) that is at most ``at_most``, and 1 below 2. A factor that is no power of two
+    (3: 1920 px / 640) was halved once and scaled back by 3, every corner 1.5 x too far from the origin."""
+    return 1 << max(0, int(np.floor(np.log2(max(at_most, 1.0)))))
+
+
 def _rms_px(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
@@ -382,7 +389,7 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
         raise InputError(f"{path}: clips are read with a chessboard; a ChArUco board is not tracked in video yet")
     info = probe_clip(path)
     W, H = info.size
-    search = max(1, int(max(W, H) // SEARCH_LONG_SIDE_PX))
+    search = _reduction(max(W, H) / SEARCH_LONG_SIDE_PX)
     factor = search                           # of the frame the board is followed in, set by its squares
     times, coarse = [], []
     windows: dict[int, CornerWindows] = {}
@@ -405,7 +412,7 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
                 if uv is not None:
                     grid = uv.reshape(board.rows, board.cols, 2)
                     square = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2)))
-                    renewed = int(np.clip(square // FOLLOW_SQUARE_PX, 1, 4 * search))
+                    renewed = _reduction(min(square / FOLLOW_SQUARE_PX, 4 * search))
                     if renewed != factor:
                         factor, small = renewed, np.ascontiguousarray(reduce_image(gray, renewed))
             if uv is None:
