@@ -374,11 +374,13 @@ def _grid_like(grid: np.ndarray) -> bool:
     return spacing2 > 0 and worst <= (2 * FOLLOW_TOLERANCE) ** 2 * spacing2
 
 
-def track_clip(path, board: Board, progress: bool = True, name: str | None = None, advance=None) -> ClipTrack:
+def track_clip(path, board: Board, progress: bool = True, name: str | None = None, advance=None,
+               info: ClipInfo | None = None) -> ClipTrack:
     """Decode ``path`` once and follow the board through it (module docstring, step 2): found afresh where
     it was not in the frame before, else followed (:func:`_followed_board`); the windows of its corners kept
     where it moved less than :data:`MEASURE_BELOW_PX` since the frame before. ``advance(n=1)``: called once
-    per frame (a shared progress bar); without it, the clip's own bar (``progress``).
+    per frame (a shared progress bar); without it, the clip's own bar (``progress``). ``info``: the clip's
+    :func:`probe_clip`, where it was read already.
 
     Raises
     ------
@@ -387,7 +389,7 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
     """
     if board.charuco is not None:
         raise InputError(f"{path}: clips are read with a chessboard; a ChArUco board is not tracked in video yet")
-    info = probe_clip(path)
+    info = info or probe_clip(path)
     W, H = info.size
     search = _reduction(max(W, H) / SEARCH_LONG_SIDE_PX)
     factor = search                           # of the frame the board is followed in, set by its squares
@@ -453,10 +455,11 @@ def video_corners(clips: dict[str, Path], board: Board, reference: str | None = 
     from ..estimation.time_offset import estimate_offsets
 
     ref = choose_reference(clips, reference)
-    total = sum(probe_clip(p).frames for p in clips.values())
-    with progress_bar("reading clips", total, enabled=progress) as advance:
+    infos = {name: probe_clip(path) for name, path in clips.items()}
+    with progress_bar("reading clips", sum(i.frames for i in infos.values()), enabled=progress) as advance:
         # one thread per clip: decoding, OpenCV and most of numpy release the GIL
-        found = interruptible_map(lambda item: track_clip(item[1], board, name=item[0], advance=advance),
+        found = interruptible_map(lambda item: track_clip(item[1], board, name=item[0], advance=advance,
+                                                          info=infos[item[0]]),
                                   list(clips.items()), max(1, min(len(clips), os.cpu_count() or 1)))
         tracks = dict(zip(clips, found))
     for name, tr in tracks.items():

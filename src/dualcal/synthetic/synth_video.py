@@ -75,9 +75,10 @@ def _min_jerk(s: np.ndarray) -> np.ndarray:
 class VideoTruth:
     """A board's motion and the cameras that film it (module docstring).
 
-    ``truth.view_poses`` are the held poses, in order; ``hold_s[i]`` the time the board is held at
-    pose ``i``, ``move_s[i]`` the time it takes to carry it from pose ``i`` to ``i + 1``; ``tremor_mm`` and
-    ``tremor_deg`` the amplitudes of the hand's tremor (smooth, a few hertz, all the time).
+    ``route`` are the poses the board is held at, in order (default: ``truth.view_poses``); ``hold_s[i]``
+    the time it is held at pose ``i``, ``move_s[i]`` the time it takes to carry it from pose ``i`` to
+    ``i + 1``; ``tremor_mm`` and ``tremor_deg`` the amplitudes of the hand's tremor (smooth, a few hertz,
+    all the time).
     """
 
     truth: SynthTruth
@@ -90,6 +91,7 @@ class VideoTruth:
     tremor_mm: float = 0.15
     tremor_deg: float = 0.015
     seed: int = 0
+    route: list[Pose] | None = None
     _tremor: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -110,7 +112,7 @@ class VideoTruth:
 
     def board_pose(self, t_s: float) -> Pose:
         """Board-to-reference-camera pose at reference clock time ``t_s`` (held, carried, with tremor)."""
-        poses = list(self.truth.view_poses.values())
+        poses = self.route or list(self.truth.view_poses.values())
         holds = self.holds
         i = int(np.clip(np.searchsorted([a for a, _ in holds], t_s, side="right") - 1, 0, len(holds) - 1))
         a, b = holds[i]
@@ -141,7 +143,7 @@ class VideoTruth:
 def make_video_truth(preset: str = "stereo", holds: int = 12, seed: int = 0, scale: float = 1.0,
                      fps: float = 30.0, offset_frames: float = 3.4, hold_s: tuple[float, float] = (0.6, 1.2),
                      move_s: tuple[float, float] = (0.5, 0.9), readout_s: float = 0.0,
-                     exposure_s: float = 1 / 60, **truth_options) -> VideoTruth:
+                     exposure_s: float = 1 / 60, away: int = 0, **truth_options) -> VideoTruth:
     """A synthetic rig (``preset``, :func:`~dualcal.synthetic.synth.make_truth`, or one of
     :data:`VIDEO_PRESETS`) filmed as clips.
 
@@ -155,15 +157,24 @@ def make_video_truth(preset: str = "stereo", holds: int = 12, seed: int = 0, sca
     hold_s, move_s : the ranges of the times the board is held and carried (drawn per hold).
     readout_s : a rolling shutter's readout time, top row to bottom row (0: a global shutter).
     exposure_s : each frame's exposure (the motion within it blurs the frame).
+    away : that many times, spread over the clip, the board is carried out of every camera's view (to the
+        side, below or above: three times as far off the reference's axis as it is in front of it) and held
+        there before the next hold, as a board is lowered or carried aside: frames without it, and frames
+        that show part of it.
     """
     rig = VIDEO_PRESETS[preset]() if preset in VIDEO_PRESETS else preset
     truth = make_truth(rig, holds, seed, scale, **truth_options)
+    route = list(truth.view_poses.values())
+    sides = np.array([[3.0, 0, 0], [0, 3.0, 0], [-3.0, 0, 0], [0, -3.0, 0]])
+    for k, after in enumerate(sorted(np.linspace(0, holds - 1, away + 2)[1:-1].round().astype(int), reverse=True)):
+        held = route[after]
+        route.insert(after + 1, Pose(held.R, held.t_mm + sides[k % 4] * held.t_mm[2]))
     rng = np.random.default_rng([seed, 3])
     names = list(truth.cameras)
-    return VideoTruth(truth, rng.uniform(*hold_s, holds), rng.uniform(*move_s, holds - 1),
+    return VideoTruth(truth, rng.uniform(*hold_s, len(route)), rng.uniform(*move_s, len(route) - 1),
                       dict.fromkeys(names, float(fps)),
                       {n: (0.0 if n == truth.reference else offset_frames / fps) for n in names},
-                      exposure_s=exposure_s, readout_s=readout_s, seed=seed)
+                      exposure_s=exposure_s, readout_s=readout_s, seed=seed, route=route if away else None)
 
 
 # ---------------------------------------------------------------------------- frames
@@ -307,9 +318,11 @@ def _exposure_poses(video: VideoTruth, camera: str, t_s: float) -> list:
 
 
 def encode_clip(frames, size: tuple[int, int], fps: float, crf: int = 18, codec: str = "libx264",
-                rotation_deg: int = 0) -> bytes:
+                rotation_deg: int = 0, bitrate_mbps: float | None = None) -> bytes:
     """An .mp4 of grey ``frames`` (an iterable of (H, W) uint8) as a phone records it: H.264 (``codec``
-    ``"libx265"``: HEVC), yuv420p, with the display rotation a phone held upright writes (``rotation_deg``)."""
+    ``"libx265"``: HEVC), yuv420p, a key frame every second and no B-frames (a camera's real-time encoder),
+    with the display rotation a phone held upright writes (``rotation_deg``); at constant quality ``crf``, or
+    at the bit rate ``bitrate_mbps`` (phones: about 17 Mbit/s in 1080p, 50 in 4K)."""
     require("video")
     import av
 
@@ -318,7 +331,13 @@ def encode_clip(frames, size: tuple[int, int], fps: float, crf: int = 18, codec:
         stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1001))
         stream.width, stream.height = size
         stream.pix_fmt = "yuv420p"
-        stream.options = {"crf": str(crf), "preset": "veryfast"}
+        stream.codec_context.gop_size = max(1, round(fps))
+        stream.codec_context.max_b_frames = 0
+        stream.options = {"preset": "veryfast"}
+        if bitrate_mbps:
+            stream.bit_rate = int(bitrate_mbps * 1e6)
+        else:
+            stream.options["crf"] = str(crf)
         if codec == "libx265":
             stream.options["x265-params"] = "log-level=error"
         if rotation_deg:
