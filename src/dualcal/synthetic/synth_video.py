@@ -3,7 +3,8 @@
 A :class:`VideoTruth` is a rig (:class:`~dualcal.synthetic.synth.SynthTruth`: its cameras, the pose of
 each relative to the reference and the board poses where the board is held) and a motion through
 time: the board is held at each of those poses for a while (with a hand's tremor), then carried to
-the next along a smooth (minimum-jerk) path. Every camera films it at its own frame rate from its own
+the next along a smooth (minimum-jerk) path, and, if asked, carried out of view a few times between
+holds (``away``). Every camera films it at its own frame rate from its own
 start: camera ``c``'s frame ``j`` is exposed at the reference's clock time ``offset_s[c] + j / fps[c]``
 (the reference's ``offset_s`` is 0), as two streams that one app starts are a few frames and a
 fraction of a frame apart (the contract's ``video.offset_s``). A frame's time is its exposure's middle;
@@ -11,9 +12,11 @@ with a rolling shutter (``readout_s``) the middle of its middle row's, the rows 
 
 Each frame is rendered as :mod:`dualcal.synthetic.render` renders a photo (the same exact box-filtered
 board, clutter behind it, vignetting, lens blur, sensor noise), with the motion within the exposure
-averaged over sub-frames (motion blur), and the clip is encoded as a phone encodes it: H.264 in an
-``.mp4`` (PyAV, the ``video`` extra). The rays of every pixel are computed once per camera, so a frame
-costs a few array operations over the board's part of the image.
+averaged over sub-frames (motion blur), and the clip is encoded as a phone encodes it: H.264 (or HEVC)
+in an ``.mp4``, a key frame a second and no B-frames, at constant quality or a phone's bit rate (PyAV, the
+``video`` extra). The rays of every pixel and the frame without the board are computed once per camera, so
+a frame costs a few array operations over the board's part of the image and its sensor noise.
+:data:`VIDEO_PRESETS` are rigs as phones film them: note8's wide and tele in 1080p and 4K.
 """
 
 from __future__ import annotations
@@ -333,7 +336,8 @@ def encode_clip(frames, size: tuple[int, int], fps: float, crf: int = 18, codec:
         stream.pix_fmt = "yuv420p"
         stream.codec_context.gop_size = max(1, round(fps))
         stream.codec_context.max_b_frames = 0
-        stream.options = {"preset": "veryfast"}
+        # (x265's veryfast takes minutes a second of 1080p: its ultrafast, as a phone's hardware encoder, is quick)
+        stream.options = {"preset": "ultrafast" if codec == "libx265" else "veryfast"}
         if bitrate_mbps:
             stream.bit_rate = int(bitrate_mbps * 1e6)
         else:
