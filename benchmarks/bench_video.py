@@ -82,31 +82,54 @@ def rig_errors(R, t, truth_pose) -> tuple[float, float]:
             float(np.linalg.norm(rotvec_from_rotation(np.asarray(R) @ truth_pose.R.T)) * ARCMIN))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", default="stereo")
-    parser.add_argument("--holds", type=int, default=18)
-    parser.add_argument("--scale", type=float, default=1.0)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--offset-frames", type=float, default=3.4)
-    parser.add_argument("--readout-ms", type=float, default=0.0)
-    parser.add_argument("--splits", type=int, default=10)
-    parser.add_argument("--rounds", type=int, default=2, help="turns each pipeline is timed (the best counts)")
-    parser.add_argument("--keep", default=None, help="write the clips here (default: a temporary folder)")
-    args = parser.parse_args()
+#: Clips as phones record them (``--size``): note8's wide and tele in video (VIDEO_PRESETS), at phones' bit rates.
+SIZES = {"1080p": ("phone-1080p", 17.0), "4k": ("phone-4k", 50.0)}
+CODECS = {"h264": "libx264", "hevc": "libx265"}
 
-    video = make_video_truth(args.preset, args.holds, args.seed, args.scale, offset_frames=args.offset_frames,
-                             readout_s=args.readout_ms / 1000)
+
+def transcode(master: Path, out: Path, codec: str, bitrate_mbps: float | None) -> None:
+    """``master`` (a clip rendered once at constant quality) encoded again as a phone would (``encode_clip``)."""
+    from dualcal.files.io import write_bytes_atomic
+    from dualcal.files.video import probe_clip, read_frames
+    from dualcal.synthetic.synth_video import encode_clip
+
+    info = probe_clip(master)
+    write_bytes_atomic(out, encode_clip((g for _, _, g in read_frames(master)), info.size, info.fps, codec=codec,
+                                        bitrate_mbps=bitrate_mbps))
+
+
+def clips_for(args, preset: str, bitrate_mbps: float | None):
+    """The synthetic recording of ``preset`` and its clips in ``--codec`` at ``bitrate_mbps`` (None: constant
+    quality), transcoded from clips rendered once; with ``--keep``, all of them kept for the next run."""
+    video = make_video_truth(preset, args.holds, args.seed, args.scale, offset_frames=args.offset_frames,
+                             readout_s=args.readout_ms / 1000, away=args.away)
+    recording = Path(args.keep or tempfile.mkdtemp()) / (f"{preset}-x{args.scale:g}-h{args.holds}-s{args.seed}"
+                                                         f"-o{args.offset_frames:g}-r{args.readout_ms:g}-a{args.away}")
+    master = recording / "master"
+    names = list(video.truth.cameras)
+    if not all((master / f"{n}.mp4").exists() for n in names):
+        master.mkdir(parents=True, exist_ok=True)
+        write_clips(video, master, seed=args.seed, progress=True)
+    folder = recording / f"{args.codec}-{f'{bitrate_mbps:g}mbps' if bitrate_mbps else 'crf18'}"
+    folder.mkdir(exist_ok=True)
+    clips = {n: folder / f"{n}.mp4" for n in names}
+    for n, path in clips.items():
+        if not path.exists():
+            transcode(master / f"{n}.mp4", path, CODECS[args.codec], bitrate_mbps)
+    return video, folder, clips
+
+
+def compare(args, preset: str, bitrate_mbps: float | None) -> dict:
+    """One recording calibrated three ways (module docstring); prints the table and returns the ratios."""
+    video, folder, clips = clips_for(args, preset, bitrate_mbps)
     truth = video.truth
-    folder = Path(args.keep or tempfile.mkdtemp())
-    folder.mkdir(parents=True, exist_ok=True)
-    clips = {n: folder / f"{n}.mp4" for n in truth.cameras}
-    if not (args.keep and all(p.exists() for p in clips.values())):      # (--keep: clips of a run before reused)
-        clips = write_clips(video, folder, seed=args.seed, progress=False)
     ref, other = list(truth.cameras)
     fps = video.fps[other]
-    print(f"{args.preset} x{args.scale:g}: {video.duration_s:.1f} s at {fps:g} fps, board held {args.holds} times, "
-          f"'{other}' starts {args.offset_frames:g} frames after '{ref}'; clips in {folder}")
+    W, H = truth.cameras[ref].image_size
+    print(f"\n{preset} ({W}x{H}, {args.codec}): {video.duration_s:.1f} s at {fps:g} fps, board held {args.holds} "
+          f"times (and {args.away} times out of view), '{other}' starts {args.offset_frames:g} frames after "
+          f"'{ref}'; clips in {folder} "
+          f"({sum(p.stat().st_size for p in clips.values()) * 8 / 1e6 / video.duration_s / len(clips):.0f} Mbit/s each)")
 
     wall = {"opencv": [], "dualcal": []}
     cpu = {"opencv": [], "dualcal": []}
@@ -120,7 +143,8 @@ def main() -> None:
                 rig = calibrate_corners(corners)
             wall[who].append(time.perf_counter() - t0)
             cpu[who].append(time.process_time() - c0)
-    t_user, t_dualcal = min(wall["opencv"]), min(wall["dualcal"])
+    t_user, t_dualcal = np.median(wall["opencv"]), np.median(wall["dualcal"])
+    ratios = np.array(wall["dualcal"]) / np.array(wall["opencv"])          # turn by turn
     told = opencv_user(clips, truth.board, shift=int(np.floor(video.offset_s[other] * fps)))
 
     rows = []
@@ -140,8 +164,9 @@ def main() -> None:
               + f" {pairs:6d} {seconds if seconds is not None else float('nan'):7.2f}")
     (_, te_u, re_u, *_), (_, te_t, re_t, *_), (_, te_d, re_d, *_) = rows
     print(f"\ndualcal / OpenCV user: rig translation error {te_d / te_u:.3f} x, rotation error {re_d / re_u:.3f} x, "
-          f"time {t_dualcal / t_user:.2f} x (best of {args.rounds} turns each; CPU time "
-          f"{min(cpu['dualcal']) / min(cpu['opencv']):.2f} x: {min(cpu['dualcal']):.1f} s vs {min(cpu['opencv']):.1f} s)")
+          f"time {t_dualcal / t_user:.2f} x (median of {args.rounds} turns each; turn by turn "
+          f"{', '.join(f'{r:.2f}' for r in ratios)}; CPU time {np.median(cpu['dualcal']) / np.median(cpu['opencv']):.2f} x: "
+          f"{np.median(cpu['dualcal']):.1f} s vs {np.median(cpu['opencv']):.1f} s)")
     print(f"dualcal / OpenCV told the whole-frame offset: translation error {te_d / te_t:.3f} x, "
           f"rotation error {re_d / re_t:.3f} x")
 
@@ -162,6 +187,37 @@ def main() -> None:
         spread = pooled_spread(z["sigma"])
         print(f"split-half z spread over moments ({args.splits} splits, {len(rig.reference_poses())} moments): "
               + ", ".join(f"{g} {v:.2f}" for g, v in spread.items()))
+    return {"time": t_dualcal / t_user, "t error": te_d / te_u, "R error": re_d / re_u}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", nargs="+", choices=list(SIZES), default=None,
+                        help="clips as phones record them: note8's wide and tele filmed in 1080p or 4K "
+                             "(dualcal.synthetic.synth_video.VIDEO_PRESETS); several: one comparison each")
+    parser.add_argument("--preset", default="stereo", help="the rig, where no --size is given")
+    parser.add_argument("--codec", choices=list(CODECS), default="h264")
+    parser.add_argument("--mbps", type=float, default=None,
+                        help="the clips' bit rate (default: a phone's with --size, 17 in 1080p and 50 in 4K; "
+                             "else constant quality, crf 18)")
+    parser.add_argument("--holds", type=int, default=18)
+    parser.add_argument("--away", type=int, default=0,
+                        help="times the board is carried out of every camera's view between holds (make_video_truth)")
+    parser.add_argument("--scale", type=float, default=1.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--offset-frames", type=float, default=3.4)
+    parser.add_argument("--readout-ms", type=float, default=0.0)
+    parser.add_argument("--splits", type=int, default=10)
+    parser.add_argument("--rounds", type=int, default=3, help="turns each pipeline is timed (the median counts)")
+    parser.add_argument("--keep", default=None,
+                        help="keep the clips in a folder of this one per recording, and reuse them in the next run")
+    args = parser.parse_args()
+
+    runs = [(SIZES[s][0], args.mbps or SIZES[s][1]) for s in args.size] if args.size else [(args.preset, args.mbps)]
+    ratios = {p: compare(args, p, mbps) for p, mbps in runs}
+    print("\n" + "\n".join(f"{p}: dualcal / OpenCV's pipeline: time {r['time']:.2f} x, rig error "
+                            f"{r['t error']:.3f} x (translation), {r['R error']:.3f} x (rotation)"
+                            for p, r in ratios.items()))
 
 
 if __name__ == "__main__":

@@ -109,3 +109,20 @@ def test_a_phones_clip_is_read_as_stored_and_its_rotation_reported(tmp_path, cod
     assert all(g.shape == (48, 64) for _, _, g in decoded)        # the stored frame, not turned
     # near-lossless: the luma within a few grey levels of what was encoded
     assert np.abs(decoded[2][2].astype(int) - frames[2]).mean() < 3
+
+
+def test_a_phones_1080p_frames_are_tracked_where_the_board_is(tmp_path):
+    """The board's corners as tracked (on the frame reduced by a power of two: 1920 / 640 once made a reduction
+    of 3, an image halved and its corners scaled back by 3, every one 1.5 x too far from the origin) and as
+    measured where it is held, against the truth: a quarter of a second of note8's wide filming in 1080p."""
+    from dualcal.files.video import track_clip
+    from dualcal.synthetic.synth_video import tracked_corners
+
+    video = make_video_truth("phone-1080p", holds=1, seed=1, hold_s=(0.25, 0.25))
+    path = write_clips(video, tmp_path, seed=1, progress=False, cameras=["wide"])["wide"]
+    track = track_clip(path, video.truth.board, progress=False)
+    _, truth = tracked_corners(video, "wide")
+    assert track.info.size == (1920, 1080) and track.frames_found == track.frames_read == len(truth)
+    assert np.abs(track.coarse_px - truth).max() < 0.5
+    j = max(track.windows)                                    # held: its corners measured as a photo's are
+    assert np.abs(track.windows[j].measure(track.info.size, video.truth.board) - truth[j]).max() < 0.25

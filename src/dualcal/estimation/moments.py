@@ -57,23 +57,26 @@ class MomentChoice:
     not_used: dict[str, dict[str, int]] = field(default_factory=dict)
 
 
-def _rms_motion(a: np.ndarray, b: np.ndarray) -> float:
-    d = np.sum((a - b) ** 2, axis=1)
-    d = d[np.isfinite(d)]
-    return float(np.sqrt(d.mean())) if len(d) else np.inf
-
-
 def still_runs(measured: dict[int, np.ndarray], still_px: float = STILL_PX,
                min_run: int = MIN_RUN) -> tuple[list[np.ndarray], dict[int, float]]:
     """Runs (each an array of consecutive frame indices) of still frames, and each measured frame's motion
-    (px per frame, the larger of before and after; inf where a neighbour was not measured)."""
-    motion = {}
-    for j, uv in measured.items():
-        before, after = measured.get(j - 1), measured.get(j + 1)
-        motion[j] = (max(_rms_motion(uv, before), _rms_motion(after, uv))
-                     if before is not None and after is not None else np.inf)
-    still = sorted(j for j, m in motion.items() if m < still_px)
-    runs = np.split(np.array(still, int), np.flatnonzero(np.diff(still) > 1) + 1) if still else []
+    (px per frame, RMS over the corners seen in both frames: the larger of before and after; inf where a
+    neighbour was not measured)."""
+    if not measured:
+        return [], {}
+    frames = np.array(sorted(measured))
+    span = np.full((frames[-1] - frames[0] + 3,) + measured[frames[0]].shape, np.nan)   # a NaN frame each side
+    span[frames - frames[0] + 1] = [measured[j] for j in frames]
+    with np.errstate(invalid="ignore"):
+        d2 = np.sum(np.diff(span, axis=0) ** 2, axis=2)                  # (frames + 1, N): j-1 -> j at row j
+        seen = np.isfinite(d2)
+        step = np.sqrt(np.where(seen, d2, 0.0).sum(axis=1) / seen.sum(axis=1))
+    step[~seen.any(axis=1)] = np.inf
+    rows = frames - frames[0] + 1
+    moving = np.maximum(step[rows - 1], step[rows])                    # since the frame before, until the next
+    motion = dict(zip(frames.tolist(), moving.tolist()))
+    still = frames[moving < still_px]
+    runs = np.split(still, np.flatnonzero(np.diff(still) > 1) + 1) if len(still) else []
     return [r for r in runs if len(r) >= min_run], motion
 
 

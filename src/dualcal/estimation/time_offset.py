@@ -152,10 +152,12 @@ def frame_poses(cam: CameraModel, uv_px: np.ndarray, board: Board) -> tuple[np.n
         return R, t, ok
     xy = ideal_normalized_from_pixel(cam, uv_px[whole].reshape(-1, 2)).reshape(len(whole), -1, 2)
     flat = np.column_stack([board.object_points_mm()[:, :2], np.zeros(board.n_corners)])
+    rvecs = np.zeros((F, 3))
     for j, pts in zip(whole, xy):
         found, rvec, tvec = cv2.solvePnP(flat, pts, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
         if found:
-            R[j], t[j], ok[j] = rotation_from_rotvec(rvec.ravel()), tvec.ravel(), True
+            rvecs[j], t[j], ok[j] = rvec.ravel(), tvec.ravel(), True
+    R[ok] = rotation_from_rotvec(rvecs[ok])
     return R, t, ok
 
 

@@ -70,6 +70,13 @@ MEASURE_BELOW_PX = 2.0
 WINDOW_MARGIN_PX = 4
 
 
+def _reduction(at_most: float) -> int:
+    """The largest reduction factor :func:`~dualcal.files.detect.coarse.reduce_image` makes exactly (a power of
+    two: it halves the image) that is at most ``at_most``, and 1 below 2. A factor that is no power of two
+    (3: 1920 px / 640) was halved once and scaled back by 3, every corner 1.5 x too far from the origin."""
+    return 1 << max(0, int(np.floor(np.log2(max(at_most, 1.0)))))
+
+
 def _rms_px(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
@@ -367,11 +374,13 @@ def _grid_like(grid: np.ndarray) -> bool:
     return spacing2 > 0 and worst <= (2 * FOLLOW_TOLERANCE) ** 2 * spacing2
 
 
-def track_clip(path, board: Board, progress: bool = True, name: str | None = None, advance=None) -> ClipTrack:
+def track_clip(path, board: Board, progress: bool = True, name: str | None = None, advance=None,
+               info: ClipInfo | None = None) -> ClipTrack:
     """Decode ``path`` once and follow the board through it (module docstring, step 2): found afresh where
     it was not in the frame before, else followed (:func:`_followed_board`); the windows of its corners kept
     where it moved less than :data:`MEASURE_BELOW_PX` since the frame before. ``advance(n=1)``: called once
-    per frame (a shared progress bar); without it, the clip's own bar (``progress``).
+    per frame (a shared progress bar); without it, the clip's own bar (``progress``). ``info``: the clip's
+    :func:`probe_clip`, where it was read already.
 
     Raises
     ------
@@ -380,9 +389,9 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
     """
     if board.charuco is not None:
         raise InputError(f"{path}: clips are read with a chessboard; a ChArUco board is not tracked in video yet")
-    info = probe_clip(path)
+    info = info or probe_clip(path)
     W, H = info.size
-    search = max(1, int(max(W, H) // SEARCH_LONG_SIDE_PX))
+    search = _reduction(max(W, H) / SEARCH_LONG_SIDE_PX)
     factor = search                           # of the frame the board is followed in, set by its squares
     times, coarse = [], []
     windows: dict[int, CornerWindows] = {}
@@ -405,7 +414,7 @@ def track_clip(path, board: Board, progress: bool = True, name: str | None = Non
                 if uv is not None:
                     grid = uv.reshape(board.rows, board.cols, 2)
                     square = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2)))
-                    renewed = int(np.clip(square // FOLLOW_SQUARE_PX, 1, 4 * search))
+                    renewed = _reduction(min(square / FOLLOW_SQUARE_PX, 4 * search))
                     if renewed != factor:
                         factor, small = renewed, np.ascontiguousarray(reduce_image(gray, renewed))
             if uv is None:
@@ -446,10 +455,11 @@ def video_corners(clips: dict[str, Path], board: Board, reference: str | None = 
     from ..estimation.time_offset import estimate_offsets
 
     ref = choose_reference(clips, reference)
-    total = sum(probe_clip(p).frames for p in clips.values())
-    with progress_bar("reading clips", total, enabled=progress) as advance:
+    infos = {name: probe_clip(path) for name, path in clips.items()}
+    with progress_bar("reading clips", sum(i.frames for i in infos.values()), enabled=progress) as advance:
         # one thread per clip: decoding, OpenCV and most of numpy release the GIL
-        found = interruptible_map(lambda item: track_clip(item[1], board, name=item[0], advance=advance),
+        found = interruptible_map(lambda item: track_clip(item[1], board, name=item[0], advance=advance,
+                                                          info=infos[item[0]]),
                                   list(clips.items()), max(1, min(len(clips), os.cpu_count() or 1)))
         tracks = dict(zip(clips, found))
     for name, tr in tracks.items():
