@@ -114,15 +114,15 @@ def test_calibrate_prints_every_photo_and_exclude_works_on_a_corners_json(corner
 def test_the_photo_table_says_why_a_photo_was_dropped_or_not_found(corners_json, tmp_path, run_cli, monkeypatch):
     monkeypatch.setenv("COLUMNS", "200")
     cs = load_corners(corners_json)
-    cs.cameras["wide"].views["IMG_05"] = cs.cameras["wide"].views["IMG_05"] + np.random.default_rng(0).normal(
-        0, 3.0, (40, 2))
+    # the board moved by 25 px between the shots of IMG_05 (a blurred photo, issue 38, is kept)
+    cs.cameras["wide"].views["IMG_05"] = cs.cameras["wide"].views["IMG_05"] + np.array([25.0, 0.0])
     cs.cameras["tele"].views["IMG_07"] = None
     save_corners(tmp_path / "corners.json", cs)
     res = run_cli("calibrate", tmp_path / "corners.json", "-o", tmp_path / "calib.json", "--no-compare-models")
     assert res.code == 0, res.err
     table = res.out[res.out.index("Photos:"):]
     row5 = next(line for line in table.splitlines() if line.strip().startswith("IMG_05"))
-    assert "wide: dropped: " in row5 and "of its corners are outliers" in row5
+    assert "wide: dropped: " in row5 and "its photos fit their cameras alone" in row5
     assert float(row5.split()[1]) > 2
     row7 = next(line for line in table.splitlines() if line.strip().startswith("IMG_07"))
     assert "tele: board not found" in row7 and row7.split()[2] == "-"

@@ -4,8 +4,8 @@ A corner is an outlier when its residual is far above its photo's own noise (:fu
 :data:`dualcal.estimation.photo_noise.MEDIAN_LENGTH` times the photo's noise, estimated with every camera alone:
 :mod:`dualcal.estimation.photo_noise`), so that a blurred photo keeps its corners; it is left out
 (``dropped_corners``). (Without the photos weighed by their noise, the limit is that of the typical residual of
-the photo's camera.) A photo is dropped only for a gross misfit: its noise beyond a tenth of its squares (another
-numbering, another board), or most of its corners outliers against its own noise (:data:`MOST_CORNERS`: a board
+the photo's camera.) A photo is dropped only for a gross misfit: its median residual beyond a tenth of its squares
+(another numbering, another board), or most of its corners outliers against its own noise (:data:`MOST_CORNERS`: a board
 moved between the shots of an instant), and only where that really improves the fit, with a recorded reason; in
 a tied rig, an instant whose photos fit their cameras alone but not the rig is dropped whole (the cameras' shots
 disagree), or the photo whose own focal length explains the misfit (a refocus).
@@ -53,7 +53,6 @@ def corner_outliers(sol: Solution, factor: float, noise: PhotoNoise | None = Non
     camera's median residual."""
     p = sol.problem
     length = np.linalg.norm(sol.residuals, axis=2) if lengths is None else lengths          # (B, N), NaN
-
     cams = np.array([c for c, _, _ in p.blocks])
     limit = np.empty(len(cams))
     for c in np.unique(cams):
@@ -67,16 +66,24 @@ def corner_outliers(sol: Solution, factor: float, noise: PhotoNoise | None = Non
 
 
 def outlier_shares(sol: Solution, factor: float, noise: PhotoNoise | None = None,
-                   lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Each photo's share of outlier corners (B,) and its limit (B,) px (:func:`corner_outliers`)."""
-    out, limit, _ = corner_outliers(sol, factor, noise, lengths)
-    return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1), limit
+                   lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each photo's share of outlier corners (B,), its limit (B,) px and how far off it is (B,): its median
+    residual over its limit (:func:`corner_outliers`)."""
+    out, limit, length = corner_outliers(sol, factor, noise, lengths)
+    with np.errstate(all="ignore"):
+        off = np.nanmedian(length, axis=1) / limit
+    return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1), limit, off
 
 
-def find_outlier(shares: np.ndarray, limits: np.ndarray):
+def find_outlier(shares: np.ndarray, limits: np.ndarray, off: np.ndarray | None = None):
     """The photo with the largest share of outlier corners (:func:`outlier_shares`), if more than
-    :data:`MOST_CORNERS` of them are, as ``(block, share, limit_px)``; else None."""
-    worst = int(np.argmax(shares))
+    :data:`MOST_CORNERS` of them are, as ``(block, share, limit_px)``; else None. With ``off`` (how far each
+    photo is off its limit), the photo furthest off of those: against each photo's own noise, a bad instant
+    pulls the rig so that every photo has most of its corners off its limit, but none as far as its own."""
+    if off is None:
+        worst = int(np.argmax(shares))
+    else:
+        worst = int(np.argmax(np.where(shares > MOST_CORNERS, off, -np.inf)))
     if shares[worst] <= MOST_CORNERS:
         return None
     return worst, float(shares[worst]), float(limits[worst])
@@ -130,11 +137,11 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
     weighed by it and adjusted again until the weights settle (:data:`REWEIGHT_TOLERANCE`); the ``noise``
     returned is the one whose weights the solution has, with the ``setup`` of its switches (the weights, and
     the scale of a prior on known intrinsics, which they hold until the first solution's noise gives it; without
-    ``weigh``, its ``s0``). With ``noise`` (the cameras alone's, ``setup``'s weights
-    from it) in a tied rig, a photo is judged against it, and no single corner: a corner that fits its photo's
-    own pose but not the rig's is no corner error but its instant's misfit (a shot out of sync, a board moved),
-    which the photo or the instant is dropped for, or ``rig_rigid`` names. Without either, the corners are judged
-    against their camera's median residual.
+    ``weigh``, its ``s0``). With ``noise`` (the cameras alone's, ``setup``'s weights from it) in a tied rig, a
+    photo is judged against it, and no single corner: a corner that fits its photo's own pose but not the rig's
+    is no corner error but its instant's misfit (a shot out of sync, a board moved), which the photo or the
+    instant is dropped for, or ``rig_rigid`` names. Without either, the corners are judged against their camera's
+    median residual.
     """
     alone_share = {}
     if factor and setup.mode != "none" and start is not None:
@@ -206,8 +213,8 @@ def _leave_out(setup: Setup, sol: Solution, blocks, alone: Solution | None, fact
              if k in index and _views_left(blocks, blocks[index[k]][0]) > MIN_VIEWS]
     if gross:                            # the worst first: it may have pulled the others' fit off
         return _without_gross(setup, blocks, gross[0], dropped)
-    shares, limits = outlier_shares(sol, factor, noise, lengths)
-    out = find_outlier(shares, limits)
+    shares, limits, off = outlier_shares(sol, factor, noise, lengths)
+    out = find_outlier(shares, limits, None if noise is None else off)
     if out is None:
         bad, limit, length = corner_outliers(sol, factor, noise, lengths)
         if not bad.any() or not corners_too:
