@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[report,fleet,video,test,docs,app]'
+	$(BIN)/python -m pip install --quiet -e '.[report,fleet,video,test,docs,app,kalibr]'
 	$(BIN)/python -m compileall -q src    # as a non-editable install would: start-up without compiling
 	touch $(STAMP)
 

@@ -138,7 +138,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.action == "test-data":
         cases = [c for c in SYNTHETIC_CASES + REAL_CASES if c["name"] in TEST_CASES]
-        results = run(cases, args.corners)
+        unweighted = {"weigh_photos": False}          # as the test compares them: every photo alike
+        results = run(cases, args.corners, unweighted)
         doc = {"about": "References of tests/test_calibrate_regression.py, made by "
                         "benchmarks/bench_calibrate_regression.py test-data on main's code; the real stereo rig's "
                         "corners rounded to 0.001 px",
@@ -148,7 +149,7 @@ def main(argv=None) -> int:
         for r in doc["cases"].values():
             if r["case"].get("real") == "stereo":         # the references are those of the rounded corners
                 with collect_warnings():
-                    r["summary"] = summary(calibrate_rig(stored, **r["case"]["options"]))
+                    r["summary"] = summary(calibrate_rig(stored, **r["case"]["options"], **unweighted))
             del r["summary"]["covariance"]                # the sigmas stand for it here: the file stays small
         TEST_DATA.write_text(json.dumps(doc, separators=(",", ":")) + "\n")
         print(f"wrote {TEST_DATA} ({TEST_DATA.stat().st_size // 1024} KB)")

@@ -175,6 +175,9 @@ API_MODULES = {
     "dualcal.estimation.advise": ["advise", "prior_from_rig", "nominal_prior", "describe", "Advice", "AdvisedPose"],
     "dualcal.files.boardprint": ["write_board"],
     "dualcal.synthetic.synth_roll": ["write_camera_roll"],
+    "dualcal.files.imports": ["Imported", "write_imported"],
+    "dualcal.estimation.matching": ["match_point", "Match", "epipolar_curve"],
+    "dualcal.files.photos": ["read_focus", "FocusFacts"],
     "dualcal.messages": None,
 }
 

@@ -86,10 +86,11 @@ def wait_idle(client, pid: str, version: int | None = None, timeout: float = 120
     raise AssertionError(f"still busy after {timeout} s: {doc}")
 
 
-def cli_calibration(photos_parent: Path, out: Path, *flags) -> dict:
-    """``cd PROJECT && dualcal calibrate photos ... -o OUT`` in a process of its own (as a user runs it)."""
+def cli_calibration(photos_parent: Path, out: Path, *flags, source: str = "photos") -> dict:
+    """``cd PROJECT && dualcal calibrate photos ... -o OUT`` (or another ``source``: a corners.json) in a process of
+    its own (as a user runs it)."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    subprocess.run([sys.executable, "-m", "dualcal", "calibrate", "photos", "--board", "8x5", "--square", "30",
+    subprocess.run([sys.executable, "-m", "dualcal", "calibrate", source, "--board", "8x5", "--square", "30",
                     "-o", str(out), *flags], cwd=photos_parent, env=env, check=True, capture_output=True)
     return json.loads(out.read_text())
 
@@ -111,6 +112,17 @@ def assert_same_calibration(a: dict, b: dict, rel: float = 1e-9) -> int:
                     compared += 1
     assert a["views"].keys() == b["views"].keys()
     return compared
+
+
+def assert_within_sigma(a: dict, b: dict, share: float = 1e-3) -> None:
+    """Every camera's parameter and the rig's baseline agree within ``share`` of their sigma (two calibrations of
+    corners that differ by the corners.json's rounding to 1e-5 px)."""
+    assert a["cameras"].keys() == b["cameras"].keys() and a["views"].keys() == b["views"].keys()
+    for name, cam in a["cameras"].items():
+        for key, sigma in cam["sigma"].items():
+            assert abs(cam[key] - b["cameras"][name][key]) <= share * sigma, (name, key, cam[key], b["cameras"][name][key])
+    for name, rel in a["rig"].items():
+        assert abs(rel["baseline_mm"] - b["rig"][name]["baseline_mm"]) <= share * rel["sigma"]["baseline_mm"], name
 
 
 def _flat(x):
@@ -263,9 +275,10 @@ def a_camera_roll_calibrates_as_the_command_does(client, workspace, roll, tmp_pa
     assert {p["camera"] for p in photos.values() if p["camera"]} == {"wide", "tele"}
     assert [n for n, p in photos.items() if p["found"] is False]            # the roll's photo without a board
     assert all(p["used"] for p in photos.values())
-    app_calib = json.loads((folder / "calib.json").read_text())
-    compared = assert_same_calibration(app_calib, cli_calibration(folder, tmp_path / "cli.json"))
-    assert compared > 30
+    app_calib = json.loads((folder / "calib.json").read_text())        # what the commands give on the corners.json
+    compared = assert_same_calibration(app_calib, cli_calibration(folder, tmp_path / "cli.json", source="corners.json"))
+    assert compared > 30                                    # and on the photos, but for that file's rounding to 1e-5 px
+    assert_within_sigma(app_calib, cli_calibration(folder, tmp_path / "cli-photos.json"))
     # the files the page links to are the files on disk
     for name in doc["files"]:
         assert client.get(f"/api/projects/{pid}/files/{name}", headers=AUTH).content == (folder / name).read_bytes()
@@ -300,8 +313,11 @@ def a_camera_roll_calibrates_as_the_command_does(client, workspace, roll, tmp_pa
     length = measured["lengths"][0]
     assert abs(length["length_mm"] - 210.0) < 4 * length["sigma_mm"] + 0.5, length
 
-    # leave a photo out: a new calibration from the same detections, as `calibrate --exclude` gives it
+    # leave a photo out: a new calibration from the corners already found, as `calibrate corners.json --exclude`
+    # gives it (and as `calibrate photos --exclude`, but for the corners.json's rounding to 1e-5 px)
     left = next(n for n, p in photos.items() if p["camera"] == "tele" and p["status"] == "kept")
+    stored = tmp_path / "stored-corners.json"
+    stored.write_bytes((folder / "corners.json").read_bytes())
     stale = doc["version"] - 1
     r = client.post(f"/api/projects/{pid}/use", json={"photos": {left: False}, "version": stale}, headers=AUTH)
     assert r.status_code == 409                                      # a page that has not seen the last change
@@ -309,8 +325,10 @@ def a_camera_roll_calibrates_as_the_command_does(client, workspace, roll, tmp_pa
     assert r.status_code == 200 and r.json()["version"] == doc["version"] + 1
     after = wait_idle(client, pid, r.json()["version"])
     assert after["calibration"]["current"] and not {p["name"]: p for p in after["photos"]}[left]["used"]
-    excluded = cli_calibration(folder, tmp_path / "cli-x.json", "--exclude", exclude_pattern(left))
-    assert_same_calibration(json.loads((folder / "calib.json").read_text()), excluded)
+    app_left_out = json.loads((folder / "calib.json").read_text())
+    assert_same_calibration(app_left_out, cli_calibration(folder, tmp_path / "cli-x.json", "--exclude",
+                                                          exclude_pattern(left), source=str(stored)))
+    assert_within_sigma(app_left_out, cli_calibration(folder, tmp_path / "cli-p.json", "--exclude", exclude_pattern(left)))
     assert left in json.dumps(json.loads((folder / "corners.json").read_text())["cameras"]["tele"]["excluded"])
     assert client.post(f"/api/projects/{pid}/use", json={"photos": {"nope.jpg": False}}, headers=AUTH).status_code == 400
 
@@ -354,14 +372,18 @@ def two_clients_uploading_at_once_lose_nothing(client, workspace, roll):
 
 
 def test_a_roll_without_exif_as_a_phones_browser_sends_it(client, workspace, tmp_path):
-    """The roll with its EXIF stripped and re-encoded as JPEG (what iOS's upload of a HEIC photo gives): the same
-    cameras, each photo in the same one, and every intrinsic within 4 sigma of the truth."""
+    """The issue's three-lens roll as a phone's browser uploads it: EXIF stripped, re-encoded as JPEG (iOS's upload
+    of a HEIC photo), a fisheye ultra-wide (1130 px), a wide (1340 px) and a third lens (1650 px) all of one size.
+    The app splits it as the roll with its EXIF (every photo in the same camera) and as ``dualcal calibrate`` on the
+    same upload (one code path: the same split, the same calibration but for corners.json's rounding), every focal
+    length and principal point within 4 sigma of the truth, and the page says how sure the split is."""
     import cv2
 
     from dualcal.synthetic.synth import make_truth
-    from dualcal.synthetic.synth_roll import write_camera_roll
+    from dualcal.synthetic.synth_roll import shared_size_rig, write_camera_roll
 
-    truth = make_truth("note8", views=8, seed=11, scale=0.25)
+    truth = make_truth(shared_size_rig({"wide": 1340.0, "ultra": 1130.0, "wide2": 1650.0}), views=8, seed=11,
+                       scale=0.25)
     original = tmp_path / "roll"
     original.mkdir()
     write_camera_roll(truth, original, seed=11, jobs=2)
@@ -378,17 +400,23 @@ def test_a_roll_without_exif_as_a_phones_browser_sends_it(client, workspace, tmp
         doc = wait_idle(client, pid)
         assert doc["error"] is None, doc["error"]
         cameras[pid] = {Path(p["name"]).stem: p["camera"] for p in doc["photos"] if p["camera"]}
-    assert cameras[without] == cameras[with_exif]
+    assert cameras[without] == cameras[with_exif] and set(cameras[without].values()) == {"ultra", "wide", "wide2"}
     calib = json.loads((workspace / without / "calib.json").read_text())
     for name, cam in calib["cameras"].items():
         true = truth.cameras[name]
         for key in ("fx", "fy", "cx", "cy"):
             assert abs(cam[key] - getattr(true, key)) < 4 * cam["sigma"][key], (name, key)
+    command = cli_calibration(workspace / without, tmp_path / "cli.json")
+    assert command["corners"]["roll"] == calib["corners"]["roll"]
+    assert_within_sigma(calib, command)
     clues = {pid: client.get(f"/api/projects/{pid}/result", headers=AUTH).json()["summary"]["roll"]
              for pid in (with_exif, without)}
     assert clues[with_exif]["cameras"].startswith("EXIF lens")                 # the page says which clues were used
     assert clues[without]["cameras"] == "image size, focal length from the board", clues[without]
     assert {c["told_by"] for c in clues[without]["found"]} == {"focal length from the board"}
+    assert clues[without]["cameras_sure"] in ("sure", "certain") and clues[without]["cameras_separation_sigma"] >= 5
+    html = client.get(f"/projects/{without}/part", headers=AUTH).text
+    assert f"{clues[without]['cameras_separation_sigma']:.1f} sigma apart" in html
 
 
 def test_the_pages_the_route_list_the_qr_code_and_the_event_stream(client):
@@ -444,3 +472,26 @@ def test_on_the_local_network_the_pages_show_the_qr_code(tmp_path):
         page = c.get("/", cookies={"dualcal_token": TOKEN}).text
         assert '<img class="qr" src="/api/qr.svg"' in page
         assert c.get("/api/projects", headers={**AUTH, "host": "attacker.example:8765"}).status_code == 400
+
+
+def test_photos_left_out_are_summed_up_by_kind_and_the_charts_labels_tell_the_photos_apart():
+    """Eight photos left out stand in one line ("8 photos left out: 5 show part of the board, 3 show no board"),
+    each once (the detection's reason, not the split's again), the other warnings apart; a phone's names, the same
+    17 characters first, are labelled by what differs; a name in a camera's folder keeps its folder."""
+    from dualcal.app.summary import chart_labels, split_warnings
+
+    part = "only part of the 8x5 chessboard is in the photo (3x3 corners at the frame's edge): too little of it"
+    names = [f"IMG_20210417_0103{n:02d}.jpg" for n in range(8)]
+    warnings = [f"photos/{n}: skipped: {part if k < 5 else 'no 8x5 chessboard found'}" for k, n in enumerate(names)]
+    warnings += [f"{n}: left out (no board found (wide))" for n in names] + ["a warning about no photo"]
+    rest, out = split_warnings(warnings, names + ["IMG_20210417_010399.jpg"])
+    assert rest == ["a warning about no photo"]
+    assert out["count"] == 8 and out["kinds"] == [{"kind": "show part of the board", "count": 5},
+                                                   {"kind": "show no board", "count": 3}]
+    assert [p["photo"] for p in out["photos"]] == names and out["photos"][0]["why"] == part
+    _, one = split_warnings(["IMG_1.JPG: left out (retake: IMG_2.JPG of the same camera is kept)"], ["IMG_1.JPG"])
+    assert one["kinds"] == [{"kind": "retake", "count": 1}]
+    assert chart_labels(names[:3]) == ["…010300", "…010301", "…010302"]
+    assert chart_labels(["wide/IMG_01.jpg", "tele/IMG_01.jpg"]) == ["wide/IMG_01", "tele/IMG_01"]
+    long = chart_labels(["a_photo_with_a_very_long_name_0001.jpeg", "b.jpeg"], width=14)
+    assert long[0] == "a_phot…me_0001" and len(long[0]) == 14

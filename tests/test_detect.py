@@ -17,14 +17,15 @@ from dualcal.cli import main
 from dualcal.files.dataset import open_dataset
 from dualcal.files.detect import detect_dataset, detect_photo, grid_from_hints, load_hints, save_hints
 from dualcal.files.detect.coarse import reduce_image, reduction_factor, to_full_resolution
-from dualcal.geometry.grid import OUTLIER_CEIL_FRACTION, local_spacing_px, neighbour_residuals_px, validate_grid
+from dualcal.geometry.grid import (corner_noise_px, local_spacing_px, neighbour_residuals_px, outlier_limit_px,
+                                   predict_from_neighbours, typical_residual_px, validate_grid)
 from dualcal.files.detect.manual import CornerClicks, connect_clicks
 from dualcal.files.detect.refine import drop_outliers
 from dualcal.files.detect.symmetry import align_symmetric_numbering
 from dualcal.errors import DetectionError, InputError
 from dualcal.files.io import load_corners
 from dualcal.geometry.model import CameraCorners, CornerSet, Pose, observed_mask
-from dualcal.synthetic.render import render_view, shaped_corners_mm, write_photo_set
+from dualcal.synthetic.render import PhoneProcessing, render_view, shaped_corners_mm, write_photo_set
 from dualcal.geometry.rotation import rotation_from_opk
 from dualcal.synthetic.synth import make_truth, true_corners
 
@@ -194,22 +195,27 @@ def _stored_grids():
 
 
 @pytest.mark.parametrize("name", sorted(_stored_grids()))
-def test_stored_real_grids_pass_and_one_corner_moved_by_a_pixel_costs_that_corner(name):
+def test_stored_real_grids_pass_and_a_corner_moved_by_three_times_its_limit_costs_that_corner(name):
+    """The limit is the photo's own: about 6 of its corner noise (or half a percent of a square); a corner moved
+    three times past it (a corner on the wrong feature) is the one left out."""
     board, uv = _stored_grids()[name]
     shape = (board.rows, board.cols)
     assert validate_grid(uv, board) is None
-    seen = np.flatnonzero(observed_mask(uv))
+    pred, gain = predict_from_neighbours(uv, shape)
+    spacing = local_spacing_px(uv, shape)
+    limit = outlier_limit_px(spacing, typical_residual_px(np.linalg.norm(uv - pred, axis=1), shape), gain)
+    noise = corner_noise_px(uv, shape)
+    assert 0.01 < noise < 0.5, noise                  # real photos: a few hundredths to a few tenths of a pixel
+    seen = np.flatnonzero(observed_mask(uv) & np.isfinite(limit))
     rng = np.random.default_rng(len(name))
     for k in rng.choice(seen, 4, replace=False):
         bad = uv.copy()
-        bad[k] += 1.2 * local_spacing_px(uv, shape)[k] * OUTLIER_CEIL_FRACTION * np.array([0.8, -0.6]) + [1.0, 0.0]
+        bad[k] += 3.0 * limit[k] * np.array([0.8, -0.6])
         reason = validate_grid(bad, board)
         assert reason is not None and reason.startswith(f"corner {k} is "), (k, reason)
-        cleaned = drop_outliers(bad, shape, local_spacing_px(uv, shape))
+        cleaned = drop_outliers(bad, shape, spacing)
         lost = set(np.flatnonzero(~observed_mask(cleaned))) - set(np.flatnonzero(~observed_mask(uv)))
-        # the planted corner, and at most one neighbour that was near its limit and lost the
-        # planted corner from its prediction (the stereo set's corners are 0.2 px noisy)
-        assert k in lost and len(lost) <= 2, (k, lost)
+        assert lost == {k}, (k, lost)
         assert validate_grid(cleaned, board) is None
 
 
@@ -379,6 +385,9 @@ def test_detect_command_writes_corners_json_and_overlays(small_set, tmp_path):
         for v, uv in cc.views.items():
             assert _rms(uv, tc[cam][v]) < 0.05
             assert (overlays / cam / f"{v}.jpg").is_file()
+            # the renders' blur: a Gaussian of 1.2 px and the pixel's box, edges 1.2 x as wide; their noise
+            quality = cc.meta["photo_quality"][v]
+            assert 1.2 < quality["blur_px"] < 2.0 and 0.002 < quality["corner_noise_px"] < 0.03, quality
 
 
 def test_detect_command_uses_hints_and_rejects_bad_usage(small_set, tmp_path, capsys):
@@ -704,3 +713,79 @@ def test_stripes_that_fool_opencvs_quick_look_cost_one_sb_attempt(shared_data, t
     assert res.uv is None and res.reason == "no 7x9 chessboard found", res.reason
     assert quick_looks == [True]
     assert sb_flags == [cv2.CALIB_CB_NORMALIZE_IMAGE]
+
+
+def _opencv_corners(gray: np.ndarray, board: Board) -> np.ndarray | None:
+    """OpenCV's classic detector (else SB, exhaustive), then ``cornerSubPix`` in a window of 0.4 of the smallest
+    spacing found (2-30 px), as a careful OpenCV user calibrates; None where neither finds the board."""
+    ok, grid = cv2.findChessboardCorners(gray, (board.cols, board.rows),
+                                         cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+    if not ok:
+        ok, grid = cv2.findChessboardCornersSB(gray, (board.cols, board.rows),
+                                               flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
+    if not ok:
+        return None
+    g = grid.reshape(board.rows, board.cols, 2)
+    spacing = min(np.linalg.norm(np.diff(g, axis=0), axis=2).min(), np.linalg.norm(np.diff(g, axis=1), axis=2).min())
+    half = int(np.clip(0.4 * spacing, 2, 30))
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)
+    return cv2.cornerSubPix(gray, grid, (half, half), (-1, -1), crit).reshape(-1, 2).astype(float)
+
+
+def test_every_defocused_or_phone_processed_board_opencv_finds_is_kept_and_measured_better(tmp_path):
+    """The class of issue 38's lost photos: boards out of focus (a defocused lens's disc of 5, 10 and 20 px radius
+    at 1280 x 960, squares of 45-70 px), half of them processed as a phone does (bilateral denoise, unsharp mask,
+    JPEG 80-90). Every board OpenCV's classic or SB detector finds, dualcal finds, keeping every corner, and its
+    corners are no further from the truth than OpenCV's cornerSubPix on the same photos (RMS over those photos,
+    no tolerance; measured: 0.02-0.11 px against 0.04-12 px). Its blur grows with the defocus, and its corner
+    noise is that of the photo (within a factor of 3 of its error against the truth)."""
+    board = Board(7, 5, 30.0)
+    truth = make_truth("stereo", views=6, seed=3, scale=2, max_tilt_deg=45, fill=(0.5, 0.8), board=board)
+    tc = true_corners(truth)
+    ours, theirs, blur = [], [], {}
+    for i, (view, defocus) in enumerate(zip(truth.view_poses, (5, 5, 10, 10, 20, 20))):
+        cam, pose = truth.cameras["left"], truth.camera_pose("left", view)
+        processing = PhoneProcessing(quality=80 + 5 * (i // 2)) if i % 2 else None
+        img = render_view(cam, pose, board, np.random.default_rng([3, i]), defocus_px=defocus, noise=0.015,
+                          processing=processing)
+        path = tmp_path / f"defocus_{defocus}_{i}.png"
+        cv2.imwrite(str(path), img)
+        uv_true = tc["left"][view]
+        found = _opencv_corners(img, board)
+        res = detect_photo(path, board)
+        if res.uv is not None:
+            error = _rms(res.uv, uv_true)
+            assert res.corner_noise_px / 3 < error < 3 * res.corner_noise_px, (path.name, error, res.corner_noise_px)
+            blur.setdefault(defocus, []).append(res.blur_px)
+        if found is None:
+            continue
+        assert res.uv is not None, (path.name, res.reason)
+        assert observed_mask(res.uv).all(), path.name
+        ours.append(res.uv - uv_true)
+        theirs.append(_matched(found, uv_true))
+    assert len(ours) >= 4 and 20 in blur
+    assert _rms(np.concatenate(ours), 0.0) <= _rms(np.concatenate(theirs), 0.0)
+    assert min(blur[10]) > max(blur[5]) and min(blur[20]) > max(blur[10])
+
+
+def test_a_photos_corner_noise_is_measured_from_its_own_corners_and_sets_its_outlier_limit():
+    """Known truth: exact corners of the stereo rig (k1 = -0.29) with white noise of 0.03-0.5 px per coordinate.
+    The noise is measured to 20 %; no corner of a noisy photo is an outlier (the limit scales with the photo's
+    noise: no pixel ceiling), while a corner moved by a third of a square (the wrong feature) is; a board found
+    whole keeps its photo with 20 of 54 corners left, one placed from a part needs more than half."""
+    truth = make_truth("stereo", views=4, seed=2)
+    shape = (truth.board.rows, truth.board.cols)
+    rng = np.random.default_rng(5)
+    for sigma in (0.03, 0.1, 0.5):
+        for view, uv in true_corners(truth)["left"].items():
+            noisy = uv + rng.normal(0.0, sigma, uv.shape)
+            assert corner_noise_px(noisy, shape) == pytest.approx(sigma, rel=0.2), (sigma, view)
+            assert validate_grid(noisy, truth.board) is None, (sigma, view)
+            bad = noisy.copy()
+            bad[22] += local_spacing_px(uv, shape)[22] / 3
+            assert validate_grid(bad, truth.board).startswith("corner 22 is "), (sigma, view)
+    few = noisy.copy()
+    few[20:] = np.nan
+    assert validate_grid(few, truth.board, whole=True) is None
+    assert validate_grid(few, truth.board) == ("only 20 of 54 corners passed their checks (at least 28 needed: "
+                                               "more than half of the board)")

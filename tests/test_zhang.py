@@ -1,4 +1,5 @@
-"""Closed-form initialisation (paper sections 1.3-1.6) against exact synthetic data."""
+"""Closed-form initialisation (paper sections 1.3-1.6) against exact synthetic data, and from weak views as peers
+record them (4-12 corners of a board a tenth of the frame wide, near square-on; tests/peer_sessions.py)."""
 
 import dataclasses
 
@@ -7,12 +8,18 @@ import pytest
 
 from dualcal.geometry.camera import LENS_MODELS, ideal_normalized_from_pixel, project_points
 from dualcal.errors import EstimationError
+from dualcal.files.io import load_rig, save_corners
 from dualcal.geometry.rotation import rotation_from_opk
-from dualcal.geometry.model import Pose
-from dualcal.synthetic.synth import make_truth, true_corners
-from dualcal.geometry.zhang import (apply_homography, estimate_homographies, estimate_homography,
-                                    extrinsics_from_homography, initial_camera, intrinsics_from_homographies,
+from dualcal.geometry.model import Pose, observed_mask
+from dualcal.progress import collect_warnings
+from dualcal.synthetic.synth import make_truth, noisy_corner_set, true_corners
+from dualcal.synthetic.synth_caliscope import CALISCOPE_BOARD, make_caliscope_truth, write_caliscope_session
+from dualcal.workflow import calibrate_corners
+from dualcal.geometry.zhang import (PERSPECTIVE_SIGNIFICANCE, apply_homography, estimate_homographies,
+                                    estimate_homography, extrinsics_from_homography, homography_covariances,
+                                    initial_camera, intrinsics_from_homographies, perspective_z,
                                     radial_distortion_linear, spans_a_plane)
+from peer_sessions import WEBCAMS, peer_session, square_on_session
 
 
 def _pinhole_views(truth, name, skew=0.0):
@@ -185,12 +192,13 @@ def test_a_view_of_four_corners_has_no_say_in_the_closed_form():
 
 
 def test_linear_k1_k2_that_fold_the_lens_where_the_corners_are_start_at_zero(monkeypatch):
-    """A poor closed form (here: 4 x the focal length, the principal point far off) makes the
-    linear k1 k2 fold the lens inside the corners; the adjustment could not start from there."""
+    """A poor closed form (here: 4 x the focal length, the principal point far off, and no constrained one to
+    prefer) makes the linear k1 k2 fold the lens inside the corners; the adjustment could not start from there."""
     truth = make_truth("note8", 6, seed=14)
     cam, xy, views = _pinhole_views(truth, "tele")
     bad = dataclasses.replace(cam, fx=4 * cam.fx, fy=4 * cam.fy, cx=2900.0, cy=300.0)
     monkeypatch.setattr("dualcal.geometry.zhang.intrinsics_from_homographies", lambda *args, **kwargs: bad)
+    monkeypatch.setattr("dualcal.geometry.zhang.common_focal", lambda *args, **kwargs: float("nan"))
     est, _ = initial_camera(xy, views, cam.image_size)
     assert est.k1 == est.k2 == 0.0
     for uv in views.values():
@@ -215,7 +223,8 @@ def test_a_fisheye_of_145_degrees_starts_near_its_truth():
     """phone3's ultra-wide (kb4, 73 degrees from the axis at the image's corners; views that put the
     board near its edges): the equidistant un-projection and Zhang's closed form on the rays' pinhole
     image start within a few per cent of the truth, the poses in front, and ``k1 .. k4`` fold nowhere
-    the corners are; the radial-tangential start on the same corners is far off."""
+    the corners are. The radial-tangential start on the same corners, whose homographies are of the corners undistorted
+    by the division model, starts near too (without that model it was 20 % off)."""
     truth = make_truth("phone3", 12, seed=4)
     obs = {v: uv for v, uv in true_corners(truth)["ultra"].items() if not np.isnan(uv).all()}
     true = truth.cameras["ultra"]
@@ -229,4 +238,113 @@ def test_a_fisheye_of_145_degrees_starts_near_its_truth():
     error_px = [np.max(np.linalg.norm(project_points(cam, poses[v].apply(X)) - uv, axis=1)) for v, uv in obs.items()]
     assert np.median(error_px) < 0.02 * true.fx
     pinhole, _ = initial_camera(xy, obs, true.image_size)
-    assert abs(pinhole.fx / true.fx - 1) > 0.05
+    assert abs(pinhole.fx / true.fx - 1) < 0.03
+
+
+# ---------------------------------------------------------------------------- weak views, as peers record them
+
+
+def test_a_view_whose_corners_fix_no_homography_is_left_out_and_resected():
+    """caliscope's cam_2 failed on two photos of five corners, four on one column: they span a plane but fix no
+    homography. With exact corners, the closed form of the other views stays exact, and those views get their exact
+    poses by space resection, said in a warning."""
+    truth = make_truth("note8", 6, seed=8)
+    cam, xy, views = _pinhole_views(truth, "tele")
+    cols = truth.board.cols
+    uv = views["IMG_03"]
+    kept = [2, 2 + cols, 2 + 2 * cols, 2 + 3 * cols, 3 + 3 * cols]            # four on a column, one off it
+    uv[np.setdiff1d(np.arange(len(uv)), kept)] = np.nan
+    with collect_warnings() as warned:
+        est, poses = initial_camera(xy, views, cam.image_size, name="tele")
+    np.testing.assert_allclose(est.as_vector()[:5], cam.as_vector()[:5], rtol=1e-7, atol=1e-5)
+    np.testing.assert_allclose(poses["IMG_03"].t_mm, truth.camera_pose("tele", "IMG_03").t_mm, atol=1e-6)
+    assert warned == ["tele: 1 photo(s) (IMG_03) fix no homography (no four of their corners without three on one "
+                      "line): left out of the closed form, their start poses from their corners by PnP (SQPnP)"]
+
+
+def test_where_zhangs_closed_form_gives_no_camera_the_constrained_one_starts():
+    """Two views with skew free (Zhang's Model 2 needs three) of a camera with square pixels and its principal point at
+    the image centre: the constrained closed form gives its exact focal length, and a warning says which start it
+    is."""
+    truth = make_truth("note8", 2, seed=7)
+    cam, xy, views = _pinhole_views(truth, "wide")
+    w, h = cam.image_size
+    cam = dataclasses.replace(cam, fy=cam.fx, cx=0.5 * (w - 1), cy=0.5 * (h - 1))
+    X = np.column_stack([xy, np.zeros(len(xy))])
+    views = {v: project_points(cam, truth.camera_pose("wide", v).apply(X)) for v in views}
+    with collect_warnings() as warned:
+        est, poses = initial_camera(xy, views, cam.image_size, skew=True, name="wide")
+    np.testing.assert_allclose(est.as_vector()[:5], cam.as_vector()[:5], rtol=1e-7, atol=1e-5)
+    for v, pose in poses.items():
+        np.testing.assert_allclose(pose.t_mm, truth.camera_pose("wide", v).t_mm, rtol=1e-7)
+    assert len(warned) == 1 and warned[0].startswith(
+        "wide: Zhang's closed form with skew free (Model 2) needs at least 3 views (2 given) from 2 photos; it "
+        "starts from square pixels, the principal point at the image centre and one focal length")
+
+
+def test_parallel_boards_are_refused_whichever_closed_form_starts():
+    """Five tilted boards, all parallel (shifted only): Zhang's closed form gives no camera, and the constrained one,
+    which would, fixes no principal point for the adjustment: refused, saying why."""
+    truth = make_truth("note8", 1, seed=2)
+    base = truth.view_poses["IMG_01"]
+    for k in range(2, 6):
+        truth.view_poses[f"IMG_{k:02d}"] = Pose(base.R.copy(), base.t_mm + [8.0 * k, -4.0 * k, 15.0 * k])
+    xy = truth.board.object_points_mm()[:, :2]
+    with pytest.raises(EstimationError, match="wide: its boards are all parallel to each other"):
+        initial_camera(xy, noisy_corner_set(truth, 0.05).cameras["wide"].found(), truth.cameras["wide"].image_size,
+                       name="wide")
+
+
+def test_the_perspective_of_boards_seen_square_on_is_noise_of_unit_spread():
+    """The perspective test's statistic (a chi-square of the homographies' third rows, as a normal deviate) on 60
+    sessions of 12 boards seen square-on (pinhole, 0.3 px): mean 0 and spread 1 within 3 of their sampling errors, so
+    that its limit of 3.09 lets such a session through but once in a thousand."""
+    xy = CALISCOPE_BOARD.object_points_mm()[:, :2]
+    z = []
+    for seed in range(60):
+        corners = noisy_corner_set(square_on_session(WEBCAMS[2].pinhole(), seed, 12), 0.3, seed).cameras["cam"]
+        uvs = np.array(list(corners.found().values()))
+        seen = observed_mask(uvs)
+        Hs = estimate_homographies(xy, uvs, seen)
+        z.append(perspective_z(Hs, *homography_covariances(Hs, xy, uvs, seen)))
+    assert abs(np.mean(z)) < 3 / np.sqrt(60) and abs(np.std(z) - 1) < 3 / np.sqrt(2 * 60)
+    assert PERSPECTIVE_SIGNIFICANCE == pytest.approx(3.09)
+
+
+def test_a_camera_whose_boards_are_all_seen_square_on_is_refused_in_one_line(tmp_path, run_cli):
+    corners = noisy_corner_set(square_on_session(WEBCAMS[2], 0), 0.3, 0)
+    save_corners(tmp_path / "corners.json", corners)
+    res = run_cli("calibrate", tmp_path / "corners.json", "--rig", "none", "-o", tmp_path / "calib.json")
+    assert res.code == 2 and len(res.err_lines) == 1 and not (tmp_path / "calib.json").exists()
+    assert "fix no focal length: their boards' perspective is within their corners' noise" in res.err_lines[0]
+    assert res.err_lines[0].endswith("(see docs/checks.md#estimationerror)")
+
+
+@pytest.mark.parametrize("seed", [7, 16, 27, 34])
+def test_a_peers_session_of_one_webcam_calibrates(seed):
+    """Sessions as peers record them (:func:`_peer_session`: 20-50 views, 4-12 corners each, 0.3 px) whose closed
+    form failed before (B not positive definite: 16 and 34; a view that fixes no homography: 7 and 27): the camera
+    calibrates alone, its fx within 3 sigma and 10 % of the truth."""
+    cam = WEBCAMS[seed % 4]
+    truth = peer_session(cam, 20 + seed % 31, seed)
+    with collect_warnings():
+        rig = calibrate_corners(noisy_corner_set(truth, 0.3, seed), rig_mode="none", model="k1k2p1p2k3",
+                                compare_lens=False)
+    fx, sigma = rig.cameras["cam"].fx, rig.camera_sigma["cam"]["fx"]
+    assert abs(fx - cam.fx) < 3 * sigma and abs(fx / cam.fx - 1) < 0.10
+
+
+def test_every_webcam_of_a_caliscope_session_with_small_boards_calibrates_alone(tmp_path, run_cli):
+    """A caliscope session as its extrinsic recordings have it (dualcal.synthetic.synth_caliscope: four webcams, the
+    board a tenth of the frame, 30 moments, 0.3 px), imported and calibrated with ``--rig none``: every camera's fx
+    within 3 sigma and 12 % of the truth."""
+    truth = make_caliscope_truth(moments=30, seed=0)
+    write_caliscope_session(tmp_path / "session", truth, noise_px=0.3, seed=0, camera_array=False)
+    assert run_cli("import", "caliscope", tmp_path / "session", "--image-size", "1280x720",
+                   "-o", tmp_path / "imported").code == 0
+    res = run_cli("calibrate", tmp_path / "imported" / "corners.json", "--rig", "none", "-o", tmp_path / "calib.json")
+    assert res.code == 0, res.err
+    rig = load_rig(tmp_path / "calib.json")
+    for name, cam in truth.cameras.items():
+        fx, sigma = rig.cameras[name].fx, rig.camera_sigma[name]["fx"]
+        assert abs(fx - cam.fx) < 3 * sigma and abs(fx / cam.fx - 1) < 0.12, name

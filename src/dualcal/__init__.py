@@ -24,6 +24,7 @@ _API = {
     "Board": "geometry.board", "CameraModel": "geometry.camera", "Pose": "geometry.model",
     "CornerSet": "geometry.model",
     "CameraCorners": "geometry.model", "RigModel": "geometry.model", "RigRelation": "geometry.model",
+    "KnownIntrinsics": "geometry.model",
     # the math
     "project_points": "geometry.camera", "undistort_points": "geometry.camera", "distort_points": "geometry.camera",
     "calibrate_rig": "estimation.calibrate", "triangulate": "estimation.intersect", "evaluate": "estimation.evaluation",
@@ -38,9 +39,11 @@ _API = {
     # files
     "load_corners": "files.io", "save_corners": "files.io", "load_rig": "files.io", "save_rig": "files.io",
     "render_report": "pages.report", "write_export": "files.export",
+    "import_files": "files.imports", "read_known_intrinsics": "files.imports", "load_intrinsics": "files.io",
+    "save_intrinsics": "files.io",
     # synthetic truth
     "make_truth": "synthetic.synth", "noisy_corner_set": "synthetic.synth", "truth_rig_model": "synthetic.synth",
-    "write_photo_set": "synthetic.render",
+    "write_photo_set": "synthetic.render", "write_caliscope_session": "synthetic.synth_caliscope",
     # errors
     "DualcalError": "errors", "InputError": "errors", "EstimationError": "errors",
     "NotInvertibleError": "errors", "DetectionError": "errors",

@@ -178,10 +178,13 @@ ERRORS = {
         "meaning": "A file, folder, flag or JSON document is missing, malformed or does not fit the others.",
         "cause": "A typo in a path or flag; a folder holding both photos and subfolders; cameras whose photos pair "
                  "with none of the reference camera's; a JSON file edited by hand that breaks its schema (the line "
-                 "names the key); an eval.json of another calibration; a photo too large to be one.",
+                 "names the key); an eval.json of another calibration; a photo too large to be one; a camera roll "
+                 "without EXIF whose lenses of one image size the photos cannot tell apart (their focal lengths and "
+                 "bends within 5 sigma of each other, or scattering more than one lens's without a gap).",
         "action": "Do what the line says. `dualcal schema NAME` prints the schema of a JSON file; `dualcal COMMAND "
                   "--help` lists the flags.",
-        "examples": ["pair with none of", "must be greater than 1", "was computed from another calibration than"],
+        "examples": ["pair with none of", "must be greater than 1", "was computed from another calibration than",
+                     "which lens took which photo cannot be told"],
     },
     "EstimationError": {
         "title": "an estimate could not be made",
@@ -208,7 +211,9 @@ ERRORS = {
                    "corners against their neighbours). In a dataset such a photo is skipped with a warning naming "
                    "it; the error stops the command only where no photo is left.",
         "cause": "A wrong `--board` (it counts inner corners: a board of 9 x 6 squares is `8x5`), the board cut "
-                 "off by the frame, glare, blur, or a board too small in the photo.",
+                 "off by the frame, glare, blur so strong that OpenCV's detectors do not find the board either "
+                 "(a blurred board they find is kept: its corners are noisier, and the photo table says so), or a "
+                 "board too small in the photo.",
         "action": "Count the inner corners again; `dualcal detect --overlays DIR` draws what was found on each "
                   "photo; where detection fails, `dualcal pick` lets you click the board's four outer corners.",
         "examples": ["chessboard found"],
@@ -276,6 +281,7 @@ COMMAND_PAGES = {
     "detect": "how-to-shoot.md",
     "evaluate": "reading-results.md",
     "export": "how-to/export.md",
+    "import": "how-to/import.md",
     "measure": "how-to/measure.md",
     "pick": "how-to/manual.md",
     "rectify": "how-to/rectify.md",

@@ -9,6 +9,8 @@ the same input gives the same files whichever way it came in:
   without EXIF) is split into cameras and instants after its photos are detected, each once.
 * :func:`calibrate_corners`: :func:`dualcal.estimation.calibrate.calibrate_rig` and the comparison of lens
   models by held-out instants, recorded in the calibration (calib.json ``adjustment.lens_models``).
+* :func:`read_intrinsics`, :func:`known_intrinsics_for`: the cameras' intrinsics known before a calibration
+  (``--intrinsics FILE``), checked against the corners they are for.
 * :func:`evaluate_calibration`: the paper's stereo-intersection check as eval.json's content,
   stamped with the fingerprint of the calibration it checked (``calibration_fingerprint``).
 * :func:`read_calibration`: a calib.json, refused when its corners do not fit its parameters.
@@ -25,11 +27,11 @@ from pathlib import Path
 
 from .geometry.board import Board
 from .errors import EstimationError, InputError
-from .geometry.model import CornerSet, RigModel
+from .geometry.model import CornerSet, KnownIntrinsics, RigModel
 from .progress import warn
 
-__all__ = ["DETECTION_OPTIONS", "calibrate_corners", "check_board", "evaluate_calibration", "lens_scores",
-           "read_calibration", "read_corners"]
+__all__ = ["DETECTION_OPTIONS", "calibrate_corners", "check_board", "evaluate_calibration", "known_intrinsics_for",
+           "lens_scores", "read_calibration", "read_corners", "read_intrinsics"]
 
 #: Options of :func:`read_corners` that only apply to a dataset of photos (detection).
 DETECTION_OPTIONS = ("jobs", "hints_path", "overlays_dir", "detect")
@@ -53,7 +55,7 @@ def check_board(given: Board | None, found: Board, source: str) -> Board:
             what = f"board {given.spec()} disagrees with {source}, which has {found.spec()}"
         elif abs(given.square_mm - found.square_mm) > 1e-9 * found.square_mm:
             what = f"square {given.square_mm:g} mm disagrees with {source}, which has {found.square_mm:g} mm"
-        elif given.charuco.marker_mm != found.charuco.marker_mm:
+        elif None not in (given.charuco, found.charuco) and given.charuco.marker_mm != found.charuco.marker_mm:
             what = (f"marker {given.charuco.marker_mm:g} mm disagrees with {source}, which has "
                     f"{found.charuco.marker_mm:g} mm")
         else:
@@ -165,6 +167,73 @@ def _detect(source, board: Board, *, cameras, pair_by, time_tolerance_s, instant
     return replace(corners, reference=reference) if reference is not None else corners
 
 
+def read_intrinsics(paths) -> dict[str, KnownIntrinsics]:
+    """The cameras' known intrinsics in ``paths``, files ``calibrate --intrinsics`` takes (a calib.json, an
+    intrinsics.json, a peer's file: :func:`dualcal.files.imports.read_known_intrinsics`).
+
+    Parameters
+    ----------
+    paths : iterable of str or Path
+        The files.
+
+    Returns
+    -------
+    dict of str to KnownIntrinsics
+        By camera name, from every file.
+
+    Raises
+    ------
+    InputError
+        A missing or unreadable file, or one camera named by two of them.
+    """
+    from .files.imports import read_known_intrinsics
+
+    known: dict[str, KnownIntrinsics] = {}
+    for path in paths:
+        for name, camera in read_known_intrinsics(path).items():
+            if name in known:
+                raise InputError(f"camera {name!r} has known intrinsics in both {known[name].source} and {path}: "
+                                 "give each camera once")
+            known[name] = camera
+    return known
+
+
+def known_intrinsics_for(corners: CornerSet, known: dict[str, KnownIntrinsics]) -> dict[str, KnownIntrinsics]:
+    """The known intrinsics of the cameras of ``corners``, each checked against its corners' image size; the
+    cameras ``known`` names that ``corners`` does not have are warned of and left out.
+
+    Parameters
+    ----------
+    corners : CornerSet
+        The corners to calibrate (:func:`read_corners`).
+    known : dict of str to KnownIntrinsics
+        Known intrinsics by camera name (:func:`read_intrinsics`).
+
+    Returns
+    -------
+    dict of str to KnownIntrinsics
+        Those of the cameras of ``corners``.
+
+    Raises
+    ------
+    InputError
+        A camera whose known intrinsics are of another image size than its photos.
+    """
+    unknown = sorted(set(known) - set(corners.cameras))
+    if unknown:
+        warn(f"{', '.join(unknown)}: known intrinsics of no camera here (cameras: "
+             f"{', '.join(sorted(corners.cameras))}): not used (rename the camera in the file, or when importing "
+             "with --rename, to use them)")
+    for name in sorted(set(known) & set(corners.cameras)):
+        given, photos = known[name].camera.image_size, corners.cameras[name].image_size
+        if tuple(given) != tuple(photos):
+            turned = " (the photos are stored turned)" if tuple(given) == tuple(photos)[::-1] else ""
+            raise InputError(f"camera {name!r}: its known intrinsics ({known[name].source}) are of {given[0]} x "
+                             f"{given[1]} px images, its photos {photos[0]} x {photos[1]} px{turned}: give the "
+                             "intrinsics of this camera at this image size")
+    return {name: k for name, k in known.items() if name in corners.cameras}
+
+
 def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="auto", **options) -> RigModel:
     """Calibrate a rig from its corners, with the lens models compared by held-out instants.
 
@@ -186,7 +255,8 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
     model : str or Mapping[str, str]
         ``"auto"``, a lens model's name for every camera, or ``{camera: name}``.
     **options
-        Those of :func:`dualcal.estimation.calibrate.calibrate_rig`.
+        Those of :func:`dualcal.estimation.calibrate.calibrate_rig` (``known_intrinsics`` among them:
+        :func:`known_intrinsics_for`).
 
     Returns
     -------
@@ -209,6 +279,13 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
     if unmatched and options.get("rig_mode", "rigid") != "none":
         warn(f"the clocks of {', '.join(unmatched)} could not be matched to the reference's (the board was never "
              "seen moving by both at once): every lens is calibrated alone (rig mode none)")
+        options["rig_mode"] = "none"
+    alone = [name for name, cam in corners.cameras.items() if (cam.meta.get("imported") or {}).get("instants_shared")
+             is False]
+    if alone and len(corners.cameras) > 1 and options.get("rig_mode", "rigid") != "none":
+        warn(f"the corners of {', '.join(alone)} are of recordings where each camera filmed the board alone "
+             "(caliscope's intrinsic session): their instants are no moments the cameras share; every lens is "
+             "calibrated alone (rig mode none)")
         options["rig_mode"] = "none"
     rig = calibrate_rig(corners, model=model, **options)
     if compare_lens and model != "auto" and rig.model != "mixed":

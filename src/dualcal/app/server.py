@@ -22,6 +22,8 @@ GET      /api/projects/{id}/files/NAME           corners.json, calib.json, eval.
 GET      /api/projects/{id}/archive.zip          every file of the project
 GET      /api/projects/{id}/photos/NAME          a photo as uploaded; ``thumbs/NAME``, ``screen/NAME``: its previews
 GET      /api/qr.svg                             the QR code of the app's URL (with the token)
+GET      /projects/{id}/measure                  the page measuring with photos of an object
+ANY      /api/projects/{id}/measure/...          its routes (:mod:`dualcal.app.measure_photos`)
 =======  ======================================  ===============================================================
 """
 
@@ -44,8 +46,10 @@ from starlette.staticfiles import StaticFiles
 from .. import __version__
 from ..errors import DualcalError, InputError
 from .jobs import ProjectState, Runner
+from .measure_photos import measure_routes
 from .security import Guard, HostRule
 from .store import EXPORTS, FILES, Settings, Workspace
+from .summary import chart_labels
 from .uploads import PhotoStream, safe_photo_name
 
 __all__ = ["AppConfig", "create_app"]
@@ -104,7 +108,7 @@ def create_app(config: AppConfig) -> Starlette:
     phone_url = config.url if HostRule(config.host).wildcard else ""      # a QR code only where a phone can reach it
     runner = Runner(workspace, config.workers)
     templates = Environment(loader=FileSystemLoader(HERE / "templates"), autoescape=select_autoescape(("html",)))
-    templates.filters.update(anchor=_anchor, num=_number)
+    templates.filters.update(anchor=_anchor, num=_number, brief=_brief)
 
     def page(template: str, **context) -> HTMLResponse:
         html = templates.get_template(template).render(version=__version__, **context)
@@ -146,9 +150,10 @@ def create_app(config: AppConfig) -> Starlette:
             return HTMLResponse("no such project", status_code=404)
         described = describe(state)
         summary = state.summary or {}
+        names = [ph["name"] for ph in described["photos"]]
         html = templates.get_template("part.html").render(
             p=described, s=summary, bars=_bars(described), advice_cards=_advice_cards(summary),
-            exports=_exports(state.project.folder))
+            exports=_exports(state.project.folder), labels=dict(zip(names, chart_labels(names, width=18))))
         return HTMLResponse(html, headers={"content-security-policy": PAGE_POLICY, "cache-control": "no-store"})
 
     # -- the API
@@ -378,6 +383,7 @@ def create_app(config: AppConfig) -> Starlette:
         Route("/api/projects/{project_id}/photos", upload, methods=["POST"]),
         Route("/api/projects/{project_id}/use", use, methods=["POST"]),
         Route("/api/projects/{project_id}/measure", measure, methods=["POST"]),
+        *measure_routes(page, project_route, _json_body, config.max_photo_bytes),
         Route("/api/projects/{project_id}/archive.zip", archive),
         Route("/api/projects/{project_id}/files/{name:path}", get_file),
         *(Route(f"/api/projects/{{project_id}}/{kind}/{{name:path}}", photo_route(kind))
@@ -403,6 +409,16 @@ def _anchor(name: str) -> str:
     return hashlib.sha1(name.encode()).hexdigest()[:12]
 
 
+def _brief(text, width: int = 44) -> str:
+    """A status for a photo's card: cut at a word before ``width`` characters (the whole is in the list of photos
+    left out, above the checks)."""
+    text = str(text)
+    if len(text) <= width:
+        return text
+    cut = text.rfind(" ", 0, width)
+    return text[:cut if cut > width // 2 else width].rstrip(" :,(") + "…"
+
+
 def _number(x) -> str:
     """A parameter or sigma for a table: 4 significant digits beyond the decimal point's need, "-" for none."""
     if x is None:
@@ -416,14 +432,14 @@ def _number(x) -> str:
 
 
 def _bars(described: dict) -> list[dict]:
-    """The per-photo chart: every photo with an RMS, used or left out."""
+    """The per-photo chart: every photo with an RMS, used or left out, each labelled by what tells its name from
+    the others' (:func:`.summary.chart_labels`)."""
+    shown = [ph for ph in described["photos"] if ph["rms_px"] is not None]
     out = []
-    for ph in described["photos"]:
-        if ph["rms_px"] is None:
-            continue
+    for ph, label in zip(shown, chart_labels([ph["name"] for ph in shown])):
         kind = "left-out" if not ph["used"] else "dropped" if str(ph["status"]).startswith("dropped") else "kept"
-        out.append({"photo": ph["name"], "camera": ph["camera"], "rms": ph["rms_px"], "used": ph["used"],
-                    "status_class": kind})
+        out.append({"photo": ph["name"], "label": label, "camera": ph["camera"], "rms": ph["rms_px"],
+                    "used": ph["used"], "status_class": kind})
     return out
 
 

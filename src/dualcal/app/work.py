@@ -6,14 +6,15 @@ the server).
   preview for the screen when it is first asked for (:func:`write_screen_preview`).
 * :func:`run_job`: bring a project's files up to a version: exactly what
 
-      cd PROJECT && dualcal detect photos BOARD-FLAGS [--exclude ...] -o corners.json
-      dualcal calibrate photos BOARD-FLAGS [--exclude ...] -o calib.json
+      cd PROJECT && dualcal detect photos BOARD-FLAGS -o corners.json       (every photo; kept, see below)
+      dualcal calibrate corners.json [--exclude ...] -o calib.json            (corners.json: those used)
       dualcal evaluate calib.json -o eval.json && dualcal advise calib.json -o advise.json
       dualcal export calib.json --format F -o exports/...
 
   compute (:mod:`dualcal.workflow`: every dataset-level step, the camera roll's split, identical files,
   a ChArUco board's dictionary, as the commands run them), with each photo's detection taken from
-  where its upload left it. It tells the server each step done through ``conn``.
+  where its upload left it, and every photo's corners kept for the next change of the photos used
+  (:func:`_every_photos_corners`). It tells the server each step done through ``conn``.
 * :func:`make_report`: ``dualcal report calib.json --eval eval.json -o report.html``, when it is asked for.
 """
 
@@ -31,7 +32,7 @@ from ..files.detect.pipeline import PhotoResult, detect_photo
 from ..files.io import read_json, write_json_atomic
 from ..progress import collect_warnings
 from .store import EXPORTS, Project, Settings, exclude_pattern
-from .summary import advice_summary, calibration_summary
+from .summary import advice_summary, calibration_summary, split_warnings
 
 __all__ = ["CALIBRATE_OPTIONS", "RememberedDetection", "detect_upload", "make_report", "run_job",
            "write_screen_preview"]
@@ -211,17 +212,43 @@ def run_job(folder: str, version: int, settings: dict, left_out: list[str], conn
         conn.send(("done", version))
 
 
+def _every_photos_corners(project: Project, settings: Settings, warnings: list[str]):
+    """The corners of every photo of the project, none left out, as ``dualcal detect photos`` writes them in
+    corners.json (the camera roll split, each photo's detection as its upload left it): read once for a set of
+    photos and a board, and kept (``.dualcal-app/corners-all.json``, with the warnings of that read, which are
+    said again), so that leaving a photo out, or using it again, calibrates at once from them, as ``dualcal
+    calibrate corners.json --exclude PHOTO`` does (reading the photos' headers, the files' contents for copies
+    and the roll's split again took a third of that wait on a 62-photo roll)."""
+    from .. import __version__
+    from ..files.io import corners_from_dict, corners_to_dict
+    from ..workflow import read_corners
+
+    stats = {name: os.stat(project.photos_dir / name) for name in project.photo_names()}
+    key = {"dualcal": __version__, "board": settings.to_dict(),
+           "photos": [[name, st.st_size, st.st_mtime_ns] for name, st in stats.items()]}
+    kept = project.read_app_json("corners-all.json")
+    if kept and kept.get("key") == key:
+        warnings.extend(kept["warnings"])
+        return corners_from_dict(kept["corners"], "corners-all.json")
+    before = len(warnings)
+    doc = corners_to_dict(read_corners("photos", settings.make_board(), square_sigma_mm=settings.square_sigma_mm,
+                                       detect=_detector(project), progress=False))
+    write_json_atomic(project.app_file("corners-all.json"), {"key": key, "warnings": list(warnings[before:]),
+                                                             "corners": doc})
+    return corners_from_dict(doc, "corners-all.json")         # as corners.json holds them, the first time too
+
+
 def _calibrate(project: Project, version: int, settings: Settings, left_out, conn, warnings, recompute) -> None:
     from ..estimation.advise import advice_to_dict, advise, prior_from_rig
+    from ..files.dataset import exclude_views
     from ..files.io import rig_to_dict, save_corners, save_rig, write_text_atomic
-    from ..workflow import calibrate_corners, evaluate_calibration, read_calibration, read_corners
+    from ..workflow import calibrate_corners, evaluate_calibration, read_calibration
 
     present = set(project.photo_names())
     fresh = recompute and bool(present)
     if fresh:
         patterns = [exclude_pattern(p) for p in sorted(set(left_out) & present)]
-        corners = read_corners("photos", settings.make_board(), square_sigma_mm=settings.square_sigma_mm,
-                               exclude=patterns, detect=_detector(project), progress=False)
+        corners = exclude_views(_every_photos_corners(project, settings, warnings), patterns)
         save_corners("corners.json", corners)
         _file_done(project, "corners.json", version, conn)
         rig = calibrate_corners(corners, **CALIBRATE_OPTIONS)
@@ -229,7 +256,7 @@ def _calibrate(project: Project, version: int, settings: Settings, left_out, con
     else:                                   # a calib.json the commands made, taken as it is
         rig = read_calibration("calib.json")
     summary = calibration_summary(rig, rig_to_dict(rig), version)
-    summary["warnings"] = list(warnings)
+    summary["warnings"], summary["photos_left_out"] = split_warnings(list(warnings), sorted(present))
     write_json_atomic(project.app_file("summary.json"), summary)
     _results(project, version=version, error=None, warnings=list(warnings))
     _file_done(project, "calib.json", version, conn)
@@ -264,7 +291,7 @@ def _calibrate(project: Project, version: int, settings: Settings, left_out, con
         except DualcalError as exc:
             warnings.append(f"export {fmt}: {exc}")
     _file_done(project, "exports", version, conn)
-    summary["warnings"] = list(warnings)
+    summary["warnings"], summary["photos_left_out"] = split_warnings(list(warnings), sorted(present))
     write_json_atomic(project.app_file("summary.json"), summary)
     _results(project, version=version, error=None, warnings=list(warnings), complete=version)
 

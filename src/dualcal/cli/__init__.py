@@ -64,6 +64,7 @@ from . import batch as _batch  # noqa: E402,F401
 from . import board as _board  # noqa: E402,F401
 from . import calibrate as _calibrate  # noqa: E402,F401
 from . import detect as _detect  # noqa: E402,F401
+from . import import_ as _import  # noqa: E402,F401
 from . import evaluate as _evaluate  # noqa: E402,F401
 from . import measure as _measure  # noqa: E402,F401
 from . import rectify as _rectify  # noqa: E402,F401

@@ -87,7 +87,7 @@ def _plan_prior(cameras, board, baseline_mm: float):
 @board_options(required=False)
 @click.option("--seed", type=int, default=0, help="Seed of the candidate poses drawn.")
 def advise_command(calib, output, count, targets, plan, cameras, baseline_mm, board_spec, square_mm, marker_mm,
-                   dictionary, seed) -> None:
+                   dictionary, circle_mm, seed) -> None:
     """Advise where to hold the board for the next photos.
 
     From the calibration's own honest covariance, the board poses that shrink the uncertainty of the
@@ -111,7 +111,7 @@ def advise_command(calib, output, count, targets, plan, cameras, baseline_mm, bo
     page = output.with_suffix(".html")
     if page == output:
         raise InputError(f"-o {output}: give a .json name (the page is written beside it as .html)")
-    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary, circle_mm)
     if plan:
         if calib is not None:
             raise InputError("--plan proposes first photos without a calibration: drop the calib.json or --plan")

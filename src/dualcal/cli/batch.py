@@ -22,8 +22,8 @@ from .common import BOARD_OPTION_NAMES, board_from_flags, default_jobs, echo
 # terminal shows or only a single dataset's detection uses. Every other option of calibrate is
 # one of calibrate_corners' or read_corners' (the command sorts them when it runs), so a new
 # calibration option reaches batch without a change here. The library is imported only then,
-# to keep the CLI's start-up light.
-_NOT_PER_DEVICE = {"input_path", "output", "compare_models", "jobs", "hints_path", "overlays_dir"}
+# to keep the CLI's start-up light. Known intrinsics (--intrinsics) are a device's own, not the fleet's.
+_NOT_PER_DEVICE = {"input_path", "output", "compare_models", "jobs", "hints_path", "overlays_dir", "intrinsics"}
 _PER_DEVICE = [p for p in calibrate_command.params if p.name not in _NOT_PER_DEVICE]
 
 

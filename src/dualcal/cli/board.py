@@ -10,7 +10,7 @@ from .common import board_from_flags, board_options, echo
 
 
 @cli.command("board")
-@click.argument("spec", metavar="[COLSxROWS|charuco:SXxSY]", required=False)
+@click.argument("spec", metavar="[COLSxROWS|charuco:SXxSY|acircles:COLSxROWS]", required=False)
 @board_options(required=False, dictionary_default="the smallest DICT_5X5 that holds the markers")
 @click.option("--paper", default="auto", show_default=True, metavar="NAME",
               help="A4, A3, A2, A1, A0, letter, legal (either orientation), fit (the board and its margins) "
@@ -20,15 +20,17 @@ from .common import board_from_flags, board_options, echo
               help="Suggest the board for the cameras of these photos (a camera roll or a dataset: their EXIF "
                    "focal lengths): the tele must see it whole where the ultra-wide still resolves its squares.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="board.pdf or board.png to write.")
-def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi, for_photos, output):
+def board_command(spec, board_spec, square_mm, marker_mm, dictionary, circle_mm, paper, dpi, for_photos, output):
     """Write the board to print: a PDF at true scale, or a PNG at --dpi.
 
     \b
     dualcal board charuco:11x8 --square 25 --marker 18 -o board.pdf
     dualcal board --board 8x5 --square 30 -o chessboard.png --dpi 300
+    dualcal board acircles:4x11 --square 20 --circle 12 -o circles.pdf
 
     The board is given as the first argument or with --board, as for the other commands: a
-    chessboard's inner corners (8x5 prints 9 x 6 squares) or a ChArUco board's squares. A ChArUco
+    chessboard's inner corners (8x5 prints 9 x 6 squares), a ChArUco board's squares, or a circle
+    grid's circles (circles:COLSxROWS or acircles:COLSxROWS, OpenCV's count). A ChArUco
     board without --dictionary uses the smallest DICT_5X5 dictionary that holds its markers, in
     OpenCV's current layout. The margin names the options that read the board back, and a scale
     bar checks the print: print at 100 % (actual size).
@@ -52,11 +54,13 @@ def board_command(spec, board_spec, square_mm, marker_mm, dictionary, paper, dpi
                                "or --for PHOTOS to have it chosen")
     else:
         check_output_file(output)
-        board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary)
+        board = board_from_flags(spec or board_spec, square_mm, marker_mm, dictionary, circle_mm)
     layout = write_board(board, output, paper=paper, dpi=dpi)
     w, h = layout.page_mm
-    echo(f"{layout.board.describe()}, squares of {layout.board.square_mm:g} mm, on a {w:.0f} x {h:.0f} mm page: "
-         f"wrote {output} (print at 100 %)", err=True)
+    sizes = (f"circles of {board.circle_diameter_mm:g} mm, {board.square_mm:g} mm apart" if board.is_circle_grid
+             else f"squares of {board.square_mm:g} mm")
+    echo(f"{layout.board.describe()}, {sizes}, on a {w:.0f} x {h:.0f} mm page: wrote {output} (print at 100 %)",
+         err=True)
 
 
 def _board_for(photos, paper: str):

@@ -40,10 +40,15 @@ from .detect import dataset_options, read_corners_from_flags
               help="With a --model NAME: also calibrate with every other lens model, compare them by their error "
                    "on instants left out of the calibration, and recommend one (recorded in calib.json). --model "
                    "auto always compares them, camera by camera.")
+@click.option("--intrinsics", "intrinsics", multiple=True, metavar="FILE", type=click.Path(),
+              help="Known intrinsics (repeatable): a calib.json, an intrinsics.json ('dualcal import' writes them), "
+                   "or a peer's file (OpenCV .yml, Kalibr camchain, mrcal .cameramodel, COLMAP cameras.txt). Each "
+                   "camera it names takes its lens model and intrinsics from it: a prior with the file's sigma "
+                   "where it has one, else held fixed; the other cameras are calibrated as always.")
 @dataset_options
-def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, square_sigma_mm, output, skew, rig_mode,
-                      drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens,
-                      **dataset_opts):
+def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, circle_mm, square_sigma_mm, output,
+                      skew, rig_mode, drop_outliers, outlier_factor, board_shape, model, compare_models, compare_lens,
+                      intrinsics, **dataset_opts):
     """Calibrate every camera and the rig from INPUT and write calib.json.
 
     INPUT is a corners.json (from 'dualcal detect', also one edited by hand: views removed,
@@ -60,7 +65,8 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     from ..progress import warn
     from .tables import (checks_table, lens_model_advice, lens_model_choice_table, lens_model_table, photo_table,
                                 result_tables, roll_tables, video_lines)
-    from ..workflow import calibrate_corners, lens_scores, other_skew_model
+    from ..workflow import (calibrate_corners, known_intrinsics_for, lens_scores, other_skew_model,
+                            read_intrinsics)
 
     if input_path is None and not dataset_opts.get("cameras"):
         raise click.UsageError("give INPUT (a corners.json or a dataset folder) or --camera NAME=GLOB")
@@ -68,10 +74,12 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
         raise InputError(f"--outlier-factor {outlier_factor}: must be greater than 1")
     check_output_file(output)
     model = model_flags(model)
-    corners = read_corners_from_flags(input_path, board_from_flags(board_spec, square_mm, marker_mm, dictionary),
-                                      square_sigma_mm, dataset_opts)
+    known = read_intrinsics(intrinsics)               # before the photos are detected: a bad file fails at once
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary, circle_mm)
+    corners = read_corners_from_flags(input_path, board, square_sigma_mm, dataset_opts)
     kwargs = dict(rig_mode=rig_mode, reference=dataset_opts.get("reference"), drop_outliers=drop_outliers,
-                  outlier_factor=outlier_factor, board_shape=board_shape, model=model)
+                  outlier_factor=outlier_factor, board_shape=board_shape, model=model,
+                  known_intrinsics=known_intrinsics_for(corners, known))
     rig = calibrate_corners(corners, skew=skew, compare_lens=compare_lens, **kwargs)
     scores = lens_scores(rig)
     save_rig(output, rig)

@@ -38,7 +38,7 @@ class LazyChoice(click.Choice):
 
 
 #: The keyword names of :func:`board_options` (what a command hands to :func:`board_from_flags`).
-BOARD_OPTION_NAMES = ("board_spec", "square_mm", "marker_mm", "dictionary")
+BOARD_OPTION_NAMES = ("board_spec", "square_mm", "marker_mm", "dictionary", "circle_mm")
 
 
 def square_sigma_option(f):
@@ -51,20 +51,27 @@ def square_sigma_option(f):
 
 
 def board_options(required: bool, dictionary_default: str = "found from the photos"):
-    """``--board``, ``--square MM`` and, for a ChArUco board, ``--marker MM`` and ``--dictionary NAME``;
-    ``--board`` and ``--square`` optional where the input file names the board. ``dictionary_default``
-    says in the help what a ChArUco board without ``--dictionary`` gets."""
+    """``--board``, ``--square MM`` and, for a ChArUco board, ``--marker MM`` and ``--dictionary NAME``, for a
+    circle grid ``--circle MM``; ``--board`` and ``--square`` optional where the input file names the board.
+    ``dictionary_default`` says in the help what a ChArUco board without ``--dictionary`` gets."""
     def decorate(f):
+        f = click.option("--circle", "circle_mm", type=float, metavar="MM", default=None,
+                         help="Circle grids: diameter of one circle in millimetres (default: 0.4 of --square, as "
+                              "OpenCV's gen_pattern.py prints them).")(f)
         f = click.option("--dictionary", "dictionary", metavar="NAME", default=None,
                          help="ChArUco boards: OpenCV's name of the markers' dictionary, e.g. DICT_5X5_100 "
                               f"(default: {dictionary_default}).")(f)
         f = click.option("--marker", "marker_mm", type=float, metavar="MM", default=None,
                          help="ChArUco boards: side of one marker in millimetres.")(f)
         f = click.option("--square", "square_mm", type=float, metavar="MM", required=required,
-                         help="Side of one square in millimetres.")(f)
-        return click.option("--board", "board_spec", metavar="COLSxROWS|charuco:SXxSY", required=required,
-                            help="Inner corners of the chessboard, e.g. 8x5 for a board of 9 x 6 squares; or the "
-                                 "squares of a ChArUco board, e.g. charuco:11x8 (with --marker).")(f)
+                         help="Side of one square in millimetres (a circle grid: the distance between "
+                              "neighbouring centres).")(f)
+        return click.option("--board", "board_spec", metavar="COLSxROWS|charuco:SXxSY|acircles:COLSxROWS",
+                            required=required,
+                            help="Inner corners of the chessboard, e.g. 8x5 for a board of 9 x 6 squares; the "
+                                 "squares of a ChArUco board, e.g. charuco:11x8 (with --marker); or the circles of "
+                                 "a symmetric or asymmetric circle grid, circles:COLSxROWS or acircles:COLSxROWS "
+                                 "(OpenCV's count, e.g. acircles:4x11).")(f)
     return decorate
 
 
@@ -78,10 +85,13 @@ def exclude_option(f):
 
 
 def board_from_flags(board_spec: str | None, square_mm: float | None, marker_mm: float | None = None,
-                     dictionary: str | None = None):
+                     dictionary: str | None = None, circle_mm: float | None = None):
     """A :class:`~dualcal.geometry.board.Board` from the flags (:func:`dualcal.geometry.board.board_from_spec`), or None
     when none is given."""
     if board_spec is None and square_mm is None:
+        if circle_mm is not None:
+            raise InputError("--circle describes a circle grid: give --board acircles:COLSxROWS (or circles:) "
+                             "and --square MM too")
         if marker_mm is not None or dictionary is not None:
             raise InputError("--marker and --dictionary describe a ChArUco board: give --board charuco:SXxSY "
                              "and --square MM too")
@@ -89,7 +99,7 @@ def board_from_flags(board_spec: str | None, square_mm: float | None, marker_mm:
     if board_spec is None or square_mm is None:
         raise InputError("give both --board (COLSxROWS, or charuco:SXxSY) and --square MM")
     from ..geometry.board import board_from_spec
-    return board_from_spec(board_spec, square_mm, marker_mm, dictionary)
+    return board_from_spec(board_spec, square_mm, marker_mm, dictionary, circle_mm=circle_mm)
 
 
 def default_jobs() -> int:

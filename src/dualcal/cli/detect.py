@@ -79,7 +79,7 @@ def read_corners_from_flags(input_path, board, square_sigma_mm, dataset_opts: di
 @square_sigma_option
 @dataset_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="corners.json to write.")
-def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square_sigma_mm, output, **opts):
+def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, circle_mm, square_sigma_mm, output, **opts):
     """Find the board's corners in every photo of DATASET and write corners.json.
 
     DATASET is a folder with one subfolder of photos per camera (or a folder of photos: one
@@ -93,7 +93,7 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, square
     check_output_file(output)
     if dataset is not None and Path(dataset).is_file():
         raise InputError(f"{dataset} is a file: detect reads photos (a dataset folder, or --camera NAME=GLOB)")
-    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary, circle_mm)
     corners = read_corners_from_flags(dataset, board, square_sigma_mm, opts)
     save_corners(output, corners)
     if corners.roll:
@@ -136,7 +136,7 @@ def pick_hints(todo):
 @dataset_selection_options
 @click.option("--all", "all_photos", is_flag=True, help="Ask for every photo, not only where detection fails.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="hints.json to write.")
-def pick_command(dataset, board_spec, square_mm, marker_mm, dictionary, all_photos, output, **selection):
+def pick_command(dataset, board_spec, square_mm, marker_mm, dictionary, circle_mm, all_photos, output, **selection):
     """Click the four outer inner-corners of the board in photos where automatic detection fails.
 
     For each photo click corner 0, corner cols-1 (end of the first row), corner N-1 and corner
@@ -149,7 +149,7 @@ def pick_command(dataset, board_spec, square_mm, marker_mm, dictionary, all_phot
     from ..files.io import check_output_file
     from ..progress import track
 
-    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary, circle_mm)
     if board.charuco is not None:
         raise InputError(f"pick is for chessboards: {board.describe()} numbers its corners by its markers, "
                          "so a photo that shows part of it needs no clicks")

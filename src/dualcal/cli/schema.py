@@ -12,7 +12,7 @@ from .common import echo
 @click.argument("name", metavar="NAME")
 def schema_command(name: str) -> None:
     """Print the JSON Schema (draft 2020-12) of NAME.json: corners, calib, eval, measure, points,
-    rectify or advise.
+    rectify, advise or intrinsics.
 
     Every file dualcal reads is checked against its schema; unknown keys are admitted (the
     contract is extended only by adding).

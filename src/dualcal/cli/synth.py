@@ -55,11 +55,22 @@ def _coverage(text: str | None, board) -> tuple[float, float] | None:
 @click.option("--coverage", metavar="LO:HI", default=None,
               help="Share of the board's corners the narrowest camera sees, drawn per view from LO to HI "
                    "(ChArUco boards; default 0.3:1 for them, the whole board for a chessboard).")
+@click.option("--breathing", type=click.FloatRange(min=0.0), default=0.0, show_default=True, metavar="B",
+              help="The lenses breathe with focus: fx(d) = fx_inf (1 + B f / (d - f)), f the EXIF focal length "
+                   "(1: a thin lens), each photo focused on the board; its focus written into its EXIF "
+                   "(SubjectDistance, an Apple-style MakerNote's FocusDistanceRange).")
+@click.option("--ois", "ois_px", type=click.FloatRange(min=0.0), default=0.0, show_default=True, metavar="PX",
+              help="Each photo's principal point moved by optical image stabilisation: a normal draw of PX px per "
+                   "coordinate, independent per camera and photo.")
+@click.option("--object-photos", is_flag=True,
+              help="Also write measurement photos of a textured box at 0.3 m and 2 m (OUTDIR/measure/<distance>mm/"
+                   "<camera>.jpg, the same lenses, focused on it); truth.json's measure_photos has the box's corners.")
 @click.option("--marks", type=LazyChoice("dualcal.synthetic.render_marks:MARK_KINDS"), default=None,
               help="Print marks in the chessboard's white squares: a binary code in each (as ECoCheck), a dot in "
                    "each, a logo in two, or a serial number along the first row.")
 def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, video, fps, offset_frames, readout_ms,
-                  jobs, board_spec, square_mm, marker_mm, dictionary, coverage, marks):
+                  jobs, board_spec, square_mm, marker_mm, dictionary, circle_mm, coverage, breathing, ois_px,
+                  object_photos, marks):
     """Write a synthetic rig with known truth to OUTDIR.
 
     \b
@@ -68,6 +79,10 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, vi
     OUTDIR/photos/<cam>/*.jpg  photo-like renders of the board (a dataset for 'dualcal detect')
     OUTDIR/roll/IMG_*.JPG      with --roll: the same photos as a phone's camera roll
     OUTDIR/clips/<cam>.mp4     with --video: clips instead (truth.json's "video" has the true offsets)
+    OUTDIR/measure/...         with --object-photos: photos of a textured box at 0.3 m and 2 m
+
+    With --breathing or --ois every photo has its own lens, recorded in truth.json's "photos"
+    (focus, shift, fx, fy, cx, cy per photo; "cameras" then hold the values at infinity).
 
     --board replaces the preset's board. With a ChArUco board (--board charuco:11x8 --square 25
     --marker 18) the narrowest camera (the tele) sees only part of the board in most views
@@ -81,19 +96,36 @@ def synth_command(outdir, preset, views, seed, scale, noise_px, photos, roll, vi
         raise InputError(f"--scale {scale}: must be in (0, 4]")
     if noise_px < 0:
         raise InputError(f"--noise {noise_px}: must be >= 0")
-    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary)
+    board = board_from_flags(board_spec, square_mm, marker_mm, dictionary, circle_mm)
     board = with_default_markers(board) if board is not None else None
     if marks is not None and board is not None and board.charuco is not None:
         raise InputError("--marks is for chessboards: a ChArUco board has its markers in its white squares")
     share = _coverage(coverage, board)
+    own_lenses = breathing > 0 or ois_px > 0
+    if own_lenses and (roll or video or marks or (board is not None and board.charuco is not None)):
+        raise InputError("--breathing and --ois write a chessboard's photo set (OUTDIR/photos), not with --roll, "
+                         "--video, --marks or a ChArUco board")
     if video:
         return _synth_video(outdir, preset, views, seed, scale, fps, offset_frames, readout_ms, board, marks or roll)
     out = make_output_folder(outdir)
-    truth = synth.make_truth(preset, views, seed, scale, board=board, coverage=share)
+    truth = synth.make_truth(preset, views, seed, scale, board=board, coverage=share, breathing=breathing,
+                             ois_px=ois_px)
     corners = synth.noisy_corner_set(truth, noise_px, seed)
     save_corners(out / "corners.json", corners)
-    write_json_atomic(out / "truth.json", rig_to_dict(synth.truth_rig_model(truth, corners)))
-    if roll:
+    doc = rig_to_dict(synth.truth_rig_model(truth, corners))
+    if own_lenses or object_photos:
+        from ..synthetic import synth_focus
+        if own_lenses:
+            doc["photos"] = synth_focus.photos_truth_doc(truth)
+        if object_photos:
+            doc["measure_photos"] = synth_focus.write_object_photos(
+                truth, make_output_folder(out / "measure"), seed=seed, breathing=breathing, ois_px=ois_px,
+                focal_mm=synth_focus.focal_lengths_mm(preset, truth.cameras, scale))
+    write_json_atomic(out / "truth.json", doc)
+    if own_lenses and photos:
+        from ..synthetic.synth_focus import write_focus_photo_set
+        write_focus_photo_set(truth, make_output_folder(out / "photos"), seed=seed, jobs=jobs or default_jobs())
+    elif roll:
         from ..synthetic.synth_roll import write_camera_roll
         write_camera_roll(truth, make_output_folder(out / "roll"), seed=seed, jobs=jobs or default_jobs(), marks=marks)
     elif photos:

@@ -16,7 +16,7 @@ from rich.table import Table
 
 from ..geometry.camera import DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, intrinsic_names
 from ..geometry.model import RigModel
-from ..pages.photos import photo_rows, photo_status
+from ..pages.photos import photo_quality, photo_rows, photo_status
 from ..geometry.scale import relative_sigma, scale_share
 
 _PAPER_NAMES = {"fx": "alpha = fx", "fy": "beta = fy", "skew": "gamma = skew", "cx": "u0 = cx",
@@ -98,18 +98,23 @@ def result_tables(models: list[RigModel]) -> list[Table]:
 
 
 def photo_table(rig: RigModel) -> Table:
-    """Every photo: its RMS (px) per camera and, where a photo was not kept, which and why."""
+    """Every photo: its RMS (px) per camera, its blur and corner noise (px) where the detection measured them,
+    and, where a photo was not kept, which and why, and which photos are blurred."""
     names = rig.camera_order()
     status = photo_status(rig)
     kept = sum(s == "kept" for per in status.values() for _, s in per.values())
     total = sum(len(per) for per in status.values())
+    quality = photo_quality(rig)
     t = Table(title=f"Photos: {kept} of {total} kept; RMS reprojection error (px) per camera",
-              box=box.SIMPLE_HEAD)
+              caption="blur: the squares' edge width (px); noise: the corner noise (px), measured at detection"
+              if quality else None, box=box.SIMPLE_HEAD)
     t.add_column("view", no_wrap=True)
     for name in names:
         t.add_column(name, justify="right", no_wrap=True)
+    for name in names if quality else []:
+        t.add_column(f"{name} blur / noise", justify="right", no_wrap=True)
     t.add_column("status")
-    for view, cells, note in photo_rows(status, names):
+    for view, cells, note in photo_rows(status, names, quality=quality or None):
         t.add_row(view, *cells, note)
     return t
 
@@ -185,13 +190,21 @@ def roll_tables(roll: dict) -> list[Table]:
     cams = roll["cameras"]
     clues = roll.get("clues", {})
     told = f" told apart by {', '.join(clues['cameras'])}" if clues.get("cameras") else ""
+    if roll.get("cameras_separation_sigma") is not None:
+        told += (f" ({roll['cameras_sure']}: the closest two lenses of one size {roll['cameras_separation_sigma']:.1f} "
+                 "sigma apart)")
     found = Table(title=f"Camera roll {roll['folder']}: {len(cams)} cameras{told}", box=box.SIMPLE_HEAD)
     for col in ("camera", "lens", "f (35 mm equiv.)", "image size", "photos"):
         found.add_column(col, justify="left" if col in ("camera", "lens") else "right")
     for name, c in cams.items():
         f35 = c.get("focal_length_35mm_mm")
-        if c.get("told_by") == "focal length from the board":
+        if str(c.get("told_by", "")).startswith("focal length from the board"):
             lens = f"f {c['focal_length_board_px']:.0f} px from the boards"
+            if c.get("focal_length_board_sigma_px") is not None:
+                lens = (f"f {c['focal_length_board_px']:.0f} +- {c['focal_length_board_sigma_px']:.0f} px, bend "
+                        f"{c['distortion_board']:+.2f} +- {c['distortion_board_sigma']:.2f} from the boards")
+            if c.get("nearest_lens"):
+                lens += f"; {c['separation_sigma']:.1f} sigma from {c['nearest_lens']}"
         else:
             lens = c.get("lens_model") or f"{c.get('focal_length_mm') or '?'} mm"
         found.add_row(name, lens, f"{f35:.0f} mm" if f35 else "?", "x".join(map(str, c["image_size"])), str(c["photos"]))

@@ -39,6 +39,23 @@ the 2-D RMS) times ``sqrt(observations / redundancy)`` (the residuals of a fit a
 errors): :func:`calibration_pixel_sigma`. That is the noise of a detected corner; pixels placed
 by hand are less precise, and should say so.
 
+Matched points (:mod:`dualcal.estimation.matching`). With the instant's photos, a point given in one
+camera only (a tap) is found in the others; its pixels' errors are then correlated: a tap's error
+``delta`` (``pixel_sigma`` of that camera) moves the matched pixel with it (``K delta``, ``K`` the match's
+``tap_jacobian``), and the match adds its own error along the epipolar line (``M``, its ``sigma_px``), so
+the pixels ``(uv_a, uv_b, ...)`` have the covariance ``S = T s^2 T^T + blockdiag(0, M_b, ...)``,
+``T = (I, K_b, ...)``: the tap moves the point along the surface, not in depth. Wherever ``S`` appears
+below it is this matrix (diagonal for points given by hand in every camera). The match is made on the
+calibration's epipolar line, which is itself uncertain across (by :func:`_epipolar_sigma_px`, from the
+calibration's covariance): a line off by ``D`` moves a match along it by its ``epipolar_coupling`` times ``D``
+(how the texture there slants), which its ``sigma_px`` includes (:meth:`Match.widened`), taken as independent
+of the calibration's other effects on the point.
+
+Focus. Each photo's camera is :func:`camera_at_focus` at that photo's focus distance: the focus its
+metadata states, else the distance of the points it measured (``focus_from`` ``"metadata"``, ``"points"``),
+where the calibration models focus (:func:`focus_modelled`); otherwise the calibration's own camera
+(``"calibration"``, ``focus_m`` the median distance of the board in its calibration photos).
+
 When the linear model stops describing a length, its sigma means little, and the length is
 flagged (``meaningless`` in measure.json, a warning on stderr saying what would help): its sigma
 above :data:`MAX_RELATIVE_SIGMA` of it; an end point whose depth is uncertain by more than
@@ -57,17 +74,18 @@ point at 0.4 m by a pixel in the tele.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..geometry.camera import INTRINSIC_NAMES, project_with_jacobians
+from ..geometry.camera import INTRINSIC_NAMES, CameraModel, project_with_jacobians
 from .covariance import JointCovariance, intrinsic_name, rig_name
 from .distributions import chi2_quantile
 from ..errors import EstimationError, InputError
 from .intersect import triangulate
+from .matching import MIN_DISTANCE_MM, Match, match_point
 from ..geometry.model import RigModel
-from ..progress import warn
+from ..progress import track, warn
 from ..geometry.rotation import cross_matrix
 from ..geometry.scale import relative_sigma, with_scale_in_measurement
 
@@ -153,12 +171,13 @@ def _parameter_rows(rig: RigModel, name: str, X_cam: np.ndarray, J_X: np.ndarray
     return rows
 
 
-def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]],
-                     index: dict[str, int]) -> dict[str, IntersectedPoint]:
+def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]], index: dict[str, int],
+                     failed: dict[str, str] | None = None) -> dict[str, IntersectedPoint]:
     """Intersect and linearise points ``{name: {camera: (2,) uv}}`` (module docstring), those seen by the
     same cameras together (one triangulation and one projection per camera for all of them).
 
-    ``index`` maps the names of calib.json's covariance parameters to their positions.
+    ``index`` maps the names of calib.json's covariance parameters to their positions. A point whose rays do not
+    meet raises :class:`EstimationError`, or with ``failed`` is left out and named there with the reason.
     """
     groups: dict[tuple[str, ...], list[str]] = {}
     for name, seen in uv_px.items():
@@ -171,10 +190,13 @@ def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]],
         try:
             X = triangulate(cams, poses, uv)
         except EstimationError as exc:
-            if len(members) == 1:
+            if len(members) > 1:                   # name the point whose rays fail
+                for m in members:
+                    out.update(intersect_points(rig, {m: uv_px[m]}, index, failed))
+            elif failed is not None:
+                failed[members[0]] = str(exc)
+            else:
                 raise EstimationError(f"point {members[0]!r}: {exc}") from None
-            for m in members:                      # name the point whose rays fail
-                out.update(intersect_points(rig, {m: uv_px[m]}, index))
             continue
         J, J_theta, res = [], [], []
         for name, cam, pose, uv_c in zip(names, cams, poses, uv):
@@ -190,7 +212,7 @@ def intersect_points(rig: RigModel, uv_px: dict[str, dict[str, np.ndarray]],
         res = np.stack(res, axis=1)                                                 # (P, m, 2)
         for i, m in enumerate(members):
             out[m] = IntersectedPoint(X[i], names, A[i], B[i], res[i], J_theta[i], annihilator[i])
-    return {name: out[name] for name in uv_px}
+    return {name: out[name] for name in uv_px if name in out}
 
 
 def intersect_point(rig: RigModel, uv_px: dict[str, np.ndarray], index: dict[str, int]) -> IntersectedPoint:
@@ -198,8 +220,9 @@ def intersect_point(rig: RigModel, uv_px: dict[str, np.ndarray], index: dict[str
     return intersect_points(rig, {"point": uv_px}, index)["point"]
 
 
-def _residual_chi2(p: IntersectedPoint, var_px: np.ndarray, cov_theta: dict[str, np.ndarray]) -> float:
-    """The point's residuals against what its pixel noise ``var_px`` (2m,) and the calibration's uncertainty allow.
+def _residual_chi2(p: IntersectedPoint, pixel_cov: np.ndarray, cov_theta: dict[str, np.ndarray]) -> float:
+    """The point's residuals against what its pixels' covariance ``pixel_cov`` (2m, 2m) and the calibration's
+    uncertainty allow.
 
     ``Cov(r) = (I - J A) (S + J_theta C J_theta^T) (I - J A)^T`` (rank ``2m - 3``), for each covariance
     ``C`` of calib.json; the smaller chi-square of the two (the larger uncertainty) is returned.
@@ -207,7 +230,7 @@ def _residual_chi2(p: IntersectedPoint, var_px: np.ndarray, cov_theta: dict[str,
     r = p.residual_px.ravel()
     chis = []
     for C in cov_theta.values():
-        cov_r = p.annihilator @ (np.diag(var_px) + p.J_theta @ C @ p.J_theta.T) @ p.annihilator.T
+        cov_r = p.annihilator @ (pixel_cov + p.J_theta @ C @ p.J_theta.T) @ p.annihilator.T
         chis.append(float(r @ np.linalg.pinv(cov_r, rcond=1e-10, hermitian=True) @ r))
     return min(chis)
 
@@ -264,8 +287,9 @@ def _positive_px(value, what: str) -> float:
     return float(value)
 
 
-def points_from_dict(doc: dict, source: str = "points.json") -> dict:
-    """Validate a points.json document (contract, "measure").
+def points_from_dict(doc: dict, source: str = "points.json", single_camera: bool = False) -> dict:
+    """Validate a points.json document (contract, "measure"); with ``single_camera`` (the instant's photos are
+    given) a point may be given in one camera only, to be matched in the others.
 
     Returns ``{"points": {name: {camera: (2,) uv_px}}, "lengths": [(from, to), ...], "pixel_sigma":
     None | px | {camera: px}}``. ``pixel_sigma`` may be one number (px per coordinate, every camera)
@@ -280,10 +304,10 @@ def points_from_dict(doc: dict, source: str = "points.json") -> dict:
     for name, seen in points.items():
         if not isinstance(seen, dict):
             raise InputError(f"{source}: point {name!r} must be an object of camera names to pixels [u, v]")
-        if len(seen) < 2:
+        if len(seen) < (1 if single_camera else 2):
             raise InputError(f"{source}: point {name!r} is given in {len(seen)} camera(s) "
                              f"({', '.join(seen) or 'none'}); a point needs its pixels in two or more cameras "
-                             "of one instant")
+                             "of one instant (or, with the photos of that instant, in one)")
         out[str(name)] = {str(cam): _finite_uv(uv, f"{source}: point {name!r} in camera {cam!r}")
                           for cam, uv in seen.items()}
     lengths = doc.get("lengths", [])
@@ -307,7 +331,151 @@ def points_from_dict(doc: dict, source: str = "points.json") -> dict:
     return {"points": out, "lengths": pairs, "pixel_sigma": sigma}
 
 
-def measure(rig: RigModel, points: dict) -> dict:
+# ---------------------------------------------------------------------------- focus
+
+
+def focus_modelled(rig: RigModel, camera_name: str) -> bool:
+    """Whether the calibration models camera ``camera_name``'s intrinsics as a function of the focus distance.
+
+    No calibration does yet (calib.json's ``cameras.<name>.focus_model``, contract "measure with the photos"):
+    until one does, every photo is measured with the calibration's own camera (``focus_from``
+    ``"calibration"``). The focus model plugs in here and in :func:`camera_at_focus`.
+    """
+    return False
+
+
+def camera_at_focus(rig: RigModel, camera_name: str, focus_m: float | None) -> CameraModel:
+    """Camera ``camera_name`` of ``rig`` as it is in a photo focused at ``focus_m`` metres (None: unknown).
+
+    Today the calibration's camera unchanged (:func:`focus_modelled`): a calibration with a focus model
+    gives its intrinsics at that focus here, so that every measurement takes each photo's own camera.
+    """
+    return rig.cameras[camera_name]
+
+
+def calibration_focus_m(rig: RigModel, camera_name: str) -> float | None:
+    """The focus distance the calibration's camera stands for, m: the median distance of the board's centre from
+    camera ``camera_name`` along its axis in its calibration photos (autofocus focused there); None without poses."""
+    poses = rig.camera_poses.get(camera_name) or {}
+    if not poses:
+        if camera_name == rig.reference or camera_name not in rig.rig:
+            return None
+        rel = rig.rig[camera_name].pose
+        poses = {v: rel.compose(p) for v, p in rig.reference_poses().items()}
+    centre = rig.board.object_points_mm().mean(axis=0)
+    return float(np.median([p.apply(centre[None])[0, 2] for p in poses.values()]) / 1000.0)
+
+
+def _focus(rig: RigModel, cameras, focus_metadata: dict, distances_m: dict) -> dict:
+    """``{camera: {"focus_m", "focus_from", "focus_metadata_m"}}`` (module docstring, "Focus")."""
+    out = {}
+    for c in cameras:
+        stated = focus_metadata.get(c)
+        if focus_modelled(rig, c) and stated is not None:
+            focus, source = stated, "metadata"
+        elif focus_modelled(rig, c) and distances_m.get(c) is not None:
+            focus, source = distances_m[c], "points"
+        else:
+            focus, source = calibration_focus_m(rig, c), "calibration"
+        out[c] = {"focus_m": focus, "focus_from": source, "focus_metadata_m": stated}
+    return out
+
+
+# ---------------------------------------------------------------------------- matching
+
+
+def _check_photos(rig: RigModel, photos: dict) -> None:
+    for c, image in photos.items():
+        if c not in rig.cameras:
+            raise InputError(f"photo of camera {c!r}: it is not in the calibration (cameras: "
+                             f"{', '.join(rig.camera_order())})")
+        h, w = np.shape(image)[:2]
+        if (w, h) != tuple(rig.cameras[c].image_size):
+            W, H = rig.cameras[c].image_size
+            raise InputError(f"the photo of camera {c!r} is {w}x{h} px, but the camera was calibrated at {W}x{H} px: "
+                             "give that camera's photo as it was stored (not resized or turned)")
+
+
+def match_taps(rig: RigModel, taps: dict[str, dict[str, np.ndarray]], photos: dict[str, np.ndarray],
+               min_distance_mm: float = MIN_DISTANCE_MM) -> dict[str, dict[str, Match]]:
+    """Each point given in one camera found in the instant's other photos (:func:`dualcal.estimation.matching.match_point`).
+
+    Parameters
+    ----------
+    rig : RigModel
+        The calibration (its cameras as the photos were taken: :func:`camera_at_focus`).
+    taps : dict
+        ``{point: {camera: (2,) uv}}``, each point in one camera.
+    photos : dict
+        ``{camera: (H, W) grey image}`` of one instant, stored frame.
+    min_distance_mm : float
+        The nearest surface searched.
+
+    Returns
+    -------
+    dict
+        ``{point: {other camera: Match}}`` for every other camera with a photo and a pose in the rig.
+    """
+    out = {}
+    for name, seen in track(taps.items(), "matching the points", len(taps)):
+        (a, uv), = seen.items()
+        if a not in photos:
+            raise InputError(f"point {name!r} is given in camera {a!r} only, and there is no photo of {a!r} to find it "
+                             f"in the others: give that camera's photo of the instant")
+        pose_a = rig.pose_from_reference(a)
+        others = [b for b in rig.camera_order() if b != a and b in photos and (b == rig.reference or b in rig.rig)]
+        if not others:
+            raise InputError(f"point {name!r} is given in camera {a!r} only, and there is no photo of another camera "
+                             f"of the rig to find it in: give another camera's photo of the instant")
+        out[name] = {}
+        for b in others:
+            pose_ab = rig.pose_from_reference(b).compose(pose_a.inverse())
+            out[name][b] = match_point(photos[a], rig.cameras[a], photos[b], rig.cameras[b], pose_ab, uv,
+                                       min_distance_mm)
+    return out
+
+
+def _pixel_covariance(cameras: tuple[str, ...], sigma_px: dict[str, float], matches: dict[str, Match] | None):
+    """(2m, 2m) covariance of a point's pixels in ``cameras`` (module docstring, "Matched points"): independent
+    ``sigma_px`` per coordinate for pixels given by hand; for a tap (``cameras[0]``) and its ``matches``, the tap's
+    error carried into every match by its ``tap_jacobian``, plus the match's own along its epipolar line."""
+    if not matches:
+        return np.diag(np.repeat([sigma_px[c] ** 2 for c in cameras], 2))
+    T = np.vstack([np.eye(2)] + [matches[c].tap_jacobian for c in cameras[1:]])
+    S = sigma_px[cameras[0]] ** 2 * T @ T.T
+    for i, c in enumerate(cameras[1:], start=1):
+        S[2 * i:2 * i + 2, 2 * i:2 * i + 2] += matches[c].covariance
+    return S
+
+
+def _epipolar_sigma_px(p: IntersectedPoint, camera: str, m: Match, cov_theta: dict[str, np.ndarray]) -> float:
+    """How far off across itself the calibration's epipolar line may be at the match of point ``p`` in ``camera``,
+    1-sigma, px (the larger of calib.json's two covariances).
+
+    A misclosure ``D`` across the line in that camera (a pixel off by ``D n``, ``n`` the unit normal to the line)
+    leaves the residual ``P n D`` (``P`` the point's ``annihilator``, a projector), so ``D = u . r`` with
+    ``u = P n / |P n|^2``; the calibration's part of the residuals has covariance ``P J_theta C J_theta^T P^T``.
+    """
+    i = p.cameras.index(camera)
+    normal = np.zeros(2 * len(p.cameras))
+    normal[2 * i:2 * i + 2] = [-m.direction[1], m.direction[0]]
+    Pn = p.annihilator @ normal
+    u = p.annihilator.T @ (Pn / (Pn @ Pn))
+    return float(np.sqrt(max(u @ p.J_theta @ C @ p.J_theta.T @ u for C in cov_theta.values())))
+
+
+def match_to_dict(m: Match) -> dict:
+    """A match as measure.json's ``matched`` holds it: ``uv``, ``sigma_px``, ``score``, ``second_score``, ``direction``."""
+    return {"uv": m.uv.tolist(), "sigma_px": m.sigma_px, "score": m.score, "second_score": m.second_score,
+            "direction": m.direction.tolist()}
+
+
+# ---------------------------------------------------------------------------- measuring
+
+
+def measure(rig: RigModel, points: dict, photos: dict[str, np.ndarray] | None = None,
+            focus_metadata_m: dict[str, float | None] | None = None,
+            min_distance_mm: float = MIN_DISTANCE_MM) -> dict:
     """Points and lengths measured with a calibrated rig, each with its 1-sigma (module docstring).
 
     Parameters
@@ -319,28 +487,41 @@ def measure(rig: RigModel, points: dict) -> dict:
         "lengths": [[from, to], ...], "pixel_sigma": px}`` (``lengths`` and ``pixel_sigma``
         optional; ``pixel_sigma`` may also be ``{camera: px}``). Pixels are in the stored frame of
         photos of one instant.
+    photos : dict or None
+        ``{camera: (H, W) grey image}``: the instant's photos (contract, "measure with the photos"). A point
+        given in one camera only is then found in the others (:func:`match_taps`); one that cannot be is
+        listed in ``unmatched`` and no length uses it.
+    focus_metadata_m : dict or None
+        ``{camera: focus distance, m}`` that each photo's metadata states (None: not stated).
+    min_distance_mm : float
+        The nearest surface a match is searched at.
 
     Returns
     -------
     dict
         The measure.json document: ``{"frame": reference camera, "points": {name: {"xyz_mm", "sigma_mm",
-        "cameras", "distance_mm", "depth_sigma_mm", "residual_px", "consistent"}}, "lengths": [{"from",
-        "to", "length_mm", "sigma_mm", "sigma_percent", "sigma_pixels_mm", "sigma_calibration_mm",
-        "bias_mm", "meaningless", "warning"}], "pixel_sigma": {camera: px}, "pixel_sigma_source"}``.
+        "cameras", "distance_mm", "depth_sigma_mm", "residual_px", "consistent", "matched"?}}, "lengths":
+        [{"from", "to", "length_mm", "sigma_mm", "sigma_percent", "sigma_pixels_mm", "sigma_calibration_mm",
+        "bias_mm", "meaningless", "warning"}], "unmatched": {name: {camera: reason}}, "cameras": {camera:
+        {"focus_m", "focus_from", "focus_metadata_m"}}, "pixel_sigma": {camera: px}, "pixel_sigma_source"}``.
         ``depth_sigma_mm`` is the sigma along the line of sight from the reference camera, ``bias_mm``
         a length's second-order bias, ``sigma_pixels_mm`` and ``sigma_calibration_mm`` the parts of its
         sigma from the pixels and the calibration, ``sigma_scale_mm`` (points and lengths) the part from
         the tolerance of the printed squares (:mod:`dualcal.geometry.scale`), which every sigma includes.
+        A matched point's ``matched`` is ``{camera: {"uv", "sigma_px", "score", "second_score",
+        "direction"}}``: the pixel found, its sigma along the epipolar line (``direction``, the line's unit
+        vector there), the ZNCC there and at the best other peak.
 
     Raises
     ------
     InputError
         A malformed points document, a camera the rig does not have, a calibration without its
-        joint covariance.
+        joint covariance, a photo not of its camera's size, a tap without its camera's photo.
     EstimationError
         A point whose rays do not intersect (parallel, or behind a camera).
     """
-    spec = points_from_dict(points, "points")
+    photos = photos or {}
+    spec = points_from_dict(points, "points", single_camera=bool(photos))
     for name, seen in spec["points"].items():
         unknown = [c for c in seen if c not in rig.cameras]
         if unknown:
@@ -350,14 +531,80 @@ def measure(rig: RigModel, points: dict) -> dict:
         if loose:
             raise InputError(f"point {name!r}: the calibration has no relative pose of camera {loose[0]!r} to "
                              f"{rig.reference!r} (calibrated alone, rig mode {rig.rig_mode!r}): it cannot measure with it")
+    _check_photos(rig, photos)
     pixel_sigma, source = _pixel_sigmas(rig, spec["pixel_sigma"])
+    cameras = [c for c in rig.camera_order() if c in photos or any(c in seen for seen in spec["points"].values())]
+    focus = _focus(rig, cameras, focus_metadata_m or {}, {})
+    doc = _measure_at(rig, spec, photos, focus, pixel_sigma, min_distance_mm)
+    if any(focus_modelled(rig, c) and f["focus_from"] == "calibration" for c, f in focus.items()):
+        # a camera whose focus is modelled but not stated: again at the distance of the points it measured
+        focus = _focus(rig, cameras, focus_metadata_m or {}, _distances_m(rig, doc))
+        doc = _measure_at(rig, spec, photos, focus, pixel_sigma, min_distance_mm)
+    doc.update(cameras=focus, pixel_sigma={c: pixel_sigma[c] for c in rig.camera_order()}, pixel_sigma_source=source)
+    return with_scale_in_measurement(doc, relative_sigma(rig.board))
+
+
+def _distances_m(rig: RigModel, doc: dict) -> dict[str, float]:
+    """Each camera's median distance (along its axis, m) of the points it measured in ``doc``."""
+    out = {}
+    for c in rig.camera_order():
+        z = [rig.pose_from_reference(c).apply(np.asarray(p["xyz_mm"])[None])[0, 2]
+             for p in doc["points"].values() if c in p["cameras"]]
+        if z:
+            out[c] = float(np.median(z) / 1000.0)
+    return out
+
+
+def _measure_at(rig: RigModel, spec: dict, photos: dict, focus: dict, pixel_sigma: dict,
+                min_distance_mm: float) -> dict:
+    """:func:`measure` with each photo's camera at its ``focus`` (:func:`camera_at_focus`)."""
+    rig = replace(rig, cameras={c: camera_at_focus(rig, c, focus[c]["focus_m"]) if c in focus else cam
+                                for c, cam in rig.cameras.items()})
+    taps = {n: seen for n, seen in spec["points"].items() if len(seen) == 1}
+    found = match_taps(rig, taps, photos, min_distance_mm)
+    uv_px, matched, unmatched = {}, {}, {}
+    for name, seen in spec["points"].items():
+        uv_px[name] = dict(seen)
+        if name not in found:
+            continue
+        matched[name] = {c: m for c, m in found[name].items() if m.ok}
+        missed = {c: m.reason for c, m in found[name].items() if not m.ok}
+        if missed:
+            unmatched[name] = missed
+        uv_px[name].update({c: m.uv for c, m in matched[name].items()})
+        if len(uv_px[name]) < 2:
+            warn(f"point {name}: not found in the other photos ({'; '.join(f'{c}: {r}' for c, r in missed.items())}): "
+                 "it is not measured (tap it in another photo too, or pick a point with texture around it)")
+            del uv_px[name]
+    failed = {}
+    doc = _measured(rig, spec, uv_px, matched, pixel_sigma, failed)
+    for name, reason in failed.items():
+        unmatched[name] = {c: f"its rays do not meet in front of the cameras ({reason})" for c in matched[name]}
+        warn(f"point {name}: its match does not meet its tap's ray in front of the cameras: it is not measured")
+    for name, m in matched.items():
+        if name in doc["points"] and m:
+            doc["points"][name]["matched"] = {c: match_to_dict(x) for c, x in m.items()}
+    doc["unmatched"] = unmatched
+    return doc
+
+
+def _measured(rig: RigModel, spec: dict, uv_px: dict, matched: dict, pixel_sigma: dict,
+              failed: dict[str, str]) -> dict:
+    """The points ``uv_px`` ``{name: {camera: uv}}`` intersected and the lengths between them (module docstring); a
+    matched point whose rays do not meet (a match at or beyond infinity) is left out and named in ``failed``."""
     index, cov_theta = _covariances(rig)
-    found = intersect_points(rig, spec["points"], index)
+    given = {n: uv for n, uv in uv_px.items() if n not in matched}
+    found = {**intersect_points(rig, given, index),
+             **intersect_points(rig, {n: uv for n, uv in uv_px.items() if n in matched}, index, failed)}
+    found = {n: found[n] for n in uv_px if n in found}
     names = list(found)
-    var_px = {n: np.repeat([pixel_sigma[c] ** 2 for c in found[n].cameras], 2) for n in names}
+    for n in names:
+        for c, m in (matched.get(n) or {}).items():
+            matched[n][c] = m.widened(_epipolar_sigma_px(found[n], c, m, cov_theta))
+    pixel_cov = {n: _pixel_covariance(found[n].cameras, pixel_sigma, matched.get(n)) for n in names}
     # Every part is a fixed-size block (module docstring): a point's 3 x 3 pixel part A S A^T, and the
     # calibration's part through B (3 x k), so the cost grows linearly with the points and the lengths.
-    pixels = {n: (found[n].A * var_px[n]) @ found[n].A.T for n in names}
+    pixels = {n: found[n].A @ pixel_cov[n] @ found[n].A.T for n in names}
 
     doc_points, depth, chi2_limit = {}, {}, {}
     for n in names:
@@ -370,7 +617,7 @@ def measure(rig: RigModel, points: dict) -> dict:
         dof = 2 * len(p.cameras) - 3
         if dof not in chi2_limit:
             chi2_limit[dof] = chi2_quantile(dof, RESIDUAL_PROBABILITY)
-        consistent = bool(_residual_chi2(p, var_px[n], cov_theta) <= chi2_limit[dof])
+        consistent = bool(_residual_chi2(p, pixel_cov[n], cov_theta) <= chi2_limit[dof])
         doc_points[n] = {"xyz_mm": p.xyz_mm.tolist(), "sigma_mm": np.sqrt(var).tolist(), "cameras": list(p.cameras),
                          "distance_mm": distance, "depth_sigma_mm": depth[n],
                          "residual_px": {c: float(np.linalg.norm(r)) for c, r in zip(p.cameras, p.residual_px)},
@@ -381,8 +628,13 @@ def measure(rig: RigModel, points: dict) -> dict:
                  "far beyond their noise (pixel_sigma) and the calibration's uncertainty: not the same point in "
                  "every photo (a mis-click?), or photos not taken at one instant")
 
-    lengths = []
+    lengths, unmeasured = [], []
     for a, b in spec["lengths"]:
+        missing = [p for p in (a, b) if p not in found]
+        if missing:
+            unmeasured.append({"from": a, "to": b, "reason": f"point {missing[0]} is not measured (unmatched)"})
+            warn(f"length {a}-{b} is not measured: point {missing[0]} was not found in the other photos")
+            continue
         d = found[a].xyz_mm - found[b].xyz_mm
         length = float(np.linalg.norm(d))
         e = d / length
@@ -401,6 +653,4 @@ def measure(rig: RigModel, points: dict) -> dict:
                         "sigma_percent": 100.0 * sigma / length, "sigma_pixels_mm": float(np.sqrt(var_pixels)),
                         "sigma_calibration_mm": float(np.sqrt(max(e @ dB @ cov_theta[kind] @ dB.T @ e, 0.0))),
                         "bias_mm": bias, "meaningless": note is not None, "warning": note})
-    doc = {"frame": rig.reference, "points": doc_points, "lengths": lengths,
-           "pixel_sigma": {c: pixel_sigma[c] for c in rig.camera_order()}, "pixel_sigma_source": source}
-    return with_scale_in_measurement(doc, relative_sigma(rig.board))
+    return {"frame": rig.reference, "points": doc_points, "lengths": lengths, "unmeasured_lengths": unmeasured}

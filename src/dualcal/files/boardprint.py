@@ -4,8 +4,9 @@ The page shows the board that a command line describes (:mod:`dualcal.geometry.b
 margin under it, its specification (the command line that reads it back), a scale bar with
 millimetre ticks to check the print with a ruler, and the board's axes from corner 0. Every
 black area (the squares and, on a ChArUco board, the black cells of the markers, whose codes
-come from ``cv2.aruco.generateImageMarker``) is one filled path of rectangles in millimetres,
-so the PDF is vector art that a printer draws at its own resolution, and a PNG rasterised by
+come from ``cv2.aruco.generateImageMarker``) is one filled path of rectangles in millimetres
+(a circle grid's circles: one path of circles, matplotlib's eight Bezier arcs each, within 4e-6
+of the radius), so the PDF is vector art that a printer draws at its own resolution, and a PNG rasterised by
 matplotlib's Agg has exact area coverage at every edge (no seams between touching cells).
 
 Page coordinates are millimetres from the page's top-left corner, y down. Print the PDF at
@@ -47,8 +48,10 @@ class PageLayout:
 
     @property
     def board_mm(self) -> tuple[float, float]:
-        """Width and height of the squares' area (``cols + 1`` by ``rows + 1`` squares), mm."""
-        return ((self.board.cols + 1) * self.board.square_mm, (self.board.rows + 1) * self.board.square_mm)
+        """Width and height of the printed pattern (:meth:`Board.pattern_extent_mm`: a chessboard's ``cols + 1`` by
+        ``rows + 1`` squares), mm."""
+        x0, x1, y0, y1 = self.board.pattern_extent_mm()
+        return x1 - x0, y1 - y0
 
 
 def _quiet_zone_mm(board: Board) -> float:
@@ -67,7 +70,11 @@ def page_layout(board: Board, paper: str = "auto", dpi: float | None = None) -> 
     InputError
         When the board does not fit on the paper asked for.
     """
-    w, h = (board.cols + 1) * board.square_mm, (board.rows + 1) * board.square_mm
+    if board.pattern == "points":
+        raise InputError(f"{board.describe()}: a target given by its points is printed by whoever made it, "
+                         "not by dualcal")
+    x0, x1, y0, y1 = board.pattern_extent_mm()
+    w, h = x1 - x0, y1 - y0
     q = _quiet_zone_mm(board)
     need = (w + 2 * q, h + 2 * q + TEXT_MM)
     if paper not in PAPERS and paper not in ("auto", "fit"):
@@ -93,7 +100,22 @@ def page_layout(board: Board, paper: str = "auto", dpi: float | None = None) -> 
         page = tuple(np.floor(np.asarray(page) * dpi / MM_PER_INCH) * MM_PER_INCH / dpi)
     left = 0.5 * (page[0] - w)
     top = 0.5 * (page[1] - TEXT_MM - h)
-    return PageLayout((float(page[0]), float(page[1])), (left + board.square_mm, top + board.square_mm), board)
+    return PageLayout((float(page[0]), float(page[1])), (left - x0, top - y0), board)
+
+
+def _black_path(layout: PageLayout):
+    """One matplotlib path of every black area, page mm: a circle grid's circles, or the closed rectangles of
+    :func:`_black_rectangles`, all turning the same way (its fill is their union)."""
+    from matplotlib.path import Path as MplPath
+
+    board, (ox, oy) = layout.board, layout.origin_mm
+    if board.is_circle_grid:
+        centres = board.object_points_mm()[:, :2] + (ox, oy)
+        return MplPath.make_compound_path(*(MplPath.circle(tuple(c), 0.5 * board.circle_diameter_mm) for c in centres))
+    r = _black_rectangles(layout)
+    verts = np.stack([r[:, [0, 1]], r[:, [2, 1]], r[:, [2, 3]], r[:, [0, 3]], r[:, [0, 1]]], axis=1)
+    codes = np.tile([MplPath.MOVETO] + [MplPath.LINETO] * 3 + [MplPath.CLOSEPOLY], len(r))
+    return MplPath(verts.reshape(-1, 2), codes)
 
 
 def _black_rectangles(layout: PageLayout) -> np.ndarray:
@@ -121,6 +143,12 @@ def _black_rectangles(layout: PageLayout) -> np.ndarray:
 def _spec_lines(board: Board) -> list[str]:
     """What the page says about itself: the command line that reads the board, and its geometry."""
     s = board.square_mm
+    if board.is_circle_grid:
+        kind = "symmetric" if board.pattern == "circles" else "asymmetric"
+        return [f"--board {board.spec()} --square {s:g} --circle {board.circle_diameter_mm:g}",
+                f"{kind} circle grid of {board.cols} x {board.rows} circles of {board.circle_diameter_mm:g} mm, "
+                f"{s:g} mm apart "
+                "(OpenCV's count and order); point 0 at the top left"]
     if board.charuco is None:
         return [f"--board {board.spec()} --square {s:g}",
                 f"chessboard of {board.cols + 1} x {board.rows + 1} squares of {s:g} mm: {board.cols} x {board.rows} "
@@ -135,7 +163,6 @@ def _spec_lines(board: Board) -> list[str]:
 def _figure(layout: PageLayout, dpi: float):
     from matplotlib.figure import Figure
     from matplotlib.patches import PathPatch
-    from matplotlib.path import Path as MplPath
 
     W, H = layout.page_mm
     fig = Figure(figsize=(W / MM_PER_INCH, H / MM_PER_INCH), dpi=dpi)
@@ -143,16 +170,14 @@ def _figure(layout: PageLayout, dpi: float):
     ax.set_xlim(0, W)
     ax.set_ylim(H, 0)
     ax.set_axis_off()
-    r = _black_rectangles(layout)
-    # one path of closed rectangles, all turning the same way: its fill is their union
-    verts = np.stack([r[:, [0, 1]], r[:, [2, 1]], r[:, [2, 3]], r[:, [0, 3]], r[:, [0, 1]]], axis=1)
-    codes = np.tile([MplPath.MOVETO] + [MplPath.LINETO] * 3 + [MplPath.CLOSEPOLY], len(r))
-    ax.add_patch(PathPatch(MplPath(verts.reshape(-1, 2), codes), facecolor="black", edgecolor="none", lw=0,
+    ax.add_patch(PathPatch(_black_path(layout), facecolor="black", edgecolor="none", lw=0,
                            snap=False))          # Agg would move rectilinear edges to whole pixels
 
-    board, (ox, oy), s = layout.board, layout.origin_mm, layout.board.square_mm
+    board, (ox, oy) = layout.board, layout.origin_mm
+    x0, _, y0, _ = board.pattern_extent_mm()
     bw, bh = layout.board_mm
-    left, bottom = ox - s, oy - s + bh
+    left, top = ox + x0, oy + y0
+    bottom = top + bh
     pt = 72.0 / MM_PER_INCH                                      # points per mm
     text = dict(fontsize=3.2 * pt, color="black", va="top", ha="left", family="DejaVu Sans")
     lines = _spec_lines(board)
@@ -170,10 +195,10 @@ def _figure(layout: PageLayout, dpi: float):
     # the board's axes from corner 0, in the quiet zone above the squares
     q = 0.45 * _quiet_zone_mm(board)
     arrow = dict(arrowstyle="-|>", color="black", lw=0.25 * pt, mutation_scale=6)
-    ax.annotate("", (ox + 12.0, oy - s - q), (ox, oy - s - q), arrowprops=arrow)
-    ax.text(ox + 13.0, oy - s - q - 1.6, "X", **text)
-    ax.annotate("", (ox - s - q, oy + 12.0), (ox - s - q, oy), arrowprops=arrow)
-    ax.text(ox - s - q - 1.2, oy + 13.0, "Y", **text)
+    ax.annotate("", (ox + 12.0, top - q), (ox, top - q), arrowprops=arrow)
+    ax.text(ox + 13.0, top - q - 1.6, "X", **text)
+    ax.annotate("", (left - q, oy + 12.0), (left - q, oy), arrowprops=arrow)
+    ax.text(left - q - 1.2, oy + 13.0, "Y", **text)
     return fig
 
 

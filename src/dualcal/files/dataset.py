@@ -482,7 +482,7 @@ def split_roll_dataset(dataset: Dataset, corners: CornerSet) -> tuple[Dataset, C
     left_out.update({p.name: f"the same file as {kept.name}" for p, kept in identical.items()})
     symmetric = corners.board.is_symmetric and corners.board.charuco is None
     if dataset.roll is None:
-        by_camera, facts, notes, unknown = cameras_from_boards(photos, corners_uv, xy_board, symmetric)
+        by_camera, facts, notes, unknown = cameras_from_boards(photos, corners_uv, xy_board, symmetric, dataset.source)
         if len(dataset.cameras) == 1 and len(by_camera) <= 1:        # one camera, as the folder was opened
             one = replace(dataset, reference=choose_reference(dataset.cameras, options["reference"]), roll_options=None)
             _exclude(one, options["exclude"])
@@ -522,7 +522,8 @@ def _exclude(dataset: Dataset, patterns) -> None:
 
 def _regrouped(dataset: Dataset, corners: CornerSet, detected: dict[Path, tuple[str, str]], roll) -> CornerSet:
     """The corners of ``dataset``'s cameras and views, taken from ``corners`` by photo (``detected``: each photo's
-    camera and key there), with ``dataset``'s meta (and the manual and partial views the detection marked)."""
+    camera and key there), with ``dataset``'s meta (and the manual and partial views the detection marked, and each
+    photo's quality it measured)."""
     cameras = {}
     for name, photos in dataset.cameras.items():
         meta = dataset.meta(name)
@@ -531,6 +532,10 @@ def _regrouped(dataset: Dataset, corners: CornerSet, detected: dict[Path, tuple[
                           if detected[p.path][1] in corners.cameras[detected[p.path][0]].meta.get(flag, ()))
             if keys:
                 meta[flag] = keys
+        quality = {k: q for k, p in photos.items() if (q := corners.cameras[detected[p.path][0]].meta
+                                                       .get("photo_quality", {}).get(detected[p.path][1]))}
+        if quality:
+            meta["photo_quality"] = dict(sorted(quality.items()))
         uv = {k: corners.cameras[detected[p.path][0]].views[detected[p.path][1]] for k, p in photos.items()}
         cameras[name] = CameraCorners(dataset.image_size(name), uv, meta)
     return replace(corners, cameras=cameras, roll=roll)

@@ -27,8 +27,8 @@ from ..geometry.board import SHAPE_TERMS, Board
 from ..geometry.camera import (DEFAULT_LENS_MODEL, DISTORTION_NAMES, LENS_MODELS, CameraModel, intrinsic_names,
                                max_distorted_radius, normalized_from_pixel)
 from ..errors import InputError, OutputError
-from ..geometry.model import (MIXED_LENS_MODELS, CameraCorners, CornerSet, Pose, RigModel, RigRelation, rig_residuals,
-                              rms_px)
+from ..geometry.model import (MIXED_LENS_MODELS, CameraCorners, CornerSet, KnownIntrinsics, Pose, RigModel,
+                              RigRelation, rig_residuals, rms_px)
 from ..parallel import raise_if_cancelled
 from ..progress import warn
 from .schemas import validate
@@ -329,11 +329,14 @@ def json_kind(doc: dict) -> str:
         return "corners"
     if "points" in doc:
         return "measure" if "frame" in doc else "points"
+    if "cameras" in doc:
+        return "intrinsics"
     return "unknown"
 
 
 _KIND_NAMES = {"calib": "a calib.json", "eval": "an eval.json", "corners": "a corners.json",
-               "points": "a points.json", "measure": "a measure.json", "unknown": "not a dualcal file"}
+               "points": "a points.json", "measure": "a measure.json", "intrinsics": "an intrinsics.json",
+               "unknown": "not a dualcal file"}
 
 
 def _expect_kind(path, doc: dict, kind: str) -> None:
@@ -546,6 +549,9 @@ def rig_to_dict(rig: RigModel) -> dict:
     }
     if rig.covariance is not None:
         doc["covariance"] = rig.covariance
+    known = (rig.adjustment.get("known_intrinsics") or {}).get("cameras")
+    if known:
+        doc["intrinsics_given"] = {name: entry["mode"] for name, entry in sorted(known.items())}
     video = video_record(rig.corners)
     if video is not None:
         doc["video"] = video
@@ -667,15 +673,16 @@ def _camera_lens_model(entry: dict, common: str, what: str) -> str:
     return model
 
 
-def _check_lens_keys(entry: dict, model: str, what: str) -> None:
-    """Raise :class:`InputError` unless a camera entry has exactly the lens coefficients of ``model``."""
+def _check_lens_keys(entry: dict, model: str, what: str,
+                     named_by: str = "calib.json 'model'; a file without one is k1k2") -> None:
+    """Raise :class:`InputError` unless a camera entry has exactly the lens coefficients of ``model`` (which
+    ``named_by`` says where the file names)."""
     missing = [n for n in LENS_MODELS[model] if n not in entry]
     if missing:
-        raise InputError(f"{what} lacks {', '.join(missing)} of its lens model {model} (calib.json 'model')")
+        raise InputError(f"{what} lacks {', '.join(missing)} of its lens model {model} ({named_by})")
     foreign = [n for n in DISTORTION_NAMES if n in entry and n not in LENS_MODELS[model]]
     if foreign:
-        raise InputError(f"{what} has {', '.join(foreign)}, which its lens model {model} does not have "
-                         "(calib.json 'model'; a file without one is k1k2)")
+        raise InputError(f"{what} has {', '.join(foreign)}, which its lens model {model} does not have ({named_by})")
 
 
 def _lens_fold_problem(cam: CameraModel, corners: CameraCorners | None) -> str | None:
@@ -765,6 +772,142 @@ def load_evaluation(path) -> dict:
     return _load(path, "eval")
 
 
+# ---------------------------------------------------------------------------- intrinsics.json (calibrate --intrinsics)
+
+
+def intrinsics_to_dict(cameras: dict[str, KnownIntrinsics], poses: dict[str, Pose] | None = None,
+                       frame: str | None = None, source: dict | None = None) -> dict:
+    """The intrinsics.json document of known intrinsics (its schema: ``dualcal schema intrinsics``).
+
+    Parameters
+    ----------
+    cameras : dict of str to KnownIntrinsics
+        Each camera's lens model and values, with their sigma or covariance where known.
+    poses : dict of str to Pose, optional
+        Cameras' poses in the source, ``X_cam = R X_frame + t_mm`` (written as each camera's ``extrinsics``).
+    frame : str, optional
+        What ``X_frame`` is (a camera's name, or the source's world).
+    source : dict, optional
+        What was imported (``{"format": ..., "paths": [...]}``).
+
+    Returns
+    -------
+    dict
+        The document, contract keys first.
+    """
+    doc: dict = {"dualcal_version": __version__}
+    if source is not None:
+        doc["source"] = source
+    doc["cameras"] = {}
+    for name, known in cameras.items():
+        cam = known.camera
+        entry = {"model": cam.model, "image_size": list(cam.image_size),
+                 **{n: float(getattr(cam, n)) for n in intrinsic_names(cam.model)}}
+        if known.sigma:
+            entry["sigma"] = {n: float(v) for n, v in known.sigma.items()}
+        if known.covariance is not None:
+            entry["covariance"] = {"parameters": list(known.parameters),
+                                   "matrix": np.asarray(known.covariance, float).tolist()}
+        if poses and name in poses:
+            entry["extrinsics"] = {"frame": frame or "", **poses[name].to_dict()}
+        doc["cameras"][name] = entry
+    return doc
+
+
+def _known_covariance(entry: dict, names: tuple[str, ...], what: str) -> tuple[tuple[str, ...], np.ndarray | None]:
+    """A camera entry's ``covariance`` as ``(parameters, (k, k) matrix)``, checked: intrinsics of its lens model,
+    symmetric, positive semi-definite."""
+    cov = entry.get("covariance")
+    if cov is None:
+        return (), None
+    parameters = tuple(cov["parameters"])
+    foreign = [n for n in parameters if n not in names]
+    if foreign or len(set(parameters)) != len(parameters):
+        raise InputError(f"{what} covariance: its parameters must be distinct intrinsics of its lens model "
+                         f"({', '.join(names)}), not {', '.join(foreign) or 'repeated'}")
+    k = len(parameters)
+    matrix = _finite_array(cov["matrix"], (k, k), f"{what} covariance matrix ({k} parameters)")
+    scale = max(float(np.max(np.abs(np.diag(matrix)))), np.finfo(float).tiny)
+    if not np.allclose(matrix, matrix.T, rtol=1e-9, atol=1e-12 * scale) \
+            or np.min(np.linalg.eigvalsh(0.5 * (matrix + matrix.T))) < -1e-9 * scale:
+        raise InputError(f"{what} covariance matrix is not symmetric positive semi-definite: not a covariance")
+    return parameters, matrix
+
+
+def intrinsics_from_dict(doc: dict, source: str = "intrinsics.json") -> dict[str, KnownIntrinsics]:
+    """Validate an intrinsics.json document and build each camera's :class:`KnownIntrinsics` (a prior where the
+    camera has ``sigma`` or ``covariance``, else fixed).
+
+    Raises
+    ------
+    InputError
+        An unknown lens model, coefficients that are not exactly the model's, a sigma or covariance of names
+        that are not its intrinsics, a matrix that is not a covariance.
+    """
+    out = {}
+    for name, e in doc["cameras"].items():
+        what = f"{source}: camera {name!r}"
+        model = e["model"]
+        if model not in LENS_MODELS:
+            raise InputError(f"{what}: lens model {model!r} is unknown (dualcal knows {', '.join(LENS_MODELS)})")
+        _check_lens_keys(e, model, what, "its 'model'")
+        names = intrinsic_names(model)
+        sigma = {k: float(v) for k, v in e.get("sigma", {}).items()}
+        foreign = [k for k in sigma if k not in names]
+        if foreign:
+            raise InputError(f"{what}: sigma of {', '.join(foreign)}, which are not intrinsics of its lens model "
+                             f"{model} ({', '.join(names)})")
+        parameters, covariance = _known_covariance(e, names, what)
+        camera = CameraModel(_image_size(e["image_size"], what), float(e["fx"]), float(e["fy"]),
+                             float(e.get("skew", 0.0)), float(e["cx"]), float(e["cy"]),
+                             **{n: float(e[n]) for n in LENS_MODELS[model]}, model=model)
+        prior = bool(sigma) or covariance is not None
+        out[str(name)] = KnownIntrinsics(camera, "prior" if prior else "fixed", sigma, parameters, covariance,
+                                         source)
+    return out
+
+
+def load_intrinsics(path) -> dict[str, KnownIntrinsics]:
+    """Read an intrinsics.json (``dualcal import`` writes them; ``calibrate --intrinsics`` takes them), checked
+    against its schema and beyond it.
+
+    Parameters
+    ----------
+    path : str or Path
+        The intrinsics.json to read.
+
+    Returns
+    -------
+    dict of str to KnownIntrinsics
+        Each camera's known intrinsics, a prior where the file gives a sigma or covariance, else fixed.
+
+    Raises
+    ------
+    InputError
+        A missing or unreadable file, or one that breaks a rule (the message names the key).
+    """
+    return intrinsics_from_dict(_load(path, "intrinsics"), str(path))
+
+
+def save_intrinsics(path, cameras: dict[str, KnownIntrinsics], poses: dict[str, Pose] | None = None,
+                    frame: str | None = None, source: dict | None = None) -> None:
+    """Write an intrinsics.json (:func:`intrinsics_to_dict`) atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to write; its folder must exist.
+    cameras, poses, frame, source
+        As :func:`intrinsics_to_dict`.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (a full disk, a read-only folder); nothing was replaced.
+    """
+    write_json_atomic(path, intrinsics_to_dict(cameras, poses, frame, source))
+
+
 # ---------------------------------------------------------------------------- files that belong together
 
 #: The calib.json keys that define a calibration (what is hashed by :func:`calibration_fingerprint`).
@@ -830,8 +973,9 @@ def check_corners_fit(rig: RigModel, source: str, slack_px: float = 1.0) -> None
 # ---------------------------------------------------------------------------- points.json (dualcal measure)
 
 
-def load_points(path) -> dict:
-    """Read and validate a points.json (:func:`dualcal.estimation.measurement.points_from_dict`)."""
+def load_points(path, single_camera: bool = False) -> dict:
+    """Read and validate a points.json (:func:`dualcal.estimation.measurement.points_from_dict`; ``single_camera``:
+    points may be given in one camera, to be found in the instant's photos)."""
     from ..estimation.measurement import points_from_dict
 
-    return points_from_dict(_load(path, "points"), str(path))
+    return points_from_dict(_load(path, "points"), str(path), single_camera)

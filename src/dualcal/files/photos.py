@@ -23,8 +23,9 @@ import contextlib
 import functools
 import io
 import os
+import struct
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -48,8 +49,9 @@ if TYPE_CHECKING:
 if Image.MAX_IMAGE_PIXELS is not None:
     Image.MAX_IMAGE_PIXELS = max(Image.MAX_IMAGE_PIXELS, 256_000_000)
 
-__all__ = ["PHOTO_MEMORY_BYTES", "PHOTO_SUFFIXES", "RAW_SUFFIXES", "Photo", "decode_bytes_per_pixel",
-           "jobs_within_memory", "open_image", "output_suffix", "read_exif", "read_gray", "source_format"]
+__all__ = ["PHOTO_MEMORY_BYTES", "PHOTO_SUFFIXES", "RAW_SUFFIXES", "FocusFacts", "Photo", "apple_maker_note",
+           "decode_bytes_per_pixel", "jobs_within_memory", "open_image", "output_suffix", "read_exif", "read_focus",
+           "read_gray", "source_format"]
 
 RAW_SUFFIXES = (".dng",)
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic", ".heif", *RAW_SUFFIXES)
@@ -205,6 +207,128 @@ def _heif_undo(img: Image.Image) -> list[Image.Transpose]:
 def _stored_size(img: Image.Image, undo: list[Image.Transpose]) -> tuple[int, int]:
     turns = sum(op in (Image.Transpose.ROTATE_90, Image.Transpose.ROTATE_270) for op in undo)
     return (int(img.height), int(img.width)) if turns % 2 else (int(img.width), int(img.height))
+
+
+# ---------------------------------------------------------------------------- where a photo focused
+
+# EXIF 2.3: SubjectDistance (RATIONAL, m; 0 unknown, 0xFFFFFFFF/1 infinity), SubjectDistanceRange (SHORT),
+# MakerNote (UNDEFINED)
+_SUBJECT_DISTANCE, _SUBJECT_DISTANCE_RANGE, _MAKER_NOTE = 0x9206, 0xA40C, 0x927C
+#: EXIF SubjectDistanceRange's values.
+SUBJECT_DISTANCE_RANGES = {0: "unknown", 1: "macro", 2: "close view", 3: "distant view"}
+#: Apple's MakerNote: this prefix, then (at byte 12) the byte order of the TIFF IFD that starts at byte 14, its
+#: offsets counted from the MakerNote's first byte (the layout of exiftool's Apple table and MakerNotes.pm).
+_APPLE_PREFIX, _APPLE_IFD_START = b"Apple iOS\0", 14
+#: The Apple tags read, by exiftool's names: tag -> (name, how many values).
+_APPLE_TAGS = {0x0007: ("AFStable", 1), 0x0008: ("AccelerationVector", 3), 0x000C: ("FocusDistanceRange", 2),
+               0x002F: ("FocusPosition", 1), 0x0038: ("AFMeasuredDepth", 1), 0x003D: ("AFConfidence", 1)}
+# TIFF field types -> (struct code, bytes); a rational is two of them
+_TIFF_TYPES = {1: ("B", 1), 3: ("H", 2), 4: ("I", 4), 5: ("I", 4), 6: ("b", 1), 8: ("h", 2), 9: ("i", 4),
+               10: ("i", 4), 11: ("f", 4), 12: ("d", 8)}
+
+
+@dataclass(frozen=True)
+class FocusFacts:
+    """Where a photo focused, as its metadata says (:func:`read_focus`).
+
+    ``subject_distance_m``: EXIF ``SubjectDistance`` (None: absent or 0, "unknown"; ``inf``: infinity);
+    ``subject_distance_range``: EXIF ``SubjectDistanceRange`` as its name (:data:`SUBJECT_DISTANCE_RANGES`);
+    ``apple``: the Apple MakerNote's tags of :data:`_APPLE_TAGS` by exiftool's names (``FocusDistanceRange``
+    a pair of metres, ``AccelerationVector`` three values in g, the others integers), empty without one.
+    """
+
+    subject_distance_m: float | None = None
+    subject_distance_range: str | None = None
+    apple: dict = field(default_factory=dict)
+
+    @property
+    def focus_m(self) -> float | None:
+        """The focus distance, m: the middle of Apple's ``FocusDistanceRange`` (the autofocus's own estimate), else
+        EXIF ``SubjectDistance``; None when neither states one (infinity is not a distance to model)."""
+        lo_hi = self.apple.get("FocusDistanceRange")
+        if lo_hi and all(np.isfinite(lo_hi)) and min(lo_hi) > 0:
+            return float(sum(lo_hi) / 2)
+        d = self.subject_distance_m
+        return d if d is not None and np.isfinite(d) else None
+
+    @property
+    def source(self) -> str | None:
+        """Which tag :attr:`focus_m` comes from (``"Apple FocusDistanceRange"``, ``"EXIF SubjectDistance"``)."""
+        if self.focus_m is None:
+            return None
+        lo_hi = self.apple.get("FocusDistanceRange")
+        return "Apple FocusDistanceRange" if lo_hi and min(lo_hi) > 0 else "EXIF SubjectDistance"
+
+
+def apple_maker_note(data: bytes) -> dict:
+    """The tags of :data:`_APPLE_TAGS` in an Apple MakerNote (EXIF tag 0x927C's bytes; module constants say the
+    layout), by exiftool's names; empty for another maker's note or a malformed one."""
+    if not isinstance(data, bytes) or not data.startswith(_APPLE_PREFIX) or len(data) < _APPLE_IFD_START + 2:
+        return {}
+    order = "<" if data[12:14] == b"II" else ">"
+    try:
+        (count,) = struct.unpack_from(order + "H", data, _APPLE_IFD_START)
+        out = {}
+        for i in range(count):
+            tag, kind, n, value = struct.unpack_from(order + "HHI4s", data, _APPLE_IFD_START + 2 + 12 * i)
+            if tag not in _APPLE_TAGS or kind not in _TIFF_TYPES:
+                continue
+            name, wanted = _APPLE_TAGS[tag]
+            code, size = _TIFF_TYPES[kind]
+            items = n * (2 if kind in (5, 10) else 1)
+            raw = value if items * size <= 4 else data[struct.unpack(order + "I", value)[0]:][:items * size]
+            if len(raw) < items * size:
+                continue                                        # its values lie beyond the note's end
+            numbers = struct.unpack(order + code * items, raw[:items * size])
+            if kind in (5, 10):
+                numbers = tuple(p / q if q else float("nan") for p, q in zip(numbers[::2], numbers[1::2]))
+            if len(numbers) >= wanted:
+                out[name] = numbers[0] if wanted == 1 else tuple(float(x) for x in numbers[:wanted])
+        return out
+    except struct.error:
+        return {}
+
+
+def _focus_from_exif(exif: Image.Exif) -> FocusFacts:
+    sub = exif.get_ifd(_EXIF_IFD) if exif else {}
+    tags = {**dict(exif or {}), **dict(sub)}           # a DNG (TIFF/EP) may keep them in IFD 0
+    distance = tags.get(_SUBJECT_DISTANCE)
+    d = _rational(distance)
+    if d is not None and getattr(distance, "numerator", None) == 0xFFFFFFFF:
+        d = float("inf")
+    code = tags.get(_SUBJECT_DISTANCE_RANGE)
+    return FocusFacts(d if d else None, SUBJECT_DISTANCE_RANGES.get(code) if isinstance(code, int) else None,
+                      apple_maker_note(tags.get(_MAKER_NOTE)))
+
+
+def read_focus(path) -> FocusFacts:
+    """Where a photo focused, from its metadata only (:class:`FocusFacts`): EXIF ``SubjectDistance`` and
+    ``SubjectDistanceRange`` (JPEG, HEIC, DNG), and an iPhone's Apple MakerNote (``FocusDistanceRange``,
+    ``FocusPosition``, ``AFStable``, ...). A photo without them gives empty facts (``focus_m`` None).
+
+    Android's Camera2 focus distance (``LENS_FOCUS_DISTANCE``, dioptres) has no EXIF tag of its own: it is read
+    where the camera app wrote it as ``SubjectDistance``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The photo (JPEG, PNG, TIFF, HEIC or DNG); only its header is read.
+
+    Returns
+    -------
+    FocusFacts
+        What its metadata says; ``focus_m`` is the distance to use (None: none stated).
+
+    Raises
+    ------
+    InputError
+        Not a readable image.
+    """
+    if _is_raw(path):
+        with _reading(path), open(path, "rb") as fp:
+            return _focus_from_exif(_TiffTags(fp).getexif())
+    with _reading(path), _pillow_open(path) as img:
+        return _focus_from_exif(img.getexif())
 
 
 def read_exif(path) -> tuple[tuple[int, int], dict]:

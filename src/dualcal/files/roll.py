@@ -19,14 +19,18 @@ a board, never waits for the rest), then, once the boards are detected, the inst
 * **a photo stored turned** (:func:`turned_photos`): a photo of the same lens whose size is the other
   photos' transposed (1536 x 2048 among 2048 x 1536) is left out with a warning, not taken for a camera.
 * **cameras by what the photos show** (:func:`cameras_from_boards`), where the photos carry no EXIF (a
-  phone's browser strips it on upload): by image size, then by the focal length each photo's board gives
-  alone (:mod:`dualcal.geometry.one_view`), grouped around the values many photos share. A board seen nearly
-  square-on gives a focal length that fits more than one camera; two more clues decide then, over the roll
-  in shooting order at once (the most likely labelling of a chain): successive photos of one position by two
-  lenses look alike but for the ratio of their focal lengths (:func:`looks_alike`), and each lens bends the
-  board as it does (its division model, fitted to the photos told so far: an ultra-wide's board near the
-  image's edge fits no other lens). A photo still unclear is left out, saying so. Named by the same rule,
-  from the focal length found.
+  phone's browser strips it on upload): by image size, then by the lens each photo's board shows alone, its
+  focal length and how it bends the board (:func:`dualcal.geometry.one_view.view_lens`), grouped with a
+  stated margin (:mod:`dualcal.files.roll_lenses`: two photos are of one lens where they differ by less than
+  a few sigma of their difference, two lenses are told apart where their means differ by more; lenses too
+  close to tell are refused, saying what to do). Lenses so close that their photos' focal lengths look like
+  one lens's still show in the roll: successive photos of one position scaled by the same ratio again and
+  again (:func:`scale_step`); they are split by that ratio, or refused where even it cannot tell which photo is
+  which. A board seen nearly square-on gives a focal length that fits
+  more than one camera; the photos beside it decide then, over the roll in shooting order at once (the most
+  likely labelling of a chain): successive photos of one position by two lenses look alike but for the ratio
+  of their focal lengths (:func:`looks_alike`). A photo still unclear is left out, saying so. Named by the same
+  rule, from the focal length found.
 * **instants** (:func:`split_roll`): the photos in shooting order (capture time, else file name) are
   split into board positions by every clue the roll gives: the board's image and pose, the capture
   times, the lens order (:mod:`dualcal.files.roll_positions`), each decision with its margin (log-odds);
@@ -37,43 +41,46 @@ a board, never waits for the rest), then, once the boards are detected, the inst
 Every decision is kept in :attr:`CameraRoll.record`, corners.json's top-level ``roll``: which clues told
 the cameras (``clues.cameras``: ``EXIF lens``, ``image size``, ``focal length from the board``) and the
 instants (``clues.instants``: ``capture time``, ``order``, ``board image``, ``board pose``, ``lens
-order``), each camera's facts, each instant's photos and margin, what was left out and why.
+order``), each camera's facts, each instant's photos and margin, what was left out and why; where the boards
+told the cameras, how far apart the closest two lenses of one size are (``cameras_separation_sigma``, in sigma
+of their difference) and how sure that is (``cameras_sure``).
 """
 
 from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..errors import InputError
 from ..geometry.camera import equivalent_focal_35mm, focal_px_from_35mm
 from ..geometry.model import observed_mask
-from ..geometry.one_view import OneView, board_pixels, common_division, division_misfits, one_view, spread_px
+from ..geometry.one_view import OneView, board_pixels, common_division, one_view, spread_px, view_lens
 from .photos import Photo
+from .roll_lenses import MIN_LENS_PHOTOS, SPLIT_SIGMA, LensSplit, find_lenses, lens_of, log_likelihoods, separations
 from .roll_positions import CERTAIN, MIN_MARGIN, SAME_IMAGE, Shot, image_change, split_positions
 
 __all__ = ["CameraRoll", "camera_class", "cameras_from_boards", "equivalent_focal_mm", "has_lens_exif",
-           "is_camera_roll", "looks_alike", "shooting_order", "split_cameras", "split_roll", "turned_photos"]
+           "is_camera_roll", "looks_alike", "scale_step", "shooting_order", "split_cameras", "split_roll",
+           "turned_photos"]
 
-#: The spread of one lens's focal lengths from single views beyond their measured noise: the principal
-#: point off the centre and the division model's misfit of the real lens (natural log).
-FOCAL_MODEL_SIGMA = 0.08
-#: What the model leaves out grows as the board faces the camera: a board tilted by ``t`` adds this over
-#: ``tan(t)`` to the spread of its log focal length (a board 5 degrees from square-on: 0.34).
-TILT_SIGMA = 0.03
-#: Two groups of focal lengths closer than this ratio are one camera (a phone's lenses differ by 1.5 or more).
-SAME_FOCAL_RATIO = 1.3
 #: A photo takes a camera where the odds for it are at least this (99:1).
 SURE_ODDS = 99.0
+#: A photo fits the lens it is told to where its point (``ln f``, the division model's coefficient) lies within
+#: this Mahalanobis distance squared of the lens's mean (a chi-square of 2 degrees of freedom at 1e-4).
+FITS_LENS_CHI2 = 18.42
 #: Two photos of one position by two lenses look alike (:func:`looks_alike`): the board's shapes agree within
 #: this share of its size, and its shift (the small rotation between the lenses, their parallax) within this
 #: angle (radians; 6 degrees).
 ALIKE_SHAPE, ALIKE_SHIFT_RAD = 0.08, 0.1
 #: The log-odds two successive photos that look alike give their labels (one position).
 ALIKE_LOG_ODDS = 6.0
+#: Two successive photos of one lens that show one position scaled by more than this (``|ln r|``: a refocus moves
+#: a phone's focal length by 1.5 % at most) are two lenses' photos, where :data:`LENS_STEP_PAIRS` pairs show the
+#: same ratio within :data:`LENS_STEP_TOLERANCE` (a board moved towards the camera gives a ratio of its own).
+MIN_LENS_STEP, LENS_STEP_PAIRS, LENS_STEP_TOLERANCE = 0.02, 3, 0.01
 
 
 @dataclass
@@ -217,52 +224,6 @@ def split_cameras(photos: list[Photo]) -> tuple[dict[str, list[Photo]], dict[str
 
 # ---------------------------------------------------------------------------- cameras from the boards
 
-def _log_focal_modes(x: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """The log focal lengths that groups of photos share: the modes of the photos' densities (each a normal
-    of its spread), those closer than :data:`SAME_FOCAL_RATIO` merged, refined by expectation-maximisation,
-    and kept where they hold at least 1.5 photos and a fifth as many as the largest."""
-    grid = np.arange(x.min() - 0.5, x.max() + 0.5, 0.01)
-    density = np.sum(np.exp(-0.5 * ((grid[:, None] - x) / s) ** 2) / s, axis=1)
-    peaks = [i for i in range(1, len(grid) - 1) if density[i] >= density[i - 1] and density[i] > density[i + 1]]
-    modes: list[float] = []
-    for i in sorted(peaks, key=lambda i: -density[i]):
-        if all(abs(grid[i] - m) >= np.log(SAME_FOCAL_RATIO) for m in modes):
-            modes.append(float(grid[i]))
-    mu = np.array(sorted(modes) or [float(np.median(x))])
-    for _ in range(10):
-        r = _responsibilities(x, s, mu)
-        mass = r.sum(axis=0)
-        keep = mass >= max(1.5, 0.2 * mass.max())
-        mu, r = mu[keep], r[:, keep]
-        mu = np.sum(r * x[:, None] / s[:, None] ** 2, axis=0) / np.sum(r / s[:, None] ** 2, axis=0)
-    return mu
-
-
-def _responsibilities(x: np.ndarray, s: np.ndarray, mu: np.ndarray) -> np.ndarray:
-    """(n, m) probability of each photo's log focal length ``x`` (spread ``s``) under each mode ``mu``."""
-    z = -0.5 * ((x[:, None] - mu[None, :]) / s[:, None]) ** 2
-    z -= z.max(axis=1, keepdims=True)
-    p = np.exp(z)
-    return p / p.sum(axis=1, keepdims=True)
-
-
-def _log_focal_spread(view: OneView) -> float:
-    """The spread of the log focal length a view gives: its measured spread, :data:`FOCAL_MODEL_SIGMA` and
-    :data:`TILT_SIGMA` over the tangent of the board's tilt, together (inf where it gives none)."""
-    if not (np.isfinite(view.f_px) and np.isfinite(view.f_log_sigma) and view.tilt_deg > 0):
-        return np.inf
-    return float(np.sqrt(view.f_log_sigma**2 + FOCAL_MODEL_SIGMA**2 + (TILT_SIGMA / np.tan(np.radians(view.tilt_deg))) ** 2))
-
-
-def _camera_log_odds(view: OneView, modes: np.ndarray) -> np.ndarray:
-    """(m,) the log-probability that a photo is of each camera (``modes``: their log focal lengths) by the focal
-    length its board gives (equal where it gives none)."""
-    spread = _log_focal_spread(view)
-    if not np.isfinite(spread):
-        return np.full(len(modes), -np.log(len(modes)))
-    return np.log(np.maximum(_responsibilities(np.array([np.log(view.f_px)]), np.array([spread]), modes)[0], 1e-300))
-
-
 def looks_alike(a: OneView, b: OneView, ratio: float, f_px: float, xy_board: np.ndarray,
                 symmetric: bool = False) -> bool:
     """Whether photo ``b``'s board, scaled about the image centre by ``ratio`` (``a``'s camera's focal length,
@@ -280,6 +241,44 @@ def looks_alike(a: OneView, b: OneView, ratio: float, f_px: float, xy_board: np.
         if shape <= ALIKE_SHAPE * size and np.linalg.norm(shift) <= ALIKE_SHIFT_RAD * f_px:
             return True
     return False
+
+
+def scale_step(a: OneView, b: OneView, f_px: float, xy_board: np.ndarray, symmetric: bool = False) -> float | None:
+    """``ln r`` where photo ``b``'s board scaled by ``r`` about the image centre is ``a``'s (:func:`looks_alike`): one
+    board position shot by two lenses whose focal lengths differ by ``r`` (``r`` by least squares, the shift
+    free), or None where the boards are not alike (another position)."""
+    pa, pb = board_pixels(a, xy_board), board_pixels(b, xy_board)
+    for other in ([pb, pb[::-1]] if symmetric else [pb]):
+        da, db = pa - pa.mean(axis=0), other - other.mean(axis=0)
+        r = float(np.sum(da * db) / np.sum(db * db))
+        if r > 0 and looks_alike(a, b if other is pb else _turned(b), r, f_px, xy_board):
+            return float(np.log(r))
+    return None
+
+
+def _turned(view: OneView) -> OneView:
+    """A view of a board that looks the same turned by 180 degrees, numbered the other way round."""
+    turn = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
+    return replace(view, H=view.H @ turn)
+
+
+def _two_lenses_in_one(chain: list[OneView], labels: np.ndarray, lenses: list, xy_board: np.ndarray,
+                       symmetric: bool) -> list[tuple[int, int, float]]:
+    """The successive photos ``(i - 1, i)`` given one lens that show one board position scaled by the same ratio
+    ``ln r`` (beyond a refocus, :data:`MIN_LENS_STEP`) as at least :data:`LENS_STEP_PAIRS` - 1 other such pairs
+    (within :data:`LENS_STEP_TOLERANCE`): two lenses whose photos' focal lengths could not tell them apart, whose
+    photos of one position tell them so (none where no ratio repeats)."""
+    steps = []
+    for i in range(1, len(chain)):
+        if labels[i] == labels[i - 1]:
+            step = scale_step(chain[i - 1], chain[i], lenses[labels[i]].f_px, xy_board, symmetric)
+            if step is not None and abs(step) >= MIN_LENS_STEP:
+                steps.append((i - 1, i, step))
+    best: list[tuple[int, int, float]] = []
+    for _, _, step in steps:
+        near = [s for s in steps if abs(abs(s[2]) - abs(step)) <= LENS_STEP_TOLERANCE]
+        best = near if len(near) > len(best) else best
+    return best if len(best) >= LENS_STEP_PAIRS else []
 
 
 def _chain_labels(views: list[OneView], unary: np.ndarray, modes: np.ndarray, xy_board: np.ndarray,
@@ -312,18 +311,77 @@ def _chain_labels(views: list[OneView], unary: np.ndarray, modes: np.ndarray, xy
     return np.argmax(marginal, axis=1), best[:, -1] - (best[:, -2] if m > 1 else -np.inf)
 
 
-def _lens_log_odds(uv: np.ndarray, size, lams: np.ndarray, xy_board: np.ndarray) -> np.ndarray:
-    """(m,) the log-likelihood of a photo's corners under each camera's lens (``lams``: their division models),
-    from the misfits of its homography with each (chi-square with the corners' noise from the best, at least
-    0.05 px; at most 20 against). A board near the image's centre fits every lens alike; one near an
-    ultra-wide's edge only its own."""
-    seen = observed_mask(uv)
-    misfit = division_misfits(xy_board, uv, size, lams)
-    variance = max(misfit.min(), 0.05) ** 2 / 2.0                      # per coordinate
-    return np.maximum(-seen.sum() * (misfit**2 - misfit.min() ** 2) / (2.0 * variance), -20.0)
+def _sureness_of_split(sigma: float) -> str:
+    """Two lenses' separation (:func:`dualcal.files.roll_lenses.find_lenses`) in words: ``certain`` (twice the
+    margin or more), ``sure`` (the margin or more), ``unsure`` (refused)."""
+    return "certain" if sigma >= 2 * SPLIT_SIGMA else "sure" if sigma >= SPLIT_SIGMA else "unsure"
 
 
-def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndarray, symmetric: bool = False):
+def _not_told(folder: str, size, split: LensSplit, views: list) -> InputError:
+    """The refusal of a roll whose lenses of one size cannot be told apart (:attr:`LensSplit.told`): two lenses
+    closer than :data:`dualcal.files.roll_lenses.SPLIT_SIGMA`, or photos that scatter more than one lens's without a
+    gap."""
+    where = f"{folder + ': ' if folder else ''}the photos of {size[0]}x{size[1]} px without EXIF"
+    if split.unresolved:
+        i, j = min(split.unresolved, key=lambda ij: split.separation_sigma[ij])
+        a, b = split.lenses[i], split.lenses[j]
+        what = (f"show two groups of focal lengths, {a.f_px:.0f} +- {a.f_sigma_px:.0f} px ({len(a.members)} photos) "
+                f"and {b.f_px:.0f} +- {b.f_sigma_px:.0f} px ({len(b.members)}), only {split.separation_sigma[i, j]:.1f} "
+                f"sigma apart (at least {SPLIT_SIGMA:g} tell two lenses apart)")
+    else:
+        group = max(split.spread, key=len)
+        f = sorted(views[i].f_px for i in group)
+        what = (f"show focal lengths from {f[0]:.0f} to {f[-1]:.0f} px ({len(group)} photos) that scatter more than "
+                "one lens's photos do, but in no groups apart (lenses too close to tell, or one lens that moved "
+                "between the photos)")
+    return InputError(f"{where} {what}: which lens took which photo cannot be told; keep the EXIF (export the "
+                      "originals from the phone, not through a browser), or put each camera's photos in a folder of "
+                      "its own (a dataset folder with one subfolder per camera)")
+
+
+def _split_by_steps(views: list, split: LensSplit, labels: np.ndarray, steps: list, chain: list,
+                    xy_board: np.ndarray, symmetric: bool) -> LensSplit | None:
+    """One lens found that is two (:func:`_two_lenses_in_one`) split by the ratio its photos of one position show:
+    two lenses ``ln r`` apart about its mean, each photo told by its focal length and by the photos beside it
+    (:func:`_chain_labels`), then each lens from its photos. Their separation is the ratio's, in sigma of its mean
+    over the pairs (its spread at least 0.2 %). None where the photos do not fall into two lenses of at least
+    :data:`dualcal.files.roll_lenses.MIN_LENS_PHOTOS` photos with every pair on its two sides."""
+    k = int(labels[steps[0][1]])
+    log_r = np.array([abs(step) for _, _, step in steps])
+    delta = float(np.median(log_r))
+    half = np.array([delta / 2.0, 0.0])
+    lens = split.lenses[k]
+    pseudo = split.lenses[:k] + [replace(lens, mean=lens.mean - half), replace(lens, mean=lens.mean + half)] \
+        + split.lenses[k + 1:]
+    unary, _ = log_likelihoods(views, pseudo)
+    new, margins = _chain_labels(chain, unary, np.array([q.mean[0] for q in pseudo]), xy_board, symmetric)
+    sure = margins >= np.log(SURE_ODDS)
+    members = [np.flatnonzero((new == j) & sure) for j in (k, k + 1)]
+    # a step is ln(f of the first / f of the second): the first is the longer lens where it is positive
+    sides = [(new[i] == k + (step > 0), new[j] == k + (step < 0)) for i, j, step in steps]
+    if min(len(m) for m in members) < MIN_LENS_PHOTOS or not all(a and b for a, b in sides):
+        return None
+    lenses = split.lenses[:k] + [lens_of(views, m) for m in members] + split.lenses[k + 1:]
+    sep = separations(lenses)
+    sep[k, k + 1] = sep[k + 1, k] = delta / (max(float(np.std(log_r)), 0.002) / np.sqrt(len(log_r)))
+    return LensSplit(lenses, sep, [], split.stray, [], (k, k + 1))
+
+
+def _two_in_one(folder: str, size, pairs: list) -> InputError:
+    """The refusal of a roll where one lens found is two (:func:`_two_lenses_in_one`) and their photos could not be
+    told apart even by their photos of one position (:func:`_split_by_steps`)."""
+    named = ", ".join(f"{a.path.name} and {b.path.name}" for a, b, _ in pairs[:3])
+    ratio = float(np.exp(np.median([abs(step) for _, _, step in pairs])))
+    return InputError(
+        f"{folder + ': ' if folder else ''}the photos of {size[0]}x{size[1]} px without EXIF show one lens by their "
+        f"focal lengths, but {len(pairs)} pairs of successive photos ({named}) show one board position {ratio:.3f} "
+        "times larger in the second: two lenses too close to tell which took which photo; keep the EXIF (export the "
+        "originals from the phone, not through a browser), or put each camera's photos in a folder of its own (a "
+        "dataset folder with one subfolder per camera)")
+
+
+def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndarray, symmetric: bool = False,
+                        folder: str = ""):
     """The cameras of photos without EXIF, from what they show (module docstring).
 
     Parameters
@@ -332,12 +390,24 @@ def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndar
     corners_uv : ``{path: (N, 2) pixels or None}``, each photo's detected corners (NaN rows where not measured).
     xy_board : (N, 2) the board's corners, mm.
     symmetric : the board looks the same turned by 180 degrees (its photos may be numbered either way round).
+    folder : the roll's folder, for the messages.
 
     Returns
     -------
     ``(cameras, facts, warnings, left_out)``: the photos by camera name, each camera's facts (``told_by``,
-    ``focal_length_board_px``, ``focal_length_35mm_mm``, ``image_size``, ``photos``), the warnings to give,
-    and ``{file name: reason}`` of the photos no camera could be told for.
+    ``focal_length_board_px`` and its ``focal_length_board_sigma_px``, ``distortion_board`` (the division model's
+    coefficient) and its ``distortion_board_sigma``, the ``nearest_lens`` of its image size and the
+    ``separation_sigma`` from it (None where it is alone) and how ``sure`` that is, ``focal_length_35mm_mm``,
+    ``image_size``, ``photos``), the warnings to give, and ``{file name: reason}`` of the photos no camera could
+    be told for.
+
+    Raises
+    ------
+    InputError
+        Two lenses of one image size whose photos' focal lengths and distortions are too close to tell which
+        photo is which (:data:`dualcal.files.roll_lenses.SPLIT_SIGMA`, or photos that scatter more than one lens's
+        without a gap), or one lens found whose successive photos show one position scaled by a ratio again and
+        again (:data:`LENS_STEP_PAIRS`) but that ratio cannot split.
     """
     order, _ = shooting_order(photos)
     views = {p.path: None if corners_uv.get(p.path) is None else one_view(xy_board, corners_uv[p.path], p.size)
@@ -345,41 +415,60 @@ def cameras_from_boards(photos: list[Photo], corners_uv: dict, xy_board: np.ndar
     groups: dict = {}
     left_out = {p.path.name: "no board found, and without EXIF its camera is unknown"
                 for p in order if views.get(p.path) is None}
-    mu: dict = {}
+    found: dict = {}
     for size in sorted({tuple(p.size) for p in photos}):
         shown = [p for p in order if tuple(p.size) == size and views.get(p.path) is not None]
-        spread = np.array([_log_focal_spread(views[p.path]) for p in shown])
-        sure = np.isfinite(spread)
-        if not sure.any():
+        if not shown:
+            continue
+        lenses = [view_lens(xy_board, corners_uv[p.path], size, views[p.path]) for p in shown]
+        split = find_lenses(lenses)
+        if not split.told:
+            raise _not_told(folder, size, split, lenses)
+        if not split.lenses:
             for p in shown:
                 left_out[p.path.name] = "its board gives no focal length, and without EXIF its camera is unknown"
             continue
-        modes = _log_focal_modes(np.log([views[p.path].f_px for p, ok in zip(shown, sure) if ok]), spread[sure])
+        unary, d2 = log_likelihoods(lenses, split.lenses)
+        log_f = np.array([lens.mean[0] for lens in split.lenses])
         chain = [views[p.path] for p in shown]
-        unary = np.array([_camera_log_odds(v, modes) for v in chain])
-        labels, margins = _chain_labels(chain, unary, modes, xy_board, symmetric)
-        if len(modes) > 1:
-            # each lens's distortion, from the photos told so far, tells the others: an ultra-wide's board near
-            # the image's edge is bent as no other lens bends it
-            lams = np.array([common_division(xy_board, [corners_uv[p.path] for p, k, m in zip(shown, labels, margins)
-                                                        if k == c and m >= np.log(SURE_ODDS)], size)
-                             for c in range(len(modes))])
-            unary += np.array([_lens_log_odds(corners_uv[p.path], size, lams, xy_board) for p in shown])
-            labels, margins = _chain_labels(chain, unary, modes, xy_board, symmetric)
-        for p, k, margin in zip(shown, labels, margins):
-            if margin >= np.log(SURE_ODDS):
+        labels, margins = _chain_labels(chain, unary, log_f, xy_board, symmetric)
+        steps = _two_lenses_in_one(chain, labels, split.lenses, xy_board, symmetric)
+        if steps:
+            split = _split_by_steps(lenses, split, labels, steps, chain, xy_board, symmetric)
+            if split is None:
+                raise _two_in_one(folder, size, [(shown[i], shown[j], step) for i, j, step in steps])
+            unary, d2 = log_likelihoods(lenses, split.lenses)
+            log_f = np.array([lens.mean[0] for lens in split.lenses])
+            labels, margins = _chain_labels(chain, unary, log_f, xy_board, symmetric)
+        for i, (p, k, margin) in enumerate(zip(shown, labels, margins)):
+            fits = not np.isfinite(d2[i, k]) or d2[i, k] <= FITS_LENS_CHI2
+            if margin >= np.log(SURE_ODDS) and fits:
                 groups.setdefault((size, int(k)), []).append(p)
-                mu[(size, int(k))] = modes[k]
+                found[(size, int(k))] = (split, int(k))
+            elif not fits:
+                left_out[p.path.name] = (f"its board's focal length ({lenses[i].f_px:.0f} px) and distortion fit "
+                                         "none of the lenses the other photos of its size show")
             else:
                 left_out[p.path.name] = ("its camera is unclear: the focal length its board gives fits more than one "
                                          "camera (a board seen nearly square-on), and neither photo beside it tells")
-    f35 = {k: equivalent_focal_35mm(k[0], math.exp(mu[k])) for k in groups}
+    f35 = {key: equivalent_focal_35mm(key[0], split.lenses[k].f_px) for key, (split, k) in found.items()}
     names, warnings = _names(f35, True)
-    cameras = {names[k]: groups[k] for k in names}
-    facts = {names[k]: {"told_by": "focal length from the board", "focal_length_board_px": round(math.exp(mu[k]), 1),
-                        "focal_length_35mm_mm": round(f35[k], 1), "image_size": list(k[0]), "photos": len(groups[k]),
-                        "lens_model": None, "focal_length_mm": None, "make": None, "model": None}
-             for k in names}
+    cameras = {names[key]: groups[key] for key in names}
+    facts = {}
+    for key, (split, k) in found.items():
+        lens, apart = split.lenses[k], split.separation_sigma[k]
+        nearest = [(key[0], j) for j in np.argsort(apart) if np.isfinite(apart[j]) and (key[0], j) in names][:1]
+        told = "focal length from the board" + (", its scale at one position" if k in split.by_ratio else "")
+        facts[names[key]] = {
+            "told_by": told, "focal_length_board_px": round(lens.f_px, 1),
+            "focal_length_board_sigma_px": round(lens.f_sigma_px, 1), "distortion_board": round(lens.lam, 4),
+            "distortion_board_sigma": round(lens.lam_sigma, 4),
+            "nearest_lens": names[nearest[0]] if nearest else None,
+            "separation_sigma": round(float(apart[nearest[0][1]]), 1) if nearest else None,
+            "sure": _sureness_of_split(float(apart[nearest[0][1]])) if nearest else "certain",
+            "focal_length_35mm_mm": round(f35[key], 1), "image_size": list(key[0]), "photos": len(groups[key]),
+            "lens_model": None, "focal_length_mm": None, "make": None, "model": None}
+    facts = {name: facts[name] for name in cameras}
     return cameras, facts, warnings, left_out
 
 
@@ -501,4 +590,8 @@ def split_roll(cameras: dict[str, list[Photo]], facts: dict[str, dict], corners_
               "order": "capture time" if timed else "file name",
               "clues": {"cameras": list(camera_clues), "instants": split.clues},
               "split_margin": min(margins), "split_sure": _sureness(min(margins))}
+    apart = [c["separation_sigma"] for c in facts.values() if c.get("separation_sigma") is not None]
+    if "focal length from the board" in camera_clues:       # how sure the cameras are, where the boards told them
+        record["cameras_separation_sigma"] = min(apart) if apart else None
+        record["cameras_sure"] = _sureness_of_split(min(apart)) if apart else "certain"
     return CameraRoll({n: v for n, v in by_camera.items() if v}, record), warnings

@@ -25,6 +25,20 @@ square, ``(-1, -1)``, is black for every board, as on dualcal's chessboards. Ope
 pattern (``legacy=True``, boards made by OpenCV before 4.6 and by some vendors) differs only
 when ``SY`` is even: then its top-left square is white and the colours and markers are those
 of the other squares. A board whose markers number its corners has no 180-degree ambiguity.
+
+A **circle grid** (``pattern`` ``"circles"`` or ``"acircles"``, CONTRACT.md "circle grids") counts
+circles, not squares: ``cols x rows`` as OpenCV's ``findCirclesGrid`` counts them, ``square_mm`` the
+distance between neighbouring centres, ``circle_mm`` the diameter of a (dark, filled) circle. Point
+``k = r*cols + c`` is the centre of a circle at ``(c*s, r*s, 0)`` (symmetric grid) or
+``((2c + r % 2) * s, r*s, 0)`` (asymmetric grid: every other row shifted by one spacing, the rows
+``2s`` apart along X). Without a given diameter a circle is :data:`DEFAULT_CIRCLE_SHARE` of the
+spacing, as OpenCV's pattern generator (``gen_pattern.py``, radius = spacing / 5) prints it.
+
+A **target given by its points** (``pattern`` ``"points"``, ``points_mm``; corners.json's
+``board.points_mm``) is any planar layout: point ``k`` at ``points_mm[k]`` (mm, ``Z = 0``). Its
+``cols`` is the number of points and ``rows`` 1 (one row of points: a count, not a grid); its
+``square_mm`` is the spacing its scale tolerance refers to (by default the median distance of a
+point to its nearest neighbour). It cannot be detected in photos: its points come from corners.json.
 """
 
 from __future__ import annotations
@@ -38,6 +52,15 @@ from ..errors import InputError
 
 _SPEC = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*$")
 _CHARUCO_SPEC = re.compile(r"^\s*charuco\s*:\s*(\d+)\s*[xX]\s*(\d+)\s*$", re.IGNORECASE)
+_CIRCLES_SPEC = re.compile(r"^\s*(a?circles)\s*:\s*(\d+)\s*[xX]\s*(\d+)\s*$", re.IGNORECASE)
+
+#: The kinds of target: a chessboard (a ChArUco board too: ``Board.charuco`` set), OpenCV's symmetric and
+#: asymmetric circle grids, and a target given by its points.
+PATTERNS = ("chessboard", "circles", "acircles", "points")
+
+#: A circle's diameter as a share of the centres' spacing where none is given: OpenCV's ``gen_pattern.py``
+#: prints circles of radius ``spacing / 5`` (its default ``--radius_rate 5``).
+DEFAULT_CIRCLE_SHARE = 0.4
 
 #: OpenCV's predefined ArUco dictionaries (``cv2.aruco.DICT_*``): name -> (bits per side,
 #: number of markers). Within a family ``DICT_NxN_*`` the smaller dictionaries are the first
@@ -111,8 +134,12 @@ class Charuco:
 
 @dataclass(frozen=True)
 class Board:
-    """A planar target with ``cols x rows`` inner corners of pitch ``square_mm``: a chessboard,
-    or a ChArUco board when ``charuco`` is given (:meth:`charuco_board` builds one from its squares).
+    """A planar target: a chessboard of ``cols x rows`` inner corners of pitch ``square_mm``, a ChArUco
+    board when ``charuco`` is given (:meth:`charuco_board` builds one from its squares), a circle grid
+    (``pattern`` ``"circles"`` or ``"acircles"``, circles of diameter ``circle_mm``, None for the default:
+    :attr:`circle_diameter_mm`; :meth:`circle_grid`)
+    or a target given by its points (``pattern`` ``"points"``, :meth:`from_points`); see the module
+    docstring for each one's layout.
 
     ``square_sigma_mm`` is the 1-sigma of the printed square's size (a board printed at home is true
     to a few tenths of a percent): every length dualcal derives scales with the square, so it enters
@@ -125,10 +152,18 @@ class Board:
     square_mm: float
     charuco: Charuco | None = None
     square_sigma_mm: float = 0.0
+    pattern: str = "chessboard"
+    circle_mm: float | None = None
+    points_mm: tuple[tuple[float, float], ...] | None = None
 
     def __post_init__(self):
-        if self.cols < 2 or self.rows < 2:
-            raise InputError(f"board {self.cols}x{self.rows}: needs at least 2x2 inner corners")
+        if self.pattern not in PATTERNS:
+            raise InputError(f"board pattern {self.pattern!r} is unknown: expected one of {', '.join(PATTERNS)}")
+        if self.pattern == "points":
+            self._check_points()
+        elif self.cols < 2 or self.rows < 2:
+            what = "circles" if self.is_circle_grid else "inner corners"
+            raise InputError(f"board {self.cols}x{self.rows}: needs at least 2x2 {what}")
         if not (self.square_mm > 0 and np.isfinite(self.square_mm)):
             raise InputError(f"square size {self.square_mm} mm: must be a positive number")
         if not (self.square_sigma_mm >= 0 and np.isfinite(self.square_sigma_mm)):
@@ -136,9 +171,16 @@ class Board:
         if self.square_sigma_mm > 0.1 * self.square_mm:
             raise InputError(f"square size sigma {self.square_sigma_mm:g} mm is more than a tenth of the square "
                              f"({self.square_mm:g} mm): measure the printed board (e.g. 10 squares with a ruler)")
+        if self.is_circle_grid:
+            self._check_circles()
+        elif self.circle_mm is not None:
+            raise InputError(f"a circle diameter ({self.circle_mm:g} mm) describes a circle grid, not a "
+                             f"{self.pattern}")
         ch = self.charuco
         if ch is None:
             return
+        if self.pattern != "chessboard":
+            raise InputError(f"a ChArUco board is a chessboard with markers, not a {self.pattern} target")
         if tuple(ch.squares) != (self.cols + 1, self.rows + 1):
             raise InputError(f"ChArUco board of {ch.squares[0]}x{ch.squares[1]} squares has "
                              f"{ch.squares[0] - 1}x{ch.squares[1] - 1} inner corners, not {self.cols}x{self.rows}")
@@ -148,6 +190,70 @@ class Board:
         if ch.dictionary is not None and DICTIONARIES[ch.dictionary][1] < ch.n_markers:
             raise InputError(f"dictionary {ch.dictionary} holds {DICTIONARIES[ch.dictionary][1]} markers; a ChArUco "
                              f"board of {ch.squares[0]}x{ch.squares[1]} squares needs {ch.n_markers}")
+
+    def _check_circles(self) -> None:
+        # neighbouring circles must not touch: centres s apart (symmetric), s*sqrt(2) (asymmetric)
+        d = self.circle_diameter_mm
+        if not (0 < d < self.circle_gap_mm and np.isfinite(d)):
+            raise InputError(f"circle diameter {d:g} mm: must be positive and smaller than the distance "
+                             f"between neighbouring circles ({self.circle_gap_mm:g} mm)")
+
+    @property
+    def circle_diameter_mm(self) -> float:
+        """A circle grid's circle diameter, mm: ``circle_mm``, or where that is not given (None)
+        :data:`DEFAULT_CIRCLE_SHARE` of the spacing."""
+        return float(self.circle_mm) if self.circle_mm is not None else DEFAULT_CIRCLE_SHARE * float(self.square_mm)
+
+    @property
+    def circle_gap_mm(self) -> float:
+        """Distance from a circle grid's centre to its nearest other centre, mm (the spacing; the diagonal
+        ``s sqrt(2)`` on an asymmetric grid)."""
+        return self.square_mm * (np.sqrt(2.0) if self.pattern == "acircles" else 1.0)
+
+    def _check_points(self) -> None:
+        pts = np.asarray(self.points_mm if self.points_mm is not None else [], float)
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 4 or not np.all(np.isfinite(pts)):
+            raise InputError("a target given by its points needs at least 4 points [x, y] in mm")
+        if (self.cols, self.rows) != (len(pts), 1):
+            raise InputError(f"a target of {len(pts)} points has cols {len(pts)} and rows 1, "
+                             f"not {self.cols}x{self.rows}")
+        centred = pts - pts.mean(axis=0)
+        sv = np.linalg.svd(centred, compute_uv=False)
+        if sv[1] <= 1e-9 * max(sv[0], 1e-300):
+            raise InputError(f"the target's {len(pts)} points lie on one line: a calibration needs a planar layout")
+        if len(np.unique(np.round(pts, 9), axis=0)) < len(pts):
+            raise InputError("the target's points repeat a point: each point must be at its own place")
+
+    @classmethod
+    def circle_grid(cls, pattern: str, cols: int, rows: int, spacing_mm: float, circle_mm: float | None = None,
+                    square_sigma_mm: float = 0.0) -> "Board":
+        """A circle grid (``pattern`` ``"circles"`` or ``"acircles"``) of ``cols x rows`` circles,
+        ``spacing_mm`` between neighbouring centres, circles of diameter ``circle_mm`` (None:
+        :data:`DEFAULT_CIRCLE_SHARE` of the spacing)."""
+        if pattern not in ("circles", "acircles"):
+            raise InputError(f"circle grid pattern {pattern!r}: expected circles or acircles")
+        return cls(int(cols), int(rows), float(spacing_mm), square_sigma_mm=float(square_sigma_mm), pattern=pattern,
+                   circle_mm=None if circle_mm is None else float(circle_mm))
+
+    @classmethod
+    def from_points(cls, points_mm, square_mm: float | None = None, square_sigma_mm: float = 0.0) -> "Board":
+        """A target given by its points: ``points_mm`` (N, 2) or (N, 3) with ``Z = 0``, mm, any planar layout.
+        ``square_mm``: the spacing its scale tolerance refers to (None: the median distance of a point to
+        its nearest neighbour)."""
+        pts = np.asarray(points_mm, float)
+        if pts.ndim != 2 or pts.shape[1] not in (2, 3):
+            raise InputError(f"the target's points: expected a list of [x, y] or [x, y, 0] in mm, got shape "
+                             f"{pts.shape}")
+        if pts.shape[1] == 3 and np.any(pts[:, 2] != 0):
+            raise InputError("the target's points must lie in its plane: give [x, y] or [x, y, 0] (Z = 0)")
+        pts = pts[:, :2]
+        if square_mm is None and len(pts) >= 2 and np.all(np.isfinite(pts)):
+            d = np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1))
+            np.fill_diagonal(d, np.inf)
+            square_mm = float(np.median(d.min(axis=1)))
+        return cls(len(pts), 1, float(square_mm) if square_mm is not None else 1.0,
+                   square_sigma_mm=float(square_sigma_mm), pattern="points",
+                   points_mm=tuple(tuple(map(float, p)) for p in pts))
 
     @classmethod
     def charuco_board(cls, squares: tuple[int, int], square_mm: float, marker_mm: float,
@@ -164,25 +270,66 @@ class Board:
         return self.cols * self.rows
 
     @property
+    def is_circle_grid(self) -> bool:
+        """True for a symmetric or asymmetric circle grid."""
+        return self.pattern in ("circles", "acircles")
+
+    @property
     def is_symmetric(self) -> bool:
-        """True when the board looks the same turned by 180 degrees (a chessboard with ``cols + rows``
-        even); a ChArUco board never is (its markers number the corners)."""
-        return self.charuco is None and (self.cols + self.rows) % 2 == 0
+        """True when the board looks the same turned by 180 degrees about its centre: a chessboard with
+        ``cols + rows`` even, every symmetric circle grid, an asymmetric one with ``rows`` even; never a
+        ChArUco board (its markers number the corners) nor a target given by its points (not detected).
+        Turned, point ``k`` falls on point ``N-1-k``."""
+        if self.pattern == "circles":
+            return True
+        if self.pattern == "acircles":
+            return self.rows % 2 == 0
+        return self.pattern == "chessboard" and self.charuco is None and (self.cols + self.rows) % 2 == 0
 
     def object_points_mm(self) -> np.ndarray:
-        """(N, 3) board-frame coordinates of the inner corners, in corner order ``k = r*cols + c``."""
+        """(N, 3) board-frame coordinates of the points in order ``k = r*cols + c``: inner corners,
+        circle centres (see the module docstring) or the points of a target given by them."""
+        if self.pattern == "points":
+            xy = np.asarray(self.points_mm, float)
+            return np.column_stack([xy, np.zeros(len(xy))])
         r, c = np.divmod(np.arange(self.n_corners), self.cols)
-        return np.column_stack([c * self.square_mm, r * self.square_mm, np.zeros(self.n_corners)])
+        x = 2 * c + r % 2 if self.pattern == "acircles" else c
+        return np.column_stack([x * self.square_mm, r * self.square_mm, np.zeros(self.n_corners)])
+
+    def pattern_extent_mm(self) -> tuple[float, float, float, float]:
+        """``(x0, x1, y0, y1)`` mm: the printed pattern's area in the board frame, without its margin: a
+        chessboard's squares (the outer ring included), a circle grid's circles with half a spacing
+        around them, a target's points with one spacing around them."""
+        s = self.square_mm
+        if self.pattern == "chessboard":
+            return -s, self.cols * s, -s, self.rows * s
+        xy = self.object_points_mm()[:, :2]
+        pad = 0.5 * (s + self.circle_diameter_mm) if self.is_circle_grid else s
+        (x0, y0), (x1, y1) = xy.min(axis=0) - pad, xy.max(axis=0) + pad
+        return float(x0), float(x1), float(y0), float(y1)
 
     def spec(self) -> str:
-        """``"8x5"`` (inner corners) for a chessboard, ``"charuco:11x8"`` (squares) for a ChArUco board."""
+        """``"8x5"`` (inner corners) for a chessboard, ``"charuco:11x8"`` (squares) for a ChArUco board,
+        ``"circles:4x11"`` / ``"acircles:4x11"`` (circles) for a circle grid, ``"points:N"`` for a target
+        given by its ``N`` points."""
         if self.charuco is not None:
             return "charuco:{}x{}".format(*self.charuco.squares)
+        if self.pattern == "points":
+            return f"points:{self.n_corners}"
+        if self.is_circle_grid:
+            return f"{self.pattern}:{self.cols}x{self.rows}"
         return f"{self.cols}x{self.rows}"
 
     def describe(self, sizes: bool = False) -> str:
-        """The board in words, for messages: ``"8x5 chessboard"``, ``"ChArUco board charuco:11x8 (DICT_5X5_50)"``;
-        with ``sizes``, its square (and marker) size too."""
+        """The board in words, for messages: ``"8x5 chessboard"``, ``"ChArUco board charuco:11x8 (DICT_5X5_50)"``,
+        ``"acircles:4x11 asymmetric circle grid"``, ``"target of 40 points"``; with ``sizes``, its square
+        (and marker, or spacing and circle) size too."""
+        if self.pattern == "points":
+            return f"target of {self.n_corners} points" + (f" ({self.square_mm:g} mm apart)" if sizes else "")
+        if self.is_circle_grid:
+            kind = "symmetric" if self.pattern == "circles" else "asymmetric"
+            sized = f" of {self.square_mm:g} mm spacing and {self.circle_diameter_mm:g} mm circles" if sizes else ""
+            return f"{self.spec()} {kind} circle grid{sized}"
         if self.charuco is None:
             text = f"{self.spec()} chessboard"
         else:
@@ -226,9 +373,11 @@ class Board:
         return np.sort(around, axis=1)[:, 2:]
 
     def matches(self, other: "Board") -> bool:
-        """True when ``other`` is this board; a ChArUco board's dictionary and layout are compared
-        only where this one gives them (a board from the command line may leave them to the photos);
-        ``square_sigma_mm`` is not compared."""
+        """True when ``other`` is this board; a ChArUco board's dictionary and layout, and a circle grid's
+        diameter, are compared only where this one gives them (a board from the command line may leave them
+        to the photos, or to the file); ``square_sigma_mm`` is not compared."""
+        if self.is_circle_grid and self.circle_mm is None:         # the diameter not given: any
+            return replace(self, square_sigma_mm=0.0) == replace(other, square_sigma_mm=0.0, circle_mm=None)
         if self.charuco is None or other.charuco is None:
             return replace(self, square_sigma_mm=0.0) == replace(other, square_sigma_mm=0.0)
         mine, theirs = self.charuco, other.charuco
@@ -238,7 +387,12 @@ class Board:
 
     def to_dict(self) -> dict:
         """The board entry of corners.json and calib.json (the contract's keys)."""
-        doc = {"cols": self.cols, "rows": self.rows, "square_mm": float(self.square_mm)}
+        if self.pattern == "points":
+            doc = {"points_mm": [list(p) for p in self.points_mm], "square_mm": float(self.square_mm)}
+        else:
+            doc = {"cols": self.cols, "rows": self.rows, "square_mm": float(self.square_mm)}
+        if self.is_circle_grid:
+            doc.update(pattern=self.pattern, circle_mm=self.circle_diameter_mm)
         if self.square_sigma_mm:
             doc["square_sigma_mm"] = float(self.square_sigma_mm)
         ch = self.charuco
@@ -252,16 +406,28 @@ class Board:
     @classmethod
     def from_dict(cls, d: dict) -> "Board":
         """The board of a corners.json or calib.json entry, validated (:class:`InputError` says what is wrong)."""
+        sigma = d.get("square_sigma_mm", 0.0)
+        if isinstance(sigma, bool) or not isinstance(sigma, (int, float)):
+            raise InputError(f"board entry's square_sigma_mm {sigma!r}: expected a length in millimetres")
+        pattern = d.get("pattern", "points" if "points_mm" in d else "chessboard")
+        if pattern == "points" or "points_mm" in d:
+            return cls._points_from_dict(d, float(sigma))
         try:
             cols, rows = d["cols"], d["rows"]
             if not all(_whole(n) for n in (cols, rows)):
                 raise TypeError("cols and rows must be whole numbers")
-            sigma = d.get("square_sigma_mm", 0.0)
-            if isinstance(sigma, bool) or not isinstance(sigma, (int, float)):
-                raise TypeError("square_sigma_mm must be a number")
             board = cls(cols, rows, float(d["square_mm"]), square_sigma_mm=float(sigma))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"board entry {d!r} is malformed: needs cols, rows, square_mm") from exc
+        if pattern in ("circles", "acircles"):
+            circle = d.get("circle_mm")
+            if circle is not None and (isinstance(circle, bool) or not isinstance(circle, (int, float))):
+                raise InputError(f"board entry's circle_mm {circle!r}: expected the circles' diameter in millimetres")
+            if "charuco" in d:
+                raise InputError("board entry: a circle grid has no charuco entry")
+            return cls.circle_grid(pattern, cols, rows, board.square_mm, circle, board.square_sigma_mm)
+        if pattern != "chessboard":
+            raise InputError(f"board entry's pattern {pattern!r}: expected circles or acircles (or none: a chessboard)")
         if "charuco" not in d:
             return board
         ch = d["charuco"]
@@ -280,6 +446,27 @@ class Board:
         if legacy is not None and not isinstance(legacy, bool):
             raise InputError(f"board entry's charuco legacy {legacy!r}: expected true or false")
         return replace(board, charuco=Charuco(tuple(squares), float(marker), name, bool(legacy)))
+
+    @classmethod
+    def _points_from_dict(cls, d: dict, sigma: float) -> "Board":
+        """The target of a board entry with ``points_mm`` (see :meth:`from_points`)."""
+        points, square = d.get("points_mm"), d.get("square_mm")
+        if not (isinstance(points, list) and all(isinstance(p, list) and len(p) in (2, 3) and
+                                                 all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in p)
+                                                 for p in points)):
+            raise InputError("board entry's points_mm: expected a list of [x, y] or [x, y, 0] in millimetres")
+        if d.get("pattern", "points") != "points" or "charuco" in d:
+            raise InputError("board entry: points_mm gives the target by its points; it has no other pattern")
+        if square is not None and (isinstance(square, bool) or not isinstance(square, (int, float))):
+            raise InputError(f"board entry's square_mm {square!r}: expected a length in millimetres")
+        if len({len(p) for p in points}) > 1:
+            raise InputError("board entry's points_mm: give every point as [x, y], or every point as [x, y, 0]")
+        board = cls.from_points(points, None if square is None else float(square), sigma)
+        for key in ("cols", "rows"):
+            if key in d and d[key] != getattr(board, key):
+                raise InputError(f"board entry's {key} {d[key]!r} disagrees with its {board.n_corners} points_mm "
+                                 f"(a target of points has cols {board.cols}, rows 1)")
+        return board
 
 
 #: The dictionary family a ChArUco board is drawn or printed with when none is given.
@@ -306,7 +493,8 @@ def parse_board_spec(spec: str) -> tuple[int, int]:
     m = _SPEC.match(str(spec))
     if not m:
         raise InputError(f"--board {spec!r} is malformed: give inner corners as COLSxROWS, e.g. 8x5, "
-                         "or the squares of a ChArUco board as charuco:SXxSY, e.g. charuco:11x8")
+                         "the squares of a ChArUco board as charuco:SXxSY, e.g. charuco:11x8, or a circle grid's "
+                         "circles as circles:COLSxROWS or acircles:COLSxROWS")
     cols, rows = int(m.group(1)), int(m.group(2))
     if cols < 2 or rows < 2:
         raise InputError(f"--board {spec!r}: needs at least 2x2 inner corners")
@@ -314,15 +502,33 @@ def parse_board_spec(spec: str) -> tuple[int, int]:
 
 
 def board_from_spec(spec: str, square_mm: float, marker_mm: float | None = None,
-                    dictionary: str | None = None, square_sigma_mm: float = 0.0) -> Board:
-    """The board of ``--board SPEC --square MM [--marker MM] [--dictionary NAME] [--square-sigma MM]``.
+                    dictionary: str | None = None, square_sigma_mm: float = 0.0,
+                    circle_mm: float | None = None) -> Board:
+    """The board of ``--board SPEC --square MM [--marker MM] [--dictionary NAME] [--square-sigma MM]
+    [--circle MM]``.
 
-    ``SPEC`` is ``COLSxROWS`` (a chessboard's inner corners) or ``charuco:SXxSY`` (a ChArUco
+    ``SPEC`` is ``COLSxROWS`` (a chessboard's inner corners), ``charuco:SXxSY`` (a ChArUco
     board's squares, which needs ``marker_mm``; without ``dictionary`` it is found from the
-    photos, and so is the layout when ``SY`` is even).
+    photos, and so is the layout when ``SY`` is even), or ``circles:COLSxROWS`` /
+    ``acircles:COLSxROWS`` (a symmetric or asymmetric circle grid's circles, ``square_mm`` the
+    centres' spacing and ``circle_mm`` the circles' diameter, by default
+    :data:`DEFAULT_CIRCLE_SHARE` of the spacing).
     """
     if not (square_mm is not None and square_mm > 0):
         raise InputError(f"--square {square_mm}: must be a positive length in millimetres")
+    circles = _CIRCLES_SPEC.match(str(spec))
+    if circle_mm is not None and circles is None:
+        raise InputError("--circle describes a circle grid: give --board circles:COLSxROWS or acircles:COLSxROWS")
+    if circles is not None:
+        if marker_mm is not None or dictionary is not None:
+            raise InputError("--marker and --dictionary describe a ChArUco board, not a circle grid")
+        if circle_mm is not None and not circle_mm > 0:
+            raise InputError(f"--circle {circle_mm}: must be a positive length in millimetres")
+        return Board.circle_grid(circles.group(1).lower(), int(circles.group(2)), int(circles.group(3)),
+                                 square_mm, circle_mm, square_sigma_mm)
+    if str(spec).strip().lower().split(":")[0] in ("circles", "acircles"):
+        raise InputError(f"--board {spec!r} is malformed: give a circle grid's circles as circles:COLSxROWS or "
+                         "acircles:COLSxROWS, e.g. acircles:4x11")
     m = _CHARUCO_SPEC.match(str(spec))
     if m is None:
         if str(spec).strip().lower().startswith("charuco"):

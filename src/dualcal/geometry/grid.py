@@ -23,24 +23,27 @@ from .board import Board
 from .model import observed_mask
 
 __all__ = ["local_spacing_px", "neighbour_predictions", "predict_from_neighbours", "neighbour_residuals_px",
-           "typical_residual_px", "outlier_limit_px", "worst_outlier", "min_corners", "validate_grid"]
+           "typical_residual_px", "outlier_limit_px", "corner_noise_px", "worst_outlier", "min_corners", "validate_grid"]
 
 #: An accepted corner lies within ``OUTLIER_TIMES`` the typical neighbour residual around it
 #: (:func:`typical_residual_px`: the larger of its neighbours' median and the photo's) of its neighbours'
-#: prediction (:func:`outlier_limit_px`), but the limit is never below ``OUTLIER_FLOOR_PX`` (on clean
-#: photos the median is a few hundredths of a pixel, and rejecting at that scale would only thin the
-#: grid) and never above the larger of ``OUTLIER_CEIL_PX`` and ``OUTLIER_CEIL_FRACTION`` of the corner's
-#: spacing (the fraction admits home-made boards, whose printed squares are off a true grid by a few
-#: tenths of a pixel on an 8 MP photo, and stops there: a corner more than 0.8 % of a square off is
-#: wrong). The typical residual is local because what the prediction cannot follow of a board that is
-#: not flat (a sheet curled on a table) is shared by the corners around, and raises their limit with
-#: them, where the rest of the board is flat: on steep 960 x 720 renders of a sheet whose far end curls up
-#: by 10 mm, 23 of 2592 exact corners (0.05 px of noise) were off their limit with the photo's median,
-#: none with the local one. What such a board's corners keep of its shape is the adjustment's to judge.
-OUTLIER_TIMES = 4.0
-OUTLIER_FLOOR_PX = 0.3
-OUTLIER_CEIL_PX = 0.5
-OUTLIER_CEIL_FRACTION = 0.008
+#: prediction (:func:`outlier_limit_px`): about 6 standard deviations of the photo's own corner noise (the median
+#: of a 2-D residual's length is 1.18 of its per-coordinate deviation), so that only a corner on the wrong
+#: feature, or pulled by glare or a smudge by many times the noise, is left out. The scale is the photo's own,
+#: whatever its noise: a defocused photo's corners are noisier, not wrong, and how much each photo's noise costs
+#: is the adjustment's to weigh. The typical residual is local because what the prediction cannot follow of a
+#: board that is not flat (a sheet curled on a table) is shared by the corners around, and raises their limit
+#: with them, where the rest of the board is flat: on steep 960 x 720 renders of a sheet whose far end curls up
+#: by 10 mm, 23 of 2592 exact corners (0.05 px of noise) were off a limit of 4 x the photo's median, none with the
+#: local one. What such a board's corners keep of its shape is the adjustment's to judge.
+OUTLIER_TIMES = 5.0
+#: ... but never below this share of the corner's spacing: on a sharp photo the noise is a few hundredths of a
+#: pixel, below what the prediction itself cannot follow of a lens's bending and a sheet's curl near the board's
+#: edge (on the steep 960 x 720 renders of curled sheets: exact corners up to 1.2 % of a square off their
+#: prediction, 0.36 px), and a corner within 2 % of a square of its neighbours' prediction is on the right
+#: feature: one on the wrong feature is off by a good part of a square. Whether it is as precise as the others
+#: is for the adjustment to judge.
+OUTLIER_FLOOR_SHARE = 0.02
 #: Fewest measured neighbours for which :func:`predict_from_neighbours` fits a cubic, not a quadratic,
 #: to what the homography leaves (its 10 coefficients with 4 to spare).
 CUBIC_NEIGHBOURS = 14
@@ -192,20 +195,43 @@ def typical_residual_px(residual_px: np.ndarray, shape: tuple[int, int]) -> np.n
     return np.maximum(local, float(np.median(res[finite])))
 
 
-def outlier_limit_px(spacing_px: np.ndarray, typical_px, gain=INNER_GAIN) -> np.ndarray:
+def outlier_limit_px(spacing_px: np.ndarray, typical_px, gain=INNER_GAIN,
+                     floor_share: float = OUTLIER_FLOOR_SHARE) -> np.ndarray:
     """Largest accepted neighbour residual of corners ``spacing_px`` from their nearest neighbour.
 
     ``typical_px`` is the typical neighbour residual around each corner (:func:`typical_residual_px`:
     the corner noise and what the prediction cannot follow of the board's shape), ``gain`` that of
-    each corner's prediction; see :data:`OUTLIER_TIMES` and :data:`INNER_GAIN` for the rule.
+    each corner's prediction; see :data:`OUTLIER_TIMES`, :data:`OUTLIER_FLOOR_SHARE` (``floor_share``) and
+    :data:`INNER_GAIN` for the rule.
     """
-    ceil = np.maximum(OUTLIER_CEIL_PX, OUTLIER_CEIL_FRACTION * np.asarray(spacing_px, float))
     noise = np.sqrt((1.0 + np.asarray(gain, float) ** 2) / (1.0 + INNER_GAIN**2))
-    return np.clip(OUTLIER_TIMES * np.asarray(typical_px, float), OUTLIER_FLOOR_PX, ceil) * np.maximum(noise, 1.0)
+    return (np.maximum(OUTLIER_TIMES * np.asarray(typical_px, float), floor_share * np.asarray(spacing_px, float))
+            * np.maximum(noise, 1.0))
+
+
+#: The median length of a 2-D residual whose coordinates are independent with standard deviation 1 (the
+#: Rayleigh distribution's median, sqrt(2 ln 2)).
+RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
+
+
+def corner_noise_px(uv: np.ndarray, shape: tuple[int, int]) -> float:
+    """A photo's corner noise: the standard deviation of one coordinate of a corner, pixels, estimated robustly
+    from the photo itself, NaN where no corner can be judged.
+
+    Each corner's distance from its neighbours' prediction (:func:`predict_from_neighbours`) carries its own
+    noise and, through the prediction, its neighbours' (``1 + gain^2`` times the variance); divided by that, the
+    median over the photo's corners is :data:`RAYLEIGH_MEDIAN` standard deviations. The median ignores a few
+    corners on the wrong feature, but what the prediction cannot follow of the board's shape counts as noise.
+    """
+    uv = np.asarray(uv, float)
+    pred, gain = predict_from_neighbours(uv, shape)
+    scaled = np.linalg.norm(uv - pred, axis=1) / np.sqrt(1.0 + gain**2)
+    scaled = scaled[np.isfinite(scaled)]
+    return float(np.median(scaled) / RAYLEIGH_MEDIAN) if len(scaled) else float("nan")
 
 
 def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray | None = None,
-                  candidates: int = 4, judged: np.ndarray | None = None):
+                  candidates: int = 8, judged: np.ndarray | None = None, floor_share: float = OUTLIER_FLOOR_SHARE):
     """The corner to reject first, or None when every corner that can be judged is within its limit.
 
     Parameters
@@ -213,9 +239,10 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
     uv : (N, 2) corners in grid order, NaN rows unmeasured.
     shape : ``(rows, cols)``.
     spacing_px : (N,) spacing that sets each corner's limit; default :func:`local_spacing_px` of ``uv``.
-    candidates : how many of the corners over their limit are tried (see below).
+    candidates : how many of the corners over the photo's limit are tried (see below).
     judged : (N,) bool, the corners that may be judged (default: all); the others still predict
         their neighbours.
+    floor_share : the limit's floor, a share of the spacing (:func:`outlier_limit_px`).
 
     Returns
     -------
@@ -223,65 +250,68 @@ def worst_outlier(uv: np.ndarray, shape: tuple[int, int], spacing_px: np.ndarray
 
     Notes
     -----
-    One bad corner also spoils the predictions of its neighbours, and it can push the
-    extrapolated prediction of a board corner next to it further than its own residual. So the
-    corners over their :func:`outlier_limit_px` are tried, the ``candidates`` of them whose
-    residual is largest for the noise their prediction carries (residual / sqrt(1 + gain^2),
-    :func:`predict_from_neighbours`) first: each is left out in turn, and the one whose absence
-    leaves the others closest to their predictions (least sum of squared residual / limit) is
-    the corner to reject.
+    One bad corner also spoils the predictions of its neighbours: it raises their residuals, and with them
+    the typical residual around itself (:func:`typical_residual_px`), by which it would hide; and it can
+    push the extrapolated prediction of a board corner next to it further than its own residual. So the
+    corners over the limit the photo's median residual sets (which no corner can raise) are candidates, the
+    ``candidates`` of them whose residual is largest for the noise their prediction carries (residual /
+    sqrt(1 + gain^2), :func:`predict_from_neighbours`) first: each is left out in turn, its own limit is set
+    by the typical residual around it without it, and of those over that limit, the one whose absence
+    leaves the others closest to their predictions (least sum of squared residual / limit) is the corner to
+    reject.
     """
     uv = np.asarray(uv, float)
     pred, gain = predict_from_neighbours(uv, shape)
     res = np.linalg.norm(uv - pred, axis=1)
-    if judged is not None:
-        res[~np.asarray(judged, bool)] = np.nan
-    finite = np.isfinite(res)
+    finite = np.isfinite(res)           # every corner with a prediction sets the scale, whether it may be judged or not
     if not finite.any():
         return None
     if spacing_px is None:
         spacing_px = local_spacing_px(uv, shape)
-    limit = outlier_limit_px(spacing_px, typical_residual_px(res, shape), gain)
-    over = finite & (res > limit)
+    over = finite & (res > outlier_limit_px(spacing_px, np.median(res[finite]), gain, floor_share))
+    if judged is not None:
+        over &= np.asarray(judged, bool)
     if not over.any():
         return None
     z = np.where(over, res / np.sqrt(1.0 + gain**2), -np.inf)
-    tried = np.argsort(-z)[: min(candidates, int(over.sum()))]
-    if len(tried) == 1:
-        return int(tried[0]), float(res[tried[0]])
-
-    def left_over(k):
+    best = None
+    for k in np.argsort(-z)[: min(candidates, int(over.sum()))]:
         without = uv.copy()
         without[k] = np.nan
-        r = np.linalg.norm(without - neighbour_predictions(without, shape), axis=1) / limit
-        return float(np.sum(np.where(np.isfinite(r) & finite, r * r, 0.0)))
-
-    k = int(min(tried, key=left_over))
-    return k, float(res[k])
+        others = np.linalg.norm(without - neighbour_predictions(without, shape), axis=1)
+        limit = outlier_limit_px(spacing_px, typical_residual_px(others, shape), gain, floor_share)
+        if res[k] <= limit[k]:
+            continue
+        r = others / limit
+        left_over = float(np.sum(np.where(np.isfinite(r), r * r, 0.0)))
+        if best is None or left_over < best[0]:
+            best = (left_over, int(k))
+    return None if best is None else (best[1], float(res[best[1]]))
 
 
 #: Fewest corners of a ChArUco photo (:func:`min_corners`).
 MIN_CHARUCO_CORNERS = 6
 
 
-def min_corners(board: Board) -> int:
-    """Fewest measured corners for a photo to be kept: more than half of a chessboard, and at least 6.
+def min_corners(board: Board, whole: bool = False) -> int:
+    """Fewest measured corners for a photo to be kept: at least 6, and more than half of a chessboard that was
+    not found whole.
 
-    More than half of a chessboard, so that the photo still shows most of the board (a photo
-    that lost more than half its corners has a problem a corner-by-corner check should not paper
-    over: heavy blur, a wrong board, a detection on the wrong pattern), and the board's extent
-    still constrains the pose; at least 6, so that the photo's homography (8 unknowns) has
-    redundancy: 12 equations, 4 more than the unknowns, enough for a wrong corner to show in the
-    fit and to be told from the others. A ChArUco photo may show any part of its board (the
-    markers number the corners, and every corner was checked against them), so it needs only
-    those :data:`MIN_CHARUCO_CORNERS`, not on one line.
+    At least 6, so that the photo's homography (8 unknowns) has redundancy: 12 equations, 4 more than the
+    unknowns, enough for a wrong corner to show in the fit and to be told from the others. A chessboard that
+    OpenCV's detector found whole (``whole``: every corner in order, its squares' colours checked) needs no
+    more: the corners a photo lost at its checks are its outliers, and a blurred photo's noisier corners are
+    kept, not lost. A board placed from a part of it, or predicted from four clicks, needs more than half of
+    its corners, so that the photo still shows most of the board and its extent still constrains the pose. A
+    ChArUco photo may show any part of its board (the markers number the corners, and every corner was checked
+    against them), so it needs only those :data:`MIN_CHARUCO_CORNERS`, not on one line.
     """
-    if board.charuco is not None:
+    if board.charuco is not None or whole:
         return MIN_CHARUCO_CORNERS
-    return max(6, board.n_corners // 2 + 1)
+    return max(MIN_CHARUCO_CORNERS, board.n_corners // 2 + 1)
 
 
-def validate_grid(uv: np.ndarray, board: Board, judged: np.ndarray | None = None) -> str | None:
+def validate_grid(uv: np.ndarray, board: Board, judged: np.ndarray | None = None, whole: bool = False) -> str | None:
     """Why a detected grid is not a ``board`` seen by a camera, or None when it is.
 
     Parameters
@@ -289,6 +319,7 @@ def validate_grid(uv: np.ndarray, board: Board, judged: np.ndarray | None = None
     uv : (N, 2) corners in the contract's order, NaN rows where a corner was rejected.
     board : the board.
     judged : (N,) bool, the corners to check against their neighbours (default: all).
+    whole : the grid was found whole by OpenCV's detector (:func:`min_corners`).
 
     Returns
     -------
@@ -303,9 +334,9 @@ def validate_grid(uv: np.ndarray, board: Board, judged: np.ndarray | None = None
         return f"{len(uv)} corners, expected {board.n_corners}"
     shape = (board.rows, board.cols)
     seen = observed_mask(uv)
-    need = min_corners(board)
+    need = min_corners(board, whole)
     if seen.sum() < need:
-        why = "for a homography with redundancy" if board.charuco is not None else "more than half of the board"
+        why = "more than half of the board" if need > MIN_CHARUCO_CORNERS else "for a homography with redundancy"
         return (f"only {int(seen.sum())} of {board.n_corners} corners passed their checks "
                 f"(at least {need} needed: {why})")
     r, c = np.divmod(np.flatnonzero(seen), board.cols)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .board import Board, sag_mm, shaped_points_mm
-from .camera import CameraModel, project_points
+from .camera import CameraModel, intrinsic_names, project_points
 from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
 
 
@@ -102,6 +102,86 @@ class CornerSet:
         return replace(self, cameras=cams)
 
 
+#: How a camera's known intrinsics enter its calibration (:class:`KnownIntrinsics`).
+INTRINSICS_USES = ("prior", "fixed")
+
+
+@dataclass(frozen=True, eq=False)
+class KnownIntrinsics:
+    """A camera's intrinsics known before its calibration (``dualcal calibrate --intrinsics FILE``).
+
+    ``camera`` is the lens model and its values. ``use`` says how they enter the calibration: ``"prior"``, each
+    value observed with its 1-sigma ``sigma`` (``{name: sigma}``, names of
+    :func:`~dualcal.geometry.camera.intrinsic_names` of the model), or jointly with ``covariance`` ((k, k), over
+    the names ``parameters``) where the source has one; ``"fixed"``, held at these values (a source without any
+    uncertainty). In a prior given by ``sigma`` alone, the values with a sigma above 0 are its ``parameters``,
+    with a diagonal ``covariance`` (set here); a free intrinsic of the model outside ``parameters`` is estimated
+    from the photos alone. ``source`` names the file they came from. ``mode`` and ``names`` are ``use`` and
+    ``parameters`` as the adjustment reads them (:mod:`dualcal.estimation.adjust`).
+
+    Raises
+    ------
+    ValueError
+        An unknown ``use``, a prior without a sigma or covariance, a fixed camera with one, a sigma or a
+        covariance's name that is not an intrinsic of the lens model, or a covariance of the wrong shape.
+    """
+
+    camera: CameraModel
+    use: str = "fixed"
+    sigma: dict[str, float] = field(default_factory=dict)
+    parameters: tuple[str, ...] = ()
+    covariance: np.ndarray | None = None
+    source: str = ""
+
+    def __post_init__(self):
+        if self.use not in INTRINSICS_USES:
+            raise ValueError(f"use {self.use!r} is not one of {', '.join(INTRINSICS_USES)}")
+        uncertain = bool(self.sigma) or self.covariance is not None
+        if uncertain != (self.use == "prior"):
+            raise ValueError("a prior needs a sigma or a covariance, and only a prior has one")
+        names = intrinsic_names(self.camera.model)
+        foreign = [n for n in (*self.sigma, *self.parameters) if n not in names]
+        if foreign:
+            raise ValueError(f"{', '.join(foreign)}: not intrinsics of lens model {self.camera.model}")
+        if self.use == "prior" and self.covariance is None:           # independent sigmas: a diagonal covariance
+            given = tuple(n for n in names if self.sigma.get(n, 0.0) > 0)
+            if not given:
+                raise ValueError("a prior needs a sigma above 0")
+            object.__setattr__(self, "parameters", given)
+            object.__setattr__(self, "covariance", np.diag([self.sigma[n] ** 2 for n in given]))
+        k = len(self.parameters)
+        if (self.covariance is None) != (k == 0) or (k and np.shape(self.covariance) != (k, k)):
+            raise ValueError(f"covariance of shape {np.shape(self.covariance)} for {k} parameters")
+
+    @property
+    def mode(self) -> str:
+        """``"prior"`` or ``"fixed"`` (``use``)."""
+        return self.use
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The intrinsics the prior's ``covariance`` is over (``parameters``; none when fixed)."""
+        return self.parameters
+
+    def to_dict(self) -> dict:
+        """``{"mode", "image_size", "model", "values": {intrinsic: value}, "names", "covariance", "source"}`` (JSON),
+        as calib.json's ``adjustment.known_intrinsics`` records each camera."""
+        return {"mode": self.use, "image_size": list(self.camera.image_size), "model": self.camera.model,
+                "values": {n: float(getattr(self.camera, n)) for n in intrinsic_names(self.camera.model)},
+                "names": list(self.parameters),
+                "covariance": None if self.covariance is None else np.asarray(self.covariance, float).tolist(),
+                "source": self.source}
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> "KnownIntrinsics":
+        """The record :meth:`to_dict` wrote."""
+        camera = CameraModel(tuple(doc["image_size"]), model=doc["model"], **doc["values"])
+        if doc.get("covariance") is None:
+            return cls(camera, source=doc.get("source", ""))
+        return cls(camera, "prior", parameters=tuple(doc["names"]), covariance=np.asarray(doc["covariance"], float),
+                   source=doc.get("source", ""))
+
+
 def choose_reference(names, override: str | None = None) -> str:
     """The reference camera: ``override``, else ``wide`` if present, else the first sorted name."""
     names = sorted(names)
@@ -111,40 +191,6 @@ def choose_reference(names, override: str | None = None) -> str:
             raise InputError(f"--reference {override!r} is not a camera here (cameras: {', '.join(names)})")
         return override
     return "wide" if "wide" in names else names[0]
-
-
-@dataclass(frozen=True)
-class KnownIntrinsics:
-    """A camera's intrinsics known before a calibration (an earlier calibration of it, a peer's file): its lens
-    model and values ``camera``, and the covariance ``covariance`` (p, p) of the intrinsics it names (``names``,
-    of :data:`dualcal.geometry.camera.INTRINSIC_NAMES`), or None. With a covariance the calibration takes them as
-    a prior (``mode`` ``"prior"``: the photos may move them as far as that covariance allows); without one it
-    holds them fixed (``"fixed"``)."""
-
-    camera: CameraModel
-    covariance: np.ndarray | None = None
-    names: tuple[str, ...] = ()
-
-    @property
-    def mode(self) -> str:
-        """``"prior"`` where there is a covariance, else ``"fixed"``."""
-        return "prior" if self.covariance is not None else "fixed"
-
-    def to_dict(self) -> dict:
-        """``{"mode", "image_size", "model", "values": {intrinsic: value}, "names", "covariance"}`` (JSON)."""
-        from .camera import intrinsic_names
-
-        return {"mode": self.mode, "image_size": list(self.camera.image_size), "model": self.camera.model,
-                "values": {n: float(getattr(self.camera, n)) for n in intrinsic_names(self.camera.model)},
-                "names": list(self.names),
-                "covariance": None if self.covariance is None else np.asarray(self.covariance, float).tolist()}
-
-    @classmethod
-    def from_dict(cls, doc: dict) -> "KnownIntrinsics":
-        """The record :meth:`to_dict` wrote."""
-        camera = CameraModel(tuple(doc["image_size"]), model=doc["model"], **doc["values"])
-        covariance = None if doc.get("covariance") is None else np.asarray(doc["covariance"], float)
-        return cls(camera, covariance, tuple(doc.get("names", ())))
 
 
 @dataclass

@@ -20,6 +20,11 @@ half-diagonals, ``lam`` chosen to minimise the homography's misfit (:func:`divis
 The focal length of one view is as good as the board's perspective is strong: a board seen square-on
 gives none. Its spread is measured, not modelled: the same computation on four interleaved quarters of
 the corners (:func:`one_view`, ``f_log_sigma``).
+
+To tell a roll's lenses apart, :func:`view_lens` then adjusts the view's corners for its pose, its focal length,
+the division model's coefficient and the principal point (a prior holds it near the centre), and keeps what the
+corners say of those four as a normal (:class:`ViewLens`): the focal length's uncertainty then comes from the
+photo itself, and several photos of one lens can tell their principal point together (:meth:`ViewLens.given`).
 """
 
 from __future__ import annotations
@@ -30,10 +35,11 @@ import numpy as np
 
 from ..errors import EstimationError
 from .model import Pose, observed_mask
-from .zhang import MIN_HOMOGRAPHY_CORNERS, apply_homography, estimate_homographies, extrinsics_from_homography
+from .zhang import (MIN_HOMOGRAPHY_CORNERS, apply_homography, common_focal, estimate_homographies,
+                    extrinsics_from_homography)
 
-__all__ = ["OneView", "board_pixels", "board_pose", "spread_px", "common_division", "division_homography", "division_misfits",
-           "focal_from_homography", "one_view", "undistort_division"]
+__all__ = ["LENS_PARAMETERS", "OneView", "ViewLens", "board_pixels", "board_pose", "spread_px", "common_division",
+           "division_homography", "focal_from_homography", "one_view", "undistort_division", "view_lens"]
 
 #: The division model's coefficient is searched in this range (per squared half-diagonal); ``1 + lam r^2``
 #: stays positive over the image.
@@ -44,9 +50,6 @@ LAMBDA_SIGNIFICANCE = 25.0
 #: The spread of one view's log focal length never counts as less than this (the principal point is not
 #: exactly at the centre, and the division model is not the lens).
 MIN_F_LOG_SIGMA = 0.03
-#: A homography (normalised image coordinates, its 2x2 part of unit norm) whose columns are orthogonal and of
-#: equal length to within this is a similarity: the board seen square-on, which tells no focal length.
-SQUARE_ON = 1e-9
 
 
 @dataclass(frozen=True)
@@ -156,14 +159,6 @@ def _summed_squares(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lam: floa
     return float(np.sum(residual.sum(axis=1) / magnification**2))
 
 
-def division_misfits(xy_board: np.ndarray, uv: np.ndarray, image_size, lams) -> np.ndarray:
-    """(L,) the misfit (RMS, the photo's pixels) of a view's homography with its measured corners (``uv``, NaN rows
-    for the others) undistorted by each of ``lams``: how well each lens's bend fits the view."""
-    seen = observed_mask(uv)
-    return _misfits(np.asarray(xy_board, float)[seen], np.asarray(uv, float)[seen], np.asarray(lams, float),
-                    image_size)[1]
-
-
 def common_division(xy_board: np.ndarray, uvs, image_size) -> float:
     """The division model's ``lam`` that fits the homographies of several views of one camera best together
     (their summed squared residuals; grids refined as in :func:`division_homography`): the views whose board
@@ -184,21 +179,10 @@ def common_division(xy_board: np.ndarray, uvs, image_size) -> float:
 
 def focal_from_homography(H: np.ndarray, image_size) -> float:
     """The focal length (pixels) that one view's homography gives a camera with square pixels, no skew
-    and its principal point at the image centre (module docstring), or NaN where it gives none (a board
-    seen square-on, or noise that makes ``1/f^2`` negative)."""
-    c, s = _centre_and_scale(image_size)
-    # centre the pixels and scale them to about 1 (the focal length comes out in those units)
-    N = np.array([[1.0 / s, 0.0, -c[0] / s], [0.0, 1.0 / s, -c[1] / s], [0.0, 0.0, 1.0]])
-    Hn = N @ np.asarray(H, float)
-    Hn = Hn / np.linalg.norm(Hn[:2, :2])
-    h1, h2 = Hn[:, 0], Hn[:, 1]
-    # eq. 9 (h1^T B h2 = 0) and eq. 10 (h1^T B h1 - h2^T B h2 = 0) as  a * (1/f^2) + b = 0
-    a = np.array([h1[0] * h2[0] + h1[1] * h2[1], h1[0] ** 2 + h1[1] ** 2 - h2[0] ** 2 - h2[1] ** 2])
-    b = np.array([h1[2] * h2[2], h1[2] ** 2 - h2[2] ** 2])
-    if float(a @ a) < SQUARE_ON ** 2:           # the image a similarity of the board: eqs. 9-10 tell no f
-        return float("nan")
-    inv_f2 = -float(a @ b) / float(a @ a)
-    return s / np.sqrt(inv_f2) if inv_f2 > 0 else float("nan")
+    and its principal point at the image centre (module docstring; :func:`dualcal.geometry.zhang.common_focal`
+    of the one view), or NaN where it gives none (a board seen square-on, or noise that makes ``1/f^2``
+    negative)."""
+    return common_focal([H], image_size)
 
 
 def one_view(xy_board: np.ndarray, uv: np.ndarray, image_size, lam: float | None = None) -> OneView | None:
@@ -228,13 +212,14 @@ def one_view(xy_board: np.ndarray, uv: np.ndarray, image_size, lam: float | None
     col = np.unique(np.round(xy[:, 0], 6), return_inverse=True)[1]
     row = np.unique(np.round(xy[:, 1], 6), return_inverse=True)[1]
     quarter = col % 2 + 2 * (row % 2)
-    parts = quarter[None, :] == np.arange(4)[:, None]
-    try:
-        Hq = np.array(estimate_homographies(xy, np.broadcast_to(undistorted, (4, *undistorted.shape)), parts,
-                                            refine=False))
-        logs = np.log([focal_from_homography(H, image_size) for H in Hq])
-    except EstimationError:
-        Hq, logs = np.full((4, 3, 3), np.nan), np.full(4, np.nan)
+    Hq = np.full((4, 3, 3), np.nan)
+    for k in range(4):                 # each on its own: a board seen in part may leave a quarter too few corners
+        try:
+            Hq[k] = estimate_homographies(xy, undistorted[None], (quarter == k)[None], refine=False)[0]
+        except EstimationError:
+            pass
+    with np.errstate(invalid="ignore"):
+        logs = np.log([focal_from_homography(H, image_size) if np.all(np.isfinite(H)) else np.nan for H in Hq])
     sigma = np.inf if not np.isfinite(f) or not np.all(np.isfinite(logs)) else max(np.std(logs) / 2, MIN_F_LOG_SIGMA)
     view = OneView(H, Hq, lam, misfit, float(f), float(sigma), float("nan"), tuple(int(v) for v in image_size))
     if np.isfinite(f):
@@ -249,3 +234,163 @@ def board_pose(view: OneView, f_px: float, H: np.ndarray | None = None) -> Pose:
     c, _ = _centre_and_scale(view.image_size)
     K = np.array([[f_px, 0.0, c[0]], [0.0, f_px, c[1]], [0.0, 0.0, 1.0]])
     return extrinsics_from_homography(K, view.H if H is None else H)
+
+
+# ---------------------------------------------------------------------------- one view's lens, with its sigmas
+
+#: The principal point of a phone's camera lies this far from the image centre (1-sigma, a share of the
+#: half-diagonal) before its photos say where: the prior of one view's lens (phones' own calibrations put it
+#: within about 1 % of the width).
+PRINCIPAL_POINT_SIGMA = 0.02
+#: The corners' noise never counts as less than this (pixels): synthetic corners can be nearly exact.
+MIN_NOISE_PX = 0.02
+#: One view's focal length is searched between these multiples of the half-diagonal.
+FOCAL_RANGE = (0.1, 30.0)
+#: The lens's parameters of one view, in this order: ``ln f`` (f in pixels), the division model's ``lam`` (per
+#: squared half-diagonal, about the principal point), the principal point's offset from the image centre (x, y, in
+#: half-diagonals).
+LENS_PARAMETERS = ("ln_f", "lam", "pp_x", "pp_y")
+
+
+@dataclass(frozen=True)
+class ViewLens:
+    """One photo's lens, from its board alone (:func:`view_lens`), as a normal distribution of
+    :data:`LENS_PARAMETERS`: ``information`` (4, 4) is what the photo's corners say (the board's pose eliminated;
+    no prior), ``estimate`` (4,) the estimate with the principal point's prior (:data:`PRINCIPAL_POINT_SIGMA`
+    about the centre). ``rms_px``: the fit's residual RMS; ``corners``: the corners used; ``image_size`` (W, H).
+
+    ``f_px``, ``lam`` and :meth:`given` the principal point: what the photo says of its lens where the principal
+    point is known (its camera's, from several photos) to within a covariance.
+    """
+
+    estimate: np.ndarray
+    information: np.ndarray
+    rms_px: float
+    corners: int
+    image_size: tuple[int, int]
+    tilt_deg: float = float("nan")
+
+    @property
+    def f_px(self) -> float:
+        return float(np.exp(self.estimate[0]))
+
+    @property
+    def lam(self) -> float:
+        return float(self.estimate[1])
+
+    def canonical(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(information, information @ the estimate without the prior)``: the photo's corners' word on the lens
+        as a normal's canonical form, which adds over photos (the estimate's prior taken out)."""
+        prior = np.diag([0.0, 0.0, 1.0, 1.0]) / PRINCIPAL_POINT_SIGMA**2
+        return self.information, (self.information + prior) @ self.estimate
+
+    def given(self, pp: np.ndarray, pp_covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(features, covariance)``: ``(ln f, lam)`` (2,) and their covariance (2, 2) from this photo, where the
+        principal point's offset is ``pp`` (2, half-diagonals) with ``pp_covariance`` (2, 2): the normal of
+        ``(ln f, lam)`` conditioned on it, the principal point's uncertainty carried through."""
+        info, eta = self.canonical()
+        # a weak prior on ln f and lam keeps a board seen square-on (which fixes neither) invertible
+        A = info[:2, :2] + np.diag([1e-4, 1e-2])
+        B = info[:2, 2:]
+        cov = np.linalg.inv(A)
+        mean = cov @ (eta[:2] - B @ np.asarray(pp, float))
+        G = cov @ B
+        return mean, cov + G @ np.asarray(pp_covariance, float) @ G.T
+
+
+def _division_pixels(params: np.ndarray, R0: np.ndarray, X: np.ndarray, c: np.ndarray, s: float) -> np.ndarray:
+    """(P, N, 2) pixels of the board points ``X`` (N, 3) for each row of ``params`` (P, 10): a rotation vector
+    applied after ``R0`` (3), ``t_mm`` (3), then :data:`LENS_PARAMETERS`, through the division model about the
+    principal point (an undistorted radius ``r_u`` to a distorted ``r_d = 2 r_u / (1 + sqrt(1 - 4 lam r_u^2))``,
+    both in half-diagonals ``s``)."""
+    from .rotation import rotation_from_rotvec
+
+    R = rotation_from_rotvec(params[:, :3]) @ R0                                    # (P, 3, 3)
+    Xc = np.einsum("pij,nj->pni", R, X) + params[:, None, 3:6]
+    ru = np.exp(params[:, 6])[:, None, None] * (Xc[..., :2] / Xc[..., 2:3]) / s    # (P, N, 2), half-diagonals
+    r2 = np.sum(ru * ru, axis=-1, keepdims=True)
+    lam = params[:, 7][:, None, None]
+    factor = 2.0 / (1.0 + np.sqrt(np.maximum(1.0 - 4.0 * lam * r2, 0.0)))
+    return c + s * (params[:, None, 8:10] + factor * ru)
+
+
+def view_lens(xy_board: np.ndarray, uv: np.ndarray, image_size, start: OneView | None = None) -> ViewLens | None:
+    """One photo's lens from its board alone: focal length, radial distortion and principal point, with what the
+    photo fixes of each.
+
+    The photo's corners are adjusted (Levenberg-Marquardt) for the board's pose and :data:`LENS_PARAMETERS`
+    (square pixels, no skew) under a prior that holds the principal point within :data:`PRINCIPAL_POINT_SIGMA` of
+    the image centre; the corners' noise is the misfit of the view's homography (at least :data:`MIN_NOISE_PX`).
+    The information of the lens's parameters is that of the corners with the pose eliminated (the Schur
+    complement of the normal matrix, whitened by the noise): a board seen square-on fixes no focal length, one
+    near the centre no distortion, and one photo the principal point only along one line.
+
+    Parameters
+    ----------
+    xy_board : (N, 2) board points, mm.
+    uv : (N, 2) their pixels, NaN rows where not measured.
+    image_size : (W, H).
+    start : the view's :func:`one_view` (computed where not given).
+
+    Returns
+    -------
+    ViewLens or None
+        None with fewer than 8 measured corners, or where the view tells nothing (its homography fails).
+    """
+    seen = observed_mask(uv)
+    start = start if start is not None else one_view(xy_board, uv, image_size)
+    if start is None or seen.sum() < 2 * MIN_HOMOGRAPHY_CORNERS:
+        return None
+    c, s = _centre_and_scale(image_size)
+    X = np.column_stack([np.asarray(xy_board, float)[seen], np.zeros(int(seen.sum()))])
+    measured = np.asarray(uv, float)[seen]
+    log_f_range = np.log(np.array(FOCAL_RANGE) * s)
+    f0 = float(np.exp(np.clip(np.log(start.f_px), *log_f_range))) if np.isfinite(start.f_px) else s
+    pose = board_pose(start, f0)
+    params = np.concatenate([np.zeros(3), pose.t_mm, [np.log(f0), start.lam, 0.0, 0.0]])
+    # the corners' noise: the misfit of the view's homography with the division model about the centre (the same
+    # lens with the principal point at the centre, 9 unknowns)
+    noise = max(start.misfit_px * np.sqrt(2 * len(X) / max(2 * len(X) - 9, 1)), MIN_NOISE_PX)
+    steps = 1e-6 * np.where(np.arange(10) < 3, 1.0, np.where(np.arange(10) < 6, 1.0 + np.abs(params), 1.0))
+
+    def whitened(p):                       # (P, 2N + 2): the corners' residuals, then the principal point's prior
+        r = (_division_pixels(p, pose.R, X, c, s) - measured).reshape(len(p), -1) / noise
+        return np.concatenate([r, p[:, 8:10] / PRINCIPAL_POINT_SIGMA], axis=1)
+
+    def jacobian(p):                       # central differences, every parameter at once
+        trial = np.repeat(p[None], 20, axis=0)
+        trial[np.arange(10), np.arange(10)] += steps
+        trial[10 + np.arange(10), np.arange(10)] -= steps
+        r = whitened(trial)
+        return ((r[:10] - r[10:]) / (2.0 * steps[:, None])).T
+
+    r = whitened(params[None])[0]
+    mu = 1e-3
+    for _ in range(50):
+        J = jacobian(params)
+        A, g, cost = J.T @ J, J.T @ r, r @ r
+        while mu <= 1e8:
+            trial = params + np.linalg.solve(A + mu * np.diag(np.diag(A) + 1e-12), -g)
+            trial[6] = np.clip(trial[6], *log_f_range)
+            trial[7] = np.clip(trial[7], *LAMBDA_RANGE)
+            r_trial = whitened(trial[None])[0]
+            if r_trial @ r_trial <= cost:
+                mu = max(mu / 3.0, 1e-9)
+                break
+            mu *= 4.0
+        if mu > 1e8:
+            break
+        params, r = trial, r_trial
+        if cost - r @ r <= 1e-10 * (1.0 + cost):
+            break
+    J = jacobian(params)[:2 * len(X)]                                    # the corners' rows, without the prior
+    A = J.T @ J
+    try:
+        information = A[6:, 6:] - A[6:, :6] @ np.linalg.solve(A[:6, :6], A[:6, 6:])
+    except np.linalg.LinAlgError:
+        return None
+    rms = float(np.sqrt(np.mean(r[:2 * len(X)] ** 2))) * noise
+    from .rotation import rotation_from_rotvec
+
+    tilt = float(np.degrees(np.arccos(min(1.0, abs((rotation_from_rotvec(params[:3]) @ pose.R)[2, 2])))))
+    return ViewLens(params[6:].copy(), information, rms, len(X), tuple(int(v) for v in image_size), tilt)

@@ -22,10 +22,32 @@ from .rotation import cross_matrix, rotation_from_rotvec
 MIN_RESECTION_CORNERS = 4      # IPPE's start needs four points of the plane
 
 
+def fixes_homography(xy_board: np.ndarray) -> bool:
+    """Whether (N, 2) board points fix a homography: four of them with no three on one line.
+
+    Points that span a plane may still not: four corners on a row of the board and one off it leave a
+    homography free along the row (each row's image fixes only the row's own projective map), as a partial
+    ChArUco view often has them. The test is exact, on the board's own coordinates: the DLT of the points
+    onto themselves has a null space of one dimension (the identity) where they fix a homography, and the
+    points ``H0 X`` of any other view have the same null space moved by ``H0``.
+    """
+    xy = np.asarray(xy_board, float)
+    if len(xy) < MIN_RESECTION_CORNERS:
+        return False
+    xy = (xy - xy.mean(axis=0)) / max(float(np.abs(xy - xy.mean(axis=0)).max()), 1e-300)
+    one, zero = np.ones((len(xy), 1)), np.zeros((len(xy), 3))
+    p = np.column_stack([xy, one])
+    A = np.vstack([np.hstack([p, zero, -xy[:, :1] * p]), np.hstack([zero, p, -xy[:, 1:] * p])])
+    s = np.linalg.svd(A, compute_uv=False)
+    return bool(s[7] > 1e-9 * s[0])
+
+
 def planar_pose(X_board: np.ndarray, cam: CameraModel, uv_px: np.ndarray) -> Pose:
-    """Board -> camera pose from the measured corners of one photo of the planar board (IPPE on
-    undistorted normalised corners: exact for exact corners). A board whose shape was estimated
-    (corners off the plane Z = 0) gets the pose of its flat approximation, a start for :func:`resect`.
+    """Board -> camera pose from the measured corners of one photo of the planar board: IPPE on
+    undistorted normalised corners (exact for exact corners), or SQPnP where the corners fix no
+    homography (:func:`fixes_homography`: IPPE's start is one) or IPPE finds no pose. A board whose shape
+    was estimated (corners off the plane Z = 0) gets the pose of its flat approximation, a start for
+    :func:`resect`.
 
     Raises
     ------
@@ -36,11 +58,15 @@ def planar_pose(X_board: np.ndarray, cam: CameraModel, uv_px: np.ndarray) -> Pos
     if seen.sum() < MIN_RESECTION_CORNERS:
         raise EstimationError(f"space resection needs at least {MIN_RESECTION_CORNERS} measured corners "
                               f"({int(seen.sum())} given)")
-    xy = ideal_normalized_from_pixel(cam, uv_px[seen])
+    xy = ideal_normalized_from_pixel(cam, uv_px[seen]).astype(np.float64)
     flat = np.column_stack([X_board[seen, :2], np.zeros(int(seen.sum()))]).astype(np.float64)
     import cv2          # imported here: the calibration's other steps do not need OpenCV
 
-    ok, rvec, tvec = cv2.solvePnP(flat, xy.astype(np.float64), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
+    ok = False
+    if fixes_homography(flat[:, :2]):
+        ok, rvec, tvec = cv2.solvePnP(flat, xy, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        ok, rvec, tvec = cv2.solvePnP(flat, xy, np.eye(3), None, flags=cv2.SOLVEPNP_SQPNP)
     if not ok:
         raise EstimationError("space resection: no initial pose (degenerate corners?)")
     return Pose(rotation_from_rotvec(rvec.ravel()), tvec.ravel())

@@ -11,6 +11,12 @@
 * A fisheye (lens model ``kb4``) is beyond a homography of its pixels: :func:`initial_fisheye_camera`
   first un-projects them with an equidistant guess, then runs the steps above on the pinhole pixels
   of the same rays.
+* Weak views, as peers' sessions have them (4-12 corners of a board a tenth of the frame wide, near
+  square-on): :func:`perspective_z` tests that the views show perspective beyond their corners' noise (else
+  they fix no focal length); :func:`common_focal` is the constrained closed form (square pixels, the principal
+  point at the image centre: one focal length from eqs. 9-10 of every view), which :func:`initial_camera` starts
+  from where the views fix its focal length better than Zhang's (:func:`homography_covariances`: how well each
+  view fixes its homography).
 
 Board points are the board's ``(X, Y)`` in mm (Z = 0); image points are pixels ``(u, v)``. A
 view may have corners that were not measured (NaN rows, :func:`dualcal.geometry.model.observed_mask`):
@@ -19,7 +25,7 @@ each view uses the corners it has, at least :data:`MIN_HOMOGRAPHY_CORNERS` not o
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,8 +34,9 @@ from .camera import (DEFAULT_LENS_MODEL, FISHEYE_MODELS, LENS_MODELS, CameraMode
 from ..errors import NotInvertibleError
 from ..errors import EstimationError
 from .model import Pose, observed_mask
-from .resection import planar_pose
+from .resection import fixes_homography, planar_pose
 from .rotation import nearest_rotation
+from ..progress import warn
 
 MIN_HOMOGRAPHY_CORNERS = 4      # a homography has 8 unknowns; each corner gives 2 equations
 
@@ -106,24 +113,32 @@ def estimate_homography(xy_board: np.ndarray, uv: np.ndarray, refine: bool = Tru
     return estimate_homographies(xy_board, [uv], [np.ones(len(uv), bool)], refine)[0]
 
 
+def _homography_projection(h: np.ndarray, xy_board: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels (V, N, 2) of the board points ``xy_board`` (N, 2) through homographies ``h`` (V, 8) (``H``'s
+    first eight entries row by row, ``H[2, 2] = 1``), and their Jacobians (V, N, 2, 8) with respect to ``h``."""
+    X, Y = xy_board[:, 0], xy_board[:, 1]
+    w = h[:, 6, None] * X + h[:, 7, None] * Y + 1.0
+    p = np.stack([h[:, 0, None] * X + h[:, 1, None] * Y + h[:, 2, None],
+                  h[:, 3, None] * X + h[:, 4, None] * Y + h[:, 5, None]], axis=-1) / w[..., None]
+    J = np.zeros(p.shape + (8,))
+    J[:, :, 0, 0], J[:, :, 0, 1], J[:, :, 0, 2] = X / w, Y / w, 1.0 / w
+    J[:, :, 1, 3:6] = J[:, :, 0, 0:3]
+    J[:, :, :, 6] = -p * (X / w)[..., None]
+    J[:, :, :, 7] = -p * (Y / w)[..., None]
+    return p, J
+
+
 def _refine_homographies(Hs: np.ndarray, xy_board: np.ndarray, uvs: np.ndarray, seen: np.ndarray,
                          max_iter: int = 20) -> np.ndarray:
     """Gauss-Newton on the pixel reprojection error of every view from its DLT's ``H`` ((V, 3, 3); views
     ``uvs`` (V, N, 2) over their corners ``seen`` (V, N)), all views in one batch. Each start is close, so
     no damping is needed: a view whose step does not lower its error stops there, as does one whose step
     is below 1e-12 of its parameters."""
-    X, Y = xy_board[:, 0], xy_board[:, 1]
     on = seen[..., None].astype(float)
     uv = np.where(seen[..., None], uvs, 0.0)
 
-    def project(h):                                             # (V, 8) -> (V, N, 2), w (V, N)
-        w = h[:, 6, None] * X + h[:, 7, None] * Y + 1.0
-        p = np.stack([h[:, 0, None] * X + h[:, 1, None] * Y + h[:, 2, None],
-                      h[:, 3, None] * X + h[:, 4, None] * Y + h[:, 5, None]], axis=-1) / w[..., None]
-        return p, w
-
     def residuals(h, views):
-        return ((project(h)[0] - uv[views]) * on[views]).reshape(len(views), -1)
+        return ((_homography_projection(h, xy_board)[0] - uv[views]) * on[views]).reshape(len(views), -1)
 
     h = (Hs.reshape(-1, 9)[:, :8] / Hs[:, 2, 2, None]).copy()
     r = residuals(h, np.arange(len(h)))
@@ -133,12 +148,7 @@ def _refine_homographies(Hs: np.ndarray, xy_board: np.ndarray, uvs: np.ndarray, 
         if not len(active):
             break
         ha = h[active]
-        p, w = project(ha)
-        J = np.zeros(p.shape + (8,))
-        J[:, :, 0, 0], J[:, :, 0, 1], J[:, :, 0, 2] = X / w, Y / w, 1.0 / w
-        J[:, :, 1, 3:6] = J[:, :, 0, 0:3]
-        J[:, :, :, 6] = -p * (X / w)[..., None]
-        J[:, :, :, 7] = -p * (Y / w)[..., None]
+        J = _homography_projection(ha, xy_board)[1]
         Q, R = np.linalg.qr((J * on[active][..., None]).reshape(len(active), -1, 8))
         step = np.linalg.solve(R, -np.einsum("vmk,vm->vk", Q, r[active])[..., None])[..., 0]
         trial = ha + step
@@ -150,6 +160,33 @@ def _refine_homographies(Hs: np.ndarray, xy_board: np.ndarray, uvs: np.ndarray, 
         small = np.max(np.abs(step) / (np.abs(trial) + 1e-12), axis=1) < 1e-12
         active = active[better & ~small]
     return np.concatenate([h, np.ones((len(h), 1))], axis=1).reshape(-1, 3, 3)
+
+
+def homography_covariances(Hs, xy_board: np.ndarray, uvs, seen) -> tuple[np.ndarray, float]:
+    """How well each view fixes its homography: the covariance of ``H``'s first eight entries (``H[2, 2] = 1``)
+    per unit variance of a corner's coordinates, ``(J^T J)^-1`` with ``J`` the Jacobian of the corners'
+    pixels, and the corners' variance (px^2 per coordinate) pooled over the views from the homographies'
+    residuals: their squares over their ``2 n - 8`` degrees of freedom (NaN where no view has any).
+
+    Parameters
+    ----------
+    Hs : (V, 3, 3) the views' homographies.
+    xy_board : (N, 2) board points, mm.
+    uvs, seen : (V, N, 2) the views' pixels and (V, N) which of them were measured.
+
+    Returns
+    -------
+    ``(covariances (V, 8, 8), variance_px2)``.
+    """
+    Hs = np.asarray(Hs, float)
+    seen = np.asarray(seen, bool)
+    h = Hs.reshape(-1, 9)[:, :8] / Hs[:, 2, 2, None]
+    p, J = _homography_projection(h, xy_board)
+    J = (J * seen[..., None, None]).reshape(len(h), -1, 8)
+    residual = np.where(seen[..., None], p - np.where(seen[..., None], uvs, 0.0), 0.0)
+    dof = int(np.sum(2 * seen.sum(axis=1) - 8))
+    variance = float(np.sum(residual**2) / dof) if dof > 0 else float("nan")
+    return np.linalg.inv(np.swapaxes(J, 1, 2) @ J), variance
 
 
 def _v_row(H: np.ndarray, i: int, j: int) -> np.ndarray:
@@ -197,9 +234,9 @@ def intrinsics_from_homographies(homographies, image_size, skew: bool = False, w
         model = "with skew free (Model 2)" if skew else "with skew = 0 (Model 1)"
         raise EstimationError(f"Zhang's closed form {model} needs at least {views_needed} views "
                               f"({len(V) // 2} given)")
-    # b spans the null space of V: the last right singular vector of the *full* decomposition
-    # (with fewer rows than unknowns a reduced SVD does not contain it).
-    _, sv, Vt = np.linalg.svd(V, full_matrices=True)
+    # b spans the null space of V: the last right singular vector of the *full* decomposition where V has
+    # fewer rows than unknowns (a reduced SVD does not contain it then); else the reduced one has it, at less cost.
+    _, sv, Vt = np.linalg.svd(V, full_matrices=len(V) < n)
     sv = np.concatenate([sv, np.zeros(n - len(sv))])
     if sv[-2] < 1e-6 * sv[0]:
         raise EstimationError("the views do not determine the intrinsics: the board poses are (nearly) "
@@ -224,6 +261,91 @@ def intrinsics_from_homographies(homographies, image_size, skew: bool = False, w
     v0 = (b2 * b4 - b1 * b5) / d
     A = np.linalg.inv(Nrm) @ np.array([[alpha, gamma, u0], [0.0, beta, v0], [0.0, 0.0, 1.0]])
     return CameraModel(tuple(image_size), A[0, 0], A[1, 1], A[0, 1], A[0, 2], A[1, 2])
+
+
+#: The views' perspective must stand this far above their corners' noise (a standard normal deviate: one-sided,
+#: 0.1 %) for the photos to fix a focal length (:func:`perspective_z`).
+PERSPECTIVE_SIGNIFICANCE = 3.09
+
+
+def perspective_z(Hs, covariances, variance_px2: float) -> float:
+    """How far the views' perspective stands above their corners' noise, as a standard normal deviate.
+
+    A board's image fixes a focal length only through its perspective: the third row ``(h31, h32)`` of its
+    homography (``H[2, 2] = 1``), which is zero where the board is seen square-on (anywhere in the frame) or
+    so far away that its image is an affine map of it, and the focal length then trades with the distance.
+    With each view's ``(h31, h32)`` of covariance ``variance_px2 * covariances[v][6:8, 6:8]``
+    (:func:`homography_covariances`), ``chi^2 = sum_v p_v^T C_v^-1 p_v`` has ``2 V`` degrees of freedom where
+    no view has any perspective; it is returned as the standard normal deviate of the same tail
+    (Wilson-Hilferty), +inf for exact corners and NaN where the variance is unknown.
+
+    Parameters
+    ----------
+    Hs : (V, 3, 3) the views' homographies.
+    covariances, variance_px2 : :func:`homography_covariances` of the views.
+    """
+    Hs = np.asarray(Hs, float).reshape(-1, 3, 3)
+    if not np.isfinite(variance_px2):
+        return float("nan")
+    if variance_px2 == 0:
+        return float("inf")
+    p = Hs[:, 2, :2] / Hs[:, 2, 2:3]
+    chi2 = float(np.einsum("vi,vij,vj->", p, np.linalg.inv(variance_px2 * covariances[:, 6:8, 6:8]), p))
+    k = 2 * len(Hs)
+    return float(((chi2 / k) ** (1 / 3) - (1 - 2 / (9 * k))) / np.sqrt(2 / (9 * k)))
+
+
+def _centred_scaled(image_size) -> tuple[np.ndarray, float]:
+    """The similarity (3, 3) from pixels to pixels centred on the image and scaled by its half-diagonal, and
+    that half-diagonal."""
+    w, h = image_size
+    s = 0.5 * float(np.hypot(w, h))
+    return np.array([[1.0 / s, 0.0, -0.5 * (w - 1) / s], [0.0, 1.0 / s, -0.5 * (h - 1) / s], [0.0, 0.0, 1.0]]), s
+
+
+def focal_equations(Hs, image_size) -> tuple[np.ndarray, np.ndarray]:
+    """Zhang's two equations of each view (paper eqs. 9-10) for a camera with square pixels, no skew and its
+    principal point at the image centre (the constrained closed form).
+
+    With ``B = diag(1/f^2, 1/f^2, 1)`` in pixels centred on the image and scaled by its half-diagonal ``s``,
+    ``h1^T B h2 = 0`` and ``h1^T B h1 - h2^T B h2 = 0`` are linear in ``x = (s / f)^2``: ``a x + b = 0``.
+
+    Parameters
+    ----------
+    Hs : (V, 3, 3) board-to-pixel homographies.
+    image_size : (W, H).
+
+    Returns
+    -------
+    ``(a, b)``, each (V, 2), every view's homography scaled so that its 2 x 2 part has unit norm.
+    """
+    N, _ = _centred_scaled(image_size)
+    M = N @ np.asarray(Hs, float).reshape(-1, 3, 3)
+    M = M / np.linalg.norm(M[:, :2, :2], axis=(1, 2))[:, None, None]
+    m1, m2 = M[:, :, 0], M[:, :, 1]
+    a = np.stack([m1[:, 0] * m2[:, 0] + m1[:, 1] * m2[:, 1],
+                  m1[:, 0] ** 2 + m1[:, 1] ** 2 - m2[:, 0] ** 2 - m2[:, 1] ** 2], axis=1)
+    b = np.stack([m1[:, 2] * m2[:, 2], m1[:, 2] ** 2 - m2[:, 2] ** 2], axis=1)
+    return a, b
+
+
+#: Views whose :func:`focal_equations` have ``sum a^2`` below the square of this are a similarity of the board
+#: (seen square-on: each homography's columns orthogonal and of equal length to within this), which tells no
+#: focal length.
+SQUARE_ON = 1e-9
+
+
+def common_focal(Hs, image_size, weights=None) -> float:
+    """One focal length (px) from every view together, for a camera with square pixels, no skew and its
+    principal point at the image centre: :func:`focal_equations` solved for ``x`` by least squares, each view's
+    two equations multiplied by its weight (default 1). NaN where there is none: every board seen square-on
+    (:data:`SQUARE_ON`), or noise that makes ``x`` negative.
+    """
+    a, b = focal_equations(Hs, image_size)
+    w2 = (np.ones(len(a)) if weights is None else np.asarray(weights, float))[:, None] ** 2
+    information = float(np.sum(w2 * a * a))
+    x = -float(np.sum(w2 * a * b)) / information if information >= SQUARE_ON**2 else 0.0
+    return _centred_scaled(image_size)[1] / np.sqrt(x) if x > 0 else float("nan")
 
 
 def extrinsics_from_homography(K: np.ndarray, H: np.ndarray) -> Pose:
@@ -299,7 +421,7 @@ def radial_distortion_linear(cam: CameraModel, poses, xy_board: np.ndarray, obse
 
 
 def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False,
-                   model: str = DEFAULT_LENS_MODEL):
+                   model: str = DEFAULT_LENS_MODEL, name: str | None = None):
     """Zhang's full initialisation of one camera: intrinsics, the lens (k1 k2, or the coefficients
     of lens ``model``) and one pose per view.
 
@@ -309,51 +431,222 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
     (1.4), one pose per view (1.5), then the lens by linear least squares (1.6). The closed form
     weighs each view by its homography's redundancy (``sqrt(2 n - 8)`` for n corners: one of 4
     corners has none, and no say; unweighted, a single such view of a narrow lens that sees
-    small parts of the board was seen to make fx 790 px for a true 6059). A start the
-    adjustment could not move from is avoided: linear coefficients whose radial part folds over
-    where the corners are become 0, and a pose with a corner behind the camera is replaced by
-    space resection (IPPE). These are the starting values of the joint adjustment, which refines
+    small parts of the board was seen to make fx 790 px for a true 6059).
+
+    Weak views as peers record them (a small board, 4-12 corners, a partial ChArUco view, near square-on):
+    the homographies are of the corners undistorted by a division model, and the camera is Zhang's or the
+    constrained one (:func:`_closed_form_intrinsics`). Where a fallback changes the start, a warning naming
+    ``name`` (the camera; else its image size) says so: a view whose corners fix no homography
+    (:func:`dualcal.geometry.resection.fixes_homography`: four on a row and one off it) is left out of the
+    closed form; where Zhang's closed form gives no camera (``B`` not positive definite), the constrained one
+    starts (:func:`common_focal`). A pose with a corner behind the camera, or of a view without a homography,
+    comes by space resection (:func:`dualcal.geometry.resection.planar_pose`: IPPE, or SQPnP where IPPE
+    cannot). A start the adjustment could not move from is avoided: linear coefficients whose radial part folds
+    over where the corners are become 0. These are the starting values of the joint adjustment, which refines
     all of them together.
+
+    Raises
+    ------
+    EstimationError
+        Where the photos fix no camera: no view fixes a homography, their boards' perspective is within their
+        corners' noise (:func:`perspective_z`), or neither closed form gives a camera.
     """
     if model in FISHEYE_MODELS:
-        return initial_fisheye_camera(xy_board, views, image_size, skew, model)
+        return initial_fisheye_camera(xy_board, views, image_size, skew, model, name)
     keys = sorted(views)
     seen = [observed_mask(views[k]) for k in keys]
-    cam, poses = _closed_form(xy_board, [views[k] for k in keys], seen, image_size, skew)
-    coefficients = radial_distortion_linear(cam, poses, xy_board, [views[k] for k in keys], model)
-    cam = replace(cam, model=model, **dict(zip(LENS_MODELS[model], coefficients)))
+    start = _closed_form(xy_board, [views[k] for k in keys], seen, image_size, skew, name=name)
+    coefficients = radial_distortion_linear(start.camera, start.poses, xy_board, [views[k] for k in keys], model)
+    cam = replace(start.camera, model=model, **dict(zip(LENS_MODELS[model], coefficients)))
     cam = _admissible_distortion(cam, [views[k][m] for k, m in zip(keys, seen)])
-    return cam, dict(zip(keys, poses))
+    _warn_fallbacks(start, keys, image_size, name)
+    return cam, dict(zip(keys, start.poses))
 
 
-def closed_form_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False) -> CameraModel:
+def closed_form_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False,
+                       name: str | None = None) -> CameraModel:
     """Zhang's closed-form intrinsics alone (sections 1.3-1.4; no lens): from the DLT's homographies,
-    not refined, which is enough to judge a lens's field of view."""
+    not refined, which is enough to judge a lens's field of view (with :func:`initial_camera`'s fallbacks,
+    unsaid)."""
     uvs = [views[k] for k in sorted(views)]
-    return _closed_form_intrinsics(xy_board, uvs, [observed_mask(uv) for uv in uvs], image_size, skew, refine=False)[0]
+    return _closed_form_intrinsics(xy_board, uvs, [observed_mask(uv) for uv in uvs], image_size, skew,
+                                   refine=False, name=name)[0]
+
+
+@dataclass(frozen=True)
+class _ClosedForm:
+    """What :func:`_closed_form` found: the camera (no lens), one pose per view, one homography per view (None
+    where its corners fix none) and, where the constrained closed form stood in for Zhang's, why and what it
+    gave (else None)."""
+
+    camera: CameraModel
+    poses: list[Pose]
+    homographies: list[np.ndarray | None]
+    fallback: str | None
+
+
+def _subject(name: str | None, image_size, views: int) -> str:
+    """The camera a message is about: its name, else its image size and number of photos."""
+    return name if name else f"the camera of {image_size[0]} x {image_size[1]} px ({views} photos)"
+
+
+def _warn_fallbacks(start: _ClosedForm, keys: list[str], image_size, name: str | None) -> None:
+    """One warning per fallback :func:`_closed_form` took (:func:`initial_camera`)."""
+    who = _subject(name, image_size, len(keys))
+    if start.fallback:
+        warn(f"{who}: {start.fallback}")
+    without = [k for k, H in zip(keys, start.homographies) if H is None]
+    if without:
+        shown = ", ".join(without[:4]) + (f" and {len(without) - 4} more" if len(without) > 4 else "")
+        warn(f"{who}: {len(without)} photo(s) ({shown}) fix no homography (no four of their corners without three "
+             "on one line): left out of the closed form, their start poses from their corners by PnP (SQPnP)")
+
+
+def _jackknife_log_sigma(estimate, views: int) -> float:
+    """The jackknife's sigma of ``log(estimate(keep))`` (``keep``: (V,) bool) over the ``views`` left out one at a
+    time: how well the views fix what ``estimate`` gives (inf where it gives nothing without one of them)."""
+    logs = []
+    for i in range(views):
+        keep = np.ones(views, bool)
+        keep[i] = False
+        try:
+            logs.append(np.log(estimate(keep)))
+        except EstimationError:
+            return float("inf")
+    logs = np.array(logs)
+    if not np.all(np.isfinite(logs)):
+        return float("inf")
+    return float(np.sqrt((views - 1) / views * np.sum((logs - logs.mean()) ** 2)))
 
 
 def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool,
-                 refine: bool = True):
-    """Homographies (``refine``: on the pixel error), Zhang's closed form and one pose per view, no
-    lens (sections 1.3-1.5)."""
-    cam, Hs = _closed_form_intrinsics(xy_board, uvs, seen, image_size, skew, refine)
-    # a pose that puts a corner behind the camera (from a poor closed form) is replaced by IPPE's
+                 refine: bool = True, name: str | None = None, division: bool = True) -> _ClosedForm:
+    """Homographies (``refine``: on the pixel error), the closed form and one pose per view, no lens (sections
+    1.3-1.5, with :func:`initial_camera`'s fallbacks; ``division``: :func:`_closed_form_intrinsics`'s): a view
+    without a homography, or whose pose puts a corner behind the camera (from a poor closed form), is resected."""
+    cam, Hs, fallback = _closed_form_intrinsics(xy_board, uvs, seen, image_size, skew, refine, name, division)
     X = np.column_stack([xy_board, np.zeros(len(xy_board))])
-    poses = extrinsics_from_homographies(cam.K, Hs)
-    poses = [pose if np.all(pose.apply(X[m])[:, 2] > 0) else planar_pose(X, cam, uv)
+    with_H = [i for i, H in enumerate(Hs) if H is not None]
+    poses: list[Pose | None] = [None] * len(uvs)
+    for i, pose in zip(with_H, extrinsics_from_homographies(cam.K, [Hs[i] for i in with_H])):
+        poses[i] = pose
+    poses = [pose if pose is not None and np.all(pose.apply(X[m])[:, 2] > 0) else planar_pose(X, cam, uv)
              for uv, m, pose in zip(uvs, seen, poses)]
-    return cam, poses
+    return _ClosedForm(cam, poses, Hs, fallback)
 
 
 def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size,
-                            skew: bool, refine: bool = True) -> tuple[CameraModel, list[np.ndarray]]:
-    """Homographies and Zhang's closed form (sections 1.3-1.4): the camera and the homographies."""
-    Hs = estimate_homographies(xy_board, uvs, seen, refine)
+                            skew: bool, refine: bool = True, name: str | None = None, division: bool = True):
+    """Homographies and the closed form (sections 1.3-1.4) of the views whose corners fix a homography:
+    ``(camera, homographies, fallback)``, the homographies one per view (None where its corners fix none),
+    ``fallback`` as :class:`_ClosedForm`'s.
+
+    With ``division``, the homographies are of the corners undistorted by the division model that fits every
+    view's homography best (:func:`dualcal.geometry.one_view.common_division`): a lens bends the image of a board
+    near the frame's edge, and its homography takes the bend for perspective, which the closed forms read as a
+    focal length (sessions of caliscope's webcams, k1 down to -0.33 at 1280 x 720, the board a tenth of the frame:
+    the starts' median error of fx 22 % without it, 12 % with it). The camera is then a pinhole start of the
+    undistorted pixels, whose lens section 1.6 estimates.
+
+    Of Zhang's camera and the constrained one (square pixels, the principal point at the image centre, one focal
+    length: :func:`common_focal`), the camera is the one whose focal length the views fix better: the smaller
+    jackknife sigma over the views (:func:`_jackknife_log_sigma`). Tilted boards that fill the frame fix
+    Zhang's four unknowns (and its focal length is then the nearer); small boards with few corners, seen near
+    square-on, leave its ``B`` to the noise (not positive definite, or a focal length far too short: half the
+    truth and less at 1.2 px of noise on caliscope's webcams), where the constrained one, with three unknowns
+    less, holds.
+
+    Raises
+    ------
+    EstimationError
+        No view fixes a homography, the views' perspective is within their corners' noise (:func:`perspective_z`:
+        the photos fix no focal length), or neither closed form gives a camera.
+    """
+    from .one_view import common_division, undistort_division    # one_view builds on this module
+
+    who = _subject(name, image_size, len(uvs))
+    fixing = [i for i, m in enumerate(seen) if fixes_homography(xy_board[m])]
+    if not fixing:
+        raise EstimationError(f"{who}: no photo's corners fix a homography (at least four corners, no three of "
+                              "them on one line); take photos where more of the board is seen")
+    f_uvs, f_seen = np.array([uvs[i] for i in fixing], float), np.array([seen[i] for i in fixing])
+    if division:
+        lam = common_division(xy_board, f_uvs, image_size)
+        f_uvs = np.where(f_seen[..., None], undistort_division(np.nan_to_num(f_uvs), lam, image_size), np.nan)
+    fixed = np.array(estimate_homographies(xy_board, f_uvs, f_seen, refine))
+    z = perspective_z(fixed, *homography_covariances(fixed, xy_board, f_uvs, f_seen))
+    if z < PERSPECTIVE_SIGNIFICANCE:
+        raise EstimationError(f"{who}: its photos fix no focal length: their boards' perspective is within their "
+                              f"corners' noise (z = {z:.1f}, {PERSPECTIVE_SIGNIFICANCE:g} needed), the boards seen "
+                              "square-on or too small; take photos with the board tilted 30-50 degrees in "
+                              "different directions")
     # A homography of n corners has 2n - 8 redundant equations; one of 4 corners fits them
     # exactly, noise and all, and would pull the closed form as hard as one of 40.
-    weights = [np.sqrt(2.0 * m.sum() - 2 * MIN_HOMOGRAPHY_CORNERS) for m in seen]
-    return intrinsics_from_homographies(Hs, image_size, skew, weights), Hs
+    weights = np.sqrt(2.0 * f_seen.sum(axis=1) - 2 * MIN_HOMOGRAPHY_CORNERS)
+    if not weights.any():                       # no view has more corners than its homography needs: alike
+        weights = np.ones(len(fixed))
+    starts, spread, failed = _closed_forms(fixed, weights, image_size, skew)
+    if not starts:
+        raise EstimationError(f"{who}: {failed}: the board poses are too alike or the corners too noisy; take "
+                              "photos with the board tilted 30-50 degrees in different directions")
+    chosen = min(starts, key=lambda kind: (spread[kind], kind != "zhang"))
+    if _normals_spread_deg(starts[chosen], fixed) < PARALLEL_DEG:
+        raise EstimationError(f"{who}: its boards are all parallel to each other (their normals within "
+                              f"{PARALLEL_DEG:g} degree), which fixes no principal point; take photos with the board "
+                              "tilted 30-50 degrees in different directions")
+    fallback = None
+    if failed:
+        sure = f" (+-{100 * spread[chosen]:.2g} % by the jackknife)" if np.isfinite(spread[chosen]) else ""
+        fallback = (f"{failed} from {len(fixed)} photos; it starts from square pixels, the principal point at the "
+                    f"image centre and one focal length from every photo together, f = {starts[chosen].fx:.0f} px"
+                    f"{sure}, which the adjustment then refines with the rest")
+    Hs: list[np.ndarray | None] = [None] * len(uvs)
+    for i, H in zip(fixing, fixed):
+        Hs[i] = H
+    return starts[chosen], Hs, fallback
+
+
+def _closed_forms(Hs: np.ndarray, weights: np.ndarray, image_size, skew: bool):
+    """Zhang's camera and the constrained one from the homographies ``Hs`` (V, 3, 3) weighed by ``weights`` (V,):
+    ``(starts, spread, failed)``, the cameras each closed form gives (``{"zhang": ..., "constrained": ...}``), the
+    jackknife sigma of each one's log focal length, and what made Zhang's fail (its error's first clause; its
+    advice, after the colon, is not a fallback's) or None."""
+    def zhang(keep):
+        return intrinsics_from_homographies(Hs[keep], image_size, skew, weights[keep])
+
+    def constrained_f(keep):
+        return common_focal(Hs[keep], image_size, weights[keep])
+
+    every = np.ones(len(Hs), bool)
+    starts, spread, failed = {}, {}, None
+    f_px = constrained_f(every)
+    if np.isfinite(f_px):
+        w, h = image_size
+        starts["constrained"] = CameraModel(tuple(image_size), f_px, f_px, 0.0, 0.5 * (w - 1), 0.5 * (h - 1))
+        spread["constrained"] = _jackknife_log_sigma(constrained_f, len(Hs))
+    try:
+        starts["zhang"] = zhang(every)
+        spread["zhang"] = _jackknife_log_sigma(lambda keep: _mean_focal(zhang(keep)), len(Hs))
+    except EstimationError as exc:
+        failed = str(exc).split(":")[0]
+    return starts, spread, failed
+
+
+#: Boards whose normals all lie within this (RMS, degrees) of their mean are parallel: Zhang's degenerate case, where
+#: the views fix a focal length only given the principal point, which no start can give the adjustment.
+PARALLEL_DEG = 1.0
+
+
+def _normals_spread_deg(cam: CameraModel, Hs: np.ndarray) -> float:
+    """The RMS angle (degrees) of the boards' normals from their mean, their poses from ``Hs`` with ``cam``."""
+    normals = np.array([pose.R[:, 2] for pose in extrinsics_from_homographies(cam.K, Hs)])
+    mean = normals.mean(axis=0)
+    cosines = np.clip(normals @ (mean / np.linalg.norm(mean)), -1.0, 1.0)
+    return float(np.degrees(np.sqrt(np.mean(np.arccos(cosines) ** 2))))
+
+
+def _mean_focal(cam: CameraModel) -> float:
+    return float(np.sqrt(cam.fx * cam.fy))
 
 
 #: The fisheye start's ``k1`` values tried (0: equidistant; 1/3 is a pinhole's ``tan`` to third order)
@@ -390,7 +683,8 @@ def _homography_misfit(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[n
     return float(np.sqrt(np.sum(squares) / sum(int(m.sum()) for m in seen)) / cam.fx)
 
 
-def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False, model: str = "kb4"):
+def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = False, model: str = "kb4",
+                           name: str | None = None):
     """Zhang's initialisation for a fisheye (``kb4``), which may see 120 degrees and more.
 
     A plane's fisheye image is not a homography of it, but the pinhole image of its rays is. So the
@@ -405,7 +699,9 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     the rays best (residual over ``f``, an angle). Last, the linear least squares of section 1.6 for
     ``k1 .. k4``: given the poses, ``(u~, v~) - (u, v) = A' (x theta / r) sum_j k_j theta^(2 j)`` with
     ``(u, v)`` the equidistant projection. Returns ``(CameraModel, {view: Pose})``. On phone3's
-    ultra-wide (145 degrees on the diagonal) A starts within 3 % of the truth.
+    ultra-wide (145 degrees on the diagonal) A starts within 3 % of the truth. Where no ``k1`` gives rays
+    that fix a camera (a lens narrower than a fisheye's, taken for one by its closed form; views too weak for the
+    search), A and the poses are :func:`initial_camera`'s, on the corners undistorted by the division model.
     """
     keys = sorted(views)
     uvs = [np.asarray(views[k], float) for k in keys]
@@ -413,6 +709,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     picked = np.unique(np.linspace(0, len(uvs) - 1, min(len(uvs), _FISHEYE_SEARCH_VIEWS)).round().astype(int))
     search_uvs, search_seen = [uvs[i] for i in picked], [seen[i] for i in picked]
     w, h = image_size
+    who = _subject(name, image_size, len(uvs))
     starts = []
     for k1 in _FISHEYE_K1_GRID:
         guess = _fisheye_guess(image_size, float(np.hypot(w, h)), float(k1), 0.5 * (w - 1), 0.5 * (h - 1))
@@ -420,22 +717,34 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
         for _ in range(_FISHEYE_ROUNDS):
             try:
                 pins = _pinhole_pixels(guess, search_uvs)
-            except NotInvertibleError:
+                cam = _closed_form_intrinsics(xy_board, pins, search_seen, image_size, skew, refine=False,
+                                              name=who, division=False)[0]
+            except EstimationError:                 # this k1's rays fix no camera (or not all have one)
                 break
-            cam = _closed_form_intrinsics(xy_board, pins, search_seen, image_size, skew, refine=False)[0]
             settled = abs(cam.fx / guess.fx - 1.0) < _FISHEYE_SETTLED
             guess, found = replace(cam, model=model, k1=float(k1)), guess
             if settled:
                 break
         if found is not None:
             starts.append((_homography_misfit(xy_board, search_uvs, search_seen, found), found))
-    if not starts or not np.isfinite(min(m for m, _ in starts)):
-        raise EstimationError("the fisheye's start puts a corner at 90 degrees or more from the axis")
-    guess = min(starts, key=lambda s: s[0])[1]
-    _, poses = _closed_form(xy_board, _pinhole_pixels(guess, uvs), seen, image_size, skew)
+    start = None
+    if starts and np.isfinite(min(m for m, _ in starts)):
+        guess = min(starts, key=lambda s: s[0])[1]
+        try:
+            start = _closed_form(xy_board, _pinhole_pixels(guess, uvs), seen, image_size, skew, name=name,
+                                 division=False)
+        except EstimationError:
+            start = None
+    if start is None:
+        # no k1 gives rays that fix a camera (a lens narrower than a fisheye's, views too weak for the search):
+        # the closed form of the corners undistorted by the division model, as a fisheye with no coefficients yet
+        start = _closed_form(xy_board, uvs, seen, image_size, skew, name=name)
+        guess = replace(start.camera, model=model)
+    poses = start.poses
     coefficients = _fisheye_linear(guess, poses, xy_board, uvs)
     cam = guess.with_distortion(coefficients[0], coefficients[1], k3=coefficients[2], k4=coefficients[3])
     reach = max(np.max(np.linalg.norm(normalized_from_pixel(cam, uv[m]), axis=1)) for uv, m in zip(uvs, seen))
+    _warn_fallbacks(start, keys, image_size, name)
     return (cam if reach < fold_distorted_radius(cam) else guess), dict(zip(keys, poses))
 
 

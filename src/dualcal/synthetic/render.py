@@ -18,8 +18,10 @@ A rendered photo is the board seen through the full camera model of :mod:`dualca
    point-symmetric and cannot move a corner;
 4. beyond the board's white margin lies a cluttered room (random boxes, discs and bars);
    light falls off towards the image corners (vignetting) and along a random direction
-   (uneven lighting), the lens blurs (a Gaussian, also point-symmetric), and the sensor adds
-   signal-dependent noise.
+   (uneven lighting), the lens blurs (a Gaussian, and where the photo is out of focus a disc:
+   the defocus of an aperture, both point-symmetric), and the sensor adds signal-dependent noise;
+5. optionally, a phone's processing of the photo (:class:`PhoneProcessing`): denoising, an
+   unsharp mask and JPEG compression, all point-symmetric filters too but for JPEG's 8 x 8 blocks.
 
 The photo is produced in horizontal bands (with a halo for the blur), so memory stays
 bounded at 12 MP. :func:`write_photo_set` writes a whole synthetic rig as JPEG files.
@@ -33,6 +35,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -45,9 +48,11 @@ from ..geometry.model import Pose
 from ..parallel import interruptible_map
 from ..progress import progress_bar
 from .render_charuco import MarkerTexture, marker_darkness, marker_texture
+from .render_circles import circle_darkness
 from .render_marks import marks_texture
 
-__all__ = ["board_height_mm", "shaped_corners_mm", "render_view", "write_photo_set", "photo_seed"]
+__all__ = ["board_height_mm", "shaped_corners_mm", "render_view", "write_photo_set", "photo_seed", "PhoneProcessing",
+           "defocus_kernel", "process_like_a_phone"]
 
 
 # ---------------------------------------------------------------------- 1-D box averages
@@ -77,13 +82,16 @@ def _reflectance(X: np.ndarray, Y: np.ndarray, hX: np.ndarray, hY: np.ndarray, b
     s = board.square_mm
     tri = lambda x: _square_wave_integral(x, s)  # noqa: E731
     ident = lambda x: x                          # noqa: E731
-    # the checkered area, squares a = -1 .. cols-1, b = -1 .. rows-1
-    x0, x1, y0, y1 = -s, board.cols * s, -s, board.rows * s
-    inside = _box_mean(ident, X, hX, x0, x1) * _box_mean(ident, Y, hY, y0, y1)
-    product = _box_mean(tri, X, hX, x0, x1) * _box_mean(tri, Y, hY, y0, y1)
-    black_share = 0.5 * (inside + product)          # black where sq(X) sq(Y) = +1, i.e. a + b even
-    if board.black_parity() != inverted:            # OpenCV's legacy ChArUco layout: the other squares
-        black_share = inside - black_share
+    # the printed area: a chessboard's squares a = -1 .. cols-1, b = -1 .. rows-1, or a circle grid's circles
+    x0, x1, y0, y1 = board.pattern_extent_mm()
+    if board.is_circle_grid:
+        black_share = circle_darkness(board, X, Y, hX, hY)
+    else:
+        inside = _box_mean(ident, X, hX, x0, x1) * _box_mean(ident, Y, hY, y0, y1)
+        product = _box_mean(tri, X, hX, x0, x1) * _box_mean(tri, Y, hY, y0, y1)
+        black_share = 0.5 * (inside + product)          # black where sq(X) sq(Y) = +1, i.e. a + b even
+        if board.black_parity() != inverted:            # OpenCV's legacy ChArUco layout: the other squares
+            black_share = inside - black_share
     if markers is not None:
         black_share = black_share + marker_darkness(markers, X, Y, hX, hY)
     paper = (_box_mean(ident, X, hX, x0 - margin_mm, x1 + margin_mm)
@@ -184,6 +192,56 @@ def _surface_coordinates(pose: Pose, ray: np.ndarray, board: Board, shape_mm, to
     return X, Y, front
 
 
+# ---------------------------------------------------------------------- optics and processing
+
+def defocus_kernel(radius_px: float, samples: int = 8) -> np.ndarray:
+    """(n, n) float32 point-spread function of a defocused lens: a uniform disc (pillbox) of ``radius_px``,
+    each pixel weighed by the share of its area inside the disc (``samples x samples`` points a pixel), summing
+    to 1. Point-symmetric, so it blurs a corner without moving it."""
+    r = float(radius_px)
+    half = int(np.ceil(r))
+    sub = (np.arange(samples) + 0.5) / samples - 0.5
+    x = (np.arange(-half, half + 1)[:, None] + sub[None, :]).ravel()
+    inside = (x[:, None] ** 2 + x[None, :] ** 2 <= r * r).astype(np.float32)
+    n = 2 * half + 1
+    k = inside.reshape(n, samples, n, samples).mean(axis=(1, 3))
+    return (k / k.sum()).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class PhoneProcessing:
+    """What a phone's camera app does to a photo after the sensor: denoising, sharpening, JPEG.
+
+    ``denoise``: the spatial standard deviation (px) of an edge-preserving bilateral filter (OpenCV's, its
+    range 3 x the photo's noise in grey levels; 0: none). ``sharpen`` and ``sharpen_sigma_px``: an unsharp
+    mask, ``I + sharpen (I - G_sigma * I)`` (0: none; phones use 0.5-1.5 at 1-2 px, which leaves a light halo
+    along each edge). ``quality``: the JPEG quality the photo is compressed at and decoded from (None: not
+    compressed here; :func:`write_photo_set` writes its own JPEG anyway).
+    """
+
+    denoise: float = 1.0
+    sharpen: float = 0.8
+    sharpen_sigma_px: float = 1.5
+    quality: int | None = 85
+
+
+def process_like_a_phone(img: np.ndarray, processing: PhoneProcessing, noise: float = 0.0) -> np.ndarray:
+    """``img`` (H, W) uint8 as a phone's processing leaves it (:class:`PhoneProcessing`); ``noise`` the sensor's
+    noise at full white (units of full scale), which sets the denoiser's range."""
+    out = img
+    if processing.denoise > 0:
+        sigma_grey = max(3.0 * noise * 255.0, 2.0)
+        d = 2 * int(np.ceil(2 * processing.denoise)) + 1
+        out = cv2.bilateralFilter(out, d, sigma_grey, processing.denoise)
+    if processing.sharpen > 0:
+        soft = cv2.GaussianBlur(out, (0, 0), processing.sharpen_sigma_px)
+        out = cv2.addWeighted(out, 1.0 + processing.sharpen, soft, -processing.sharpen, 0.0)
+    if processing.quality is not None:
+        ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(processing.quality)])
+        out = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+    return out
+
+
 # ---------------------------------------------------------------------- the photo
 
 def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Generator | None = None, *,
@@ -194,22 +252,30 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
                 shadow: tuple[float, float, float, float] | None = None,
                 outliers: Sequence[tuple[int, float, float]] = (),
                 swapped_markers: Sequence[tuple[int, int]] = (), marks: str | None = None,
-                inverted: bool = False, shape_mm: Sequence[float] | None = None) -> np.ndarray:
+                inverted: bool = False, shape_mm: Sequence[float] | None = None, defocus_px: float = 0.0,
+                processing: PhoneProcessing | None = None) -> np.ndarray:
     """Render the board as photographed by ``cam`` at ``pose``.
 
     Parameters
     ----------
     cam : camera model; ``cam.image_size = (W, H)`` sets the photo size.
     pose : board-to-camera pose.
-    board : the chessboard (inner corners and square size), or a ChArUco board with a known
-        dictionary and layout (its markers drawn with :mod:`dualcal.synthetic.render_charuco`).
+    board : the chessboard (inner corners and square size), a ChArUco board with a known
+        dictionary and layout (its markers drawn with :mod:`dualcal.synthetic.render_charuco`), or a
+        circle grid (its circles drawn with :mod:`dualcal.synthetic.render_circles`).
     rng : random generator for the lighting direction, background and sensor noise
         (``None``: a fixed seed).
     blur_px : standard deviation of the Gaussian optical blur, pixels (0: none).
+    defocus_px : radius of the disc a defocused lens spreads a point into, pixels (0: in focus); applied
+        after the Gaussian blur (:func:`defocus_kernel`). A phone's photo taken too close, or focused on
+        the room behind the board, blurs the squares' edges over 5-20 px at full size.
+    processing : the phone's processing after the sensor (:class:`PhoneProcessing`: denoising, sharpening,
+        JPEG), or None (the sensor's pixels as they are).
     noise : standard deviation of the sensor noise at full white, in units of full scale;
         it scales with the square root of the signal (shot noise) plus a read-noise floor.
     white, black : reflectance of the paper and of the black squares (0..1).
-    margin_squares : white margin around the outer ring of squares, in squares.
+    margin_squares : white margin around the outer ring of squares (a circle grid: around half a spacing
+        beyond its outer circles), in squares (spacings).
     vignetting : relative light loss at the image corners.
     uneven_light : relative change of light across the image along a random direction.
     background : reflectance beyond the board's edge, under the clutter (with smooth shading).
@@ -255,7 +321,8 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
     bg_phase = rng.uniform(0, 2 * np.pi, 3)
     bg_freq = rng.uniform(1.0, 3.0, 3) * 2 * np.pi / max(W, H)
     margin_mm = margin_squares * board.square_mm
-    halo = int(np.ceil(4 * blur_px)) + 1 if blur_px > 0 else 0
+    halo = (int(np.ceil(4 * blur_px)) + 1 if blur_px > 0 else 0) + int(np.ceil(defocus_px))
+    disc = defocus_kernel(defocus_px) if defocus_px > 0 else None
     c0, c1, b0, b1 = _board_support(cam, pose, board, margin_mm, shape_mm)
     u = np.arange(W, dtype=float)
     du = (u - cam.cx).astype(np.float32)
@@ -299,13 +366,15 @@ def render_view(cam: CameraModel, pose: Pose, board: Board, rng: np.random.Gener
                                                  / (2.0 * radius**2))).astype(np.float32)
         if blur_px > 0:
             signal = cv2.GaussianBlur(signal, (0, 0), blur_px, borderType=cv2.BORDER_REFLECT)
+        if disc is not None:
+            signal = cv2.filter2D(signal, -1, disc, borderType=cv2.BORDER_REFLECT)
         signal = signal[r0 - a0: r0 - a0 + (r1 - r0)]
         if glare:
             signal = np.minimum(signal, 1.0)                # the sensor saturates
         sigma = noise * np.sqrt(0.1 + 0.9 * np.clip(signal, 0.0, None))
         noisy = signal + sigma * rng.standard_normal(signal.shape, dtype=np.float32)
         out[r0:r1] = np.clip(np.rint(noisy * 255.0), 0, 255).astype(np.uint8)
-    return out
+    return out if processing is None else process_like_a_phone(out, processing, noise)
 
 
 def _plant_outliers(X: np.ndarray, Y: np.ndarray, board: Board, outliers) -> tuple[np.ndarray, np.ndarray]:
@@ -348,9 +417,8 @@ def _board_support(cam: CameraModel, pose: Pose, board: Board, margin_mm: float,
     Where part of the board is behind the camera the whole image is returned.
     """
     W, H = cam.image_size
-    s = board.square_mm
-    x0, x1 = -s - margin_mm, board.cols * s + margin_mm
-    y0, y1 = -s - margin_mm, board.rows * s + margin_mm
+    x0, x1, y0, y1 = board.pattern_extent_mm()
+    x0, x1, y0, y1 = x0 - margin_mm, x1 + margin_mm, y0 - margin_mm, y1 + margin_mm
     t = np.linspace(0.0, 1.0, 400)
     edges = np.concatenate([
         np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y0)]),

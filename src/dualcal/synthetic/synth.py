@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..geometry.board import Board
+from ..geometry.circles import circle_centre_offset_px
 from ..geometry.camera import INTRINSIC_NAMES, CameraModel, fold_radius, in_frame, project_points
 from ..errors import EstimationError, InputError
 from ..geometry.model import CameraCorners, CornerSet, Pose, RigModel, RigRelation
@@ -112,7 +113,10 @@ class SynthTruth:
     """A rig and board poses with known truth.
 
     ``rig[cam]`` maps reference-camera coordinates to camera ``cam`` (the reference maps to
-    itself and is not listed); ``view_poses[view]`` maps board to reference camera.
+    itself and is not listed); ``view_poses[view]`` maps board to reference camera. ``photo_lenses``
+    (``{view: {cam: PhotoLens}}``, :mod:`dualcal.synthetic.synth_focus`) holds each photo's own lens where the
+    lenses breathe with focus or shift with OIS (``cameras`` then hold their values at infinity, unshifted);
+    None: every photo is taken with ``cameras``.
     """
 
     board: Board
@@ -120,6 +124,12 @@ class SynthTruth:
     reference: str
     rig: dict[str, Pose]
     view_poses: dict[str, Pose]
+    photo_lenses: dict | None = None
+
+    def photo_camera(self, cam: str, view: str) -> CameraModel:
+        """The camera as it took ``cam``'s photo of ``view``: focused on the board and shifted by OIS where its lens
+        breathes or shifts (``photo_lenses[view][cam]``, :mod:`dualcal.synthetic.synth_focus`), else ``cameras[cam]``."""
+        return self.cameras[cam] if self.photo_lenses is None else self.photo_lenses[view][cam].camera
 
     def camera_pose(self, cam: str, view: str) -> Pose:
         """Board-to-camera pose of ``cam`` in ``view``."""
@@ -136,6 +146,13 @@ def scale_camera(cam: CameraModel, scale: float) -> CameraModel:
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
     return replace(cam, image_size=size, fx=cam.fx * scale, fy=cam.fy * scale, skew=cam.skew * scale,
                    cx=(cam.cx + 0.5) * scale - 0.5, cy=(cam.cy + 0.5) * scale - 0.5)
+
+
+def _outline_mm(board: Board) -> np.ndarray:
+    """(4, 3) corners of the board's printed pattern (:meth:`Board.pattern_extent_mm`: a chessboard's outer ring
+    of squares), first and last diagonally opposite."""
+    x0, x1, y0, y1 = board.pattern_extent_mm()
+    return np.array([[x0, y0, 0], [x1, y0, 0], [x0, y1, 0], [x1, y1, 0]], float)
 
 
 def _look_at_pose(center: np.ndarray, target: np.ndarray, roll: float) -> Pose:
@@ -166,10 +183,11 @@ def _all_visible(cams: dict[str, CameraModel], poses: dict[str, Pose], X: np.nda
     return True
 
 
-def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
+def make_truth(preset: str | dict = "note8", views: int = 13, seed: int = 0, scale: float = 1.0,
                max_tilt_deg: float = 40.0, min_tilt_deg: float = 5.0,
                fill: tuple[float, float] | None = None, board: Board | None = None,
-               coverage: tuple[float, float] | None = None) -> SynthTruth:
+               coverage: tuple[float, float] | None = None, breathing: float = 0.0, ois_px: float = 0.0,
+               focal_mm: dict[str, float] | None = None) -> SynthTruth:
     """Draw a rig from ``preset`` and ``views`` board poses seen whole by every camera.
 
     Poses look at a random point of the board from a tilt of ``min_tilt_deg`` to
@@ -186,10 +204,11 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
 
     Parameters
     ----------
-    preset : str
+    preset : str or dict
         The rig: ``note8`` (wide + tele, 12 MP), ``stereo`` (a 640x480 pair), ``triple`` (wide + tele +
         ultra-wide), ``phone3`` (wide + 3x tele + a fisheye ultra-wide), ``stereo5`` (the pair with OpenCV's
-        five-coefficient lenses).
+        five-coefficient lenses); or a rig of one's own, as :data:`PRESETS` holds one (``board``, ``cameras``
+        with the reference first, ``rig``, ``fill``, and ``edge`` where some views are near a camera's edge).
     views : int
         Number of board poses.
     seed : int
@@ -204,6 +223,16 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
         Another board than the preset's.
     coverage : tuple of float or None
         Partial views of a ChArUco board, as above.
+    breathing : float
+        The lenses breathe with focus (:mod:`dualcal.synthetic.synth_focus`): ``fx(d) = fx_inf (1 + b f / (d - f))``
+        with this ``b`` (0: they do not), each photo focused on the board's centre; the preset's ``fx, fy`` are
+        then the values at infinity.
+    ois_px : float
+        Each photo's principal point moved by OIS, a normal draw of this many px per coordinate, independent per
+        camera and photo (0: none). Drawn from a generator of its own: the poses are those without it.
+    focal_mm : dict or None
+        Each camera's focal length, mm, for the breathing (default: the preset's,
+        :func:`dualcal.synthetic.synth_focus.focal_lengths_mm`).
 
     Returns
     -------
@@ -217,11 +246,11 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     EstimationError
         No poses could be placed as asked.
     """
-    if preset not in PRESETS:
+    if isinstance(preset, str) and preset not in PRESETS:
         raise InputError(f"--preset {preset!r} is unknown (choose from {', '.join(PRESETS)})")
     if views < 1:
         raise InputError("--views must be at least 1")
-    p = PRESETS[preset]
+    p = PRESETS[preset] if isinstance(preset, str) else preset
     board = board or p["board"]
     cameras = {n: scale_camera(c, scale) for n, c in p["cameras"].items()}
     reference = next(iter(cameras))
@@ -229,11 +258,10 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
     rng = np.random.default_rng(seed)
 
     s = board.square_mm
-    outline = np.array([[-s, -s, 0], [board.cols * s, -s, 0], [-s, board.rows * s, 0],
-                        [board.cols * s, board.rows * s, 0]])
+    outline = _outline_mm(board)
     X = np.vstack([board.object_points_mm(), outline])
-    centre = np.array([(board.cols - 1) * s / 2, (board.rows - 1) * s / 2, 0.0])
-    extent = np.hypot((board.cols + 1) * s, (board.rows + 1) * s)
+    centre = np.append(0.5 * (outline[0, :2] + outline[3, :2]), 0.0)
+    extent = float(np.linalg.norm(outline[3] - outline[0]))
     narrowest = max(cameras, key=lambda n: cameras[n].fx / min(cameras[n].image_size))
     fmin, fmax = fill or p["fill"]
     if coverage is not None:
@@ -281,7 +309,28 @@ def make_truth(preset: str = "note8", views: int = 13, seed: int = 0, scale: flo
         if ok:
             view_poses[f"IMG_{len(view_poses) + 1:02d}"] = ref_pose
             aim = None
-    return SynthTruth(board, cameras, reference, rig, view_poses)
+    truth = SynthTruth(board, cameras, reference, rig, view_poses)
+    if breathing or ois_px:
+        truth = _with_photo_lenses(truth, preset, scale, breathing, ois_px, focal_mm, seed)
+    return truth
+
+
+def _with_photo_lenses(truth: SynthTruth, preset: str, scale: float, breathing: float, ois_px: float,
+                       focal_mm: dict[str, float] | None, seed: int) -> SynthTruth:
+    """``truth`` with every photo's own lens: focused on the board's centre, shifted by OIS
+    (:func:`dualcal.synthetic.synth_focus.photo_lenses`)."""
+    from .synth_focus import focal_lengths_mm, photo_lenses
+
+    if breathing < 0 or ois_px < 0:
+        raise InputError(f"breathing {breathing:g} and ois_px {ois_px:g} must be >= 0")
+    focal = focal_mm or focal_lengths_mm(preset, truth.cameras, scale)
+    rng = np.random.default_rng([int(seed), 0x015])
+    centre = truth.board.object_points_mm().mean(axis=0)
+    lenses = {}
+    for view in truth.view_poses:
+        depth = {n: float(truth.camera_pose(n, view).apply(centre[None])[0, 2]) for n in truth.cameras}
+        lenses[view] = photo_lenses(truth.cameras, focal, depth, breathing, ois_px, rng)
+    return replace(truth, photo_lenses=lenses)
 
 
 def _edge_view_poses(cameras, rig, reference, edge, extent, target, direction, roll, rng) -> dict[str, Pose]:
@@ -311,22 +360,24 @@ def seen_pixels(cam: CameraModel, pose: Pose, X_board: np.ndarray) -> np.ndarray
 
 
 def true_corners(truth: SynthTruth) -> dict[str, dict[str, np.ndarray]]:
-    """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner; NaN rows for the
+    """Exact pixel positions ``[cam][view] -> (N, 2)`` of every inner corner (a circle grid's: the centre of each
+    circle's image, :func:`dualcal.geometry.circles.circle_image_centre`); NaN rows for the
     corners a camera does not see (:func:`in_frame`: only on partial views). A chessboard (no
     markers to number a part of it) that a camera does not see whole, with its outer squares, is
     all NaN: the camera missed that instant."""
     X = truth.board.object_points_mm()
-    s = truth.board.square_mm
-    outline = np.array([[-s, -s, 0], [truth.board.cols * s, -s, 0], [-s, truth.board.rows * s, 0],
-                        [truth.board.cols * s, truth.board.rows * s, 0]])
+    outline = _outline_mm(truth.board)
     out = {}
-    for cam, model in truth.cameras.items():
+    for cam in truth.cameras:
         out[cam] = {}
         for v in truth.view_poses:
+            model = truth.photo_camera(cam, v)
             pose = truth.camera_pose(cam, v)
             missed = truth.board.charuco is None and not _all_visible({cam: model}, {cam: pose},
                                                                       np.vstack([X, outline]), margin=0.0)
             out[cam][v] = np.full((len(X), 2), np.nan) if missed else seen_pixels(model, pose, X)
+            if truth.board.is_circle_grid:      # a circle's centre as measured: its image's (geometry.circles)
+                out[cam][v] += circle_centre_offset_px(model, pose, X, 0.5 * truth.board.circle_diameter_mm)
     return out
 
 

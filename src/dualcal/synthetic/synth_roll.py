@@ -35,8 +35,8 @@ from ..files.io import encode_jpeg, write_bytes_atomic
 from ..geometry.camera import equivalent_focal_35mm
 from ..files.roll import camera_class
 
-__all__ = ["CROP_FACTOR", "ScriptedShot", "Shooting", "equivalent_focal_of", "shooting_script", "strip_exif",
-           "write_camera_roll"]
+__all__ = ["CROP_FACTOR", "ScriptedShot", "Shooting", "equivalent_focal_of", "shared_size_rig", "shooting_script",
+           "strip_exif", "write_camera_roll"]
 
 #: A phone sensor's crop factor by camera class (an iPhone's ultra-wide 2.2 mm is 13 mm equivalent, its
 #: main camera 6.9 mm 24 mm, its tele 9 mm 77 mm): it sets only EXIF's focal length in mm.
@@ -47,6 +47,41 @@ _START = datetime(2026, 11, 30, 10, 0, 0)
 def equivalent_focal_of(cam) -> float:
     """The 35 mm-equivalent focal length (mm) of a :class:`~dualcal.geometry.camera.CameraModel`."""
     return equivalent_focal_35mm(cam.image_size, cam.fx)
+
+
+def shared_size_rig(focal_px: dict[str, float], fisheye: tuple[str, ...] = ("ultra",),
+                    image_size: tuple[int, int] = (2016, 1512)) -> dict:
+    """A rig whose lenses all take photos of one size, as :func:`dualcal.synthetic.synth.make_truth` takes it.
+
+    The roll a phone's browser uploads (HEIC turned JPEG, EXIF gone) may hold two or three lenses at one size:
+    an ultra-wide whose processing leaves it a fisheye (about 1130 px) beside a wide (about 1340 px) at
+    2016 x 1512, say. ``focal_px``: each camera's focal length, the reference first (name them as
+    :func:`dualcal.files.roll.camera_class` would, ``wide`` the reference); the cameras in ``fisheye`` are a
+    ``kb4`` fisheye (nearly equidistant: a strong barrel), the others mild ``k1k2`` lenses. Each principal
+    point is 0.5-1 % from the centre; the lenses sit 10-25 mm apart, turned by up to 40 arcmin. Where a
+    fisheye is the widest, 30 % of the views are near its image's edge (the board 25-40 degrees off its axis).
+    """
+    from ..geometry.board import Board
+    from ..geometry.camera import CameraModel
+    from ..geometry.model import Pose
+    from ..geometry.rotation import ARCMIN_PER_RAD, rotation_from_opk
+
+    w, h = image_size
+    cameras, rig = {}, {}
+    for i, (name, f) in enumerate(focal_px.items()):
+        cx, cy = (w - 1) / 2 + (0.006, -0.004, 0.008)[i % 3] * w, (h - 1) / 2 + (0.005, 0.008, -0.006)[i % 3] * h
+        if name in fisheye:
+            cameras[name] = CameraModel((w, h), f, f * 0.9995, 0.0, cx, cy, 0.02, -0.004, k3=0.001, k4=-0.0002,
+                                        model="kb4")
+        else:
+            cameras[name] = CameraModel((w, h), f, f * 1.0005, 0.0, cx, cy, (0.05, -0.06, 0.03)[i % 3],
+                                        (-0.12, 0.2, -0.05)[i % 3])
+        if i:
+            opk = np.array([(-20.0, 15.0, -30.0), (10.0, -25.0, 40.0)][i % 2]) / ARCMIN_PER_RAD
+            rig[name] = Pose(rotation_from_opk(opk), np.array([0.4, (12.0, -22.0)[i % 2], -0.3]))
+    widest = min(focal_px, key=focal_px.get)
+    edge = [dict(camera=widest, share=0.3, fill=(0.25, 0.45), angle_deg=(25.0, 40.0))] if widest in fisheye else []
+    return dict(board=Board(8, 5, 30.0), cameras=cameras, rig=rig, fill=(0.45, 0.85), edge=edge)
 
 
 def _exif_bytes(cam, taken: datetime, device: str) -> bytes:

@@ -6,7 +6,7 @@ const root = document.getElementById("project");
 const id = root.dataset.id;
 const api = "/api/projects/" + encodeURIComponent(id);
 const live = document.getElementById("live");
-let state = null, lastTicks = null, refreshing = false, again = false;
+let state = null, lastTicks = null, lastPhotos = null, soon = null, refreshing = false, again = false;
 
 function say(text) { document.getElementById("upload-status").textContent = text; }
 
@@ -36,9 +36,18 @@ function onState(s) {
   verdict.className = s.error ? "bad" : (s.calibration && s.calibration.current ? (s.calibration.ok ? "good" : "careful") : "");
   document.getElementById("work").textContent = workText(s);
   live.setAttribute("aria-busy", s.state === "busy" ? "true" : "false");
-  const key = JSON.stringify([s.version, s.state, s.calibration, s.error, s.files, s.photos]);
-  if (key !== lastTicks) { lastTicks = key; refresh(); }
+  const key = JSON.stringify([s.version, s.state, s.calibration, s.error, s.files]);
+  const photos = JSON.stringify(s.photos);
+  if (key !== lastTicks) { lastTicks = key; lastPhotos = photos; refresh(); }
+  else if (photos !== lastPhotos) { lastPhotos = photos; refreshSoon(); }
   if (s.calibration) loadMeasure();
+}
+
+// While photos are being detected each one changes the state: the sections are fetched again at most once a
+// second then (each fetch has the server render the whole part; it shares the machine with the detection).
+function refreshSoon() {
+  if (soon) return;
+  soon = setTimeout(() => { soon = null; refresh(); }, 1000);
 }
 
 async function refresh() {

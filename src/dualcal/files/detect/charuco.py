@@ -50,10 +50,10 @@ from ...geometry.board import DICTIONARIES, Board, dictionary_family, smallest_d
 from ...errors import DetectionError
 from .coarse import reduce_image, reduction_factor, to_full_resolution
 from ...geometry.grid import local_spacing_px, validate_grid
-from .refine import drop_outliers, refine_corners, window_half_size
+from .refine import MeasuredGrid, drop_outliers, photo_edge_width_px, refine_measured, window_half_size
 
 __all__ = ["opencv_board", "detect_markers", "check_markers", "agreeing_markers", "predict_corners",
-           "detect_charuco", "marker_scores", "resolve_board"]
+           "detect_charuco", "measure_charuco", "marker_scores", "resolve_board"]
 
 #: Markers whose centres lie within this many squares of a marker's centre (on the board) are
 #: its neighbours: the 8 around it (diagonals at 1.41 squares, in line at 2).
@@ -270,6 +270,11 @@ def detect_charuco(full: np.ndarray, board: Board) -> np.ndarray:
     DetectionError
         With a one-line reason when the photo does not show enough of the board.
     """
+    return measure_charuco(full, board).uv
+
+
+def measure_charuco(full: np.ndarray, board: Board) -> MeasuredGrid:
+    """:func:`detect_charuco`'s corners, and the photo's blur (:class:`.refine.MeasuredGrid`)."""
     uv, ids = _find_markers(full, board)
     if len(ids) == 0:
         raise DetectionError(f"no marker of {board.describe()} found")
@@ -295,16 +300,16 @@ def detect_charuco(full: np.ndarray, board: Board) -> np.ndarray:
     H, W = full.shape
     todo &= np.isfinite(room) & np.all((pred >= half[:, None] + 1) & (pred <= np.array([W, H]) - half[:, None] - 2),
                                        axis=1)
-    refined, fit = refine_corners(full, pred, shape, np.where(todo, room, np.nan), only=todo)
-    good = todo & fit & (np.linalg.norm(refined - pred, axis=1) <= CORNER_TOLERANCE * spacing)
-    out = np.where(good[:, None], refined, np.nan)
+    refined = refine_measured(full, pred, shape, np.where(todo, room, np.nan), only=todo)
+    good = todo & refined.ok & (np.linalg.norm(refined.uv - pred, axis=1) <= CORNER_TOLERANCE * spacing)
+    out = np.where(good[:, None], refined.uv, np.nan)
     # the neighbours' prediction is exact to a few hundredths of a pixel only over small squares
     judged = spacing <= GRID_CHECK_SPACING * max(W, H)
     out = drop_outliers(out, shape, spacing, judged=judged)
     reason = validate_grid(out, board, judged=judged)
     if reason:
         raise DetectionError(reason)
-    return out
+    return MeasuredGrid(out, photo_edge_width_px(refined.width_px[good]))
 
 
 # ---------------------------------------------------------------------------- the board's dictionary

@@ -1,7 +1,7 @@
 """Detection of one photo and of a whole dataset (paper section 1.2).
 
 Per photo (:func:`detect_photo`), one photo in memory at a time (a ChArUco board goes through
-:func:`.charuco.detect_charuco` instead: its markers number the corners):
+:func:`.charuco.measure_charuco` instead: its markers number the corners):
 
 1. decode the photo once, reduce it to 1/2-1/8 size and find the grid there (:mod:`.coarse`),
    or, where that fails and the user clicked four corners, predict the grid from them
@@ -10,12 +10,15 @@ Per photo (:func:`detect_photo`), one photo in memory at a time (a ChArUco board
    shadow, the frame's edge); a photo that shows no part of a board is given up on there;
 2. sample the squares: they must alternate like a chessboard, the outer ring too, and the
    board must not continue beyond it (:mod:`.order`); put the corners in the contract's order;
-3. refine each corner at full resolution in a window fitted to its own squares, check it
-   against the homography of its neighbours and refine it again from there if it disagrees;
-   a corner that still fails is a NaN row (``null`` in corners.json), not a lost photo
-   (:func:`.refine.measure_grid`);
-4. check the grid as a whole (:func:`.grid.validate_grid`): enough corners left, no fold, no
-   corner off its neighbours' prediction. A grid that fails is reported as not found.
+3. refine each corner at full resolution in a window fitted to its own squares (where the photo is
+   too blurred for that, by the window's point symmetry), check it against the homography of its
+   neighbours, with the photo's own corner noise as the scale, and refine it again from there if it
+   disagrees; a corner that still disagrees by many times the noise is a NaN row (``null`` in
+   corners.json), not a lost photo (:func:`.refine.measure_grid`); the photo's blur and corner noise are
+   measured (:func:`photo_quality`) and written in the camera's ``meta["photo_quality"]``;
+4. check the grid as a whole (:func:`.grid.validate_grid`): enough corners left (6 of a board OpenCV
+   found whole, more than half of one placed from a part), no fold, no corner off its neighbours'
+   prediction. A grid that fails is reported as not found.
 
 :func:`detect_dataset` runs that over every photo of a :class:`~dualcal.files.dataset.Dataset` in
 parallel threads and gathers a :class:`~dualcal.geometry.model.CornerSet`; for a ChArUco board whose
@@ -26,7 +29,7 @@ dictionary (or layout) is not given it first finds them from the photos
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -40,17 +43,18 @@ from ..io import make_output_folder, write_jpeg_atomic
 from ...geometry.model import CameraCorners, CornerSet
 from ...parallel import interruptible_map
 from ...progress import progress_bar, warn
-from .charuco import detect_charuco, resolve_board
+from .charuco import measure_charuco, resolve_board
+from .circles import detect_circles
 from .coarse import (classic_grid, consistent_part, largest_grid, reduce_image, reduction_factor, sb_grid,
                      shows_a_chessboard, to_full_resolution)
-from ...geometry.grid import local_spacing_px, validate_grid
+from ...geometry.grid import corner_noise_px, local_spacing_px, validate_grid
 from .manual import grid_from_hints
 from .order import (PartialBoard, check_colours, filled_grid, looks_like_part_of_a_board, order_grid, place_partial_grid,
                     square_colours)
 from .refine import measure_grid
 from .symmetry import align_symmetric_numbering
 
-__all__ = ["PhotoResult", "detect_photo", "detect_dataset", "likely_boards", "locate_board", "suggest_board"]
+__all__ = ["PhotoResult", "photo_quality", "detect_photo", "detect_dataset", "likely_boards", "locate_board", "suggest_board"]
 
 
 @dataclass
@@ -61,7 +65,9 @@ class PhotoResult:
     (``"colours"``: its squares are not those of the board; ``"corners"``: the refined corners
     are not a board's grid); it is ``""`` where no such grid was found. ``partial``: only part of
     a chessboard is in view (a plain chessboard must be seen whole). ``mirrored``: the board is
-    printed with its other diagonal black (:func:`.order.order_grid`).
+    printed with its other diagonal black (:func:`.order.order_grid`). ``blur_px`` and
+    ``corner_noise_px``: how blurred the photo is and how noisy its corners are
+    (:func:`photo_quality`), NaN where not measured.
     """
 
     uv: np.ndarray | None
@@ -72,6 +78,20 @@ class PhotoResult:
     failed_check: str = ""
     partial: bool = False
     mirrored: bool = False
+    blur_px: float = float("nan")
+    corner_noise_px: float = float("nan")
+
+
+def photo_quality(uv: np.ndarray, board: Board, edge_width_px: float) -> dict[str, float]:
+    """How blurred a photo is and how noisy its corners are: ``{"blur_px", "corner_noise_px"}``.
+
+    ``blur_px``: the width of the squares' edges, the median over the corners of the corner fit's ``w``
+    (:func:`.refine.fit_saddles`; about 1.2 x the standard deviation of a Gaussian blur, 0.7 x the radius of
+    a defocused lens's disc up to about 10 px, beyond which the fit's window no longer holds the edges and it
+    only grows). ``corner_noise_px``: the standard deviation of one
+    coordinate of a corner, from the photo's own corners (:func:`dualcal.geometry.grid.corner_noise_px`).
+    """
+    return {"blur_px": float(edge_width_px), "corner_noise_px": corner_noise_px(uv, (board.rows, board.cols))}
 
 
 class _CheckFailed(DetectionError):
@@ -194,13 +214,19 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
     try:
         full = read_gray(path)
         size = (full.shape[1], full.shape[0])
-        if board.charuco is not None:
-            # a dataset settles the dictionary and layout first (detect_dataset); one photo alone tells its own
-            uv = detect_charuco(full, board if board.charuco.resolved else resolve_board(board, [full]))
+        if board.pattern != "chessboard":
+            uv, symmetric = detect_circles(full, board)          # circle grids (.circles)
             if overlay_path is not None:
                 f = reduction_factor(size)
                 write_overlay(overlay_path, reduce_image(full, f), uv, f)
-            return PhotoResult(uv, size)
+            return PhotoResult(uv, size, symmetric=symmetric)
+        if board.charuco is not None:
+            # a dataset settles the dictionary and layout first (detect_dataset); one photo alone tells its own
+            uv, width = measure_charuco(full, board if board.charuco.resolved else resolve_board(board, [full]))
+            if overlay_path is not None:
+                f = reduction_factor(size)
+                write_overlay(overlay_path, reduce_image(full, f), uv, f)
+            return PhotoResult(uv, size, **photo_quality(uv, board, width))
         manual = False
         try:
             # clicked corners stand in for a board not found whole: no part of it is placed then
@@ -217,8 +243,9 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
             raise _CheckFailed("colours", str(exc)) from None
         # clicked grids too: whichever end the user started from, the contract's order
         coarse, symmetric, mirrored = order_grid(grid, colours, board)
-        uv = measure_grid(full, coarse, (board.rows, board.cols), wide_start=manual)
-        reason = validate_grid(uv, board)
+        uv, width = measure_grid(full, coarse, (board.rows, board.cols), wide_start=manual)
+        # a board OpenCV found whole keeps what its checks leave of it (more than half of a placed or clicked one)
+        reason = validate_grid(uv, board, whole=not (placed or manual))
         if reason:
             raise _CheckFailed("corners", reason)
         if placed:
@@ -230,7 +257,8 @@ def detect_photo(path, board: Board, hint_uv: np.ndarray | None = None,
                 raise _CheckFailed("colours", f"a part of the board was found but not placed on it ({exc})") from None
         if overlay_path is not None:
             write_overlay(overlay_path, small, uv, f)
-        return PhotoResult(uv, size, symmetric=symmetric, manual=manual, mirrored=mirrored)
+        return PhotoResult(uv, size, symmetric=symmetric, manual=manual, mirrored=mirrored,
+                           **photo_quality(uv, board, width))
     except (DetectionError, InputError) as exc:
         return PhotoResult(None, None, reason=str(exc).replace(f"{path}: ", ""),
                            failed_check=getattr(exc, "check", ""), partial=isinstance(exc, PartialBoard))
@@ -276,8 +304,10 @@ def warn_unpaired_cameras(dataset: Dataset) -> None:
 def likely_boards(board: Board) -> list[Board]:
     """The ``--board`` a user most likely meant when ``board`` is not found: squares counted
     instead of inner corners (``cols-1 x rows-1``), the counts swapped, or both."""
-    if board.charuco is not None:
+    if board.charuco is not None or board.pattern == "points":
         return []                     # its markers say which board it is: none is mistaken for another
+    if board.is_circle_grid:          # circles counted along the other side
+        return [replace(board, cols=board.rows, rows=board.cols)] if board.cols != board.rows else []
     c, r, s = board.cols, board.rows, board.square_mm
     sizes = [(c - 1, r - 1), (r, c), (r - 1, c - 1)]
     return [Board(a, b, s) for a, b in dict.fromkeys(sizes) if min(a, b) >= 2 and (a, b) != (c, r)]
@@ -455,7 +485,8 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
                            for check, n in Counter(r.failed_check for r in results if r.failed_check).most_common())
         suggestion = suggest_board(missed, board)
         if found == 0:
-            check = ("check --board (inner corners, COLSxROWS)" if board.charuco is None
+            check = ("check --board (circles, circles:COLSxROWS or acircles:COLSxROWS)" if board.is_circle_grid
+                     else "check --board (inner corners, COLSxROWS)" if board.charuco is None
                      else "check --board (squares, charuco:SXxSY), --square, --marker and --dictionary")
             raise InputError(f"no {board.describe()} found in any photo of {dataset.source} "
                              f"({len(tasks)} photos): " + ": ".join(filter(None, [failed, suggestion or check])))
@@ -471,6 +502,11 @@ def detect_dataset(dataset: Dataset, board: Board, jobs: int | None = None,
         partial = sorted(v for (c, v), r in zip(keys, results) if c == cam and r.partial)
         if partial:
             meta["partial_views"] = partial
+        quality = {v: {"blur_px": round(r.blur_px, 3), "corner_noise_px": round(r.corner_noise_px, 4)}
+                   for (c, v), r in zip(keys, results) if c == cam and r.uv is not None
+                   and np.isfinite(r.blur_px) and np.isfinite(r.corner_noise_px)}
+        if quality:
+            meta["photo_quality"] = dict(sorted(quality.items()))
         cameras[cam] = CameraCorners(dataset.image_size(cam), views[cam], meta)
         if all(v is None for v in views[cam].values()):
             warn(f"camera {cam!r}: the board was found in none of its photos")

@@ -18,7 +18,7 @@ from importlib import resources
 from ...errors import InputError
 
 #: The files that have a schema: ``dualcal schema NAME`` prints ``NAME.json``.
-SCHEMA_NAMES = ("corners", "calib", "eval", "measure", "points", "rectify", "advise")
+SCHEMA_NAMES = ("corners", "calib", "eval", "measure", "points", "rectify", "advise", "intrinsics")
 
 
 def schema(name: str) -> dict:

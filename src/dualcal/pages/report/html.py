@@ -24,7 +24,7 @@ from ...geometry.model import RigModel
 from ...progress import track
 from ...geometry.scale import relative_sigma, scale_share
 from . import analysis, figures
-from ..photos import photo_rows, photo_status
+from ..photos import photo_quality, photo_rows, photo_status
 from .templating import environment
 
 #: Intrinsic parameters: label with the paper's name (Tables 2 and 3) and unit.
@@ -184,9 +184,12 @@ def pose_free_table(evaluation: dict | None) -> list[dict]:
 
 
 def photos_table(rig: RigModel, names: list[str]) -> list[dict]:
-    """Every photo: RMS per camera (px) and, for a photo not kept, why (:func:`dualcal.pages.photos.photo_status`)."""
+    """Every photo: RMS per camera (px), blur and corner noise per camera (px) where the detection measured them,
+    and, for a photo not kept, why, and which are blurred (:func:`dualcal.pages.photos.photo_status`,
+    :func:`dualcal.pages.photos.photo_quality`)."""
+    quality = photo_quality(rig)
     return [{"view": view, "cells": cells, "status": note}
-            for view, cells, note in photo_rows(photo_status(rig), names, missing="–")]
+            for view, cells, note in photo_rows(photo_status(rig), names, missing="–", quality=quality or None)]
 
 
 SOURCE_FORMAT_LABELS = {"dng": "RAW (DNG): the sensor's pixels", "jpeg": "JPEG: the phone's processed photo",
@@ -390,6 +393,7 @@ def render_report(rig: RigModel, evaluation: dict | None = None, title: str | No
         intrinsics=intrinsics_table(rig, names),
         rig_table=rig_table(rig),
         photos=photos_table(rig, names),
+        photo_quality_names=names if photo_quality(rig) else [],
         source_formats=source_formats(rig, names),
         evaluation=evaluation_table(evaluation),
         pose_free=pose_free_table(evaluation),
