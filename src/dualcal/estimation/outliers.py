@@ -24,11 +24,8 @@ import numpy as np
 from .adjust import Solution
 from .checking import _refocused_camera
 from .checks import REFOCUS_SHARE, design_effect, focal_scale_fits
-from ..errors import EstimationError
-from .fitting import MIN_VIEWS, Setup, refit, unusable_reason
-from ..geometry.camera import FISHEYE_MODELS, LENS_MODELS
-from .lm import COMPARISON_LM
-from .photo_noise import MEDIAN_LENGTH, PhotoNoise, photo_noise
+from .fitting import MIN_VIEWS, Setup, unusable_reason
+from .photo_noise import MEDIAN_LENGTH, PhotoNoise, photo_noise, rough_residuals
 from ..progress import warn
 
 OUTLIER_FLOOR_PX = 0.05
@@ -135,9 +132,9 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
     every photo of that instant; of the photos of the flagged instant whose corners are mostly outliers,
     the one whose removal fits best is dropped.
 
-    With ``weigh`` (every camera alone, ``setup.mode`` ``none``) each photo's noise is estimated from the solution
-    of every set of corners (:func:`richest_noise`), its corners judged against it, and the photos weighed by it
-    and adjusted again until the weights settle (:data:`REWEIGHT_TOLERANCE`); the ``noise``
+    With ``weigh`` (every camera alone, ``setup.mode`` ``none``) each photo's noise is estimated from every
+    solution (:func:`dualcal.estimation.photo_noise.photo_noise`), its corners judged against it, and the photos
+    weighed by it and adjusted again until the weights settle (:data:`REWEIGHT_TOLERANCE`); the ``noise``
     returned is the one whose weights the solution has, with the ``setup`` of its switches (the weights, and
     the scale of a prior on known intrinsics, which they hold until the first solution's noise gives it; without
     ``weigh``, its ``s0``). With ``noise`` (the cameras alone's, ``setup``'s weights from it) in a tied rig, a
@@ -146,13 +143,12 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
     instant is dropped for, or ``rig_rigid`` names. Without either, the corners are judged against their camera's
     median residual.
     """
-    alone_share, judge = {}, None
-    if setup.mode != "none" and start is not None and noise is not None:
-        judge = photo_noise(start, factor)              # each photo's scatter with its camera alone
+    alone_share = {}
     if factor and setup.mode != "none" and start is not None:
+        rough = None if noise is None else np.linalg.norm(rough_residuals(start, factor)[0], axis=2)
         alone_share = dict(zip([(c, v) for c, v, _ in start.problem.blocks],
-                               outlier_shares(start, factor, judge, judge and judge.lengths_px)[0]))
-    sol, corner_rounds, reweights, weighed, noise_of = None, 0, 0, noise, None
+                               outlier_shares(start, factor, noise, rough)[0]))
+    sol, corner_rounds, reweights, weighed = None, 0, 0, noise
     step: _Round | None = _Round("start", [blocks], start)
     while step is not None:
         if step.setup is not None:
@@ -167,37 +163,15 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
             step.record(sol, trials[best], best)
         sol, blocks = trials[best], step.trials[best]
         if weigh:
-            judge = photo_noise(sol, factor)
-            if noise is None or noise_of is not blocks:                # the photos' noise of these corners
-                noise, noise_of = richest_noise(sol, factor), blocks
+            noise = photo_noise(sol, factor)
         step = _next_round(setup, sol, blocks, start, factor, alone_share, dropped, dropped_corners,
-                           corner_rounds < MAX_CORNER_ROUNDS and (judge is None or setup.mode == "none"), judge,
-                           noise, weigh and reweights < MAX_REWEIGHTS)
+                           corner_rounds < MAX_CORNER_ROUNDS and (noise is None or setup.mode == "none"), noise,
+                           weigh and reweights < MAX_REWEIGHTS)
         corner_rounds += step is not None and step.kind == "corners"
         reweights += step is not None and step.kind == "reweight"
     if weigh and weighed is None:          # the first weights were 1 within the tolerance: the solution's own
         weighed, setup = noise, replace(setup, weights=noise.weights())
     return sol, blocks, weighed, setup
-
-
-def richest_noise(sol: Solution, factor: float | None) -> PhotoNoise:
-    """Each photo's noise (:func:`dualcal.estimation.photo_noise.photo_noise`) from ``sol``, a solution with every
-    camera alone, adjusted again with the richest lens model of each camera's family (``k1k2p1p2k3``, or the
-    fisheye ``kb4``; a camera whose intrinsics are known keeps its own): what a lens term the model lacks leaves
-    in the photos near the image's edge is no corner noise, and weighing those photos down, or taking their
-    corners out, would hide the term from the comparison of lens models (a rendered phone roll: the wide's k3 of
-    0.2 was missed so). From ``sol`` itself where that adjustment cannot be made (too few photos)."""
-    models = {n: RICHEST[m in FISHEYE_MODELS] for n, m in zip(sol.problem.cameras, sol.problem.models)}
-    try:
-        rich = refit(sol, model=models, options=COMPARISON_LM)
-    except EstimationError:
-        rich = sol
-    return photo_noise(rich, factor)
-
-
-#: The richest lens model of each family (radial-tangential, fisheye), by :data:`FISHEYE_MODELS` membership.
-RICHEST = {False: max((m for m in LENS_MODELS if m not in FISHEYE_MODELS), key=lambda m: len(LENS_MODELS[m])),
-           True: max((m for m in LENS_MODELS if m in FISHEYE_MODELS), key=lambda m: len(LENS_MODELS[m]))}
 
 
 def _settled(setup: Setup, noise: PhotoNoise) -> bool:
@@ -207,19 +181,17 @@ def _settled(setup: Setup, noise: PhotoNoise) -> bool:
 
 
 def _next_round(setup: Setup, sol: Solution, blocks, alone: Solution | None, factor: float | None, alone_share: dict,
-                dropped: list, dropped_corners: list, corners_too: bool, judge: PhotoNoise | None,
-                noise: PhotoNoise | None, reweigh: bool) -> _Round | None:
+                dropped: list, dropped_corners: list, corners_too: bool, noise: PhotoNoise | None,
+                reweigh: bool) -> _Round | None:
     """What to do next with ``sol`` (:func:`adjust_dropping_outliers`): leave out a photo of a gross misfit
     (:attr:`dualcal.estimation.photo_noise.PhotoNoise.gross`), else the photo (or the instant, or the refocused
-    photo of an instant) most of whose corners are outliers against ``judge`` (each photo's scatter with its
-    camera alone and the stage's lens model, a lens term the model lacks included), else, where ``corners_too``,
-    the outlier corners; else, where ``reweigh``, weigh the photos by ``noise`` (their corners' noise,
-    :func:`richest_noise`) where their weights have not settled; give a prior on known intrinsics its scale where
-    it has none yet. None where there is nothing to do, or what should be left out cannot be (a warning says
-    why)."""
+    photo of an instant) most of whose corners are outliers against ``noise``, else, where ``corners_too``, the
+    outlier corners; else, where ``reweigh``, weigh the photos by ``noise`` where their weights have not
+    settled; give a prior on known intrinsics its scale where it has none yet. None where there is nothing to do,
+    or what should be left out cannot be (a warning says why)."""
     if factor:
         leave_out = _leave_out(setup, sol, blocks, alone, factor, alone_share, dropped, dropped_corners, corners_too,
-                               judge)
+                               noise)
         if leave_out is not None:
             return leave_out
     if reweigh and not _settled(setup, noise):
