@@ -13,8 +13,9 @@ from dualcal.estimation import advise as A
 from dualcal.files import io
 from dualcal.synthetic import synth
 from dualcal.estimation.calibrate import calibrate_rig
-from dualcal.geometry.camera import in_frame
+from dualcal.geometry.camera import CameraModel, in_frame
 from dualcal.geometry.model import Pose
+from dualcal.geometry.rotation import ARCMIN_PER_RAD, rotation_from_opk, rotation_from_rotvec
 
 
 def _calibration(preset="note8", views=6, seed=1, noise=0.2, **kwargs):
@@ -42,19 +43,29 @@ def test_the_calibrations_own_instants_give_back_its_normal_matrix(preset, board
     their adjusted poses, with the noise s0, adds up to the inverse of its textbook covariance (with
     the board's shape estimated too)."""
     truth = synth.make_truth(preset, views=6, seed=1)
-    # every photo of weight 1 (the adjustment's own weights, where its photos' noise differ, are not the advice's)
-    rig = calibrate_rig(synth.noisy_corner_set(truth, 0.2, seed=1), board_shape=board_shape, weigh_photos=False)
+    rig = calibrate_rig(synth.noisy_corner_set(truth, 0.2, seed=1), board_shape=board_shape)
     prior = A.prior_from_rig(rig)
     assert (board_shape == "fit") == any(n.startswith("board.shape_mm") for n in prior.parameters)
     used = rig.used_corners()
+    noise = A.photo_noise_px(rig)                              # each photo weighed by its own noise
     total = np.zeros_like(prior.covariance)
     for view, pose in rig.reference_poses().items():
         seen = {n: np.isfinite(used.cameras[n].views[view][:, 0]) for n in rig.cameras
                 if used.cameras[n].views.get(view) is not None}
-        total += A.instant_information(prior, pose, seen)
+        total += A.instant_information(prior, pose, seen, {n: noise[n, view] for n in seen})
     N = np.linalg.inv(prior.covariance)
     scale = np.sqrt(np.outer(np.diag(N), np.diag(N)))
     assert np.max(np.abs(total - N) / scale) < 1e-6
+
+
+def test_a_new_photo_is_as_noisy_as_its_cameras_photos():
+    """Where each photo is weighed by its own noise, a new photo's corners are as noisy as its camera's photos:
+    the tele's photos 2.5 x as noisy as the wide's give its new photo 2.5 x the wide's noise (within 20 %)."""
+    truth = synth.make_truth("note8", views=8, seed=1)
+    sharp, blurred = (synth.noisy_corner_set(truth, px, seed=1) for px in (0.2, 0.5))
+    corners = replace(sharp, cameras={"wide": sharp.cameras["wide"], "tele": blurred.cameras["tele"]})
+    prior = A.prior_from_rig(calibrate_rig(corners, board_shape="flat"))
+    assert prior.noise_px["tele"] / prior.noise_px["wide"] == pytest.approx(2.5, rel=0.2)
 
 
 def test_the_covariance_update_is_the_inverse_of_the_summed_information():
@@ -128,13 +139,114 @@ def test_honest_prediction_matches_on_average():
 
 # ---------------------------------------------------------------------------- no camera forgotten
 
+#: A rig like the one whose tele the advice left behind (issue 38), and none of the presets the advice was
+#: tuned on: a 12 MP wide and a 2.8 x tele, their own principal points, lenses and rig.
+WIDE_TELE28 = dict(
+    board=synth.Board(8, 5, 30.0),
+    cameras={"wide": CameraModel((3024, 4032), 3010.0, 3012.0, 0.0, 1495.0, 2040.0, 0.07, -0.18),
+             "tele": CameraModel((3024, 4032), 8450.0, 8460.0, 0.0, 1555.0, 1960.0, -0.10, 0.70)},
+    rig={"tele": Pose(rotation_from_opk(np.array([0.6, -1.4, 1.8]) / ARCMIN_PER_RAD), np.array([10.5, -0.6, 0.3]))},
+    fill=(0.45, 0.85))
 
-def _average_photo_sigmas(prior, candidates, n):
-    """The textbook key sigmas after ``n`` photos each bringing the average information of the poses every
-    camera sees (a key target's due, :func:`dualcal.estimation.advise.random_information`)."""
-    info = np.array([A.instant_information(prior, p, s) for p, s in candidates])
-    return A.sigmas(A.updated_covariance(prior.covariance, n * A.random_information(info, candidates)),
-                    A.target_gradients(prior))
+
+@pytest.fixture
+def wide_tele28(monkeypatch):
+    monkeypatch.setitem(synth.PRESETS, "wide_tele28", WIDE_TELE28)
+    return "wide_tele28"
+
+
+def _finds(truth, name: str, board_pose: Pose) -> bool:
+    """Whether camera ``name`` of the true rig finds a plain chessboard held at ``board_pose``, as a detector
+    would (judged apart from the advice's own model): every square's corners 1 % of the frame inside it, every
+    square at least 10 px long, the board at most 70 degrees from facing the camera."""
+    board, cam, pose = truth.board, truth.cameras[name], truth.seen_by(name, board_pose)
+    s = board.square_mm
+    vertices = np.array([[x, y, 0.0] for y in np.arange(-1, board.rows + 1) * s
+                         for x in np.arange(-1, board.cols + 1) * s])
+    uv = synth.seen_pixels(cam, pose, vertices)
+    lo, hi = 0.01 * min(cam.image_size), np.array(cam.image_size) - 1 - 0.01 * min(cam.image_size)
+    grid = uv.reshape(board.rows + 2, board.cols + 2, 2)
+    shortest = min(np.linalg.norm(np.diff(grid, axis=k), axis=-1).min() for k in (0, 1))
+    centre = pose.apply(vertices).mean(axis=0)
+    facing = pose.R[:, 2] @ centre / np.linalg.norm(centre)
+    return bool(np.all(uv >= lo) and np.all(uv <= hi) and shortest >= 10.0 and facing >= np.cos(np.radians(70.0)))
+
+
+@pytest.mark.parametrize("preset, seeds", [("stereo", (0, 3)), ("wide_tele28", (0, 1))])
+def test_the_cameras_named_are_those_that_find_the_board(preset, seeds, monkeypatch):
+    """advise.json's ``cameras`` at a pose are cameras that would find a plain chessboard there, judged with
+    the true rig: whole in the frame, squares big enough at that camera's resolution, not too steep. (Without
+    the squares' size in the model, the 640 x 480 pair was sent to poses where its squares were 6.5-9 px.)"""
+    monkeypatch.setitem(synth.PRESETS, "wide_tele28", WIDE_TELE28)
+    for seed in seeds:
+        truth, _, rig = _calibration(preset, views=5, seed=seed)
+        for p in A.advise(A.prior_from_rig(rig), count=6).poses:
+            assert p.cameras and all(_finds(truth, n, p.pose) for n in p.cameras), (seed, A.describe(p), p.cameras)
+
+
+def test_a_detector_needs_squares_big_enough_and_a_view_not_too_steep():
+    cam = CameraModel((640, 480), 500.0, 500.0, 0.0, 319.5, 239.5, 0.0, 0.0)
+    board = synth.Board(9, 6, 30.0)
+    centre = board.object_points_mm().mean(axis=0)
+    for square_px, found in ((A.MIN_SQUARE_PX + 0.5, True), (A.MIN_SQUARE_PX - 0.5, False)):
+        distance = 500.0 * 30 / square_px                                              # face on, at the centre
+        assert A.detectable(cam, board, np.eye(3)[None], ([0.0, 0.0, distance] - centre)[None])[0] == found
+    big = CameraModel((4000, 3000), 2500.0, 2500.0, 0.0, 1999.5, 1499.5, 0.0, 0.0)      # squares 25 px and more
+    for angle, found in ((A.MAX_VIEW_DEG - 2, True), (A.MAX_VIEW_DEG + 2, False)):
+        R = rotation_from_rotvec([np.radians(angle), 0.0, 0.0])
+        assert A.detectable(big, board, R[None], ([0.0, 0.0, 1000.0] - R @ centre)[None])[0] == found
+
+
+def test_the_tele_is_offered_views_that_fill_its_frame(wide_tele28):
+    """Each candidate is placed where the camera it is aimed at sees the whole board nearest (or farther), so
+    the narrow camera, whose principal point needs views that fill its frame, tilted too, is offered them.
+    (35 of the 263 candidates the tele sees span 80 % of its frame, 7 of them tilted 40 degrees or more; drawn
+    at random distances, 2 of 114 did, none tilted so.)"""
+    _, _, rig = _calibration(wide_tele28, views=5, seed=0)
+    prior = A.prior_from_rig(rig)
+    tele = prior.cameras["tele"]
+    span, tilt = [], []
+    for pose, seen in A.candidate_poses(prior):
+        if "tele" in seen:
+            span.append(np.max(np.ptp(A.outline_px(prior, "tele", pose), axis=0) / tele.image_size))
+            tilt.append(A.tilt_deg(pose.R, pose.apply(prior.board.object_points_mm()).mean(axis=0)))
+    span, tilt = np.array(span), np.array(tilt)
+    assert np.sum(span >= 0.8) >= 20 and np.sum((span >= 0.8) & (tilt >= 40)) >= 4
+
+
+def test_the_nearest_distance_where_a_camera_sees_the_whole_board(note8):
+    """At the distance found the board's outline is inside the frame by its margin; 2 % nearer it is not
+    (where that is still within the holdable range)."""
+    _, _, rig = note8
+    prior = A.prior_from_rig(rig)
+    rng = np.random.default_rng(0)
+    rays = np.column_stack([rng.uniform(-0.05, 0.05, (20, 2)), np.ones(20)])
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    R = np.array([rotation_from_rotvec(v) for v in rng.uniform(-0.6, 0.6, (20, 3))])
+    near = A._nearest_whole_mm(prior, "tele", rays, R)
+    tele_to_ref = prior.camera_pose("tele", Pose(np.eye(3), np.zeros(3))).inverse()
+    centre_b = prior.board.object_points_mm().mean(axis=0)
+
+    def whole(distance_mm):
+        poses = [Pose(Ri, c - Ri @ centre_b) for Ri, c in zip(R, A._on_rays(tele_to_ref.t_mm, rays, distance_mm))]
+        return np.array([A.inside_frame(prior, "tele", prior.camera_pose("tele", p).apply(
+            A.board_outline_mm(prior.board))).all() for p in poses])
+
+    found = np.isfinite(near)
+    assert found.sum() >= 15 and whole(near)[found].all()
+    assert not whole(0.98 * near)[found & (0.98 * near >= prior.distance_mm[0])].any()
+
+
+def test_the_frame_margin_holds_a_board_held_a_little_off(wide_tele28):
+    """A board held 1.5 % of its distance off moves 2.8 times as far across the 2.8 x tele's frame as across
+    the wide's: the margin is at least that share of the focal length."""
+    _, _, rig = _calibration(wide_tele28, views=5, seed=0)
+    prior = A.prior_from_rig(rig)
+    X = np.array([[0.0, 0.0, 1.0], [0.05, 0.05, 1.0]])
+    margin = {n: A.frame_margin_px(prior, n, A.project_with_jacobians(cam, X)[2]) for n, cam in prior.cameras.items()}
+    for name, cam in prior.cameras.items():
+        assert np.all(margin[name] >= min(A.HOLD_SHARE * cam.fx, A.MAX_FRAME_MARGIN * min(cam.image_size)))
+    assert np.all(margin["tele"] > margin["wide"])
 
 
 def _advised_sigmas(prior, advice):
@@ -143,51 +255,59 @@ def _advised_sigmas(prior, advice):
     return A.sigmas(A.updated_covariance(prior.covariance, info), A.target_gradients(prior))
 
 
-def test_the_advice_protects_the_key_target_it_would_leave_behind(monkeypatch):
-    """The geometric mean alone lets the tele's angles fall behind what average photos give them (predicted,
-    4 photos); the lag term pulls the worst one back and keeps the geometric-mean gain."""
-    _, _, rig = _calibration("note8", views=5, seed=3)
+def test_no_key_target_falls_behind_photos_like_the_calibrations_own(monkeypatch):
+    """Predicted: after 4 advised photos every key sigma is at most what 4 more photos like the calibration's
+    own 5 would make it (``sqrt(5 / 9)`` of its value now, the due); ranked by the geometric mean alone, the
+    tele's principal point falls behind it on the triple rig. The lag term costs the geometric mean little."""
+    _, _, rig = _calibration("triple", views=5, seed=3)
     prior = A.prior_from_rig(rig)
     cands = A.candidate_poses(prior, per_camera=60)
-    due = _average_photo_sigmas(prior, cands, 4)
     now = A.sigmas(prior.covariance, A.target_gradients(prior))
     keys = [n for g in A.key_targets(now).values() for n in g]
 
     def worst_and_geomean():
         after = _advised_sigmas(prior, A.advise(prior, count=4, candidates=cands))
-        return (max(after[n] / due[n] for n in keys),
-                float(np.exp(np.mean([np.log(after[n] / now[n]) for n in keys]))))
+        ratios = np.array([after[n] / now[n] for n in keys])
+        return ratios.max() / np.sqrt(5 / 9), float(np.exp(np.mean(np.log(ratios))))
 
     worst, geomean = worst_and_geomean()
     monkeypatch.setattr(A, "LAG_WEIGHT", 0.0)
     worst_unprotected, geomean_unprotected = worst_and_geomean()
-    assert worst_unprotected > 1.5                      # the case the lag term is for
-    assert worst < 0.85 * worst_unprotected
-    assert geomean < 1.05 * geomean_unprotected
+    assert worst_unprotected > 1.0                      # the case the lag term is for
+    assert worst <= 1.0
+    assert geomean < 1.1 * geomean_unprotected
 
 
-def test_followed_advice_leaves_no_key_sigma_behind_random_photos():
-    """Simulated as a user follows it (bench_advise.py in small): 5 photos, then 3 advised ones, each calibrated
-    again, against the same 5 and the next 3 drawn like them. Every key sigma of every camera and of the rig
-    ends at most the random photos' (here at most 0.90 x; with the geometric mean alone the tele's baseline
-    ended 1.07 x), their geometric mean at most 0.6 x (0.40)."""
-    truth = synth.make_truth("note8", views=8, seed=0)
-    corners = synth.noisy_corner_set(truth, 0.2, seed=0)
-    first = sorted(corners.cameras["wide"].views)[:5]
-    taken = corners.with_views(lambda cam, view: view in first)
-    rig = calibrate_rig(taken, board_shape="flat")
-    rng = np.random.default_rng(0)
-    for i in range(3):
-        pose = A.advise(A.prior_from_rig(rig), count=1, seed=i).poses[0]
-        taken = synth.photographed(truth, taken, f"ADV_{i}", pose.pose, pose.cameras, 0.2, rng)
+def test_followed_advice_leaves_no_key_sigma_behind_random_photos(wide_tele28):
+    """Simulated as a person follows it (bench_advise.py in small) on a wide + 2.8 x tele rig: 5 photos, then 4
+    advised ones, each photographed by the cameras of the true rig that find the board whole (:func:`_finds`)
+    and calibrated again, against the same 5 and the next 4 drawn like them. Every key sigma of every camera
+    and of the rig ends below the random photos' (the tele's principal point too), their geometric mean at
+    most 0.5 x. Textbook sigmas: the honest ones scatter from one noise draw to the next."""
+    worst = []
+    for seed in (0, 1):
+        truth = synth.make_truth(wide_tele28, views=9, seed=seed)
+        corners = synth.noisy_corner_set(truth, 0.2, seed=seed)
+        first = sorted(corners.cameras["wide"].views)[:5]
+        taken = corners.with_views(lambda cam, view: view in first)
         rig = calibrate_rig(taken, board_shape="flat")
-    advised = A.honest_sigmas(A.prior_from_rig(rig))
-    random = A.honest_sigmas(A.prior_from_rig(calibrate_rig(corners, board_shape="flat")))
-    keys = [f"{c}.{p}" for c in ("wide", "tele") for p in ("fx", "fy", "cx", "cy", "k1")]
-    keys += [f"tele.{t}" for t in A.RIG_TARGETS]
-    ratios = {n: advised[n] / random[n] for n in keys}
-    assert max(ratios.values()) <= 1.0, ratios
-    assert np.exp(np.mean(np.log(list(ratios.values())))) <= 0.6
+        rng = np.random.default_rng(seed)
+        for i in range(4):
+            pose = A.advise(A.prior_from_rig(rig), count=1, seed=i).poses[0].pose
+            taken = synth.photographed(truth, taken, f"ADV_{i}", pose,
+                                       [n for n in truth.cameras if _finds(truth, n, pose)], 0.2, rng)
+            rig = calibrate_rig(taken, board_shape="flat")
+        advised = A.prior_from_rig(rig)
+        random = A.prior_from_rig(calibrate_rig(corners, board_shape="flat"))
+        gradients = A.target_gradients(advised)
+        adv, rnd = A.sigmas(advised.covariance, gradients), A.sigmas(random.covariance, gradients)
+        keys = [f"{c}.{p}" for c in ("wide", "tele") for p in ("fx", "fy", "cx", "cy", "k1")]
+        keys += [f"tele.{t}" for t in A.RIG_TARGETS]
+        ratios = {n: adv[n] / rnd[n] for n in keys}
+        assert max(ratios.values()) < 1.0, ratios
+        assert np.exp(np.mean(np.log(list(ratios.values())))) <= 0.5, ratios
+        worst.append(max(ratios["tele.cx"], ratios["tele.cy"]))
+    assert max(worst) < 0.9
 
 
 # ---------------------------------------------------------------------------- holdable poses

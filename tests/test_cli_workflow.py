@@ -114,16 +114,23 @@ def test_calibrate_prints_every_photo_and_exclude_works_on_a_corners_json(corner
 def test_the_photo_table_says_why_a_photo_was_dropped_or_not_found(corners_json, tmp_path, run_cli, monkeypatch):
     monkeypatch.setenv("COLUMNS", "200")
     cs = load_corners(corners_json)
-    # the board moved by 25 px between the shots of IMG_05 (a blurred photo, issue 38, is kept)
-    cs.cameras["wide"].views["IMG_05"] = cs.cameras["wide"].views["IMG_05"] + np.array([25.0, 0.0])
+    # another numbering (each row's corners in the other order): a gross misfit, dropped; 3 px of noise on every
+    # corner of another photo (a blurred one) is kept, weighed by its own noise
+    cs.cameras["wide"].views["IMG_05"] = cs.cameras["wide"].views["IMG_05"].reshape(5, 8, 2)[:, ::-1].reshape(40, 2)
+    cs.cameras["tele"].views["IMG_06"] = cs.cameras["tele"].views["IMG_06"] + np.random.default_rng(0).normal(
+        0, 3.0, (40, 2))
     cs.cameras["tele"].views["IMG_07"] = None
     save_corners(tmp_path / "corners.json", cs)
     res = run_cli("calibrate", tmp_path / "corners.json", "-o", tmp_path / "calib.json", "--no-compare-models")
     assert res.code == 0, res.err
     table = res.out[res.out.index("Photos:"):]
     row5 = next(line for line in table.splitlines() if line.strip().startswith("IMG_05"))
-    assert "wide: dropped: " in row5 and "its photos fit their cameras alone" in row5
+    assert "dropped: instant IMG_05: its photos fit their cameras alone" in row5
     assert float(row5.split()[1]) > 2
+    row6 = next(line for line in table.splitlines() if line.strip().startswith("IMG_06"))
+    assert row6.split()[-1] == "kept"
+    noise = json.loads((tmp_path / "calib.json").read_text())["adjustment"]["photo_noise"]["photos"]["tele"]["IMG_06"]
+    assert 2.0 < noise["noise_px"] < 4.5 and noise["weight"] < 0.01
     row7 = next(line for line in table.splitlines() if line.strip().startswith("IMG_07"))
     assert "tele: board not found" in row7 and row7.split()[2] == "-"
 

@@ -141,3 +141,23 @@ def test_the_corner_noise_is_estimated_only_where_two_instants_come_close(stereo
         for name, limit in r["limit_px"].items():
             assert limit < 4 * np.sqrt(2) * duplicates.MAX_NOISE_PX
             assert limit == pytest.approx(4 * np.sqrt(2) * NOISE_PX, rel=0.3)      # from the noise of 0.2 px
+
+
+def test_a_camera_that_filmed_the_board_alone_has_its_repeats_merged_whatever_the_others_saw(stereo):
+    """caliscope's intrinsic session: each camera filmed the board on its own, so the same key in two cameras is
+    no shared moment. The left camera's burst (KEY_1 a copy of KEY_0) is merged for it alone; the right camera's
+    frames under the same keys are other views and stay."""
+    _, cs = stereo
+    burst = repeated(cs, 2, jitter_px=0.01, seed=3)
+    other = repeated(cs, 2, jitter_px=0.0, seed=4)
+    right = {k: (None if uv is None else uv + 30.0 * (k.endswith("_1"))) for k, uv in other.cameras["right"].views.items()}
+    cams = {"left": CameraCorners(burst.cameras["left"].image_size, burst.cameras["left"].views,
+                                  {"imported": {"instants_shared": False}}),
+            "right": CameraCorners(other.cameras["right"].image_size, right, {"imported": {"instants_shared": False}})}
+    merged, records = merge_duplicate_instants(CornerSet(cs.board, cams, cs.reference))
+    assert {r["camera"] for r in records} == {"left"}
+    assert sorted(merged.cameras["left"].views) == sorted(k for k in burst.cameras["left"].views if k.endswith("_0"))
+    assert sorted(merged.cameras["right"].views) == sorted(right)
+    # the same corners as one shared session: the right camera's frames differ, so nothing repeats
+    shared = CornerSet(cs.board, {n: CameraCorners(c.image_size, c.views, {}) for n, c in cams.items()}, cs.reference)
+    assert merge_duplicate_instants(shared)[1] == []

@@ -178,3 +178,18 @@ def test_models_compared_camera_by_camera_are_those_of_one_adjustment_of_every_c
         theirs = score_lens_models({m: f for m, f in joint.items() if m in candidates[n]}, n, first=preferred[n])
         assert [s.recommended for s in ours] == [s.recommended for s in theirs]
         assert np.allclose([s.worse_se for s in ours], [s.worse_se for s in theirs], atol=0.02), n
+
+
+def test_a_model_whose_residuals_grow_towards_the_edge_gives_way_to_one_that_predicts_better():
+    """The paired test over instants can recommend k1k2 for a lens with k3 (within 2 SE on few instants); where its
+    residuals grow towards the edge (the lens_model check's limit) and a richer candidate's do not and predict the
+    unseen instants better, the richer one is chosen; where the recommended one's residuals are even, it stays."""
+    from dualcal.estimation.model_selection import LensModelScore, _edge_consistent
+
+    scores = [LensModelScore("k1k2", 2, 0.028, 0.031, 1.9, True), LensModelScore("k1k2k3", 3, 0.015, 0.017, 0.0, False),
+              LensModelScore("k1k2p1p2k3", 5, 0.015, 0.020, 1.1, False)]
+    fits = {"k1k2": {"camera_edge_ratio": {"wide": 2.6}}, "k1k2k3": {"camera_edge_ratio": {"wide": 1.1}},
+            "k1k2p1p2k3": {"camera_edge_ratio": {"wide": 1.0}}}
+    assert _edge_consistent("wide", "k1k2", scores, fits) == "k1k2k3"
+    fits["k1k2"]["camera_edge_ratio"]["wide"] = 1.4
+    assert _edge_consistent("wide", "k1k2", scores, fits) == "k1k2"

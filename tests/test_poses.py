@@ -71,3 +71,16 @@ def test_relative_pose_maps_reference_to_camera():
     X = np.random.default_rng(0).normal(0, 100, (5, 3))
     found = relative_pose(ref, rel.compose(ref))
     np.testing.assert_allclose(found.apply(ref.apply(X)), rel.apply(ref.apply(X)), atol=1e-9)
+
+
+def test_the_consensus_pose_is_the_mean_where_every_pose_agrees_and_leaves_a_turned_one_out():
+    from dualcal.geometry.model import Pose, consensus_pose, mean_pose
+    from dualcal.geometry.rotation import rotation_from_rotvec
+
+    rng = np.random.default_rng(0)
+    poses = [Pose(rotation_from_rotvec(0.01 * rng.standard_normal(3)), np.array([100.0, 0, 0]) + rng.standard_normal(3))
+             for _ in range(9)]
+    assert np.array_equal(consensus_pose(poses).R, mean_pose(poses).R)
+    turned = poses + [Pose(rotation_from_rotvec(np.array([0.0, np.pi, 0.0])), np.array([-100.0, 0, 0]))]
+    assert np.allclose(consensus_pose(turned).R, mean_pose(poses).R) and not np.allclose(mean_pose(turned).R,
+                                                                                         mean_pose(poses).R, atol=1e-2)

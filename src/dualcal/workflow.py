@@ -280,8 +280,7 @@ def calibrate_corners(corners: CornerSet, *, compare_lens: bool = True, model="a
         warn(f"the clocks of {', '.join(unmatched)} could not be matched to the reference's (the board was never "
              "seen moving by both at once): every lens is calibrated alone (rig mode none)")
         options["rig_mode"] = "none"
-    alone = [name for name, cam in corners.cameras.items() if (cam.meta.get("imported") or {}).get("instants_shared")
-             is False]
+    alone = corners.cameras_alone()
     if alone and len(corners.cameras) > 1 and options.get("rig_mode", "rigid") != "none":
         warn(f"the corners of {', '.join(alone)} are of recordings where each camera filmed the board alone "
              "(caliscope's intrinsic session): their instants are no moments the cameras share; every lens is "

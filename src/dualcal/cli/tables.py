@@ -171,7 +171,8 @@ def lens_model_choice_table(adjustment: dict) -> Table:
     models, grid = lens_model_grid(adjustment)
     t = Table(title="Lens model of each camera (--model auto): held-out RMS (px) and SE worse than the camera's best",
               caption="chosen (*): the preferred model (kb4 for a fisheye's field of view, else k1k2) where it is "
-                      "within 2 SE of the best, else the one with the fewest terms that is; -: no candidate",
+                      "within 2 SE of the best, else the one with the fewest terms that is; one whose residuals grow "
+                      "towards the image's edge only where no better one's stay even; -: no candidate",
               box=box.SIMPLE_HEAD)
     t.add_column("camera", no_wrap=True)
     for model in models:

@@ -69,7 +69,7 @@ from ..geometry.camera import (DEFAULT_LENS_MODEL, INTRINSIC_NAMES, LENS_MODELS,
                                project_points, project_with_jacobians)
 from ..errors import EstimationError, InputError
 from .lm import LMOptions, levenberg_marquardt
-from ..geometry.model import KnownIntrinsics, Pose, mean_pose, observed_mask
+from ..geometry.model import KnownIntrinsics, Pose, consensus_pose, observed_mask
 from .normal_equations import Factorization, NormalEquations, PhotoNormals
 from ..geometry.poses import moved_on_sphere, relative_pose, rotated, tangent_basis
 from .uncertainty import InstantLeverage, held_out_squares, instant_leverage
@@ -352,7 +352,7 @@ def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict
 
     ``cameras[c]`` is a CameraModel, ``poses[c][view]`` a board-to-camera Pose (e.g. from Zhang's
     closed form, or from an earlier adjustment). A tied camera's relative pose starts at the mean
-    of its relative poses over the instants it shares with the reference (in mode ``paper``:
+    of its relative poses over the instants it shares with the reference that agree (:func:`~dualcal.geometry.model.consensus_pose`; in mode ``paper``:
     ``D`` at the mean baseline length, each instant's direction at its own). The board's shape
     starts at ``board_shape_mm`` (default flat). Poses of views the problem does not have (an earlier
     solution's, of photos dropped since) are ignored.
@@ -368,7 +368,7 @@ def initial_state(problem: Problem, cameras: list[CameraModel], poses: list[dict
             raise EstimationError(f"camera {problem.cameras[c]!r} shares no view with the reference camera "
                                   f"{problem.cameras[ref]!r}: photos of the same instant are needed")
         rels = {v: relative_pose(poses[ref][v], poses[c][v]) for v in shared}
-        mean = mean_pose(list(rels.values()))
+        mean = consensus_pose(list(rels.values()))         # one gross instant does not throw the start off
         rig_R[c], rig_t[c] = mean.R, mean.t_mm
         D[c] = np.mean([np.linalg.norm(rel.t_mm) for rel in rels.values()])
         direction[:, c] = mean.t_mm / np.linalg.norm(mean.t_mm)

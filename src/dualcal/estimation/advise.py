@@ -13,9 +13,12 @@ eliminated by the Schur complement (the projection), in the normal equations' un
 once it is taken is ``(C^-1 + I(P))^-1`` in closed form (no re-solve), and the next pose is chosen
 assuming this one was taken (greedy).
 
-Honest noise. A new corner's noise is ``s0``, the calibration's a-posteriori sigma of a corner, as
-in the textbook covariance ``C = s0^2 N^-1`` that the update works on. On real photos the errors of
-one photo's corners are correlated, and the calibration measured by how much: for each target the
+Honest noise. A new corner's noise is its camera's level in the terms of the textbook covariance
+``C = s0^2 N^-1`` that the update works on: ``s0``, the calibration's a-posteriori sigma of a corner of a
+photo of weight 1, times the camera's noise over the reference noise where the calibration weighs each photo
+by its own noise (:mod:`dualcal.estimation.photo_noise`; :func:`photo_noise_px` for its own photos). On
+real photos the errors of one photo's corners are correlated, and the calibration measured by how much: for
+each target the
 ratio ``kappa`` of its honest sigma (the larger of the clustered-by-instant and the textbook one,
 :mod:`dualcal.estimation.uncertainty`, as calib.json reports it) to its textbook one. A new photo brings the
 same photo-level noise, so its information enters with noise ``kappa s0`` for that target: the
@@ -34,22 +37,38 @@ distortion, baseline, angles), first within each camera, then over the cameras, 
 few targets is not forgotten; with goals (``--target NAME=SIGMA``) it is how far the sigmas are
 above their goals (geometric mean of ``max(sigma / goal, 1)``).
 
-No parameter left behind. A geometric mean lets a large gain on some parameters pay for leaving
-another where it was: followed photo by photo on the synthetic triple rig, it left the tele's kappa
-angle at 0.93 x what as many random photos give over 16 runs (1.06 x over 8 of them, 1.51 x in the
-worst) and its principal point at 0.79-0.82 x (1.55 x in the worst run), where the other cameras'
-sigmas reached 0.2-0.4 x (``benchmarks/bench_advise.py``). So without goals the poses are ranked by the objective plus
-:data:`LAG_WEIGHT` times the lag of the key target that lags most: ``max(log(sigma / due), 0)``, where a
-target's due after ``n`` advised photos is its sigma after ``n`` photos that each bring the average
-information of the candidate poses every camera sees (:func:`random_information`; photos taken like a
-user's). A pose that shrinks the geometric mean a little less but keeps every key sigma up with its
-due wins; the gain reported is the objective's alone, and ``done`` says that no pose would shrink
-the objective by :data:`STOP_GAIN`.
+No camera left behind. A geometric mean lets a large gain on some parameters pay for leaving another
+where it was, and a greedy choice made one photo at a time remembers nothing: a photo seen by the wide
+alone that halves its principal point's sigma wins over one that shrinks every sigma a little, again
+and again, and the tele's principal point and the rig's angles fall behind what as many ordinary photos
+would have given them. So without goals the poses are ranked by the objective plus :data:`LAG_WEIGHT`
+times the lag of the key target that lags most, ``max(log(sigma / due), 0)``, where a target's due after
+``s`` advised photos is :data:`DUE_FACTOR` times its sigma after ``s`` more photos like the calibration's
+own: its ``n`` instants' information is ``C^-1``, so ``s`` more like them make it ``C^-1 (n + s) / n`` and
+every sigma ``sqrt(n / (n + s))`` of what it is now (:func:`_dues`; for a plan, which has no photos, the
+average candidate every camera sees, :func:`random_information`). Each advised photo must so shrink
+every key sigma at least as much as an ordinary photo would (5 % more), where one pose can; among those
+the objective decides. The gain reported is the objective's alone, and ``done`` says that no pose would
+shrink the objective by :data:`STOP_GAIN`.
 
 Candidates are poses a person can hold (:func:`holdable`): the board in front of the reference
 camera, its centre within 0.67-1.5 times the distance range the calibration's photos span, at most
-60 degrees from facing that camera; each is aimed at one camera, which must see the whole board
-(a ChArUco board: :data:`CHARUCO_SHARE` of its corners), and lists every camera that does.
+60 degrees from facing that camera. Each is aimed at one camera: along the ray of a pixel (half of them
+near the image's centre), tilted and turned at random, and placed where that camera sees the whole board
+nearest (:func:`_nearest_whole_mm`), or farther (:func:`candidate_poses`). A narrow camera's principal
+point and lens show in views that fill its frame, tilted: drawn at random distances, the tele of a
+wide + 2.8 x tele rig saw 2 of its 114 candidates fill 80 % of its frame and none tilted 40 degrees or
+more (35 and 7 of 263 placed so), and the advice followed with whole-board photos left its principal
+point behind random photos (``tests/test_advise.py``).
+
+Which cameras see a pose: those that would detect the board in it (:func:`seen_corners`). A plain
+chessboard only whole, its outline inside the frame by a margin (:func:`frame_margin_px`: where the
+calibration knows the lens too little to say where the outline falls, or where a board held
+:data:`HOLD_SHARE` of its distance off would leave the frame: three times as far across a 3 x tele's
+frame as across the wide's); a ChArUco board in part (:data:`CHARUCO_SHARE` of its corners); either only
+with every square at least :data:`MIN_SQUARE_PX` long in the image and at most :data:`MAX_VIEW_DEG` from
+facing the camera (:func:`detectable`). A camera counted where it would not find the board is
+information the calibration never gets.
 
 Lens-model agnostic: the cameras are projected only through ``project_with_jacobians`` and their
 coefficients are those calib.json's covariance names.
@@ -63,7 +82,7 @@ import numpy as np
 
 from ..geometry.board import Board, shape_basis, shaped_points_mm
 from ..geometry.camera import (INTRINSIC_NAMES, CameraModel, focal_px_from_35mm, in_frame, pixel_rays,
-                               project_with_jacobians, radial_lens_gradient)
+                               project_points, project_with_jacobians, radial_lens_gradient)
 from .covariance import JointCovariance, intrinsic_name, rig_name
 from ..errors import InputError
 from ..geometry.model import Pose, RigModel
@@ -83,15 +102,33 @@ MIN_CHARUCO_CORNERS = 6
 #: off, or a lens a little different from the calibration's estimate, still shows it whole.
 FRAME_MARGIN = 0.03
 MAX_FRAME_MARGIN = 0.10
+#: How far from an advised pose a person may hold the board, across the line of sight, as a share of its
+#: distance (1.5 cm at 1 m): the frame's margin keeps the whole board in view of a camera even so.
+HOLD_SHARE = 0.015
 #: ``done`` without goals: the best next photo shrinks the objective by less than this share.
 STOP_GAIN = 0.02
 #: Candidate poses drawn per camera.
 CANDIDATES_PER_CAMERA = 250
+#: Of them, the share centred near the middle of that camera's image (the others anywhere in its central 80 %),
+#: and the share placed farther than where it sees the whole board nearest.
+CENTRED_SHARE = 0.5
+FARTHER_SHARE = 0.5
+#: Steps of the bisection for that distance (its log range halved each time: 2^-10 of it, under 0.1 %).
+BISECTIONS = 10
+#: A detector finds a chessboard's corners where every square is at least this long in the image (OpenCV's
+#: detectors need about 10 pixels a square, :mod:`dualcal.files.detect.pipeline`; 12 leaves room for a lens
+#: known only so well at the image's edge, whose squares there may be 8 % smaller than predicted after 5
+#: photos of the 640 x 480 pair) and the board is at most :data:`MAX_VIEW_DEG` from facing the camera.
+MIN_SQUARE_PX = 12.0
+MAX_VIEW_DEG = 70.0
 #: The default ranking's weight of the most-lagging key target's lag (module docstring): how much of the
-#: objective's log a pose may give up per log of lag. 0: the objective alone. (Measured on the triple rig,
-#: 16 runs, key sigmas' geometric mean advised / random and the tele's kappa: 0: 0.317, 0.93 x; 0.2: 0.333,
-#: 0.77 x; 0.25: 0.337, 0.70 x; 0.4: 0.347, 0.67 x.)
-LAG_WEIGHT = 0.25
+#: objective's log a pose may give up per log of lag; 0: the objective alone. (``benchmarks/bench_advise.py``
+#: on seeds 100-105 of its five rigs, key sigmas advised / random, their geometric mean and the largest, the
+#: tele's kappa angle on every rig but the pair: 0: 0.23-0.30, 0.79-0.87; 4: 0.23-0.30, 0.67-0.76.)
+LAG_WEIGHT = 4.0
+#: A key target's due is this share of its sigma after as many photos like the calibration's own (5 % to
+#: spare: the honest sigma after a few photos scatters about its prediction).
+DUE_FACTOR = 0.95
 #: The key targets of the default objective, per camera.
 KEY_INTRINSICS = ("fx", "fy", "cx", "cy")
 RIG_TARGETS = ("baseline_mm", "omega_arcmin", "phi_arcmin", "kappa_arcmin")
@@ -104,7 +141,8 @@ class Prior:
     ``parameters`` (k,) are named as calib.json's ``covariance.parameters``; ``covariance`` (k, k) is
     the textbook one, ``clustered`` the one clustered by instant (None: none measured, as for a
     plan); ``noise_px[camera]`` the sigma of a new corner coordinate in the textbook covariance's
-    terms; ``distance_mm`` the (lo, hi) range of the distances of holdable poses.
+    terms; ``distance_mm`` the (lo, hi) range of the distances of holdable poses; ``instants`` how many
+    instants the covariance is the information of (None: a plan's, known before any photo).
     """
 
     board: Board
@@ -118,6 +156,7 @@ class Prior:
     noise_px: dict[str, float]
     distance_mm: tuple[float, float]
     rig_mode: str = "rigid"
+    instants: int | None = None
 
     def board_points_mm(self) -> np.ndarray:
         """(N, 3) the board's corners as calibrated (flat, or shaped by ``board_shape_mm``)."""
@@ -207,10 +246,23 @@ def prior_from_rig(rig: RigModel) -> Prior:
         raise InputError("this calib.json's covariance is not positive definite: some parameter is not "
                          "determined by its photos (see its 'determination' check)") from None
     lo, hi = photo_distance_range(rig)
+    noise = rig.adjustment.get("photo_noise")          # a new photo's corners: as noisy as its camera's photos
+    level = {n: float(s0) * (noise["camera_px"][n] / noise["reference_px"] if noise else 1.0) for n in rig.cameras}
     return Prior(rig.board, rig.reference, dict(rig.cameras), {n: r.pose for n, r in rig.rig.items()},
                  None if rig.board_shape_mm is None else np.asarray(rig.board_shape_mm, float),
-                 list(cov.parameters), formal, cov.matrices["clustered"], dict.fromkeys(rig.cameras, float(s0)),
-                 (DISTANCE_FACTORS[0] * lo, DISTANCE_FACTORS[1] * hi), rig.rig_mode)
+                 list(cov.parameters), formal, cov.matrices["clustered"], level,
+                 (DISTANCE_FACTORS[0] * lo, DISTANCE_FACTORS[1] * hi), rig.rig_mode,
+                 len({view for poses in rig.camera_poses.values() for view in poses}))
+
+
+def photo_noise_px(rig: RigModel) -> dict[tuple[str, str], float]:
+    """``{(camera, view): px}`` each photo's corner noise in the textbook covariance's terms: ``s0 / sqrt(w_b)``
+    for its weight ``w_b`` in the adjustment (calib.json's ``adjustment.photo_noise``, each photo weighed by its
+    own noise), ``s0`` for every photo of a calibration that weighs them alike."""
+    s0 = float(rig.adjustment["s0_px"])
+    photos = (rig.adjustment.get("photo_noise") or {}).get("photos", {})
+    return {(camera, view): s0 / np.sqrt(photos.get(camera, {}).get(view, {}).get("weight", 1.0))
+            for camera, poses in rig.camera_poses.items() for view in poses}
 
 
 #: A plan's prior: 1-sigma of what is known before any photo (relative focal length, principal point
@@ -368,59 +420,114 @@ def tilt_deg(R: np.ndarray, centre_mm: np.ndarray) -> float:
     """Angle between the board's normal (its +Z, into the board: away from a camera that sees its
     front) and the line of sight from the camera to its centre ``centre_mm`` (camera frame), degrees;
     above 90 the camera sees the board's back."""
-    cos = R[:, 2] @ centre_mm / np.linalg.norm(centre_mm)
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return float(_tilts_deg(R[None], np.asarray(centre_mm, float)[None])[0])
+
+
+def _tilts_deg(R: np.ndarray, centres_mm: np.ndarray) -> np.ndarray:
+    """:func:`tilt_deg` of stacks: rotations (n, 3, 3), centres (n, 3) -> (n,)."""
+    cos = np.einsum("ni,ni->n", R[:, :, 2], centres_mm) / np.linalg.norm(centres_mm, axis=1)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def _applied(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(n, m, 3) the points ``X`` (m, 3) under each of the poses ``R`` (n, 3, 3), ``t`` (n, 3)."""
+    return np.einsum("nij,mj->nmi", R, X) + t[:, None]
+
+
+def _holdable(prior: Prior, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(n,) :func:`holdable` for the board-to-reference poses ``R`` (n, 3, 3), ``t`` (n, 3)."""
+    X = _applied(R, t, prior.board.object_points_mm())
+    centres = X.mean(axis=1)
+    d = np.linalg.norm(centres, axis=1)
+    lo, hi = prior.distance_mm
+    return (np.all(X[:, :, 2] > 0, axis=1) & (d >= lo * (1 - 1e-9)) & (d <= hi * (1 + 1e-9))
+            & (_tilts_deg(R, centres) <= MAX_TILT_DEG + 1e-9))
 
 
 def holdable(prior: Prior, pose: Pose) -> bool:
     """Whether a person can hold the board at ``pose`` (board to reference camera): every corner in
     front of the camera, its centre's distance within ``prior.distance_mm``, its front at most
     :data:`MAX_TILT_DEG` from facing the camera."""
-    X = pose.apply(prior.board.object_points_mm())
-    centre = X.mean(axis=0)
-    lo, hi = prior.distance_mm
-    d = float(np.linalg.norm(centre))
-    return bool(np.all(X[:, 2] > 0) and lo * (1 - 1e-9) <= d <= hi * (1 + 1e-9)
-                and tilt_deg(pose.R, centre) <= MAX_TILT_DEG + 1e-9)
+    return bool(_holdable(prior, pose.R[None], pose.t_mm[None])[0])
+
+
+def inside_frame(prior: Prior, name: str, X_cam: np.ndarray) -> np.ndarray:
+    """(N,) True for camera-frame points (N, 3) that camera ``name`` sees (:func:`~dualcal.geometry.camera.in_frame`)
+    at least their :func:`frame_margin_px` inside its image's edges."""
+    cam = prior.cameras[name]
+    seen = in_frame(cam, X_cam)
+    uv, _, J_K = project_with_jacobians(cam, np.where(seen[:, None], X_cam, [0.0, 0.0, 1.0]))
+    m = frame_margin_px(prior, name, J_K)[:, None]
+    return seen & np.all((uv >= m) & (uv <= np.array(cam.image_size) - 1 - m), axis=1)
+
+
+def square_corners_mm(board: Board) -> np.ndarray:
+    """(rows + 2, cols + 2, 3) the corners of every square of the board (its inner corners and the outline one
+    square beyond them), in the board's frame."""
+    s = board.square_mm
+    x, y = np.meshgrid(np.arange(-1, board.cols + 1) * s, np.arange(-1, board.rows + 1) * s)
+    return np.stack([x, y, np.zeros_like(x)], axis=-1)
+
+
+def detectable(cam: CameraModel, board: Board, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(n,) whether a detector finds the board in camera ``cam`` at the board-to-camera poses ``R`` (n, 3, 3),
+    ``t`` (n, 3), as far as its view goes: seen at most :data:`MAX_VIEW_DEG` from facing the camera, and every
+    square it sees (both ends of a side in the frame) at least :data:`MIN_SQUARE_PX` long in the image (a
+    steep view's short sides and the far squares too)."""
+    grid = _applied(R, t, square_corners_mm(board).reshape(-1, 3))                  # (n, G, 3)
+    seen = in_frame(cam, grid.reshape(-1, 3))
+    uv = np.full((seen.size, 2), np.nan)
+    uv[seen] = project_points(cam, grid.reshape(-1, 3)[seen])
+    uv = uv.reshape(len(R), board.rows + 2, board.cols + 2, 2)
+    sides = np.concatenate([np.linalg.norm(np.diff(uv, axis=k), axis=-1).reshape(len(R), -1) for k in (1, 2)], axis=1)
+    shortest = np.min(np.where(np.isfinite(sides), sides, np.inf), axis=1)
+    return (_tilts_deg(R, grid.mean(axis=1)) <= MAX_VIEW_DEG) & np.isfinite(shortest) & (shortest >= MIN_SQUARE_PX)
+
+
+def _seen(prior: Prior, name: str, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For the board-to-reference poses ``R`` (n, 3, 3), ``t`` (n, 3): the corners camera ``name`` measures
+    (n, N) bool and whether it detects the board at all (n,) (:func:`seen_corners`)."""
+    board, cam = prior.board, prior.cameras[name]
+    if name != prior.reference:
+        rel = prior.rig[name]
+        R, t = rel.R @ R, t @ rel.R.T + rel.t_mm
+    seen = in_frame(cam, _applied(R, t, prior.board_points_mm()).reshape(-1, 3)).reshape(len(R), -1)
+    found = detectable(cam, board, R, t)
+    if board.charuco is not None:
+        return seen, found & (seen.sum(axis=1) >= max(MIN_CHARUCO_CORNERS, CHARUCO_SHARE * seen.shape[1]))
+    outline = _applied(R, t, board_outline_mm(board))
+    whole = inside_frame(prior, name, outline.reshape(-1, 3)).reshape(len(R), -1).all(axis=1)
+    return seen, found & seen.all(axis=1) & whole
 
 
 def seen_corners(prior: Prior, name: str, board_pose: Pose) -> np.ndarray | None:
-    """(N,) bool, the corners camera ``name`` measures at ``board_pose``, or None where it does not
-    see the board (a chessboard: every corner, and the outer squares :func:`frame_margin_px` inside the
-    frame; ChArUco: enough corners)."""
-    board, cam = prior.board, prior.cameras[name]
-    pose = prior.camera_pose(name, board_pose)
-    X = prior.board_points_mm()
-    outline = board_outline_mm(board)
-    both = in_frame(cam, pose.apply(np.vstack([X, outline])))          # one call: the lens's fold once
-    seen = both[:len(X)]
-    if board.charuco is not None:
-        enough = seen.sum() >= max(MIN_CHARUCO_CORNERS, CHARUCO_SHARE * len(seen))
-        return seen if enough else None
-    if not both.all():
-        return None
-    uv, _, J_K = project_with_jacobians(cam, pose.apply(outline))
-    m = frame_margin_px(prior, name, J_K)
-    inside = np.all((uv >= m) & (uv <= np.array(cam.image_size) - 1 - m))
-    return seen if inside else None
+    """(N,) bool, the corners camera ``name`` measures at ``board_pose``, or None where it would not detect
+    the board (:func:`detectable`; a chessboard: unless every corner is seen and the outer squares stay inside
+    the frame by their margin, :func:`inside_frame`; ChArUco: enough corners)."""
+    seen, found = _seen(prior, name, board_pose.R[None], board_pose.t_mm[None])
+    return seen[0] if found[0] else None
 
 
-def frame_margin_px(prior: Prior, name: str, J_K: np.ndarray) -> float:
-    """How far inside camera ``name``'s frame the board's outline must stay, px: twice the largest
-    sigma of where its points (Jacobians ``J_K`` (M, 2, 10) on the intrinsics) fall, as far as the
-    calibration knows the lens, within :data:`FRAME_MARGIN` and :data:`MAX_FRAME_MARGIN` of the
-    frame's shorter side."""
+def frame_margin_px(prior: Prior, name: str, J_K: np.ndarray) -> np.ndarray:
+    """(M,) how far inside camera ``name``'s frame points of the board's outline must fall, px, given the
+    Jacobians ``J_K`` (M, 2, 11) of their images on the intrinsics: twice the largest sigma of where each
+    falls, as far as the calibration knows the lens, or how far the board's image moves when it is held
+    :data:`HOLD_SHARE` of its distance off (that share of the focal length: three times as far across a 3 x
+    tele's frame as across the wide's), whichever is larger, within :data:`FRAME_MARGIN` and
+    :data:`MAX_FRAME_MARGIN` of the frame's shorter side."""
+    cam = prior.cameras[name]
     index = {n: i for i, n in enumerate(prior.parameters)}
     used = [(j, index[intrinsic_name(name, n)]) for j, n in enumerate(INTRINSIC_NAMES)
             if intrinsic_name(name, n) in index]
     J = J_K[:, :, [j for j, _ in used]]
     cols = [i for _, i in used]
-    var = 0.0
+    var = np.zeros(len(J_K))
     for C in (prior.covariance, prior.clustered):
         if C is not None:
-            var = max(var, float(np.max(np.einsum("mai,ij,maj->ma", J, C[np.ix_(cols, cols)], J))))
-    short = min(prior.cameras[name].image_size)
-    return float(np.clip(2.0 * np.sqrt(var), FRAME_MARGIN * short, MAX_FRAME_MARGIN * short))
+            var = np.maximum(var, np.einsum("mai,ij,maj->ma", J, C[np.ix_(cols, cols)], J).max(axis=1))
+    short = min(cam.image_size)
+    return np.clip(np.maximum(2.0 * np.sqrt(var), HOLD_SHARE * max(cam.fx, cam.fy)), FRAME_MARGIN * short,
+                   MAX_FRAME_MARGIN * short)
 
 
 def board_outline_mm(board: Board, samples: int = 8) -> np.ndarray:
@@ -443,26 +550,65 @@ def outline_px(prior: Prior, name: str, board_pose: Pose) -> np.ndarray | None:
     return project_with_jacobians(prior.cameras[name], X)[0]
 
 
-def _facing_rotation(view_dir: np.ndarray, tilt_rad: float, azimuth_rad: float, roll_rad: float) -> np.ndarray:
-    """Board-to-camera rotation whose board normal (+Z, away from the camera) is ``view_dir`` tilted by
-    ``tilt_rad`` about an axis at ``azimuth_rad`` around it, with the board turned by ``roll_rad``."""
-    z = view_dir / np.linalg.norm(view_dir)
-    B = tangent_basis(z[None])[0]                       # (3, 2) two axes perpendicular to z
-    axis = B @ [np.cos(azimuth_rad), np.sin(azimuth_rad)]
-    normal = rotation_from_rotvec(tilt_rad * axis) @ z
-    x = B[:, 0] - normal * (normal @ B[:, 0])
-    x /= np.linalg.norm(x)
+def _facing_rotations(view_dir: np.ndarray, tilt_rad: np.ndarray, azimuth_rad: np.ndarray,
+                      roll_rad: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) board-to-camera rotations whose board normal (+Z, away from the camera) is ``view_dir``
+    (n, 3) tilted by ``tilt_rad`` (n,) about an axis at ``azimuth_rad`` (n,) around it, with the board
+    turned by ``roll_rad`` (n,)."""
+    z = view_dir / np.linalg.norm(view_dir, axis=1, keepdims=True)
+    B = tangent_basis(z)                                        # (n, 3, 2) two axes perpendicular to z
+    axis = np.einsum("nij,nj->ni", B, np.column_stack([np.cos(azimuth_rad), np.sin(azimuth_rad)]))
+    normal = np.einsum("nij,nj->ni", rotation_from_rotvec(tilt_rad[:, None] * axis), z)
+    x = B[:, :, 0] - normal * np.einsum("ni,ni->n", normal, B[:, :, 0])[:, None]
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
     y = np.cross(normal, x)
-    c, s = np.cos(roll_rad), np.sin(roll_rad)
-    return np.column_stack([c * x + s * y, -s * x + c * y, normal])
+    c, s = np.cos(roll_rad)[:, None], np.sin(roll_rad)[:, None]
+    return np.stack([c * x + s * y, -s * x + c * y, normal], axis=-1)
+
+
+def _on_rays(origin: np.ndarray, rays: np.ndarray, distance_mm: np.ndarray) -> np.ndarray:
+    """(n, 3) the points on the unit ``rays`` (n, 3) from ``origin`` (3,) (reference frame) at ``distance_mm``
+    (n,) from the reference camera."""
+    b = rays @ origin
+    s = -b + np.sqrt(np.maximum(b * b - origin @ origin + distance_mm ** 2, 0.0))
+    return origin + s[:, None] * rays
+
+
+def _nearest_whole_mm(prior: Prior, aimed: str, rays: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(n,) the nearest distance from the reference camera, within ``prior.distance_mm``, at which camera
+    ``aimed`` sees the whole board (its outline inside the frame by its margin, :func:`inside_frame`) with
+    its centre on the rays (n, 3) (reference frame, from ``aimed``) and rotations ``R`` (n, 3, 3); NaN where
+    it does not even at the far end. By bisection on the log distance (the board's image shrinks towards
+    its centre as it moves away)."""
+    rel = prior.camera_pose(aimed, Pose(np.eye(3), np.zeros(3)))          # reference to the aimed camera
+    origin = rel.inverse().t_mm
+    offsets = board_outline_mm(prior.board) - prior.board.object_points_mm().mean(axis=0)
+
+    def whole(log_d):
+        X = _applied(R, _on_rays(origin, rays, np.exp(log_d)), offsets)
+        return inside_frame(prior, aimed, rel.apply(X.reshape(-1, 3))).reshape(len(R), -1).all(axis=1)
+
+    lo, hi = np.log(prior.distance_mm)
+    near, far = np.full(len(R), lo), np.full(len(R), hi)
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (near + far)
+        ok = whole(mid)
+        far, near = np.where(ok, mid, far), np.where(ok, near, mid)
+    far = np.where(whole(np.full(len(R), lo)), lo, far)
+    return np.where(whole(np.full(len(R), hi)), np.exp(far), np.nan)
 
 
 def candidate_poses(prior: Prior, per_camera: int = CANDIDATES_PER_CAMERA, seed: int = 0):
     """Holdable board poses, ``[(pose, {camera: seen corners (N,) bool})]``, aimed at each camera in turn.
 
-    Each is drawn at a distance (log-uniform in ``prior.distance_mm``) along the ray of a random
-    pixel of the aimed camera, tilted up to :data:`MAX_TILT_DEG` in a random direction, turned at
-    random; kept when the aimed camera sees the board (:func:`seen_corners`).
+    Each is drawn along the ray of a random pixel of the aimed camera (:data:`CENTRED_SHARE` of them near
+    the image's centre, where the board can fill the frame), tilted up to :data:`MAX_TILT_DEG`
+    from facing it in a random direction and turned at random, then placed where that camera sees the whole
+    board nearest (:func:`_nearest_whole_mm`: the board fills its frame as far as the tilt and the pixel
+    let it, where a lens's principal point and distortion show most), or, for :data:`FARTHER_SHARE` of
+    them, log-uniformly between there and the far end of ``prior.distance_mm`` (for a ChArUco board, seen
+    in part, between the near end and the far end); kept when holdable and the aimed camera detects the
+    board there (:func:`seen_corners`). Every camera that does is listed.
     """
     rng = np.random.default_rng(seed)
     centre_b = prior.board.object_points_mm().mean(axis=0)
@@ -471,31 +617,36 @@ def candidate_poses(prior: Prior, per_camera: int = CANDIDATES_PER_CAMERA, seed:
     for aimed, cam in prior.cameras.items():
         to_ref = prior.camera_pose(aimed, Pose(np.eye(3), np.zeros(3))).inverse()
         w, h = cam.image_size
-        rays = pixel_rays(cam, rng.uniform([0.1 * w, 0.1 * h], [0.9 * w, 0.9 * h], (per_camera, 2))) @ to_ref.R.T
-        for ray in rays / np.linalg.norm(rays, axis=1, keepdims=True):
-            d = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
-            # the board's centre on the aimed camera's ray, at distance d from the reference camera
-            o = to_ref.t_mm
-            s = -(o @ ray) + np.sqrt(max((o @ ray) ** 2 - o @ o + d * d, 0.0))
-            centre = o + s * ray
-            R = _facing_rotation(centre, np.radians(rng.uniform(0.0, MAX_TILT_DEG)), rng.uniform(0, 2 * np.pi),
-                                 rng.uniform(-np.pi, np.pi))
-            pose = Pose(R, centre - R @ centre_b)
-            if not holdable(prior, pose):
-                continue
-            seen = {n: m for n in prior.cameras if (m := seen_corners(prior, n, pose)) is not None}
-            if aimed in seen:
-                out.append((pose, seen))
+        spread = np.where(rng.uniform(size=(per_camera, 1)) < CENTRED_SHARE, 0.1, 0.4)
+        pixels = np.array([w, h]) * (0.5 + spread * rng.uniform(-1.0, 1.0, (per_camera, 2)))
+        rays = pixel_rays(cam, pixels) @ to_ref.R.T
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        R = _facing_rotations(rays, np.radians(rng.uniform(0.0, MAX_TILT_DEG, per_camera)),
+                              rng.uniform(0, 2 * np.pi, per_camera), rng.uniform(-np.pi, np.pi, per_camera))
+        partial = prior.board.charuco is not None
+        near = np.full(per_camera, lo) if partial else _nearest_whole_mm(prior, aimed, rays, R)
+        farther = rng.uniform(size=per_camera) < (1.0 if partial else FARTHER_SHARE)
+        d = np.where(farther, near * (hi / near) ** rng.uniform(size=per_camera), near)
+        keep = np.isfinite(d)
+        R, t = R[keep], _on_rays(to_ref.t_mm, rays[keep], d[keep]) - R[keep] @ centre_b
+        keep = _holdable(prior, R, t)
+        R, t = R[keep], t[keep]
+        seen = {n: _seen(prior, n, R, t) for n in prior.cameras}
+        for i in np.flatnonzero(seen[aimed][1]):
+            out.append((Pose(R[i], t[i]), {n: m[i] for n, (m, found) in seen.items() if found[i]}))
     return out
 
 
 # ---------------------------------------------------------------------------- information of an instant
 
 
-def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray]) -> np.ndarray:
+def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray],
+                        noise_px: dict[str, float] | None = None) -> np.ndarray:
     """(k, k) information a new instant at ``pose`` adds on the prior's parameters (module docstring).
 
-    ``seen[camera]`` (N,) bool: the corners each camera measures. The instant's board pose (left
+    ``seen[camera]`` (N,) bool: the corners each camera measures, with noise ``noise_px[camera]`` (default
+    ``prior.noise_px``: a new photo's, its camera's level; :func:`photo_noise_px` gives a calibration's own
+    photos' noise). The instant's board pose (left
     rotation increment and translation of the reference camera's pose) is eliminated; so are, in
     rig mode ``paper``, each camera's baseline direction in this instant and, in mode ``none``,
     each camera's own pose (the rig's parameters then get no information from it).
@@ -536,7 +687,7 @@ def instant_information(prior: Prior, pose: Pose, seen: dict[str, np.ndarray]) -
             q = n_local - 2 * len(names) + 2 * c
             # this instant's own baseline direction (t = D u_v): two tangent increments of u_v
             Al[:, :, q:q + 2] = J_X @ tangent_basis(rel.t_mm[None] / np.linalg.norm(rel.t_mm))[0]
-        w = 1.0 / prior.noise_px[name]
+        w = 1.0 / (prior.noise_px if noise_px is None else noise_px)[name]
         blocks_g.append(w * Ag.reshape(-1, k))
         blocks_l.append(w * Al.reshape(-1, n_local))
     A_g, A_l = np.vstack(blocks_g), np.vstack(blocks_l)
@@ -585,6 +736,19 @@ def random_information(info: np.ndarray, candidates) -> np.ndarray:
     n_cams = max(len(seen) for _, seen in candidates)
     every = [i for i, (_, seen) in enumerate(candidates) if len(seen) == n_cams]
     return info[every].mean(axis=0)
+
+
+def _dues(prior: Prior, G: np.ndarray, C: np.ndarray, info: np.ndarray, candidates, count: int) -> list[np.ndarray]:
+    """Each key target's due after 1 .. ``count`` advised photos, ``[(t,)]`` (module docstring): the textbook
+    sigma ``sqrt(g^T C g)`` of each row of ``G`` (t, k) after as many photos like the calibration's own
+    (``C n / (n + s)`` for its ``n`` instants), or, for a plan, like the average candidate every camera sees
+    (:func:`random_information`; ``info`` (m, k, k) the candidates'), times :data:`DUE_FACTOR`."""
+    if prior.instants:
+        now = np.sqrt(np.einsum("tk,kl,tl->t", G, C, G))
+        return [DUE_FACTOR * now * np.sqrt(prior.instants / (prior.instants + s)) for s in range(1, count + 1)]
+    mean_info = random_information(info, candidates)
+    return [DUE_FACTOR * np.sqrt(np.maximum(np.einsum("tk,kl,tl->t", G, updated_covariance(C, s * mean_info), G),
+                                            1e-300)) for s in range(1, count + 1)]
 
 
 def _lag(sig: np.ndarray, due: np.ndarray) -> np.ndarray:
@@ -646,10 +810,7 @@ def advise(prior: Prior, count: int = 5, goals: dict[str, float] | None = None,
     C = prior.covariance
     score_now = _objective(np.sqrt(np.einsum("tk,kl,tl->t", G, C, G))[None], reference, groups, bool(goals))[0]
     if not goals and LAG_WEIGHT > 0:
-        # each key sigma's due after n photos: what n photos drawn like a user's would give it
-        mean_info = random_information(info, candidates)
-        due = [np.sqrt(np.maximum(np.einsum("tk,kl,tl->t", G, updated_covariance(C, n * mean_info), G), 1e-300))
-               for n in range(1, count + 1)]
+        due = _dues(prior, G, C, info, candidates, count)
     chosen, first_gain = [], None
     for step in range(count):
         if goals and score_now <= 0.0:                               # every goal met: no more photos

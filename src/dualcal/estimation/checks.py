@@ -596,25 +596,34 @@ def photo_count(rig: RigModel) -> dict:
                        "come from how the photos disagree with each other)"}
 
 
+def camera_edge_ratio(sol: Solution, c: int) -> tuple[float, list[str]]:
+    """Camera ``c``'s RMS residual of its outermost third of corners (by their distance from the principal point)
+    over that of its innermost third (NaN with too few corners), and the views where that ratio of their own
+    corners exceeds :data:`EDGE_RATIO`."""
+    p = sol.problem
+    cam = sol.state.camera(p, c)
+    rho_all, len_all, views = [], [], []
+    for b, (cc, view, uv) in enumerate(p.blocks):
+        if cc != c:
+            continue
+        length = np.linalg.norm(sol.residuals[b], axis=1)
+        seen = np.isfinite(length)
+        rho = np.hypot(uv[seen, 0] - cam.cx, uv[seen, 1] - cam.cy)
+        rho_all.append(rho)
+        len_all.append(length[seen])
+        if _edge_ratio(rho, length[seen]) > EDGE_RATIO:
+            views.append(f"{p.cameras[c]}/{view}")
+    ratio = _edge_ratio(np.concatenate(rho_all), np.concatenate(len_all)) if rho_all else float("nan")
+    return ratio, views
+
+
 def lens_model_fit(sol: Solution) -> dict:
     """Residuals that grow towards the image's edge: a model problem, reported, never a reason to drop."""
     p = sol.problem
     bad, views, ratios = [], [], []
     for c, name in enumerate(p.cameras):
-        cam = sol.state.camera(p, c)
-        w, h = cam.image_size
-        rho_all, len_all = [], []
-        for b, (cc, view, uv) in enumerate(p.blocks):
-            if cc != c:
-                continue
-            length = np.linalg.norm(sol.residuals[b], axis=1)
-            seen = np.isfinite(length)
-            rho = np.hypot(uv[seen, 0] - cam.cx, uv[seen, 1] - cam.cy)
-            rho_all.append(rho)
-            len_all.append(length[seen])
-            if _edge_ratio(rho, length[seen]) > EDGE_RATIO:
-                views.append(f"{name}/{view}")
-        ratio = _edge_ratio(np.concatenate(rho_all), np.concatenate(len_all)) if rho_all else np.nan
+        ratio, edge_views = camera_edge_ratio(sol, c)
+        views += edge_views
         if np.isfinite(ratio):
             ratios.append(float(ratio))
         if ratio > EDGE_RATIO:

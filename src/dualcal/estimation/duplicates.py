@@ -26,6 +26,7 @@ Identical files are found where a dataset lists its photos (:func:`dualcal.files
 from __future__ import annotations
 
 from collections import defaultdict
+from dataclasses import replace
 
 import numpy as np
 
@@ -171,21 +172,34 @@ def _connected_groups(close: np.ndarray) -> list[list[int]]:
 
 def merge_duplicate_instants(corners: CornerSet, sigmas: float = DUPLICATE_SIGMAS) -> tuple[CornerSet, list[dict]]:
     """``corners`` with one instant per group of duplicates (:func:`find_duplicate_instants`; the kept one's
-    corners) and the groups' records, which every camera's ``meta["duplicates"]`` also holds (corners.json)."""
-    records = find_duplicate_instants(corners, sigmas)
+    corners) and the groups' records, which every camera's ``meta["duplicates"]`` also holds (corners.json).
+
+    A camera whose view keys name no moment the others share (:meth:`CornerSet.cameras_alone`: it filmed the board
+    on its own) is judged alone: its repeated views are merged whatever the other cameras saw under the same keys,
+    and its records say ``"camera"``."""
+    alone = set(corners.cameras_alone())
+    together = corners if not alone else replace(corners, cameras={n: c for n, c in corners.cameras.items()
+                                                                   if n not in alone})
+    groups = [(None, find_duplicate_instants(together, sigmas))] if together.cameras else []
+    groups += [(name, find_duplicate_instants(replace(corners, cameras={name: corners.cameras[name]}), sigmas))
+               for name in sorted(alone)]
+    records = [{**r, "camera": name} if name else r for name, found in groups for r in found]
     if not records:
         return corners, []
-    merged = {k for r in records for k in r["merged"]}
-    out = corners.with_views(lambda camera, view: view not in merged)
-    for cam in out.cameras.values():
-        cam.meta = {**cam.meta, "duplicates": [{"kept": r["kept"], "merged": r["merged"]} for r in records]}
+    merged = {(name, k) for name, found in groups for r in found for k in r["merged"]}
+    out = corners.with_views(lambda camera, view: (camera if camera in alone else None, view) not in merged)
+    for name, cam in out.cameras.items():
+        own = [r for r in records if r.get("camera") in (None, name)]
+        if own:
+            cam.meta = {**cam.meta, "duplicates": [{"kept": r["kept"], "merged": r["merged"]} for r in own]}
     return out, records
 
 
 def describe_duplicates(records: list[dict]) -> str:
     """One line saying which instants were merged into which."""
     n = sum(len(r["merged"]) for r in records)
-    pairs = "; ".join(f"{', '.join(r['merged'])} = {r['kept']}" for r in records[:8])
+    pairs = "; ".join(f"{r['camera'] + ' ' if 'camera' in r else ''}{', '.join(r['merged'])} = {r['kept']}"
+                      for r in records[:8])
     more = f"; and {len(records) - 8} more groups" if len(records) > 8 else ""
     return (f"{n} instant(s) repeat another's view (the same corners within {DUPLICATE_SIGMAS:g} sigma of their "
             f"noise: a copied photo or a burst; or frames of one moment a clip held the board still) and count "

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .adjust import Solution
+from .checks import camera_edge_ratio
 
 __all__ = ["camera_piece", "fit_summary", "held_out_error", "held_out_summary", "joint_fit"]
 
@@ -62,7 +63,8 @@ def camera_piece(sol: Solution, c: int) -> dict:
     sq = np.sum(sol.residuals ** 2, axis=2)[[b for b, (cc, _, _) in enumerate(sol.problem.blocks) if cc == c]]
     held = {v: None if photos is None else photos[c] for v, photos in sol.held_out_squares().items()
             if photos is None or c in photos}
-    return {"squares": float(np.nansum(sq)), "corners": int(np.isfinite(sq).sum()), "held_out": held}
+    return {"squares": float(np.nansum(sq)), "corners": int(np.isfinite(sq).sum()), "held_out": held,
+            "edge_ratio": camera_edge_ratio(sol, c)[0]}
 
 
 def joint_fit(pieces: dict[str, dict]) -> dict:
@@ -75,4 +77,5 @@ def joint_fit(pieces: dict[str, dict]) -> dict:
     return {"rms_px": float(np.sqrt(sum(p["squares"] for p in pieces.values())
                                     / sum(p["corners"] for p in pieces.values()))),
             "camera_rms_px": {n: float(np.sqrt(p["squares"] / p["corners"])) for n, p in pieces.items()},
+            "camera_edge_ratio": {n: p["edge_ratio"] for n, p in pieces.items()},
             **held_out_summary(squares, list(pieces))}

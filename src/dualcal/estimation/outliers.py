@@ -66,24 +66,18 @@ def corner_outliers(sol: Solution, factor: float, noise: PhotoNoise | None = Non
 
 
 def outlier_shares(sol: Solution, factor: float, noise: PhotoNoise | None = None,
-                   lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each photo's share of outlier corners (B,), its limit (B,) px and how far off it is (B,): its median
-    residual over its limit (:func:`corner_outliers`)."""
-    out, limit, length = corner_outliers(sol, factor, noise, lengths)
-    with np.errstate(all="ignore"):
-        off = np.nanmedian(length, axis=1) / limit
-    return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1), limit, off
+                   lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each photo's share of outlier corners (B,) and its limit (B,) px (:func:`corner_outliers`)."""
+    out, limit, _ = corner_outliers(sol, factor, noise, lengths)
+    return out.sum(axis=1) / np.maximum(np.isfinite(sol.residuals[..., 0]).sum(axis=1), 1), limit
 
 
-def find_outlier(shares: np.ndarray, limits: np.ndarray, off: np.ndarray | None = None):
+def find_outlier(shares: np.ndarray, limits: np.ndarray, misfit: np.ndarray | None = None):
     """The photo with the largest share of outlier corners (:func:`outlier_shares`), if more than
-    :data:`MOST_CORNERS` of them are, as ``(block, share, limit_px)``; else None. With ``off`` (how far each
-    photo is off its limit), the photo furthest off of those: against each photo's own noise, a bad instant
-    pulls the rig so that every photo has most of its corners off its limit, but none as far as its own."""
-    if off is None:
-        worst = int(np.argmax(shares))
-    else:
-        worst = int(np.argmax(np.where(shares > MOST_CORNERS, off, -np.inf)))
+    :data:`MOST_CORNERS` of them are, as ``(block, share, limit_px)``; else None. Of photos with the same share
+    (a tied rig pulled far off by one instant can make every photo's corners outliers against their own noise),
+    the one of the largest ``misfit`` (B,), its RMS over its limit."""
+    worst = int(np.lexsort((np.zeros(len(shares)) if misfit is None else misfit, shares))[-1])
     if shares[worst] <= MOST_CORNERS:
         return None
     return worst, float(shares[worst]), float(limits[worst])
@@ -213,8 +207,8 @@ def _leave_out(setup: Setup, sol: Solution, blocks, alone: Solution | None, fact
              if k in index and _views_left(blocks, blocks[index[k]][0]) > MIN_VIEWS]
     if gross:                            # the worst first: it may have pulled the others' fit off
         return _without_gross(setup, blocks, gross[0], dropped)
-    shares, limits, off = outlier_shares(sol, factor, noise, lengths)
-    out = find_outlier(shares, limits, None if noise is None else off)
+    shares, limits = outlier_shares(sol, factor, noise, lengths)
+    out = find_outlier(shares, limits, np.asarray(sol.block_rms_px) / np.maximum(limits, 1e-12))
     if out is None:
         bad, limit, length = corner_outliers(sol, factor, noise, lengths)
         if not bad.any() or not corners_too:

@@ -60,6 +60,27 @@ def mean_pose(poses: list[Pose]) -> Pose:
     return Pose(nearest_rotation(np.sum([p.R for p in poses], axis=0)), np.mean([p.t_mm for p in poses], axis=0))
 
 
+#: :func:`consensus_pose` leaves out poses turned by more than this from the medoid (degrees) ...
+CONSENSUS_ANGLE_DEG = 5.0
+#: ... or moved from it by more than this many times the poses' median distance from it (and 1 mm).
+CONSENSUS_SPREAD = 5.0
+
+
+def consensus_pose(poses: list[Pose]) -> Pose:
+    """:func:`mean_pose` of the poses that agree: the medoid (least summed rotation angle to the others) and those
+    within :data:`CONSENSUS_ANGLE_DEG` and :data:`CONSENSUS_SPREAD` median distances of it. Where every pose
+    agrees, exactly their mean. A start for a rig's relative pose that one gross instant (a board numbered the
+    other way round in one photo, seen from behind) does not throw off."""
+    R = np.array([p.R for p in poses])
+    t = np.array([p.t_mm for p in poses])
+    cos = (np.einsum("aij,bij->ab", R, R) - 1.0) / 2.0                  # cos of the angle between each two
+    angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    medoid = int(np.argmin(angle.sum(axis=1)))
+    moved = np.linalg.norm(t - t[medoid], axis=1)
+    agree = (angle[medoid] <= CONSENSUS_ANGLE_DEG) & (moved <= max(CONSENSUS_SPREAD * np.median(moved), 1.0))
+    return mean_pose(poses if agree.all() else [p for p, ok in zip(poses, agree) if ok])
+
+
 def observed_mask(uv_px: np.ndarray) -> np.ndarray:
     """(N,) True for the corners of a view that were measured (rows that are not NaN)."""
     return np.all(np.isfinite(np.asarray(uv_px, float)), axis=-1)
@@ -94,6 +115,12 @@ class CornerSet:
     cameras: dict[str, CameraCorners]
     reference: str | None = None     # the reference camera chosen at detection, if one was given
     roll: dict | None = None
+
+    def cameras_alone(self) -> list[str]:
+        """The cameras whose view keys name no moment shared with the other cameras: each filmed the board on its
+        own (an imported caliscope intrinsic session: ``meta["imported"]["instants_shared"]`` false)."""
+        return [name for name, cam in self.cameras.items()
+                if (cam.meta.get("imported") or {}).get("instants_shared") is False]
 
     def with_views(self, keep: Callable[[str, str], bool]) -> "CornerSet":
         """The same corners with only the photos for which ``keep(camera, view)`` is true."""
