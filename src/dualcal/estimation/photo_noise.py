@@ -104,16 +104,16 @@ class PhotoNoise:
 
     def to_dict(self, photos_kept=None) -> dict:
         """calib.json's ``adjustment.photo_noise``: ``reference_px``, ``camera_spread``, per camera ``camera_px`` and
-        ``spread``, and
-        per photo ``photos.<camera>.<view>`` ``{"noise_px", "raw_px", "dof", "weight", "information_share"}`` (of
-        the ``(camera, view)`` in ``photos_kept``, default all)."""
+        ``spread``, and per photo ``photos.<camera>.<view>`` ``{"noise_px", "raw_px", "dof", "weight",
+        "information_share"}`` (of the ``(camera, view)`` in ``photos_kept``, default all; ``dof`` rounded to the
+        integer the file's contract has)."""
         weights, share = self.weights() or dict.fromkeys(self.noise_px, 1.0), self.information_share()
         photos: dict[str, dict[str, dict]] = {}
         for (camera, view), s in sorted(self.noise_px.items()):
             if photos_kept is not None and (camera, view) not in photos_kept:
                 continue
             photos.setdefault(camera, {})[view] = {
-                "noise_px": s, "raw_px": self.raw_px[camera, view], "dof": self.dof[camera, view],
+                "noise_px": s, "raw_px": self.raw_px[camera, view], "dof": round(self.dof[camera, view]),
                 "weight": weights[camera, view], "information_share": share[camera, view]}
         return {"reference_px": self.reference_px, "camera_px": dict(self.camera_px), "spread": dict(self.spread),
                 "camera_spread": self.camera_spread, "photos": photos}
