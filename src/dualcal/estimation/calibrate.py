@@ -3,16 +3,18 @@
 :func:`calibrate_rig` is the whole of the paper's sections 1.3 to 1.7 for any number of cameras, and reads as
 the list of its stages. Each stage is a function of the previous one's result and calls nothing above it; every
 adjustment in them is the one solver (:class:`dualcal.estimation.fitting.Setup`: ``solve`` from Zhang's closed
-form or from an earlier solution), its stages as switches (the rig mode, the lens models, the board's shape):
+form or from an earlier solution), its stages as switches (the rig mode, the lens models, the board's shape, the
+photos' weights, the cameras whose intrinsics are known):
 
 1. :func:`photos_to_calibrate`: instants that repeat another's view merged (:mod:`dualcal.estimation.duplicates`),
    the photos whose corners can fix a homography (the others skipped with a warning naming them), the rig's
-   cameras and its reference (:class:`Photos`);
+   cameras, its reference and those whose intrinsics are known (:class:`Photos`);
 2. :func:`lens_models`: each camera's lens model, given, or (``model="auto"``) its candidates from Zhang's
    closed form and the one it starts with (:class:`LensModels`);
-3. :func:`cameras_alone`: every camera from Zhang's closed form (:mod:`dualcal.geometry.zhang`), adjusted alone,
-   its outliers left out (:mod:`dualcal.estimation.outliers`), so that a bad photo shows in its own camera's
-   residuals (:class:`Fit`);
+3. :func:`cameras_alone`: every camera from Zhang's closed form (:mod:`dualcal.geometry.zhang`; a known camera
+   from its intrinsics), adjusted alone, each photo's noise estimated and the photos weighed by it
+   (:mod:`dualcal.estimation.photo_noise`), its outliers left out (:mod:`dualcal.estimation.outliers`), so that a
+   bad photo shows in its own camera's residuals (:class:`Fit`);
 4. :func:`rig_tied`: the rig from the cameras' relative poses, adjusted in its rig mode, its outliers left out
    (which also reveals a board moved, or a lens refocused, between the shots of one instant);
    :func:`lens_motion`: the lens's motion where the photos show it: each photo's principal point shifted by the
@@ -28,8 +30,9 @@ form or from an earlier solution), its stages as switches (the rig mode, the len
    to blame named.
 
 A new term of the adjustment (a prior, a focus model, a weight per photo) is one switch of
-:class:`~dualcal.estimation.fitting.Setup`, set here from a keyword of :func:`calibrate_rig`, and one piece of the
-problem's definition in :mod:`dualcal.estimation.adjust`: every stage's adjustment then has it.
+:class:`~dualcal.estimation.fitting.Setup`, set by the stage that knows it, and one piece of the problem's definition
+in :mod:`dualcal.estimation.adjust`: every later stage's adjustment then has it. The photos' weights are set in
+stage 3, the known intrinsics in stage 1 from :func:`calibrate_rig`'s ``known_intrinsics``.
 """
 
 from __future__ import annotations

@@ -70,10 +70,11 @@ def intrinsics_prior(setup: Setup, sol: Solution, rate: float = FALSE_ALARM_RATE
     ones name (a fixed camera: all of its model's free ones) from the known values, with the covariance ``C`` of
     the photos' estimate (the textbook one in photo-level noise, times the camera's design effect, as the other
     checks judge: :func:`dualcal.estimation.checks.design_effect`; the clustered one is of too few instants here,
-    often fewer than the intrinsics) plus the known covariance, gives ``T^2 = d^T C^-1 d``, about chi-square with as many degrees of freedom as intrinsics where the lens is the
-    one known; the rate ``rate`` per calibration is split over the cameras by Sidak. A camera whose photos alone
-    do not determine its intrinsics (a board small in every frame) is not judged. A lens that changed (refocused,
-    another zoom, a lens swapped) fails and is named, with the intrinsics that moved most in their sigmas.
+    often fewer than the intrinsics) plus the known covariance, gives ``T^2 = d^T C^-1 d``, about chi-square with
+    as many degrees of freedom as intrinsics where the lens is the one known; the rate ``rate`` per calibration
+    is split over the cameras by Sidak. A camera whose photos alone do not determine its intrinsics (a board small
+    in every frame) is not judged. A lens that changed (refocused, another zoom, a lens swapped) fails and is
+    named, with the intrinsics that moved most in their sigmas.
 
     Returns ``{"ok", "message", "test", "statistic", "limit", "false_alarm_rate", "camera_rate", "worst",
     "flagged", "cameras": {camera: {"t2", "dof", "limit", "p_value", "shift_sigma": {intrinsic: sigmas}} or

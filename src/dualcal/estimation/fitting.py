@@ -147,9 +147,9 @@ class Setup:
 
         Starting values come from Zhang's closed form per camera, or from ``start``, an earlier
         solution over the same photos (or a superset of them: photos it did not see start from
-        Zhang's; of these cameras or more), whose board shape is kept as the start too; a camera of another lens model there starts
-        from its values as :func:`refit` converts them. The paper's model starts from the
-        better (lower cost) of the rigid solution (every instant's baseline direction the same) and
+        Zhang's; of these cameras or more), whose board shape is kept as the start too; a camera of
+        another lens model there starts from its values as :func:`refit` converts them. The paper's model
+        starts from the better (lower cost) of the rigid solution (every instant's baseline direction the same) and
         the cameras-alone solution (each instant's own relative pose): the first is the nearer when
         the rig is rigid, the second when the direction moves between instants. With
         ``board_shape`` the board's out-of-plane shape is estimated too.
@@ -214,16 +214,16 @@ def pair_solutions(setup: Setup, sol: Solution, alone: Solution, x: int, y: int)
 
     def adjusted(mode: str, start: Solution) -> Solution:
         problem = pair.problem(blocks, mode)
-        start_cams, start_poses = _starting_values(start)
-        return adjust(problem, initial_state(problem, [start_cams[x], start_cams[y]],
-                                             [{v: p for v, p in start_poses[c].items() if v in views} for c in (x, y)],
-                                             **_lens_motion_start(start)),
-                      COMPARISON_LM)
+        start_cams, start_poses = _starting_values(start, pair.names)
+        return adjust(problem, initial_state(problem, start_cams, [{v: p for v, p in per.items() if v in views}
+                                                                   for per in start_poses],
+                                             **_lens_motion_start(start)), COMPARISON_LM)
 
     return adjusted("rigid", sol), adjusted("none", alone), len(views)
 
 
-#: ``model="auto"``: every camera's lens model chosen by its held-out instants (:mod:`dualcal.estimation.model_selection`).
+#: ``model="auto"``: every camera's lens model chosen by its held-out instants
+#: (:mod:`dualcal.estimation.model_selection`).
 AUTO_MODEL = "auto"
 
 
@@ -277,8 +277,8 @@ def refit(source: RigModel | Solution, model: str | Mapping[str, str] | None = N
                   models, start.weights, start.known, start.prior_scale_px, start.focus, start.breathing, start.ois)
     blocks = [(names.index(n), v, uv) for n, v, uv in start.photos if n in names]
     _check_enough_views(blocks, names, start.known)
-    cams = [_start_camera(start.cameras[n], models[c], skew, setup.X_board, {v: uv for cc, v, uv in blocks if cc == c})
-            for c, n in enumerate(names)]
+    cams = [_start_camera(start.cameras[n], models[c], skew, setup.X_board,
+                          {v: uv for cc, v, uv in blocks if cc == c}) for c, n in enumerate(names)]
     problem = setup.problem(blocks, board_shape=start.board_shape_mm is not None)
     return adjust(problem, initial_state(problem, cams, [dict(start.poses[n]) for n in names], start.board_shape_mm,
                                          start.breathing_values, start.ois_px), options)

@@ -4,8 +4,8 @@ A corner is an outlier when its residual is far above its photo's own noise (:fu
 :data:`dualcal.estimation.photo_noise.MEDIAN_LENGTH` times the photo's noise, estimated with every camera alone:
 :mod:`dualcal.estimation.photo_noise`), so that a blurred photo keeps its corners; it is left out
 (``dropped_corners``). (Without the photos weighed by their noise, the limit is that of the typical residual of
-the photo's camera.) A photo is dropped only for a gross misfit: its noise beyond a tenth of its squares (another
-numbering, another board), or most of its corners outliers against its own noise (:data:`MOST_CORNERS`: a board
+the photo's camera.) A photo is dropped only for a gross misfit: its median residual beyond a tenth of its squares
+(another numbering, another board), or most of its corners outliers against its own noise (:data:`MOST_CORNERS`: a board
 moved between the shots of an instant), and only where that really improves the fit, with a recorded reason; in
 a tied rig, an instant whose photos fit their cameras alone but not the rig is dropped whole (the cameras' shots
 disagree), or the photo whose own focal length explains the misfit (a refocus).
@@ -53,7 +53,6 @@ def corner_outliers(sol: Solution, factor: float, noise: PhotoNoise | None = Non
     camera's median residual."""
     p = sol.problem
     length = np.linalg.norm(sol.residuals, axis=2) if lengths is None else lengths          # (B, N), NaN
-
     cams = np.array([c for c, _, _ in p.blocks])
     limit = np.empty(len(cams))
     for c in np.unique(cams):
@@ -132,11 +131,11 @@ def adjust_dropping_outliers(setup: Setup, blocks, factor, dropped, dropped_corn
     weighed by it and adjusted again until the weights settle (:data:`REWEIGHT_TOLERANCE`); the ``noise``
     returned is the one whose weights the solution has, with the ``setup`` of its switches (the weights, and
     the scale of a prior on known intrinsics, which they hold until the first solution's noise gives it; without
-    ``weigh``, its ``s0``). With ``noise`` (the cameras alone's, ``setup``'s weights
-    from it) in a tied rig, a photo is judged against it, and no single corner: a corner that fits its photo's
-    own pose but not the rig's is no corner error but its instant's misfit (a shot out of sync, a board moved),
-    which the photo or the instant is dropped for, or ``rig_rigid`` names. Without either, the corners are judged
-    against their camera's median residual.
+    ``weigh``, its ``s0``). With ``noise`` (the cameras alone's, ``setup``'s weights from it) in a tied rig, a
+    photo is judged against it, and no single corner: a corner that fits its photo's own pose but not the rig's
+    is no corner error but its instant's misfit (a shot out of sync, a board moved), which the photo or the
+    instant is dropped for, or ``rig_rigid`` names. Without either, the corners are judged against their camera's
+    median residual.
     """
     alone_share = {}
     if factor and setup.mode != "none" and start is not None:

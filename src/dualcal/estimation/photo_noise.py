@@ -10,8 +10,8 @@ them), and the adjustment weighs each photo by it (:mod:`dualcal.estimation.adju
   limit, of its rough residuals ``e_k``: the residuals less their smooth part, a cubic in the board's
   coordinates (:func:`rough_residuals`). What is smooth over a board (its pose, a bent board, a lens term the model
   lacks, a shot out of sync) is no corner noise: a blurred photo's corners scatter about it, and its misfit is
-  for the board's shape, the lens model and the checks to find. ``nu_b = 2 (n_b - 10)`` degrees of freedom (its
-  coordinates less the ten smooth terms of each);
+  for the board's shape, the lens model and the checks to find. ``nu_b`` degrees of freedom: its ``2 n_b``
+  coordinates less the ten smooth terms of each and what the adjustment fitted of them (:func:`rough_residuals`);
 * shrunk toward its camera's level where it has few corners, by empirical Bayes on the log scale (a
   random-effects model, as DerSimonian & Laird 1986 estimate it): ``y_b = ln s_b^2`` less its bias is about
   normal with variance ``v_b = psi'(nu_b / 2)`` (about ``2 / nu_b``); the camera's photos' true levels scatter by
@@ -28,8 +28,8 @@ them), and the adjustment weighs each photo by it (:mod:`dualcal.estimation.adju
 A corner is then an outlier where its rough residual is far above its own photo's noise
 (:mod:`dualcal.estimation.outliers`), and a blurred photo keeps its corners. A photo whose median residual
 exceeds :data:`GROSS_SHARE` of its squares' size in the image is no noisy measurement of the board but another
-numbering or another board (:attr:`PhotoNoise.gross`): it is left out. What a photo's noise costs is its share of the information it would give as sharp as its camera's
-sharpest photo, ``(sigma_sharp / sigma_b)^2``.
+numbering or another board (:attr:`PhotoNoise.gross`): it is left out. What a photo's noise costs is its share
+of the information it would give as sharp as its camera's sharpest photo, ``(sigma_sharp / sigma_b)^2``.
 """
 
 from __future__ import annotations
@@ -40,11 +40,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from .adjust import Solution
+from .adjust import Solution, photo_rows
 from .distributions import chi2_quantile
 
-__all__ = ["ALIKE_LEVEL", "GROSS_SHARE", "MEDIAN_LENGTH", "SHARPEST_SHARE", "PhotoNoise", "photo_noise", "photo_weights",
-           "rough_residuals"]
+__all__ = ["ALIKE_LEVEL", "GROSS_SHARE", "MEDIAN_LENGTH", "SHARPEST_SHARE", "PhotoNoise", "photo_noise",
+           "photo_weights", "rough_residuals"]
 
 #: The median length of a 2-D residual of independent equal errors, in units of their sigma: ``sqrt(2 ln 2)``.
 MEDIAN_LENGTH = float(np.sqrt(2.0 * np.log(2.0)))
@@ -57,8 +57,6 @@ GROSS_SHARE = 0.1
 #: model lacks in the photos near a wide's edge (phone3, k3 = 0.2: 2-7 x the corner noise), which then weighed
 #: them down and hid the term from the comparison of lens models; the cubic leaves under 1.2 x.
 SMOOTH_TERMS = 10
-#: Unknowns of a photo's own pose: the degrees of freedom its residuals lose at least.
-POSE_UNKNOWNS = 6
 #: Noise below this (px) is numerical: exact synthetic corners.
 NOISE_FLOOR_PX = 1e-6
 #: No photo's noise is taken below this share of its camera's level: blur makes a photo noisier, nothing makes it
@@ -82,7 +80,7 @@ class PhotoNoise:
 
     noise_px: dict[tuple[str, str], float]
     raw_px: dict[tuple[str, str], float]
-    dof: dict[tuple[str, str], int]
+    dof: dict[tuple[str, str], float]
     camera_px: dict[str, float]
     spread: dict[str, float]
     camera_spread: float
@@ -106,16 +104,16 @@ class PhotoNoise:
 
     def to_dict(self, photos_kept=None) -> dict:
         """calib.json's ``adjustment.photo_noise``: ``reference_px``, ``camera_spread``, per camera ``camera_px`` and
-        ``spread``, and
-        per photo ``photos.<camera>.<view>`` ``{"noise_px", "raw_px", "dof", "weight", "information_share"}`` (of
-        the ``(camera, view)`` in ``photos_kept``, default all)."""
+        ``spread``, and per photo ``photos.<camera>.<view>`` ``{"noise_px", "raw_px", "dof", "weight",
+        "information_share"}`` (of the ``(camera, view)`` in ``photos_kept``, default all; ``dof`` rounded to the
+        integer the file's contract has)."""
         weights, share = self.weights() or dict.fromkeys(self.noise_px, 1.0), self.information_share()
         photos: dict[str, dict[str, dict]] = {}
         for (camera, view), s in sorted(self.noise_px.items()):
             if photos_kept is not None and (camera, view) not in photos_kept:
                 continue
             photos.setdefault(camera, {})[view] = {
-                "noise_px": s, "raw_px": self.raw_px[camera, view], "dof": self.dof[camera, view],
+                "noise_px": s, "raw_px": self.raw_px[camera, view], "dof": round(self.dof[camera, view]),
                 "weight": weights[camera, view], "information_share": share[camera, view]}
         return {"reference_px": self.reference_px, "camera_px": dict(self.camera_px), "spread": dict(self.spread),
                 "camera_spread": self.camera_spread, "photos": photos}
@@ -187,9 +185,13 @@ def rough_residuals(sol: Solution, factor: float | None) -> tuple[np.ndarray, np
 
     The smooth part is a cubic in the corners' board positions per image coordinate, fitted by least
     squares twice: to every measured corner, then (with ``factor``) to those within ``factor`` x the median
-    length of the first fit's rough residuals, so that a gross corner error does not move it. ``nu_b`` is
-    ``2 n - max(2 k, 6)`` for the ``n`` corners of the second fit and the ``k`` smooth terms of each coordinate
-    (a photo of fewer corners gets fewer terms: an affine field, or its mean, and its pose's six unknowns)."""
+    length of the first fit's rough residuals, so that a gross corner error does not move it (a photo of fewer
+    corners gets fewer terms: an affine field, or its mean). ``nu_b`` is ``tr((I - P)(I - H))`` over the ``2 n``
+    coordinates of the second fit's ``n`` corners, ``P`` the projection on the smooth terms and ``H`` the photo's
+    block of the adjustment's hat matrix (its pose, its share of the intrinsics): what part of white noise its
+    rough residuals keep. The pose's unknowns lie in the smooth terms' span only as far as the photo's
+    perspective is affine (a narrow lens's more than a wide one's): counting them out twice, or not, would make
+    cameras of one noise level look different."""
     r = sol.residuals
     seen = np.isfinite(r[..., 0])
     basis = _smooth_basis(sol.problem.X_board)
@@ -206,9 +208,20 @@ def rough_residuals(sol: Solution, factor: float | None) -> tuple[np.ndarray, np
     fit = within(rough)
     if (fit != seen).any():
         rough, _ = _less_smooth(r, fit, basis)
-    terms = _terms(fit.sum(axis=1))
-    nu = np.maximum(2 * fit.sum(axis=1) - np.maximum(2 * terms, POSE_UNKNOWNS), 1)
-    return rough, nu, within(rough)
+    return rough, _degrees_of_freedom(sol, fit, basis), within(rough)
+
+
+def _degrees_of_freedom(sol: Solution, fit: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """(n_blocks,) ``tr((I - P)(I - H))`` of every photo over its corners ``fit`` (:func:`rough_residuals`)."""
+    nu = np.empty(len(fit))
+    for b, rows in enumerate(photo_rows(sol.problem, sol.state)):
+        keep = fit[b][np.isfinite(sol.residuals[b, :, 0])]              # of the measured corners, those fitted
+        J = rows.J[np.repeat(keep, 2)]
+        H = J @ sol.factorization.inverse_block(rows.columns) @ J.T   # corner by corner, u then v
+        A = basis[fit[b], :_terms(keep.sum())]
+        P = A @ np.linalg.solve(A.T @ A + 1e-12 * np.eye(A.shape[1]), A.T)
+        nu[b] = 2 * keep.sum() - 2 * A.shape[1] - np.trace(H) + np.sum(P * H[0::2, 0::2]) + np.sum(P * H[1::2, 1::2])
+    return np.maximum(nu, 1.0)
 
 
 def photo_noise(sol: Solution, factor: float | None) -> PhotoNoise:
@@ -227,7 +240,7 @@ def photo_noise(sol: Solution, factor: float | None) -> PhotoNoise:
             gross[key] = float(misfit[b])
             continue
         raw[key] = max(float(np.sqrt(squares[b] / nu[b])), NOISE_FLOOR_PX)
-        dof[key] = int(nu[b])
+        dof[key] = float(nu[b])
     cameras = [n for n in p.cameras if any(k[0] == n for k in raw)]
     photos = {n: [k for k in raw if k[0] == n] for n in cameras}
     y, v = {}, {}
