@@ -3,6 +3,8 @@ the outline model's fixed point, calibrations from a target's points, the files.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -181,6 +183,24 @@ def test_fixed_point_is_the_outline_models_least_squares():
     names, covs = parameter_covariance(sol, ("formal",))
     sigma_fx = float(np.sqrt(covs["formal"][names.index("left.fx"), names.index("left.fx")]))
     assert abs(best.x[0] - cam.fx) < 0.002 * sigma_fx, (best.x[0] - cam.fx, sigma_fx)     # 1e-4 sigma here
+
+
+def test_calibrate_rig_removes_the_bias_of_a_circle_grid():
+    """Through the pipeline: a stereo rig's circle centres measured as the circles' image centres (noise-free).
+    As a circle grid its focal lengths come back to 0.01 px (the outline stage of calibrate_rig, recorded in
+    ``adjustment.circle_centres``); the same centres given as a target's points (the point model) are biased."""
+    board = Board.circle_grid("acircles", 4, 11, 20.0, 13.0)
+    truth = make_truth("stereo", views=10, seed=4, board=board, min_tilt_deg=35, max_tilt_deg=60)
+    corners = noisy_corner_set(truth, 0.0)
+    rig = calibrate_rig(corners, rig_mode="rigid", lens_motion=False)
+    record = rig.adjustment["circle_centres"]
+    assert record["converged"] and record["largest_offset_px"] > 0.05
+    points = replace(corners, board=Board.from_points(board.object_points_mm(), square_mm=board.square_mm))
+    as_points = calibrate_rig(points, rig_mode="rigid", lens_motion=False)
+    assert "circle_centres" not in as_points.adjustment
+    for name, cam in truth.cameras.items():
+        assert abs(rig.cameras[name].fx - cam.fx) < 0.01, name
+        assert abs(as_points.cameras[name].fx - cam.fx) > 0.05, name
 
 
 # ---------------------------------------------------------------------------------- targets given by points

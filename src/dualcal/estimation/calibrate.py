@@ -14,7 +14,9 @@ photos' weights, the cameras whose intrinsics are known):
 3. :func:`cameras_alone`: every camera from Zhang's closed form (:mod:`dualcal.geometry.zhang`; a known camera
    from its intrinsics), adjusted alone, each photo's noise estimated and the photos weighed by it
    (:mod:`dualcal.estimation.photo_noise`), its outliers left out (:mod:`dualcal.estimation.outliers`), so that a
-   bad photo shows in its own camera's residuals (:class:`Fit`);
+   bad photo shows in its own camera's residuals (:class:`Fit`); :func:`circle_outlines`: a circle grid's centres
+   as the centres of the circles' outlines' images, not the images of their centres (the perspective bias,
+   :mod:`dualcal.estimation.circle_centres`);
 4. :func:`rig_tied`: the rig from the cameras' relative poses, adjusted in its rig mode, its outliers left out
    (which also reveals a board moved, or a lens refocused, between the shots of one instant);
    :func:`lens_motion`: the lens's motion where the photos show it: each photo's principal point shifted by the
@@ -45,6 +47,7 @@ import numpy as np
 from .adjust import Solution
 from .board_shape import BOARD_SHAPES, with_board_shape
 from .checking import calibration_checks
+from .circle_centres import fit_circle_outlines
 from .duplicates import describe_duplicates, merge_duplicate_instants
 from ..errors import InputError
 from .focus_model import photo_focus, with_breathing
@@ -124,6 +127,7 @@ class Fit:
     dropped_corners: list[dict] = field(default_factory=list)
     noise: PhotoNoise | None = None
     lens_motion: dict | None = None
+    circle_centres: dict | None = None
 
 
 def photos_to_calibrate(corners: CornerSet, settings: Settings,
@@ -146,6 +150,12 @@ def photos_to_calibrate(corners: CornerSet, settings: Settings,
         if tuple(k.camera.image_size) != tuple(corners.cameras[name].image_size):
             raise InputError(f"known intrinsics of camera {name!r} are for images of {k.camera.image_size}, its "
                              f"photos are {corners.cameras[name].image_size}: another camera or another resolution")
+        again = k.photos_in(corners.cameras[name].views) if k.mode == "prior" else []
+        if again:
+            warn(f"camera {name}: {len(again)} of its photos ({', '.join(again[:3])}{', ...' if len(again) > 3 else ''}) "
+                 f"are photos {k.source or 'its known intrinsics'} was calibrated from: their information counts "
+                 "twice, in the prior and in the photos, and its sigmas come out too small; give the rig's step only "
+                 "the joint instants, or calibrate these photos without --intrinsics")
     reference = settings.reference if settings.reference is not None else corners.reference
     X = corners.board.object_points_mm()
     setup = Setup(X, names, [corners.cameras[n].image_size for n in names],
@@ -179,6 +189,23 @@ def cameras_alone(photos: Photos, models: tuple[str, ...], settings: Settings, s
                                                             weigh=settings.weigh_photos)
     setup = replace(solved, mode=setup.mode)
     return Fit(setup, blocks, alone, alone, alone, None, dropped, dropped_corners, noise)
+
+
+def circle_outlines(photos: Photos, fit: Fit) -> Fit:
+    """Stage 3's second part (module docstring), for a circle grid only: each circle's centre as measured taken as
+    the centre of its outline's image, not the image of its centre (:mod:`dualcal.estimation.circle_centres`: the
+    perspective bias removed by moving each observed centre by its offset under the cameras alone, to the fixed
+    point). The later stages adjust the moved centres; ``circle_centres`` records the offsets."""
+    board = photos.corners.board
+    if not board.is_circle_grid:
+        return fit
+    outlines = fit_circle_outlines(lambda blocks, start: fit.setup.solve(blocks, start, mode="none"), fit.blocks,
+                                   fit.alone, board)
+    largest = max(float(np.nanmax(np.linalg.norm(o, axis=1), initial=0.0)) for o in outlines.offsets_px.values())
+    record = {"model": "outline", "largest_offset_px": largest, "solves": outlines.iterations,
+              "change_px": outlines.change_px, "converged": outlines.converged}
+    alone = outlines.solution
+    return replace(fit, blocks=outlines.blocks, alone=alone, flat=alone, solution=alone, circle_centres=record)
 
 
 def rig_tied(fit: Fit, factor: float | None) -> Fit:
@@ -235,7 +262,7 @@ def board_shape(fit: Fit, option: str) -> Fit:
 
 def adjusted(photos: Photos, models: tuple[str, ...], settings: Settings, start: Solution | None = None) -> Fit:
     """Stages 3 to 5 with the lens ``models``."""
-    alone = cameras_alone(photos, models, settings, start)                # 3
+    alone = circle_outlines(photos, cameras_alone(photos, models, settings, start))   # 3
     if not settings.lens_motion:
         return board_shape(rig_tied(alone, settings.factor), settings.board_shape)     # 4, 5
     with collect_warnings() as said:
@@ -271,6 +298,8 @@ def calibration(photos: Photos, fit: Fit, settings: Settings) -> RigModel:
         rig.adjustment["photo_noise"] = fit.noise.to_dict(kept)
     if setup.known:
         rig.adjustment["known_intrinsics"] = known_intrinsics_record(setup)
+    if fit.circle_centres is not None:
+        rig.adjustment["circle_centres"] = fit.circle_centres
     if fit.lens_motion:
         rig.adjustment["lens_motion"] = fit.lens_motion
         if "ois" in fit.lens_motion:                  # the cameras judged: 0 where the photos show no shift

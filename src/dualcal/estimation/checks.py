@@ -298,6 +298,8 @@ def rig_rigid(tied: Solution, alone: Solution, kappa2: dict[int, float] | None =
     responses = focal_responses(alone, set(named)) if named else {}
     for v in named:                     # an instant whose misfit one photo's focal change explains: a refocus
         shares = refocus_explained(rel, rel.views.index(v), core, responses, tied.problem.reference)
+        if not shares:                  # no camera of it can refocus (every one's intrinsics held fixed)
+            continue
         c = max(shares, key=lambda c: shares[c][0])
         if shares[c][0] >= REFOCUS_SHARE:
             picked = refocused_camera(alone, v, kappa2s)        # of cameras alike, the one further off alone
@@ -673,7 +675,8 @@ def _edge_distortion_sigma(rig: RigModel, name: str, uv: np.ndarray) -> float | 
 
 
 def determination(rig: RigModel) -> dict:
-    """Parameters known too poorly to use, in plain words with what would help (thresholds above)."""
+    """Parameters known too poorly to use, in plain words with what would help (thresholds above); the rig's
+    relations only where the rig was calibrated (not in rig mode ``none``: each camera from its own photos)."""
     problems = []
     used = rig.used_corners()
     for name, cam in rig.cameras.items():
@@ -696,7 +699,7 @@ def determination(rig: RigModel) -> dict:
             if s > MAX_DISTORTION_PX:
                 problems.append(f"{name} distortion known only to +-{s:.1f} px at the outermost corner measured: "
                                 "add photos with the board near the corners and edges of the frame")
-    for name, rel in rig.rig.items():
+    for name, rel in (rig.rig.items() if rig.rig_mode != "none" else ()):     # --rig none calibrates no rig
         D = rel.baseline_mm
         if D > 0 and rel.sigma_baseline_mm > MAX_BASELINE_REL * D:
             problems.append(f"{name} baseline known only to +-{100 * rel.sigma_baseline_mm / D:.1f} %: add instants "

@@ -784,11 +784,12 @@ def write_imported(imported: Imported, folder) -> list[Path]:
 def known_from_rig(rig: RigModel, source: str) -> dict[str, KnownIntrinsics]:
     """Each camera of a calibration as a prior: its intrinsics with their 1-sigma (calib.json's ``sigma``, the
     one that holds on real photos) and, where calib.json has the joint covariance, the correlations of the
-    camera's intrinsics (its clustered covariance's block, scaled to those sigmas). The correlations between
-    cameras are not kept."""
+    camera's intrinsics (its clustered covariance's block, scaled to those sigmas), and the corners it calibrated
+    the camera from (``photos``). The correlations between cameras are not kept."""
     from ..estimation.covariance import JointCovariance
 
     covariance = JointCovariance.from_dict(rig.covariance, source) if rig.covariance else None
+    used = rig.used_corners().cameras if rig.corners is not None else {}
     out = {}
     for name, cam in rig.cameras.items():
         names = intrinsic_names(cam.model)
@@ -801,7 +802,8 @@ def known_from_rig(rig: RigModel, source: str) -> dict[str, KnownIntrinsics]:
             s = np.array([sigma[n] for n in free])
             parameters, matrix = tuple(free), block / np.outer(d, d) * np.outer(s, s)
         use = "prior" if sigma or matrix is not None else "fixed"
-        out[name] = KnownIntrinsics(cam, use, sigma, parameters, matrix, source)
+        photos = {v: np.asarray(uv, float) for v, uv in used[name].views.items() if uv is not None} if name in used else {}
+        out[name] = KnownIntrinsics(cam, use, sigma, parameters, matrix, source, photos)
     return out
 
 

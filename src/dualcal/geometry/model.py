@@ -7,7 +7,7 @@ arrays; the classes only group them and never hide state.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -151,7 +151,9 @@ class KnownIntrinsics:
     uncertainty). In a prior given by ``sigma`` alone, the values with a sigma above 0 are its ``parameters``,
     with a diagonal ``covariance`` (set here); a free intrinsic of the model outside ``parameters`` is estimated
     from the photos alone. ``source`` names the file they came from. ``mode`` and ``names`` are ``use`` and
-    ``parameters`` as the adjustment reads them (:mod:`dualcal.estimation.adjust`).
+    ``parameters`` as the adjustment reads them (:mod:`dualcal.estimation.adjust`). ``photos`` ``{view: (N, 2)}``
+    are the corners the source calibrated the camera from, where it says (a calib.json): a prior from the same
+    photos would count their information twice.
 
     Raises
     ------
@@ -166,6 +168,7 @@ class KnownIntrinsics:
     parameters: tuple[str, ...] = ()
     covariance: np.ndarray | None = None
     source: str = ""
+    photos: dict[str, np.ndarray] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):
         if self.use not in INTRINSICS_USES:
@@ -186,6 +189,20 @@ class KnownIntrinsics:
         k = len(self.parameters)
         if (self.covariance is None) != (k == 0) or (k and np.shape(self.covariance) != (k, k)):
             raise ValueError(f"covariance of shape {np.shape(self.covariance)} for {k} parameters")
+
+    def photos_in(self, views: Mapping[str, np.ndarray | None], tol_px: float = 0.01) -> list[str]:
+        """The views of ``views`` (a camera's corners, ``{view: (N, 2) or None}``) that are photos the source
+        calibrated this camera from: the same view with the same corners (within ``tol_px``)."""
+        same = []
+        for v, uv in views.items():
+            old = self.photos.get(v)
+            if uv is None or old is None or np.shape(old) != np.shape(uv):
+                continue
+            a, b = np.asarray(uv, float), np.asarray(old, float)
+            seen = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+            if seen.any() and np.max(np.abs(a[seen] - b[seen])) <= tol_px:
+                same.append(v)
+        return same
 
     @property
     def mode(self) -> str:
