@@ -668,6 +668,14 @@ def test_the_caliscope_workflow_recovers_the_rig_with_the_intrinsics_held(tmp_pa
         got = calib["rig"][name]
         err = np.abs(np.array(got["t_mm"]) - pose.t_mm)
         assert np.all(err < 4 * np.array(got["sigma"]["t_mm"])), (name, err, got["sigma"]["t_mm"])
+    # the board spans 50-90 px: a photo's pose alone may sit in the other minimum of a small planar target's pose
+    # (cam_1's at 0019 turned 24 degrees), which made every pair through it look 144 x the noise; solved again
+    # from the rig's poses, the pairs are within a few times the noise (2.3 at most here)
+    pairs = calib["checks"]["loop_closure"]["pairs"].values()
+    assert max(p["ratio"] for p in pairs if p["judged"]) < 5
+    # photos that fix a focal length only to 3-5 % do not judge the intrinsics held (true ones: no false alarm)
+    prior = calib["checks"]["intrinsics_prior"]
+    assert prior["ok"] and all(not c.get("judged", True) for c in prior["cameras"].values())
 
 
 def test_calibrate_takes_an_opencv_file_as_a_camera_s_held_intrinsics(stereo_corners, tmp_path, run_cli):

@@ -108,7 +108,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
     if scores:
         console.print(lens_model_table(scores, rig.model))
         console.print(lens_model_advice(scores, rig.model))
-    if rig.adjustment.get("lens_models"):               # none where every camera's lens was given (--intrinsics)
+    if "lens_models_chosen" in rig.adjustment and rig.adjustment.get("lens_models"):  # none: every lens given
         console.print(lens_model_choice_table(rig.adjustment))
     console.print(checks_table(rig))
     console.print(verdict(rig.checks))

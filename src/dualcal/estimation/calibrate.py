@@ -59,6 +59,7 @@ from .outliers import adjust_dropping_outliers
 from .photo_noise import PhotoNoise
 from ..geometry.camera import DEFAULT_LENS_MODEL
 from ..geometry.model import CornerSet, KnownIntrinsics, RigModel, choose_reference
+from ..geometry.rotation import rotvec_from_rotation
 from ..progress import collect_warnings, warn
 
 __all__ = ["BOARD_SHAPES", "Fit", "LensModels", "Photos", "Settings", "calibrate_rig"]
@@ -208,16 +209,35 @@ def circle_outlines(photos: Photos, fit: Fit) -> Fit:
     return replace(fit, blocks=outlines.blocks, alone=alone, flat=alone, solution=alone, circle_centres=record)
 
 
+#: A photo whose pose with its camera alone is turned by more than this from the rig's (degrees) may sit in the
+#: other minimum of a small or distant board's pose (a planar target seen nearly square-on or from far has two
+#: poses that fit its corners almost equally, turned tens of degrees apart); the cameras alone are then solved
+#: again from the rig's poses, so that each photo's pose is the minimum nearest the rig's and the checks compare
+#: like with like. A rigid rig's photos agree to minutes of arc; a weak photo's pose to a degree or two.
+AMBIGUOUS_POSE_DEG = 10.0
+
+
+def _turned_from_rig(alone: Solution, tied: Solution) -> float:
+    """The largest angle (degrees) between a photo's pose with its camera alone and in the rig."""
+    rig = tied.photo_poses
+    angles = [np.linalg.norm(rotvec_from_rotation(pose.R @ rig[k].R.T)) for k, pose in alone.photo_poses.items()
+              if k in rig]
+    return float(np.degrees(max(angles, default=0.0)))
+
+
 def rig_tied(fit: Fit, factor: float | None) -> Fit:
     """Stage 4 (module docstring): the rig in its mode, started from the cameras alone, its outliers (against
-    each photo's noise with every camera alone) left out; the cameras alone solved again over the photos it kept
-    where it left out more."""
+    each photo's noise with every camera alone) left out; the cameras alone solved again, from the rig's poses,
+    over the photos it kept where it left out more, or where a photo's pose alone is turned far from the rig's
+    (:data:`AMBIGUOUS_POSE_DEG`)."""
     if fit.setup.mode == "none":
         return fit
     dropped, dropped_corners = list(fit.dropped), list(fit.dropped_corners)
     tied, blocks, _, _ = adjust_dropping_outliers(fit.setup, fit.blocks, factor, dropped, dropped_corners,
                                                   fit.alone, fit.noise)
-    alone = fit.alone if blocks is fit.blocks else fit.setup.solve(blocks, tied, mode="none")
+    alone = fit.alone
+    if blocks is not fit.blocks or _turned_from_rig(fit.alone, tied) > AMBIGUOUS_POSE_DEG:
+        alone = fit.setup.solve(blocks, tied, mode="none")
     return replace(fit, blocks=blocks, alone=alone, flat=tied, solution=tied, dropped=dropped,
                    dropped_corners=dropped_corners)
 
