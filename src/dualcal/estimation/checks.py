@@ -739,10 +739,10 @@ def photo_count(rig: RigModel) -> dict:
                        "come from how the photos disagree with each other)"}
 
 
-def camera_edge_ratio(sol: Solution, c: int) -> tuple[float, list[str]]:
+def camera_edge_ratio(sol: Solution, c: int, per_view: bool = True) -> tuple[float, list[str]]:
     """Camera ``c``'s RMS residual of its outermost third of corners (by their distance from the principal point)
-    over that of its innermost third (NaN with too few corners), and the views where that ratio of their own
-    corners exceeds :data:`EDGE_RATIO`."""
+    over that of its innermost third (NaN with too few corners), and (``per_view``) the views where that ratio of
+    their own corners exceeds :data:`EDGE_RATIO`."""
     p = sol.problem
     cam = sol.state.camera(p, c)
     rho_all, len_all, views = [], [], []
@@ -754,7 +754,7 @@ def camera_edge_ratio(sol: Solution, c: int) -> tuple[float, list[str]]:
         rho = np.hypot(uv[seen, 0] - cam.cx, uv[seen, 1] - cam.cy)
         rho_all.append(rho)
         len_all.append(length[seen])
-        if _edge_ratio(rho, length[seen]) > EDGE_RATIO:
+        if per_view and _edge_ratio(rho, length[seen]) > EDGE_RATIO:
             views.append(f"{p.cameras[c]}/{view}")
     ratio = _edge_ratio(np.concatenate(rho_all), np.concatenate(len_all)) if rho_all else float("nan")
     return ratio, views

@@ -64,7 +64,7 @@ def camera_piece(sol: Solution, c: int) -> dict:
     held = {v: None if photos is None else photos[c] for v, photos in sol.held_out_squares().items()
             if photos is None or c in photos}
     return {"squares": float(np.nansum(sq)), "corners": int(np.isfinite(sq).sum()), "held_out": held,
-            "edge_ratio": camera_edge_ratio(sol, c)[0]}
+            "edge_ratio": camera_edge_ratio(sol, c, per_view=False)[0]}
 
 
 def joint_fit(pieces: dict[str, dict]) -> dict:

@@ -29,6 +29,7 @@ photo itself, and several photos of one lens can tell their principal point toge
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -159,14 +160,36 @@ def _summed_squares(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lam: floa
     return float(np.sum(residual.sum(axis=1) / magnification**2))
 
 
+#: :func:`common_division` looks at this many views at most: those whose corners reach furthest from the image's
+#: centre, where a lens bends the board's image most (its cost grows with the views, the division model's fit does
+#: not: a calibration's start is all it gives).
+DIVISION_VIEWS = 20
+
+
 def common_division(xy_board: np.ndarray, uvs, image_size) -> float:
     """The division model's ``lam`` that fits the homographies of several views of one camera best together
     (their summed squared residuals; grids refined as in :func:`division_homography`): the views whose board
     lies near the image's edge fix it for those near its centre. ``uvs``: (N, 2) pixels per view, NaN rows
-    for corners not measured; without any view, 0."""
+    for corners not measured; without any view, 0. Of more than :data:`DIVISION_VIEWS` views, those whose corners
+    reach furthest from the image's centre. (Memoised on the values: a calibration asks it of the same photos for
+    its lens models' candidates and for its start.)"""
     if len(uvs) == 0:
         return 0.0
-    uvs = np.asarray(uvs, float).reshape(-1, len(xy_board), 2)
+    xy = np.ascontiguousarray(xy_board, float)
+    uvs = np.asarray(uvs, float).reshape(-1, len(xy), 2)
+    if len(uvs) > DIVISION_VIEWS:          # those whose corners reach furthest from the centre fix lam
+        centre = 0.5 * (np.asarray(image_size, float) - 1.0)
+        reach = np.nanmax(np.linalg.norm(uvs - centre, axis=2), axis=1)
+        uvs = uvs[np.sort(np.argsort(-np.nan_to_num(reach, nan=-1.0), kind="stable")[:DIVISION_VIEWS])]
+    uvs = np.ascontiguousarray(uvs)
+    return _common_division(xy.tobytes(), xy.shape, uvs.tobytes(), uvs.shape, tuple(int(s) for s in image_size))
+
+
+@functools.lru_cache(maxsize=32)
+def _common_division(xy_bytes: bytes, xy_shape, uvs_bytes: bytes, uvs_shape, image_size) -> float:
+    """:func:`common_division` of arrays given by their bytes and shapes (hashable, so that it can be memoised)."""
+    xy_board = np.frombuffer(xy_bytes).reshape(xy_shape)
+    uvs = np.frombuffer(uvs_bytes).reshape(uvs_shape)
     seen = observed_mask(uvs)
     lo, hi = LAMBDA_RANGE
     for _ in range(3):

@@ -502,13 +502,21 @@ def _warn_fallbacks(start: _ClosedForm, keys: list[str], image_size, name: str |
              "on one line): left out of the closed form, their start poses from their corners by PnP (SQPnP)")
 
 
+#: The jackknife of the closed form's focal length leaves out one of at most this many groups of views at a time
+#: (every ``JACKKNIFE_GROUPS``-th view together): one view at a time up to that many views, so that its cost stops
+#: growing with the square of the views.
+JACKKNIFE_GROUPS = 20
+
+
 def _jackknife_log_sigma(estimate, views: int) -> float:
     """The jackknife's sigma of ``log(estimate(keep))`` (``keep``: (V,) bool) over the ``views`` left out one at a
-    time: how well the views fix what ``estimate`` gives (inf where it gives nothing without one of them)."""
+    time, or with more than :data:`JACKKNIFE_GROUPS` views, one interleaved group at a time (the delete-a-group
+    jackknife): how well the views fix what ``estimate`` gives (inf where it gives nothing without one of them)."""
+    groups = min(views, JACKKNIFE_GROUPS)
+    member = np.arange(views) % groups
     logs = []
-    for i in range(views):
-        keep = np.ones(views, bool)
-        keep[i] = False
+    for i in range(groups):
+        keep = member != i
         try:
             logs.append(np.log(estimate(keep)))
         except EstimationError:
@@ -516,7 +524,7 @@ def _jackknife_log_sigma(estimate, views: int) -> float:
     logs = np.array(logs)
     if not np.all(np.isfinite(logs)):
         return float("inf")
-    return float(np.sqrt((views - 1) / views * np.sum((logs - logs.mean()) ** 2)))
+    return float(np.sqrt((groups - 1) / groups * np.sum((logs - logs.mean()) ** 2)))
 
 
 def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool,
@@ -536,7 +544,8 @@ def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndar
 
 
 def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size,
-                            skew: bool, refine: bool = True, name: str | None = None, division: bool = True):
+                            skew: bool, refine: bool = True, name: str | None = None, division: bool = True,
+                            jackknife: bool = True):
     """Homographies and the closed form (sections 1.3-1.4) of the views whose corners fix a homography:
     ``(camera, homographies, fallback)``, the homographies one per view (None where its corners fix none),
     ``fallback`` as :class:`_ClosedForm`'s.
@@ -550,7 +559,8 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
 
     Of Zhang's camera and the constrained one (square pixels, the principal point at the image centre, one focal
     length: :func:`common_focal`), the camera is the one whose focal length the views fix better: the smaller
-    jackknife sigma over the views (:func:`_jackknife_log_sigma`). Tilted boards that fill the frame fix
+    jackknife sigma over the views (:func:`_jackknife_log_sigma`; without ``jackknife``, Zhang's where it gives
+    one: a search's rounds, which ask for many closed forms of similar views). Tilted boards that fill the frame fix
     Zhang's four unknowns (and its focal length is then the nearer); small boards with few corners, seen near
     square-on, leave its ``B`` to the noise (not positive definite, or a focal length far too short: half the
     truth and less at 1.2 px of noise on caliscope's webcams), where the constrained one, with three unknowns
@@ -585,7 +595,7 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
     weights = np.sqrt(2.0 * f_seen.sum(axis=1) - 2 * MIN_HOMOGRAPHY_CORNERS)
     if not weights.any():                       # no view has more corners than its homography needs: alike
         weights = np.ones(len(fixed))
-    starts, spread, failed = _closed_forms(fixed, weights, image_size, skew)
+    starts, spread, failed = _closed_forms(fixed, weights, image_size, skew, jackknife)
     if not starts:
         raise EstimationError(f"{who}: {failed}: the board poses are too alike or the corners too noisy; take "
                               "photos with the board tilted 30-50 degrees in different directions")
@@ -606,11 +616,12 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
     return starts[chosen], Hs, fallback
 
 
-def _closed_forms(Hs: np.ndarray, weights: np.ndarray, image_size, skew: bool):
+def _closed_forms(Hs: np.ndarray, weights: np.ndarray, image_size, skew: bool, jackknife: bool = True):
     """Zhang's camera and the constrained one from the homographies ``Hs`` (V, 3, 3) weighed by ``weights`` (V,):
     ``(starts, spread, failed)``, the cameras each closed form gives (``{"zhang": ..., "constrained": ...}``), the
-    jackknife sigma of each one's log focal length, and what made Zhang's fail (its error's first clause; its
-    advice, after the colon, is not a fallback's) or None."""
+    jackknife sigma of each one's log focal length (without ``jackknife``: 0 for Zhang's, 1 for the constrained
+    one, so that Zhang's is chosen where it gives a camera), and what made Zhang's fail (its error's first clause;
+    its advice, after the colon, is not a fallback's) or None."""
     def zhang(keep):
         return intrinsics_from_homographies(Hs[keep], image_size, skew, weights[keep])
 
@@ -623,10 +634,10 @@ def _closed_forms(Hs: np.ndarray, weights: np.ndarray, image_size, skew: bool):
     if np.isfinite(f_px):
         w, h = image_size
         starts["constrained"] = CameraModel(tuple(image_size), f_px, f_px, 0.0, 0.5 * (w - 1), 0.5 * (h - 1))
-        spread["constrained"] = _jackknife_log_sigma(constrained_f, len(Hs))
+        spread["constrained"] = _jackknife_log_sigma(constrained_f, len(Hs)) if jackknife else 1.0
     try:
         starts["zhang"] = zhang(every)
-        spread["zhang"] = _jackknife_log_sigma(lambda keep: _mean_focal(zhang(keep)), len(Hs))
+        spread["zhang"] = _jackknife_log_sigma(lambda keep: _mean_focal(zhang(keep)), len(Hs)) if jackknife else 0.0
     except EstimationError as exc:
         failed = str(exc).split(":")[0]
     return starts, spread, failed
@@ -718,7 +729,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
             try:
                 pins = _pinhole_pixels(guess, search_uvs)
                 cam = _closed_form_intrinsics(xy_board, pins, search_seen, image_size, skew, refine=False,
-                                              name=who, division=False)[0]
+                                              name=who, division=False, jackknife=False)[0]
             except EstimationError:                 # this k1's rays fix no camera (or not all have one)
                 break
             settled = abs(cam.fx / guess.fx - 1.0) < _FISHEYE_SETTLED
