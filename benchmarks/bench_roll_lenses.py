@@ -14,15 +14,10 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
-
-import numpy as np
 
 from dualcal.errors import InputError
 from dualcal.files import roll
-from dualcal.files.photos import Photo
-from dualcal.synthetic import synth
-from dualcal.synthetic.synth_roll import Shooting, shared_size_rig, shooting_script
+from dualcal.synthetic.synth_roll import roll_without_exif
 
 #: name -> (focal lengths in px at 2016 x 1512, the fisheyes among them)
 RIGS = {
@@ -40,17 +35,7 @@ RIGS = {
 
 
 def one_roll(focal, fisheye, seed: int, views: int, noise: float) -> str:
-    truth = synth.make_truth(shared_size_rig(focal, fisheye), views=views, seed=seed, scale=0.25)
-    rng = np.random.default_rng(seed)
-    corners = synth.true_corners(truth)
-    photos, uv, true_camera = [], {}, {}
-    for s in shooting_script(truth, Shooting(), seed):
-        cam = truth.cameras[s.camera or truth.reference]
-        photos.append(Photo(Path("/roll") / s.name, tuple(cam.image_size), {}))
-        seen = s.camera is not None and np.isfinite(corners[s.camera][s.view]).all()
-        uv[photos[-1].path] = corners[s.camera][s.view] + rng.normal(0, noise, corners[s.camera][s.view].shape) \
-            if seen else None
-        true_camera[s.name] = s.camera
+    truth, photos, uv, true_camera = roll_without_exif(focal, fisheye, seed, views, noise)
     t = time.perf_counter()
     try:
         cameras, facts, _, left_out = roll.cameras_from_boards(photos, uv, truth.board.object_points_mm()[:, :2])

@@ -13,7 +13,7 @@ from dualcal.files import roll, roll_lenses
 from dualcal.files.photos import Photo
 from dualcal.geometry.one_view import PRINCIPAL_POINT_SIGMA, ViewLens, view_lens
 from dualcal.synthetic import synth
-from dualcal.synthetic.synth_roll import Shooting, shared_size_rig, shooting_script
+from dualcal.synthetic.synth_roll import roll_without_exif, shared_size_rig
 from test_real_data import bouguet_corners, huawei_corners, stereo_corners  # noqa: F401 (fixtures)
 
 #: The issue's phone as its browser uploads it: a fisheye ultra-wide (1130 px) and a wide (1340 px) at 2016 x 1512,
@@ -29,20 +29,8 @@ RIGS = {
 
 
 def _uploaded(focal, fisheye, seed, views=12, noise_px=0.1):
-    """A tripod session of a rig whose lenses share one size, as a browser uploads it (no EXIF): the photos'
-    headers, their corners (the truth's with noise; None where no board) and each photo's true camera."""
-    truth = synth.make_truth(shared_size_rig(focal, fisheye), views=views, seed=seed, scale=0.25)
-    rng = np.random.default_rng(seed)
-    corners = synth.true_corners(truth)
-    photos, uv, true_camera = [], {}, {}
-    for s in shooting_script(truth, Shooting(), seed):
-        cam = truth.cameras[s.camera or truth.reference]
-        photos.append(Photo(Path("/roll") / s.name, tuple(cam.image_size), {}))
-        seen = s.camera is not None and np.isfinite(corners[s.camera][s.view]).all()
-        uv[photos[-1].path] = corners[s.camera][s.view] + rng.normal(0, noise_px, corners[s.camera][s.view].shape) \
-            if seen else None
-        true_camera[s.name] = s.camera
-    return truth, photos, uv, true_camera
+    """A tripod session of a rig whose lenses share one size, as a browser uploads it (no EXIF)."""
+    return roll_without_exif(focal, fisheye, seed, views, noise_px)
 
 
 @pytest.mark.parametrize("rig", list(RIGS))

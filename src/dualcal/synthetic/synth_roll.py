@@ -36,6 +36,7 @@ from ..geometry.camera import equivalent_focal_35mm
 from ..files.roll import camera_class
 
 __all__ = ["CROP_FACTOR", "ScriptedShot", "Shooting", "equivalent_focal_of", "shared_size_rig", "shooting_script",
+           "roll_without_exif",
            "strip_exif", "write_camera_roll"]
 
 #: A phone sensor's crop factor by camera class (an iPhone's ultra-wide 2.2 mm is 13 mm equivalent, its
@@ -185,6 +186,30 @@ def shooting_script(truth, shooting: Shooting = Shooting(), seed: int = 0, first
             taken += timedelta(seconds=float(rng.uniform(*shooting.stray_gap_s)))
             shoot(None, None)
     return script
+
+
+def roll_without_exif(focal_px: dict[str, float], fisheye: tuple[str, ...], seed: int, views: int = 12,
+                  noise_px: float = 0.1):
+    """A tripod session (:func:`shooting_script`) of a rig whose lenses share one size (:func:`shared_size_rig`),
+    as a browser uploads it, without EXIF, and without rendering: ``(truth, photos, uv, true_camera)``, the photos'
+    headers (:class:`dualcal.files.photos.Photo`, no metadata), their corners by path (the truth's with ``noise_px``
+    of noise; None where the photo shows no whole board) and each photo's true camera by file name (None: no
+    board)."""
+    from ..files.photos import Photo
+    from .synth import make_truth, true_corners
+
+    truth = make_truth(shared_size_rig(focal_px, fisheye), views=views, seed=seed, scale=0.25)
+    rng = np.random.default_rng(seed)
+    corners = true_corners(truth)
+    photos, uv, true_camera = [], {}, {}
+    for s in shooting_script(truth, Shooting(), seed):
+        cam = truth.cameras[s.camera or truth.reference]
+        photos.append(Photo(Path("/roll") / s.name, tuple(cam.image_size), {}))
+        seen = s.camera is not None and np.isfinite(corners[s.camera][s.view]).all()
+        uv[photos[-1].path] = (corners[s.camera][s.view] + rng.normal(0, noise_px, corners[s.camera][s.view].shape)
+                               if seen else None)
+        true_camera[s.name] = s.camera
+    return truth, photos, uv, true_camera
 
 
 def write_camera_roll(truth, folder, seed: int = 0, device: str = "synthetic phone", first_number: int = 101,
