@@ -159,14 +159,16 @@ CHECKS = {
                    "`ratio` against `limit_ratio`), and for a pair of two non-reference cameras their mean agrees with "
                    "the relation the rig composes through the reference (`loops`: the misclosure, its `t2` against "
                    "`limit`). Statistical tests at a stated false-alarm rate, one calibration in a hundred on a rigid "
-                   "rig (`false_alarm_rate` 0.01, split over the tests). A pair sharing fewer than 3 instants is not "
-                   "judged (`not_judged`).",
+                   "rig (`false_alarm_rate` 0.01, split over the tests). A pair's scatter is taken over its robust core "
+                   "of instants (`core_instants`; those `apart` fail it only where they move its relation by more "
+                   "than 2 sigma, `shift_sigma`). A pair sharing fewer than 3 instants whose relative pose is known "
+                   "to a degree (a board small or far in a photo is not) is not judged (`not_judged`).",
         "cause": "A camera that moved between instants (a lens with stabilisation, a knock): it fails every pair it "
                  "belongs to, which names it.",
         "action": "Find the instants with `rig_rigid`'s message, leave them out with `--exclude` or shoot them "
                   "again; make sure every pair of cameras sees the board in at least 3 instants, better 8.",
         "examples": ["do not fit one rigid relation", "in each: it moved between instants?",
-                     "pairwise relative poses agree with the rig", "not judged: fewer than"],
+                     "pairwise relative poses agree with the rig", "shared instants whose relative pose is known to"],
     },
     "intrinsics_prior": {
         "title": "the photos agree with the intrinsics known for a camera",
