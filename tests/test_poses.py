@@ -85,3 +85,17 @@ def test_the_consensus_pose_is_the_mean_where_every_pose_agrees_and_leaves_a_tur
     kept, mean_of_all = consensus_pose(turned), mean_pose(turned)
     assert np.allclose(kept.R, mean_pose(poses).R) and np.allclose(kept.t_mm, mean_pose(poses).t_mm)
     assert np.linalg.norm(mean_of_all.t_mm - mean_pose(poses).t_mm) > 10.0      # the turned pose pulls the plain mean
+
+
+def test_rotation_angle_deg_is_the_angle_of_the_relative_rotation_and_broadcasts():
+    from dualcal.geometry.rotation import rotation_angle_deg, rotation_from_rotvec
+
+    rng = np.random.default_rng(3)
+    R = np.array([rotation_from_rotvec(rng.normal(0, 1, 3)) for _ in range(4)])
+    turn = np.radians([0.5, 10.0, 90.0, 170.0])
+    axis = rng.normal(0, 1, (4, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    Q = np.array([r @ rotation_from_rotvec(a * t) for r, a, t in zip(R, axis, turn)])
+    assert np.allclose(rotation_angle_deg(R, Q), np.degrees(turn), atol=1e-5)
+    outer = rotation_angle_deg(R[:, None], Q[None, :])
+    assert outer.shape == (4, 4) and np.allclose(np.diag(outer), np.degrees(turn), atol=1e-5)

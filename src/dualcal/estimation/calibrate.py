@@ -59,7 +59,7 @@ from .outliers import adjust_dropping_outliers
 from .photo_noise import PhotoNoise
 from ..geometry.camera import DEFAULT_LENS_MODEL
 from ..geometry.model import CornerSet, KnownIntrinsics, RigModel, choose_reference
-from ..geometry.rotation import rotvec_from_rotation
+from ..geometry.rotation import rotation_angle_deg
 from ..progress import collect_warnings, warn
 
 __all__ = ["BOARD_SHAPES", "Fit", "LensModels", "Photos", "Settings", "calibrate_rig"]
@@ -220,9 +220,11 @@ AMBIGUOUS_POSE_DEG = 10.0
 def _turned_from_rig(alone: Solution, tied: Solution) -> float:
     """The largest angle (degrees) between a photo's pose with its camera alone and in the rig."""
     rig = tied.photo_poses
-    angles = [np.linalg.norm(rotvec_from_rotation(pose.R @ rig[k].R.T)) for k, pose in alone.photo_poses.items()
-              if k in rig]
-    return float(np.degrees(max(angles, default=0.0)))
+    both = [k for k in alone.photo_poses if k in rig]
+    if not both:
+        return 0.0
+    return float(np.max(rotation_angle_deg(np.array([alone.photo_poses[k].R for k in both]),
+                                           np.array([rig[k].R for k in both]))))
 
 
 def rig_tied(fit: Fit, factor: float | None) -> Fit:

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.one_view import OneView, board_pixels, board_pose, spread_px
-from ..geometry.rotation import nearest_rotation
+from ..geometry.rotation import nearest_rotation, rotation_angle_deg
 
 __all__ = ["MOVED_IMAGE", "SAME_IMAGE", "PositionSplit", "Shot", "best_split", "image_change", "longest_run",
            "rig_relations", "split_positions", "time_log_odds"]
@@ -131,12 +131,6 @@ def image_change(a: OneView, b: OneView, xy_board: np.ndarray, symmetric: bool =
                      for other in ([pb, pb[::-1]] if symmetric else [pb])) / size)
 
 
-def _angle_deg(R: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """Angles (degrees) between stacks of rotations ``R`` (..., 3, 3) and ``Q`` (broadcast)."""
-    tr = np.einsum("...ij,...ij->...", R, Q)
-    return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
-
-
 _HALF_TURN = np.diag([-1.0, -1.0, 1.0])          # Rz(pi): the board turned about its normal
 
 
@@ -163,7 +157,7 @@ class BoardPose:
         for H in view.H_quarters:
             if np.all(np.isfinite(H)):
                 q = board_pose(view, f_px, H)
-                angles.append(float(_angle_deg(q.R, pose.R)))
+                angles.append(float(rotation_angle_deg(q.R, pose.R)))
                 moves.append(float(np.linalg.norm(q.apply(middle[None])[0] - centre) / np.linalg.norm(centre)))
         if len(angles) < 2:
             return cls(pose.R, centre, np.inf, np.inf)
@@ -187,7 +181,7 @@ class RigRelation:
 
     def misfit(self, a: BoardPose, b: BoardPose) -> tuple[float, float]:
         """The rotation (degrees) and position (share of the distance) by which ``b`` misses ``a`` moved by the rig."""
-        angle = float(min(_angle_deg(b.R @ turn, self.R @ a.R) for turn in _turns(self.symmetric)))
+        angle = float(min(rotation_angle_deg(b.R @ turn, self.R @ a.R) for turn in _turns(self.symmetric)))
         position = np.linalg.norm(b.centre_mm - self.scale * self.R @ a.centre_mm - self.t) / np.linalg.norm(b.centre_mm)
         return angle, float(position)
 
@@ -227,16 +221,16 @@ def rig_relations(cameras: list[str], poses: list[BoardPose], window: int,
             relative = np.stack([np.stack([poses[j].R @ turn for _, j in pairs]) @ np.swapaxes(Ra, 1, 2)
                                  for turn in _turns(symmetric)], axis=1)
             flat = relative.reshape(-1, 3, 3)
-            agree = (_angle_deg(flat[:, None], flat[None, :]) <= AGREEMENT_DEG).reshape(len(flat), len(pairs), -1)
+            agree = (rotation_angle_deg(flat[:, None], flat[None, :]) <= AGREEMENT_DEG).reshape(len(flat), len(pairs), -1)
             support = agree.any(axis=2).sum(axis=1)
             best = int(np.argmax(support))
             members = agree[best].any(axis=1)
             if members.sum() < 3:
                 continue
-            closest = np.argmin(_angle_deg(relative, flat[best]), axis=1)
+            closest = np.argmin(rotation_angle_deg(relative, flat[best]), axis=1)
             chosen = relative[np.arange(len(pairs)), closest][members]
             R = nearest_rotation(chosen.sum(axis=0))
-            sigma_deg = max(MIN_ROTATION_SIGMA_DEG, 1.4826 * float(np.median(_angle_deg(chosen, R))))
+            sigma_deg = max(MIN_ROTATION_SIGMA_DEG, 1.4826 * float(np.median(rotation_angle_deg(chosen, R))))
             ta = np.stack([poses[i].centre_mm for i, _ in pairs])[members]
             tb = np.stack([poses[j].centre_mm for _, j in pairs])[members]
             scale = float(np.median(np.linalg.norm(tb, axis=1) / np.linalg.norm(ta, axis=1)))

@@ -69,6 +69,13 @@ def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
     return xyz * scale[..., None]
 
 
+def rotation_angle_deg(R: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """The angle (degrees) of the rotation between ``R`` and ``Q`` (that of ``R^T Q``), for stacks (..., 3, 3)
+    that broadcast against each other: ``arccos((tr(R^T Q) - 1) / 2)``."""
+    tr = np.einsum("...ij,...ij->...", R, Q)
+    return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
+
+
 def nearest_rotation(M: np.ndarray) -> np.ndarray:
     """The rotation closest to ``M`` (3, 3), or to each of a stack (..., 3, 3), in the Frobenius norm (SVD;
     the sign fix keeps det = +1)."""

@@ -27,6 +27,7 @@ import numpy as np
 from ...geometry.board import Board
 from ...errors import EstimationError, InputError
 from ...geometry.model import CameraCorners, CornerSet, observed_mask
+from ...geometry.rotation import rotation_angle_deg
 from ...progress import warn
 
 __all__ = ["AGREEMENT_DEG", "align_symmetric_numbering", "rough_rotations"]
@@ -64,12 +65,6 @@ def rough_rotations(board: Board, views: dict[str, np.ndarray], image_size) -> d
     return {key: extrinsics_from_homography(K, H).R for key, H in Hs.items()}
 
 
-def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """Angles of ``Ra[i]^T Rb[j]`` for stacks (n, 3, 3) and (m, 3, 3): (n, m) degrees."""
-    tr = np.einsum("nij,mij->nm", Ra, Rb)
-    return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
-
-
 def align_symmetric_numbering(corners: CornerSet, reference: str) -> tuple[CornerSet, int]:
     """Renumber the photos of the non-reference cameras so that every instant agrees with the rig.
 
@@ -103,10 +98,10 @@ def align_symmetric_numbering(corners: CornerSet, reference: str) -> tuple[Corne
         # candidate relative rotations: (instant, numbering kept / turned)
         cand = np.stack([[R_cam[k] @ R_ref[k].T, R_cam[k] @ _HALF_TURN @ R_ref[k].T] for k in shared])
         flat = cand.reshape(-1, 3, 3)
-        close = _angle_deg(flat, flat) <= AGREEMENT_DEG                      # (2n, 2n)
+        close = rotation_angle_deg(flat[:, None], flat[None, :]) <= AGREEMENT_DEG                      # (2n, 2n)
         support = close.reshape(len(flat), len(shared), 2).any(axis=2).sum(axis=1)
         rig = flat[int(np.argmax(support))]
-        to_rig = _angle_deg(cand.reshape(-1, 3, 3), rig[None])[:, 0].reshape(len(shared), 2)
+        to_rig = rotation_angle_deg(cand.reshape(-1, 3, 3), rig).reshape(len(shared), 2)
         turn = np.argmin(to_rig, axis=1)
         fits = to_rig[np.arange(len(shared)), turn] <= AGREEMENT_DEG
         if 2 * fits.sum() < len(shared):
