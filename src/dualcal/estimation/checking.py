@@ -45,14 +45,20 @@ PRIOR_TEST = ("chi-square test of each known camera's intrinsics from its photos
               "(Sidak over the cameras)")
 
 
-def _against_known(alone: Solution, known: KnownIntrinsics, rate: float) -> dict:
-    """One camera's test of :func:`intrinsics_prior`: ``alone`` its solution from its own photos alone."""
+def _photos_covariance(alone: Solution, names) -> tuple[list[str], np.ndarray]:
+    """Of the intrinsics ``names``, those ``alone`` (one camera, from its photos alone) estimates, and their
+    covariance in photo-level noise (the textbook one times the camera's design effect)."""
     lay = alone.problem.layout
     free = [str(n) for n in np.array(INTRINSIC_NAMES)[lay.free_intrinsics[0]]]
-    names = [n for n in (known.names or free) if n in free]
+    names = [n for n in names if n in free]
     columns = lay.intrinsics[0][[free.index(n) for n in names]]
+    return names, design_effect(alone)[0] * alone.covariance(columns, "formal")
+
+
+def _against_known(alone: Solution, known: KnownIntrinsics, rate: float) -> dict:
+    """One camera's test of :func:`intrinsics_prior`: ``alone`` its solution from its own photos alone."""
+    names, C = _photos_covariance(alone, known.names or INTRINSIC_NAMES)
     d = np.array([getattr(alone.state.camera(alone.problem, 0), n) - getattr(known.camera, n) for n in names])
-    C = design_effect(alone)[0] * alone.covariance(columns, "formal")
     if known.covariance is not None:
         at = [known.names.index(n) for n in names]
         C = C + np.asarray(known.covariance, float)[np.ix_(at, at)]
@@ -63,14 +69,12 @@ def _against_known(alone: Solution, known: KnownIntrinsics, rate: float) -> dict
 
 
 def _focal_sigma_rel(alone: Solution) -> float:
-    """The 1-sigma of ``alone``'s (one camera) focal length fx relative to it, in photo-level noise."""
-    lay = alone.problem.layout
-    free = [str(n) for n in np.array(INTRINSIC_NAMES)[lay.free_intrinsics[0]]]
-    if "fx" not in free:
+    """The 1-sigma of ``alone``'s (one camera) focal length fx relative to it, in photo-level noise (0 where fx is
+    not estimated)."""
+    names, C = _photos_covariance(alone, ["fx"])
+    if not names:
         return 0.0
-    column = lay.intrinsics[0][[free.index("fx")]]
-    variance = design_effect(alone)[0] * float(alone.covariance(column, "formal")[0, 0])
-    return float(np.sqrt(max(variance, 0.0))) / alone.state.camera(alone.problem, 0).fx
+    return float(np.sqrt(max(C[0, 0], 0.0))) / alone.state.camera(alone.problem, 0).fx
 
 
 def intrinsics_prior(setup: Setup, sol: Solution, rate: float = FALSE_ALARM_RATE) -> dict:
