@@ -32,12 +32,13 @@ import numpy as np
 from PIL import Image, TiffImagePlugin
 
 from ..files.io import encode_jpeg, write_bytes_atomic
+from ..files.photos import Photo
 from ..geometry.camera import equivalent_focal_35mm
 from ..files.roll import camera_class
+from .synth import make_truth, true_corners
 
-__all__ = ["CROP_FACTOR", "ScriptedShot", "Shooting", "equivalent_focal_of", "shared_size_rig", "shooting_script",
-           "roll_without_exif",
-           "strip_exif", "write_camera_roll"]
+__all__ = ["CROP_FACTOR", "ScriptedShot", "Shooting", "equivalent_focal_of", "roll_without_exif", "shared_size_rig",
+           "shooting_script", "strip_exif", "write_camera_roll"]
 
 #: A phone sensor's crop factor by camera class (an iPhone's ultra-wide 2.2 mm is 13 mm equivalent, its
 #: main camera 6.9 mm 24 mm, its tele 9 mm 77 mm): it sets only EXIF's focal length in mm.
@@ -195,9 +196,6 @@ def roll_without_exif(focal_px: dict[str, float], fisheye: tuple[str, ...], seed
     headers (:class:`dualcal.files.photos.Photo`, no metadata), their corners by path (the truth's with ``noise_px``
     of noise; None where the photo shows no whole board) and each photo's true camera by file name (None: no
     board)."""
-    from ..files.photos import Photo
-    from .synth import make_truth, true_corners
-
     truth = make_truth(shared_size_rig(focal_px, fisheye), views=views, seed=seed, scale=0.25)
     rng = np.random.default_rng(seed)
     corners = true_corners(truth)
