@@ -162,7 +162,8 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=12, help="draws per synthetic rig")
     ap.add_argument("--splits", type=int, default=30, help="split-half splits per real set")
     args = ap.parse_args()
-    synthetic(args.draws)
+    if args.draws:                         # --draws 0: the real sets alone
+        synthetic(args.draws)
     found = real(args.splits)
     if "opencv-samples-stereo" in found:
         stereo_lengths(found["opencv-samples-stereo"])
