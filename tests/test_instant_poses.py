@@ -38,14 +38,28 @@ def test_the_deviation_jacobian_is_the_finite_difference():
     P_y = Pose(rotation_from_rotvec(rng.normal(0, 0.3, 3)), rng.normal(0, 100, 3) + [0, 0, 600])
     R = P_y.R @ P_x.R.T
     R_J, t_J = rotation_from_rotvec(rng.normal(0, 1e-3, 3)) @ R, P_y.t_mm - R @ P_x.t_mm + rng.normal(0, 0.3, 3)
-    d0, J = relation_deviation(P_x, P_y, R_J, t_J)
+    d0, J = relation_deviation(P_x.R, P_x.t_mm, P_y.R, P_y.t_mm, R_J, t_J)
     step = 1e-6
     for k in range(12):
         h = np.zeros(12)
         h[k] = step
         moved = [Pose(rotated(P.R, h[6 * i:6 * i + 3]), P.t_mm + h[6 * i + 3:6 * i + 6]) for i, P in enumerate((P_x, P_y))]
-        d1, _ = relation_deviation(*moved, R_J, t_J)
+        d1, _ = relation_deviation(moved[0].R, moved[0].t_mm, moved[1].R, moved[1].t_mm, R_J, t_J)
         np.testing.assert_allclose((d1 - d0) / step, J[:, k], rtol=0, atol=2e-3 * max(1.0, np.abs(J[:, k]).max()))
+
+
+def test_the_deviations_of_a_stack_of_instants_are_each_instants():
+    """Instants stacked give each instant's deviation and Jacobian, as one at a time (the loop check's batch)."""
+    rng = np.random.default_rng(1)
+    Rs = rotation_from_rotvec(rng.normal(0, 0.3, (2, 5, 3)))
+    ts = rng.normal(0, 100, (2, 5, 3)) + [0, 0, 600]
+    R_J, t_J = rotation_from_rotvec(rng.normal(0, 0.3, 3)), rng.normal(0, 50, 3)
+    D, J = relation_deviation(Rs[0], ts[0], Rs[1], ts[1], R_J, t_J)
+    assert D.shape == (5, 6) and J.shape == (5, 6, 12)
+    for i in range(5):
+        d, Ji = relation_deviation(Rs[0, i], ts[0, i], Rs[1, i], ts[1, i], R_J, t_J)
+        np.testing.assert_allclose(D[i], d, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(J[i], Ji, rtol=0, atol=1e-12)
 
 
 def test_an_instants_tie_cost_against_the_others_is_near_a_chi_square(monkeypatch):

@@ -51,6 +51,12 @@ def test_inverse_blocks_are_those_of_the_dense_inverse(problem):
     pick = np.array([0, 3, G, G + 2, G + 2 * L, G + 3 * L + 1])       # globals, locals of 3 instants
     where = np.searchsorted(cols, pick)
     np.testing.assert_allclose(ne.factor().inverse_block(pick), Q[np.ix_(where, where)], rtol=1e-9, atol=1e-12)
+    # in a batch, a row of columns per photo: the globals and one instant's locals (any order)
+    rows = np.array([[0, 3, G, G + 2], [G + 3 * L + 2, 1, G + 3 * L, 4], [2, 0, G + L + 1, G + L]])
+    batch = ne.factor().inverse_blocks(rows)
+    for row, block in zip(rows, batch):
+        where = np.searchsorted(cols, row)
+        np.testing.assert_allclose(block, Q[np.ix_(where, where)], rtol=1e-9, atol=1e-12)
 
 
 def test_second_order_terms_enter_the_steps_only_when_asked(problem):

@@ -45,16 +45,18 @@ def pose_columns(sol: Solution, view: str, c: int) -> np.ndarray:
     return lay.local_columns(sol.problem.view_index[view], lay.pose[c])
 
 
-def relation_deviation(P_x, P_y, R_J: np.ndarray, t_J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The deviation ``d`` (6,) of the relative pose of board poses ``P_x`` -> ``P_y`` from ``(R_J, t_J)`` and its
-    Jacobian (6, 12) by the two poses' increments ``(a_x, b_x, a_y, b_y)`` (module docstring)."""
-    R = P_y.R @ P_x.R.T
-    t = P_y.t_mm - R @ P_x.t_mm
-    K = cross_matrix(R @ P_x.t_mm)
-    J = np.zeros((6, 12))
-    J[:3, :3], J[:3, 6:9] = -R, np.eye(3)
-    J[3:, :3], J[3:, 3:6], J[3:, 6:9], J[3:, 9:] = -K @ R, -R, K, np.eye(3)
-    return np.concatenate([rotvec_from_rotation(R @ R_J.T), t - t_J]), J
+def relation_deviation(R_x: np.ndarray, t_x: np.ndarray, R_y: np.ndarray, t_y: np.ndarray, R_J: np.ndarray,
+                       t_J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The deviation ``d`` (..., 6) of the relative pose of board poses ``(R_x, t_x)`` -> ``(R_y, t_y)`` (stacks
+    (..., 3, 3) and (..., 3) of the instants) from ``(R_J, t_J)`` and its Jacobian (..., 6, 12) by the two poses'
+    increments ``(a_x, b_x, a_y, b_y)`` (module docstring)."""
+    R = R_y @ np.swapaxes(R_x, -1, -2)
+    Rt_x = np.einsum("...ij,...j->...i", R, t_x)
+    K = cross_matrix(Rt_x)
+    J = np.zeros(R.shape[:-2] + (6, 12))
+    J[..., :3, :3], J[..., :3, 6:9] = -R, np.eye(3)
+    J[..., 3:, :3], J[..., 3:, 3:6], J[..., 3:, 6:9], J[..., 3:, 9:] = -K @ R, -R, K, np.eye(3)
+    return np.concatenate([rotvec_from_rotation(R @ R_J.T), t_y - Rt_x - t_J], axis=-1), J
 
 
 @dataclass(frozen=True)
@@ -124,7 +126,8 @@ def instant_relations(tied: Solution, alone: Solution) -> InstantRelations:
         for i, c in enumerate(cams):
             R_J = tied.state.rig_R[c]
             t_J = tied.state.rig_t[c] if per == 6 else np.zeros(3)
-            d, Jc = relation_deviation(poses[(ref, view)], poses[(c, view)], R_J, t_J)
+            P_x, P_y = poses[(ref, view)], poses[(c, view)]
+            d, Jc = relation_deviation(P_x.R, P_x.t_mm, P_y.R, P_y.t_mm, R_J, t_J)
             if per == 4:                                   # the paper's model: the baseline's length alone
                 t = d[3:]
                 u = t / np.linalg.norm(t)

@@ -81,7 +81,7 @@ def _relation(sol: Solution, c: int):
 def _joint_relation(tied: Solution, x: int, y: int, kappa2: float):
     """The joint relation of ``y`` to ``x`` (``R``, ``t``) and its covariance (6, 6) in photo-level noise."""
     (P_x, J_x, cols_x), (P_y, J_y, cols_y) = _relation(tied, x), _relation(tied, y)
-    _, J = relation_deviation(P_x, P_y, np.eye(3), np.zeros(3))
+    _, J = relation_deviation(P_x.R, P_x.t_mm, P_y.R, P_y.t_mm, np.eye(3), np.zeros(3))
     cols = np.unique(np.concatenate([cols_x, cols_y]))
     L = np.zeros((12, len(cols)))
     L[:6, np.searchsorted(cols, cols_x)] = J_x
@@ -96,13 +96,13 @@ def _scatter(D: np.ndarray, cov: np.ndarray, keep: np.ndarray):
     joint covariance ``cov`` (6n, 6n), its covariance, and their scatter about it (a chi-square of ``6 (k - 1)``
     degrees of freedom for ``k`` instants kept)."""
     rows = np.repeat(keep, 6)
-    W = np.linalg.inv(cov[np.ix_(rows, rows)])
     d = D[keep].ravel()
     A = np.tile(np.eye(6), (int(keep.sum()), 1))
-    cov_e = np.linalg.inv(A.T @ W @ A)
-    e = cov_e @ (A.T @ W @ d)
-    r = d - A @ e
-    return e, cov_e, float(r @ W @ r)
+    WA_Wd = np.linalg.solve(cov[np.ix_(rows, rows)], np.column_stack([A, d]))     # cov^-1 [A d]
+    WA, Wd = WA_Wd[:, :6], WA_Wd[:, 6]
+    cov_e = np.linalg.inv(A.T @ WA)
+    e = cov_e @ (A.T @ Wd)
+    return e, cov_e, float((d - A @ e) @ (Wd - WA @ e))
 
 
 def _deviations(tied: Solution, alone: Solution, x: int, y: int, views: list[str], kappa2: float):
@@ -112,9 +112,9 @@ def _deviations(tied: Solution, alone: Solution, x: int, y: int, views: list[str
     R_J, t_J, cov_J = _joint_relation(tied, x, y, kappa2)
     poses = alone.photo_poses
     n = len(views)
-    D, J = np.zeros((n, 6)), np.zeros((n, 6, 12))
-    for i, v in enumerate(views):
-        D[i], J[i] = relation_deviation(poses[(x, v)], poses[(y, v)], R_J, t_J)
+    P_x, P_y = [poses[(x, v)] for v in views], [poses[(y, v)] for v in views]
+    D, J = relation_deviation(np.array([P.R for P in P_x]), np.array([P.t_mm for P in P_x]),
+                              np.array([P.R for P in P_y]), np.array([P.t_mm for P in P_y]), R_J, t_J)
     columns = np.concatenate([np.concatenate([pose_columns(alone, v, x), pose_columns(alone, v, y)]) for v in views])
     C = alone.covariance(columns, "formal").reshape(n, 12, n, 12)
     return D, kappa2 * np.einsum("aij,ajbk,blk->aibl", J, C, J, optimize=True), cov_J     # J block-diagonal

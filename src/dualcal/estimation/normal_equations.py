@@ -188,15 +188,15 @@ class Factorization:
         return np.linalg.solve(self.chol_S.T, np.linalg.solve(self.chol_S, b))
 
     def global_combination(self, columns: np.ndarray) -> np.ndarray:
-        """(k, G): each flat parameter of ``columns`` (k,) as the combination of globals through which a step
-        of the globals moves it once the locals are fitted again: ``e_g`` for a global, ``-W_v[j]`` for
+        """(..., k, G): each flat parameter of ``columns`` (..., k) as the combination of globals through which a
+        step of the globals moves it once the locals are fitted again: ``e_g`` for a global, ``-W_v[j]`` for
         local ``j`` of instant ``v``."""
         columns = np.asarray(columns, int)
         G, L = self.ne.n_global, self.ne.ll.shape[1]
         is_local = columns >= G
         v, j = np.divmod(columns - G, L)
-        E = np.zeros((len(columns), G))
-        E[np.flatnonzero(~is_local), columns[~is_local]] = 1.0
+        E = np.zeros(columns.shape + (G,))
+        E[(*np.nonzero(~is_local), columns[~is_local])] = 1.0
         E[is_local] = -self.W[v[is_local], j[is_local]]
         return E
 
@@ -212,9 +212,22 @@ class Factorization:
         out = E @ self.global_inverse() @ E.T
         v, j = np.divmod(columns - G, L)
         loc = np.flatnonzero(columns >= G)
-        same = v[loc][:, None] == v[loc][None, :]
-        out[np.ix_(loc, loc)] += np.where(same, self.ll_inv[v[loc][:, None], j[loc][:, None], j[loc][None, :]], 0.0)
+        for instant in np.unique(v[loc]):                   # the locals' own blocks, instant by instant
+            at = loc[v[loc] == instant]
+            out[np.ix_(at, at)] += self.ll_inv[instant][np.ix_(j[at], j[at])]
         return out
+
+    def inverse_blocks(self, columns: np.ndarray) -> np.ndarray:
+        """:meth:`inverse_block` of each row of ``columns`` (B, k), (B, k, k) in one batch (rows of few columns:
+        a photo's)."""
+        columns = np.asarray(columns, int)
+        G, L = self.ne.n_global, self.ne.ll.shape[1]
+        E = self.global_combination(columns)
+        out = E @ self.global_inverse() @ np.swapaxes(E, 1, 2)
+        is_local = columns >= G
+        v, j = np.divmod(np.where(is_local, columns - G, 0), L)
+        same = is_local[:, :, None] & is_local[:, None, :] & (v[:, :, None] == v[:, None, :])
+        return out + np.where(same, self.ll_inv[v[:, :, None], j[:, :, None], j[:, None, :]], 0.0)
 
 
 def _diag_embed(d: np.ndarray) -> np.ndarray:

@@ -212,15 +212,33 @@ def rough_residuals(sol: Solution, factor: float | None) -> tuple[np.ndarray, np
 
 
 def _degrees_of_freedom(sol: Solution, fit: np.ndarray, basis: np.ndarray) -> np.ndarray:
-    """(n_blocks,) ``tr((I - P)(I - H))`` of every photo over its corners ``fit`` (:func:`rough_residuals`)."""
+    """(n_blocks,) ``tr((I - P)(I - H))`` of every photo over its corners ``fit`` (:func:`rough_residuals`).
+
+    With ``H = J C J^T`` (``J`` the photo's rows of those corners, ``C`` its columns' block of the inverse normal
+    matrix) and ``P = A (A^T A)^-1 A^T`` the projection on its smooth terms ``A`` (the same for ``u`` and ``v``),
+    the trace is ``2 m - 2 t - <C, J^T J - sum_c (A^T J_c)^T (A^T A)^-1 A^T J_c>`` (``m`` corners, ``t`` terms,
+    ``c`` the ``u`` rows and the ``v`` rows): no ``2m x 2m`` matrix, and the photos of one shape in one batch."""
+    rows = photo_rows(sol.problem, sol.state)
+    measured = np.isfinite(sol.residuals[..., 0])
+    n, terms = fit.sum(axis=1), _terms(fit.sum(axis=1))
+    shapes: dict[tuple[int, int], list[int]] = {}
+    for b, pr in enumerate(rows):
+        shapes.setdefault((len(pr.columns), int(terms[b])), []).append(b)
     nu = np.empty(len(fit))
-    for b, rows in enumerate(photo_rows(sol.problem, sol.state)):
-        keep = fit[b][np.isfinite(sol.residuals[b, :, 0])]              # of the measured corners, those fitted
-        J = rows.J[np.repeat(keep, 2)]
-        H = J @ sol.factorization.inverse_block(rows.columns) @ J.T   # corner by corner, u then v
-        A = basis[fit[b], :_terms(keep.sum())]
-        P = A @ np.linalg.solve(A.T @ A + 1e-12 * np.eye(A.shape[1]), A.T)
-        nu[b] = 2 * keep.sum() - 2 * A.shape[1] - np.trace(H) + np.sum(P * H[0::2, 0::2]) + np.sum(P * H[1::2, 1::2])
+    for (k, t), blocks in shapes.items():
+        J = np.zeros((len(blocks), fit.shape[1], 2, k))             # corner by corner, u then v
+        for i, b in enumerate(blocks):
+            J[i, measured[b]] = rows[b].J.reshape(-1, 2, k)
+        on = fit[blocks].astype(float)
+        J *= on[..., None, None]
+        A = basis[None, :, :t] * on[..., None]
+        AtA = np.swapaxes(A, 1, 2) @ A + 1e-12 * np.eye(t)
+        AtJ = np.swapaxes((np.swapaxes(A, 1, 2) @ J.reshape(len(blocks), -1, 2 * k)).reshape(-1, t, 2, k), 1, 2)
+        smooth = (np.swapaxes(AtJ.reshape(len(blocks), 2 * t, k), 1, 2)
+                  @ np.linalg.solve(AtA[:, None], AtJ).reshape(len(blocks), 2 * t, k))     # summed over u, v
+        J = J.reshape(len(blocks), -1, k)
+        C = sol.factorization.inverse_blocks(np.array([rows[b].columns for b in blocks]))
+        nu[blocks] = 2 * n[blocks] - 2 * t - np.sum(C * (np.swapaxes(J, 1, 2) @ J - smooth), axis=(1, 2))
     return np.maximum(nu, 1.0)
 
 

@@ -29,7 +29,6 @@ photo itself, and several photos of one lens can tell their principal point toge
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -143,61 +142,72 @@ def division_homography(xy_board: np.ndarray, uv: np.ndarray, image_size) -> tup
     return Hs[i], float(grid[i]), float(misfit[i])
 
 
-def _summed_squares(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lam: float, image_size) -> float:
-    """The squared residuals of every view's homography (``uvs`` (V, N, 2), ``seen`` (V, N)) with the corners
-    undistorted by ``lam``, summed, each view's scaled back to its distorted pixels."""
-    pts = np.where(seen[..., None], undistort_division(np.where(seen[..., None], uvs, 0.0), lam, image_size), 0.0)
-    Hs = np.array(estimate_homographies(xy, pts, seen, refine=False))
-    q = np.einsum("vij,nj->vni", Hs, np.column_stack([xy, np.ones(len(xy))]))
-    residual = np.where(seen, np.sum((q[..., :2] / q[..., 2:] - pts) ** 2, axis=2), 0.0)
+def _summed_squares(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lams: np.ndarray, image_size) -> np.ndarray:
+    """For each of ``lams`` (L,), the squared residuals of every view's homography (``uvs`` (V, N, 2), ``seen``
+    (V, N)) with the corners undistorted by it, summed, each view's scaled back to its distorted pixels: (L,), the
+    L x V homographies in one batch."""
+    L, (V, N) = len(lams), seen.shape
+    c, s = _centre_and_scale(image_size)
+    d = np.where(seen[..., None], uvs, c) - c                                              # (V, N, 2)
+    pts = c + d / (1.0 + lams[:, None, None, None] * np.sum(d * d, axis=-1, keepdims=True) / s**2)   # (L, V, N, 2)
+    on = np.broadcast_to(seen, (L, V, N))
+    Hs = np.array(estimate_homographies(xy, pts.reshape(L * V, N, 2), on.reshape(L * V, N), refine=False))
+    q = np.einsum("kij,nj->kni", Hs, np.column_stack([xy, np.ones(len(xy))])).reshape(L, V, N, 3)
+    residual = np.where(on, np.sum((q[..., :2] / q[..., 2:] - pts) ** 2, axis=-1), 0.0)
     n = seen.sum(axis=1)
 
     def spread(p):
-        mean = np.where(seen[..., None], p, 0.0).sum(axis=1) / n[:, None]
-        return np.sqrt(np.where(seen, np.sum((p - mean[:, None]) ** 2, axis=2), 0.0).sum(axis=1))
+        mean = np.where(on[..., None], p, 0.0).sum(axis=-2) / n[:, None]
+        return np.sqrt(np.where(on, np.sum((p - mean[..., None, :]) ** 2, axis=-1), 0.0).sum(axis=-1))
 
-    magnification = spread(pts) / spread(np.where(seen[..., None], uvs, 0.0))
-    return float(np.sum(residual.sum(axis=1) / magnification**2))
+    magnification = spread(pts) / spread(np.broadcast_to(d, pts.shape))            # (L, V)
+    return np.sum(residual.sum(axis=-1) / magnification**2, axis=1)
 
 
 #: :func:`common_division` looks at this many views at most: those whose corners reach furthest from the image's
 #: centre, where a lens bends the board's image most (its cost grows with the views, the division model's fit does
 #: not: a calibration's start is all it gives).
 DIVISION_VIEWS = 20
+#: :func:`common_division` refines its grid's best ``lam`` by this many steps of successive parabolic interpolation
+#: (the vertex of the parabola through the best point and its neighbours), where the summed squares are smooth.
+DIVISION_PARABOLAS = 3
 
 
 def common_division(xy_board: np.ndarray, uvs, image_size) -> float:
     """The division model's ``lam`` that fits the homographies of several views of one camera best together
-    (their summed squared residuals; grids refined as in :func:`division_homography`): the views whose board
-    lies near the image's edge fix it for those near its centre. ``uvs``: (N, 2) pixels per view, NaN rows
-    for corners not measured; without any view, 0. Of more than :data:`DIVISION_VIEWS` views, those whose corners
-    reach furthest from the image's centre. (Memoised on the values: a calibration asks it of the same photos for
-    its lens models' candidates and for its start.)"""
+    (their summed squared residuals: the best of a grid, refined by :data:`DIVISION_PARABOLAS` parabolas): the
+    views whose board lies near the image's edge fix it for those near its centre. ``uvs``: (N, 2) pixels per
+    view, NaN rows for corners not measured; without any view, 0. Of more than :data:`DIVISION_VIEWS` views,
+    those whose corners reach furthest from the image's centre."""
     if len(uvs) == 0:
         return 0.0
-    xy = np.ascontiguousarray(xy_board, float)
-    uvs = np.asarray(uvs, float).reshape(-1, len(xy), 2)
+    xy_board = np.asarray(xy_board, float)
+    uvs = np.asarray(uvs, float).reshape(-1, len(xy_board), 2)
     if len(uvs) > DIVISION_VIEWS:          # those whose corners reach furthest from the centre fix lam
         centre = 0.5 * (np.asarray(image_size, float) - 1.0)
         reach = np.nanmax(np.linalg.norm(uvs - centre, axis=2), axis=1)
         uvs = uvs[np.sort(np.argsort(-np.nan_to_num(reach, nan=-1.0), kind="stable")[:DIVISION_VIEWS])]
-    uvs = np.ascontiguousarray(uvs)
-    return _common_division(xy.tobytes(), xy.shape, uvs.tobytes(), uvs.shape, tuple(int(s) for s in image_size))
-
-
-@functools.lru_cache(maxsize=32)
-def _common_division(xy_bytes: bytes, xy_shape, uvs_bytes: bytes, uvs_shape, image_size) -> float:
-    """:func:`common_division` of arrays given by their bytes and shapes (hashable, so that it can be memoised)."""
-    xy_board = np.frombuffer(xy_bytes).reshape(xy_shape)
-    uvs = np.frombuffer(uvs_bytes).reshape(uvs_shape)
     seen = observed_mask(uvs)
-    lo, hi = LAMBDA_RANGE
-    for _ in range(3):
-        grid = np.linspace(lo, hi, 11)
-        cost = [_summed_squares(xy_board, uvs, seen, lam, image_size) for lam in grid]
-        i = int(np.argmin(cost))
-        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    return float(grid[i])
+    grid = np.linspace(*LAMBDA_RANGE, 11)
+    cost = _summed_squares(xy_board, uvs, seen, grid, image_size)
+    i = int(np.argmin(cost))
+    if i in (0, len(grid) - 1):              # at the range's end
+        return float(grid[i])
+    bracket = [(grid[j], cost[j]) for j in (i - 1, i, i + 1)]
+    for _ in range(DIVISION_PARABOLAS):
+        (a, fa), (b, fb), (c, fc) = bracket
+        curvature = (b - a) * (fb - fc) - (b - c) * (fb - fa)
+        if not curvature < 0:                # flat, or not a minimum's shape: the grid's best stands
+            break
+        x = b - 0.5 * ((b - a) ** 2 * (fb - fc) - (b - c) ** 2 * (fb - fa)) / curvature
+        if not a < x < c or x == b:
+            break
+        (fx,) = _summed_squares(xy_board, uvs, seen, np.array([x]), image_size)
+        if fx < fb:                          # x the new best, between b and the bracket's end on its side
+            bracket = [(a, fa), (x, fx), (b, fb)] if x < b else [(b, fb), (x, fx), (c, fc)]
+        else:                                # b still the best: the bracket closes in from x's side
+            bracket = [(x, fx), (b, fb), (c, fc)] if x < b else [(a, fa), (b, fb), (x, fx)]
+    return float(bracket[1][0])
 
 
 def focal_from_homography(H: np.ndarray, image_size) -> float:

@@ -25,6 +25,7 @@ each view uses the corners it has, at least :data:`MIN_HOMOGRAPHY_CORNERS` not o
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -427,8 +428,10 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
 
     ``views[k]`` is (N, 2), NaN rows for corners not measured; every view needs at least
     :data:`MIN_HOMOGRAPHY_CORNERS` corners not on one line (``dualcal.estimation.calibrate`` skips the others).
-    Returns ``(CameraModel, {view: Pose})``: homographies (section 1.3), closed-form intrinsics
-    (1.4), one pose per view (1.5), then the lens by linear least squares (1.6). The closed form
+    Returns ``(CameraModel, {view: Pose})``: homographies (section 1.3; the normalised DLT's, not refined on
+    the pixel error: a start, which the adjustment refines, and the closed form that :func:`closed_form_camera`
+    gives, computed once), closed-form intrinsics (1.4), one pose per view (1.5), then the lens by linear least
+    squares (1.6). The closed form
     weighs each view by its homography's redundancy (``sqrt(2 n - 8)`` for n corners: one of 4
     corners has none, and no say; unweighted, a single such view of a narrow lens that sees
     small parts of the board was seen to make fx 790 px for a true 6059).
@@ -455,7 +458,7 @@ def initial_camera(xy_board: np.ndarray, views: dict, image_size, skew: bool = F
         return initial_fisheye_camera(xy_board, views, image_size, skew, model, name)
     keys = sorted(views)
     seen = [observed_mask(views[k]) for k in keys]
-    start = _closed_form(xy_board, [views[k] for k in keys], seen, image_size, skew, name=name)
+    start = _closed_form(xy_board, [views[k] for k in keys], seen, image_size, skew, refine=False, name=name)
     coefficients = radial_distortion_linear(start.camera, start.poses, xy_board, [views[k] for k in keys], model)
     cam = replace(start.camera, model=model, **dict(zip(LENS_MODELS[model], coefficients)))
     cam = _admissible_distortion(cam, [views[k][m] for k, m in zip(keys, seen)])
@@ -566,16 +569,41 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
     truth and less at 1.2 px of noise on caliscope's webcams), where the constrained one, with three unknowns
     less, holds.
 
+    Memoised on the values (a calibration asks it of each camera's photos for its lens models' candidates and for
+    its start; the homographies returned are shared, not to be changed in place).
+
     Raises
     ------
     EstimationError
         No view fixes a homography, the views' perspective is within their corners' noise (:func:`perspective_z`:
         the photos fix no focal length), or neither closed form gives a camera.
     """
+    xy = np.ascontiguousarray(xy_board, float)
+    uv = np.ascontiguousarray(np.reshape(np.asarray(uvs, float), (len(uvs), len(xy), 2)))
+    on = np.ascontiguousarray(np.reshape(np.asarray(seen, bool), (len(seen), len(xy))))
+    return _memoised_intrinsics(xy.tobytes(), len(xy), uv.tobytes(), on.tobytes(), tuple(int(s) for s in image_size),
+                                bool(skew), bool(refine), name, bool(division), bool(jackknife))
+
+
+#: Up to this many closed forms are memoised: a calibration's cameras', and a fisheye's search's rounds between.
+_MEMOISED_CLOSED_FORMS = 64
+
+
+@functools.lru_cache(maxsize=_MEMOISED_CLOSED_FORMS)
+def _memoised_intrinsics(xy_bytes: bytes, n: int, uv_bytes: bytes, seen_bytes: bytes, image_size, skew: bool,
+                         refine: bool, name: str | None, division: bool, jackknife: bool):
+    """:func:`_closed_form_intrinsics` of arrays given by their bytes (hashable, so that it can be memoised)."""
     from .one_view import common_division, undistort_division    # one_view builds on this module
 
+    xy_board = np.frombuffer(xy_bytes).reshape(n, 2)
+    uvs = np.frombuffer(uv_bytes).reshape(-1, n, 2)
+    seen = np.frombuffer(seen_bytes, bool).reshape(-1, n)
     who = _subject(name, image_size, len(uvs))
-    fixing = [i for i, m in enumerate(seen) if fixes_homography(xy_board[m])]
+    fixes: dict[bytes, bool] = {}                   # views that see the same corners share the answer
+    for m in seen:
+        if m.tobytes() not in fixes:
+            fixes[m.tobytes()] = fixes_homography(xy_board[m])
+    fixing = [i for i, m in enumerate(seen) if fixes[m.tobytes()]]
     if not fixing:
         raise EstimationError(f"{who}: no photo's corners fix a homography (at least four corners, no three of "
                               "them on one line); take photos where more of the board is seen")
