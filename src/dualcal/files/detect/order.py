@@ -325,6 +325,8 @@ def filled_grid(uv: np.ndarray, coarse_uv: np.ndarray, board: Board) -> np.ndarr
     g = np.array(uv, float)
     while True:
         missing = ~np.all(np.isfinite(g), axis=1)
+        if not missing.any():
+            break
         pred = predict_from_neighbours(g, shape)[0]
         fill = missing & np.all(np.isfinite(pred), axis=1)
         if not fill.any():

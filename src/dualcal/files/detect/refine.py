@@ -515,6 +515,8 @@ def measure_grid(img: np.ndarray, coarse_uv: np.ndarray, grid_shape: tuple[int, 
     uv = drop_outliers(np.where(refined.ok[:, None], refined.uv, np.nan), grid_shape, spacing)
     retried = np.zeros(len(uv), bool)
     for _ in range(RETRY_ROUNDS):
+        if not (refined.tried & ~retried & ~np.all(np.isfinite(uv), axis=1)).any():     # none to retry
+            break
         pred, gain = predict_from_neighbours(uv, grid_shape)
         retry = refined.tried & ~retried & ~np.all(np.isfinite(uv), axis=1) & np.all(np.isfinite(pred), axis=1)
         if not retry.any():
