@@ -58,7 +58,7 @@ from dualcal.files.detect.charuco import opencv_board
 from dualcal.geometry.model import CameraCorners, CornerSet, Pose, observed_mask
 from dualcal.synthetic.render import photo_seed, render_view
 from dualcal.synthetic.synth import make_truth, true_corners
-from dualcal.geometry.zhang import spans_a_plane
+from dualcal.geometry.homography import spans_a_plane
 
 BOARD = Board.charuco_board((11, 8), 25.0, 18.0, "DICT_5X5_100")
 SWAPS = [(5, 30), (30, 5), (17, 18), (18, 17)]

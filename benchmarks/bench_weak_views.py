@@ -27,7 +27,8 @@ from peer_sessions import WEBCAMS, peer_session, square_on_session  # noqa: E402
 
 from dualcal.errors import EstimationError  # noqa: E402
 from dualcal.geometry.model import observed_mask  # noqa: E402
-from dualcal.geometry.zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane  # noqa: E402
+from dualcal.geometry.homography import MIN_HOMOGRAPHY_CORNERS, spans_a_plane  # noqa: E402
+from dualcal.geometry.zhang import initial_camera  # noqa: E402
 from dualcal.progress import collect_warnings  # noqa: E402
 from dualcal.synthetic.synth import noisy_corner_set  # noqa: E402
 from dualcal.workflow import calibrate_corners  # noqa: E402

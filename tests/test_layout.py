@@ -88,6 +88,58 @@ def test_every_import_goes_down_the_layers():
     assert violations(PACKAGE_DIR) == []
 
 
+def import_circles(package_dir: Path) -> list[list[str]]:
+    """The circles of imports among the library's modules (lazy imports inside functions too), each as its sorted
+    modules: the strongly connected components of more than one module (Tarjan's). The commands (``cli``), which
+    register themselves on their package, and the package's API table are left out."""
+    graph = {}
+    for path in sorted(package_dir.rglob("*.py")):
+        module, is_package = module_name(path, package_dir)
+        if place(module) not in ("cli", "package"):
+            graph[module] = {t for t in imported_modules(path.read_text(encoding="utf-8"), module, is_package,
+                                                         package_dir) if t != module}
+    index, low, stack, on_stack, circles = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v] & graph.keys()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while not component or component[-1] != v:
+                component.append(stack.pop())
+                on_stack.discard(component[-1])
+            if len(component) > 1:
+                circles.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return circles
+
+
+def test_no_module_imports_one_that_imports_it_back():
+    """Issue 41: no import circle, lazy imports included (a function-level import that dodges a circle is one)."""
+    assert import_circles(PACKAGE_DIR) == []
+
+
+def test_the_circle_check_finds_a_lazy_circle(tmp_path):
+    """The check can fail: two modules of one layer, one importing the other inside a function."""
+    layer = LAYERS[0]
+    files = {"__init__.py": "", f"{layer}/__init__.py": "", f"{layer}/a.py": "from .b import f\n",
+             f"{layer}/b.py": "def f():\n    from .a import g\n", f"{layer}/c.py": "from .a import f\n"}
+    for name, text in files.items():
+        (tmp_path / "dualcal" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "dualcal" / name).write_text(text)
+    assert import_circles(tmp_path / "dualcal") == [[f"dualcal.{layer}.a", f"dualcal.{layer}.b"]]
+
+
 def test_every_sub_package_of_dualcal_is_a_layer_or_above_them():
     """The layers, and above them the commands (``cli``) and the web app (``app``, which no layer imports)."""
     sub_packages = {p.name for p in PACKAGE_DIR.iterdir() if (p / "__init__.py").is_file()}

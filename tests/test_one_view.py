@@ -4,9 +4,9 @@ its lens with its sigmas (view_lens), honest where the principal point is known,
 import numpy as np
 import pytest
 
-from dualcal.geometry.one_view import (PRINCIPAL_POINT_SIGMA, board_pose, common_division, focal_from_homography,
-                                       one_view, undistort_division, view_lens)
-from dualcal.geometry.zhang import estimate_homography
+from dualcal.geometry.division import common_division, undistort_division
+from dualcal.geometry.homography import estimate_homography
+from dualcal.geometry.one_view import PRINCIPAL_POINT_SIGMA, board_pose, focal_from_homography, one_view, view_lens
 from dualcal.synthetic import synth
 
 

@@ -15,10 +15,10 @@ from dualcal.progress import collect_warnings
 from dualcal.synthetic.synth import make_truth, noisy_corner_set, true_corners
 from dualcal.synthetic.synth_caliscope import CALISCOPE_BOARD, make_caliscope_truth, write_caliscope_session
 from dualcal.workflow import calibrate_corners
-from dualcal.geometry.zhang import (PERSPECTIVE_SIGNIFICANCE, apply_homography, estimate_homographies,
-                                    estimate_homography, extrinsics_from_homography, homography_covariances,
-                                    initial_camera, intrinsics_from_homographies, perspective_z,
-                                    radial_distortion_linear, spans_a_plane)
+from dualcal.geometry.homography import (apply_homography, estimate_homographies, estimate_homography,
+                                         homography_covariances, spans_a_plane)
+from dualcal.geometry.zhang import (PERSPECTIVE_SIGNIFICANCE, extrinsics_from_homography, initial_camera,
+                                    intrinsics_from_homographies, perspective_z, radial_distortion_linear)
 from peer_sessions import WEBCAMS, peer_session, square_on_session
 
 

@@ -33,14 +33,15 @@ from ..progress import warn
 from .rig_relations import parameter_covariance, rig_relation, shared_views
 from ..geometry.scale import relative_sigma, with_scale
 from ..geometry.resection import planar_pose
-from ..geometry.zhang import MIN_HOMOGRAPHY_CORNERS, initial_camera, spans_a_plane
+from ..geometry.homography import MIN_HOMOGRAPHY_CORNERS, spans_a_plane
+from ..geometry.zhang import initial_camera
 
 MIN_VIEWS = 3
 
 
 def unusable_reason(uv: np.ndarray, xy_board: np.ndarray) -> str | None:
     """Why a photo's measured corners cannot determine a homography (None if they can): fewer than
-    :data:`dualcal.geometry.zhang.MIN_HOMOGRAPHY_CORNERS`, or all on one line."""
+    :data:`dualcal.geometry.homography.MIN_HOMOGRAPHY_CORNERS`, or all on one line."""
     seen = observed_mask(uv)
     if seen.sum() >= MIN_HOMOGRAPHY_CORNERS and spans_a_plane(xy_board[seen]):
         return None

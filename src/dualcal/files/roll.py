@@ -57,7 +57,8 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.camera import equivalent_focal_35mm, focal_px_from_35mm
 from ..geometry.model import observed_mask
-from ..geometry.one_view import OneView, board_pixels, common_division, one_view, spread_px, view_lens
+from ..geometry.division import common_division
+from ..geometry.one_view import OneView, board_pixels, one_view, spread_px, view_lens
 from .photos import Photo
 from .roll_lenses import MIN_LENS_PHOTOS, SPLIT_SIGMA, LensSplit, find_lenses, lens_of, log_likelihoods, separations
 from .roll_positions import CERTAIN, MIN_MARGIN, SAME_IMAGE, Shot, image_change, split_positions
@@ -486,7 +487,7 @@ def _camera_focal_px(photos: list[Photo], facts: dict, views: dict) -> float:
 
 def _camera_views(cameras: dict[str, list[Photo]], corners_uv: dict, xy_board: np.ndarray) -> dict:
     """``{path: OneView or None}`` of every photo, with its camera's division model (fitted to all its photos
-    together, :func:`dualcal.geometry.one_view.common_division`)."""
+    together, :func:`dualcal.geometry.division.common_division`)."""
     views = {}
     for photos in cameras.values():
         shown = [p for p in photos if corners_uv.get(p.path) is not None]

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..estimation.distributions import chi2_quantile
-from ..geometry.one_view import LAMBDA_RANGE, PRINCIPAL_POINT_SIGMA
+from ..geometry.division import LAMBDA_RANGE
+from ..geometry.one_view import PRINCIPAL_POINT_SIGMA
 
 __all__ = ["LENS_SPREAD", "MAX_GROUPING_SIGMA", "MIN_LENS_PHOTOS", "ONE_LENS_RATE", "SAME_LENS_SIGMA", "SPLIT_SIGMA",
            "TWO_LENSES_GAP", "Lens", "LensSplit", "gap_ratio", "find_lenses", "lens_of", "lens_points", "log_likelihoods",

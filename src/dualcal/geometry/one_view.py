@@ -13,9 +13,9 @@ point of a phone's camera lies within a few percent of the centre, which moves `
 factor of 1.5-3 between its lenses.
 
 Lens distortion bends the board's lines and biases that focal length (an ultra-wide's by half), so the
-homography is fitted to corners undistorted by the one-parameter division model (Fitzgibbon's),
-``u = c + (u_d - c) / (1 + lam r_d^2)`` with ``c`` the image centre and ``r_d`` the distance from it in
-half-diagonals, ``lam`` chosen to minimise the homography's misfit (:func:`division_homography`).
+homography is fitted to corners undistorted by the one-parameter division model (Fitzgibbon's,
+:mod:`dualcal.geometry.division`), its ``lam`` chosen to minimise the homography's misfit
+(:func:`dualcal.geometry.division.division_homography`).
 
 The focal length of one view is as good as the board's perspective is strong: a board seen square-on
 gives none. Its spread is measured, not modelled: the same computation on four interleaved quarters of
@@ -34,19 +34,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import EstimationError
+from .division import LAMBDA_RANGE, centre_and_scale, division_homography, division_misfits, undistort_division
+from .homography import MIN_HOMOGRAPHY_CORNERS, apply_homography, estimate_homographies
 from .model import Pose, observed_mask
-from .zhang import (MIN_HOMOGRAPHY_CORNERS, apply_homography, common_focal, estimate_homographies,
-                    extrinsics_from_homography)
+from .zhang import common_focal, extrinsics_from_homography
 
-__all__ = ["LENS_PARAMETERS", "OneView", "ViewLens", "board_pixels", "board_pose", "spread_px", "common_division",
-           "division_homography", "focal_from_homography", "one_view", "undistort_division", "view_lens"]
+__all__ = ["LENS_PARAMETERS", "OneView", "ViewLens", "board_pixels", "board_pose", "spread_px", "focal_from_homography",
+           "one_view", "view_lens"]
 
-#: The division model's coefficient is searched in this range (per squared half-diagonal); ``1 + lam r^2``
-#: stays positive over the image.
-LAMBDA_RANGE = (-0.9, 0.6)
-#: A division model is used where it lowers the homography's squared residuals by more than this many times their
-#: variance per coordinate (a chi-square of one degree of freedom at five sigma).
-LAMBDA_SIGNIFICANCE = 25.0
 #: The spread of one view's log focal length never counts as less than this (the principal point is not
 #: exactly at the centre, and the division model is not the lens).
 MIN_F_LOG_SIGMA = 0.03
@@ -57,7 +52,7 @@ class OneView:
     """One photo's board, alone.
 
     ``H`` (3, 3) maps board ``(X, Y)`` mm to pixels undistorted by the division model with ``lam``
-    (:func:`undistort_division`); ``H_quarters`` (4, 3, 3) the same from each interleaved quarter of the
+    (:func:`dualcal.geometry.division.undistort_division`); ``H_quarters`` (4, 3, 3) the same from each interleaved quarter of the
     corners (NaN where one cannot be had), whose spread measures what the view fixes; ``misfit_px`` is the
     RMS of the homography's residuals (in the photo's pixels); ``f_px`` the focal length the view gives
     (NaN where it gives none) and ``f_log_sigma`` the spread of its natural logarithm (inf where unknown);
@@ -87,129 +82,6 @@ def spread_px(points: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
 
 
-def _centre_and_scale(image_size) -> tuple[np.ndarray, float]:
-    w, h = image_size
-    return np.array([(w - 1) / 2.0, (h - 1) / 2.0]), 0.5 * float(np.hypot(w, h))
-
-
-def undistort_division(uv: np.ndarray, lam: float, image_size) -> np.ndarray:
-    """(N, 2) pixels undistorted by the division model ``u = c + (u_d - c) / (1 + lam r_d^2)`` (module docstring)."""
-    c, s = _centre_and_scale(image_size)
-    d = np.asarray(uv, float) - c
-    return c + d / (1.0 + lam * np.sum(d * d, axis=-1, keepdims=True) / s**2)
-
-
-def _misfits(xy: np.ndarray, uv: np.ndarray, lams: np.ndarray, image_size):
-    """The homographies of ``uv`` undistorted with each of ``lams``, and their misfits in distorted pixels."""
-    c, s = _centre_and_scale(image_size)
-    d = uv - c
-    pts = c + d / (1.0 + lams[:, None, None] * np.sum(d * d, axis=1)[None, :, None] / s**2)      # (L, N, 2)
-    Hs = np.array(estimate_homographies(xy, pts, np.ones(pts.shape[:2], bool), refine=False))
-    q = np.einsum("lij,nj->lni", Hs, np.column_stack([xy, np.ones(len(xy))]))
-    residual = np.sum((q[..., :2] / q[..., 2:] - pts) ** 2, axis=2)
-    # residuals in undistorted pixels, scaled back by the model's magnification of the board
-    spread = np.sqrt(np.sum((pts - pts.mean(axis=1, keepdims=True)) ** 2, axis=(1, 2)))
-    magnification = spread / np.linalg.norm(uv - uv.mean(axis=0))
-    return Hs, np.sqrt(residual.mean(axis=1)) / magnification
-
-
-def division_homography(xy_board: np.ndarray, uv: np.ndarray, image_size) -> tuple[np.ndarray, float, float]:
-    """The homography of a view's corners undistorted by the division model that fits them best.
-
-    Parameters
-    ----------
-    xy_board : (N, 2) board points, mm.
-    uv : (N, 2) their pixels (all measured).
-    image_size : (W, H).
-
-    Returns
-    -------
-    ``(H, lam, misfit_px)``: see :class:`OneView`. ``lam`` is found on a grid over :data:`LAMBDA_RANGE`, then on
-    two finer grids around the best point (to 0.2 % of the range); it is kept only where it lowers the squared
-    residuals by more than :data:`LAMBDA_SIGNIFICANCE` times their variance (a small board near the centre
-    does not fix it, and a wrong one turns the board's pose), else 0.
-    """
-    lo, hi = LAMBDA_RANGE
-    for _ in range(3):
-        grid = np.linspace(lo, hi, 11)
-        Hs, misfit = _misfits(xy_board, uv, grid, image_size)
-        i = int(np.argmin(misfit))
-        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    (H0,), (m0,) = _misfits(xy_board, uv, np.zeros(1), image_size)
-    variance = max(misfit[i], 1e-3) ** 2 / 2.0                # per coordinate
-    if len(uv) * (m0**2 - misfit[i] ** 2) < LAMBDA_SIGNIFICANCE * variance:
-        return H0, 0.0, float(m0)
-    return Hs[i], float(grid[i]), float(misfit[i])
-
-
-def _summed_squares(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lams: np.ndarray, image_size) -> np.ndarray:
-    """For each of ``lams`` (L,), the squared residuals of every view's homography (``uvs`` (V, N, 2), ``seen``
-    (V, N)) with the corners undistorted by it, summed, each view's scaled back to its distorted pixels: (L,), the
-    L x V homographies in one batch."""
-    L, (V, N) = len(lams), seen.shape
-    c, s = _centre_and_scale(image_size)
-    d = np.where(seen[..., None], uvs, c) - c                                              # (V, N, 2)
-    pts = c + d / (1.0 + lams[:, None, None, None] * np.sum(d * d, axis=-1, keepdims=True) / s**2)   # (L, V, N, 2)
-    on = np.broadcast_to(seen, (L, V, N))
-    Hs = np.array(estimate_homographies(xy, pts.reshape(L * V, N, 2), on.reshape(L * V, N), refine=False))
-    q = np.einsum("kij,nj->kni", Hs, np.column_stack([xy, np.ones(len(xy))])).reshape(L, V, N, 3)
-    residual = np.where(on, np.sum((q[..., :2] / q[..., 2:] - pts) ** 2, axis=-1), 0.0)
-    n = seen.sum(axis=1)
-
-    def spread(p):
-        mean = np.where(on[..., None], p, 0.0).sum(axis=-2) / n[:, None]
-        return np.sqrt(np.where(on, np.sum((p - mean[..., None, :]) ** 2, axis=-1), 0.0).sum(axis=-1))
-
-    magnification = spread(pts) / spread(np.broadcast_to(d, pts.shape))            # (L, V)
-    return np.sum(residual.sum(axis=-1) / magnification**2, axis=1)
-
-
-#: :func:`common_division` looks at this many views at most: those whose corners reach furthest from the image's
-#: centre, where a lens bends the board's image most (its cost grows with the views, the division model's fit does
-#: not: a calibration's start is all it gives).
-DIVISION_VIEWS = 20
-#: :func:`common_division` refines its grid's best ``lam`` by this many steps of successive parabolic interpolation
-#: (the vertex of the parabola through the best point and its neighbours), where the summed squares are smooth.
-DIVISION_PARABOLAS = 3
-
-
-def common_division(xy_board: np.ndarray, uvs, image_size) -> float:
-    """The division model's ``lam`` that fits the homographies of several views of one camera best together
-    (their summed squared residuals: the best of a grid, refined by :data:`DIVISION_PARABOLAS` parabolas): the
-    views whose board lies near the image's edge fix it for those near its centre. ``uvs``: (N, 2) pixels per
-    view, NaN rows for corners not measured; without any view, 0. Of more than :data:`DIVISION_VIEWS` views,
-    those whose corners reach furthest from the image's centre."""
-    if len(uvs) == 0:
-        return 0.0
-    xy_board = np.asarray(xy_board, float)
-    uvs = np.asarray(uvs, float).reshape(-1, len(xy_board), 2)
-    if len(uvs) > DIVISION_VIEWS:          # those whose corners reach furthest from the centre fix lam
-        centre = 0.5 * (np.asarray(image_size, float) - 1.0)
-        reach = np.nanmax(np.linalg.norm(uvs - centre, axis=2), axis=1)
-        uvs = uvs[np.sort(np.argsort(-np.nan_to_num(reach, nan=-1.0), kind="stable")[:DIVISION_VIEWS])]
-    seen = observed_mask(uvs)
-    grid = np.linspace(*LAMBDA_RANGE, 11)
-    cost = _summed_squares(xy_board, uvs, seen, grid, image_size)
-    i = int(np.argmin(cost))
-    if i in (0, len(grid) - 1):              # at the range's end
-        return float(grid[i])
-    bracket = [(grid[j], cost[j]) for j in (i - 1, i, i + 1)]
-    for _ in range(DIVISION_PARABOLAS):
-        (a, fa), (b, fb), (c, fc) = bracket
-        curvature = (b - a) * (fb - fc) - (b - c) * (fb - fa)
-        if not curvature < 0:                # flat, or not a minimum's shape: the grid's best stands
-            break
-        x = b - 0.5 * ((b - a) ** 2 * (fb - fc) - (b - c) ** 2 * (fb - fa)) / curvature
-        if not a < x < c or x == b:
-            break
-        (fx,) = _summed_squares(xy_board, uvs, seen, np.array([x]), image_size)
-        if fx < fb:                          # x the new best, between b and the bracket's end on its side
-            bracket = [(a, fa), (x, fx), (b, fb)] if x < b else [(b, fb), (x, fx), (c, fc)]
-        else:                                # b still the best: the bracket closes in from x's side
-            bracket = [(x, fx), (b, fb), (c, fc)] if x < b else [(a, fa), (b, fb), (x, fx)]
-    return float(bracket[1][0])
-
-
 def focal_from_homography(H: np.ndarray, image_size) -> float:
     """The focal length (pixels) that one view's homography gives a camera with square pixels, no skew
     and its principal point at the image centre (module docstring; :func:`dualcal.geometry.zhang.common_focal`
@@ -221,8 +93,8 @@ def focal_from_homography(H: np.ndarray, image_size) -> float:
 def one_view(xy_board: np.ndarray, uv: np.ndarray, image_size, lam: float | None = None) -> OneView | None:
     """What one photo's detected board tells alone (:class:`OneView`), or None with fewer than 8 corners.
 
-    ``lam``: the division model's coefficient, where it is known (:func:`common_division`); else the view's own
-    (:func:`division_homography`).
+    ``lam``: the division model's coefficient, where it is known (:func:`dualcal.geometry.division.common_division`); else the
+    view's own (:func:`dualcal.geometry.division.division_homography`).
 
     ``f_log_sigma`` is the standard deviation of the log focal lengths of four interleaved quarters of the
     corners (every other column of every other row: each a quarter as many corners, so their spread is
@@ -236,7 +108,7 @@ def one_view(xy_board: np.ndarray, uv: np.ndarray, image_size, lam: float | None
         if lam is None:
             H, lam, misfit = division_homography(xy, pts, image_size)
         else:
-            (H,), (misfit,) = _misfits(xy, pts, np.array([lam]), image_size)
+            (H,), (misfit,) = division_misfits(xy, pts, np.array([lam]), image_size)
     except EstimationError:
         return None
     f = focal_from_homography(H, image_size)
@@ -264,7 +136,7 @@ def one_view(xy_board: np.ndarray, uv: np.ndarray, image_size, lam: float | None
 def board_pose(view: OneView, f_px: float, H: np.ndarray | None = None) -> Pose:
     """The board-to-camera pose of a view for a camera of focal length ``f_px`` with its principal point at
     the image centre (paper section 1.5 on the view's homography, or on ``H``, one of its quarters')."""
-    c, _ = _centre_and_scale(view.image_size)
+    c, _ = centre_and_scale(view.image_size)
     K = np.array([[f_px, 0.0, c[0]], [0.0, f_px, c[1]], [0.0, 0.0, 1.0]])
     return extrinsics_from_homography(K, view.H if H is None else H)
 
@@ -374,7 +246,7 @@ def view_lens(xy_board: np.ndarray, uv: np.ndarray, image_size, start: OneView |
     start = start if start is not None else one_view(xy_board, uv, image_size)
     if start is None or seen.sum() < 2 * MIN_HOMOGRAPHY_CORNERS:
         return None
-    c, s = _centre_and_scale(image_size)
+    c, s = centre_and_scale(image_size)
     X = np.column_stack([np.asarray(xy_board, float)[seen], np.zeros(int(seen.sum()))])
     measured = np.asarray(uv, float)[seen]
     log_f_range = np.log(np.array(FOCAL_RANGE) * s)

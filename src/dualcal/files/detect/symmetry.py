@@ -47,7 +47,8 @@ def rough_rotations(board: Board, views: dict[str, np.ndarray], image_size) -> d
     the 180 that tell the two numberings apart. Only measured corners are used.
     """
     from ...geometry.camera import CameraModel
-    from ...geometry.zhang import estimate_homography, extrinsics_from_homography, intrinsics_from_homographies
+    from ...geometry.homography import estimate_homography
+    from ...geometry.zhang import extrinsics_from_homography, intrinsics_from_homographies
 
     xy = board.object_points_mm()[:, :2]
     Hs = {}
