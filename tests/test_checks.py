@@ -9,7 +9,7 @@ import pytest
 from dualcal.estimation.calibrate import calibrate_rig
 from dualcal.estimation.fitting import solve, usable_photos
 from dualcal.geometry.camera import project_points
-from dualcal.estimation.checks import failed_checks, lens_model_fit, verdict
+from dualcal.estimation.checks import _edge_ratios, failed_checks, lens_model_fit, verdict
 from dualcal.geometry.model import CameraCorners, CornerSet, Pose
 from dualcal.geometry.rotation import rotation_from_rotvec
 from dualcal.synthetic.synth import make_truth, noisy_corner_set, true_corners
@@ -382,3 +382,24 @@ def test_a_camera_that_moved_fails_the_pairs_it_is_in_and_is_named():
     loop = calibrate_rig(corners, drop_outliers=False).checks["loop_closure"]      # every instant kept
     assert not loop["ok"] and "camera ultra in each" in loop["message"], loop["message"]
     assert not loop["pairs"]["wide-ultra"]["ok"] and not loop["pairs"]["tele-ultra"]["ok"] and loop["pairs"]["wide-tele"]["ok"]
+
+
+def test_the_edge_ratios_of_a_batch_of_views_are_each_views_own():
+    """:func:`checks._edge_ratios` of views stacked (NaN where a corner was not measured) is, view by view, the RMS of
+    the outer third of its residuals over the inner third's, the thirds split by numpy's quantiles; NaN with fewer
+    than 30 corners."""
+    rng = np.random.default_rng(5)
+    rho, length = rng.uniform(0, 1000, (6, 54)), rng.rayleigh(0.3, (6, 54))
+    rho[1, ::3] = np.nan                       # 36 measured
+    rho[2, 20:] = np.nan                       # 20 measured: too few
+    rho[3, :4] = rho[3, 4]                     # ties at a bound
+    length = np.where(np.isfinite(rho), length, np.nan)
+    expected = []
+    for r, d in zip(rho, length):
+        r, d = r[np.isfinite(r)], d[np.isfinite(r)]
+        if len(r) < 30:
+            expected.append(np.nan)
+            continue
+        lo, hi = np.quantile(r, [1 / 3, 2 / 3])
+        expected.append(np.sqrt(np.mean(d[r >= hi] ** 2)) / np.sqrt(np.mean(d[r <= lo] ** 2)))
+    np.testing.assert_allclose(_edge_ratios(rho, length), expected, rtol=1e-12)

