@@ -17,6 +17,8 @@ the wrong feature, or pulled by glare or a smudge, stands out by more.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .board import Board
@@ -131,8 +133,18 @@ def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int]):
     the patch is cut, they do not (measured on exact corners of 960 x 720 renders 50-70 degrees off
     frontal through k1 = -0.29: the largest residual near the edge 0.18 px with a quadratic, 0.04 with
     a cubic; 0.23 and 0.07 on a sheet whose edges rise 10 mm over 200 mm).
+
+    Memoised on the values: a photo's detection asks it of the same corners to drop outliers, to check the grid
+    and to measure the photo's noise. The arrays returned are shared, and read-only.
     """
-    uv = np.asarray(uv, float)
+    uv = np.ascontiguousarray(uv, float)
+    return _predicted(uv.tobytes(), len(uv), tuple(int(n) for n in shape))
+
+
+@functools.lru_cache(maxsize=64)
+def _predicted(uv_bytes: bytes, n: int, shape: tuple[int, int]):
+    """:func:`predict_from_neighbours` of corners given by their bytes (hashable, so that it can be memoised)."""
+    uv = np.frombuffer(uv_bytes).reshape(n, 2)
     use = observed_mask(uv)
     idx, offs = _neighbourhoods(shape)
     valid = (idx >= 0) & use[np.maximum(idx, 0)]
@@ -169,7 +181,10 @@ def predict_from_neighbours(uv: np.ndarray, shape: tuple[int, int]):
     with np.errstate(invalid="ignore"):      # corners with too few neighbours: NaN below
         pred = (at_zero + coef[:, 0, :]) * spread[:, None] + mean
     pred[~enough | ~np.all(np.isfinite(pred), axis=1)] = np.nan
-    return pred, np.sqrt(np.sum(Qinv[:, 0, :] ** 2, axis=1))
+    gain = np.sqrt(np.sum(Qinv[:, 0, :] ** 2, axis=1))
+    pred.setflags(write=False)
+    gain.setflags(write=False)
+    return pred, gain
 
 
 def neighbour_residuals_px(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
