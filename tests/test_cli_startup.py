@@ -75,3 +75,14 @@ def test_the_heic_and_dng_readers_load_only_for_a_photo_that_needs_them(tmp_path
     out = subprocess.run([sys.executable, "-c", code, str(jpg), str(heic)], capture_output=True, text=True,
                          check=True).stdout.splitlines()
     assert out == ["[]", "(64, 48) (48, 64) True False"]
+
+
+def test_the_collector_is_frozen_at_exit_once_the_command_is_done():
+    """The interpreter's last collection skips what a command leaves (the exit handlers run before it): a handler
+    registered before the command runs after the command's, and sees the objects frozen."""
+    code = ("import atexit, gc\n"
+            "atexit.register(lambda: print('frozen', gc.get_freeze_count() > 0))\n"
+            "from dualcal.cli import main\n"
+            "main(['--version'])\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False).stdout
+    assert out.splitlines()[-1] == "frozen True", out
