@@ -96,8 +96,8 @@ def main(argv=None) -> None:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     # At the interpreter's exit its last collection walks every object a command left (a calibration's arrays,
     # every module's): 0.02-0.03 s of a calibration's 0.4 s. The command's outputs are written and closed by then,
-    # and what it leaves is freed with the modules anyway: frozen just before it (the exit handlers run first), the
-    # collection skips them. Registered once, however often main runs in one process.
+    # and what it leaves goes with the process: frozen just before that collection (the exit handlers run first),
+    # they are skipped. Registered once, however often main runs in one process.
     atexit.unregister(gc.freeze)
     atexit.register(gc.freeze)
     try:
