@@ -585,7 +585,9 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     rays of a plane are then exactly a homography of it). It starts from ``f`` = the image's
     diagonal, where every ray is well inside 90 degrees (the search looks at
     :data:`_FISHEYE_SEARCH_VIEWS` views at most). Each ``k1`` of :data:`_FISHEYE_K1_GRID`
-    has its fixed point (``f`` and ``k1`` trade off); the one kept is where the homographies fit
+    has its fixed point (``f`` and ``k1`` trade off), each next ``k1``'s rounds starting from the one
+    before's (a larger ``k1`` takes every ray further inside 90 degrees), which they settle near in one or
+    two rounds, not three; the one kept is where the homographies fit
     the rays best (residual over ``f``, an angle). Last, the linear least squares of section 1.6 for
     ``k1 .. k4``: given the poses, ``(u~, v~) - (u, v) = A' (x theta / r) sum_j k_j theta^(2 j)`` with
     ``(u, v)`` the equidistant projection. Returns ``(CameraModel, {view: Pose})``. On phone3's
@@ -600,9 +602,10 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
     search_uvs, search_seen = [uvs[i] for i in picked], [seen[i] for i in picked]
     w, h = image_size
     who = _subject(name, image_size, len(uvs))
-    starts = []
+    starts, last = [], None
     for k1 in _FISHEYE_K1_GRID:
-        guess = _fisheye_guess(image_size, float(np.hypot(w, h)), float(k1), 0.5 * (w - 1), 0.5 * (h - 1))
+        guess = (_fisheye_guess(image_size, float(np.hypot(w, h)), float(k1), 0.5 * (w - 1), 0.5 * (h - 1))
+                 if last is None else replace(last, k1=float(k1)))   # from the previous k1's fixed point: near
         found = None
         for _ in range(_FISHEYE_ROUNDS):
             try:
@@ -617,6 +620,7 @@ def initial_fisheye_camera(xy_board: np.ndarray, views: dict, image_size, skew: 
                 break
         if found is not None:
             starts.append((_homography_misfit(xy_board, search_uvs, search_seen, found), found))
+            last = found
     start = None
     if starts and np.isfinite(min(m for m, _ in starts)):
         guess = min(starts, key=lambda s: s[0])[1]
