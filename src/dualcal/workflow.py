@@ -186,7 +186,9 @@ def read_intrinsics(paths) -> dict[str, KnownIntrinsics]:
     InputError
         A missing or unreadable file, or one camera named by two of them.
     """
-    from .files.imports import read_known_intrinsics
+    if not paths:
+        return {}
+    from .files.imports import read_known_intrinsics      # the peers' formats, loaded only where one is read
 
     known: dict[str, KnownIntrinsics] = {}
     for path in paths:

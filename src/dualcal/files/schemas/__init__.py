@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import json
 import math
-from importlib import resources
+from pathlib import Path
 
 from ...errors import InputError
 
@@ -30,7 +30,7 @@ def schema_text(name: str) -> str:
     """The text of ``schemas/NAME.json``; :class:`InputError` for a name without one."""
     if name not in SCHEMA_NAMES:
         raise InputError(f"no schema named {name!r} (dualcal has {', '.join(SCHEMA_NAMES)})")
-    return resources.files(__name__).joinpath(f"{name}.json").read_text(encoding="utf-8")
+    return (Path(__file__).parent / f"{name}.json").read_text(encoding="utf-8")
 
 
 def _inlined(name: str) -> dict:
