@@ -16,8 +16,8 @@ import numpy as np
 from .homography import estimate_homographies
 from .model import observed_mask
 
-__all__ = ["DIVISION_PARABOLAS", "DIVISION_VIEWS", "LAMBDA_RANGE", "LAMBDA_SIGNIFICANCE", "centre_and_scale",
-           "common_division", "division_homography", "division_misfits", "undistort_division"]
+__all__ = ["DIVISION_GRID", "DIVISION_PARABOLAS", "DIVISION_VIEWS", "LAMBDA_RANGE", "LAMBDA_SIGNIFICANCE",
+           "centre_and_scale", "common_division", "division_homography", "division_misfits", "undistort_division"]
 
 #: The division model's coefficient is searched in this range (per squared half-diagonal); ``1 + lam r^2``
 #: stays positive over the image.
@@ -66,10 +66,10 @@ def division_homography(xy_board: np.ndarray, uv: np.ndarray, image_size) -> tup
 
     Returns
     -------
-    ``(H, lam, misfit_px)``: see :class:`dualcal.geometry.one_view.OneView`. ``lam`` is found on a grid over :data:`LAMBDA_RANGE`, then on
-    two finer grids around the best point (to 0.2 % of the range); it is kept only where it lowers the squared
-    residuals by more than :data:`LAMBDA_SIGNIFICANCE` times their variance (a small board near the centre
-    does not fix it, and a wrong one turns the board's pose), else 0.
+    ``(H, lam, misfit_px)``: see :class:`dualcal.geometry.one_view.OneView`. ``lam`` is found on a grid over
+    :data:`LAMBDA_RANGE`, then on two finer grids around the best point (to 0.2 % of the range); it is kept only
+    where it lowers the squared residuals by more than :data:`LAMBDA_SIGNIFICANCE` times their variance (a small
+    board near the centre does not fix it, and a wrong one turns the board's pose), else 0.
     """
     lo, hi = LAMBDA_RANGE
     for _ in range(3):
@@ -111,8 +111,12 @@ def _summed_squares(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lams: np.
 #: not: a calibration's start is all it gives; on the synthetic presets and the real sets, 12 views give ``lam``
 #: within 0.012 of 20 views', in 60 % of the time).
 DIVISION_VIEWS = 12
-#: :func:`common_division` refines its grid's best ``lam`` by this many steps of successive parabolic interpolation
-#: (the vertex of the parabola through the best point and its neighbours), where the summed squares are smooth.
+#: :func:`common_division` evaluates this many ``lam`` evenly over :data:`LAMBDA_RANGE` (a step of 0.3, 0 among
+#: them: a lens without distortion gets none), then refines the best by :data:`DIVISION_PARABOLAS` steps of
+#: successive parabolic interpolation (the vertex of the parabola through the best point and its neighbours), where
+#: the summed squares are smooth: on the synthetic presets and the real sets, ``lam`` within 0.0016 of an 11-point
+#: grid's, in two thirds of the time.
+DIVISION_GRID = 6
 DIVISION_PARABOLAS = 3
 
 
@@ -131,7 +135,7 @@ def common_division(xy_board: np.ndarray, uvs, image_size) -> float:
         reach = np.nanmax(np.linalg.norm(uvs - centre, axis=2), axis=1)
         uvs = uvs[np.sort(np.argsort(-np.nan_to_num(reach, nan=-1.0), kind="stable")[:DIVISION_VIEWS])]
     seen = observed_mask(uvs)
-    grid = np.linspace(*LAMBDA_RANGE, 11)
+    grid = np.linspace(*LAMBDA_RANGE, DIVISION_GRID)
     cost = _summed_squares(xy_board, uvs, seen, grid, image_size)
     i = int(np.argmin(cost))
     if i in (0, len(grid) - 1):              # at the range's end

@@ -52,8 +52,9 @@ class OneView:
     """One photo's board, alone.
 
     ``H`` (3, 3) maps board ``(X, Y)`` mm to pixels undistorted by the division model with ``lam``
-    (:func:`dualcal.geometry.division.undistort_division`); ``H_quarters`` (4, 3, 3) the same from each interleaved quarter of the
-    corners (NaN where one cannot be had), whose spread measures what the view fixes; ``misfit_px`` is the
+    (:func:`dualcal.geometry.division.undistort_division`); ``H_quarters`` (4, 3, 3) the same from each
+    interleaved quarter of the corners (NaN where one cannot be had), whose spread measures what the view fixes;
+    ``misfit_px`` is the
     RMS of the homography's residuals (in the photo's pixels); ``f_px`` the focal length the view gives
     (NaN where it gives none) and ``f_log_sigma`` the spread of its natural logarithm (inf where unknown);
     ``tilt_deg`` the angle between the board's normal and the optical axis with that focal length (NaN without
@@ -93,8 +94,8 @@ def focal_from_homography(H: np.ndarray, image_size) -> float:
 def one_view(xy_board: np.ndarray, uv: np.ndarray, image_size, lam: float | None = None) -> OneView | None:
     """What one photo's detected board tells alone (:class:`OneView`), or None with fewer than 8 corners.
 
-    ``lam``: the division model's coefficient, where it is known (:func:`dualcal.geometry.division.common_division`); else the
-    view's own (:func:`dualcal.geometry.division.division_homography`).
+    ``lam``: the division model's coefficient, where it is known (:func:`dualcal.geometry.division.common_division`);
+    else the view's own (:func:`dualcal.geometry.division.division_homography`).
 
     ``f_log_sigma`` is the standard deviation of the log focal lengths of four interleaved quarters of the
     corners (every other column of every other row: each a quarter as many corners, so their spread is
