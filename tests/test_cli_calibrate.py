@@ -42,6 +42,21 @@ def test_synth_then_calibrate_recovers_the_truth(synth_dir, run_cli):
     assert rig.skew is False and rig.rig_mode == "rigid"
 
 
+def test_photo_names_with_brackets_are_printed_as_they_are(synth_dir, run_cli):
+    """The tables read no markup: a photo named ``IMG_02 [edited]`` (a phone's copy) is printed whole, and one with
+    ``[/x]`` in its name does not stop the command (rich took ``[edited]`` for a style, and ``[/x]`` for a closing
+    tag it could not match)."""
+    doc = json.loads((synth_dir / "corners.json").read_text())
+    for cam in doc["cameras"].values():
+        views = cam["views"]
+        first, second = sorted(views)[:2]
+        views[f"{first} [edited]"], views[f"{second} [/x]"] = views.pop(first), views.pop(second)
+    (synth_dir / "renamed.json").write_text(json.dumps(doc))
+    res = run_cli("calibrate", synth_dir / "renamed.json", "-o", synth_dir / "calib.json", "--no-compare-models")
+    assert res.code == 0, res.err
+    assert " [edited] " in res.out and " [/x] " in res.out
+
+
 @pytest.mark.parametrize("flags,mode,skew", [(["--rig", "paper", "--skew"], "paper", True),
                                              (["--rig", "none"], "none", False)])
 def test_calibrate_modes_are_recorded(synth_dir, run_cli, flags, mode, skew):
