@@ -17,7 +17,7 @@ from rich.table import Table
 from dualcal.synthetic import synth
 from dualcal.batch import (BatchOptions, Device, calibrate_device, csv_safe_cell, find_devices, input_snapshot,
                            write_fleet_tables)
-from dualcal.cli.common import stdout_console
+from dualcal.cli.common import table_console
 from dualcal.errors import InputError
 from dualcal.files.io import save_corners
 from dualcal.progress import warn
@@ -62,7 +62,7 @@ def test_control_characters_never_reach_the_terminal(capsys):
     table = Table()
     table.add_column("view")
     table.add_row(name)
-    stdout_console().print(table)
+    table_console().print(table)
     out, err = capsys.readouterr()
     assert not re.search(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]", out + err)
     assert "IMG[2J]0;pwned_01" in out and "[bold]x[/bold]" in err          # shown, not run, not markup

@@ -6,7 +6,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import LazyChoice, board_from_flags, board_options, square_sigma_option, stdout_console
+from .common import LazyChoice, board_from_flags, board_options, square_sigma_option, table_console
 from .detect import dataset_options, read_corners_from_flags
 
 
@@ -90,7 +90,7 @@ def calibrate_command(input_path, board_spec, square_mm, marker_mm, dictionary, 
             models = [other, rig] if skew else [rig, other]
         except EstimationError as exc:
             warn(f"the other skew model could not be solved for comparison: {exc}")
-    console = stdout_console()
+    console = table_console()
     for table in roll_tables(corners.roll) if corners.roll else ():
         console.print(table)
     for line in video_lines(corners):

@@ -106,13 +106,14 @@ def default_jobs() -> int:
     return max(1, os.cpu_count() or 1)
 
 
-def stdout_console():
-    """A rich console on stdout that never wraps a plain line (paths stay whole for copying), prints no control
-    character (:class:`dualcal.progress.SafeConsole`) and reads no markup or emoji codes in what it prints: a
-    photo named ``IMG_01 [edited].jpg`` is printed as it is named (rich took ``[edited]`` for a style and dropped
-    it, and a name with ``[/x]`` stopped the command), and the tables render a tenth faster."""
+def table_console(stderr: bool = False):
+    """A rich console on stdout (or ``stderr``) for the commands' tables and lines: it never wraps a plain line
+    (paths stay whole for copying), prints no control character (:class:`dualcal.progress.SafeConsole`) and reads
+    no markup or emoji codes in what it prints: a photo named ``IMG_01 [edited].jpg`` is printed as it is named
+    (rich took ``[edited]`` for a style and dropped it, and a name with ``[/x]`` stopped the command), and the
+    tables render a tenth faster."""
     from ..progress import SafeConsole
-    return SafeConsole(soft_wrap=True, highlight=False, markup=False, emoji=False)
+    return SafeConsole(stderr=stderr, soft_wrap=True, highlight=False, markup=False, emoji=False)
 
 
 def echo(text: str = "", err: bool = False, nl: bool = True) -> None:

@@ -14,7 +14,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import board_from_flags, board_options, echo, exclude_option, square_sigma_option
+from .common import board_from_flags, board_options, echo, exclude_option, square_sigma_option, table_console
 
 DATASET_OPTION_NAMES = ("cameras", "pair_by", "time_tolerance_s", "instant_gap_s", "reference", "exclude", "jobs",
                         "hints_path", "overlays_dir")
@@ -97,10 +97,9 @@ def detect_command(dataset, board_spec, square_mm, marker_mm, dictionary, circle
     corners = read_corners_from_flags(dataset, board, square_sigma_mm, opts)
     save_corners(output, corners)
     if corners.roll:
-        from ..progress import SafeConsole
         from .tables import roll_tables
 
-        console = SafeConsole(stderr=True, soft_wrap=True, highlight=False)
+        console = table_console(stderr=True)
         for table in roll_tables(corners.roll):
             console.print(table)
     from .tables import video_lines

@@ -8,7 +8,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import LazyChoice, default_jobs, echo, stdout_console
+from .common import LazyChoice, default_jobs, echo, table_console
 
 
 def _case_photos(name: str, doc: dict) -> str:
@@ -76,7 +76,7 @@ def evaluate_command(calib: Path, output: Path, holdout: bool) -> None:
     rig = read_calibration(calib)
     doc = evaluate_calibration(rig, holdout=holdout)
     write_json_atomic(output, doc)
-    console = stdout_console()
+    console = table_console()
     console.print(evaluation_table(doc, rig.board.n_corners))
     pose_free = pose_free_table(doc)
     if pose_free is not None:

@@ -9,7 +9,7 @@ import click
 
 from ..errors import InputError
 from . import cli
-from .common import echo, stdout_console
+from .common import echo, table_console
 
 
 def _photos(specs: tuple[str, ...]) -> dict[str, Path]:
@@ -153,7 +153,7 @@ def measure_command(calib: Path, photo_specs: tuple[str, ...], points_path: Path
 
         write_text_atomic(record_path, render_record(rig, doc, images, {c: p.name for c, p in photos.items()},
                                                     points["points"], points_path.name, calib.name))
-    console = stdout_console()
+    console = table_console()
     console.print(points_table(doc))
     if doc["lengths"]:
         console.print(lengths_table(doc))
