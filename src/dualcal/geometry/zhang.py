@@ -337,7 +337,7 @@ class _ClosedForm:
 
     camera: CameraModel
     poses: list[Pose]
-    homographies: list[np.ndarray | None]
+    homographies: tuple[np.ndarray | None, ...]
     fallback: str | None
 
 
@@ -423,7 +423,7 @@ def _closed_form_intrinsics(xy_board: np.ndarray, uvs: list[np.ndarray], seen: l
     less, holds.
 
     Memoised on the values (a calibration asks it of each camera's photos for its lens models' candidates and for
-    its start; the homographies returned are shared, not to be changed in place).
+    its start; the homographies it returns are shared: a tuple of read-only arrays).
 
     Raises
     ------
@@ -490,9 +490,10 @@ def _memoised_intrinsics(xy_bytes: bytes, n: int, uv_bytes: bytes, seen_bytes: b
                     f"image centre and one focal length from every photo together, f = {starts[chosen].fx:.0f} px"
                     f"{sure}, which the adjustment then refines with the rest")
     Hs: list[np.ndarray | None] = [None] * len(uvs)
+    fixed.setflags(write=False)                 # shared by the memo's callers
     for i, H in zip(fixing, fixed):
         Hs[i] = H
-    return starts[chosen], Hs, fallback
+    return starts[chosen], tuple(Hs), fallback
 
 
 def _closed_forms(Hs: np.ndarray, weights: np.ndarray, image_size, skew: bool, jackknife: bool = True):
