@@ -51,10 +51,11 @@ calibration's covariance): a line off by ``D`` moves a match along it by its ``e
 (how the texture there slants), which its ``sigma_px`` includes (:meth:`Match.widened`), taken as independent
 of the calibration's other effects on the point.
 
-Focus. Each photo's camera is :func:`camera_at_focus` at that photo's focus distance: the focus its
-metadata states, else the distance of the points it measured (``focus_from`` ``"metadata"``, ``"points"``),
-where the calibration models focus (:func:`focus_modelled`); otherwise the calibration's own camera
-(``"calibration"``, ``focus_m`` the median distance of the board in its calibration photos). The covariance of
+Focus. Each photo's camera is :func:`dualcal.estimation.focus_model.camera_at_focus` at that photo's focus
+distance: the focus its metadata states, else the distance of the points it measured (``focus_from``
+``"metadata"``, ``"points"``), where the calibration models focus (:func:`focus_modelled`); otherwise the
+calibration's own camera (``"calibration"``, ``focus_m`` the median distance of the board in its calibration
+photos). The covariance of
 ``theta`` is then that of the intrinsics at that focus (the focus model's uncertainty grows away from the
 calibration's focus), and, where the calibration saw the stabiliser shift its photos, a new photo's principal
 point is uncertain by the spread it found (``ois_sigma_px``): :func:`dualcal.estimation.focus_model.covariance_at_focus`.
@@ -85,7 +86,7 @@ from ..geometry.camera import INTRINSIC_NAMES, CameraModel, project_with_jacobia
 from .covariance import JointCovariance, intrinsic_name, rig_name
 from .distributions import chi2_quantile
 from ..errors import EstimationError, InputError
-from . import focus_model
+from .focus_model import camera_at_focus, covariance_at_focus
 from .intersect import triangulate
 from .matching import MIN_DISTANCE_MM, Match, match_point
 from ..geometry.model import RigModel
@@ -346,15 +347,6 @@ def focus_modelled(rig: RigModel, camera_name: str) -> bool:
     return camera_name in rig.focus_models
 
 
-def camera_at_focus(rig: RigModel, camera_name: str, focus_m: float | None) -> CameraModel:
-    """Camera ``camera_name`` of ``rig`` as it is in a photo focused at ``focus_m`` metres (None: unknown): its
-    intrinsics at that focus where the calibration models its focus, else the calibration's camera
-    (:func:`dualcal.estimation.focus_model.camera_at_focus`, which warns of a focus outside the calibrated range).
-    A measurement takes the calibration's covariance at that focus with it
-    (:func:`dualcal.estimation.focus_model.covariance_at_focus`)."""
-    return focus_model.camera_at_focus(rig, camera_name, focus_m)
-
-
 def calibration_focus_m(rig: RigModel, camera_name: str) -> float | None:
     """The focus distance the calibration's camera stands for, m: its focus model's reference focus where it has
     one, else the median distance of the board's centre from camera ``camera_name`` along its axis in its
@@ -408,7 +400,8 @@ def match_taps(rig: RigModel, taps: dict[str, dict[str, np.ndarray]], photos: di
     Parameters
     ----------
     rig : RigModel
-        The calibration (its cameras as the photos were taken: :func:`camera_at_focus`).
+        The calibration (its cameras as the photos were taken:
+        :func:`dualcal.estimation.focus_model.camera_at_focus`).
     taps : dict
         ``{point: {camera: (2,) uv}}``, each point in one camera.
     photos : dict
@@ -562,12 +555,12 @@ def _distances_m(rig: RigModel, doc: dict) -> dict[str, float]:
 
 def _measure_at(rig: RigModel, spec: dict, photos: dict, focus: dict, pixel_sigma: dict,
                 min_distance_mm: float) -> dict:
-    """:func:`measure` with each photo's camera at its ``focus`` (:func:`camera_at_focus`), and the calibration's
-    covariance there (:func:`dualcal.estimation.focus_model.covariance_at_focus`: the focus model's, the
-    stabiliser's)."""
+    """:func:`measure` with each photo's camera at its ``focus``
+    (:func:`dualcal.estimation.focus_model.camera_at_focus`), and the calibration's covariance there
+    (:func:`dualcal.estimation.focus_model.covariance_at_focus`: the focus model's, the stabiliser's)."""
     rig = replace(rig, cameras={c: camera_at_focus(rig, c, focus[c]["focus_m"]) if c in focus else cam
                                 for c, cam in rig.cameras.items()},
-                  covariance=focus_model.covariance_at_focus(rig, {c: f["focus_m"] for c, f in focus.items()}))
+                  covariance=covariance_at_focus(rig, {c: f["focus_m"] for c, f in focus.items()}))
     taps = {n: seen for n, seen in spec["points"].items() if len(seen) == 1}
     found = match_taps(rig, taps, photos, min_distance_mm)
     uv_px, matched, unmatched = {}, {}, {}
