@@ -16,7 +16,7 @@ from functools import partial
 import numpy as np
 
 from .adjust import Solution
-from .checks import FALSE_ALARM_RATE, MAX_FOCAL_REL, design_effect, focus_and_rigidity, refocused_camera, run_checks
+from .checks import FALSE_ALARM_RATE, MAX_FOCAL_REL, design_effect, focus_and_rigidity, run_checks
 from .distributions import chi2_quantile, regularized_gamma, sidak
 from ..errors import EstimationError
 from .fitting import Setup
@@ -151,8 +151,3 @@ def attribution_checks(setup: Setup, tied: Solution, alone: Solution, kappa2) ->
     return focus_and_rigidity(tied, alone, kappa2, refit=lambda blocks: (setup.solve(blocks, tied),
                                                                          setup.solve(blocks, alone, mode="none")))
 
-
-def _refocused_camera(alone: Solution, view: str, kappa2) -> int | None:
-    """Of the photos of ``view``, the camera whose own focal scale is furthest off with its own pose
-    (:func:`dualcal.estimation.checks.refocused_camera`)."""
-    return refocused_camera(alone, view, kappa2)

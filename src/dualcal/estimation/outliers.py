@@ -22,8 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .adjust import Solution
-from .checking import _refocused_camera
-from .checks import REFOCUS_SHARE, design_effect, focal_scale_fits
+from .checks import REFOCUS_SHARE, design_effect, focal_scale_fits, refocused_camera
 from .fitting import MIN_VIEWS, Setup, unusable_reason
 from .photo_noise import MEDIAN_LENGTH, PhotoNoise, photo_noise, rough_residuals
 from ..progress import warn
@@ -283,7 +282,7 @@ def _instant_misfit(setup: Setup, sol: Solution, alone: Solution | None, blocks,
     tie = sum(float(tied_cost[i]) - alone_cost.get((blocks[i][0], view), 0.0) for i in instant)
     if not any(tie > 0 and f["explained_px2"] >= REFOCUS_SHARE * tie for f in focal_scale_fits(sol, {view})):
         return "instant"
-    c = _refocused_camera(alone, view, design_effect(alone))
+    c = refocused_camera(alone, view, design_effect(alone))
     return [i for i in instant if blocks[i][0] == c] or "instant"
 
 
