@@ -794,7 +794,9 @@ class Solution:
     """Result of :func:`adjust`: the state, the fit and the factorized normal equations.
 
     ``residuals`` is (n_blocks, N, 2), pixels (unweighted), NaN where a corner was not measured;
-    ``block_rms_px`` the RMS length of each photo's 2-D residuals over its measured corners.
+    ``block_rms_px`` the RMS length of each photo's 2-D residuals over its measured corners. A solution does not
+    change once :func:`adjust` returns it: ``derived`` holds what the stages above compute from it and ask for more
+    than once (:func:`dualcal.estimation.photo_noise.rough_residuals`), by key, as the cached properties below do.
     """
 
     problem: Problem
@@ -807,6 +809,7 @@ class Solution:
     termination: str
     factorization: Factorization
     block_rms_px: list[float] = field(default_factory=list)
+    derived: dict = field(default_factory=dict, repr=False, compare=False)
 
     def covariance(self, columns, kind: str = "formal") -> np.ndarray:
         """The covariance of the flat parameters ``columns`` (mm, rad, px...): ``formal``

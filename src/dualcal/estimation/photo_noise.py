@@ -171,10 +171,10 @@ def _less_smooth(r: np.ndarray, use: np.ndarray, basis: np.ndarray) -> tuple[np.
     r0 = np.where(use[..., None], r, 0.0)
     for terms in np.unique(k):
         photos = np.flatnonzero(k == terms)
-        A, w = basis[:, :terms], use[photos].astype(float)
-        normal = np.einsum("bn,ni,nj->bij", w, A, A) + 1e-12 * np.eye(terms)
-        coef = np.linalg.solve(normal, np.einsum("bn,ni,bnc->bic", w, A, r0[photos]))
-        fitted[photos] = np.einsum("ni,bic->bnc", A, coef)
+        A = basis[:, :terms]
+        weighted = A.T * use[photos].astype(float)[:, None, :]              # (B, terms, N)
+        coef = np.linalg.solve(weighted @ A + 1e-12 * np.eye(terms), weighted @ r0[photos])
+        fitted[photos] = A @ coef
     return r - fitted, k
 
 
@@ -191,7 +191,20 @@ def rough_residuals(sol: Solution, factor: float | None) -> tuple[np.ndarray, np
     block of the adjustment's hat matrix (its pose, its share of the intrinsics): what part of white noise its
     rough residuals keep. The pose's unknowns lie in the smooth terms' span only as far as the photo's
     perspective is affine (a narrow lens's more than a wide one's): counting them out twice, or not, would make
-    cameras of one noise level look different."""
+    cameras of one noise level look different.
+
+    Kept with ``sol`` (:attr:`dualcal.estimation.adjust.Solution.derived`), read-only: a stage asks for the rough
+    residuals of the cameras alone to weigh their photos, and the next stage for the same ones to judge the rig's."""
+    key = ("rough_residuals", factor)
+    if key not in sol.derived:
+        sol.derived[key] = _rough_residuals(sol, factor)
+        for a in sol.derived[key]:
+            a.setflags(write=False)
+    return sol.derived[key]
+
+
+def _rough_residuals(sol: Solution, factor: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`rough_residuals`, computed."""
     r = sol.residuals
     seen = np.isfinite(r[..., 0])
     basis = _smooth_basis(sol.problem.X_board)
