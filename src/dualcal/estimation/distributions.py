@@ -7,7 +7,7 @@ The board-shape test (:func:`dualcal.estimation.board_shape.board_shape_test`) a
 to calibrate a 13-instant rig, and nothing else on the calibration's path needs scipy: so the
 quantile is computed here, from the regularised incomplete beta function
 ``I_x(a, b)`` (``P(F <= f) = I_x(d1/2, d2/2)`` with ``x = d1 f / (d1 f + d2)``), by its continued
-fraction (DLMF 8.17.22, evaluated by the modified Lentz method), inverted by bisection in ``x``;
+fraction (DLMF 8.17.22, evaluated by the modified Lentz method), inverted by Newton's steps in ``x``;
 the chi-square quantile from the regularised incomplete gamma function likewise (DLMF 8.7.1 and
 8.9.2). The tests check both against scipy.
 """
@@ -61,23 +61,36 @@ def regularized_beta(a: float, b: float, x: float) -> float:
 
 
 def f_quantile(d1: float, d2: float, q: float) -> float:
-    """The ``q`` quantile of the F distribution with ``(d1, d2)`` degrees of freedom (``scipy.special.fdtri``)."""
+    """The ``q`` quantile of the F distribution with ``(d1, d2)`` degrees of freedom (``scipy.special.fdtri``):
+    ``I_x(d1/2, d2/2) = q`` with ``x = d1 f / (d1 f + d2)``, or for an upper quantile (``q > 1/2``, the tests'
+    limits) its tail ``I_y(d2/2, d1/2) = 1 - q`` with ``y = 1 - x``, so that a quantile far out is solved where
+    its probability is small and held to its relative precision."""
     if not (d1 > 0 and d2 > 0 and 0.0 < q < 1.0):
         raise ValueError(f"F quantile: need d1, d2 > 0 and 0 < q < 1 (got {d1}, {d2}, {q})")
-    a, b = 0.5 * d1, 0.5 * d2
+    if q <= 0.5:
+        x = _beta_quantile(0.5 * d1, 0.5 * d2, q)
+        return d2 * x / (d1 * (1.0 - x))
+    y = _beta_quantile(0.5 * d2, 0.5 * d1, 1.0 - q)
+    return d2 * (1.0 - y) / (d1 * y)
+
+
+def _beta_quantile(a: float, b: float, p: float) -> float:
+    """The ``x`` where ``I_x(a, b) = p``, by Newton's steps in a bracket (:func:`_bisect`) from where the
+    function's leading term ``x^a / (a B(a, b))`` reaches ``p`` (near for a small ``p``)."""
     log_beta = math.lgamma(a) + math.lgamma(b) - math.lgamma(a + b)
 
     def density(x):                                     # d I_x(a, b) / dx
         return math.exp((a - 1.0) * math.log(x) + (b - 1.0) * math.log1p(-x) - log_beta) if 0.0 < x < 1.0 else 0.0
-    x = _bisect(lambda x: regularized_beta(a, b, x), q, 0.0, 1.0, 1e-16, density)     # x = d1 f / (d1 f + d2)
-    return d2 * x / (d1 * (1.0 - x))
+    start = math.exp((math.log(p * a) + log_beta) / a)
+    return _bisect(lambda x: regularized_beta(a, b, x), p, 0.0, 1.0, 1e-13, density, start if start < 1.0 else None)
 
 
-def _bisect(cdf, q: float, lo: float, hi: float, rtol: float, density=None) -> float:
-    """The ``x`` in ``[lo, hi]`` where the increasing ``cdf`` reaches ``q``, to ``rtol``: by bisection, or with
-    the ``density`` (the cdf's derivative) by Newton's steps kept inside the shrinking bracket (a step that
-    would leave it bisects instead), a few evaluations where bisection needs fifty."""
-    x = 0.5 * (lo + hi)
+def _bisect(cdf, q: float, lo: float, hi: float, rtol: float, density=None, start: float | None = None) -> float:
+    """The ``x`` in ``[lo, hi]`` where the increasing ``cdf`` reaches ``q``, to ``rtol``: by bisection from the
+    middle, or with the ``density`` (the cdf's derivative) by Newton's steps from ``start`` (default: the middle)
+    kept inside the shrinking bracket (a step that would leave it bisects instead), a few evaluations where
+    bisection needs fifty."""
+    x = 0.5 * (lo + hi) if start is None else start
     for _ in range(200):
         c = cdf(x)
         lo, hi = (x, hi) if c < q else (lo, x)

@@ -56,7 +56,7 @@ def relation_deviation(R_x: np.ndarray, t_x: np.ndarray, R_y: np.ndarray, t_y: n
     J = np.zeros(R.shape[:-2] + (6, 12))
     J[..., :3, :3], J[..., :3, 6:9] = -R, np.eye(3)
     J[..., 3:, :3], J[..., 3:, 3:6], J[..., 3:, 6:9], J[..., 3:, 9:] = -K @ R, -R, K, np.eye(3)
-    return np.concatenate([rotvec_from_rotation(R @ R_J.T), t_y - Rt_x - t_J], axis=-1), J
+    return np.concatenate([rotvec_from_rotation(R @ np.swapaxes(R_J, -1, -2)), t_y - Rt_x - t_J], axis=-1), J
 
 
 @dataclass(frozen=True)
@@ -113,34 +113,38 @@ def instant_relations(tied: Solution, alone: Solution) -> InstantRelations:
     ref, per = p.reference, 6 if p.mode == "rigid" else 4
     poses, ll_inv, s02 = alone.photo_poses, alone.factorization.ll_inv, alone.s0_px ** 2
     lay = alone.problem.layout
+    tied_cams = {view: [c for c in range(len(p.cameras)) if c != ref and (c, view) in poses]
+                 for view in alone.problem.views if (ref, view) in poses}
+    tied_cams = {view: cams for view, cams in tied_cams.items() if cams}
+    pairs = [(view, c) for view, cams in tied_cams.items() for c in cams]
+    if not pairs:
+        return InstantRelations([], [], [], [], per, len(p.cameras), [], [])
+    x, y = [poses[ref, view] for view, _ in pairs], [poses[c, view] for view, c in pairs]
+    d, Jd = relation_deviation(np.array([P.R for P in x]), np.array([P.t_mm for P in x]),        # every pair at once
+                               np.array([P.R for P in y]), np.array([P.t_mm for P in y]),
+                               np.array([tied.state.rig_R[c] for _, c in pairs]),
+                               np.array([tied.state.rig_t[c] if per == 6 else np.zeros(3) for _, c in pairs]))
+    if per == 4:                                   # the paper's model: the baseline's length alone
+        length = np.linalg.norm(d[:, 3:], axis=1)
+        u = d[:, 3:] / length[:, None]
+        d = np.column_stack([d[:, :3], length - np.array([tied.state.baseline_mm[c] for _, c in pairs])])
+        Jd = np.concatenate([Jd[:, :3], np.einsum("pi,pij->pj", u, Jd[:, 3:])[:, None]], axis=1)
     views, cameras, zs, covs, jacobians = [], [], [], [], []
-    for view in alone.problem.views:
-        cams = [c for c in range(len(p.cameras)) if c != ref and (c, view) in poses]
-        if (ref, view) not in poses or not cams:
-            continue
+    first = 0
+    for view, cams in tied_cams.items():
         vi = alone.problem.view_index[view]
         slots = np.concatenate([lay.pose[ref]] + [lay.pose[c] for c in cams])
         C = s02 * ll_inv[vi][np.ix_(slots, slots)]
         J = np.zeros((per * len(cams), 6 * (len(cams) + 1)))
-        z = []
-        for i, c in enumerate(cams):
-            R_J = tied.state.rig_R[c]
-            t_J = tied.state.rig_t[c] if per == 6 else np.zeros(3)
-            P_x, P_y = poses[(ref, view)], poses[(c, view)]
-            d, Jc = relation_deviation(P_x.R, P_x.t_mm, P_y.R, P_y.t_mm, R_J, t_J)
-            if per == 4:                                   # the paper's model: the baseline's length alone
-                t = d[3:]
-                u = t / np.linalg.norm(t)
-                d = np.concatenate([d[:3], [np.linalg.norm(t) - tied.state.baseline_mm[c]]])
-                Jc = np.vstack([Jc[:3], u @ Jc[3:]])
-            z.append(d)
+        for i in range(len(cams)):
             rows = slice(per * i, per * (i + 1))
-            J[rows, :6], J[rows, 6 * (i + 1):6 * (i + 2)] = Jc[:, :6], Jc[:, 6:]
+            J[rows, :6], J[rows, 6 * (i + 1):6 * (i + 2)] = Jd[first + i, :, :6], Jd[first + i, :, 6:]
         views.append(view)
         cameras.append(cams)
-        zs.append(np.concatenate(z))
+        zs.append(d[first:first + len(cams)].ravel())
         covs.append(J @ C @ J.T)
         jacobians.append(J)
+        first += len(cams)
     return InstantRelations(views, cameras, zs, covs, per, len(p.cameras), [np.linalg.inv(c) for c in covs],
                             jacobians)
 
