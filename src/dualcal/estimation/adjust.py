@@ -595,8 +595,9 @@ def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, 
     d pixel / d b where the lens breathes."""
     lay, c = problem.layout, batch.camera
     J = np.empty(J_X.shape[:3] + (n_global + len(_columns(problem, c)[1]),))
-    k = int(lay.free_intrinsics[c].sum())
-    J[..., :k] = J_K[..., lay.free_intrinsics[c]]
+    free = np.flatnonzero(lay.free_intrinsics[c])
+    k = len(free)
+    J[..., :k] = np.take(J_K, free, axis=-1)          # by indices: a boolean mask on the last axis is slower
     M = J_X                                                              # d res / d (R_v X + t_v)
     if problem.tied(c):
         M = J_X @ state.rig_R[c]

@@ -71,18 +71,29 @@ def _found(cam: CameraCorners) -> dict[str, np.ndarray]:
     return {k: v for k, v in cam.views.items() if v is not None and observed_mask(v).any()}
 
 
-def _rms_differences(stack: np.ndarray, a: int) -> tuple[np.ndarray, np.ndarray]:
-    """RMS 2-D difference per corner between view ``a`` and every view of ``stack`` (V, N, 2), over the
-    corners both measured, and their share of the corners the fuller of the two views measured (a
-    partial view of a ChArUco board and its copy share all of theirs)."""
-    d2 = np.sum((stack - stack[a]) ** 2, axis=2)                       # (V, N), NaN where either is missing
-    common = np.isfinite(d2)
-    n = common.sum(axis=1)
-    measured = np.isfinite(stack[..., 0]).sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rms = np.sqrt(np.where(common, d2, 0.0).sum(axis=1) / n)
-        share = n / np.maximum(np.maximum(measured, measured[a]), 1)
-    return np.where(n > 0, rms, np.inf), share
+#: :func:`_rms_differences` compares this many corner differences at most in one batch (memory: 8 bytes each).
+_BATCH_DIFFERENCES = 2_000_000
+
+
+def _rms_differences(stack: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """RMS 2-D difference per corner between each view ``rows`` (A,) and every view of ``stack`` (V, N, 2), over
+    the corners both measured, and their share of the corners the fuller of the two views measured (a partial
+    view of a ChArUco board and its copy share all of theirs): two (A, V) arrays, the rows in batches of
+    :data:`_BATCH_DIFFERENCES` differences."""
+    u, v = np.ascontiguousarray(stack[..., 0]), np.ascontiguousarray(stack[..., 1])   # (V, N) each
+    measured = np.isfinite(u).sum(axis=1)                                              # (V,)
+    rms, share = np.empty((len(rows), len(stack))), np.empty((len(rows), len(stack)))
+    step = max(1, _BATCH_DIFFERENCES // max(u.size, 1))
+    for i in range(0, len(rows), step):
+        a = rows[i:i + step]
+        du, dv = u[None] - u[a][:, None], v[None] - v[a][:, None]
+        d2 = du * du + dv * dv                                              # (A, V, N), NaN where either is missing
+        common = np.isfinite(d2)
+        n = common.sum(axis=2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rms[i:i + step] = np.where(n > 0, np.sqrt(np.where(common, d2, 0.0).sum(axis=2) / n), np.inf)
+            share[i:i + step] = n / np.maximum(np.maximum(measured[None, :], measured[a][:, None]), 1)
+    return rms, share
 
 
 def moments_of(corners: CornerSet) -> dict[str, int]:
@@ -129,10 +140,9 @@ def find_duplicate_instants(corners: CornerSet, sigmas: float = DUPLICATE_SIGMAS
         for k, uv in views.items():
             stack[index[k]] = uv
         rms = np.full((len(keys), len(keys)), np.inf)
-        for k in views:
-            a = index[k]
-            r, share = _rms_differences(stack, a)
-            rms[a] = np.where(share >= MIN_COMMON_SHARE, r, np.inf)
+        rows = np.array([index[k] for k in views])
+        r, share = _rms_differences(stack, rows)
+        rms[rows] = np.where(share >= MIN_COMMON_SHARE, r, np.inf)
         rms_of[name] = rms
         both = np.outer(seen[:, names.index(name)], seen[:, names.index(name)])
         limit = sigmas * np.sqrt(2.0) * MAX_NOISE_PX
