@@ -754,6 +754,24 @@ def photo_rows(problem: Problem, state: State) -> list[PhotoRows]:
     return sorted(out, key=lambda pr: pr.block)
 
 
+def photo_jacobians(problem: Problem, state: State):
+    """The photos' Jacobians as batches of dense arrays: per camera and set of local slots its photos use,
+    ``(blocks (B,), columns (B, k), J (B, N, 2, k))``, each photo's rows of its corners (u then v; zero where a
+    corner was not measured) over the flat parameter indices ``columns``, scaled by the square root of its weight:
+    :func:`photo_rows`'s, without picking each photo's measured rows one by one."""
+    lay = problem.layout
+    for batch, _, J, cg, sl in _linearised_batches(problem, state):
+        patterns, which = np.unique(lay.local_used[batch.views][:, sl], axis=0, return_inverse=True)
+        for i, pattern in enumerate(patterns):
+            photos = np.flatnonzero(which.ravel() == i)
+            keep = np.concatenate([np.ones(len(cg), bool), pattern])
+            columns = np.hstack([np.broadcast_to(cg, (len(photos), len(cg))),
+                                 lay.local_columns(batch.views[photos][:, None], sl[pattern][None, :])])
+            J_photos = J if len(patterns) == 1 else J[photos]
+            J_photos = J_photos if keep.all() else J_photos[:, :, keep]
+            yield batch.blocks[photos], columns, J_photos.reshape(len(photos), -1, 2, int(keep.sum()))
+
+
 @dataclass(frozen=True)
 class InstantRows:
     """The Jacobian rows of one instant's measured corners: ``J`` (m, k) over the flat parameter
@@ -797,7 +815,8 @@ class Solution:
     ``residuals`` is (n_blocks, N, 2), pixels (unweighted), NaN where a corner was not measured;
     ``block_rms_px`` the RMS length of each photo's 2-D residuals over its measured corners. A solution does not
     change once :func:`adjust` returns it: ``derived`` holds what the stages above compute from it and ask for more
-    than once (:func:`dualcal.estimation.photo_noise.rough_residuals`), by key, as the cached properties below do.
+    than once (:func:`dualcal.estimation.photo_noise.rough_residuals`, :meth:`held_out_squares`), by key, as the
+    cached properties below do.
     """
 
     problem: Problem
@@ -878,7 +897,13 @@ class Solution:
         """``{view: {camera: (px^2, corners)}}``: the sum of squares of each photo's residuals as the
         adjustment without its instant predicts them, the instant's own poses fitted to it again, and how
         many corners it has (a linearised leave-one-instant-out, :mod:`dualcal.estimation.uncertainty`);
-        None for an instant the others cannot do without (the only one to show some parameter)."""
+        None for an instant the others cannot do without (the only one to show some parameter). Computed once
+        (:attr:`derived`); the same dict each time, not to be changed."""
+        if "held_out_squares" not in self.derived:
+            self.derived["held_out_squares"] = self._held_out_squares()
+        return self.derived["held_out_squares"]
+
+    def _held_out_squares(self) -> dict[str, dict[int, tuple[float, int]] | None]:
         p = self.problem
         out: dict[str, dict[int, tuple[float, int]] | None] = {v: {} for v in p.views}
         counts = {b: int(n) for ph in self.factorization.ne.photos for b, n in zip(ph.blocks, ph.corners)}

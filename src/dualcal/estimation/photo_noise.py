@@ -40,7 +40,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .adjust import Solution, photo_rows
+from .adjust import Solution, photo_jacobians
 from .distributions import chi2_quantile
 
 __all__ = ["ALIKE_LEVEL", "GROSS_SHARE", "MEDIAN_LENGTH", "SHARPEST_SHARE", "PhotoNoise", "photo_noise",
@@ -231,27 +231,23 @@ def _degrees_of_freedom(sol: Solution, fit: np.ndarray, basis: np.ndarray) -> np
     matrix) and ``P = A (A^T A)^-1 A^T`` the projection on its smooth terms ``A`` (the same for ``u`` and ``v``),
     the trace is ``2 m - 2 t - <C, J^T J - sum_c (A^T J_c)^T (A^T A)^-1 A^T J_c>`` (``m`` corners, ``t`` terms,
     ``c`` the ``u`` rows and the ``v`` rows): no ``2m x 2m`` matrix, and the photos of one shape in one batch."""
-    rows = photo_rows(sol.problem, sol.state)
-    measured = np.isfinite(sol.residuals[..., 0])
     n, terms = fit.sum(axis=1), _terms(fit.sum(axis=1))
-    shapes: dict[tuple[int, int], list[int]] = {}
-    for b, pr in enumerate(rows):
-        shapes.setdefault((len(pr.columns), int(terms[b])), []).append(b)
     nu = np.empty(len(fit))
-    for (k, t), blocks in shapes.items():
-        J = np.zeros((len(blocks), fit.shape[1], 2, k))             # corner by corner, u then v
-        for i, b in enumerate(blocks):
-            J[i, measured[b]] = rows[b].J.reshape(-1, 2, k)
-        on = fit[blocks].astype(float)
-        J *= on[..., None, None]
-        A = basis[None, :, :t] * on[..., None]
-        AtA = np.swapaxes(A, 1, 2) @ A + 1e-12 * np.eye(t)
-        AtJ = np.swapaxes((np.swapaxes(A, 1, 2) @ J.reshape(len(blocks), -1, 2 * k)).reshape(-1, t, 2, k), 1, 2)
-        smooth = (np.swapaxes(AtJ.reshape(len(blocks), 2 * t, k), 1, 2)
-                  @ np.linalg.solve(AtA[:, None], AtJ).reshape(len(blocks), 2 * t, k))     # summed over u, v
-        J = J.reshape(len(blocks), -1, k)
-        C = sol.factorization.inverse_blocks(np.array([rows[b].columns for b in blocks]))
-        nu[blocks] = 2 * n[blocks] - 2 * t - np.sum(C * (np.swapaxes(J, 1, 2) @ J - smooth), axis=(1, 2))
+    for photos, columns, J_all in photo_jacobians(sol.problem, sol.state):
+        k = columns.shape[1]
+        for t in set(terms[photos].tolist()):
+            of_t = terms[photos] == t
+            blocks = photos[of_t]
+            on = fit[blocks].astype(float)
+            J = J_all[of_t] * on[..., None, None]                   # corner by corner, u then v
+            A = basis[None, :, :t] * on[..., None]
+            AtA = np.swapaxes(A, 1, 2) @ A + 1e-12 * np.eye(t)
+            AtJ = np.swapaxes((np.swapaxes(A, 1, 2) @ J.reshape(len(blocks), -1, 2 * k)).reshape(-1, t, 2, k), 1, 2)
+            smooth = (np.swapaxes(AtJ.reshape(len(blocks), 2 * t, k), 1, 2)
+                      @ np.linalg.solve(AtA[:, None], AtJ).reshape(len(blocks), 2 * t, k))     # summed over u, v
+            J = J.reshape(len(blocks), -1, k)
+            C = sol.factorization.inverse_blocks(columns[of_t])
+            nu[blocks] = 2 * n[blocks] - 2 * t - np.sum(C * (np.swapaxes(J, 1, 2) @ J - smooth), axis=(1, 2))
     return np.maximum(nu, 1.0)
 
 

@@ -219,9 +219,13 @@ def dumps_indented(doc) -> str:
     put = out.append
 
     def number(x: float) -> str:
-        if not math.isfinite(x):
-            raise ValueError(f"Out of range float values are not JSON compliant: {x!r}")
+        finite((x,))
         return float.__repr__(x)
+
+    def finite(values) -> None:
+        if not all(map(math.isfinite, values)):
+            bad = next(x for x in values if not math.isfinite(x))
+            raise ValueError(f"Out of range float values are not JSON compliant: {bad!r}")
 
     def encode(o, level: int) -> None:
         if isinstance(o, str):
@@ -244,11 +248,14 @@ def dumps_indented(doc) -> str:
                     encode(value, level + 1)
                 put(end + "}")
             elif all(type(x) is float for x in o):
-                put("[" + inner + ("," + inner).join(map(number, o)) + end + "]")
+                finite(o)
+                put("[" + inner + ("," + inner).join(map(float.__repr__, o)) + end + "]")
             elif all(x is None or (type(x) is list and x and all(type(y) is float for y in x)) for x in o):
                 deeper, close = inner + " ", inner + "]"
-                put("[" + inner + ("," + inner).join("null" if x is None else
-                                                     "[" + deeper + ("," + deeper).join(map(number, x)) + close
+                pair = "[" + deeper + "%r," + deeper + "%r" + close         # %r of a float is its repr
+                finite([y for x in o if x is not None for y in x])
+                put("[" + inner + ("," + inner).join("null" if x is None else pair % (x[0], x[1]) if len(x) == 2 else
+                                                     "[" + deeper + ("," + deeper).join(map(float.__repr__, x)) + close
                                                      for x in o) + end + "]")
             else:
                 put("[")
