@@ -232,3 +232,35 @@ def test_the_fast_validator_agrees_with_the_reference_on_random_edits(calib_path
         assert valid == expected, (parents, key)
         refused += not expected
     assert refused > 40                                # the edits do break the schema, most of the time
+
+
+def test_a_compiled_validator_is_kept_and_judges_as_a_fresh_one(tmp_path, monkeypatch):
+    """The validators' compiled code is kept in the cache directory: a second process (here, the memo cleared)
+    reads it instead of compiling, and refuses the same file with the same line; a cache file that is not one
+    (truncated, written by another program) is compiled again and replaced; an unwritable cache is passed over."""
+    import fastjsonschema
+
+    from dualcal.files import schemas
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    bad = {"board": {"cols": "8", "rows": 5, "square_mm": 30.0}, "cameras": {}}
+
+    def message():
+        schemas._validator.cache_clear()
+        with pytest.raises(InputError) as error:
+            validate(bad, "corners", "c.json")
+        return str(error.value)
+
+    fresh = message()
+    kept = sorted(schemas.validator_cache().iterdir())
+    assert [p.name.split("-")[0] for p in kept] == ["corners", "corners"]          # the fast one and the detailed one
+    monkeypatch.setattr(fastjsonschema, "compile_to_code", lambda *a, **k: pytest.fail("compiled again"))
+    assert message() == fresh
+    monkeypatch.undo()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    kept[0].write_bytes(b"\x00 not marshal")
+    assert message() == fresh and kept[0].read_bytes() != b"\x00 not marshal"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "file"))
+    (tmp_path / "file").write_text("a file where the folder would be")
+    assert message() == fresh
+    schemas._validator.cache_clear()

@@ -10,9 +10,15 @@ were edited) is checked by the loaders in :mod:`dualcal.files.io`.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import hashlib
 import json
+import marshal
 import math
+import os
+import sys
+import tempfile
 from pathlib import Path
 
 from ...errors import InputError
@@ -62,6 +68,12 @@ def _inlined(name: str) -> dict:
     return alone
 
 
+def validator_cache() -> Path:
+    """Where compiled validators are kept between runs: ``$XDG_CACHE_HOME/dualcal/validators`` (by default
+    ``~/.cache/dualcal/validators``)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "dualcal" / "validators"
+
+
 @functools.cache
 def _validator(name: str, detailed: bool = False):
     """The compiled validator of ``NAME.json``: a function that raises
@@ -69,10 +81,31 @@ def _validator(name: str, detailed: bool = False):
     (a third of the compile time without: :func:`validate` compiles that one only for a file that fails).
     fastjsonschema reads the schemas as draft 7, which means the same as draft 2020-12 for the keywords
     they use (no ``$ref`` beside other keywords, no ``items`` lists); ``tests/test_schemas.py`` checks
-    that it judges as jsonschema's draft 2020-12 validator does."""
+    that it judges as jsonschema's draft 2020-12 validator does.
+
+    Generating and compiling a validator's code takes 10-30 ms (corners.json's: 12 ms of the 0.4 s a process
+    calibrating two cameras' corners takes), so the compiled code is kept in :func:`validator_cache`, under a key
+    of every schema's text, fastjsonschema's version and Python's; a cache that cannot be read or written is
+    passed over (the validator is compiled, as without one)."""
     import fastjsonschema
 
-    return fastjsonschema.compile(_inlined(name), use_default=False, use_formats=False, detailed_exceptions=detailed)
+    key = hashlib.sha256("\0".join([fastjsonschema.VERSION, sys.version, name, str(detailed),
+                                     *map(schema_text, SCHEMA_NAMES)]).encode()).hexdigest()[:32]
+    path = validator_cache() / f"{name}-{key}.marshal"
+    try:
+        code = marshal.loads(path.read_bytes())
+    except (OSError, ValueError, EOFError, TypeError):
+        source = fastjsonschema.compile_to_code(_inlined(name), use_default=False, use_formats=False,
+                                                detailed_exceptions=detailed)
+        code = compile(source, f"<validator of {name}.json>", "exec")
+        with contextlib.suppress(OSError):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.NamedTemporaryFile(dir=path.parent, delete=False) as tmp:
+                tmp.write(marshal.dumps(code))
+            os.replace(tmp.name, path)
+    namespace: dict = {}
+    exec(code, namespace)
+    return namespace["validate"]
 
 
 def key_path(parts) -> str:
