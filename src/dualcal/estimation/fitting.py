@@ -54,11 +54,15 @@ def usable_photos(corners: CornerSet, names: list[str], xy_board: np.ndarray,
                   quiet: bool = False) -> list[tuple[int, str, np.ndarray]]:
     """``(camera index, view, (N, 2) corners)`` of every photo whose measured corners determine a
     homography (:func:`unusable_reason`). Every other photo where the board was found is skipped
-    with a warning naming it (unless ``quiet``: a calibration already said so)."""
-    blocks = []
+    with a warning naming it (unless ``quiet``: a calibration already said so). Photos that measured the same
+    corners share the verdict."""
+    blocks, verdicts = [], {}
     for c, name in enumerate(names):
         for v, uv in sorted(corners.cameras[name].found().items()):
-            reason = unusable_reason(uv, xy_board)
+            seen = observed_mask(uv).tobytes()
+            if seen not in verdicts:
+                verdicts[seen] = unusable_reason(uv, xy_board)
+            reason = verdicts[seen]
             if reason:
                 if not quiet:
                     warn(f"{name}/{v} skipped: {reason}")
