@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .adjust import Solution, photo_rows
+from .adjust import Solution
 from .distributions import f_quantile, sidak
 from .instant_poses import (InstantRelations, best_fitting_half, deleted_costs, focal_responses, instant_relations,
                             refocus_explained)
@@ -406,46 +406,52 @@ def focal_scale_fits(sol: Solution, views=None) -> list[dict]:
     fitted together with the instant's own unknowns (the board pose; in a rig it is held by the
     instant's other photos too, so a tele that refocused shows against the wide) and every other
     parameter held. Returns ``{"block", "camera" (index), "view", "s", "var_s" (per unit residual
-    variance), "explained_px2"}`` per photo: ``explained_px2`` is how much of the instant's squared
-    residuals the focal scale takes away.
+    variance), "explained_px2"}`` per photo, instant by instant: ``explained_px2`` is how much of the instant's
+    squared residuals the focal scale takes away.
+
+    From the photos' own pieces of the normal equations at ``sol`` (no Jacobian computed again): with ``N`` the
+    instant's own unknowns' ``J^T J`` summed over its photos and ``g`` their ``J^T r``, ``b``, ``c``, ``d`` the
+    photo's ``J^T j``, ``j^T j``, ``j^T r`` of its column ``j = fx J_fx + fy J_fy``, the fit's last unknown is
+    ``s = -(d - b^T N^-1 g) / S`` of variance ``1 / S``, ``S = c - b^T N^-1 b`` (the Schur complement).
     """
     p, lay = sol.problem, sol.problem.layout
-    by_instant: dict[str, list] = {}
-    for pr in photo_rows(p, sol.state):
-        view = p.blocks[pr.block][1]
-        if views is None or view in views:
-            by_instant.setdefault(view, []).append(pr)
+    n_local = lay.local_used.shape[1]
+    N = np.zeros((len(p.views), n_local, n_local))
+    g = np.zeros((len(p.views), n_local))
+    for ph in sol.factorization.ne.photos:       # one photo per instant in a camera: no index repeats
+        N[ph.views[:, None, None], ph.local_slots[None, :, None], ph.local_slots[None, None, :]] += ph.ll
+        g[ph.views[:, None], ph.local_slots] += ph.grad_l
+    unused = ~lay.local_used
+    N[unused[:, :, None] & np.eye(n_local, dtype=bool)] = 1.0            # an unused slot: a unit of its own
+    wanted = None if views is None else {p.view_index[v] for v in views if v in p.view_index}
     fits = []
-    for view, rows in by_instant.items():
-        local = np.unique(np.concatenate([pr.columns[pr.columns >= lay.n_global] for pr in rows]))
-        m = sum(len(pr.r) for pr in rows)
-        J_local, r = np.zeros((m, len(local))), np.concatenate([pr.r for pr in rows])
-        row = 0
-        for pr in rows:
-            own = pr.columns >= lay.n_global
-            J_local[row:row + len(pr.r), np.searchsorted(local, pr.columns[own])] = pr.J[:, own]
-            row += len(pr.r)
-        row = 0
-        for pr in rows:
-            c = p.blocks[pr.block][0]
-            if len(lay.intrinsics[c]) < 2:                         # intrinsics held fixed (known): not judged here
-                row += len(pr.r)
+    for ph in sol.factorization.ne.photos:
+        c = ph.camera
+        if len(lay.intrinsics[c]) < 2:                         # intrinsics held fixed (known): not judged here
+            continue
+        fx, fy = sol.state.intrinsics[c, :2]
+        i, j = (int(np.flatnonzero(ph.global_columns == k)[0]) for k in lay.intrinsics[c][:2])   # fx's and fy's
+        b = np.zeros((len(ph.views), n_local))
+        b[:, ph.local_slots] = fx * ph.gl[:, i] + fy * ph.gl[:, j]
+        cc = fx * fx * ph.gg[:, i, i] + 2 * fx * fy * ph.gg[:, i, j] + fy * fy * ph.gg[:, j, j]
+        d = fx * ph.grad_g[:, i] + fy * ph.grad_g[:, j]
+        for k, (block, v) in enumerate(zip(ph.blocks, ph.views)):
+            if wanted is not None and v not in wanted:
                 continue
-            col = {int(k): i for i, k in enumerate(pr.columns)}
-            fx_col, fy_col = lay.intrinsics[c][:2]                 # fx and fy are free where any intrinsic is
-            cam = sol.state.intrinsics[c]
-            J_scale = np.zeros(m)
-            J_scale[row:row + len(pr.r)] = cam[0] * pr.J[:, col[fx_col]] + cam[1] * pr.J[:, col[fy_col]]
-            row += len(pr.r)
-            A = np.column_stack([J_local, J_scale])
             try:
-                inv = np.linalg.inv(A.T @ A)
+                x = np.linalg.solve(N[v], np.column_stack([b[k], g[v]]))
             except np.linalg.LinAlgError:
                 continue
-            step = inv @ (A.T @ r)
-            fits.append({"block": pr.block, "camera": c, "view": view, "s": float(-step[-1]),
-                         "var_s": float(inv[-1, -1]), "explained_px2": float(step[-1] ** 2 / inv[-1, -1])})
-    return fits
+            schur = cc[k] - b[k] @ x[:, 0]
+            if not schur > 0:
+                continue
+            step = (d[k] - b[k] @ x[:, 1]) / schur
+            fits.append({"block": int(block), "camera": c, "view": p.views[v], "s": float(-step),
+                         "var_s": float(1.0 / schur), "explained_px2": float(step * step * schur)})
+    first: dict[str, int] = {}                                 # instant by instant, in the order of the blocks
+    for block, (_, v, _) in enumerate(p.blocks):
+        first.setdefault(v, block)
+    return sorted(fits, key=lambda f: (first[f["view"]], f["block"]))
 
 
 def tie_costs(tied: Solution, alone: Solution) -> dict[str, float]:
