@@ -116,8 +116,10 @@ def _deviations(tied: Solution, alone: Solution, x: int, y: int, views: list[str
     D, J = relation_deviation(np.array([P.R for P in P_x]), np.array([P.t_mm for P in P_x]),
                               np.array([P.R for P in P_y]), np.array([P.t_mm for P in P_y]), R_J, t_J)
     columns = np.concatenate([np.concatenate([pose_columns(alone, v, x), pose_columns(alone, v, y)]) for v in views])
-    C = alone.covariance(columns, "formal").reshape(n, 12, n, 12)
-    return D, kappa2 * np.einsum("aij,ajbk,blk->aibl", J, C, J, optimize=True), cov_J     # J block-diagonal
+    C = alone.covariance(columns, "formal").reshape(n, 12, n * 12)
+    JC = np.swapaxes((J @ C).reshape(n, 6, n, 12), 0, 2)                      # (b, i, a, k): J block-diagonal
+    JCJ = (JC.reshape(n, 6 * n, 12) @ np.swapaxes(J, 1, 2)).reshape(n, 6, n, 6)     # (b, i, a, l)
+    return D, kappa2 * np.transpose(JCJ, (2, 1, 0, 3)), cov_J
 
 
 def _rotation_sigma_deg(cov4: np.ndarray) -> np.ndarray:
@@ -134,7 +136,7 @@ def _pair(D: np.ndarray, cov4: np.ndarray, cov_J: np.ndarray, rate: float) -> di
     the instants outside the core move the mean, the largest change of a component over its sigma from the core."""
     n = len(D)
     cov = cov4.reshape(6 * n, 6 * n)
-    own = np.array([D[i] @ np.linalg.solve(cov4[i, :, i, :], D[i]) for i in range(n)])   # each alone, 6 dof
+    own = np.einsum("ai,ai->a", D, np.linalg.solve(np.einsum("aiaj->aij", cov4), D[..., None])[..., 0])  # 6 dof each
     r = cube_root_spread(np.full(n, 6.0))
     core = robust_core(np.cbrt(own / 6.0), r, rate, T_DOF_SHARE)
     e, cov_e, scatter = _scatter(D, cov, core)
