@@ -333,3 +333,25 @@ def test_the_lens_motion_terms_have_exact_jacobians_and_their_priors_rows(mode):
                                atol=1e-6 * np.abs(N).max())
     np.testing.assert_allclose(g[used], (J.T @ r + prior * shifts)[used], rtol=1e-6, atol=1e-6 * np.abs(g).max())
     assert F == pytest.approx(r @ r + shifts @ (prior * shifts), rel=1e-12) and cost(problem, state) == pytest.approx(F)
+
+
+@pytest.mark.parametrize("mode", ["rigid", "paper", "none"])
+def test_a_solutions_residuals_are_those_at_its_state(mode):
+    """A solution keeps the residuals its last normal equations were built from (not computed again): they are
+    :func:`residuals` at its state, NaN where a corner was not measured, unweighted where the photos are weighed and
+    the lens moves (breathing, the stabiliser's shifts)."""
+    truth = make_truth("note8", 5, seed=6, breathing=1.5, ois_px=1.0)
+    corners = noisy_corner_set(truth, 0.2, seed=7)
+    uv = corners.cameras["tele"].views["IMG_02"]
+    uv[:7] = np.nan
+    args = _setup(corners, mode)
+    focus = PhotoFocus({"wide": 4.3, "tele": 6.0}, {"wide": 550.0, "tele": 560.0},
+                       {(n, v): truth.photo_lenses[v][n].focus_mm for n in args[1] for v in truth.view_poses}, {})
+    weights = {(n, v): 0.5 + 0.1 * i for i, (n, v) in enumerate((n, v) for n in args[1] for v in truth.view_poses)}
+    problem = Problem(*args[:4], mode=mode, reference=args[4], focus=focus, breathing=("tele",),
+                      ois=OisPrior({"wide": 1.5, "tele": 0.8}, 0.2), weights=weights)
+    from dualcal.estimation.adjust import adjust
+    sol = adjust(problem, _truth_state(problem, truth, wiggle=1e-3))
+    expected = residuals(problem, sol.state)
+    assert np.array_equal(np.isnan(sol.residuals), np.isnan(expected)) and np.isnan(sol.residuals).any()
+    np.testing.assert_allclose(sol.residuals, expected, rtol=0, atol=1e-12)

@@ -633,9 +633,9 @@ def _jacobian(problem: Problem, state: State, batch: CameraBatch, W, Xc, rel_t, 
 
 
 def _linearised_batches(problem: Problem, state: State):
-    """Per camera: ``(batch, r (B, 2N), J (B, 2N, k_g + k_l), global columns (k_g,), local slots (k_l,))``,
-    the Jacobian's global columns first; the rows of unmeasured corners zero; each photo's rows scaled by the
-    square root of its weight."""
+    """Per camera: ``(batch, r (B, 2N), J (B, 2N, k_g + k_l), global columns (k_g,), local slots (k_l,), raw (B,
+    2N))``, the Jacobian's global columns first; the rows of unmeasured corners zero; each photo's rows of ``r`` and
+    ``J`` scaled by the square root of its weight, ``raw`` its residuals unscaled."""
     for batch in problem.batches:
         W, Xc, rel_t = _camera_points(problem, state, batch)
         B, n = batch.observed.shape
@@ -655,10 +655,11 @@ def _linearised_batches(problem: Problem, state: State):
         r = np.where(batch.observed[:, :, None], uv - batch.uv_px, 0.0).reshape(B, 2 * n)
         cols_g, slots_l = _columns(problem, batch.camera)
         J = _jacobian(problem, state, batch, W, Xc, rel_t, J_X, J_K, len(cols_g), d_breathing).reshape(B, 2 * n, -1)
+        raw = r
         if batch.sqrt_weight is not None:
-            r *= batch.sqrt_weight[:, None]
+            r = r * batch.sqrt_weight[:, None]
             J *= batch.sqrt_weight[:, None, None]
-        yield batch, r, J, cols_g, slots_l
+        yield batch, r, J, cols_g, slots_l, raw
 
 
 def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
@@ -667,7 +668,7 @@ def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
     lay = problem.layout
     ne = NormalEquations.zeros(lay.n_global, lay.local_used)
     total = 0.0
-    for batch, r, J, cg, sl in _linearised_batches(problem, state):
+    for batch, r, J, cg, sl, raw in _linearised_batches(problem, state):
         squares = np.sum(r * r, axis=1)
         total += float(squares.sum())
         v = batch.views[:, None, None]              # one photo per instant in a camera: no index repeats
@@ -682,7 +683,7 @@ def linearise(problem: Problem, state: State) -> tuple[float, NormalEquations]:
         ne.grad_g[batch.views[:, None], cg] += g_g
         ne.grad_l[batch.views[:, None], sl] += g_l
         ne.photos.append(PhotoNormals(batch.camera, batch.blocks, batch.views, cg, sl, gg, gl, ll, g_g, g_l, squares,
-                                      batch.observed.sum(axis=1)))
+                                      batch.observed.sum(axis=1), raw))
         if problem.mode == "paper" and problem.tied(batch.camera):
             _add_sphere_curvature(problem, state, ne, batch, g_g[:, cg == lay.baseline[batch.camera][0]][:, 0],
                                   g_l[:, np.isin(sl, lay.direction[batch.camera])])
@@ -745,7 +746,7 @@ def photo_rows(problem: Problem, state: State) -> list[PhotoRows]:
     """The Jacobian rows of every photo's measured corners, in the order of ``problem.blocks``."""
     lay = problem.layout
     out = []
-    for batch, r, J, cg, sl in _linearised_batches(problem, state):
+    for batch, r, J, cg, sl, _ in _linearised_batches(problem, state):
         rows = np.repeat(batch.observed, 2, axis=1)
         for i, (b, v) in enumerate(zip(batch.blocks, batch.views)):
             used = np.concatenate([np.ones(len(cg), bool), lay.local_used[v, sl]])
@@ -760,7 +761,7 @@ def photo_jacobians(problem: Problem, state: State):
     corner was not measured) over the flat parameter indices ``columns``, scaled by the square root of its weight:
     :func:`photo_rows`'s, without picking each photo's measured rows one by one."""
     lay = problem.layout
-    for batch, _, J, cg, sl in _linearised_batches(problem, state):
+    for batch, _, J, cg, sl, _ in _linearised_batches(problem, state):
         patterns, which = np.unique(lay.local_used[batch.views][:, sl], axis=0, return_inverse=True)
         for i, pattern in enumerate(patterns):
             photos = np.flatnonzero(which.ravel() == i)
@@ -971,6 +972,10 @@ def _determined():
 
 def _solution(problem: Problem, state: State, F: float, redundancy: int, iterations: int, converged: bool,
               termination: str, factorization: Factorization) -> Solution:
-    r = residuals(problem, state)
+    """The :class:`Solution` at ``state``, whose residuals are those the normal equations of ``factorization``
+    (linearised at ``state``) were built from."""
+    r = np.full((len(problem.blocks), len(problem.X_board), 2), np.nan)
+    for batch, ph in zip(problem.batches, factorization.ne.photos):
+        r[batch.blocks] = np.where(batch.observed[..., None], ph.residuals.reshape(len(batch.blocks), -1, 2), np.nan)
     return Solution(problem, state, r, float(np.sqrt(F / redundancy)), redundancy, iterations, converged,
                     termination, factorization, np.sqrt(np.nanmean(np.sum(r ** 2, axis=2), axis=1)).tolist())

@@ -38,7 +38,9 @@ class PhotoNormals:
     """Each photo's own part of the normal equations, for the photos of one camera (``P`` photos):
     ``views`` (P,) their instants, ``global_columns`` (kg,) and ``local_slots`` (kl,) where their pieces
     sit, ``gg`` (P, kg, kg), ``gl`` (P, kg, kl), ``ll`` (P, kl, kl), ``grad_g`` (P, kg), ``grad_l`` (P, kl),
-    ``squares`` (P,) ``r^T r`` and ``corners`` (P,) how many corners each measured."""
+    ``squares`` (P,) ``r^T r`` and ``corners`` (P,) how many corners each measured; ``residuals`` (P, 2N) each photo's
+    residuals (predicted - observed, px, u then v corner by corner, 0 where not measured; not scaled by its weight)
+    where the equations were built, None where they were moved (:meth:`NormalEquations.moved`)."""
 
     camera: int
     blocks: np.ndarray
@@ -52,6 +54,7 @@ class PhotoNormals:
     grad_l: np.ndarray
     squares: np.ndarray
     corners: np.ndarray
+    residuals: np.ndarray | None = None
 
 
 @dataclass
@@ -111,7 +114,7 @@ class NormalEquations:
                 "pij,pj->pi", ph.ll, hl)
             squares = ph.squares + np.einsum("pi,pi->p", ph.grad_g + grad_g, np.broadcast_to(hg, grad_g.shape)) + \
                 np.einsum("pi,pi->p", ph.grad_l + grad_l, hl)
-            photos.append(replace(ph, grad_g=grad_g, grad_l=grad_l, squares=squares))
+            photos.append(replace(ph, grad_g=grad_g, grad_l=grad_l, squares=squares, residuals=None))
         return replace(self, grad_g=self.grad_g + self.gg @ h_g + np.einsum("vgl,vl->vg", self.gl, h_l),
                        grad_l=self.grad_l + np.einsum("vgl,g->vl", self.gl, h_g) + np.einsum("vij,vj->vi", self.ll, h_l),
                        photos=photos,
