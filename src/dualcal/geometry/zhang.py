@@ -382,9 +382,9 @@ def _jackknife_log_sigma(estimate, views: int) -> float:
 
 def _closed_form(xy_board: np.ndarray, uvs: list[np.ndarray], seen: list[np.ndarray], image_size, skew: bool,
                  name: str | None = None) -> _ClosedForm:
-    """Homographies, the closed form and one pose per view, no lens (sections 1.3-1.5, with :func:`initial_camera`'s
-    fallbacks; :func:`_closed_form_intrinsics`'s): a view without a homography, or whose pose puts a corner behind
-    the camera (from a poor closed form), is resected."""
+    """Homographies, the closed form (:func:`_closed_form_intrinsics`) and one pose per view, no lens (sections
+    1.3-1.5, with :func:`initial_camera`'s fallbacks): a view without a homography, or whose pose puts a corner
+    behind the camera (from a poor closed form), is resected."""
     cam, Hs, fallback = _closed_form_intrinsics(xy_board, uvs, seen, image_size, skew, name)
     X = np.column_stack([xy_board, np.zeros(len(xy_board))])
     with_H = [i for i, H in enumerate(Hs) if H is not None]
