@@ -263,4 +263,7 @@ def test_a_compiled_validator_is_kept_and_judges_as_a_fresh_one(tmp_path, monkey
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "file"))
     (tmp_path / "file").write_text("a file where the folder would be")
     assert message() == fresh
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setattr(schemas.Path, "home", classmethod(lambda cls: (_ for _ in ()).throw(RuntimeError("no home"))))
+    assert schemas.validator_cache() is None and message() == fresh
     schemas._validator.cache_clear()

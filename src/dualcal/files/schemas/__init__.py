@@ -19,6 +19,7 @@ import math
 import os
 import sys
 import tempfile
+import types
 from pathlib import Path
 
 from ...errors import InputError
@@ -68,10 +69,14 @@ def _inlined(name: str) -> dict:
     return alone
 
 
-def validator_cache() -> Path:
+def validator_cache() -> Path | None:
     """Where compiled validators are kept between runs: ``$XDG_CACHE_HOME/dualcal/validators`` (by default
-    ``~/.cache/dualcal/validators``)."""
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "dualcal" / "validators"
+    ``~/.cache/dualcal/validators``); None where neither that variable nor a home directory is known."""
+    try:
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    except RuntimeError:                                   # no home directory (a service's account)
+        return None
+    return root / "dualcal" / "validators"
 
 
 @functools.cache
@@ -91,21 +96,44 @@ def _validator(name: str, detailed: bool = False):
 
     key = hashlib.sha256("\0".join([fastjsonschema.VERSION, sys.version, name, str(detailed),
                                      *map(schema_text, SCHEMA_NAMES)]).encode()).hexdigest()[:32]
-    path = validator_cache() / f"{name}-{key}.marshal"
-    try:
-        code = marshal.loads(path.read_bytes())
-    except (OSError, ValueError, EOFError, TypeError):
+    folder = validator_cache()
+    path = None if folder is None else folder / f"{name}-{key}.marshal"
+    code = _kept_code(path)
+    if code is None:
         source = fastjsonschema.compile_to_code(_inlined(name), use_default=False, use_formats=False,
                                                 detailed_exceptions=detailed)
         code = compile(source, f"<validator of {name}.json>", "exec")
-        with contextlib.suppress(OSError):
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.NamedTemporaryFile(dir=path.parent, delete=False) as tmp:
-                tmp.write(marshal.dumps(code))
-            os.replace(tmp.name, path)
+        if path is not None:
+            _keep_code(path, code)
     namespace: dict = {}
     exec(code, namespace)
     return namespace["validate"]
+
+
+def _kept_code(path: Path | None):
+    """The code object kept at ``path``, or None (no cache, no such file, or not a code object)."""
+    if path is None:
+        return None
+    try:
+        code = marshal.loads(path.read_bytes())
+    except (OSError, ValueError, EOFError, TypeError):
+        return None
+    return code if isinstance(code, types.CodeType) else None
+
+
+def _keep_code(path: Path, code) -> None:
+    """Write ``code`` to ``path`` atomically (a temporary file beside it, renamed); nothing where it cannot."""
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, delete=False) as f:
+            tmp = f.name
+            f.write(marshal.dumps(code))
+        os.replace(tmp, path)
+    except OSError:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
 
 
 def key_path(parts) -> str:
