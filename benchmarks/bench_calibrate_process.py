@@ -17,7 +17,7 @@
 
    Beside the wall times, each side's CPU seconds (user and system, median): on a machine busy with other
    work the wall time of both waits for a core, and the CPU time is what each side itself costs.
-   Target: dualcal / OpenCV at most 1.0 (issue 41: at most 1.25 at 50 instants of two to four cameras). ``--growth`` adds 13 and 200 instants and the paper's case alone
+   Target: dualcal / OpenCV at most 1.0, and at 50 instants of two to four cameras at most 1.25 (issue 41). ``--growth`` adds 13 and 200 instants and the paper's case alone
    (``--model k1k2 --no-compare-models --no-compare-lens``).
 
 2. **A recalibration in process** (what the app does after a photo is left out: the corners in memory,
@@ -63,6 +63,8 @@ REAL_SETS = {"stereo": ("opencv-samples-stereo", ["left=left*.jpg", "right=right
              "bouguet": ("bouguet-calib-example", ["cam=Image*.tif"], (12, 13), 30.0),
              "huawei": ("huawei-y5-2017", [], (7, 9), 30.0)}
 PROCESS_TARGET = 1.0
+#: Issue 41's target at 50 instants (two to four cameras), where start-up and imports weigh most.
+FIFTY_INSTANTS_TARGET = 1.25
 RECALIBRATION_TARGET_S = 1.0
 BASELINE_TARGET_SIGMA = 0.05
 
@@ -142,9 +144,10 @@ def part_processes(cases, runs: int, growth: bool) -> list[list]:
                 line += f" {t['paper']:10.2f}s {t['paper'] / t['opencv']:13.2f}"
             print(line, flush=True)
             if views >= 50:
+                target = FIFTY_INSTANTS_TARGET if views == 50 else PROCESS_TARGET
                 rows.append([f"defaults as a process, {preset} {views} instants: dualcal / OpenCV "
                              f"({t['default']:.2f} s / {t['opencv']:.2f} s)", f"{ratio:.2f}",
-                             f"<= {PROCESS_TARGET:g}", "PASS" if ratio <= PROCESS_TARGET else "FAIL"])
+                             f"<= {target:g}", "PASS" if ratio <= target else "FAIL"])
     print(f"(cameras: note8 2, triple 3, quad 4; load average {os.getloadavg()[0]:.1f})")
     return rows
 
