@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 
 from dualcal.estimation.calibrate import calibrate_rig
 from dualcal.errors import InputError
-from dualcal.files.io import (corners_from_dict, corners_to_dict, dumps_indented, json_kind, load_corners, load_rig,
-                              rig_from_dict, rig_to_dict, save_corners, save_rig, write_text_atomic)
+from dualcal.files.io import (_corner_list, corners_from_dict, corners_to_dict, dumps_indented, json_kind, load_corners,
+                              load_rig, rig_from_dict, rig_to_dict, save_corners, save_rig, write_text_atomic)
 from dualcal.synthetic.synth import make_truth, noisy_corner_set
 
 
@@ -278,3 +278,18 @@ def test_a_calib_json_is_json_dumps_text_and_refuses_nan(rig):
             dumps_indented(bad)
     with pytest.raises(TypeError):
         dumps_indented({"a": np.float32(1.0)})
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(st.floats(-1e12, 1e12) | st.just(float("nan")), st.floats(-1e12, 1e12)), min_size=1,
+                max_size=12), st.booleans())
+def test_a_views_corners_are_written_rounded_to_5_decimals_whether_or_not_they_were(pairs, rounded):
+    """corners.json (and calib.json's corners) keep 5 decimals: corners already rounded (read from a corners.json)
+    are taken as they are, the others rounded by Python's ``round``; either way every number is ``round(x, 5)``."""
+    from dualcal.files.io import _corner_list
+
+    uv = np.array(pairs, float)
+    if rounded:
+        uv = np.array([[round(u, 5), round(v, 5)] for u, v in uv.tolist()])
+    expected = [[round(u, 5), round(v, 5)] if np.isfinite(u) and np.isfinite(v) else None for u, v in uv.tolist()]
+    assert _corner_list(uv) == expected

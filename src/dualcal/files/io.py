@@ -426,11 +426,17 @@ def corners_from_dict(doc: dict, source: str = "corners.json") -> CornerSet:
 
 
 def _corner_list(uv: np.ndarray | None):
-    """A view's corners for corners.json: ``[u, v]`` per corner, ``null`` for NaN rows."""
+    """A view's corners for corners.json: ``[u, v]`` per corner rounded to 5 decimals, ``null`` for NaN rows.
+
+    Corners read from a corners.json are rounded already (``np.round`` leaves every one as it is exactly when
+    Python's ``round`` does): their values are taken as they are, without rounding each number again."""
     if uv is None:
         return None
-    finite = math.isfinite
-    return [[round(u, 5), round(v, 5)] if finite(u) and finite(v) else None for u, v in np.asarray(uv, float).tolist()]
+    uv = np.asarray(uv, float)
+    ok = np.isfinite(uv).all(axis=1)
+    if np.array_equal(np.round(uv[ok], 5), uv[ok]):
+        return [p if good else None for p, good in zip(uv.tolist(), ok.tolist())]
+    return [[round(u, 5), round(v, 5)] if good else None for (u, v), good in zip(uv.tolist(), ok.tolist())]
 
 
 def corners_to_dict(cs: CornerSet) -> dict:
