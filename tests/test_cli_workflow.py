@@ -242,3 +242,33 @@ def test_truth_with_noisy_corners_is_not_refused(tmp_path, run_cli):
     assert run_cli("evaluate", tmp_path / "truth.json", "-o", tmp_path / "eval.json").code == 0
     assert_valid(tmp_path / "truth.json")
     assert_valid(tmp_path / "eval.json")
+
+
+@pytest.mark.parametrize("width", [40, 80, 200])
+def test_the_tables_given_their_measured_widths_render_the_same_text(corners_json, tmp_path, width):
+    """The commands' tables give rich the widths of their unwrapped columns (it then need not measure every cell
+    again): the text is the same as rich's own measuring gives, on narrow terminals too, with a photo name of wide
+    characters and a control character in it."""
+    import io
+
+    from dualcal.cli.common import table_console
+    from dualcal.cli.tables import checks_table, photo_table
+    from dualcal.workflow import calibrate_corners
+
+    cs = load_corners(corners_json)
+    cs.cameras["wide"].views["写真\x07_01"] = cs.cameras["wide"].views.pop("IMG_01")
+    cs.cameras["tele"].views["写真\x07_01"] = cs.cameras["tele"].views.pop("IMG_01")
+    rig = calibrate_corners(cs)
+
+    def text(table, measured):
+        if not measured:
+            for column in table.columns:
+                column.width = None
+        console = table_console()
+        console.file, console.width = io.StringIO(), width
+        console.print(table)
+        return console.file.getvalue()
+
+    for build in (photo_table, checks_table):
+        assert any(c.width is not None for c in build(rig).columns)
+        assert text(build(rig), True) == text(build(rig), False)

@@ -12,15 +12,28 @@ per camera and whether it was kept, dropped or left out, and why.
 from __future__ import annotations
 
 from rich import box
+from rich.cells import cell_len
 from rich.table import Table
 
 from ..geometry.camera import DISTORTION_NAMES, FISHEYE_MODELS, INTRINSIC_NAMES, intrinsic_names
 from ..geometry.model import RigModel
 from ..pages.photos import photo_quality, photo_rows, photo_status
 from ..geometry.scale import relative_sigma, scale_share
+from ..terminal import printable
 
 _PAPER_NAMES = {"fx": "alpha = fx", "fy": "beta = fy", "skew": "gamma = skew", "cx": "u0 = cx",
                 "cy": "v0 = cy", "k1": "k1", "k2": "k2", "p1": "p1", "p2": "p2", "k3": "k3", "k4": "k4"}
+
+
+def _measured(t: Table) -> Table:
+    """``t`` with the width of each column that does not wrap given as its widest cell's (its header's included),
+    where every cell is a one-line string: the widths rich measures, given so that it does not measure every cell
+    once more as it renders (a table of 50 rows renders in two thirds of the time; the same text)."""
+    for column in t.columns:
+        cells = [column.header, *column.cells]
+        if column.no_wrap and column.width is None and all(isinstance(c, str) and "\n" not in c for c in cells):
+            column.width = max(cell_len(printable(c)) for c in cells)
+    return t
 
 
 def _pm(value: float, sigma: float, digits: int) -> tuple[str, str]:
@@ -116,7 +129,7 @@ def photo_table(rig: RigModel) -> Table:
     t.add_column("status")
     for view, cells, note in photo_rows(status, names, quality=quality or None):
         t.add_row(view, *cells, note)
-    return t
+    return _measured(t)
 
 
 def checks_table(rig: RigModel) -> Table:
@@ -131,7 +144,7 @@ def checks_table(rig: RigModel) -> Table:
     for name, check in rig.checks.items():
         cells = check_limits(check)
         t.add_row(name, "pass" if check.get("ok", True) else "FAIL", cells["statistic"], cells["limit"], cells["rate"])
-    return t
+    return _measured(t)
 
 
 def lens_model_table(scores, used: str) -> Table:
@@ -147,7 +160,7 @@ def lens_model_table(scores, used: str) -> Table:
         notes = (["recommended"] if s.recommended else []) + (["used"] if s.model == used else [])
         t.add_row(s.model, str(s.coefficients), f"{s.fit_rms_px:.4f}", f"{s.held_out_rms_px:.4f}",
                   f"{s.worse_se:.1f}", ", ".join(notes))
-    return t
+    return _measured(t)
 
 
 def lens_model_advice(scores, used: str) -> str:
@@ -180,7 +193,7 @@ def lens_model_choice_table(adjustment: dict) -> Table:
     for name, cells in grid:
         t.add_row(name, *(f"{c['held_out_rms_px']:.4f} {c['worse_se']:.1f}{'*' if c['chosen'] else ' '}" if c else "- "
                           for c in cells))
-    return t
+    return _measured(t)
 
 
 def roll_tables(roll: dict) -> list[Table]:
