@@ -261,7 +261,8 @@ def _bracketed_root(P, dP, a: float, b: float) -> float:
         if b - a <= 4.0 * np.finfo(float).eps * b:
             break
         slope = dP(x)
-        step = x - p / slope if slope != 0.0 else np.nan
+        with np.errstate(over="ignore"):            # a slope near 0 sends the step far out: a bisection then
+            step = x - p / slope if slope != 0.0 else np.nan
         if a < step < b:
             x = step
         else:
