@@ -42,17 +42,9 @@ def undistort_division(uv: np.ndarray, lam: float, image_size) -> np.ndarray:
 
 def division_misfits(xy: np.ndarray, uv: np.ndarray, lams: np.ndarray, image_size):
     """The homographies of one view's corners ``uv`` (N, 2) undistorted with each of ``lams`` (L,), (L, 3, 3), and
-    their misfits (L,) in distorted pixels."""
-    c, s = centre_and_scale(image_size)
-    d = uv - c
-    pts = c + d / (1.0 + lams[:, None, None] * np.sum(d * d, axis=1)[None, :, None] / s**2)      # (L, N, 2)
-    Hs = np.array(estimate_homographies(xy, pts, np.ones(pts.shape[:2], bool), refine=False))
-    q = np.einsum("lij,nj->lni", Hs, np.column_stack([xy, np.ones(len(xy))]))
-    residual = np.sum((q[..., :2] / q[..., 2:] - pts) ** 2, axis=2)
-    # residuals in undistorted pixels, scaled back by the model's magnification of the board
-    spread = np.sqrt(np.sum((pts - pts.mean(axis=1, keepdims=True)) ** 2, axis=(1, 2)))
-    magnification = spread / np.linalg.norm(uv - uv.mean(axis=0))
-    return Hs, np.sqrt(residual.mean(axis=1)) / magnification
+    their misfits (L,) in distorted pixels (the RMS length of a corner's residual: :func:`_division_fits`)."""
+    Hs, squares = _division_fits(xy, uv[None], np.ones((1, len(uv)), bool), lams, image_size)
+    return Hs[:, 0], np.sqrt(squares[:, 0] / len(uv))
 
 
 def division_homography(xy_board: np.ndarray, uv: np.ndarray, image_size) -> tuple[np.ndarray, float, float]:
@@ -84,10 +76,10 @@ def division_homography(xy_board: np.ndarray, uv: np.ndarray, image_size) -> tup
     return Hs[i], float(grid[i]), float(misfit[i])
 
 
-def _summed_squares(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lams: np.ndarray, image_size) -> np.ndarray:
-    """For each of ``lams`` (L,), the squared residuals of every view's homography (``uvs`` (V, N, 2), ``seen``
-    (V, N)) with the corners undistorted by it, summed, each view's scaled back to its distorted pixels: (L,), the
-    L x V homographies in one batch."""
+def _division_fits(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lams: np.ndarray, image_size):
+    """For each of ``lams`` (L,), every view's homography of its corners (``uvs`` (V, N, 2), ``seen`` (V, N))
+    undistorted by it, (L, V, 3, 3), and its squared residuals summed over its corners, scaled back to its distorted
+    pixels by the model's magnification of its board, (L, V): the L x V homographies in one batch."""
     L, (V, N) = len(lams), seen.shape
     c, s = centre_and_scale(image_size)
     d = np.where(seen[..., None], uvs, c) - c                                              # (V, N, 2)
@@ -103,7 +95,7 @@ def _summed_squares(xy: np.ndarray, uvs: np.ndarray, seen: np.ndarray, lams: np.
         return np.sqrt(np.where(on, np.sum((p - mean[..., None, :]) ** 2, axis=-1), 0.0).sum(axis=-1))
 
     magnification = spread(pts) / spread(np.broadcast_to(d, pts.shape))            # (L, V)
-    return np.sum(residual.sum(axis=-1) / magnification**2, axis=1)
+    return Hs.reshape(L, V, 3, 3), residual.sum(axis=-1) / magnification**2
 
 
 #: :func:`common_division` looks at this many views at most: those whose corners reach furthest from the image's
@@ -136,7 +128,10 @@ def common_division(xy_board: np.ndarray, uvs, image_size) -> float:
         uvs = uvs[np.sort(np.argsort(-np.nan_to_num(reach, nan=-1.0), kind="stable")[:DIVISION_VIEWS])]
     seen = observed_mask(uvs)
     grid = np.linspace(*LAMBDA_RANGE, DIVISION_GRID)
-    cost = _summed_squares(xy_board, uvs, seen, grid, image_size)
+    def summed_squares(lams):
+        return _division_fits(xy_board, uvs, seen, lams, image_size)[1].sum(axis=1)
+
+    cost = summed_squares(grid)
     i = int(np.argmin(cost))
     if i in (0, len(grid) - 1):              # at the range's end
         return float(grid[i])
@@ -149,7 +144,7 @@ def common_division(xy_board: np.ndarray, uvs, image_size) -> float:
         x = b - 0.5 * ((b - a) ** 2 * (fb - fc) - (b - c) ** 2 * (fb - fa)) / curvature
         if not a < x < c or x == b:
             break
-        (fx,) = _summed_squares(xy_board, uvs, seen, np.array([x]), image_size)
+        (fx,) = summed_squares(np.array([x]))
         if fx < fb:                          # x the new best, between b and the bracket's end on its side
             bracket = [(a, fa), (x, fx), (b, fb)] if x < b else [(b, fb), (x, fx), (c, fc)]
         else:                                # b still the best: the bracket closes in from x's side
