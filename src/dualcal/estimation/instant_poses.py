@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .adjust import Solution, photo_rows
+from ..geometry.model import stacked
 from ..geometry.rotation import cross_matrix, rotvec_from_rotation
 
 __all__ = ["InstantRelations", "best_fitting_half", "deleted_costs", "fit_costs", "focal_responses",
@@ -119,9 +120,8 @@ def instant_relations(tied: Solution, alone: Solution) -> InstantRelations:
     pairs = [(view, c) for view, cams in tied_cams.items() for c in cams]
     if not pairs:
         return InstantRelations([], [], [], [], per, len(p.cameras), [], [])
-    x, y = [poses[ref, view] for view, _ in pairs], [poses[c, view] for view, c in pairs]
-    d, Jd = relation_deviation(np.array([P.R for P in x]), np.array([P.t_mm for P in x]),        # every pair at once
-                               np.array([P.R for P in y]), np.array([P.t_mm for P in y]),
+    d, Jd = relation_deviation(*stacked([poses[ref, view] for view, _ in pairs]),          # every pair at once
+                               *stacked([poses[c, view] for view, c in pairs]),
                                np.array([tied.state.rig_R[c] for _, c in pairs]),
                                np.array([tied.state.rig_t[c] if per == 6 else np.zeros(3) for _, c in pairs]))
     if per == 4:                                   # the paper's model: the baseline's length alone

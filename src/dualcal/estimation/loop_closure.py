@@ -42,7 +42,7 @@ import numpy as np
 from .adjust import Solution
 from .checks import FALSE_ALARM_RATE, SHIFT_SIGMAS, T_DOF_SHARE, design_effect
 from .distributions import f_quantile, f_sf, sidak
-from ..geometry.model import Pose
+from ..geometry.model import Pose, stacked
 from .instant_poses import pose_columns, relation_deviation
 from .rig_relations import rig_linearisation
 from .robust_tests import cube_root_spread, robust_core
@@ -112,9 +112,8 @@ def _deviations(tied: Solution, alone: Solution, x: int, y: int, views: list[str
     R_J, t_J, cov_J = _joint_relation(tied, x, y, kappa2)
     poses = alone.photo_poses
     n = len(views)
-    P_x, P_y = [poses[(x, v)] for v in views], [poses[(y, v)] for v in views]
-    D, J = relation_deviation(np.array([P.R for P in P_x]), np.array([P.t_mm for P in P_x]),
-                              np.array([P.R for P in P_y]), np.array([P.t_mm for P in P_y]), R_J, t_J)
+    D, J = relation_deviation(*stacked([poses[(x, v)] for v in views]), *stacked([poses[(y, v)] for v in views]),
+                              R_J, t_J)
     columns = np.concatenate([np.concatenate([pose_columns(alone, v, x), pose_columns(alone, v, y)]) for v in views])
     C = alone.covariance(columns, "formal").reshape(n, 12, n * 12)
     JC = np.swapaxes((J @ C).reshape(n, 6, n, 12), 0, 2)                      # (b, i, a, k): J block-diagonal

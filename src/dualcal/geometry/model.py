@@ -15,7 +15,7 @@ import numpy as np
 from .board import Board, sag_mm, shaped_points_mm
 from .camera import CameraModel, intrinsic_names, project_points
 from .focus import FocusModel, camera_at_focus
-from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation
+from .rotation import ARCMIN_PER_RAD, nearest_rotation, opk_from_rotation, rotation_angle_deg
 
 
 #: calib.json's top-level ``model`` when the cameras' lens models differ.
@@ -56,6 +56,11 @@ class Pose:
         return {"R": self.R.tolist(), "t_mm": self.t_mm.tolist()}
 
 
+def stacked(poses) -> tuple[np.ndarray, np.ndarray]:
+    """The rotations (n, 3, 3) and translations (n, 3), mm, of ``poses`` as stacks (batched pose algebra)."""
+    return np.array([p.R for p in poses]), np.array([p.t_mm for p in poses])
+
+
 def mean_pose(poses: list[Pose]) -> Pose:
     """Chordal mean of the rotations (nearest rotation to their sum) and mean of the translations."""
     return Pose(nearest_rotation(np.sum([p.R for p in poses], axis=0)), np.mean([p.t_mm for p in poses], axis=0))
@@ -72,10 +77,8 @@ def consensus_pose(poses: list[Pose]) -> Pose:
     within :data:`CONSENSUS_ANGLE_DEG` and :data:`CONSENSUS_SPREAD` median distances of it. Where every pose
     agrees, exactly their mean. A start for a rig's relative pose that one gross instant (a board numbered the
     other way round in one photo, seen from behind) does not throw off."""
-    R = np.array([p.R for p in poses])
-    t = np.array([p.t_mm for p in poses])
-    cos = (np.einsum("aij,bij->ab", R, R) - 1.0) / 2.0                  # cos of the angle between each two
-    angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    R, t = stacked(poses)
+    angle = rotation_angle_deg(R[:, None], R[None, :])                  # between each two
     medoid = int(np.argmin(angle.sum(axis=1)))
     moved = np.linalg.norm(t - t[medoid], axis=1)
     agree = (angle[medoid] <= CONSENSUS_ANGLE_DEG) & (moved <= max(CONSENSUS_SPREAD * np.median(moved), 1.0))
