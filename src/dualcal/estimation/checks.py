@@ -43,8 +43,8 @@ import numpy as np
 
 from .adjust import Solution
 from .distributions import f_quantile, sidak
-from .instant_poses import (InstantRelations, best_fitting_half, deleted_costs, focal_responses, instant_relations,
-                            refocus_explained)
+from .instant_poses import (InstantRelations, best_fitting_half, deleted_costs, focal_column, focal_responses,
+                            instant_relations, refocus_explained)
 from .rig_relations import rig_relation
 from ..errors import EstimationError
 from .robust_tests import MIN_SPLIT_GROUP, CoreTest, core_tests, cube_root_spread, robust_core, split_test
@@ -426,15 +426,12 @@ def focal_scale_fits(sol: Solution, views=None) -> list[dict]:
     wanted = None if views is None else {p.view_index[v] for v in views if v in p.view_index}
     fits = []
     for ph in sol.factorization.ne.photos:
-        c = ph.camera
-        if len(lay.intrinsics[c]) < 2:                         # intrinsics held fixed (known): not judged here
+        column = focal_column(sol, ph)
+        if column is None:                                     # intrinsics held fixed (known): not judged here
             continue
-        fx, fy = sol.state.intrinsics[c, :2]
-        i, j = (int(np.flatnonzero(ph.global_columns == k)[0]) for k in lay.intrinsics[c][:2])   # fx's and fy's
+        jl, cc, d = column
         b = np.zeros((len(ph.views), n_local))
-        b[:, ph.local_slots] = fx * ph.gl[:, i] + fy * ph.gl[:, j]
-        cc = fx * fx * ph.gg[:, i, i] + 2 * fx * fy * ph.gg[:, i, j] + fy * fy * ph.gg[:, j, j]
-        d = fx * ph.grad_g[:, i] + fy * ph.grad_g[:, j]
+        b[:, ph.local_slots] = jl
         for k, (block, v) in enumerate(zip(ph.blocks, ph.views)):
             if wanted is not None and v not in wanted:
                 continue
@@ -446,7 +443,7 @@ def focal_scale_fits(sol: Solution, views=None) -> list[dict]:
             if not schur > 0:
                 continue
             step = (d[k] - b[k] @ x[:, 1]) / schur
-            fits.append({"block": int(block), "camera": c, "view": p.views[v], "s": float(-step),
+            fits.append({"block": int(block), "camera": ph.camera, "view": p.views[v], "s": float(-step),
                          "var_s": float(1.0 / schur), "explained_px2": float(step * step * schur)})
     first: dict[str, int] = {}                                 # instant by instant, in the order of the blocks
     for block, (_, v, _) in enumerate(p.blocks):

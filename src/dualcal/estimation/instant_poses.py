@@ -32,11 +32,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .adjust import Solution, photo_rows
+from .adjust import Solution
+from .normal_equations import PhotoNormals
 from ..geometry.model import stacked
 from ..geometry.rotation import cross_matrix, rotvec_from_rotation
 
-__all__ = ["InstantRelations", "best_fitting_half", "deleted_costs", "fit_costs", "focal_responses",
+__all__ = ["InstantRelations", "best_fitting_half", "deleted_costs", "fit_costs", "focal_column", "focal_responses",
            "instant_relations", "pose_columns", "refocus_explained", "relation_deviation", "relations_of"]
 
 
@@ -213,27 +214,40 @@ def _deleted_costs_alike(rel: InstantRelations, core: np.ndarray, info: np.ndarr
     return np.einsum("nk,nk->n", d, np.linalg.solve(np.array(rel.cov) + cov, d[..., None])[..., 0])
 
 
+def focal_column(sol: Solution, ph: PhotoNormals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The focal column ``j = fx J_fx + fy J_fy`` (the camera's focal lengths scaled together) of the photos ``ph``
+    of one camera (their pieces of ``sol``'s normal equations, at its state) against their own unknowns and
+    residuals: ``J_l^T j`` (P, kl), ``j^T j`` (P,) and ``j^T r`` (P,); None where the camera's intrinsics are held
+    fixed (known), whose focal length the photos do not move."""
+    lay, c = sol.problem.layout, ph.camera
+    if len(lay.intrinsics[c]) < 2:
+        return None
+    fx, fy = sol.state.intrinsics[c, :2]
+    i, j = (int(np.flatnonzero(ph.global_columns == k)[0]) for k in lay.intrinsics[c][:2])   # free where any is
+    return (fx * ph.gl[:, i] + fy * ph.gl[:, j],
+            fx * fx * ph.gg[:, i, i] + 2 * fx * fy * ph.gg[:, i, j] + fy * fy * ph.gg[:, j, j],
+            fx * ph.grad_g[:, i] + fy * ph.grad_g[:, j])
+
+
 def focal_responses(alone: Solution, views) -> dict[tuple[int, str], np.ndarray]:
     """How each photo's own pose in ``alone`` (every camera alone) moves per unit of focal change of that photo
     alone, for the photos of ``views``: ``{(camera, view): (6,)}`` (rotation increment, translation; zero for a
     camera whose intrinsics are held fixed). A photo
     taken at a focal length ``1 + s`` times its camera's has the residuals ``-s J_s`` at its true pose
     (``J_s = fx dr/dfx + fy dr/dfy``), which its pose takes up as far as it can: ``s (J_p^T J_p)^-1 J_p^T J_s``
-    (the board nearer, and turned where the board is tilted)."""
+    (the board nearer, and turned where the board is tilted), from the photo's pieces of the normal equations
+    (:func:`focal_column`)."""
     p, lay = alone.problem, alone.problem.layout
     out = {}
-    for pr in photo_rows(p, alone.state):
-        c, view = p.blocks[pr.block][:2]
-        if view not in views:
-            continue
-        if len(lay.intrinsics[c]) < 2:                        # intrinsics held fixed (known): no focal change
-            out[(c, view)] = np.zeros(6)
-            continue
-        at = {int(k): i for i, k in enumerate(pr.columns)}
-        fx, fy = lay.intrinsics[c][:2]                        # fx and fy are free where any intrinsic is
-        J_s = alone.state.intrinsics[c][0] * pr.J[:, at[fx]] + alone.state.intrinsics[c][1] * pr.J[:, at[fy]]
-        J_p = pr.J[:, [at[k] for k in pose_columns(alone, view, c)]]
-        out[(c, view)] = np.linalg.solve(J_p.T @ J_p, J_p.T @ J_s)
+    for ph in alone.factorization.ne.photos:
+        c = ph.camera
+        column = focal_column(alone, ph)
+        pose = [int(np.flatnonzero(ph.local_slots == slot)[0]) for slot in lay.pose[c]]   # among the photos' own
+        for k, v in enumerate(ph.views):
+            view = p.views[v]
+            if view in views:
+                out[(c, view)] = np.zeros(6) if column is None else np.linalg.solve(
+                    ph.ll[k][np.ix_(pose, pose)], column[0][k][pose])
     return out
 
 
